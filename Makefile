@@ -1,0 +1,36 @@
+# Set-up and entry points. Needs only Python 3.11 on the machine; system
+# libraries that are optional at run time (PortAudio for masking audio,
+# Chromium for the browser tests) are installed by `make system-deps` (root).
+PYTHON ?= python3.11
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench venv system-deps clean
+
+$(STAMP): pyproject.toml
+	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found (set PYTHON=/path/to/python3.11)"; exit 1; }
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m renderer demo --device sim
+
+test: $(STAMP)
+	@$(PY) -c "import sounddevice" 2>/dev/null || echo "note: PortAudio (libportaudio2) missing: masking-audio tests will fail; run 'make system-deps' as root"
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) -m benchmarks
+
+# Debian packages: PortAudio for sounddevice, Chromium for the study's browser tests.
+system-deps:
+	apt-get update -qq
+	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 chromium chromium-driver
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,27 @@
+"""``python -m benchmarks``: run every ``benchmarks/bench_*.py`` (each has ``main()``) and print its figures."""
+
+from __future__ import annotations
+
+import importlib
+import pathlib
+import sys
+
+
+def main(argv=None) -> int:
+    names = sorted(p.stem for p in pathlib.Path(__file__).parent.glob("bench_*.py"))
+    wanted = set(argv or sys.argv[1:])
+    failed = 0
+    for name in names:
+        if wanted and name not in wanted and name.removeprefix("bench_") not in wanted:
+            continue
+        print(f"== {name}", flush=True)
+        try:
+            importlib.import_module(f"benchmarks.{name}").main()
+        except Exception as exc:  # keep going so one broken benchmark does not hide the others
+            failed += 1
+            print(f"   FAILED: {exc!r}", flush=True)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
