@@ -27,10 +27,11 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m benchmarks
 
-# Debian packages: PortAudio for sounddevice, Chromium for the study's browser tests.
+# Debian packages: PortAudio for sounddevice, Chromium for the study's browser tests,
+# the AVR toolchain to build the reference firmware (devices/firmware).
 system-deps:
 	apt-get update -qq
-	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 chromium chromium-driver
+	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 chromium chromium-driver gcc-avr binutils-avr avr-libc
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -7,7 +7,7 @@ import importlib
 import sys
 
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("stimuli.cli_build", "stimuli.cli_show")
 
 
 def main(argv=None) -> int:

@@ -7,7 +7,7 @@ import importlib
 import sys
 
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("study.cli_run",)
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,39 @@
+"""Analysis choices fixed before looking at the data (light module: no numpy/scipy imports)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+DEFAULT_REFERENCE = "wood_on_foam"
+DEFAULT_MARGIN = 0.5
+GROUPS = ("both", "all", "experienced")
+
+
+@dataclass(frozen=True)
+class AnalysisConfig:
+    """Choices fixed before looking at the data.
+
+    Attributes
+    ----------
+    reference : str
+        Sample the equivalence tests compare against (default ``wood_on_foam``, section 4.5.5).
+    margin : float
+        Equivalence margin in rating points (±), > 0.
+    group : str
+        ``both`` | ``all`` | ``experienced``: subject groups the tests are run for.
+    alpha : float
+        Significance level of the summary and of ``equivalent``.
+    """
+
+    reference: str = DEFAULT_REFERENCE
+    margin: float = DEFAULT_MARGIN
+    group: str = "both"
+    alpha: float = 0.05
+
+    def __post_init__(self):
+        if self.group not in GROUPS:
+            raise ValueError(f"--group must be all, experienced or both, not {self.group!r}")
+        if not (self.margin > 0):
+            raise ValueError(f"--margin must be > 0 rating points, got {self.margin}")
+        if not (0 < self.alpha < 1):
+            raise ValueError(f"--alpha must be in (0, 1), got {self.alpha}")

@@ -1,0 +1,479 @@
+"""Load and validate a folder of study sessions (schema of issue 6, docs/study.md).
+
+``DATA/<subject>/session.json`` + ``DATA/<subject>/trials.csv`` per subject.
+Reading is done with the ``csv`` module into one combined table and then
+validated column by column with numpy, so a thousand subject folders load in a
+fraction of a second. Every error names the file and line (and the column).
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import io
+import json
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+TRIAL_COLUMNS = (
+    "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
+    "valid", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m", "incoming_velocities_m_s",
+    "penetration_depths_m", "started_at", "duration_s",
+)
+BOOL_COLUMNS = ("rejected", "saturated", "overpowered", "valid")
+INT_COLUMNS = ("trial", "attempt", "n_taps")
+FLOAT_COLUMNS = ("incoming_velocity_mean_m_s", "penetration_mean_m", "duration_s")
+LIST_COLUMNS = ("incoming_velocities_m_s", "penetration_depths_m")
+PHASES = ("familiarization", "demonstration", "testing")
+KINDS = ("real", "virtual")
+EXPERIENCE = ("none", "few", "regular")
+# spellings of the subject-info form (section 4.5.3) accepted for the stored codes
+_EXPERIENCE_ALIASES = {"never": "none", "a few times": "few", "regularly": "regular"}
+RATING_MIN, RATING_MAX = 1, 7
+
+
+class AnalysisWarning(UserWarning):
+    """Something was excluded or looks inconsistent; the report repeats every one of these."""
+
+
+@dataclass(frozen=True)
+class Study:
+    """All attempts of all subjects, typed and validated.
+
+    Attributes
+    ----------
+    trials : pandas.DataFrame
+        One row per attempt, columns of :data:`TRIAL_COLUMNS` with parsed types (booleans, ints,
+        floats in SI units, ``rating`` float with NaN when none, lists kept as strings) plus
+        ``file`` (path of the trials.csv) and ``line`` (1-based line number in it).
+    subjects : pandas.DataFrame
+        One row per subject: ``subject, experience, age, gender, handedness, finished, folder``.
+    catalog : tuple of str
+        Sample names in catalog order (from ``session.json``'s ``catalog``).
+    kinds : dict
+        Sample name -> ``real`` | ``virtual`` (from the catalog, else from the rows).
+    warnings : tuple of str
+        Loading warnings (unfinished sessions, catalog differences, list/count mismatches).
+    taps : dict
+        For ``incoming_velocities_m_s`` and ``penetration_depths_m``: ``(values, row)``, every listed
+        value (m/s, m) flattened and the 0-based row of ``trials`` it belongs to.
+    """
+
+    trials: pd.DataFrame
+    subjects: pd.DataFrame
+    catalog: tuple
+    kinds: dict
+    warnings: tuple
+    taps: dict
+
+
+def _warn(messages: list, text: str) -> None:
+    messages.append(text)
+    warnings.warn(text, AnalysisWarning, stacklevel=3)
+
+
+def _subject_folders(data_dir: Path) -> list[Path]:
+    if not data_dir.exists():
+        raise FileNotFoundError(f"data folder {data_dir} does not exist")
+    if not data_dir.is_dir():
+        raise ValueError(f"{data_dir} is not a folder of subject folders")
+    if (data_dir / "session.json").is_file():   # a single subject folder given directly
+        return [data_dir]
+    with os.scandir(data_dir) as it:     # scandir: no stat per entry for the type, unlike Path.is_dir
+        names = sorted(e.name for e in it if e.is_dir() and not e.name.startswith("."))
+    sessions = [data_dir / n for n in names
+                if os.path.exists(os.path.join(data_dir, n, "session.json"))
+                or os.path.exists(os.path.join(data_dir, n, "trials.csv"))]
+    if not sessions:
+        raise ValueError(f"{data_dir}: no subject folders with session.json and trials.csv found "
+                         "(an empty data folder gives no report)")
+    return sessions
+
+
+def _catalog_names(raw, path: Path) -> tuple[list[str], dict]:
+    """Sample names and kinds from a session.json ``catalog`` (list of names or of objects with ``name``)."""
+    if isinstance(raw, dict):
+        raw = raw.get("samples", raw.get("catalog"))
+    if not isinstance(raw, list) or not raw:
+        raise ValueError(f"{path}: key 'catalog' must be a non-empty list of samples")
+    names, kinds = [], {}
+    for i, item in enumerate(raw):
+        if isinstance(item, str):
+            name = item
+        elif isinstance(item, dict) and isinstance(item.get("name"), str):
+            name = item["name"]
+            if item.get("kind") in KINDS:
+                kinds[name] = item["kind"]
+        else:
+            raise ValueError(f"{path}: key 'catalog' item {i} is neither a sample name nor an object with 'name'")
+        if name in names:
+            raise ValueError(f"{path}: key 'catalog' lists sample {name!r} twice")
+        names.append(name)
+    return names, kinds
+
+
+_last_catalog: list = [None, None]
+
+
+def _catalog_cached(raw, path: Path) -> tuple[list[str], dict]:
+    """:func:`_catalog_names`, reusing the previous result when the raw catalog is equal (the usual case)."""
+    if _last_catalog[0] is not None and raw == _last_catalog[0]:
+        names, kinds = _last_catalog[1]
+        return list(names), dict(kinds)
+    result = _catalog_names(raw, path)
+    _last_catalog[0], _last_catalog[1] = raw, (list(result[0]), dict(result[1]))
+    return result
+
+
+def read_session(path: Path) -> dict:
+    """Read and check one ``session.json``; errors name the file, line or key.
+
+    Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
+    finished``.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}, column {exc.colno})") from None
+    if not isinstance(raw, dict):
+        raise ValueError(f"{path}:1: session.json must hold a JSON object")
+    for key in ("subject", "experience", "catalog"):
+        if key not in raw:
+            raise ValueError(f"{path}: missing key {key!r}")
+    subject = raw["subject"]
+    if not isinstance(subject, str) or not subject:
+        raise ValueError(f"{path}: key 'subject' must be a non-empty string")
+    exp = raw["experience"]
+    exp = _EXPERIENCE_ALIASES.get(exp, exp) if isinstance(exp, str) else exp
+    if exp not in EXPERIENCE:
+        raise ValueError(f"{path}: key 'experience' is {raw['experience']!r}, expected one of {'|'.join(EXPERIENCE)}")
+    names, kinds = _catalog_cached(raw["catalog"], path)
+    return {
+        "subject": subject, "experience": exp, "catalog": names, "kinds": kinds,
+        "age": raw.get("age"), "gender": raw.get("gender"), "handedness": raw.get("handedness"),
+        "finished": raw.get("finished_at") is not None,
+    }
+
+
+def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
+    """Columns (in :data:`TRIAL_COLUMNS` order, tuples of str) of one trials.csv and each row's line number.
+
+    The third value is True when a torn last line (a crash mid-write, no final newline, wrong
+    number of fields) was left out; the caller warns.
+    """
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(reader, None)
+    if header is None:
+        raise ValueError(f"{path}:1: empty file, expected a header with columns {', '.join(TRIAL_COLUMNS)}")
+    header = [h.strip() for h in header]
+    missing = [c for c in TRIAL_COLUMNS if c not in header]
+    if missing:
+        extra = [h for h in header if h not in TRIAL_COLUMNS]
+        hints = []
+        for col in missing:
+            close = difflib.get_close_matches(col, extra, n=1, cutoff=0.6)
+            hints.append(f"{col!r} (found {close[0]!r}: misspelled?)" if close else repr(col))
+        raise ValueError(f"{path}:1: missing column(s) {', '.join(hints)}")
+    dup = sorted({h for h in header if header.count(h) > 1 and h in TRIAL_COLUMNS})
+    if dup:
+        raise ValueError(f"{path}:1: column(s) {', '.join(dup)} appear more than once")
+    width = len(header)
+    torn = False
+    if '"' not in text and "\r" not in text and text.endswith("\n"):
+        # the runner's plain format: no quoting, one row per line; columns by slicing one flat split
+        body = text[:-1].split("\n")[1:]
+        b = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+        nl = np.flatnonzero(b == 10)
+        commas = np.concatenate([[0], np.cumsum(b == 44)])[nl]       # commas before each newline
+        if len(body) == len(nl) - 1 and np.all(np.diff(commas) == width - 1):
+            flat = ",".join(body).split(",") if body else []
+            order = [header.index(c) for c in TRIAL_COLUMNS]
+            return [tuple(flat[j::width]) for j in order], list(range(2, len(body) + 2)), torn
+    rows = list(reader)
+    n_lines = text.count("\n") + (0 if text.endswith("\n") else 1)
+    if n_lines == len(rows) + 1 and all(len(r) == width for r in rows):
+        lines = list(range(2, len(rows) + 2))     # one row per line, no blank lines
+    else:                                         # blank lines, quoted newlines or a bad row: count exactly
+        reader = csv.reader(io.StringIO(text, newline=""))
+        next(reader)
+        all_rows = [(row, reader.line_num) for row in reader]
+        rows, lines = [], []
+        for k, (row, line) in enumerate(all_rows):
+            if not row:
+                continue
+            if len(row) != width:
+                if k == len(all_rows) - 1 and not text.endswith("\n"):
+                    torn = True
+                    continue
+                raise ValueError(f"{path}:{line}: {len(row)} fields, header has {width}")
+            rows.append(row)
+            lines.append(line)
+    if not rows:
+        return [() for _ in TRIAL_COLUMNS], lines, torn
+    cols = list(zip(*rows))
+    return [cols[header.index(c)] for c in TRIAL_COLUMNS], lines, torn
+
+
+def _fail(trials: pd.DataFrame, bad: np.ndarray, column: str, what: str, shown=None) -> None:
+    """Raise a ValueError naming file, line, column and value of the first bad row.
+
+    ``shown``: the raw strings of the column, when ``trials`` already holds parsed values.
+    """
+    i = int(np.flatnonzero(bad)[0])
+    n = int(bad.sum())
+    more = f" ({n - 1} more row(s) like it)" if n > 1 else ""
+    value = shown[i] if shown is not None else trials[column].iat[i]
+    if isinstance(value, (bool, np.bool_)):      # show parsed values as they are written in the file
+        value = "true" if value else "false"
+    elif isinstance(value, np.integer):
+        value = int(value)
+    elif isinstance(value, np.floating):
+        value = float(value)
+    raise ValueError(f"{trials['file'].iat[i]}:{trials['line'].iat[i]}: column {column!r}: "
+                     f"value {value!r} {what}{more}")
+
+
+def _to_float(values: np.ndarray) -> np.ndarray:
+    """Strings to float; empty or unparsable -> NaN (the caller tells which)."""
+    return pd.to_numeric(values, errors="coerce").astype(float, copy=False)
+
+
+def _parse_columns(t: pd.DataFrame) -> pd.DataFrame:
+    """Type the string columns in place of the raw ones; errors name file, line and column."""
+    out = {}
+    for col in BOOL_COLUMNS:
+        raw = t[col].to_numpy(dtype=object)
+        is_true = raw == "true"
+        bad = ~(is_true | (raw == "false"))
+        if bad.any():  # tolerate other capitalisations before failing
+            low = np.array([str(v).lower() for v in raw], dtype=object)
+            is_true = low == "true"
+            bad = ~(is_true | (low == "false"))
+            if bad.any():
+                _fail(t, bad, col, "is not true|false")
+        out[col] = is_true
+    for col in INT_COLUMNS:
+        num = _to_float(t[col].to_numpy(dtype=object))
+        bad = ~np.isfinite(num) | (num != np.round(num))
+        if bad.any():
+            _fail(t, bad, col, "is not an integer")
+        out[col] = num.astype(np.int64)
+    for col in FLOAT_COLUMNS + ("rating",):
+        raw = t[col].to_numpy(dtype=object)
+        num = _to_float(raw)
+        nan = np.isnan(num)
+        if nan.any():
+            text = np.array([str(v).strip().lower() for v in raw[nan]], dtype=object)
+            bad_sub = ~np.isin(text, ["", "nan", "x"])
+            if bad_sub.any():
+                bad = np.zeros(len(raw), dtype=bool)
+                bad[np.flatnonzero(nan)[bad_sub]] = True
+                _fail(t, bad, col, "is not a number (leave it empty when there is none)")
+        out[col] = num
+    for col in ("phase", "kind"):
+        allowed = PHASES if col == "phase" else KINDS
+        bad = ~t[col].isin(allowed).to_numpy()
+        if bad.any():
+            _fail(t, bad, col, f"is not one of {'|'.join(allowed)}")
+    parsed = t.copy()
+    for col, values in out.items():
+        parsed[col] = values
+    return parsed
+
+
+def _check_ratings(t: pd.DataFrame, raw: np.ndarray) -> None:
+    r = t["rating"].to_numpy()
+    valid = t["valid"].to_numpy()
+    present = ~np.isnan(r)
+    in_range = present & (r >= RATING_MIN) & (r <= RATING_MAX) & (r == np.round(r))
+    testing = (t["phase"] == "testing").to_numpy()
+    bad = valid & testing & ~in_range
+    if bad.any():
+        _fail(t, bad, "rating", f"must be an integer {RATING_MIN}-{RATING_MAX} on a valid testing attempt", raw)
+    bad = valid & present & ~in_range
+    if bad.any():
+        _fail(t, bad, "rating", f"is outside {RATING_MIN}-{RATING_MAX} on a valid attempt", raw)
+
+
+def _check_consistency(t: pd.DataFrame, kinds: dict) -> None:
+    """Counters >= their minimum, ``valid`` not true on a flagged attempt, ``kind`` as in the catalog."""
+    for col, low in (("trial", 1), ("attempt", 1), ("n_taps", 0)):
+        bad = t[col].to_numpy() < low
+        if bad.any():
+            _fail(t, bad, col, f"must be >= {low}")
+    flagged = t["rejected"].to_numpy() | t["saturated"].to_numpy() | t["overpowered"].to_numpy()
+    bad = t["valid"].to_numpy() & flagged
+    if bad.any():
+        _fail(t, bad, "valid", "is true on an attempt marked rejected, saturated or overpowered")
+    if kinds:
+        expected = t["sample"].map(kinds).to_numpy(dtype=object)
+        bad = pd.notna(expected) & (t["kind"].to_numpy(dtype=object) != expected)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            _fail(t, bad, "kind", f"differs from the catalog's kind {expected[i]!r} of sample {t['sample'].iat[i]!r}")
+
+
+def _check_duplicates(t: pd.DataFrame) -> None:
+    key = ["subject", "phase", "trial", "attempt"]
+    dup = t.duplicated(key, keep=False).to_numpy()
+    if dup.any():
+        i = int(np.flatnonzero(dup)[0])
+        same = t.iloc[np.flatnonzero(dup)]
+        row = t.iloc[i]
+        same = same[(same["subject"] == row["subject"]) & (same["phase"] == row["phase"])
+                    & (same["trial"] == row["trial"]) & (same["attempt"] == row["attempt"])]
+        where = ", ".join(f"{f}:{ln}" for f, ln in zip(same["file"], same["line"]))
+        raise ValueError(f"duplicated attempt (subject={row['subject']}, phase={row['phase']}, trial={row['trial']}, "
+                         f"attempt={row['attempt']}) at {where}")
+
+
+def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All numbers of a semicolon-separated list column, flattened, with the row each came from.
+
+    Parameters
+    ----------
+    values : sequence of str, shape (n_rows,)
+        Cells such as ``"0.11;0.09"`` (empty cell = empty list).
+    files, lines : sequences, shape (n_rows,)
+        File and line of each row, for the error message.
+    column : str
+
+    Returns
+    -------
+    numbers : ndarray, shape (n_values,)
+    row : ndarray of int, shape (n_values,)
+        0-based position in ``values`` of the row of each number.
+    counts : ndarray of int, shape (n_rows,)
+        List length per row.
+    """
+    cells = list(values)
+    text = "|".join(cells)
+    b = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    seps = b[(b == ord(";")) | (b == ord("|"))]
+    if int(np.count_nonzero(seps == ord("|"))) != max(len(cells) - 1, 0):
+        _bad_list_cell(cells, files, lines, column)         # a '|' inside a cell
+    token_row = np.concatenate([[0], np.cumsum(seps == ord("|"))]).astype(np.int64)
+    tokens = np.array(text.replace("|", ";").split(";"), dtype=object)
+    keep = tokens != ""
+    numbers = pd.to_numeric(tokens[keep], errors="coerce").astype(float, copy=False)
+    if np.isnan(numbers).any() and not all(t.strip().lower() == "nan" for t in tokens[keep][np.isnan(numbers)]):
+        _bad_list_cell(cells, files, lines, column)
+    row = token_row[keep]
+    return numbers, row, np.bincount(row, minlength=len(cells))
+
+
+def _bad_list_cell(cells, files, lines, column) -> None:
+    for i, v in enumerate(cells):
+        try:
+            [float(x) for x in v.split(";")] if v.strip() else None
+        except ValueError:
+            raise ValueError(f"{files[i]}:{lines[i]}: column {column!r}: {v!r} is not a "
+                             "semicolon-separated list of numbers") from None
+    raise ValueError(f"column {column!r}: a cell is not a semicolon-separated list of numbers")
+
+
+def load_study(data_dir) -> Study:
+    """Load and validate every subject folder under ``data_dir``.
+
+    Parameters
+    ----------
+    data_dir : path
+        Folder of subject folders (or one subject folder).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        With the file and line (and column or key) of the first problem.
+    """
+    data_dir = Path(data_dir)
+    messages: list[str] = []
+    folders = _subject_folders(data_dir)
+    catalog: list[str] = []
+    kinds: dict = {}
+    subj_rows, all_lines, file_of_row = [], [], []
+    columns: list[list[str]] = [[] for _ in TRIAL_COLUMNS]
+    seen_subjects: dict = {}
+    for folder in folders:
+        sess_path = folder / "session.json"
+        sess = read_session(sess_path)
+        if sess["subject"] in seen_subjects:
+            raise ValueError(f"{sess_path}: subject {sess['subject']!r} also in {seen_subjects[sess['subject']]}")
+        seen_subjects[sess["subject"]] = sess_path
+        if not catalog:
+            catalog = list(sess["catalog"])
+        elif sess["catalog"] != catalog:
+            added = [s for s in sess["catalog"] if s not in catalog]
+            _warn(messages, f"{sess_path}: catalog differs from the first session's"
+                            + (f" (adds {', '.join(added)})" if added else " (order or subset)"))
+            catalog.extend(added)
+        for name, kind in sess["kinds"].items():
+            kinds.setdefault(name, kind)
+        if not sess["finished"]:
+            _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
+                            "its attempts are used as far as they go")
+        trials_path = folder / "trials.csv"
+        cols, lines, torn = _read_trials_columns(trials_path)
+        if torn:
+            _warn(messages, f"{trials_path}: torn last line (a crash while writing?) left out")
+        for acc, col in zip(columns, cols):
+            acc.extend(col)
+        all_lines.extend(lines)
+        file_of_row.append((str(trials_path), len(lines)))
+        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished")}
+                         | {"folder": str(folder), "session_file": str(sess_path), "trials_file": str(trials_path)})
+    subjects = pd.DataFrame(subj_rows)
+    # object dtype: pandas' own string dtype costs more to build than the checks gain
+    trials = pd.DataFrame({c: np.array(columns[i], dtype=object) for i, c in enumerate(TRIAL_COLUMNS)},
+                          dtype=object)
+    del columns  # drop the per-value lists before the statistics (statsmodels' Holm calls gc.collect)
+    trials["file"] = np.repeat([f for f, _ in file_of_row], [n for _, n in file_of_row]).astype(object)
+    trials["line"] = np.array(all_lines, dtype=np.int64)
+    raw_rating = trials["rating"].to_numpy(dtype=object)
+    trials = _parse_columns(trials)
+
+    expected_subject = np.repeat(subjects["subject"].to_numpy(dtype=object), [n for _, n in file_of_row])
+    bad = (trials["subject"].to_numpy(dtype=object) != expected_subject)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        _fail(trials, bad, "subject", f"differs from session.json's subject {expected_subject[i]!r}")
+    bad = ~trials["sample"].isin(catalog).to_numpy()
+    if bad.any():
+        _fail(trials, bad, "sample", f"is not in the catalog of session.json ({', '.join(catalog)})")
+    _check_consistency(trials, kinds)
+    _check_ratings(trials, raw_rating)
+    _check_duplicates(trials)
+    for name, kind in trials.groupby("sample", sort=False)["kind"].first().items():
+        kinds.setdefault(name, kind)
+
+    files, lines = trials["file"].to_numpy(dtype=object), trials["line"].to_numpy()
+    n_taps = trials["n_taps"].to_numpy()
+    testing_valid = (trials["phase"] == "testing").to_numpy() & trials["valid"].to_numpy()
+    taps = {}
+    for col in LIST_COLUMNS:
+        numbers, row, counts = parse_lists(trials[col].to_numpy(dtype=object), files, lines, col)
+        taps[col] = (numbers, row)
+        mism = testing_valid & (counts != n_taps)
+        if mism.any():
+            i = int(np.flatnonzero(mism)[0])
+            _warn(messages, f"{int(mism.sum())} valid testing attempt(s) list a number of {col} different from "
+                            f"n_taps (first at {files[i]}:{lines[i]}); the listed values are used")
+    if trials.empty:
+        raise ValueError(f"{data_dir}: the trials.csv files hold no attempts")
+    return Study(trials=trials, subjects=subjects, catalog=tuple(catalog), kinds=kinds, warnings=tuple(messages),
+                 taps=taps)

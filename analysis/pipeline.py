@@ -1,0 +1,102 @@
+"""Whole analysis of a study folder: load, validate, tables, exclusion warnings (no figures)."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from analysis import stats
+from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig  # noqa: F401 (re-export)
+from analysis.load import AnalysisWarning, Study, load_study
+
+@dataclass(frozen=True)
+class Analysis:
+    """Every table of the report plus the warnings (each also raised as :class:`AnalysisWarning`)."""
+
+    study: Study
+    config: AnalysisConfig
+    matrix: stats.RatingMatrix
+    summary: pd.DataFrame
+    pairwise: pd.DataFrame
+    anova: pd.DataFrame
+    equivalence: pd.DataFrame
+    velocity: pd.DataFrame
+    attempts: pd.DataFrame
+    exclusions: pd.DataFrame
+    warnings: tuple
+
+
+def _exclusion_table(matrix: stats.RatingMatrix, group_names) -> pd.DataFrame:
+    miss = stats.missing_samples(matrix)
+    exp = dict(zip(matrix.subjects, matrix.experience))
+    rows = []
+    for subject, samples in miss.items():
+        in_groups = [g for g in group_names if g == "all" or exp[subject] != "none"]
+        rows.append({"subject": subject, "experience": exp[subject], "missing_samples": ";".join(samples),
+                     "excluded_from": "rm_anova, friedman, and pairwise/equivalence tests involving "
+                                      + ", ".join(samples),
+                     "groups": ";".join(in_groups)})
+    return pd.DataFrame(rows, columns=["subject", "experience", "missing_samples", "excluded_from", "groups"])
+
+
+def analyse(data_dir, config: AnalysisConfig | None = None) -> Analysis:
+    """Run every table of issue 7 on the study in ``data_dir``.
+
+    Raises ValueError/FileNotFoundError on bad input (see :func:`analysis.load.load_study`).
+    """
+    config = config or AnalysisConfig()
+    study = load_study(Path(data_dir))
+    messages = list(study.warnings)
+
+    def warn(text):
+        messages.append(text)
+        warnings.warn(text, AnalysisWarning, stacklevel=2)
+
+    if config.reference not in study.catalog:
+        raise ValueError(f"--reference {config.reference!r} is not a sample of the catalog "
+                         f"({', '.join(study.catalog)})")
+    matrix = stats.rating_matrix(study)
+    no_data = [s for s, c in zip(matrix.subjects, matrix.counts.sum(axis=1)) if c == 0]
+    if no_data:
+        warn(f"{len(no_data)} subject(s) have no valid testing attempt and are left out of every test: "
+             + ", ".join(map(str, no_data)))
+    selected = stats.groups(matrix, config.group)
+    exclusions = _exclusion_table(matrix, list(selected))
+    if len(exclusions):
+        detail = "; ".join(f"{r.subject} ({r.missing_samples.replace(';', ', ')})" for r in exclusions.itertuples())
+        warn(f"{len(exclusions)} subject(s) miss sample(s) and are excluded from the tests needing them "
+             f"(RM-ANOVA/Friedman need every sample; pairwise and equivalence tests need both samples): {detail}")
+    pair_tables, anova_tables, eq_tables = [], [], []
+    for name, m in selected.items():
+        if len(m.subjects) < 2:
+            warn(f"group {name!r} has {len(m.subjects)} subject(s): its tests give no result (need 2 or more)")
+        pair_tables.append(stats.pairwise_ttests(m, name))
+        anova_tables.append(stats.omnibus(m, name))
+        eq_tables.append(stats.equivalence(m, name, config.reference, config.margin, config.alpha))
+    return Analysis(
+        study=study, config=config, matrix=matrix, summary=stats.sample_summary(study, matrix),
+        pairwise=pd.concat(pair_tables, ignore_index=True), anova=pd.concat(anova_tables, ignore_index=True),
+        equivalence=pd.concat(eq_tables, ignore_index=True), velocity=stats.velocity_rating(study),
+        attempts=stats.attempt_counts(study), exclusions=exclusions, warnings=tuple(messages))
+
+
+TABLE_FILES = {
+    "sample_summary.csv": "summary", "pairwise_ttests.csv": "pairwise", "anova.csv": "anova",
+    "equivalence.csv": "equivalence", "velocity_rating.csv": "velocity", "attempts.csv": "attempts",
+    "exclusions.csv": "exclusions",
+}
+
+
+def write_tables(result: Analysis, out_dir) -> list[Path]:
+    """Write every table as CSV into ``out_dir`` (created); returns the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for filename, attr in TABLE_FILES.items():
+        path = out / filename
+        getattr(result, attr).to_csv(path, index=False, float_format="%.6g")
+        paths.append(path)
+    return paths

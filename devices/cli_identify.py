@@ -1,0 +1,186 @@
+"""``python -m devices identify`` (record + fit a grip-dependent model set) and ``python -m devices fit``
+(fit a model offline from recordings); formats in docs/models.md."""
+
+from __future__ import annotations
+
+import argparse
+from collections import OrderedDict
+from pathlib import Path
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _order(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--order must be 'auto' or an integer, got {text!r}") from None
+    return n
+
+
+def _delay(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--delay must be 'auto' or a number of seconds, got {text!r}") from None
+
+
+def _fit_options_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--order", type=_order, default="auto", help="number of poles, or 'auto' (default): "
+                   "chosen from the error-versus-order table")
+    p.add_argument("--max-order", type=int, default=14, help="largest order tried by --order auto (default 14)")
+    p.add_argument("--delay", type=_delay, default="auto", help="pure delay in s, or 'auto' (default)")
+    p.add_argument("--max-rms-db", type=float, default=3.0,
+                   help="requested RMS magnitude error; a worse fit writes nothing (default 3 dB)")
+    p.add_argument("--max-rms-phase-deg", type=float, default=20.0,
+                   help="requested RMS phase error; a worse fit writes nothing (default 20 deg)")
+    p.add_argument("--no-coherence-weight", action="store_true", help="do not weight bins by coherence")
+    p.add_argument("--min-phase", action="store_true",
+                   help="mirror right-half-plane zeros into the left half plane and re-fit the delay (models "
+                        "meant for inversion, section 4.2.2); the reported errors include the change")
+    p.add_argument("--detrend", choices=("ramp", "periodic"), default="ramp",
+                   help="ETFE detrending: 'ramp' (thesis eq. 3.13-3.14, default) or 'periodic' (remove only the "
+                        "drift between the two sweep copies; exact in the lowest bins)")
+
+
+def _fit_options(args, band=None, weight="mean"):
+    from .identify.fit import FitOptions
+
+    return FitOptions(band_hz=band, order=args.order, max_order=max(args.max_order, 1), delay_s=args.delay,
+                      weight=weight, use_coherence=not args.no_coherence_weight, max_rms_db=args.max_rms_db,
+                      max_rms_phase_deg=args.max_rms_phase_deg, minimum_phase=args.min_phase)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "identify", help="record swept sines at several grips and fit a model set (H_ha and G_i)",
+        description="Play swept-sine current commands (thesis eq. 3.11-3.12, twice back to back) while the user "
+                    "holds the handle at each grip level, estimate ETFEs, fit stable zpk models with delay for "
+                    "handle acceleration and position, validate on transients, and write recordings, one model "
+                    "JSON per grip and output, model_set.json, Bode PNGs and a fit report into --out.")
+    p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, hid:VID:PID)")
+    p.add_argument("--grip", type=_floats, default=(0.0, 1.0, 2.0, 3.0, 4.0),
+                   help="comma-separated grip levels in N (default 0,1,2,3,4)")
+    p.add_argument("--trials", type=int, default=4, help="good trials per grip, half reversed (default 4)")
+    p.add_argument("--amplitude", type=float, default=0.75, help="sweep amplitude in A (default 0.75)")
+    p.add_argument("--f-start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
+    p.add_argument("--f-end", type=float, default=1000.0, help="sweep end frequency f_f in Hz (default 1000)")
+    p.add_argument("--duration", type=float, default=2.0, help="one sweep's duration in s (default 2)")
+    p.add_argument("--repetitions", type=int, default=2, help="sweep copies back to back (default 2)")
+    p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="fit band in Hz (default: 10 Hz to f_end, position limited by encoder resolution)")
+    p.add_argument("--no-reverse", action="store_true",
+                   help="do not reverse the sweep polarity for the second half of the trials")
+    p.add_argument("--no-validate", action="store_true", help="skip the time-domain validation on transients")
+    p.add_argument("--seed", type=int, default=0, help="sim noise seed")
+    _fit_options_args(p)
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=run_identify)
+
+    q = subparsers.add_parser(
+        "fit", help="fit a model to swept-sine recordings made anywhere",
+        description="Fit a stable zpk model with pure delay to the ETFE of one or more recordings (CSV "
+                    "t_s,current_A,accel_m_s2,position_m,grip_N plus a JSON sidecar of the same name). "
+                    "Recordings with the same sidecar 'condition' (else the same grip to 0.5 N and amplitude) "
+                    "are complex-averaged into one curve; several curves are combined by --weight.")
+    q.add_argument("recordings", nargs="+", help="recording CSV files")
+    q.add_argument("--output", choices=("accel_m_s2", "position_m"), default="accel_m_s2",
+                   help="which output to model (default accel_m_s2, H_ha)")
+    q.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="fit band in Hz (default: 10 Hz to the sweep's end, limited by quantization)")
+    q.add_argument("--weight", choices=("high", "low", "mean"), default="mean",
+                   help="combine several curves by their upper envelope (HFAM), lower envelope "
+                        "(cancellation) or mean (default)")
+    q.add_argument("--plot", default=None, help="also write a Bode PNG here")
+    q.add_argument("--validate", nargs="+", default=(), metavar="TRANSIENTS.csv",
+                   help="time-domain validation (section 3.4.5): simulate the model on the commanded current of "
+                        "these recordings (columns t_s,current_A,<output>) and print the NRMSE against the measured "
+                        "output (e.g. recordings/transients_g2N.csv written by identify)")
+    _fit_options_args(q)
+    q.add_argument("--out", required=True, help="model JSON to write")
+    q.set_defaults(func=run_fit)
+
+
+def run_identify(args) -> int:
+    from .identify.pipeline import IdentifyConfig, identify_device
+    from .identify.sweep import SweepConfig
+    from .registry import make_device
+
+    dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
+    with dev:
+        sweep = SweepConfig(amplitude_A=args.amplitude, f_start_hz=args.f_start, f_end_hz=args.f_end,
+                            duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
+        band = tuple(args.band) if args.band else None
+        cfg = IdentifyConfig(grips_N=args.grip, trials=args.trials, sweep=sweep,
+                             accel_options=_fit_options(args, band, "mean"),
+                             position_options=_fit_options(args, band, "mean"), validate=not args.no_validate,
+                             detrend=args.detrend, reverse_half=not args.no_reverse)
+        report = identify_device(dev, cfg, args.out, device_spec=args.device)
+    from .identify.pipeline import format_report
+
+    print(format_report(report), end="")
+    print(f"wrote {Path(args.out) / 'model_set.json'}, models, bode_accel.png, bode_position.png, report.txt")
+    return 0
+
+
+def group_recordings(recs) -> "OrderedDict[str, list]":
+    """Curves from recordings: by sidecar 'condition', else by grip (0.5 N) and amplitude."""
+    groups: OrderedDict[str, list] = OrderedDict()
+    for rec in recs:
+        key = rec.meta.get("condition")
+        if not key:
+            g = rec.meta.get("grip_mean_N")
+            if g is None:
+                a, b = rec.sweep.n_samples, 2 * rec.sweep.n_samples
+                g = float(rec.grip_N[a:b].mean()) if rec.grip_N.size >= b else float(rec.grip_N.mean())
+            key = f"grip {round(g * 2) / 2:g} N, {rec.sweep.amplitude_A:g} A"
+        groups.setdefault(str(key), []).append(rec)
+    return groups
+
+
+def run_fit(args) -> int:
+    from .identify.etfe import etfe
+    from .identify.figures import bode_plot
+    from .identify.fit import fit_etfes
+    from .identify.recording import read_recording
+
+    recs = [read_recording(p) for p in args.recordings]
+    groups = group_recordings(recs)
+    curves = [etfe(rs, args.output, label=f"{key} ({len(rs)} trials)", detrend=args.detrend)
+              for key, rs in groups.items()]
+    band = tuple(args.band) if args.band else None
+    opts = _fit_options(args, band, args.weight)
+    grips = {c.grip_N for c in curves}
+    grip = curves[0].grip_N if len(grips) == 1 else None
+    src = "python -m devices fit " + " ".join(str(p) for p in args.recordings)
+    result = fit_etfes(curves, opts, source=src, grip_N=grip)  # FitError (a ValueError): nothing written
+    out = result.model.save(args.out)
+    m = result.metrics
+    print("order  RMS dB  RMS deg")
+    for row in result.table:
+        mark = " <- chosen" if row["order"] == m["order"] else ""
+        print(f"{row['order']:5d} {row['rms_db']:7.2f} {row['rms_phase_deg']:8.1f}{mark}")
+    print(f"{len(curves)} curve(s), {len(recs)} recording(s), weight {args.weight}, band "
+          f"{result.model.band_hz[0]:.1f}-{result.model.band_hz[1]:.1f} Hz: order {m['order']}, "
+          f"delay {m['delay_s'] * 1e3:.3f} ms, RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, "
+          f"worst band {m['worst_band_db']:.2f} dB")
+    if args.plot:
+        bode_plot(curves, [result.model], args.plot, title=f"{args.output}: ETFE (solid) and fitted model (dashed)")
+        print(f"wrote {args.plot}")
+    for path in args.validate:
+        from .identify.validate import read_transient_recording, validate_model
+
+        fs, u, y = read_transient_recording(path, args.output)
+        v = validate_model(result.model, u, y, fs)
+        print(f"validation on {path}: NRMSE {v['nrmse']:.3f} ({u.size} samples at {fs:g} Hz)")
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,204 @@
+"""Record, fit, validate and save a grip-dependent model set for a device (sections 3.4.1-3.4.6)."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..base import Device
+from .etfe import Etfe, etfe
+from .figures import bode_plot
+from .fit import FitError, FitOptions, fit_etfes
+from .modelset import ModelSet
+from .record import record_condition
+from .recording import write_recording
+from .sweep import SweepConfig
+from .validate import record_transients, validate_model, write_transient_recording
+
+OUTPUT_SHORT = {"accel_m_s2": "accel", "position_m": "position"}
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """What :func:`identify_device` does.
+
+    Attributes
+    ----------
+    grips_N : tuple of float
+        Grip levels (strictly increasing).
+    trials : int
+        Good trials per grip (half with reversed polarity).
+    sweep : SweepConfig
+        ``fs_hz`` must equal the device's servo rate.
+    accel_options, position_options : FitOptions
+        Fit options for H_ha and G_i (band None: automatic, see ``fit.default_band``).
+    validate : bool
+        Play contact-like transients at each grip and report the accel model's NRMSE.
+    validation_amplitude_A : float
+    detrend : {"ramp", "periodic"}
+        ETFE detrending (see :func:`devices.identify.etfe.etfe`).
+    reverse_half : bool
+        Reverse the sweep's polarity for the second half of the trials (sec. 3.4.1).
+    """
+
+    grips_N: tuple = (0.0, 1.0, 2.0, 3.0, 4.0)
+    trials: int = 4
+    sweep: SweepConfig = field(default_factory=SweepConfig)
+    accel_options: FitOptions = field(default_factory=FitOptions)
+    position_options: FitOptions = field(default_factory=FitOptions)
+    validate: bool = True
+    validation_amplitude_A: float = 1.0
+    detrend: str = "ramp"
+    reverse_half: bool = True
+
+    def __post_init__(self) -> None:
+        g = list(self.grips_N)
+        if not g or any(not np.isfinite(x) or x < 0 for x in g) or any(b <= a for a, b in zip(g, g[1:])):
+            raise ValueError(f"grip levels must be finite, >= 0 and strictly increasing, got {self.grips_N!r}")
+        if not (isinstance(self.trials, int) and 1 <= self.trials <= 50):
+            raise ValueError(f"trials must be an integer 1..50, got {self.trials!r}")
+
+
+def _fit_one(curve: Etfe, options: FitOptions, source: str):
+    """(FitResult, None), or (None, reason) when the curve cannot be fitted to the requested error or has
+    no usable band / data (e.g. an output that never moved)."""
+    try:
+        return fit_etfes([curve], options, source=source, grip_N=curve.grip_N), None
+    except FitError as exc:
+        return None, str(exc)
+    except ValueError as exc:
+        return None, f"cannot fit {curve.output}: {exc}"
+
+
+def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device_spec: str = "") -> dict:
+    """Identify H_ha and G_i at every grip level of ``cfg`` and write the results to ``out_dir``.
+
+    Writes ``recordings/g<g>N_t<k>.csv`` (+ ``.json``), the validation transients
+    ``recordings/transients_g<g>N.csv``, the model set
+    (``accel_g<g>N.json``, ``position_g<g>N.json``, ``model_set.json``),
+    ``bode_accel.png``, ``bode_position.png`` and ``report.json`` /
+    ``report.txt``. A grip level whose fit misses the requested error is
+    reported and left out of the set; if no grip level fits, nothing but the
+    recordings and the report is written and ValueError is raised.
+
+    Returns
+    -------
+    dict
+        The report (also in ``report.json``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sweep = cfg.sweep
+    t_start = time.perf_counter()
+    curves = {o: [] for o in OUTPUT_SHORT}
+    fits = {o: [] for o in OUTPUT_SHORT}
+    rows = []
+    for g in cfg.grips_N:
+        recs = record_condition(dev, sweep, float(g), cfg.trials, reverse_half=cfg.reverse_half, log=log)
+        for k, rec in enumerate(recs):
+            rec.meta["condition"] = f"grip {g:g} N"
+            write_recording(out / "recordings" / f"g{g:g}N_t{k}.csv", rec)
+        row = {"grip_N": float(g), "grip_measured_N": float(np.mean([r.meta["grip_mean_N"] for r in recs])),
+               "trials": len(recs)}
+        for output, opts in (("accel_m_s2", cfg.accel_options), ("position_m", cfg.position_options)):
+            curve = etfe(recs, output, label=f"grip {g:g} N", detrend=cfg.detrend)
+            curves[output].append(curve)
+            src = f"python -m devices identify --device {device_spec or dev.info.name}, grip {g:g} N, " \
+                  f"{len(recs)} trials"
+            res, err = _fit_one(curve, opts, src)
+            fits[output].append(res)
+            short = OUTPUT_SHORT[output]
+            if res is None:
+                row[short] = {"error": err}
+                log(f"grip {g:g} N {short}: FIT FAILED: {err}")
+                continue
+            m = res.metrics
+            row[short] = {k: m[k] for k in ("rms_db", "rms_phase_deg", "worst_band_db", "order", "delay_s")}
+            row[short]["band_hz"] = list(res.model.band_hz)
+            row[short]["coherence_mean"] = m["coherence_mean"]
+            row[short]["peak_hz"], row[short]["peak_db"] = main_resonance(curve, res.model.band_hz)
+            log(f"grip {g:g} N {short}: order {m['order']}, delay {m['delay_s'] * 1e3:.3f} ms, "
+                f"RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, worst band {m['worst_band_db']:.2f} dB "
+                f"over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz")
+        if cfg.validate and fits["accel_m_s2"][-1] is not None:
+            u, a, x, windows = record_transients(dev, cfg.validation_amplitude_A, float(g))
+            write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", sweep.fs_hz, u, a, x, g)
+            v = validate_model(fits["accel_m_s2"][-1].model, u, a, sweep.fs_hz, windows)
+            row["validation"] = {"nrmse": v["nrmse"], "nrmse_per_transient": v["nrmse_per_transient"]}
+            log(f"grip {g:g} N accel time-domain validation: NRMSE {v['nrmse']:.3f} "
+                f"(per transient {', '.join(f'{x:.3f}' for x in v['nrmse_per_transient'])})")
+        rows.append(row)
+
+    report = {"device": device_spec or dev.info.name, "sweep": {
+        "fs_hz": sweep.fs_hz, "f_start_hz": sweep.f_start_hz, "f_end_hz": sweep.f_end_hz,
+        "duration_s": sweep.duration_s, "amplitude_A": sweep.amplitude_A, "repetitions": sweep.repetitions},
+        "trials": cfg.trials, "grips": rows}
+    ok = [i for i, g in enumerate(cfg.grips_N) if any(fits[o][i] is not None for o in OUTPUT_SHORT)]
+    written = []
+    if ok:
+        models = {o: [fits[o][i].model if fits[o][i] is not None else None for i in ok] for o in OUTPUT_SHORT}
+        models = {o: ms for o, ms in models.items() if any(m is not None for m in ms)}
+        mset = ModelSet(np.array([cfg.grips_N[i] for i in ok], dtype=float), models)
+        written.append(str(mset.save(out)))
+    for output, short in OUTPUT_SHORT.items():
+        models = [f.model if f is not None else None for f in fits[output]]
+        written.append(str(bode_plot(curves[output], models, out / f"bode_{short}.png",
+                                     title=f"{report['device']}: {short} ETFE per grip (solid), fitted models "
+                                           "(dashed)")))
+    report["written"] = written
+    report["model_set_grips_N"] = [float(cfg.grips_N[i]) for i in ok]
+    report["elapsed_s"] = time.perf_counter() - t_start
+    _write_json(out / "report.json", report)
+    (out / "report.txt").write_text(format_report(report))
+    if not ok:
+        raise ValueError(f"no grip level could be fitted to the requested error; see {out / 'report.txt'}; "
+                         "no model set written")
+    return report
+
+
+def main_resonance(curve: Etfe, band_hz) -> tuple[float, float]:
+    """(frequency Hz, magnitude dB) of the ETFE's highest resonance peak in the band.
+
+    A peak is a local maximum standing at least 1 dB above its surroundings;
+    without one, the band's maximum.
+    """
+    from scipy.signal import find_peaks
+
+    sel = (curve.f_hz >= band_hz[0]) & (curve.f_hz <= band_hz[1])
+    f, db = curve.f_hz[sel], 20 * np.log10(np.abs(curve.H[sel]))
+    peaks, _ = find_peaks(db, prominence=1.0)
+    i = int(peaks[np.argmax(db[peaks])]) if peaks.size else int(np.argmax(db))
+    return float(f[i]), float(db[i])
+
+
+def format_report(report: dict) -> str:
+    """Human-readable fit report (one line per grip and output)."""
+    lines = [f"identification of {report['device']}: sweep {report['sweep']['f_start_hz']:g}-"
+             f"{report['sweep']['f_end_hz']:g} Hz, {report['sweep']['duration_s']:g} s x "
+             f"{report['sweep']['repetitions']}, {report['sweep']['amplitude_A']:g} A, {report['trials']} trials",
+             f"{'grip N':>7} {'output':>9} {'order':>5} {'delay ms':>8} {'RMS dB':>7} {'RMS deg':>7} "
+             f"{'worst dB':>8} {'band Hz':>11} {'peak Hz':>7} {'peak dB':>7} {'NRMSE':>6}"]
+    for row in report["grips"]:
+        for short in ("accel", "position"):
+            r = row.get(short, {})
+            if "error" in r:
+                lines.append(f"{row['grip_N']:7.2f} {short:>9}  FIT FAILED: {r['error']}")
+                continue
+            nr = row.get("validation", {}).get("nrmse") if short == "accel" else None
+            lines.append(f"{row['grip_N']:7.2f} {short:>9} {r['order']:5d} {r['delay_s'] * 1e3:8.3f} "
+                         f"{r['rms_db']:7.2f} {r['rms_phase_deg']:7.1f} {r['worst_band_db']:8.2f} "
+                         f"{r['band_hz'][0]:5.0f}-{r['band_hz'][1]:<5.0f} {r['peak_hz']:7.1f} {r['peak_db']:7.1f} "
+                         f"{'' if nr is None else f'{nr:6.3f}'}")
+    lines.append(f"model set grips: {report['model_set_grips_N']}; elapsed {report['elapsed_s']:.1f} s")
+    return "\n".join(lines) + "\n"
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")
+    os.replace(tmp, path)

@@ -1,0 +1,204 @@
+"""Swept-sine identification recordings: CSV + JSON sidecar (format in docs/models.md).
+
+``REC.csv`` has the header ``t_s,current_A,accel_m_s2,position_m,grip_N`` and
+one row per servo sample; ``REC.json`` (same stem) holds at least
+``fs_hz, f_start_hz, f_end_hz, duration_s, amplitude_A, repetitions``.
+Reading validates both and refuses NaN, dropped samples, too short records
+and sweep bands above Nyquist, naming the file, key and line.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .sweep import SweepConfig
+
+COLUMNS = ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N")
+SIDECAR_KEYS = ("fs_hz", "f_start_hz", "f_end_hz", "duration_s", "amplitude_A", "repetitions")
+# a step of t_s further than this fraction of a sample period from 1/fs_hz is a dropped/duplicated sample
+GAP_TOLERANCE = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """One swept-sine trial: command and responses sampled at ``sweep.fs_hz``.
+
+    Attributes
+    ----------
+    sweep : SweepConfig
+    t_s, current_A, accel_m_s2, position_m, grip_N : ndarray of float, shape (n,)
+        Sample times (s), commanded current (A), handle acceleration (m/s^2),
+        handle position (m) and grip force (N). ``n >= sweep.repetitions * N``.
+    meta : dict
+        The rest of the sidecar (polarity, grip target, device, trial, ...).
+    path : Path or None
+        The CSV file it was read from / written to.
+    """
+
+    sweep: SweepConfig
+    t_s: np.ndarray
+    current_A: np.ndarray
+    accel_m_s2: np.ndarray
+    position_m: np.ndarray
+    grip_N: np.ndarray
+    meta: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    def signal(self, name: str) -> np.ndarray:
+        """Column by name (one of ``COLUMNS``)."""
+        if name not in COLUMNS:
+            raise ValueError(f"unknown recording column {name!r}; columns: {', '.join(COLUMNS)}")
+        return getattr(self, name)
+
+    @property
+    def label(self) -> str:
+        return str(self.path) if self.path is not None else f"recording({self.meta.get('trial', '?')})"
+
+    def grip_variation_N(self) -> float:
+        """Half the peak-to-peak grip over the analysed (second) sweep, N (the +-0.5 N criterion)."""
+        lo, hi = analysed_slice(self)
+        g = self.grip_N[lo:hi]
+        return float((g.max() - g.min()) / 2) if g.size else 0.0
+
+    def sidecar(self) -> dict:
+        """The JSON sidecar dictionary."""
+        s = self.sweep
+        data = {"fs_hz": s.fs_hz, "f_start_hz": s.f_start_hz, "f_end_hz": s.f_end_hz,
+                "duration_s": s.duration_s, "amplitude_A": s.amplitude_A, "repetitions": s.repetitions}
+        data.update(self.meta)
+        return data
+
+
+def analysed_slice(rec: Recording) -> tuple[int, int]:
+    """Sample range [lo, hi) of the sweep copy analysed by the ETFE: the second one (section 3.4.2).
+
+    A recording with a single repetition uses its only copy (start-up
+    transients then remain in the data).
+    """
+    n = rec.sweep.n_samples
+    rep = 1 if rec.sweep.repetitions >= 2 else 0
+    return rep * n, (rep + 1) * n
+
+
+def sidecar_path(csv_path) -> Path:
+    return Path(csv_path).with_suffix(".json")
+
+
+def write_recording(path, rec: Recording) -> Path:
+    """Write ``rec`` as ``path`` (CSV) plus its ``.json`` sidecar; atomic per file.
+
+    Returns
+    -------
+    Path
+        The CSV path.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table = np.column_stack([rec.t_s, rec.current_A, rec.accel_m_s2, rec.position_m, rec.grip_N])
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as fh:
+        fh.write(",".join(COLUMNS) + "\n")
+        np.savetxt(fh, table, fmt="%.10g", delimiter=",")
+    os.replace(tmp, path)
+    side = sidecar_path(path)
+    tmp = side.with_name(side.name + ".tmp")
+    tmp.write_text(json.dumps(rec.sidecar(), indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, side)
+    return path
+
+
+def _sweep_from_sidecar(data: dict, where: str) -> SweepConfig:
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: top level must be a JSON object")
+    for key in SIDECAR_KEYS:
+        if key not in data:
+            raise ValueError(f"{where}: missing key {key!r}")
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(f"{where}: key {key!r} must be a finite number, got {value!r}")
+    if data["repetitions"] != int(data["repetitions"]):
+        raise ValueError(f"{where}: key 'repetitions' must be an integer, got {data['repetitions']!r}")
+    try:
+        return SweepConfig(amplitude_A=float(data["amplitude_A"]), f_start_hz=float(data["f_start_hz"]),
+                           f_end_hz=float(data["f_end_hz"]), duration_s=float(data["duration_s"]),
+                           fs_hz=float(data["fs_hz"]), repetitions=int(data["repetitions"]))
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+def read_recording(path) -> Recording:
+    """Read and validate a recording (CSV + sidecar).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the CSV or its sidecar is missing.
+    ValueError
+        Naming file, key/column and line for: malformed sidecar, sweep band
+        at or above Nyquist, missing column, non-numeric or NaN/inf value,
+        dropped-sample gap (t_s step not 1/fs_hz), too few samples for
+        ``repetitions`` sweeps.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"recording not found: {path}")
+    side = sidecar_path(path)
+    if not side.is_file():
+        raise FileNotFoundError(f"recording sidecar not found: {side} (needed next to {path})")
+    try:
+        meta = json.loads(side.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{side}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    sweep = _sweep_from_sidecar(meta, str(side))
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot parse CSV ({exc})") from None
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)} (header must have {', '.join(COLUMNS)})")
+    arrays = {}
+    for col in COLUMNS:
+        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            row = int(bad[0])
+            raise ValueError(f"{path}: line {row + 2}, column {col!r}: value {df[col].iloc[row]!r} is not a "
+                             f"finite number (NaN/inf or text); {bad.size} such row(s)")
+        arrays[col] = values
+    rec = Recording(sweep, arrays["t_s"], arrays["current_A"], arrays["accel_m_s2"], arrays["position_m"],
+                    arrays["grip_N"], {k: v for k, v in meta.items() if k not in SIDECAR_KEYS}, path)
+    check_recording(rec)
+    return rec
+
+
+def check_recording(rec: Recording) -> None:
+    """Validate sample count and timing of ``rec`` (see :func:`read_recording`)."""
+    where = rec.label
+    n = rec.t_s.size
+    for name in COLUMNS:
+        arr = rec.signal(name)
+        if arr.shape != (n,):
+            raise ValueError(f"{where}: column {name!r} has shape {arr.shape}, expected ({n},)")
+        if not np.all(np.isfinite(arr)):
+            row = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise ValueError(f"{where}: line {row + 2}, column {name!r}: NaN/inf")
+    step = 1.0 / rec.sweep.fs_hz
+    dt = np.diff(rec.t_s)
+    bad = np.flatnonzero(np.abs(dt - step) > GAP_TOLERANCE * step)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{where}: dropped-sample gap between lines {i + 2} and {i + 3}: t_s goes from "
+                         f"{rec.t_s[i]:.6g} to {rec.t_s[i + 1]:.6g} s, expected a step of {step:.6g} s "
+                         f"(fs_hz = {rec.sweep.fs_hz})")
+    n_needed = rec.sweep.repetitions * rec.sweep.n_samples
+    if n < n_needed:
+        raise ValueError(f"{where}: too few samples for the sweep: {n} rows, need {n_needed} "
+                         f"({rec.sweep.repetitions} x {rec.sweep.duration_s} s at {rec.sweep.fs_hz} Hz)")

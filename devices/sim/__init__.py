@@ -1,0 +1,21 @@
+"""Simulated haptic device: nonlinear joystick model (thesis sec. 3.5.4) or Phantom-like LTI (sec. 3.4.4).
+
+See ``docs/sim.md`` and ``docs/architecture.md`` ("Sim device")::
+
+    from devices.sim import SimDevice, TapTrajectory
+    dev = SimDevice()                       # Table 3.1 defaults
+    dev.set_sample("wood_on_foam")
+    dev.set_user(TapTrajectory(0.1, n_taps=3), grip_N=2.0)
+    dev.motor_enabled = False
+    while not dev.trajectory_done:
+        state = dev.read()
+        dev.command(0.0)
+"""
+
+from .device import SimDevice
+from .hand import HoldTrajectory, ScriptedTrajectory, TapTrajectory
+from .params import SimParams, default_params, load_sim_params, params_from_dict
+from .samples import SAMPLES, SampleParams, get_sample
+
+__all__ = ["SimDevice", "SimParams", "TapTrajectory", "ScriptedTrajectory", "HoldTrajectory", "SAMPLES",
+           "SampleParams", "get_sample", "load_sim_params", "default_params", "params_from_dict"]

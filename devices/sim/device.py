@@ -1,0 +1,319 @@
+"""The simulated haptic device (thesis chapter 3): nonlinear (sec. 3.5.4) or Phantom-like LTI (sec. 3.4.4).
+
+Servo cycle: ``state = dev.read()`` then ``dev.command(i)``. ``command()``
+advances the physics by one servo period ``1/info.servo_rate_hz`` (all
+internal substeps in one numba call); the current commanded at tick k is
+applied (zero-order hold) during the period after the next ``command()``,
+i.e. one servo cycle of output delay. ``read()`` returns the same
+:class:`DeviceState` object, updated in place by ``command()``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import signal
+
+from ..base import Device, DeviceState, Status
+from . import kernel as K
+from .hand import HoldTrajectory, sample_grip
+from .params import SimParams, default_params, load_sim_params
+from .samples import KIND_BLOCK_ON_FOAM, get_sample
+
+_CLIP = int(Status.CLIPPING)
+_HOT = int(Status.OVER_TEMPERATURE)
+
+
+class SimDevice(Device):
+    """Simulated 1-DOF impedance-type haptic device with a simulated user and sample.
+
+    Parameters
+    ----------
+    params : SimParams or None
+        Validated parameters; None gives Table 3.1 (``default_params.toml``).
+    seed : int
+        Seed of the accelerometer noise generator (reproducible runs).
+    sample : str
+        Initial sample under the stylus (default ``"placeholder"``: none).
+    """
+
+    def __init__(self, params: SimParams | None = None, seed: int = 0, sample: str = "placeholder"):
+        super().__init__()
+        self.params = default_params() if params is None else params
+        self.info = self.params.device_info()
+        self._period_s = 1.0 / self.info.servo_rate_hz
+        self._limit_A = self.info.current_amplifier_A
+        self._tick_fn = K.tick
+        self._s = np.zeros(K.N_STATE)
+        self._p = self._build_param_array()
+        # xorshift must not start at 0; mix the seed so nearby seeds differ
+        self._rs = np.array([(int(seed) * 0x9E3779B97F4A7C15 + 0x2545F4914F6CDD1D) % (1 << 64) or 1],
+                            dtype=np.uint64)
+        self._state = DeviceState()
+        self._tick = 0
+        self._user_tick = 0
+        self._held_A = 0.0
+        self._traj = np.zeros(1)
+        self._grip = np.zeros(1)
+        self._traj_ticks = 0
+        self.trajectory = None
+        self.sample_name = "placeholder"
+        self.set_sample(sample)
+        self._refresh_state()
+
+    # -- construction --------------------------------------------------------
+    @classmethod
+    def from_spec(cls, spec: str | None = None, seed: int = 0, **options) -> "SimDevice":
+        """Device from the part after ``sim:`` of a device string.
+
+        ``None``/``""``: Table 3.1 nonlinear model; ``"lti"``: Phantom-like
+        LTI model; anything else: a ``.toml``/``.json`` parameter file.
+        """
+        if spec in (None, "", "nonlinear"):
+            params = default_params("nonlinear")
+        elif spec == "lti":
+            params = default_params("lti")
+        else:
+            try:
+                params = load_sim_params(spec)
+            except FileNotFoundError:
+                raise FileNotFoundError(f"sim parameter file not found: {spec!r} (valid device strings: sim, "
+                                        f"sim:lti, sim:<params file .toml|.json>)") from None
+        return cls(params, seed=seed, **options)
+
+    def _build_param_array(self) -> np.ndarray:
+        pr = self.params
+        p = np.zeros(K.N_PARAM)
+        n_sub = max(1, math.ceil(self._period_s / pr.simulation["max_step_s"] - 1e-9))
+        dt = self._period_s / n_sub
+        p[K.P_MODEL] = 1.0 if pr.model == "lti" else 0.0
+        p[K.P_DT] = dt
+        p[K.P_NSUB] = n_sub
+        p[K.P_KF] = self.info.force_per_amp_N_A
+        p[K.P_AMP_LOWPASS] = 1.0 if pr.amplifier["kind"] == "lowpass" else 0.0
+        p[K.P_AMP_ALPHA] = 1.0 - math.exp(-2 * math.pi * pr.amplifier["bandwidth_hz"] * dt)
+        p[K.P_IMAX] = self.info.current_amplifier_A
+        u = pr.user
+        p[K.P_KU_PER_N] = u["k_u_N_m"] / u["nominal_grip_N"]
+        p[K.P_BU_PER_N] = u["b_u_Ns_m"] / u["nominal_grip_N"]
+        p[K.P_VSTICK] = pr.simulation["stick_velocity_m_s"]
+        se = pr.sensors
+        p[K.P_ACC_BETA] = 1.0 - math.exp(-2 * math.pi * se["accel_bandwidth_hz"] * dt)
+        p[K.P_ACC_RES] = se["accel_resolution_m_s2"]
+        p[K.P_ACC_NOISE] = se["accel_noise_m_s2"]
+        p[K.P_ACC_RANGE] = se["accel_range_m_s2"]
+        p[K.P_GRIP_RES] = se["grip_resolution_N"]
+        p[K.P_GRIP_MAX] = se["grip_max_N"]
+        p[K.P_ENC_RES] = self.info.position_resolution_m
+        p[K.P_THERM_A] = math.exp(-self._period_s / self.info.thermal_time_constant_s)
+        p[K.P_THERM_GAIN] = self.info.winding_resistance_ohm * self.info.thermal_resistance_K_W
+        p[K.P_MOTOR_ON] = 1.0
+        p[K.P_TEMP_MAX] = self.info.winding_max_temp_rise_K
+        if pr.model == "nonlinear":
+            m = pr.mechanics
+            for idx, key in ((K.P_MM, "m_m_kg"), (K.P_BM, "b_m_Ns_m"), (K.P_CM, "c_m_N"), (K.P_KC, "k_c_N_m"),
+                             (K.P_BC, "b_c_Ns_m"), (K.P_MD, "m_d_kg"), (K.P_BD, "b_d_Ns_m"), (K.P_CD, "c_d_N"),
+                             (K.P_KLP, "k_lp_N_m"), (K.P_KLN, "k_ln_N_m"), (K.P_FLP, "f_lp_N"),
+                             (K.P_FLN, "f_ln_N"), (K.P_GAMMA, "gamma_l_rad_m"), (K.P_BL, "b_l_Ns_m"),
+                             (K.P_MH, "m_h_kg")):
+                p[idx] = m[key]
+            p[K.P_HYST] = 1.0 if m["hysteresis"] else 0.0
+        else:
+            from .linear import lti_transmission_ss
+
+            p[K.P_MH] = pr.lti["handle_mass_kg"]
+            a, b, c, d = lti_transmission_ss(pr.lti)
+            ad, bd, cd, dd, _ = signal.cont2discrete((a, b, c, d), dt, method="zoh")
+            n = ad.shape[0]
+            if n > K.LTI_MAX_ORDER:
+                raise ValueError(f"{pr.source}: LTI transmission order {n} exceeds {K.LTI_MAX_ORDER}")
+            p[K.P_LTI_N] = n
+            o = K.P_LTI_MATS
+            p[o:o + n * n] = ad.ravel()
+            p[o + n * n:o + n * n + n] = bd.ravel()
+            p[o + n * n + n:o + n * n + 2 * n] = cd.ravel()
+            p[o + n * n + 2 * n] = dd.ravel()[0]
+        return p
+
+    # -- Device hooks --------------------------------------------------------
+    def _open(self) -> None:
+        pass
+
+    def _close(self) -> None:
+        pass
+
+    def _send_current(self, current_A: float) -> None:
+        # used by open/close/zero: replaces the current that the next period applies
+        self._held_A = current_A
+
+    def read(self) -> DeviceState:
+        """The state sample at ``time_s`` (same object every call)."""
+        return self._state
+
+    def command(self, current_A: float) -> None:
+        """Command motor current (A) and advance the simulation by one servo period.
+
+        Same safety as :meth:`Device.command` (NaN/inf -> 0 and counted,
+        clamp to the amplifier limit), inlined to keep the servo path short.
+        """
+        limit = self._limit_A
+        status = 0
+        if current_A != current_A or current_A == math.inf or current_A == -math.inf:
+            self.rejected_commands += 1
+            current_A = 0.0
+            status = 1
+        elif current_A >= limit:
+            if current_A > limit:
+                current_A = limit
+            status = _CLIP
+        elif current_A <= -limit:
+            if current_A < -limit:
+                current_A = -limit
+            status = _CLIP
+        self.last_command_A = current_A
+        applied = self._held_A
+        self._held_A = current_A
+        tick = self._tick + 1
+        self._tick = tick
+        pos, acc, grip, hot = self._tick_fn(self._s, self._p, self._rs, self._traj, self._grip,
+                                     tick - 1 - self._user_tick, applied)
+        st = self._state
+        st.t_s = tick * self._period_s
+        st.position_m = pos
+        st.accel_m_s2 = acc
+        st.grip_N = grip
+        st.status = status | _HOT if hot else status
+
+    # -- simulation controls -------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """Simulated time (s) of the current state sample."""
+        return self._tick * self._period_s
+
+    @property
+    def motor_enabled(self) -> bool:
+        """False: commands are ignored (zero motor current), e.g. for real-sample taps."""
+        return bool(self._p[K.P_MOTOR_ON] != 0.0)
+
+    @motor_enabled.setter
+    def motor_enabled(self, on: bool) -> None:
+        self._p[K.P_MOTOR_ON] = 1.0 if on else 0.0
+
+    @property
+    def trajectory_done(self) -> bool:
+        """True when the simulated hand has finished its trajectory (always True with no trajectory)."""
+        return self._tick - self._user_tick >= self._traj_ticks
+
+    @property
+    def in_contact(self) -> bool:
+        """True if the handle touched the sample during the last servo period (true state)."""
+        return bool(self._s[K.S_CONTACT] != 0.0)
+
+    def set_user(self, trajectory=None, grip_N=2.0) -> None:
+        """Set the simulated hand: a desired trajectory and a grip force.
+
+        Parameters
+        ----------
+        trajectory : TapTrajectory, ScriptedTrajectory, float or None
+            Desired hand position over time from now. A float holds still at
+            that height; None holds still at the handle's current position.
+            The device (all masses) is placed at the trajectory's start, at
+            rest, as if the user picked the handle up there.
+        grip_N : float or callable
+            Grip force in N, constant or a function of time since now (s);
+            a callable is sampled over the trajectory's duration (the last
+            value holds afterwards).
+        """
+        if trajectory is None:
+            trajectory = HoldTrajectory(self._s[K.S_XH])
+        elif isinstance(trajectory, (int, float)):
+            trajectory = HoldTrajectory(float(trajectory))
+        fs = self.info.servo_rate_hz
+        traj = np.ascontiguousarray(trajectory.sample(fs), dtype=float)
+        if traj.size < 1 or not np.all(np.isfinite(traj)):
+            raise ValueError("set_user: trajectory must give finite positions")
+        grip = sample_grip(grip_N, np.arange(traj.size) / fs)
+        if traj.size == 1 and callable(grip_N):
+            # a held position with time-varying grip: sample the grip for a while and hold
+            n = int(60 * fs)
+            grip = sample_grip(grip_N, np.arange(n) / fs)
+            traj = np.full(n, traj[0])
+        self.trajectory = trajectory
+        self._traj = traj
+        self._grip = np.ascontiguousarray(grip)
+        self._traj_ticks = int(round(trajectory.duration_s * fs))
+        self._user_tick = self._tick
+        self._place_at(traj[0])
+
+    def _place_at(self, x0: float) -> None:
+        s = self._s
+        for i in (K.S_XM, K.S_XD, K.S_XH):
+            s[i] = x0
+        for i in (K.S_VM, K.S_VD, K.S_VH, K.S_FL, K.S_FHAT, K.S_AH, K.S_ACCF, K.S_XB, K.S_VB):
+            s[i] = 0.0
+        s[K.S_XLPREV] = 0.0
+        s[K.S_LTI:K.S_LTI + K.LTI_MAX_ORDER] = 0.0
+        s[K.S_XU] = x0
+        self._refresh_state()
+
+    def set_sample(self, name: str) -> None:
+        """Put a simulated real sample under the stylus: placeholder, wood, wood_on_foam or foam."""
+        smp = get_sample(name)
+        p = self._p
+        p[K.P_S_KIND] = float(smp.kind)
+        p[K.P_S_K] = smp.contact_k_N_m
+        p[K.P_S_ALPHA] = smp.contact_alpha_s_m
+        p[K.P_S_MB] = smp.block_mass_kg if smp.kind == KIND_BLOCK_ON_FOAM else 1.0
+        p[K.P_S_KF] = smp.foam_k_N_m
+        p[K.P_S_BF] = smp.foam_b_Ns_m
+        self._s[K.S_XB] = 0.0
+        self._s[K.S_VB] = 0.0
+        self.sample_name = name
+        self.sample = smp
+
+    def _refresh_state(self) -> None:
+        st = self._state
+        res = self.info.position_resolution_m
+        st.t_s = self.time_s
+        st.position_m = res * math.floor(self._s[K.S_XM] / res)
+        st.accel_m_s2 = 0.0
+        g = float(self._grip[min(max(self._tick - self._user_tick, 0), self._grip.size - 1)])
+        st.grip_N = g
+
+    def true_state(self) -> dict:
+        """True (unquantized) physical state, SI units, for tests and recordings."""
+        s = self._s
+        k = min(max(self._tick - self._user_tick, 0), self._grip.size - 1)
+        return {
+            "t_s": self.time_s,
+            "motor_position_m": float(s[K.S_XM]), "motor_velocity_m_s": float(s[K.S_VM]),
+            "drum_position_m": float(s[K.S_XD]), "drum_velocity_m_s": float(s[K.S_VD]),
+            "handle_position_m": float(s[K.S_XH]), "handle_velocity_m_s": float(s[K.S_VH]),
+            "handle_accel_m_s2": float(s[K.S_AH]),
+            "linkage_force_N": float(s[K.S_FL]),
+            "amplifier_current_A": float(s[K.S_IAMP]),
+            "block_position_m": float(s[K.S_XB]), "block_velocity_m_s": float(s[K.S_VB]),
+            "in_contact": bool(s[K.S_CONTACT] != 0.0), "contact_force_N": float(s[K.S_FCONTACT]),
+            "hand_position_m": float(s[K.S_XU]), "hand_velocity_m_s": float(s[K.S_VU]),
+            "grip_N": float(self._grip[k]),
+            "winding_temp_rise_K": float(s[K.S_TEMP]),
+            "pending_current_A": self._held_A,
+        }
+
+    def linear_model(self, grip_N: float = 2.0, output: str = "accel_m_s2", linkage: str = "small_signal"):
+        """Analytic LTI model of commanded current -> handle acceleration (or motor position).
+
+        Linearizes this device's physics: no Coulomb friction, the
+        hysteretic linkage replaced by the mean slope of its loops
+        (``linkage="small_signal"``: minor loops of high-frequency
+        transients; ``"asymptotic"``: (k_lp + k_ln)/2, see
+        :func:`devices.sim.linear.linkage_stiffness_N_m`), user
+        impedance at ``grip_N``, the amplifier low-pass (if configured), the
+        accelerometer's low-pass (acceleration output), and the output delay
+        (one servo period plus half a period for the zero-order hold) as
+        ``delay_s``. Returns a :class:`devices.model.ZpkModel`.
+        """
+        from .linear import linear_model
+
+        return linear_model(self.params, grip_N, output, linkage)

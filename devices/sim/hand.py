@@ -1,0 +1,193 @@
+"""The simulated user: desired hand trajectories and grip force (thesis sections 3.4.6, 3.5.2).
+
+The hand is a spring-damper between the handle and a desired hand position
+x_u(t) (eq. 3.34 with ``-k_u*(x_h - x_u) - b_u*(v_h - v_u)``). Its stiffness
+and damping rise linearly with grip force from zero (no user) through the
+Table 3.1 values at the nominal grip (section 3.5.2, last paragraphs):
+``k_u(g) = k_u * g / g_nom``, ``b_u(g) = b_u * g / g_nom``.
+
+Trajectories are sampled once onto the servo grid when the user is set, so
+the servo path only indexes arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+
+class TapTrajectory:
+    """Desired hand motion for repeated taps on a surface at height 0.
+
+    Each tap: start at rest at ``approach_height_m``, accelerate over
+    ``ramp_s`` to the tap speed, descend at constant speed through the
+    surface down to half ``press_depth_m`` below it, then decelerate
+    uniformly to rest at ``press_depth_m`` (the hand "pushes through" the
+    sample like a real tap, and the handle meets the surface before the hand
+    slows down, so nothing but the impact disturbs it), dwell ``dwell_s``,
+    lift back to the approach height in ``lift_s`` (half-cosine profile) and
+    pause ``pause_s`` before the next tap.
+
+    Parameters
+    ----------
+    velocities_m_s : float or sequence of float
+        Tap speed(s) (> 0, m/s); a sequence gives one speed per tap.
+    n_taps : int, optional
+        Number of taps; defaults to ``len(velocities_m_s)`` or 1. A sequence
+        shorter than ``n_taps`` is cycled.
+    approach_height_m : float
+        Start height above the surface (m).
+    dwell_s, lift_s, pause_s, ramp_s : float
+        Durations (s).
+    press_depth_m : float
+        How far below the surface the desired hand position comes to rest (m).
+    """
+
+    def __init__(self, velocities_m_s: float | Sequence[float], n_taps: int | None = None,
+                 approach_height_m: float = 0.01, dwell_s: float = 0.3, lift_s: float = 0.2,
+                 press_depth_m: float = 0.005, pause_s: float = 0.1, ramp_s: float = 0.02):
+        if isinstance(velocities_m_s, (int, float)):
+            vels = [float(velocities_m_s)]
+        else:
+            vels = [float(v) for v in velocities_m_s]
+        if not vels:
+            raise ValueError("TapTrajectory: velocities_m_s is empty")
+        if n_taps is None:
+            n_taps = len(vels)
+        if int(n_taps) != n_taps or n_taps < 1:
+            raise ValueError(f"TapTrajectory: n_taps must be a positive integer, got {n_taps!r}")
+        for v in vels:
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"TapTrajectory: velocities must be positive finite m/s, got {v!r}")
+        for key, val in (("approach_height_m", approach_height_m), ("dwell_s", dwell_s), ("lift_s", lift_s),
+                         ("press_depth_m", press_depth_m), ("ramp_s", ramp_s)):
+            if not (math.isfinite(val) and val > 0):
+                raise ValueError(f"TapTrajectory: {key} must be > 0, got {val!r}")
+        if not (math.isfinite(pause_s) and pause_s >= 0):
+            raise ValueError(f"TapTrajectory: pause_s must be >= 0, got {pause_s!r}")
+        self.velocities_m_s = tuple(vels[i % len(vels)] for i in range(int(n_taps)))
+        self.n_taps = int(n_taps)
+        self.approach_height_m = float(approach_height_m)
+        self.dwell_s = float(dwell_s)
+        self.lift_s = float(lift_s)
+        self.press_depth_m = float(press_depth_m)
+        self.pause_s = float(pause_s)
+        self.ramp_s = float(ramp_s)
+        self._taps = [self._tap_segments(v) for v in self.velocities_m_s]
+        starts = np.concatenate([[0.0], np.cumsum([tp["total"] for tp in self._taps])])
+        self._starts = starts
+        self.duration_s = float(starts[-1])
+        #: times (s, from the start) at which the desired hand crosses the surface, one per tap
+        self.surface_times_s = tuple(float(s0 + tp["t_surface"]) for s0, tp in zip(starts, self._taps))
+
+    def _tap_segments(self, v: float) -> dict:
+        h = self.approach_height_m
+        ramp = min(self.ramp_s, h / v)         # keep the ramp distance (v*ramp/2) within the approach
+        t_cruise = (h - v * ramp / 2) / v
+        t_surface = ramp + t_cruise
+        t_through = 0.5 * self.press_depth_m / v          # constant speed below the surface
+        t_decel = self.press_depth_m / v                  # uniform deceleration over the other half
+        t_rest = t_surface + t_through + t_decel
+        return {"v": v, "ramp": ramp, "t_surface": t_surface, "t_through": t_through, "t_decel": t_decel,
+                "t_rest": t_rest,
+                "t_lift": t_rest + self.dwell_s, "total": t_rest + self.dwell_s + self.lift_s + self.pause_s}
+
+    def position(self, t_s) -> np.ndarray:
+        """Desired hand position (m) at times ``t_s`` (s, array), vectorized."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        x = np.full(t.shape, self.approach_height_m)
+        h, d = self.approach_height_m, self.press_depth_m
+        for t0, tp in zip(self._starts, self._taps):
+            tau = t - t0
+            v, ramp = tp["v"], tp["ramp"]
+            m = (tau >= 0) & (tau < ramp)
+            x[m] = h - 0.5 * v / ramp * tau[m] ** 2
+            m = (tau >= ramp) & (tau < tp["t_surface"])
+            x[m] = h - v * ramp / 2 - v * (tau[m] - ramp)
+            t_brake = tp["t_surface"] + tp["t_through"]
+            m = (tau >= tp["t_surface"]) & (tau < t_brake)
+            x[m] = -v * (tau[m] - tp["t_surface"])
+            m = (tau >= t_brake) & (tau < tp["t_rest"])
+            u = tau[m] - t_brake
+            x[m] = -0.5 * d - v * u + 0.5 * (v / tp["t_decel"]) * u ** 2
+            m = (tau >= tp["t_rest"]) & (tau < tp["t_lift"])
+            x[m] = -d
+            m = (tau >= tp["t_lift"]) & (tau < tp["t_lift"] + self.lift_s)
+            x[m] = -d + (h + d) * 0.5 * (1 - np.cos(np.pi * (tau[m] - tp["t_lift"]) / self.lift_s))
+        return x
+
+    def sample(self, fs_hz: float) -> np.ndarray:
+        """Desired position at ticks ``k/fs_hz`` for k = 0..ceil(duration*fs) (m)."""
+        n = int(math.ceil(self.duration_s * fs_hz)) + 1
+        return self.position(np.arange(n) / fs_hz)
+
+
+class ScriptedTrajectory:
+    """Arbitrary desired hand position, linearly interpolated.
+
+    Parameters
+    ----------
+    t_s : array_like (n,)
+        Strictly increasing times (s), starting at 0 or later.
+    x_m : array_like (n,)
+        Desired hand positions (m).
+    """
+
+    def __init__(self, t_s, x_m):
+        t = np.asarray(t_s, dtype=float).ravel()
+        x = np.asarray(x_m, dtype=float).ravel()
+        if t.size < 1 or t.size != x.size:
+            raise ValueError(f"ScriptedTrajectory: t_s and x_m must have the same non-zero length, "
+                             f"got {t.size} and {x.size}")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(x))):
+            raise ValueError("ScriptedTrajectory: t_s and x_m must be finite")
+        if t.size > 1 and not np.all(np.diff(t) > 0):
+            raise ValueError("ScriptedTrajectory: t_s must be strictly increasing")
+        if t[0] < 0:
+            raise ValueError("ScriptedTrajectory: t_s must start at >= 0")
+        self.t_s = t
+        self.x_m = x
+        self.duration_s = float(t[-1])
+
+    def position(self, t_s) -> np.ndarray:
+        return np.interp(np.atleast_1d(np.asarray(t_s, dtype=float)), self.t_s, self.x_m)
+
+    def sample(self, fs_hz: float) -> np.ndarray:
+        n = int(math.ceil(self.duration_s * fs_hz)) + 1
+        return self.position(np.arange(n) / fs_hz)
+
+
+class HoldTrajectory:
+    """The hand holds still at ``x_m`` (forever)."""
+
+    def __init__(self, x_m: float = 0.0):
+        self.x_m = float(x_m)
+        self.duration_s = 0.0
+
+    def position(self, t_s) -> np.ndarray:
+        return np.full(np.shape(np.atleast_1d(t_s)), self.x_m)
+
+    def sample(self, fs_hz: float) -> np.ndarray:
+        return np.array([self.x_m])
+
+
+def sample_grip(grip_N: float | Callable, t_s: np.ndarray) -> np.ndarray:
+    """Grip force (N) at times ``t_s``; ``grip_N`` is a constant or a callable t_s -> N.
+
+    A callable is first tried vectorized (array in, array out), else called
+    per sample. Raises ValueError for negative or non-finite grip.
+    """
+    if callable(grip_N):
+        try:
+            g = np.asarray(grip_N(t_s), dtype=float)
+            if g.shape != t_s.shape:
+                raise ValueError
+        except Exception:
+            g = np.array([float(grip_N(float(t))) for t in t_s])
+    else:
+        g = np.full(t_s.shape, float(grip_N))
+    if not np.all(np.isfinite(g)) or np.any(g < 0):
+        raise ValueError("grip_N must be finite and >= 0 N")
+    return g

@@ -1,0 +1,356 @@
+"""numba physics kernel of the simulated device: one call advances one servo period.
+
+Layout of the arrays shared with :mod:`devices.sim.device` (indices below):
+
+* ``s`` (float64, ``N_STATE``): physical state, filter states and outputs.
+* ``p`` (float64, ``N_PARAM``): parameters, precomputed once per device,
+  including the discretized LTI transmission matrices at ``P_LTI_MATS``.
+* ``rs`` (uint64, 1): xorshift64* state of the sensor-noise generator, so
+  every device owns a seedable, reproducible noise stream.
+
+Integration is semi-implicit (symplectic) Euler at the fixed substep
+``p[P_DT]`` (<= 40 us): forces from the current state, then velocities, then
+positions. It preserves oscillation frequencies to O((w*dt)^2) and stays
+stable for the stiff cable/contact springs at these steps.
+
+Coulomb friction (eq. 3.35) uses Karnopp's stick-slip model: a mass whose
+speed is inside the stick band ``p[P_VSTICK]`` and whose other applied force
+is within the Coulomb level is held (velocity set to zero, friction cancels
+the applied force); otherwise friction is ``-c*sign(v)`` (or opposes the
+applied force inside the band). This avoids the chatter a bare ``sign(v)``
+produces at zero velocity.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# ---- state indices ----------------------------------------------------------
+S_XM, S_VM, S_XD, S_VD, S_XH, S_VH = 0, 1, 2, 3, 4, 5
+S_FL, S_FHAT, S_XLPREV = 6, 7, 8          # hysteresis: filtered force, coarse force, previous deflection
+S_IAMP, S_ACCF, S_XB, S_VB = 9, 10, 11, 12
+S_TEMP, S_CONTACT, S_AH, S_FCONTACT = 13, 14, 15, 16
+S_XU, S_VU = 17, 18                          # desired hand position/velocity (last substep)
+S_LTI = 24                                   # LTI transmission states start here
+S_LTI_TMP = 44                               # scratch for the LTI state update
+LTI_MAX_ORDER = 16
+N_STATE = 64
+
+# ---- parameter indices ------------------------------------------------------
+P_MODEL = 0            # 0 nonlinear, 1 lti
+P_DT, P_NSUB, P_KF = 1, 2, 3
+P_AMP_LOWPASS, P_AMP_ALPHA, P_IMAX = 4, 5, 6
+P_MM, P_BM, P_CM, P_KC, P_BC, P_MD, P_BD, P_CD = 7, 8, 9, 10, 11, 12, 13, 14
+P_KLP, P_KLN, P_FLP, P_FLN, P_GAMMA, P_BL, P_MH, P_HYST = 15, 16, 17, 18, 19, 20, 21, 22
+P_KU_PER_N, P_BU_PER_N, P_VSTICK = 23, 24, 25
+P_ACC_BETA, P_ACC_RES, P_ACC_NOISE, P_ACC_RANGE = 26, 27, 28, 29
+P_GRIP_RES, P_GRIP_MAX, P_ENC_RES = 30, 31, 32
+P_THERM_A, P_THERM_GAIN = 33, 34     # per-tick thermal decay and I^2 -> steady temperature gain
+P_S_KIND, P_S_K, P_S_ALPHA, P_S_MB, P_S_KF, P_S_BF = 35, 36, 37, 38, 39, 40
+P_MOTOR_ON = 41
+P_TEMP_MAX = 43
+P_LTI_N = 42
+P_LTI_MATS = 48        # A (n*n), B (n), C (n), D (1), row-major
+N_PARAM = 48 + 40 * 40
+
+
+@njit(cache=True, inline="always")
+def hysteresis_step(x, x_prev, f_prev, fhat_prev, f_p, k_p, f_n, k_n, gamma):
+    """One update of the rate-independent hysteretic spring (thesis section 3.5.3).
+
+    Coarse force (eq. 3.22) with the convergence offsets g_p = k_p/gamma and
+    g_n = -k_n/gamma (eq. 3.30-3.31), smoothed by the spatial first-order
+    filter of eq. 3.24 with X = |x_i - x_{i-1}| (eq. 3.25).
+
+    Parameters
+    ----------
+    x, x_prev : float
+        Deflection now and at the previous update (m).
+    f_prev, fhat_prev : float
+        Filtered and coarse force at the previous update (N).
+    f_p, k_p, f_n, k_n : float
+        Asymptotes f_p + k_p*x (increasing) and f_n + k_n*x (decreasing), N and N/m.
+    gamma : float
+        Spatial filter bandwidth (rad/m).
+
+    Returns
+    -------
+    f, fhat : float
+        Filtered force (the element's output) and coarse force, N.
+    """
+    if x > x_prev:
+        fhat = f_p + k_p * x + k_p / gamma
+    elif x < x_prev:
+        fhat = f_n + k_n * x - k_n / gamma
+    else:
+        fhat = fhat_prev
+    gx = gamma * abs(x - x_prev)
+    f = (gx * fhat + f_prev) / (1.0 + gx)
+    return f, fhat
+
+
+@njit(cache=True, inline="always")
+def _friction(v, f_other, c, vstick):
+    """Karnopp stick-slip Coulomb friction (eq. 3.35 without chatter).
+
+    Returns (friction force N, stuck flag)."""
+    if c <= 0.0:
+        return 0.0, False
+    if abs(v) < vstick:
+        if abs(f_other) <= c:
+            return -f_other, True
+        return (-c if f_other > 0.0 else c), False
+    return (-c if v > 0.0 else c), False
+
+
+@njit(cache=True, inline="always")
+def _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb):
+    """Sample contact (thesis Table 4.1 samples, Hunt-Crossley).
+
+    Returns (force on the handle N (up), block acceleration m/s^2, in-contact 0/1)."""
+    if kind == 1.0:
+        d = -xh
+        if d > 0.0:
+            f = sk * d * (1.0 + salpha * (-vh))
+            return (f if f > 0.0 else 0.0), 0.0, 1.0
+        return 0.0, 0.0, 0.0
+    if kind == 2.0:
+        d = xb - xh
+        f = 0.0
+        flag = 0.0
+        if d > 0.0:
+            f = sk * d * (1.0 + salpha * (vb - vh))
+            if f < 0.0:
+                f = 0.0
+            flag = 1.0
+        return f, (-f - skf * xb - sbf * vb) / smb, flag
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def _xorshift_uniform(rs):
+    """Uniform sample in (0, 1] from the xorshift64* stream in ``rs[0]``."""
+    x = rs[0]
+    x ^= x >> np.uint64(12)
+    x ^= x << np.uint64(25)
+    x ^= x >> np.uint64(27)
+    rs[0] = x
+    r = x * np.uint64(2685821657736338717)
+    return ((r >> np.uint64(11)) + np.uint64(1)) * (1.0 / 9007199254740993.0)
+
+
+@njit(cache=True)
+def _xorshift_normal(rs):
+    """Standard normal sample from the xorshift64* stream in ``rs[0]`` (Box-Muller)."""
+    u1 = _xorshift_uniform(rs)
+    u2 = _xorshift_uniform(rs)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@njit(cache=True)
+def _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd):
+    """All substeps of one servo period of eq. 3.32-3.35; state kept in locals (no aliasing reloads)."""
+    dt = p[P_DT]
+    nsub = int(p[P_NSUB])
+    vu = (xu1 - xu0) / (dt * nsub)
+    ku = p[P_KU_PER_N] * g
+    bu = p[P_BU_PER_N] * g
+    kf = p[P_KF]
+    lowpass = p[P_AMP_LOWPASS] != 0.0
+    alpha = p[P_AMP_ALPHA]
+    beta = p[P_ACC_BETA]
+    mm, bm, cm, kc, bc = p[P_MM], p[P_BM], p[P_CM], p[P_KC], p[P_BC]
+    md, bd, cd, bl, mh = p[P_MD], p[P_BD], p[P_CD], p[P_BL], p[P_MH]
+    klp, kln, flp, fln, gam = p[P_KLP], p[P_KLN], p[P_FLP], p[P_FLN], p[P_GAMMA]
+    hyst = p[P_HYST] != 0.0
+    kmean = 0.5 * (klp + kln)
+    vstick = p[P_VSTICK]
+    kind, sk, salpha, smb, skf, sbf = p[P_S_KIND], p[P_S_K], p[P_S_ALPHA], p[P_S_MB], p[P_S_KF], p[P_S_BF]
+    inv_mm, inv_md, inv_mh = 1.0 / mm, 1.0 / md, 1.0 / mh
+    xm, vm, xd, vd, xh, vh = s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH]
+    fl, fhat, xlp = s[S_FL], s[S_FHAT], s[S_XLPREV]
+    iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
+    ah = 0.0
+    fs = 0.0
+    contact_any = 0.0
+    dxu = (xu1 - xu0) / nsub
+    for j in range(nsub):
+        xu = xu0 + dxu * (j + 1)
+        if lowpass:
+            iamp += alpha * (i_cmd - iamp)
+        else:
+            iamp = i_cmd
+        fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
+        if flag > 0.0:
+            contact_any = 1.0
+        fu = -ku * (xh - xu) - bu * (vh - vu)
+        # hysteretic linkage between drum and handle (sec. 3.5.3)
+        xl = xd - xh
+        if hyst:
+            fl, fhat = hysteresis_step(xl, xlp, fl, fhat, flp, klp, fln, kln, gam)
+        else:
+            fl = kmean * xl
+        xlp = xl
+        fl_total = fl + bl * (vd - vh)
+        fc = kc * (xd - xm) + bc * (vd - vm)         # cable force on the motor
+        fm = fc + kf * iamp - bm * vm                # eq. 3.32 without friction
+        fd = -fc - bd * vd - fl_total                # eq. 3.33 without friction
+        cmf, stuck_m = _friction(vm, fm, cm, vstick)
+        cdf, stuck_d = _friction(vd, fd, cd, vstick)
+        ah = (fl_total + fu + fs) * inv_mh           # eq. 3.34 with the sample's contact force
+        vm = 0.0 if stuck_m else vm + (fm + cmf) * inv_mm * dt
+        vd = 0.0 if stuck_d else vd + (fd + cdf) * inv_md * dt
+        vh += ah * dt
+        xm += vm * dt
+        xd += vd * dt
+        xh += vh * dt
+        if kind == 2.0:
+            vb += ab * dt
+            xb += vb * dt
+        accf += beta * (ah - accf)
+    s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH] = xm, vm, xd, vd, xh, vh
+    s[S_FL], s[S_FHAT], s[S_XLPREV] = fl, fhat, xlp
+    s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
+    s[S_AH] = ah
+    s[S_FCONTACT] = fs
+    return contact_any
+
+
+@njit(cache=True)
+def _substeps_lti(s, p, xu0, xu1, g, i_cmd):
+    """All substeps of one servo period of the LTI device: transmission T(s) -> handle mass."""
+    dt = p[P_DT]
+    nsub = int(p[P_NSUB])
+    vu = (xu1 - xu0) / (dt * nsub)
+    ku = p[P_KU_PER_N] * g
+    bu = p[P_BU_PER_N] * g
+    kf = p[P_KF]
+    lowpass = p[P_AMP_LOWPASS] != 0.0
+    alpha = p[P_AMP_ALPHA]
+    beta = p[P_ACC_BETA]
+    inv_mh = 1.0 / p[P_MH]
+    kind, sk, salpha, smb, skf, sbf = p[P_S_KIND], p[P_S_K], p[P_S_ALPHA], p[P_S_MB], p[P_S_KF], p[P_S_BF]
+    nl = int(p[P_LTI_N])
+    a0 = P_LTI_MATS
+    b0 = a0 + nl * nl
+    c0 = b0 + nl
+    d0 = c0 + nl
+    xh, vh = s[S_XH], s[S_VH]
+    iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
+    z = s[S_LTI:S_LTI + nl]
+    tmp = s[S_LTI_TMP:S_LTI_TMP + nl]
+    ah = 0.0
+    fs = 0.0
+    contact_any = 0.0
+    dxu = (xu1 - xu0) / nsub
+    for j in range(nsub):
+        xu = xu0 + dxu * (j + 1)
+        if lowpass:
+            iamp += alpha * (i_cmd - iamp)
+        else:
+            iamp = i_cmd
+        ff = kf * iamp
+        fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
+        if flag > 0.0:
+            contact_any = 1.0
+        fu = -ku * (xh - xu) - bu * (vh - vu)
+        fe = p[d0] * ff
+        for r in range(nl):
+            fe += p[c0 + r] * z[r]
+        for r in range(nl):
+            acc = p[b0 + r] * ff
+            for c in range(nl):
+                acc += p[a0 + r * nl + c] * z[c]
+            tmp[r] = acc
+        for r in range(nl):
+            z[r] = tmp[r]
+        ah = (fe + fu + fs) * inv_mh
+        vh += ah * dt
+        xh += vh * dt
+        if kind == 2.0:
+            vb += ab * dt
+            xb += vb * dt
+        accf += beta * (ah - accf)
+    s[S_XH], s[S_VH], s[S_XM], s[S_VM] = xh, vh, xh, vh
+    s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
+    s[S_AH] = ah
+    s[S_FCONTACT] = fs
+    return contact_any
+
+
+@njit(cache=True)
+def tick(s, p, rs, traj, grip, k, i_cmd):
+    """Advance the device by one servo period (all substeps) and return its sensor readings.
+
+    Parameters
+    ----------
+    s : ndarray float64 (N_STATE,)
+        State, updated in place.
+    p : ndarray float64 (N_PARAM,)
+        Parameters (see module doc).
+    rs : ndarray uint64 (1,)
+        Noise generator state.
+    traj : ndarray float64 (n,)
+        Desired hand position (m) at servo ticks since the user was set; held
+        at its last value past the end.
+    grip : ndarray float64 (n,)
+        Grip force (N) at the same ticks.
+    k : int
+        Tick index into ``traj``/``grip`` at the start of this period.
+    i_cmd : float
+        Current applied during this period (A), i.e. the command of the
+        previous tick (one-cycle output delay is handled by the caller).
+
+    Returns
+    -------
+    position_m, accel_m_s2, grip_N : float
+        Quantized encoder position (handle space), accelerometer reading and
+        grip-sensor reading at the end of the period.
+    over_temperature : float
+        1.0 if the modelled winding temperature rise exceeds its limit.
+    """
+    n = traj.shape[0]
+    k0 = k if k < n else n - 1
+    k1 = k + 1 if k + 1 < n else n - 1
+    xu0 = traj[k0]
+    xu1 = traj[k1]
+    g = grip[k0]
+    imax = p[P_IMAX]
+    if i_cmd > imax:
+        i_cmd = imax
+    elif i_cmd < -imax:
+        i_cmd = -imax
+    if p[P_MOTOR_ON] == 0.0:
+        i_cmd = 0.0
+    if p[P_MODEL] == 1.0:
+        contact_any = _substeps_lti(s, p, xu0, xu1, g, i_cmd)
+    else:
+        contact_any = _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd)
+    s[S_CONTACT] = contact_any
+    s[S_XU] = xu1
+    s[S_VU] = (xu1 - xu0) * (1.0 / (p[P_DT] * p[P_NSUB]))
+    # first-order winding temperature rise (I^2 R heating)
+    s[S_TEMP] = p[P_THERM_A] * s[S_TEMP] + (1.0 - p[P_THERM_A]) * p[P_THERM_GAIN] * i_cmd * i_cmd
+    # sensors: encoder (eq. 3.2-3.3 mapped to the handle), accelerometer, grip
+    res = p[P_ENC_RES]
+    pos = res * math.floor(s[S_XM] / res)
+    a = s[S_ACCF]
+    if p[P_ACC_NOISE] > 0.0:
+        a += p[P_ACC_NOISE] * _xorshift_normal(rs)
+    ares = p[P_ACC_RES]
+    a = ares * math.floor(a / ares + 0.5)
+    if a > p[P_ACC_RANGE]:
+        a = p[P_ACC_RANGE]
+    elif a < -p[P_ACC_RANGE]:
+        a = -p[P_ACC_RANGE]
+    gres = p[P_GRIP_RES]
+    gq = gres * math.floor(g / gres + 0.5)
+    if gq > p[P_GRIP_MAX]:
+        gq = p[P_GRIP_MAX]
+    elif gq < 0.0:
+        gq = 0.0
+    hot = 1.0 if s[S_TEMP] > p[P_TEMP_MAX] else 0.0
+    return pos, a, gq, hot

@@ -1,0 +1,83 @@
+"""Simulated physical samples under the stylus (thesis Table 4.1, section 4.5.2).
+
+Each sample's top surface is at height 0 (positions positive up). Contact
+forces use the Hunt-Crossley impact model ``F = k*d*(1 + alpha*d_dot)``
+(d: penetration >= 0, d_dot: penetration rate; F clamped at >= 0 so the
+surface never pulls), which dissipates energy in proportion to penetration,
+so there is no force jump at first contact.
+
+``wood_on_foam`` is a wood block (mass ``block_mass_kg``) resting on a foam
+spring-damper (``foam_k_N_m``, ``foam_b_Ns_m``); the stylus hits the block
+through a stiff Hunt-Crossley contact. Its static stiffness is that of the
+contact and the foam in series (~350 N/m), but the impact excites the
+contact mode at a much higher frequency, giving the decaying transient that
+the thesis tuned its virtual transients to (section 4.5.2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+KIND_NONE = 0
+KIND_HALFSPACE = 1
+KIND_BLOCK_ON_FOAM = 2
+
+
+@dataclass(frozen=True)
+class SampleParams:
+    """One simulated sample.
+
+    Attributes
+    ----------
+    name : str
+    kind : int
+        ``KIND_NONE`` (placeholder), ``KIND_HALFSPACE`` (contact to ground) or
+        ``KIND_BLOCK_ON_FOAM``.
+    stiffness_N_m : float
+        Effective static stiffness, thesis Table 4.1 (0 for the placeholder).
+    contact_k_N_m : float
+        Hunt-Crossley contact stiffness k.
+    contact_alpha_s_m : float
+        Hunt-Crossley damping factor alpha (s/m).
+    block_mass_kg, foam_k_N_m, foam_b_Ns_m : float
+        Block on foam substrate (``KIND_BLOCK_ON_FOAM`` only).
+    """
+
+    name: str
+    kind: int
+    stiffness_N_m: float
+    contact_k_N_m: float = 0.0
+    contact_alpha_s_m: float = 0.0
+    block_mass_kg: float = 0.0
+    foam_k_N_m: float = 0.0
+    foam_b_Ns_m: float = 0.0
+
+    @property
+    def static_stiffness_N_m(self) -> float:
+        """Stiffness felt when pressing slowly (contact and foam in series for a block on foam)."""
+        if self.kind == KIND_BLOCK_ON_FOAM:
+            return 1.0 / (1.0 / self.contact_k_N_m + 1.0 / self.foam_k_N_m)
+        return self.contact_k_N_m
+
+
+SAMPLES: dict[str, SampleParams] = {
+    "placeholder": SampleParams("placeholder", KIND_NONE, 0.0),
+    "wood": SampleParams("wood", KIND_HALFSPACE, 70000.0, contact_k_N_m=70000.0, contact_alpha_s_m=0.3),
+    "wood_on_foam": SampleParams("wood_on_foam", KIND_BLOCK_ON_FOAM, 350.0, contact_k_N_m=20000.0,
+                                 contact_alpha_s_m=0.3, block_mass_kg=0.03, foam_k_N_m=356.0, foam_b_Ns_m=2.5),
+    "foam": SampleParams("foam", KIND_HALFSPACE, 220.0, contact_k_N_m=220.0, contact_alpha_s_m=8.0),
+}
+
+
+def get_sample(name: str) -> SampleParams:
+    """Look up a sample by name.
+
+    Raises
+    ------
+    ValueError
+        For an unknown name, listing the valid ones.
+    """
+    try:
+        return SAMPLES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown sample {name!r}; valid samples: {', '.join(SAMPLES)}") from None

@@ -1,0 +1,172 @@
+"""``python -m renderer run``: render a virtual wall under a (simulated or real) user tapping.
+
+Example::
+
+    python -m renderer run --device sim --transient hfam --library lib.npz \\
+        --stiffness 680 --taps 10 --velocity 0.1 --grip 2 --out runs/hfam
+
+On a sim device the simulated hand taps ``--taps`` times at ``--velocity``
+(TapTrajectory) and the run ends when it is done. On hardware the run lasts
+``--duration`` seconds (or until Ctrl-C) in its own process
+(renderer.process). Writes ``events.csv``, ``run.json`` and ``log.npz`` into
+``--out`` (formats in docs/renderer.md) and prints a short table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
+
+
+def make_transient(kind: str, library: str | None = None, gain: float | None = None):
+    """Build a stimuli transient (Table 4.1 defaults) or None; imported lazily.
+
+    Raises
+    ------
+    ValueError
+        Unknown kind, or ``hfam`` without a library path.
+    """
+    if kind not in TRANSIENTS:
+        raise ValueError(f"--transient must be one of {', '.join(TRANSIENTS)}, got {kind!r}")
+    if kind == "none":
+        return None
+    import stimuli
+
+    kwargs = {} if gain is None else {"gain": float(gain)}
+    if kind == "pulse":
+        return stimuli.Pulse(**kwargs)
+    if kind == "sinusoid":
+        return stimuli.DecayingSinusoid(**kwargs)
+    if not library:
+        raise ValueError("--transient hfam needs --library PATH (an HFAM library .npz, see `python -m stimuli`)")
+    return stimuli.HfamLibrary.load(library, **kwargs)
+
+
+def _positive(name):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
+        return value
+    return parse
+
+
+def _velocities(text: str) -> list[float]:
+    out = []
+    for part in text.split(","):
+        out.append(_positive("--velocity")(part.strip()))
+    return out
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("run", help="render a virtual wall under a simulated or real user tapping",
+                              description=__doc__.split("\n\n")[0] + " Outputs: events.csv, run.json, log.npz.",
+                              formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--device", default="sim", help="device string: sim, sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
+    p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient")
+    p.add_argument("--library", help="HFAM library file (for --transient hfam)")
+    p.add_argument("--transient-gain", type=float, default=None,
+                   help="gain of the transient (stimuli gain; default: Table 4.1 / the library's own)")
+    p.add_argument("--stiffness", type=float, default=None,
+                   help="proportional stiffness k (N/m); default 680 or the config file's")
+    p.add_argument("--damping", type=float, default=None, help="virtual damping on entry (N s/m)")
+    p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md)")
+    p.add_argument("--taps", type=int, default=10, help="sim: number of taps")
+    p.add_argument("--velocity", type=_velocities, default=[0.1],
+                   help="sim: tap speed in m/s (comma list: one per tap, cycled)")
+    p.add_argument("--grip", type=float, default=2.0, help="sim: grip force (N)")
+    p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus")
+    p.add_argument("--seed", type=int, default=0, help="sim: noise seed")
+    p.add_argument("--duration", type=_positive("--duration"), default=None,
+                   help="run length in s (hardware default: until Ctrl-C; sim: until the taps are done)")
+    p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
+    p.add_argument("--in-process", action="store_true",
+                   help="hardware: run the servo loop in this process instead of its own")
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=run_command)
+
+
+def _build_config(args):
+    from .config import RendererConfig, load_config
+
+    overrides = {}
+    if args.stiffness is not None:
+        overrides["stiffness_N_m"] = float(args.stiffness)
+    if args.damping is not None:
+        overrides["damping_N_s_m"] = float(args.damping)
+    if args.config:
+        return load_config(args.config, **overrides)
+    try:
+        return RendererConfig(**overrides)
+    except ValueError as exc:
+        raise ValueError(f"command line: {exc}") from None
+
+
+def run_command(args) -> int:
+    from devices.registry import make_device
+
+    from .loop import ServoLoop
+
+    if args.taps < 1:
+        raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    cfg = _build_config(args)
+    transient = make_transient(args.transient, args.library, args.transient_gain)
+    simulated = args.device.split(":", 1)[0] == "sim"
+    if simulated:
+        from devices.sim import TapTrajectory
+
+        dev = make_device(args.device, seed=args.seed)
+        with dev:
+            if args.sample != "placeholder":
+                dev.set_sample(args.sample)
+            traj = TapTrajectory(args.velocity, n_taps=args.taps)
+            dev.set_user(traj, grip_N=args.grip)
+            loop = ServoLoop(dev, cfg, transient)
+            duration = args.duration if args.duration is not None else traj.duration_s + 0.5
+            try:
+                result = loop.run(duration_s=duration, until=lambda lp: dev.trajectory_done,
+                                  realtime=args.realtime)
+            except KeyboardInterrupt:
+                result = loop.result
+                if result is not None:
+                    result.save(args.out)
+                    print(f"interrupted: partial run saved to {args.out}", file=sys.stderr)
+                return 130
+    elif args.in_process:
+        dev = make_device(args.device)
+        with dev:
+            loop = ServoLoop(dev, cfg, transient)
+            try:
+                result = loop.run(duration_s=args.duration, realtime=True)
+            except KeyboardInterrupt:
+                result = loop.result
+    else:
+        from .process import run_in_process
+
+        result = run_in_process(args.device, cfg, transient, duration_s=args.duration)
+    result.save(args.out)
+    print(format_table(result))
+    print(f"saved {args.out}/events.csv, run.json, log.npz")
+    return 0 if result.stop_reason in ("duration", "until", "stopped", "interrupted") else 1
+
+
+def format_table(result) -> str:
+    """A short human-readable summary: one row per event plus timing."""
+    lines = [f"{'#':>3} {'t_s':>8} {'v_in m/s':>9} {'grip N':>7} {'pen mm':>7} {'peak a':>8} {'clip':>5}"]
+    for k, ev in enumerate(result.events, 1):
+        lines.append(f"{k:>3} {ev.t_s:8.3f} {ev.incoming_velocity_m_s:9.4f} {ev.grip_N:7.2f} "
+                     f"{1000 * ev.max_penetration_m:7.3f} {ev.peak_accel_m_s2:8.1f} {'yes' if ev.clipped else 'no':>5}")
+    tm = result.timing
+    lines.append(f"transient {result.transient}; {len(result.events)} events; stop: {result.stop_reason}"
+                 + (f" ({result.error})" if result.error else ""))
+    lines.append(f"{tm['ticks']} ticks at {tm['rate_hz']:g} Hz, {tm['sim_time_s']:.3f} s in {tm['wall_time_s']:.3f} s wall "
+                 f"({tm['realtime_factor']:.1f}x real time); period p50/p99/max "
+                 f"{tm['period_p50_us']:.1f}/{tm['period_p99_us']:.1f}/{tm['period_max_us']:.1f} us; "
+                 f"overruns {tm['overruns']}; compute p50/p99 {tm['compute_p50_us']:.2f}/{tm['compute_p99_us']:.2f} us")
+    return "\n".join(lines)

@@ -1,0 +1,371 @@
+"""``python -m renderer demo``: the virtual-wall demo that reproduces the HFAM pipeline end to end.
+
+Sim mode (default, ``--device sim``), thesis sections 4.4.3 and 4.5.5:
+
+1. identify the sim device at several grips, record real taps on the
+   simulated wood-on-foam sample and build the HFAM library (cached, see
+   :mod:`renderer.demo_pipeline`);
+2. let the simulated user tap every rendering (:data:`renderer.demo_runs.RENDERINGS`)
+   at several velocities and grips;
+3. print a table per rendering and write ``DIR/summary.csv`` (one row per
+   rendering x velocity x grip) plus ``DIR/traces.npz``;
+4. write the figures (``DIR/fig_*.png``) and print where they are.
+
+With a hardware device string (``serial:...``, ``hid:...``) a person taps
+instead, one rendering at a time (:mod:`renderer.demo_hw`).
+See ``docs/demo.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import demo_runs as runs
+from .demo_pipeline import Pipeline, PipelineSettings, Progress, build_or_load, default_cache_base
+
+SUMMARY_COLUMNS = ("rendering", "velocity_m_s", "grip_N", "peak_accel_m_s2", "dominant_freq_hz",
+                   "penetration_mean_m", "nrmse", "correlation", "clipped")
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """What the sim demo taps.
+
+    Attributes
+    ----------
+    velocities_m_s : tuple of float
+        Tap speeds of the simulated user (m/s).
+    grips_N : tuple of float
+        Grips of the simulated user (N): light, medium, firm.
+    taps : int
+        Taps per rendering x velocity x grip (the sim is deterministic up
+        to sensor noise, so 1 is enough; metrics are averaged over taps).
+    medium_grip_N : float
+        Grip whose transient the no-grip-compensation rendering always plays.
+    figure_velocity_m_s : float
+        Velocity of the contact figure (thesis: 0.11 m/s).
+    grid_velocities_m_s : tuple of float
+        Three velocities of the Figure 4.13 grid.
+    pipeline : PipelineSettings
+    renderings : tuple of Rendering
+    """
+
+    velocities_m_s: tuple = (0.05, 0.08, 0.11, 0.2, 0.3)
+    grips_N: tuple = (1.0, 2.0, 3.0)
+    taps: int = 1
+    medium_grip_N: float = 2.0
+    figure_velocity_m_s: float = 0.11
+    grid_velocities_m_s: tuple = (0.05, 0.08, 0.11)
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)
+    renderings: tuple = runs.RENDERINGS
+
+    def __post_init__(self) -> None:
+        for key in ("velocities_m_s", "grips_N"):
+            vals = getattr(self, key)
+            if not vals or any(not (math.isfinite(x) and x > 0) for x in vals):
+                raise ValueError(f"demo {key} must be positive numbers, got {vals!r}")
+        if not (isinstance(self.taps, int) and self.taps >= 1):
+            raise ValueError(f"demo taps must be an integer >= 1, got {self.taps!r}")
+        if self.figure_velocity_m_s not in self.velocities_m_s:
+            raise ValueError(f"figure velocity {self.figure_velocity_m_s} must be one of the demo velocities")
+        if any(v not in self.velocities_m_s for v in self.grid_velocities_m_s):
+            raise ValueError(f"grid velocities {self.grid_velocities_m_s} must be demo velocities")
+
+
+@dataclass
+class DemoResult:
+    """Everything the sim demo computed.
+
+    Attributes
+    ----------
+    rows : list of dict
+        ``summary.csv`` rows (``SUMMARY_COLUMNS``) plus ``in_library_range``.
+    traces : dict (rendering, velocity, grip) -> list of TapTrace
+    references : dict velocity -> real-sample window at the recording grip
+    pipeline : Pipeline
+    figures : dict name -> Path
+    timings_s : dict
+    """
+
+    rows: list
+    traces: dict
+    references: dict
+    pipeline: Pipeline
+    figures: dict
+    timings_s: dict
+    fs_hz: float = 10_000.0
+
+    def row(self, rendering: str, velocity_m_s: float, grip_N: float) -> dict:
+        for r in self.rows:
+            if r["rendering"] == rendering and r["velocity_m_s"] == velocity_m_s and r["grip_N"] == grip_N:
+                return r
+        raise KeyError((rendering, velocity_m_s, grip_N))
+
+
+def in_library_range(library, v_m_s: float) -> bool:
+    """True if ``v_m_s`` lies within the library's recorded velocities (no extrapolation)."""
+    return float(library.velocities_m_s[0]) <= v_m_s <= float(library.velocities_m_s[-1])
+
+
+def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress) -> tuple[dict, dict]:
+    """Tap every rendering at every velocity x grip; returns (traces, references)."""
+    from devices.registry import make_device
+
+    fs = pipe.fs_hz
+    dev = make_device(cfg.pipeline.device, seed=cfg.pipeline.seed + 1)
+    traces: dict = {}
+    refs: dict = {}
+    with dev:
+        # the reference: the real sample tapped like the library's recordings (same grip), per velocity
+        for v in cfg.velocities_m_s:
+            refs[v] = runs.tap_sim(dev, runs.REAL, None, v, cfg.pipeline.record_grip_N, fs).accel
+        n_conditions = len(cfg.velocities_m_s) * len(cfg.grips_N) * cfg.taps
+        for r in cfg.renderings:
+            t0 = time.perf_counter()
+            transient = runs.make_transient(r, pipe.library, cfg.medium_grip_N)
+            for v in cfg.velocities_m_s:
+                for g in cfg.grips_N:
+                    traces[(r.name, v, g)] = [runs.add_metrics(runs.tap_sim(dev, r, transient, v, g, fs), refs[v], fs)
+                                              for _ in range(cfg.taps)]
+            progress.say(f"{r.name:22s} {n_conditions} taps in {time.perf_counter() - t0:.2f} s")
+    return traces, refs
+
+
+def summarize(cfg: DemoConfig, traces: dict, library) -> list[dict]:
+    """One row per rendering x velocity x grip: means over the condition's taps (``SUMMARY_COLUMNS``)."""
+    rows = []
+    for r in cfg.renderings:
+        for v in cfg.velocities_m_s:
+            for g in cfg.grips_N:
+                ts = traces[(r.name, v, g)]
+
+                def mean(key, ts=ts):
+                    vals = [t.metrics[key] for t in ts if t.found]
+                    return float(np.mean(vals)) if vals else math.nan
+
+                rows.append({
+                    "rendering": r.name, "velocity_m_s": v, "grip_N": g,
+                    "peak_accel_m_s2": mean("peak_accel_m_s2"), "dominant_freq_hz": mean("dominant_freq_hz"),
+                    "penetration_mean_m": float(np.mean([t.penetration_m for t in ts if t.found]))
+                    if any(t.found for t in ts) else math.nan,
+                    "nrmse": mean("nrmse"), "correlation": mean("correlation"),
+                    "clipped": int(sum(t.clipped for t in ts)),
+                    "in_library_range": in_library_range(library, v),
+                    "taps": len(ts), "missed": int(sum(not t.found for t in ts)),
+                })
+    return rows
+
+
+def write_summary(rows: list[dict], path: Path) -> Path:
+    """Write ``summary.csv`` (``SUMMARY_COLUMNS``) atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(SUMMARY_COLUMNS)
+        for row in rows:
+            w.writerow([row[c] if isinstance(row[c], str) else (f"{row[c]:.6g}" if isinstance(row[c], float)
+                                                                 else row[c]) for c in SUMMARY_COLUMNS])
+    os.replace(tmp, path)
+    return path
+
+
+def format_table(cfg: DemoConfig, rows: list[dict], library) -> str:
+    """The printed table: one line per rendering (means over velocities x grips; see the header)."""
+    lib_lo, lib_hi = float(library.velocities_m_s[0]), float(library.velocities_m_s[-1])
+    lines = [
+        f"Renderings tapped by the simulated user at {', '.join(f'{v:g}' for v in cfg.velocities_m_s)} m/s x "
+        f"grips {', '.join(f'{g:g}' for g in cfg.grips_N)} N ({cfg.taps} tap(s) each).",
+        f"NRMSE and correlation: handle acceleration vs the real sample at the same velocity, 20-1000 Hz, "
+        f"mean over velocities inside the library range ({lib_lo:.3f}-{lib_hi:.3f} m/s); other columns: "
+        f"mean (dominant frequency: median) over all taps.",
+        f"{'rendering':22s} {'peak a m/s2':>11} {'f_dom Hz':>8} {'pen mm':>7} {'NRMSE':>6} {'corr':>6} "
+        f"{'clipped':>8}",
+    ]
+    for r in cfg.renderings:
+        rr = [x for x in rows if x["rendering"] == r.name]
+        inr = [x for x in rr if x["in_library_range"]]
+
+        def m(key, sel=rr):
+            vals = [x[key] for x in sel if math.isfinite(x[key])]
+            return float(np.mean(vals)) if vals else math.nan
+
+        f_dom = float(np.nanmedian([x["dominant_freq_hz"] for x in rr]))
+        clipped = sum(x["clipped"] for x in rr)
+        taps = sum(x["taps"] for x in rr)
+        lines.append(f"{r.name:22s} {m('peak_accel_m_s2'):11.1f} {f_dom:8.0f} {m('penetration_mean_m') * 1e3:7.2f} "
+                     f"{m('nrmse', inr):6.3f} {m('correlation', inr):6.3f} {clipped:>4d}/{taps:<3d}")
+    out_of_range = [v for v in cfg.velocities_m_s if not lib_lo <= v <= lib_hi]
+    hf = [x for x in rows if x["rendering"] == "hfam_firm"]
+    if out_of_range and hf:
+        parts = []
+        for v in out_of_range:
+            sel = [x for x in hf if x["velocity_m_s"] == v]
+            parts.append(f"{v:g} m/s NRMSE {np.mean([x['nrmse'] for x in sel]):.2f}, corr "
+                         f"{np.mean([x['correlation'] for x in sel]):.2f}, clipped {sum(x['clipped'] for x in sel)}"
+                         f"/{sum(x['taps'] for x in sel)}")
+        lines.append("HFAM over firm beyond the library range (extrapolated transient): " + "; ".join(parts))
+    return "\n".join(lines)
+
+
+def write_traces(result: DemoResult, path: Path) -> Path:
+    """Save every contact window: ``accel`` and ``current`` [n_taps, n] plus per-tap keys (npz)."""
+    keys = sorted(result.traces, key=lambda k: (k[0], k[1], k[2]))
+    taps = [t for k in keys for t in result.traces[k]]
+    np.savez_compressed(
+        path,
+        rendering=np.array([t.rendering for t in taps]),
+        velocity_m_s=np.array([t.velocity_m_s for t in taps]),
+        grip_N=np.array([t.grip_N for t in taps]),
+        v_in_m_s=np.array([t.v_in_m_s for t in taps]),
+        accel_m_s2=np.array([t.accel for t in taps]),
+        current_A=np.array([t.current for t in taps]),
+        transient_current_A=np.array([t.transient_current for t in taps]),
+        reference_velocity_m_s=np.array(sorted(result.references)),
+        reference_accel_m_s2=np.array([result.references[v] for v in sorted(result.references)]),
+        fs_hz=result.fs_hz, pre_s=runs.PRE_S,
+    )
+    return Path(path)
+
+
+def make_figures(cfg: DemoConfig, result: DemoResult, out: Path) -> dict:
+    """Write the four figures into ``out``; returns name -> path."""
+    from . import demo_figures as figs
+
+    fs, pre = result.fs_hz, runs.PRE_S
+    g_mid = cfg.medium_grip_N if cfg.medium_grip_N in cfg.grips_N else cfg.grips_N[len(cfg.grips_N) // 2]
+    v_fig = cfg.figure_velocity_m_s
+    tr = result.traces
+    names = {"firm": "firm wall 680 N/m", "pulse_firm": "pulse over firm", "sinusoid_firm": "decaying sinusoid over firm",
+             "hfam_firm": "HFAM over firm", runs.REAL.name: "real wood on foam"}
+    panels = [(label, tr[(name, v_fig, g_mid)][0].accel) for name, label in names.items()
+              if (name, v_fig, g_mid) in tr]
+    ref = tr[(runs.REAL.name, v_fig, g_mid)][0].accel if (runs.REAL.name, v_fig, g_mid) in tr else result.references[v_fig]
+    panels = [(lab, ref if lab == "real wood on foam" else w) for lab, w in panels]
+    out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}
+    vs = cfg.grid_velocities_m_s
+    grips = cfg.grips_N[:3] if len(cfg.grips_N) >= 3 else cfg.grips_N
+    cells = {(v, g): tr[("hfam_firm", v, g)][0].accel for v in vs for g in grips if ("hfam_firm", v, g) in tr}
+    if len(cells) == len(vs) * len(grips):
+        cur = {(v, g): tr[("hfam_firm", v, g)][0].transient_current for v in vs for g in grips}
+        fixed = {(v, g): tr[("hfam_fixed_grip_firm", v, g)][0].accel for v in vs for g in grips
+                 if ("hfam_fixed_grip_firm", v, g) in tr and g != cfg.medium_grip_N}
+        out_figs["hfam_grid"] = figs.hfam_grid_figure(cells, result.references, cur, fixed, vs, grips, fs, pre,
+                                                      out / "fig_hfam_grid.png")
+    out_figs["library"] = figs.library_figure(result.pipeline.library, g_mid, out / "fig_library.png")
+    out_figs["bode"] = figs.bode_figure(result.pipeline.etfe_npz, result.pipeline.model_set, out / "fig_bode.png")
+    return out_figs
+
+
+def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, rebuild: bool = False,
+                 figures: bool = True, progress: Progress | None = None) -> DemoResult:
+    """The whole sim demo (see module doc); writes into ``out`` and returns the results."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = progress or Progress(5)
+    t0 = time.perf_counter()
+    pipe = build_or_load(cfg.pipeline, cache_base, rebuild, progress)
+    if pipe.from_cache:
+        progress.i = 3
+        progress.say(f"[1-3/5] identification, recordings and HFAM library from the cache: {pipe.directory}",
+                     indent=False)
+    t_pipe = time.perf_counter() - t0
+    progress.start(f"simulated user tapping {len(cfg.renderings)} renderings")
+    traces, refs = simulate(cfg, pipe, progress)
+    t_sim = progress.done()
+    rows = summarize(cfg, traces, pipe.library)
+    result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz)
+    write_summary(rows, out / "summary.csv")
+    write_traces(result, out / "traces.npz")
+    t_fig = 0.0
+    if figures:
+        progress.start("drawing figures")
+        result.figures = make_figures(cfg, result, out)
+        t_fig = progress.done()
+    result.timings_s = {"pipeline": t_pipe, "taps": t_sim, "figures": t_fig, "total": time.perf_counter() - t0,
+                        "pipeline_cached": pipe.from_cache}
+    return result
+
+
+# ---------------------------------------------------------------------------------------------- CLI
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo", help="virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample",
+        description="Reproduce the HFAM pipeline end to end (thesis 4.4.3, 4.5.5): identify the device at several "
+                    "grips, record real taps on wood on foam, build the HFAM library (cached), tap soft/firm/very "
+                    "firm walls, pulse, decaying sinusoid and HFAM renderings and the real sample, print a table, "
+                    "write DIR/summary.csv and figures. With a hardware device a person taps. See docs/demo.md.")
+    p.add_argument("--device", default="sim", help="sim (default), sim:lti, sim:<params file>, serial:<port>, "
+                                                  "hid:<vid>:<pid>")
+    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default ./demo_out)")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {default_cache_base()})")
+    p.add_argument("--rebuild", action="store_true", help="rebuild the cached identification/recordings/library")
+    p.add_argument("--velocities", default=None, help="comma-separated tap speeds in m/s (sim; default "
+                                                       + ",".join(f"{v:g}" for v in DemoConfig.velocities_m_s) + ")")
+    p.add_argument("--grips", default=None, help="comma-separated grips in N (sim; default "
+                                                  + ",".join(f"{g:g}" for g in DemoConfig.grips_N) + ")")
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.add_argument("--library", type=Path, default=None,
+                   help="hardware mode: HFAM library (.npz) built for this device (default: none, HFAM skipped)")
+    p.add_argument("--taps", type=int, default=None, help="taps per rendering (hardware default 5, sim default 1)")
+    p.add_argument("--renderings", type=lambda s: tuple(x for x in s.split(",") if x), default=None,
+                   help="hardware mode: comma-separated subset of " + ",".join(r.name for r in runs.RENDERINGS)
+                        + " (the real sample is always first)")
+    p.add_argument("--timeout", type=float, default=120.0, help="hardware mode: seconds allowed per rendering")
+    p.add_argument("--scope", choices=("auto", "window", "text", "none"), default="auto",
+                   help="hardware mode live scope: a matplotlib window if a display is available, else text")
+    p.set_defaults(func=run)
+
+
+def _floats(text: str | None, what: str) -> tuple | None:
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ValueError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+    if not vals or any(not (math.isfinite(x) and x > 0) for x in vals):
+        raise ValueError(f"{what}: values must be positive numbers, got {text!r}")
+    return vals
+
+
+def run(args) -> int:
+    if not args.device.startswith("sim"):
+        from .demo_hw import run_hardware_demo
+
+        return run_hardware_demo(args)
+    t0 = time.perf_counter()
+    vels = _floats(args.velocities, "--velocities")
+    grips = _floats(args.grips, "--grips")
+    changes = {"pipeline": PipelineSettings(device=args.device)}
+    if vels:
+        changes["velocities_m_s"] = vels
+        fig_v = min(vels, key=lambda v: abs(v - 0.11))
+        changes["figure_velocity_m_s"] = fig_v
+        changes["grid_velocities_m_s"] = tuple(sorted(vels, key=lambda v: abs(v - 0.08))[:3])
+    if grips:
+        changes["grips_N"] = grips
+        changes["medium_grip_N"] = grips[len(grips) // 2]
+    if args.taps is not None:
+        changes["taps"] = args.taps
+    cfg = DemoConfig(**changes)
+    res = run_sim_demo(cfg, args.out, args.cache_dir, args.rebuild, figures=not args.no_figures)
+    print()
+    print(format_table(cfg, res.rows, res.pipeline.library))
+    print()
+    print(f"detail (one row per rendering x velocity x grip): {args.out / 'summary.csv'}")
+    for name, path in res.figures.items():
+        print(f"figure {name:9s}: {path}")
+    print(f"cache: {res.pipeline.directory} ({'reused' if res.pipeline.from_cache else 'built'}); "
+          f"total {time.perf_counter() - t0:.1f} s")
+    return 0

@@ -1,0 +1,146 @@
+"""``python -m stimuli build-library``: build an HFAM current library from recorded taps and device models."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .hfam import BuildSettings, build_library, format_verification, source_entry
+from .recordings import read_recording
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "build-library",
+        help="build an HFAM transient library (section 4.4.1)",
+        description=(
+            "Build an HFAM current library [velocity x grip x time] from recorded real taps and one "
+            "current->acceleration model per grip level, verify it through the forward models and save it "
+            "(format: docs/hfam_library.md)."
+        ),
+    )
+    p.add_argument("--recordings", required=True, type=Path,
+                   help="tap recording CSV (tap, incoming_velocity_m_s, t_s, accel_m_s2) from 'python -m devices record'")
+    p.add_argument("--model", required=True, action="append", type=Path, dest="models",
+                   help="device model JSON (docs/models.md), one per grip level; repeat the option. A model set "
+                        "from 'python -m devices identify' (its model_set.json or directory) adds all its "
+                        "acceleration models")
+    p.add_argument("--out", required=True, type=Path, help="library file to write (.npz)")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    p.add_argument("--device", default="sim",
+                   help="device string whose force constant, peak current and servo rate the library is for "
+                        "(default sim; 'none' to give --force-per-amp and --peak-current-A instead)")
+    p.add_argument("--force-per-amp", type=float, default=None, help="force constant in N/A (overrides the device's)")
+    p.add_argument("--peak-current-A", type=float, default=None, help="peak current limit in A (overrides the device's)")
+    p.add_argument("--scale-to-limit", action="store_true",
+                   help="scale transients above the peak current down to it instead of stopping")
+    d = BuildSettings()
+    p.add_argument("--n-velocities", type=int, default=d.n_velocities, help="velocities to pick (default %(default)s)")
+    p.add_argument("--taps", type=str, default=None, help="comma-separated tap ids to use instead of automatic selection")
+    p.add_argument("--duration-s", type=float, default=d.duration_s, help="transient length (default %(default)s s)")
+    p.add_argument("--smooth-hz", type=float, default=d.smooth_hz, help="zero-phase smoothing cut-off, <= 1000 (default %(default)s Hz)")
+    p.add_argument("--highpass-hz", type=float, default=d.highpass_hz, help="high-pass cut-off (default %(default)s Hz)")
+    p.add_argument("--added-zero-hz", type=float, default=d.added_zero_hz, help="added zeros' frequency (default %(default)s Hz)")
+    p.add_argument("--added-zero-zeta", type=float, default=d.added_zero_zeta, help="added zeros' damping (default %(default)s)")
+    p.add_argument("--taper-s", type=float, default=d.taper_s, help="end taper length (default %(default)s s)")
+    p.add_argument("--onset-delay-s", type=float, default=d.onset_delay_s, help="accepted onset delay (default %(default)s s)")
+    p.add_argument("--gain", type=float, default=d.gain, help="gain on all currents (default %(default)s)")
+    p.add_argument("--max-pre-impact-ratio", type=float, default=d.max_pre_impact_ratio,
+                   help="drop taps whose pre-impact peak exceeds this fraction of the impact peak (default %(default)s)")
+    p.add_argument("--min-neighbour-corr", type=float, default=d.min_neighbour_corr,
+                   help="drop taps correlating less than this with their velocity neighbours (default %(default)s)")
+    p.add_argument("--max-extrapolation", type=float, default=d.max_extrapolation,
+                   help="cap of v_in/v_max above the velocity range at run time (default %(default)s)")
+    p.set_defaults(func=run)
+
+
+def _device_limits(args) -> tuple[float, float | None, float | None]:
+    """(force_per_amp_N_A, peak_current_A, servo_rate_hz) from --device and the overrides."""
+    fpa, peak, rate = args.force_per_amp, args.peak_current_A, None
+    if args.device.lower() != "none":
+        from devices.registry import make_device
+
+        info = make_device(args.device).info
+        fpa = info.force_per_amp_N_A if fpa is None else fpa
+        peak = info.current_peak_A if peak is None else peak
+        rate = info.servo_rate_hz
+    if fpa is None:
+        raise ValueError("--force-per-amp is required with --device none")
+    return fpa, peak, rate
+
+
+def expand_model_paths(paths) -> list[Path]:
+    """Model files from ``--model`` arguments: JSON models as given, model sets expanded to their accel models.
+
+    A model set is a directory holding ``model_set.json`` or that index file itself
+    (``{"kind": "model_set", "models": {"accel_m_s2": [file or null, ...]}}``).
+    """
+    out = []
+    for path in paths:
+        path = Path(path)
+        index = path / "model_set.json" if path.is_dir() else path
+        if not index.is_file():
+            raise FileNotFoundError(f"model file not found: {path}")
+        if index.name == "model_set.json" or path.is_dir():
+            try:
+                data = json.loads(index.read_text())
+                names = data["models"]["accel_m_s2"]
+            except (json.JSONDecodeError, KeyError, TypeError) as exc:
+                raise ValueError(f"{index}: not a model set index (needs models.accel_m_s2): {exc}") from None
+            files = [index.parent / n for n in names if n]
+            if not files:
+                raise ValueError(f"{index}: the model set has no acceleration models")
+            out.extend(files)
+        else:
+            out.append(path)
+    return out
+
+
+def run(args) -> int:
+    from devices.model import load_model
+
+    if args.out.exists() and not args.force:
+        raise ValueError(f"{args.out} exists; use --force to overwrite it")
+    if args.out.suffix != ".npz":
+        raise ValueError(f"--out {args.out}: the library file must end in .npz")
+    taps_sel = None
+    if args.taps:
+        try:
+            taps_sel = tuple(int(x) for x in args.taps.split(","))
+        except ValueError:
+            raise ValueError(f"--taps {args.taps!r}: expected comma-separated integers") from None
+    fpa, peak, rate = _device_limits(args)
+    settings = BuildSettings(
+        n_velocities=args.n_velocities, taps=taps_sel, duration_s=args.duration_s, smooth_hz=args.smooth_hz,
+        highpass_hz=args.highpass_hz, added_zero_hz=args.added_zero_hz, added_zero_zeta=args.added_zero_zeta,
+        taper_s=args.taper_s, onset_delay_s=args.onset_delay_s, gain=args.gain,
+        max_pre_impact_ratio=args.max_pre_impact_ratio, min_neighbour_corr=args.min_neighbour_corr,
+        peak_current_A=peak, scale_to_limit=args.scale_to_limit, max_extrapolation=args.max_extrapolation,
+    )
+    print(f"reading {args.recordings}", flush=True)
+    fs, taps = read_recording(args.recordings)
+    print(f"  {len(taps)} taps at {fs:g} Hz, velocities {min(t.v_in_m_s for t in taps):.4g}.."
+          f"{max(t.v_in_m_s for t in taps):.4g} m/s", flush=True)
+    if rate is not None and abs(rate - fs) > 1e-6 * rate:
+        raise ValueError(f"{args.recordings}: sampled at {fs:g} Hz but device {args.device!r} runs at {rate:g} Hz")
+    models = []
+    args.models = expand_model_paths(args.models)
+    for path in args.models:
+        print(f"reading model {path}", flush=True)
+        models.append((str(path), load_model(path)))
+    provenance = {
+        "source_files": {"recordings": source_entry(args.recordings), "models": [source_entry(p) for p in args.models]},
+        "device": args.device,
+        "command": " ".join(["python -m stimuli"] + sys.argv[1:]) if sys.argv and sys.argv[0] else "",
+    }
+    library, report = build_library(taps, fs, models, settings, force_per_amp_N_A=fpa,
+                                    log=lambda m: print(m, flush=True), provenance=provenance)
+    print(format_verification(report, settings.verify_band_hz))
+    for msg in report.scaled:
+        print(f"warning: {msg}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    library.save(args.out)
+    print(f"wrote {args.out}: {len(library.velocities_m_s)} velocities x {len(library.grips_N)} grip level(s) x "
+          f"{library.n_samples} samples at {library.fs_hz:g} Hz")
+    return 0

@@ -1,0 +1,85 @@
+"""``python -m stimuli show``: plot an HFAM library like thesis Figure 4.8."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .library import HfamLibrary
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "show",
+        help="plot an HFAM library (accelerations and currents per velocity/grip) to a PNG",
+        description="Print a summary of an HFAM library and plot its desired accelerations and current "
+                    "transients per velocity and grip level (like thesis Figure 4.8).",
+    )
+    p.add_argument("library", type=Path, help="library file (.npz)")
+    p.add_argument("--out", type=Path, default=None, help="PNG to write (default: next to the library, .png)")
+    p.set_defaults(func=run)
+
+
+def summary(lib: HfamLibrary) -> str:
+    """Human-readable description of a library."""
+    lines = [
+        f"{lib.source}: {len(lib.velocities_m_s)} velocities x {len(lib.grips_N)} grip level(s) x "
+        f"{lib.n_samples} samples at {lib.fs_hz:g} Hz ({lib.duration_s * 1e3:.0f} ms)",
+        "  velocities m/s: " + ", ".join(f"{v:.4g}" for v in lib.velocities_m_s),
+        "  grips N: " + ", ".join(f"{g:.3g}" for g in lib.grips_N),
+        f"  force constant {lib.force_per_amp_N_A:.4g} N/A, peak |current| {np.max(np.abs(lib.currents_A)):.3f} A, "
+        f"gain {lib.gain:g}, extrapolation cap {lib.max_extrapolation:g}",
+    ]
+    meta = lib.metadata
+    if meta.get("software_version"):
+        lines.append(f"  built {meta.get('created_utc', '?')} by {meta['software_version']}")
+    ver = meta.get("verification") or []
+    if ver:
+        worst = max(ver, key=lambda r: r["nrmse"])
+        lines.append(f"  verification: worst NRMSE {worst['nrmse']:.3f} (corr {worst['corr']:.3f}) at "
+                     f"{worst['v_in_m_s']:.4g} m/s, grip {worst['grip_N']:g} N")
+    return "\n".join(lines)
+
+
+def plot_library(lib: HfamLibrary, out: Path) -> Path:
+    """Write a PNG: top row desired accelerations, bottom row currents, one column per grip level."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_g = len(lib.grips_N)
+    t_ms = (np.arange(lib.n_samples) + 1) / lib.fs_hz * 1e3
+    fig, axes = plt.subplots(2, n_g, figsize=(3.2 * n_g + 1.5, 6.0), sharex=True, squeeze=False)
+    colors = plt.cm.viridis(np.linspace(0.0, 0.9, len(lib.velocities_m_s)))
+    for j, grip in enumerate(lib.grips_N):
+        ax_a, ax_i = axes[0, j], axes[1, j]
+        for i, v in enumerate(lib.velocities_m_s):
+            label = f"{v:.3g} m/s"
+            if lib.desired_accel_m_s2 is not None:
+                ax_a.plot(t_ms, lib.desired_accel_m_s2[i], color=colors[i], lw=0.8, label=label)
+            ax_i.plot(t_ms, lib.currents_A[i, j], color=colors[i], lw=0.8, label=label)
+        ax_a.set_title(f"grip {grip:g} N")
+        ax_i.set_xlabel("time after impact (ms)")
+        if j == 0:
+            ax_a.set_ylabel("desired acceleration (m/s$^2$)")
+            ax_i.set_ylabel("current (A)")
+        if lib.desired_accel_m_s2 is None:
+            ax_a.text(0.5, 0.5, "no accelerations stored", ha="center", transform=ax_a.transAxes)
+    axes[0, -1].legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"HFAM library {Path(lib.source).name}")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def run(args) -> int:
+    lib = HfamLibrary.load(args.library)
+    print(summary(lib))
+    out = args.out if args.out is not None else args.library.with_suffix(".png")
+    plot_library(lib, out)
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,339 @@
+"""``python -m study run``: run a blind realism session (thesis section 4.5.3).
+
+Sim rehearsal, unattended, in seconds::
+
+    python -m study run --device sim --participant simulated --subject S01 --seed 1 --out DATA
+
+A person with the views (subject page and token-protected operator page)::
+
+    python -m study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 \\
+        --age 24 --gender female --handedness right --experience few --out DATA
+
+Continue a killed or aborted session exactly where it stopped::
+
+    python -m study run ... --subject P07 --out DATA --resume
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import platform
+import secrets
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+from .config import GENDERS, HANDEDNESS, SubjectInfo, load_protocol
+from .data import EXPERIENCE, SessionStore, check_subject_id, utc_now
+from .protocol import Schedule
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("run", help="run a blind realism session (sim rehearsal or real subjects)",
+                              description=__doc__, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+    p.add_argument("--device", default="sim", help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
+                                                   "hid:<vid>:<pid> (default: sim)")
+    p.add_argument("--participant", choices=("simulated", "keyboard"), default="simulated",
+                   help="simulated (sim devices only: simulated hand and synthetic rater) or keyboard (a person "
+                        "using the subject view; with a sim device the simulated hand still taps)")
+    p.add_argument("--subject", required=True, help="subject id (letters, digits, _ and -)")
+    p.add_argument("--out", required=True, help="data folder; the session goes to OUT/<subject>/")
+    p.add_argument("--seed", type=int, default=None, help="randomization seed (default: random, stored)")
+    p.add_argument("--resume", action="store_true", help="continue an unfinished session of this subject")
+    p.add_argument("--catalog", default=None, help="sample catalog TOML (default: the 12 samples of Table 4.1)")
+    p.add_argument("--library-dir", default=None, help="directory for relative HFAM library paths")
+    p.add_argument("--samples", default=None, help="comma-separated subset of catalog sample names")
+    p.add_argument("--repetitions", type=int, default=None, help="testing presentations per sample (default 3)")
+    p.add_argument("--tap-window", type=float, default=None, dest="tap_window_s",
+                   help="tapping time from the first impact, s (default 5)")
+    p.add_argument("--protocol", default=None, help="TOML/JSON file with protocol settings (docs/study.md)")
+    p.add_argument("--participant-config", default=None, help="TOML/JSON simulated-participant settings")
+    p.add_argument("--age", type=int, default=None)
+    p.add_argument("--gender", choices=GENDERS, default=None)
+    p.add_argument("--handedness", choices=HANDEDNESS, default=None)
+    p.add_argument("--experience", choices=EXPERIENCE, default=None,
+                   help="prior haptic experience: none (never), few (a few times), regular")
+    p.add_argument("--audio", choices=("auto", "on", "off"), default="auto",
+                   help="masking audio: auto = on for hardware (required), off for sim; on = also in sim")
+    p.add_argument("--audio-device", default=None, help="PortAudio output device (name or index)")
+    p.add_argument("--masking-level", type=float, default=None, dest="masking_level_dbfs",
+                   help="white-noise RMS level in dBFS (default -20)")
+    p.add_argument("--servo-process", choices=("auto", "on", "off"), default="auto",
+                   help="run device, servo loop and homing in a child process so UI and audio threads never delay "
+                        "them (auto: on for hardware, off for sim)")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace a sim device's tapping windows to wall-clock time (hardware is always paced)")
+    p.add_argument("--serve", action="store_true", help="serve the views also for a simulated participant")
+    p.add_argument("--host", default="127.0.0.1", help="bind address of the views (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
+    p.add_argument("--token", default=None, help="operator token (default: random, printed)")
+    p.add_argument("--quiet", action="store_true", help="print only the summary")
+    p.set_defaults(func=run_command)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _catalog_entries(catalog) -> list[dict]:
+    out = []
+    for s in catalog:
+        entry = {"name": s.name, "label": s.label, "kind": s.kind, "stiffness_N_m": s.stiffness_N_m,
+                 "transient": s.transient, "params": dict(s.params), "real_sample": s.real_sample}
+        if s.library is not None:
+            entry["library"] = str(s.library)
+            entry["library_sha256"] = _sha256(Path(s.library))
+        out.append(entry)
+    return out
+
+
+def load_study_catalog(catalog_path, library_dir, samples_arg, is_sim: bool, familiarization_sample: str):
+    """Load the catalog, pick ``--samples`` and check everything a session needs (before it starts)."""
+    from stimuli import load_catalog
+
+    catalog = load_catalog(catalog_path, library_dir=library_dir)
+    names = [s.name for s in catalog]
+    if samples_arg:
+        wanted = [x.strip() for x in samples_arg.split(",") if x.strip()]
+        unknown = [x for x in wanted if x not in names]
+        if unknown:
+            raise ValueError(f"--samples: unknown sample(s) {unknown}; the catalog has {names}")
+        catalog = [s for s in catalog if s.name in wanted]
+    if is_sim:
+        from devices.sim import SAMPLES
+
+        for s in catalog:
+            if s.kind == "real" and s.real_sample not in SAMPLES:
+                raise ValueError(f"catalog sample {s.name!r}: unknown sim sample real_sample={s.real_sample!r}; "
+                                 f"the sim device has {sorted(SAMPLES)}")
+    for s in catalog:
+        if s.transient == "hfam":
+            path = Path(library_dir) / s.library_ref if library_dir and s.library_ref and not Path(
+                s.library_ref).is_absolute() else s.library
+            if path is None or not Path(path).is_file():
+                raise FileNotFoundError(f"catalog sample {s.name!r}: HFAM library file missing: {path}")
+    if familiarization_sample:
+        fam = [s for s in catalog if s.name == familiarization_sample]
+        if not fam:
+            raise ValueError(f"familiarization_sample {familiarization_sample!r} is not in the catalog ({names}); "
+                             "set familiarization_sample = \"\" in --protocol to skip familiarization")
+        if fam[0].kind != "real":
+            raise ValueError(f"familiarization_sample {familiarization_sample!r} must be a real sample")
+    return catalog
+
+
+def software_versions() -> dict:
+    import numpy
+    import scipy
+
+    try:
+        version = importlib.metadata.version("hfam-haptics")
+    except importlib.metadata.PackageNotFoundError:
+        version = "unknown"
+    return {"hfam-haptics": version, "python": platform.python_version(), "numpy": numpy.__version__,
+            "scipy": scipy.__version__}
+
+
+def run_command(args) -> int:
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    subject = check_subject_id(args.subject)
+    store = SessionStore(args.out, subject, resume=args.resume)
+    is_sim = args.device.split(":", 1)[0] == "sim"
+    if args.participant == "simulated" and not is_sim:
+        raise ValueError("--participant simulated needs a sim device (--device sim); use --participant keyboard "
+                         "for a person")
+    store.check()  # unwritable folder, existing subject without --resume: refused before anything starts
+    previous = store.load_session() if args.resume else None
+
+    protocol_overrides = {"repetitions": args.repetitions, "tap_window_s": args.tap_window_s,
+                          "masking_level_dbfs": args.masking_level_dbfs}
+    if previous is not None:
+        protocol = load_protocol(None, **previous["protocol"])
+        if args.seed is not None and args.seed != previous["seed"]:
+            raise ValueError(f"--seed {args.seed} differs from the session's seed {previous['seed']} "
+                             f"({store.session_path}); omit --seed when resuming")
+        seed = int(previous["seed"])
+        info = SubjectInfo(subject, previous["age"], previous["gender"], previous["handedness"],
+                           previous["experience"])
+    else:
+        protocol = load_protocol(args.protocol, **protocol_overrides)
+        seed = args.seed if args.seed is not None else secrets.randbelow(2 ** 31)
+        if args.participant == "keyboard" and None in (args.age, args.gender, args.handedness, args.experience):
+            raise ValueError("a session with a person needs --age, --gender, --handedness and --experience "
+                             "(section 4.5.3: collected before the session)")
+        info = SubjectInfo(subject, args.age, args.gender or "unspecified", args.handedness or "unspecified",
+                           args.experience or "few")
+
+    catalog = load_study_catalog(args.catalog if previous is None else previous.get("catalog_file"),
+                                 args.library_dir if previous is None else previous.get("library_dir"),
+                                 args.samples if previous is None else ",".join(s["name"] for s in previous["catalog"]),
+                                 is_sim, protocol.familiarization_sample)
+    if previous is not None:
+        names = [s.name for s in catalog]
+        if names != [s["name"] for s in previous["catalog"]]:
+            raise ValueError(f"the catalog changed since the session started ({store.session_path}): "
+                             f"now {names}")
+
+    # masking audio: required on hardware, silent in sim unless asked
+    from .audio import MaskingAudio, SilentAudio, check_output_device
+
+    want_audio = args.audio == "on" or (args.audio == "auto" and not is_sim)
+    if want_audio:
+        device_name = check_output_device(_audio_device(args.audio_device))
+        audio = MaskingAudio(level_dbfs=protocol.masking_level_dbfs, fs_hz=protocol.audio_fs_hz,
+                             seed=seed, device=_audio_device(args.audio_device))
+        audio_info = {"output": device_name, "level_dbfs": protocol.masking_level_dbfs,
+                      "cue_source": audio.cue_source}
+    else:
+        audio = SilentAudio()
+        audio_info = {"output": None, "level_dbfs": None, "cue_source": audio.cue_source}
+        say("note: sim session runs silently (no masking audio); use --audio on to play it")
+
+    from devices import make_device
+
+    from .apparatus import Apparatus
+    from .participants import SimulatedParticipant, load_participant_config
+
+    sim_participant = None
+    if is_sim:
+        pcfg = load_participant_config(args.participant_config if previous is None
+                                       else previous.get("participant_config_file"))
+        sim_participant = SimulatedParticipant(subject, info.experience, seed, pcfg)
+    isolate = args.servo_process == "on" or (args.servo_process == "auto" and not is_sim)
+    device_options = {"seed": seed} if is_sim else {}
+    device = apparatus = None
+    ui = web = None
+    if isolate:
+        from .isolated import IsolatedApparatus
+
+        apparatus = IsolatedApparatus(args.device, device_options, catalog, protocol, args.library_dir,
+                                      sim_participant, realtime=True if args.realtime else None)
+        device_info = apparatus.device_info
+    else:
+        from devices import DeviceError
+
+        try:
+            device = make_device(args.device, **device_options)
+            device.open()
+        except DeviceError as exc:
+            raise ValueError(f"device {args.device}: {exc}") from None
+        device_info = asdict(device.info)
+    try:
+        if apparatus is None:
+            apparatus = Apparatus(device, catalog, protocol, library_dir=args.library_dir,
+                                  sim_participant=sim_participant, realtime=True if args.realtime else None)
+        participant = sim_participant if args.participant == "simulated" else _KeyboardParticipant()
+        schedule = Schedule([s.name for s in catalog], protocol.repetitions, seed,
+                            protocol.familiarization_sample or None, subject)
+        if previous is None:
+            session = {
+                "subject": subject, "age": info.age, "gender": info.gender, "handedness": info.handedness,
+                "experience": info.experience, "seed": seed, "repetitions": protocol.repetitions,
+                "catalog": _catalog_entries(catalog), "catalog_file": args.catalog, "library_dir": args.library_dir,
+                "protocol": protocol.to_dict(), "device": {"spec": args.device, "info": _jsonable(device_info),
+                           "servo_process": isolate},
+                "participant": args.participant,
+                "simulated_participant": sim_participant.describe() if sim_participant else None,
+                "participant_config_file": args.participant_config,
+                "audio": audio_info, "real_saturation_detection": apparatus.real_saturation_detection,
+                "software_version": software_versions(), "started_at": utc_now(), "finished_at": None,
+                "resumed_at": [], "planned_order": {k: v.summary()["planned"] for k, v in schedule.phases.items()},
+            }
+            store.create(session)
+            for name, phase in schedule.phases.items():
+                store.log_event({"event": "plan", "phase": name, "order": phase.summary()["planned"],
+                                 "trials": phase.summary()["planned_trials"]})
+            rows, fam_ended = [], False
+        else:
+            store.session = previous
+            rows = store.read_trials()
+            fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
+            store.session.setdefault("resumed_at", []).append(utc_now())
+            store.write_session()
+            store.log_event({"event": "resume", "attempts_on_disk": len(rows)})
+
+        from .runner import StudyRunner
+        from .webui import UiState, WebUI
+
+        if args.participant == "keyboard" or args.serve:
+            ui = UiState()
+            web = WebUI(ui, host=args.host, port=args.port, token=args.token).start()
+            print(f"subject view:  {web.subject_url}", flush=True)
+            print(f"operator view: {web.operator_url}", flush=True)
+            if args.participant == "keyboard":
+                participant.ui = ui
+        runner = StudyRunner(store=store, schedule=schedule, apparatus=apparatus, participant=participant,
+                             audio=audio, ui=ui, protocol=protocol, kinds={s.name: s.kind for s in catalog})
+        if rows:
+            runner.restore(rows, fam_ended)
+            say(f"resuming {subject}: {len(rows)} attempts on disk, next: {schedule.phase}")
+        if sim_participant is not None:
+            ref = apparatus.record_reference()
+            store.log_event({"event": "rater_reference", "a": ref.a, "b": ref.b, "centroid_hz": ref.centroid_hz})
+        audio.start()
+        try:
+            runner.run()
+        finally:
+            audio.stop()
+        store.session["order"] = schedule.summary()
+        store.finish()
+    except KeyboardInterrupt:
+        print(f"interrupted: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        from .webui import Aborted
+
+        if isinstance(exc, Aborted):
+            print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
+            return 3
+        raise
+    finally:
+        if device is not None:
+            device.close()
+        elif apparatus is not None:
+            apparatus.close()
+        if web is not None:
+            web.stop()
+    _summary(store, say)
+    return 0
+
+
+def _audio_device(value):
+    if value is None:
+        return None
+    return int(value) if value.isdigit() else value
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    return obj
+
+
+class _KeyboardParticipant:
+    """A person: ratings and the end of familiarization come from the subject view."""
+
+    kind = "keyboard"
+    ui = None
+
+
+def _summary(store: SessionStore, say) -> None:
+    rows = store.read_trials()
+    by_phase = {}
+    for r in rows:
+        d = by_phase.setdefault(r["phase"], {"attempts": 0, "valid": 0, "saturated": 0, "rejected": 0,
+                                             "overpowered": 0})
+        d["attempts"] += 1
+        for key in ("valid", "saturated", "rejected", "overpowered"):
+            d[key] += bool(r[key])
+    print(f"session {store.subject} complete: {store.dir}")
+    for phase, d in by_phase.items():
+        print(f"  {phase:15s} attempts {d['attempts']:3d}  valid {d['valid']:3d}  saturated {d['saturated']:2d}  "
+              f"rejected {d['rejected']:2d}  overpowered {d['overpowered']:2d}")

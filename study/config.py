@@ -1,0 +1,128 @@
+"""Study settings: protocol parameters and subject information, validated at the boundary.
+
+Protocol defaults follow thesis section 4.5.3: familiarization on the real
+wood sample, each sample once in the demonstration, three times in testing,
+five seconds of tapping from the first impact. A TOML or JSON file may
+override any :class:`ProtocolConfig` field (``--protocol FILE``); unknown keys
+are refused with the key and file named.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from .data import EXPERIENCE, check_subject_id
+
+GENDERS = ("female", "male", "other", "unspecified")
+HANDEDNESS = ("right", "left", "ambidextrous", "unspecified")
+
+
+@dataclass(frozen=True)
+class ProtocolConfig:
+    """Protocol parameters (units in names).
+
+    Attributes
+    ----------
+    repetitions : int
+        Testing presentations per sample (section 4.5.3: 3).
+    tap_window_s : float
+        Tapping time from the first impact (5 s).
+    first_tap_timeout_s : float
+        Time allowed for the first impact after the cue; none -> the attempt is invalid ("no_tap").
+    home_height_m : float
+        Homing target above the sample surface.
+    homing_after_s : float
+        Homing time after the window in which a tap counts as overpowering
+        (keyboard sessions keep homing until the rating arrives, and count those taps too).
+    homing_before_max_s : float
+        Longest pre-trial homing while waiting for the stylus to settle.
+    familiarization_sample : str
+        Catalog name of the real sample for familiarization ("" skips the phase).
+    familiarization_window_s : float
+        Length of one recorded familiarization window.
+    familiarization_max_windows : int
+        Safety cap on familiarization windows.
+    masking_level_dbfs : float
+        White-noise RMS level re digital full scale.
+    audio_fs_hz : float
+    """
+
+    repetitions: int = 3
+    tap_window_s: float = 5.0
+    first_tap_timeout_s: float = 10.0
+    home_height_m: float = 0.01
+    homing_after_s: float = 1.0
+    homing_before_max_s: float = 0.5
+    familiarization_sample: str = "wood"
+    familiarization_window_s: float = 5.0
+    familiarization_max_windows: int = 60
+    masking_level_dbfs: float = -20.0
+    audio_fs_hz: float = 44100.0
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.repetitions, int) and not isinstance(self.repetitions, bool) and self.repetitions >= 1):
+            raise ValueError(f"repetitions must be an integer >= 1, got {self.repetitions!r}")
+        for key in ("tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s", "homing_before_max_s",
+                    "familiarization_window_s", "audio_fs_hz"):
+            value = getattr(self, key)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{key} must be a positive finite number, got {value!r}")
+        if not (isinstance(self.familiarization_max_windows, int) and self.familiarization_max_windows >= 1):
+            raise ValueError(f"familiarization_max_windows must be an integer >= 1, got "
+                             f"{self.familiarization_max_windows!r}")
+        if not (math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
+            raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def load_protocol(path, **overrides) -> ProtocolConfig:
+    """Load a :class:`ProtocolConfig` from TOML/JSON; CLI ``overrides`` (not None) win."""
+    data: dict = {}
+    where = "command line"
+    if path is not None:
+        p = Path(path)
+        where = str(p)
+        if not p.is_file():
+            raise FileNotFoundError(f"protocol file {p} not found")
+        try:
+            data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{p}: cannot parse ({exc})") from None
+    known = {f.name for f in fields(ProtocolConfig)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"{where}: unknown protocol key(s) {unknown}; valid keys: {sorted(known)}")
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return ProtocolConfig(**data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class SubjectInfo:
+    """Collected before the session (section 4.5.3)."""
+
+    subject: str
+    age: int | None
+    gender: str
+    handedness: str
+    experience: str
+
+    def __post_init__(self) -> None:
+        check_subject_id(self.subject)
+        if self.age is not None and not (isinstance(self.age, int) and 5 <= self.age <= 120):
+            raise ValueError(f"age must be an integer 5-120, got {self.age!r}")
+        if self.gender not in GENDERS:
+            raise ValueError(f"gender must be one of {list(GENDERS)}, got {self.gender!r}")
+        if self.handedness not in HANDEDNESS:
+            raise ValueError(f"handedness must be one of {list(HANDEDNESS)}, got {self.handedness!r}")
+        if self.experience not in EXPERIENCE:
+            raise ValueError(f"experience must be one of {list(EXPERIENCE)} (never / a few times / regularly), "
+                             f"got {self.experience!r}")

@@ -1,0 +1,175 @@
+"""The apparatus in its own process, so the servo loop never shares an interpreter lock with UI or audio.
+
+CPython hands its GIL between threads every ``sys.getswitchinterval()``
+(5 ms): in one process, the web UI's handler threads and the PortAudio
+callback (Python code) would delay a 10 kHz servo loop by up to milliseconds.
+With ``--servo-process on`` (the default for hardware) the device, the servo
+loops and the homing controller live in a child process started with the
+"spawn" method; the runner talks to it through a pipe:
+
+* every :class:`study.apparatus.Apparatus` call becomes a request/response
+  (results, including the full-rate log, are pickled back);
+* ``hold(until)``: the parent evaluates ``until()`` (UI state) every 20 ms and
+  sets a shared event; the child's homing loop checks the event;
+* ``tap_window(on_clip)``: the child puts a message on a queue at each
+  saturation and the parent plays the low tone as it arrives.
+
+The child zeroes and closes the device on every exit path (the Device base
+class guarantees it); if the parent dies, the child sees the pipe close and exits.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import queue
+import signal
+
+
+def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
+           sim_participant, realtime) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C there closes the pipe
+    from devices import make_device
+
+    from .apparatus import Apparatus
+
+    device = None
+    try:
+        device = make_device(spec, **device_options)
+        device.open()
+        app = Apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
+                        realtime=realtime)
+        from dataclasses import asdict
+
+        conn.send(("ok", {"real_saturation_detection": app.real_saturation_detection, "device_info": asdict(device.info),
+                          "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz}))
+        while True:
+            try:
+                method, args = conn.recv()
+            except EOFError:
+                break
+            if method == "close":
+                conn.send(("ok", None))
+                break
+            try:
+                if method == "tap_window":
+                    result = app.tap_window(*args, on_clip=lambda: clip_q.put_nowait(1))
+                elif method == "hold":
+                    result = app.hold(until=hold_event.is_set, max_s=args[0])
+                else:
+                    result = getattr(app, method)(*args)
+                conn.send(("ok", result))
+            except Exception as exc:  # report and keep serving; the parent decides whether to stop
+                conn.send(("error", (type(exc).__name__, str(exc))))
+    except Exception as exc:
+        try:
+            conn.send(("error", (type(exc).__name__, str(exc))))
+        except Exception:
+            pass
+    finally:
+        if device is not None:
+            device.close()
+        conn.close()
+
+
+class IsolatedApparatus:
+    """Same interface as :class:`study.apparatus.Apparatus`, backed by a child process (see module doc)."""
+
+    def __init__(self, spec: str, device_options: dict, catalog, protocol, library_dir=None,
+                 sim_participant=None, realtime=None) -> None:
+        ctx = mp.get_context("spawn")
+        self._conn, child_conn = ctx.Pipe()
+        self._clip_q = ctx.Queue()
+        self._hold = ctx.Event()
+        self._proc = ctx.Process(target=_child, name="study-servo", daemon=True,
+                                 args=(child_conn, self._clip_q, self._hold, spec, device_options, catalog, protocol,
+                                       library_dir, sim_participant, realtime))
+        self._proc.start()
+        child_conn.close()
+        info = self._recv()
+        self.real_saturation_detection = info["real_saturation_detection"]
+        self.simulated_hand = info["simulated_hand"]
+        self.is_sim = info["is_sim"]
+        self.fs_hz = info["fs_hz"]
+        self.device_info = info["device_info"]
+        self.sim_participant = sim_participant
+        self.reference = None
+
+    def _recv(self, on_wait=None):
+        while not self._conn.poll(0.02):
+            if not self._proc.is_alive():
+                raise RuntimeError(f"the servo process died (exit code {self._proc.exitcode})")
+            if on_wait is not None:
+                on_wait()
+        status, payload = self._conn.recv()
+        if status != "ok":
+            kind, message = payload
+            # user errors keep their type so the command reports them as such (exit code 2)
+            if kind in ("ValueError", "FileNotFoundError"):
+                raise {"ValueError": ValueError, "FileNotFoundError": FileNotFoundError}[kind](message)
+            if kind == "DeviceError":
+                raise ValueError(f"device: {message}")
+            raise RuntimeError(f"servo process: {kind}: {message}")
+        return payload
+
+    def _call(self, method: str, *args, on_wait=None):
+        self._conn.send((method, args))
+        return self._recv(on_wait)
+
+    def now_s(self) -> float:
+        return self._call("now_s")
+
+    def set_sample(self, name: str) -> None:
+        self._call("set_sample", name)
+
+    def start_hand(self, plan, window_s: float) -> None:
+        self._call("start_hand", plan, window_s)
+
+    def home(self, max_s: float) -> None:
+        self._call("home", max_s)
+
+    def after_window(self, duration_s: float) -> int:
+        return self._call("after_window", duration_s)
+
+    def hold(self, until, max_s: float = 24 * 3600.0) -> int:
+        self._hold.clear()
+
+        def check():
+            if until():
+                self._hold.set()
+
+        return self._call("hold", max_s, on_wait=check)
+
+    def tap_window(self, window_s: float, first_tap_timeout_s: float, on_clip=None):
+        def drain():
+            while True:
+                try:
+                    self._clip_q.get_nowait()
+                except queue.Empty:
+                    return
+                if on_clip is not None:
+                    on_clip()
+
+        result = self._call("tap_window", window_s, first_tap_timeout_s, on_wait=drain)
+        drain()
+        return result
+
+    def features(self, tap):
+        from .rater import tap_features
+
+        return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], self.fs_hz)
+
+    def record_reference(self, reference_sample: str = "wood_on_foam"):
+        self.reference = self._call("record_reference", reference_sample)
+        return self.reference
+
+    def close(self) -> None:
+        try:
+            if self._proc.is_alive():
+                self._call("close")
+        except (RuntimeError, OSError, EOFError):
+            pass
+        finally:
+            self._proc.join(timeout=10)
+            if self._proc.is_alive():
+                self._proc.kill()
+            self._conn.close()

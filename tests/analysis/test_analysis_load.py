@@ -1,0 +1,219 @@
+"""Loading and validation: bad input gives a clear error naming file and line."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from analysis.load import TRIAL_COLUMNS, load_study
+from analysis.synthetic import write_synthetic_study
+
+pytestmark = pytest.mark.filterwarnings("ignore::analysis.load.AnalysisWarning")
+
+
+@pytest.fixture()
+def small(tmp_path):
+    write_synthetic_study(tmp_path, 3, seed=11, p_invalid=0.2)
+    return tmp_path
+
+
+def _lines(path):
+    return path.read_text().splitlines()
+
+
+def _write(path, lines):
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _set_field(path, line_no, column, value):
+    """Set one field (1-based line number) of a trials.csv written by the generator (no quoting)."""
+    lines = _lines(path)
+    idx = TRIAL_COLUMNS.index(column)
+    fields = lines[line_no - 1].split(",")
+    fields[idx] = value
+    lines[line_no - 1] = ",".join(fields)
+    _write(path, lines)
+
+
+def _first_line(path, phase="testing", valid="true"):
+    for i, line in enumerate(_lines(path)[1:], start=2):
+        f = line.split(",")
+        if f[1] == phase and f[TRIAL_COLUMNS.index("valid")] == valid:
+            return i
+    raise AssertionError("no such row")
+
+
+def test_loads_typed_rows(small):
+    study = load_study(small)
+    t = study.trials
+    assert len(study.subjects) == 3 and study.catalog[:2] == ("wood", "wood_on_foam")
+    assert t["valid"].dtype == bool and t["trial"].dtype == np.int64
+    valid_testing = t[(t["phase"] == "testing") & t["valid"]]
+    assert len(valid_testing) == 3 * 12 * 3
+    assert valid_testing["rating"].between(1, 7).all()
+    assert (t["line"] >= 2).all() and t["file"].str.endswith("trials.csv").all()
+    assert not t.loc[t["rejected"], "rating"].notna().any()  # rejected attempts have no rating
+
+
+def test_empty_folder_is_an_error(tmp_path):
+    with pytest.raises(ValueError, match="no subject folders"):
+        load_study(tmp_path)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_study(tmp_path / "nope")
+
+
+def test_misspelled_column_names_file_line_and_guess(small):
+    path = small / "S002" / "trials.csv"
+    lines = _lines(path)
+    lines[0] = lines[0].replace("rating", "ratng")
+    _write(path, lines)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:1: missing column(s) 'rating' (found 'ratng'")):
+        load_study(small)
+
+
+def test_missing_column(small):
+    path = small / "S001" / "trials.csv"
+    lines = [",".join(f for j, f in enumerate(line.split(",")) if j != TRIAL_COLUMNS.index("saturated"))
+             for line in _lines(path)]
+    _write(path, lines)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:1: missing column(s) 'saturated'")):
+        load_study(small)
+
+
+@pytest.mark.parametrize("value", ["9", "0", "", "4.5"])
+def test_rating_outside_range_on_valid_attempt(small, value):
+    path = small / "S003" / "trials.csv"
+    line = _first_line(path)
+    _set_field(path, line, "rating", value)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: column 'rating': value {value!r}")):
+        load_study(small)
+
+
+def test_rating_outside_range_on_invalid_attempt_is_ignored(small):
+    path = small / "S003" / "trials.csv"
+    line = _first_line(path, valid="false")
+    _set_field(path, line, "rating", "")
+    load_study(small)
+
+
+def test_duplicated_attempt_names_both_lines(small):
+    path = small / "S001" / "trials.csv"
+    lines = _lines(path)
+    line = _first_line(path)
+    _write(path, lines + [lines[line - 1]])
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}, {path}:{len(lines) + 1}")):
+        load_study(small)
+
+
+def test_unparsable_session_json_names_line(small):
+    path = small / "S002" / "session.json"
+    text = path.read_text().replace('"experience": "', '"experience" "', 1)
+    path.write_text(text)
+    line = next(i for i, ln in enumerate(text.splitlines(), start=1) if '"experience" "' in ln)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: not valid JSON")):
+        load_study(small)
+
+
+def test_bad_values_name_file_line_column(small):
+    path = small / "S001" / "trials.csv"
+    _set_field(path, 5, "saturated", "yes")
+    with pytest.raises(ValueError, match=re.escape(f"{path}:5: column 'saturated': value 'yes' is not true|false")):
+        load_study(small)
+    write_synthetic_study(small, 3, seed=11)
+    _set_field(path, 7, "sample", "marble")
+    with pytest.raises(ValueError, match=re.escape(f"{path}:7: column 'sample': value 'marble' is not in the catalog")):
+        load_study(small)
+    write_synthetic_study(small, 3, seed=11)
+    _set_field(path, 4, "phase", "warmup")
+    with pytest.raises(ValueError, match=re.escape(f"{path}:4: column 'phase'")):
+        load_study(small)
+    write_synthetic_study(small, 3, seed=11)
+    line = _first_line(path)
+    _set_field(path, line, "incoming_velocities_m_s", "0.1;fast")
+    from analysis.pipeline import analyse
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: column 'incoming_velocities_m_s': '0.1;fast'")):
+        analyse(small)
+
+
+def test_session_json_keys_are_checked(small):
+    path = small / "S001" / "session.json"
+    info = json.loads(path.read_text())
+    info["experience"] = "expert"
+    path.write_text(json.dumps(info))
+    with pytest.raises(ValueError, match=re.escape(f"{path}: key 'experience'")):
+        load_study(small)
+    del info["catalog"]
+    path.write_text(json.dumps(info))
+    with pytest.raises(ValueError, match=re.escape(f"{path}: missing key 'catalog'")):
+        load_study(small)
+
+
+def test_missing_trials_file(small):
+    (small / "S002" / "trials.csv").unlink()
+    with pytest.raises(FileNotFoundError, match="S002/trials.csv is missing"):
+        load_study(small)
+
+
+def test_catalog_as_list_of_names(small):
+    for sess in small.glob("*/session.json"):
+        info = json.loads(sess.read_text())
+        info["catalog"] = [c["name"] for c in info["catalog"]]
+        sess.write_text(json.dumps(info))
+    study = load_study(small)
+    assert study.kinds["foam"] == "real" and study.kinds["hfam_firm"] == "virtual"
+
+
+def test_torn_last_line_is_left_out_with_warning(small):
+    from analysis.load import AnalysisWarning
+    path = small / "S001" / "trials.csv"
+    text = path.read_text()
+    n_rows = len(text.splitlines()) - 1
+    path.write_text(text + "S001,testing,99,1,wood,real,5,fal")
+    with pytest.warns(AnalysisWarning, match="torn last line"):
+        study = load_study(small)
+    assert (study.trials["subject"] == "S001").sum() == n_rows
+
+
+def test_wrong_field_count_mid_file_names_line(small):
+    path = small / "S001" / "trials.csv"
+    lines = _lines(path)
+    lines[4] = lines[4] + ",extra"
+    _write(path, lines)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:5: 19 fields, header has 18")):
+        load_study(small)
+
+
+def test_blank_and_crlf_lines_keep_line_numbers(small):
+    path = small / "S002" / "trials.csv"
+    lines = _lines(path)
+    line = _first_line(path)
+    fields = lines[line - 1].split(",")
+    fields[TRIAL_COLUMNS.index("rating")] = "8"
+    lines[line - 1] = ",".join(fields)
+    path.write_bytes(("\r\n".join(lines[:2] + [""] + lines[2:]) + "\r\n").encode())
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line + 1}: column 'rating'")):
+        load_study(small)
+
+
+def test_inconsistent_rows_name_line(small):
+    path = small / "S001" / "trials.csv"
+    line = _first_line(path)
+    _set_field(path, line, "saturated", "true")
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: column 'valid': value 'true' is true on an "
+                                                   "attempt marked")):
+        load_study(small)
+    write_synthetic_study(small, 3, seed=11)
+    lines = _lines(path)
+    fields = lines[line - 1].split(",")
+    fields[TRIAL_COLUMNS.index("kind")] = "virtual" if fields[TRIAL_COLUMNS.index("kind")] == "real" else "real"
+    lines[line - 1] = ",".join(fields)
+    _write(path, lines)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: column 'kind'")):
+        load_study(small)
+    write_synthetic_study(small, 3, seed=11)
+    _set_field(path, line, "attempt", "0")
+    with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: column 'attempt': value 0 must be >= 1")):
+        load_study(small)

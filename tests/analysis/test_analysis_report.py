@@ -1,0 +1,164 @@
+"""``python -m analysis report``: tables, figures with real content, report.md and self-contained report.html."""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib.image as mpimg
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.__main__ import main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _pixels_vary(png: Path) -> float:
+    img = mpimg.imread(png)
+    assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 200
+    return float(img[..., :3].std())
+
+
+@pytest.fixture(scope="module")
+def report(study_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    proc = subprocess.run([sys.executable, "-m", "analysis", "report", str(study_dir), "--out", str(out)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return out, proc
+
+
+def test_tables_written_with_issue_columns(report):
+    out, _ = report
+    pw = pd.read_csv(out / "pairwise_ttests.csv")
+    assert list(pw.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
+                                "ci_low", "ci_high", "cohen_dz"]
+    assert len(pw) == 2 * 66 and set(pw["group"]) == {"all", "experienced"}
+    eq = pd.read_csv(out / "equivalence.csv")
+    assert list(eq.columns) == ["group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
+                                "p_tost", "equivalent"]
+    an = pd.read_csv(out / "anova.csv")
+    assert set(an["test"]) == {"rm_anova", "friedman"} and an["p_gg"].notna().sum() == 2
+    summ = pd.read_csv(out / "sample_summary.csv")
+    assert {"sample", "n_subjects", "mean_rating", "median_rating", "sem_rating", "penetration_mean_m",
+            "penetration_sd_m", "incoming_velocity_mean_m_s"} <= set(summ.columns)
+    assert len(pd.read_csv(out / "velocity_rating.csv")) == 13
+
+
+def test_figures_have_content(report):
+    out, _ = report
+    for name in ("fig_4_17_ratings.png", "fig_4_18_pvalues.png", "fig_4_19_penetration.png",
+                 "fig_4_20_accelerations.png"):
+        assert _pixels_vary(out / name) > 0.05, name
+
+
+def test_warnings_printed_and_in_report(report):
+    out, proc = report
+    assert "warning: 1 subject(s) miss sample(s)" in proc.stderr and "S005 (foam, pulse_soft)" in proc.stderr
+    md = (out / "report.md").read_text()
+    assert "S005 misses foam, pulse_soft" in md and "S006 is not finished" in md
+    assert re.search(r"\*\*all subjects\*\*: \d+ of 66 sample pairs differ significantly", md)
+    assert "## Significantly different pairs" in md and "- wood rated higher than foam by" in md
+    assert "equivalent to wood_on_foam within ±0.5" in md
+    assert "invalid testing attempts were left out (saturated" in md
+    assert "![Figure 4.20" in md
+
+
+def test_html_is_self_contained(report):
+    out, _ = report
+    html = (out / "report.html").read_text()
+    srcs = re.findall(r"src='([^']*)'", html)
+    assert len(srcs) == 4 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    png = base64.b64decode(srcs[0].split(",", 1)[1])
+    img = mpimg.imread(io.BytesIO(png), format="png")
+    assert img[..., :3].std() > 0.05
+    assert "href=" not in html and "<table" in html and "S005" in html
+
+
+def test_figure_4_20_skipped_with_note_without_traces(complete_dir, tmp_path, capsys):
+    assert main(["report", str(complete_dir), "--out", str(tmp_path), "--group", "all"]) == 0
+    err = capsys.readouterr().err
+    assert "Figure 4.20 skipped: no usable per-attempt traces" in err
+    assert not (tmp_path / "fig_4_20_accelerations.png").exists()
+    assert "Figure 4.20 skipped" in (tmp_path / "report.md").read_text()
+    assert _pixels_vary(tmp_path / "fig_4_17_ratings.png") > 0.05
+
+
+def test_cli_errors_exit_2(tmp_path, capsys):
+    assert main(["report", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
+    assert "error:" in capsys.readouterr().err
+    (tmp_path / "S1").mkdir()
+    (tmp_path / "S1" / "session.json").write_text("{\n  \"subject\": \"S1\",\n  oops\n}\n")
+    (tmp_path / "S1" / "trials.csv").write_text(",".join(["subject"]) + "\n")
+    assert main(["report", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
+    assert "session.json:3: not valid JSON" in capsys.readouterr().err
+
+
+def test_help(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["report", "--help"])
+    out = capsys.readouterr().out
+    assert exc.value.code == 0 and "--reference" in out and "--margin" in out and "--group" in out
+
+
+def test_accelerations_picked_near_common_velocity(analysed):
+    from analysis.stats import valid_testing
+    from analysis.traces import typical_taps
+    dirs = dict(zip(analysed.study.subjects["subject"], map(Path, analysed.study.subjects["folder"])))
+    taps, v, notes = typical_taps(valid_testing(analysed.study), dirs, analysed.study.catalog, 0.11)
+    assert v == 0.11 and set(taps) == set(analysed.study.catalog)
+    for tap in taps.values():
+        assert abs(tap.v_in_m_s - 0.11) < 0.03
+        pre = tap.accel_m_s2[tap.t_s < 0]
+        post = tap.accel_m_s2[(tap.t_s > 0) & (tap.t_s < 0.03)]
+        assert np.abs(post).max() > 5 * np.abs(pre).max()   # impact found where the ringing starts
+    assert taps["wood"].accel_m_s2.max() > 3 * taps["foam"].accel_m_s2.max()
+
+
+def test_analysis_imports_no_other_package():
+    code = ("import sys, analysis.report, analysis.pipeline, analysis.traces, analysis.figures, analysis.synthetic\n"
+            "bad = [m for m in ('devices', 'renderer', 'stimuli', 'study') if m in sys.modules]\n"
+            "assert not bad, bad\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_out_must_not_be_data(complete_dir, capsys):
+    assert main(["report", str(complete_dir), "--out", str(complete_dir)]) == 2
+    assert "must not be the data folder" in capsys.readouterr().err
+
+
+def test_trace_reader_is_tolerant(tmp_path):
+    from analysis.synthetic import DEFAULT_SAMPLES, synthetic_trace
+    from analysis.traces import read_trace_taps
+    tr = synthetic_trace(DEFAULT_SAMPLES[0], 0.12, fs_hz=10000.0)
+    np.savez(tmp_path / "study.npz", **tr)
+    (tap,) = read_trace_taps(tmp_path / "study.npz", "S1", "wood")
+    assert tap.v_in_m_s == pytest.approx(0.12) and tap.t_s[0] == pytest.approx(-0.01)
+    assert len(tap.t_s) == 1100 and np.argmax(np.abs(tap.accel_m_s2)) > 100
+    # no event arrays, other spellings: impacts from the position's downward crossing of 0, velocity from CSV
+    np.savez(tmp_path / "pos.npz", time_s=tr["t_s"], acceleration_m_s2=tr["accel_m_s2"], position_m=tr["position_m"])
+    (tap2,) = read_trace_taps(tmp_path / "pos.npz", "S1", "wood", velocities_m_s=[0.12])
+    assert tap2.v_in_m_s == 0.12
+    assert abs(np.argmax(np.abs(tap2.accel_m_s2)) - np.argmax(np.abs(tap.accel_m_s2))) <= 1
+    (tap3,) = read_trace_taps(tmp_path / "pos.npz", "S1", "wood")          # speed estimated from position
+    assert tap3.v_in_m_s == pytest.approx(0.12, rel=0.05)
+    np.savez(tmp_path / "none.npz", t_s=tr["t_s"], force_N=tr["force_prop_N"])
+    assert read_trace_taps(tmp_path / "none.npz", "S1", "wood") == []
+
+
+def test_synthetic_command_then_report(tmp_path, capsys):
+    data = tmp_path / "data"
+    assert main(["synthetic", str(data), "--subjects", "4", "--seed", "3", "--traces", "1"]) == 0
+    assert sorted(p.name for p in data.iterdir()) == ["S001", "S002", "S003", "S004"]
+    assert any((data / "S001" / "traces").iterdir()) and not any((data / "S002" / "traces").iterdir())
+    assert main(["synthetic", str(data)]) == 2                      # never writes into existing data
+    assert "not empty" in capsys.readouterr().err
+    assert main(["report", str(data), "--out", str(tmp_path / "rep"), "--no-figures"]) == 0
+    assert (tmp_path / "rep" / "pairwise_ttests.csv").stat().st_size > 1000

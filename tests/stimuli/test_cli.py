@@ -1,0 +1,132 @@
+"""``python -m stimuli build-library`` and ``show`` end to end, through real files."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from stimuli import HfamLibrary
+from stimuli.__main__ import main
+from tests.stimuli.conftest import minimum_phase_model, rhp_zero_model, synthetic_taps, write_taps_csv
+
+VELOCITIES = (0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.35)
+
+
+def _numeric_row(line: str) -> bool:
+    parts = line.split()
+    try:
+        [float(x) for x in parts[:6]]
+    except ValueError:
+        return False
+    return len(parts) >= 6
+
+
+@pytest.fixture
+def inputs(tmp_path):
+    rec = tmp_path / "rec.csv"
+    write_taps_csv(rec, synthetic_taps(VELOCITIES, noise=0.02))
+    m1 = minimum_phase_model(grip_N=1.0).save(tmp_path / "grip1.json")
+    m2 = rhp_zero_model(grip_N=4.0).save(tmp_path / "grip4.json")
+    return rec, m1, m2
+
+
+def test_build_library_and_show(tmp_path, inputs, capsys):
+    rec, m1, m2 = inputs
+    out = tmp_path / "lib.npz"
+    rc = main(["build-library", "--recordings", str(rec), "--model", str(m2), "--model", str(m1), "--out", str(out),
+               "--device", "none", "--force-per-amp", "2.35", "--peak-current-A", "50"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert "selected 8 taps" in text and "not needed for 8 evenly spaced velocities" in text
+    assert "verification through the forward models, 20-1000 Hz" in text
+    rows = [ln.split() for ln in text.splitlines() if _numeric_row(ln)]
+    assert len(rows) == 16
+    assert max(float(r[4]) for r in rows) < 0.1  # NRMSE column
+    lib = HfamLibrary.load(out)
+    assert lib.currents_A.shape == (8, 2, 1000) and lib.grips_N.tolist() == [1.0, 4.0]
+    meta = lib.metadata
+    assert meta["source_files"]["recordings"]["path"] == str(rec)
+    assert len(meta["source_files"]["recordings"]["sha256"]) == 64
+    assert [m["name"] for m in meta["models"]] == [str(m1), str(m2)]
+    assert meta["settings"]["smooth_hz"] == 500.0 and meta["software_version"].startswith("hfam-haptics")
+    assert len(meta["verification"]) == 16
+    # refuses to overwrite
+    assert main(["build-library", "--recordings", str(rec), "--model", str(m1), "--out", str(out),
+                 "--device", "none", "--force-per-amp", "2.35"]) == 2
+    assert "exists; use --force" in capsys.readouterr().err
+    # show
+    png = tmp_path / "fig.png"
+    assert main(["show", str(out), "--out", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert "8 velocities x 2 grip level(s) x 1000 samples at 10000 Hz" in text
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20000
+
+
+def test_build_library_peak_limit_message(tmp_path, inputs, capsys):
+    rec, m1, _ = inputs
+    rc = main(["build-library", "--recordings", str(rec), "--model", str(m1), "--out", str(tmp_path / "x.npz"),
+               "--device", "none", "--force-per-amp", "2.35", "--peak-current-A", "0.05"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "error: transient at velocity" in err and "grip 1 N" in err and "--scale-to-limit" in err
+    assert not (tmp_path / "x.npz").exists()
+    rc = main(["build-library", "--recordings", str(rec), "--model", str(m1), "--out", str(tmp_path / "x.npz"),
+               "--device", "none", "--force-per-amp", "2.35", "--peak-current-A", "0.05", "--scale-to-limit"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "warning: scaled transient at velocity" in out
+    assert np.max(np.abs(HfamLibrary.load(tmp_path / "x.npz").currents_A)) <= 0.05 + 1e-12
+
+
+def test_build_library_uses_device_limits_and_rate(tmp_path, inputs, capsys):
+    rec, m1, _ = inputs
+    out = tmp_path / "sim.npz"
+    assert main(["build-library", "--recordings", str(rec), "--model", str(m1), "--out", str(out),
+                 "--peak-current-A", "50"]) == 0
+    lib = HfamLibrary.load(out)
+    assert lib.force_per_amp_N_A == pytest.approx(2.35) and lib.metadata["device"] == "sim"
+
+
+@pytest.mark.parametrize("which,match", [("model", "not stable"), ("improper", "improper"),
+                                         ("recordings", "missing column")])
+def test_bad_files_exit_2_naming_the_file(tmp_path, inputs, capsys, which, match):
+    rec, m1, _ = inputs
+    if which == "model":
+        data = json.loads(m1.read_text())
+        data["poles_rad_s"].append([25.0, 0.0])
+        data["zeros_rad_s"].append([-3.0, 0.0])
+        m1.write_text(json.dumps(data))
+        bad = m1
+    elif which == "improper":
+        data = json.loads(m1.read_text())
+        data["zeros_rad_s"] += [[-1.0, 0.0]] * (len(data["poles_rad_s"]) + 1 - len(data["zeros_rad_s"]))
+        m1.write_text(json.dumps(data))
+        bad = m1
+    else:
+        rec.write_text("tap,t_s,accel_m_s2\n0,0.0,1.0\n")
+        bad = rec
+    rc = main(["build-library", "--recordings", str(rec), "--model", str(m1), "--out", str(tmp_path / "o.npz"),
+               "--device", "none", "--force-per-amp", "2.35"])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(bad) in err and match in err
+
+
+def test_module_help_runs():
+    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--help"], capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 0 and "--recordings" in res.stdout and "--scale-to-limit" in res.stdout
+
+
+def test_model_set_directory_expands_to_its_accel_models(tmp_path, inputs, capsys):
+    rec, m1, m2 = inputs
+    mset = tmp_path / "set"
+    mset.mkdir()
+    m1.rename(mset / "accel_g1N.json")
+    m2.rename(mset / "accel_g4N.json")
+    (mset / "model_set.json").write_text(json.dumps({"kind": "model_set", "grip_N": [1.0, 4.0],
+                                                    "models": {"accel_m_s2": ["accel_g1N.json", "accel_g4N.json"],
+                                                               "position_m": [None, None]}}))
+    out = tmp_path / "lib.npz"
+    assert main(["build-library", "--recordings", str(rec), "--model", str(mset), "--out", str(out),
+                 "--device", "none", "--force-per-amp", "2.35"]) == 0
+    assert HfamLibrary.load(out).grips_N.tolist() == [1.0, 4.0]

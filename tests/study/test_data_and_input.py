@@ -1,0 +1,112 @@
+"""Data files and bad input refused before a session starts."""
+
+import os
+import stat
+import subprocess
+
+import pytest
+
+from study.data import TRIAL_COLUMNS, SessionStore, check_subject_id, format_row
+
+from .helpers import quick_args, run_study, write
+
+
+def row(**over):
+    base = {"subject": "S", "phase": "testing", "trial": 3, "attempt": 2, "sample": "firm", "kind": "virtual",
+            "rating": None, "rejected": True, "saturated": False, "overpowered": False, "valid": False, "n_taps": 2,
+            "incoming_velocity_mean_m_s": 0.1, "penetration_mean_m": 0.002, "incoming_velocities_m_s": [0.09, 0.11],
+            "penetration_depths_m": [0.0015, 0.0025], "started_at": "2026-01-01T00:00:00.000Z", "duration_s": 6.1}
+    base.update(over)
+    return base
+
+
+def test_row_format(tmp_path):
+    out = format_row(row())
+    assert tuple(out) == TRIAL_COLUMNS
+    assert out["rating"] == "" and out["rejected"] == "true" and out["valid"] == "false"
+    assert out["incoming_velocities_m_s"] == "0.09;0.11"
+    assert format_row(row(rating=6, rejected=False))["rating"] == "6"
+
+
+def test_trials_appended_and_torn_last_line_dropped(tmp_path):
+    store = SessionStore(tmp_path, "S01")
+    store.check()
+    store.create({"subject": "S01", "finished_at": None})
+    store.append_trial(row(trial=1, attempt=1))
+    store.append_trial(row(trial=2, attempt=1, rating=5, rejected=False, valid=True))
+    with open(store.trials_path, "a") as fh:                 # a crash in the middle of a write
+        fh.write("S01,testing,3,1,fi")
+    rows = store.read_trials()
+    assert [(r["trial"], r["rating"], r["valid"]) for r in rows] == [(1, None, False), (2, 5, True)]
+    assert store.trials_path.read_text().endswith("\n")       # the torn line was truncated away
+    store.append_trial(row(trial=3, attempt=1))
+    assert len(store.read_trials()) == 3
+
+
+def test_existing_subject_is_never_overwritten(tmp_path):
+    store = SessionStore(tmp_path, "S01")
+    store.check()
+    store.create({"subject": "S01", "finished_at": None})
+    store.append_trial(row())
+    before = store.trials_path.read_bytes()
+    with pytest.raises(ValueError, match="already has data.*--resume"):
+        SessionStore(tmp_path, "S01").check()
+    with pytest.raises(FileNotFoundError, match="no session to resume"):
+        SessionStore(tmp_path, "S02", resume=True).check()
+    assert store.trials_path.read_bytes() == before
+
+
+@pytest.mark.parametrize("bad", ["../x", "a/b", "a\\b", "..", "", " S1", "S 1", ".hidden", "x" * 65])
+def test_subject_ids_with_path_characters_refused(bad):
+    with pytest.raises(ValueError, match="subject id"):
+        check_subject_id(bad)
+
+
+def test_bad_input_refused_before_start(tmp_path, capsys):
+    data = tmp_path / "DATA"
+
+    def refused(*args, match):
+        assert run_study(*args) == 2
+        err = capsys.readouterr().err
+        assert match in err, err
+        assert not (data / "S9").exists()
+
+    base = ["--seed", 1, "--out", data]
+    refused("--subject", "../S9", *base, match="subject id")
+    refused("--subject", "S9", *base, "--repetitions", 0, match="repetitions must be an integer >= 1")
+    refused("--subject", "S9", *base, "--samples", "wood,marble", match="unknown sample(s) ['marble']")
+    # a catalog whose real sample does not exist in the sim, and one whose HFAM library is missing
+    cat = write(tmp_path / "cat.toml", '[[sample]]\nname = "wood"\nkind = "real"\nstiffness_N_m = 70000.0\n'
+                'transient = "none"\nreal_sample = "marble"\n')
+    refused("--subject", "S9", *base, "--catalog", cat, match="unknown sim sample real_sample='marble'")
+    cat = write(tmp_path / "cat2.toml", '[[sample]]\nname = "wood"\nkind = "real"\nstiffness_N_m = 70000.0\n'
+                'transient = "none"\nreal_sample = "wood"\n[[sample]]\nname = "h"\nkind = "virtual"\n'
+                'stiffness_N_m = 680.0\ntransient = "hfam"\nlibrary = "nowhere/lib.npz"\n')
+    refused("--subject", "S9", *base, "--catalog", cat, match="lib.npz")
+    refused("--subject", "S9", *base, "--catalog", cat, match="does not exist")
+    refused("--subject", "S9", *base, "--protocol", write(tmp_path / "p.toml", "tap_window = 5\n"),
+            match="unknown protocol key(s) ['tap_window']")
+    refused("--subject", "S9", *base, "--participant", "keyboard", match="--age")
+    refused("--subject", "S9", "--out", data, "--device", "serial:/dev/null", match="needs a sim device")
+
+
+def test_unwritable_folder_refused(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if os.geteuid() == 0:   # root ignores permission bits; an immutable directory refuses root too
+        subprocess.run(["chattr", "+i", str(ro)], check=True)
+    else:
+        ro.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    try:
+        assert run_study("--subject", "S1", "--out", ro, "--seed", 1) == 2
+        assert f"data folder {ro} is not writable" in capsys.readouterr().err
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(ro)], check=True)
+    assert not (ro / "S1").exists()
+
+
+def test_data_folder_under_a_file_refused(tmp_path, capsys):
+    f = write(tmp_path / "plainfile", "x")
+    assert run_study("--subject", "S1", "--out", f / "DATA", "--seed", 1) == 2
+    assert "cannot be created" in capsys.readouterr().err

@@ -1,0 +1,66 @@
+"""A session killed with SIGKILL resumes exactly where it stopped: nothing lost, nothing duplicated."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .helpers import quick_args, read_rows, read_session, run_study
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLES = "wood,wood_on_foam,firm,pulse_soft,sinusoid_firm,hfam_firm"
+
+
+def test_sigkill_then_resume_completes_without_loss_or_duplicates(tmp_path):
+    args = [str(a) for a in quick_args(tmp_path, "K01", 9, "--samples", SAMPLES, mistakes=True)]
+    cmd = [sys.executable, "-m", "study", "run", "--device", "sim", "--participant", "simulated", "--quiet", *args]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    folder = tmp_path / "DATA" / "K01"
+    trials = folder / "trials.csv"
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline:
+            if trials.exists() and trials.read_text().count(",testing,") >= 6:
+                break
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.02)
+        else:
+            raise AssertionError("the session did not reach the testing phase in time")
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    before = trials.read_bytes()
+    complete_before = before[:before.rfind(b"\n") + 1]
+    assert read_session(folder)["finished_at"] is None
+    n_before = complete_before.count(b"\n") - 1
+
+    # without --resume the existing subject is refused and nothing is touched
+    assert run_study(*quick_args(tmp_path, "K01", 9, "--samples", SAMPLES)) == 2
+    assert trials.read_bytes() == before
+
+    assert run_study("--subject", "K01", "--out", tmp_path / "DATA", "--resume") == 0
+    after = trials.read_bytes()
+    assert after.startswith(complete_before)              # rows on disk were kept byte for byte
+    rows = read_rows(folder)
+    assert len(rows) > n_before
+    keys = [(r["phase"], r["trial"], r["attempt"]) for r in rows]
+    assert len(keys) == len(set(keys)), "duplicated attempt"
+    # attempts are consecutive per trial: none lost
+    per_trial = {}
+    for r in rows:
+        per_trial.setdefault((r["phase"], r["trial"]), []).append(int(r["attempt"]))
+    assert all(a == list(range(1, len(a) + 1)) for a in per_trial.values())
+    valid = [r for r in rows if r["phase"] == "testing" and r["valid"] == "true"]
+    names = SAMPLES.split(",")
+    assert {s: sum(r["sample"] == s for r in valid) for s in names} == {s: 3 for s in names}
+    assert sorted(r["sample"] for r in rows if r["phase"] == "demonstration" and r["valid"] == "true") == sorted(names)
+    session = read_session(folder)
+    assert session["finished_at"] is not None and len(session["resumed_at"]) == 1
+    assert len(list((folder / "traces").glob("*.npz"))) == len(rows)
+    assert not list(folder.rglob("*.tmp"))
+
+    # a finished session cannot be resumed again
+    assert run_study("--subject", "K01", "--out", tmp_path / "DATA", "--resume") == 2
