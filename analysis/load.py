@@ -171,7 +171,7 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
     number of fields) was left out; the caller warns.
     """
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:  # -sig: tolerate a spreadsheet BOM
             text = fh.read()
     except FileNotFoundError:
         raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None

@@ -8,7 +8,6 @@ import html
 import sys
 import warnings
 from pathlib import Path
-
 from typing import TYPE_CHECKING
 
 from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig

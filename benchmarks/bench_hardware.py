@@ -35,15 +35,18 @@ def _streaming(n: int = 5000, process: bool = True, rt_priority: int | None = No
         handle.stop()
 
 
-def _paced_1khz(duration_s: float = 2.0) -> dict:
+def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict:
     """A host loop paced at 1 kHz (sleep then spin): achieved rate and round trips."""
-    from devices.cli_hardware import percentiles_us
+    import os
+
+    from devices.cli_hardware import percentiles_us, set_realtime_priority
     from devices.emulator import start_emulator
     from devices.serial_device import SerialDevice
 
-    port, handle = start_emulator("streaming", process=True)
+    port, handle = start_emulator("streaming", process=True, rt_priority=rt_priority)
     try:
         with SerialDevice(port) as dev:
+            note = set_realtime_priority(rt_priority)
             period = 1e-3
             n = int(duration_s / period)
             rtt = []
@@ -62,7 +65,12 @@ def _paced_1khz(duration_s: float = 2.0) -> dict:
                 dev.command(0.0)
                 dev.read()
                 rtt.append(time.perf_counter() - t1)
-            return {"rate_hz": n / (time.perf_counter() - t0), **percentiles_us(rtt)}
+            if rt_priority is not None:
+                try:
+                    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+                except OSError:
+                    pass
+            return {"sched": note, "rate_hz": n / (time.perf_counter() - t0), **percentiles_us(rtt)}
     finally:
         handle.stop()
 
@@ -93,20 +101,41 @@ def _on_device(duration_s: float = 2.0) -> dict:
         handle.stop()
 
 
+def _codec(n: int = 50_000) -> tuple[float, float]:
+    """Host cost per frame (us): parse + CRC + decode of a STATE frame, encode of a CURRENT frame."""
+    from devices import protocol as P
+
+    frame = P.encode_frame(P.STATE, 1, P.encode_state(1, 2, 3, 4, 0, 5, 6))
+    parser = P.FrameParser()
+    t0 = time.perf_counter()
+    for _ in range(n):
+        P.decode_state(parser.feed(frame)[0].payload)
+    t1 = time.perf_counter()
+    for k in range(n):
+        P.encode_frame(P.CURRENT, k & 0xFF, P.encode_current(0.5))
+    t2 = time.perf_counter()
+    return (t1 - t0) / n * 1e6, (t2 - t1) / n * 1e6
+
+
 def main() -> None:
     import os
+
+    parse_us, encode_us = _codec()
+    print(f"host codec: parse + CRC + decode STATE {parse_us:.2f} us/frame, encode CURRENT {encode_us:.2f} us/frame")
 
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (p99 is sensitive to other processes)")
     for process, rt in ((True, None), (True, 20), (False, None)):
         s = _streaming(process=process, rt_priority=rt)
         where = "emulator in a child process" if process else "emulator in a thread of the host process"
-        print(f"streaming, free-running, {where}, {s['sched']} ({s['n']} round trips): rate {s['rate_hz']:.0f} Hz, round trip "
+        print(f"streaming, free-running, {where}, {s['sched']} ({s['n']} round trips): "
+              f"rate {s['rate_hz']:.0f} Hz, round trip "
               f"median {s['median_us']:.0f} us, p99 {s['p99_us']:.0f} us, max {s['max_us']:.0f} us "
               f"[target >= 1000 Hz, p99 < 1000 us]")
         print(f"  ping (no physics): median {s['ping']['median_us']:.0f} us, p99 {s['ping']['p99_us']:.0f} us")
-    p = _paced_1khz()
-    print(f"streaming, paced at 1 kHz: achieved {p['rate_hz']:.1f} Hz, round trip median {p['median_us']:.0f} us, "
-          f"p99 {p['p99_us']:.0f} us")
+    for rt in (None, 20):
+        p = _paced_1khz(rt_priority=rt)
+        print(f"streaming, paced at 1 kHz, {p['sched']}: achieved {p['rate_hz']:.1f} Hz, round trip median "
+              f"{p['median_us']:.0f} us, p99 {p['p99_us']:.0f} us")
     o = _on_device()
     print(f"on-device rendering (emulated firmware at 10 kHz, real time): telemetry {o['telemetry_hz']:.0f} Hz, "
           f"device time / wall time {o['device_s_per_wall_s']:.3f}, {o['events']} contact events, "

@@ -125,14 +125,20 @@ def servo_timing(isolated: bool, load: bool, window_s: float = 2.0) -> dict:
     return tap.timing
 
 
-def timing_main() -> None:
-    for isolated, load, label in ((False, False, "in-process, nothing else running"),
-                                  (False, True, "in-process, views + audio callback"),
-                                  (True, True, "servo process, views + audio callback")):
-        t = servo_timing(isolated, load)
-        print(f"   10 kHz paced window, {label:38s}: period p50 {t['period_p50_us']:.0f} us, "
-              f"p99 {t['period_p99_us']:.0f} us, max {t['period_max_us']:.0f} us, overruns {t['overruns']}")
-
+def timing_main(repeats: int = 3) -> None:
+    """Interleaved repeats of each case (the machine is shared), medians of the per-window statistics."""
+    cases = ((False, False, "in-process, nothing else running"),
+             (False, True, "in-process, views + audio callback"),
+             (True, True, "servo process, views + audio callback"))
+    stats = {label: [] for _, _, label in cases}
+    for _ in range(repeats):
+        for isolated, load, label in cases:
+            stats[label].append(servo_timing(isolated, load))
+    for _, _, label in cases:
+        med = {k: statistics.median(t[k] for t in stats[label])
+               for k in ("period_p50_us", "period_p99_us", "period_max_us", "overruns")}
+        print(f"   10 kHz paced 2 s window, {label:38s}: median of {repeats}: period p50 {med['period_p50_us']:.0f} us, "
+              f"p99 {med['period_p99_us']:.0f} us, max {med['period_max_us']:.0f} us, overruns {med['overruns']:.0f}")
 
 if __name__ == "__main__":
     main()

@@ -120,7 +120,8 @@ class Emulator:
         Mode at power-up (the host may switch with SET_MODE if capabilities allow).
     faults : FaultSpec
     watchdog_ms : int
-        No command for this long -> zero current, WATCHDOG_TRIPPED latched and reported.
+        No command for this long -> zero current and WATCHDOG_TRIPPED reported (once more in the
+        first STATE after the host resumes).
     pace : {"realtime", "host"}
         On-device tick pacing (module doc).
     """
@@ -173,6 +174,8 @@ class Emulator:
         self.cmd_seq = 0
         self.applied_A = 0.0
         self.tripped = False
+        self.trip_report = False  # WATCHDOG_TRIPPED still to be shown in the next STATE after a resume
+        self.event_tripped = False
         self.fault_latched = False
         self.watchdog_armed = False
         self.last_cmd = time.monotonic()
@@ -276,7 +279,7 @@ class Emulator:
 
     def _status(self, sim_status: int) -> int:
         s = sim_status & (Status.FAULT | Status.OVER_TEMPERATURE | Status.CLIPPING)
-        if self.tripped:
+        if self.tripped or self.trip_report:
             s |= Status.WATCHDOG_TRIPPED
         if self.fault_latched:
             s |= Status.FAULT
@@ -290,116 +293,152 @@ class Emulator:
         t_us, enc, a, g = self._raw(st)
         mA = int(round(self.applied_A * 1000.0))
         self.send(P.STATE, P.encode_state(t_us, enc, a, g, self._status(st.status), self.cmd_seq, mA))
+        self.trip_report = False
 
     # -- input ------------------------------------------------------------------------
     def handle(self, frame: P.Frame) -> None:
+        """Act on one host frame (the firmware's dispatch); protocol errors become NAKs."""
         self.stats["frames_in"] += 1
         if self.attached_at is None:
             self.attached_at = time.monotonic()
         t = frame.type
-        pl = frame.payload
         if self.mode == P.MODE_STREAMING and t == P.CURRENT or self.rendering:
             self.last_cmd = time.monotonic()
-        try:
-            if t == P.CURRENT:
-                self.watchdog_armed = True
-                self.cmd_seq = frame.seq
-                if self.rendering:
-                    return  # the firmware owns the output while rendering
-                i = P.decode_current(pl)
-                lim = self.wire.info.current_amplifier_A
-                if not math.isfinite(i):
-                    self.fault_latched = True
-                    i = 0.0
-                i = max(-lim, min(lim, i))
-                if self.tripped:
-                    i = 0.0
-                self.applied_A = i
-                self.phys.command(i)
-                self._send_state(self.phys.read())
-            elif t == P.KEEPALIVE:
-                return
-            elif t == P.HELLO:
-                if self.faults.silent:
-                    return
-                if len(pl) != P.HELLO_STRUCT.size:
-                    self._nak(frame, P.NAK_BAD_PAYLOAD, "HELLO carries the host protocol version (2 bytes)")
-                    return
-                self.send(P.INFO, P.encode_info(self.wire))
-            elif t == P.PING:
-                self.send(P.PONG, pl)
-            elif t == P.SET_MODE:
-                mode, dec = P._unpack(P.MODE_STRUCT, pl, "SET_MODE")
-                if mode == P.MODE_ON_DEVICE and not self.caps & P.CAP_ON_DEVICE:
-                    self._nak(frame, P.NAK_BAD_STATE, "on-device rendering not enabled on this device")
-                    return
-                if mode not in (P.MODE_STREAMING, P.MODE_ON_DEVICE) or dec < 1:
-                    self._nak(frame, P.NAK_BAD_PAYLOAD, f"mode {mode} decimation {dec}")
-                    return
-                if mode == P.MODE_STREAMING:
-                    self._stop_render()
-                self.mode = mode
-                self.decimation = dec
-                self._ack(frame)
-            elif t == P.SET_WATCHDOG:
-                (ms,) = P._unpack(P.WATCHDOG_STRUCT, pl, "SET_WATCHDOG")
-                if ms < 1:
-                    self._nak(frame, P.NAK_BAD_PAYLOAD, "watchdog must be >= 1 ms")
-                    return
-                self.watchdog_ms = ms
-                self._ack(frame)
-            elif t == P.CLEAR_FAULTS:
+            if self.tripped:  # the host is back: output resumes, the trip is reported in the next STATE
                 self.tripped = False
-                self.fault_latched = False
-                self.last_cmd = time.monotonic()
-                self._ack(frame)
-            elif t == P.SET_CALIBRATION:
-                from .firmware_logic import Calibration
-
-                self.fw.cal = Calibration.from_payload(pl)
-                self._ack(frame)
-            elif t == P.WALL:
-                self.fw.set_wall(*P._unpack(P.WALL_STRUCT, pl, "WALL"))
-                self._ack(frame)
-            elif t == P.LIMITS:
-                cont, peak, amp = P._unpack(P.LIMITS_STRUCT, pl, "LIMITS")
-                info = self.wire.info
-                self.fw.set_limits(min(cont, info.current_continuous_A), min(peak, info.current_peak_A, amp))
-                self._ack(frame)
-            elif t == P.TRANSIENT_PARAM:
-                self.fw.set_param_transient(*P._unpack(P.TRANSIENT_PARAM_STRUCT, pl, "TRANSIENT_PARAM"))
-                self._ack(frame)
-            elif t == P.TABLE_BEGIN:
-                self.fw.table_begin(*P.decode_table_begin(pl))
-                self._ack(frame)
-            elif t == P.TABLE_DATA:
-                self.fw.table_data(*P.decode_data_chunk(pl))
-                self._ack(frame)
-            elif t == P.TABLE_COMMIT:
-                self.fw.table_commit()
-                self._ack(frame)
-            elif t == P.REARM_DATA:
-                self.fw.rearm_data(*P.decode_data_chunk(pl))
-                self._ack(frame)
-            elif t == P.REARM_COMMIT:
-                (n,) = P._unpack(P.DATA_OFFSET_STRUCT, pl, "REARM_COMMIT")
-                self.fw.rearm_commit(n)
-                self._ack(frame)
-            elif t == P.RENDER_START:
-                if self.mode != P.MODE_ON_DEVICE:
-                    self._nak(frame, P.NAK_BAD_STATE, "RENDER_START needs SET_MODE on-device first")
-                    return
-                self._ack(frame)
-                self._start_render()
-            elif t == P.RENDER_STOP:
-                self._stop_render()
-                self._ack(frame)
-            else:
+                self.trip_report = True
+        handler = self._HANDLERS.get(t)
+        try:
+            if handler is None:
                 self._nak(frame, P.NAK_UNKNOWN_TYPE)
+            else:
+                handler(self, frame)
         except MemoryError as exc:
             self._nak(frame, P.NAK_TOO_LARGE, str(exc))
         except P.ProtocolError as exc:
             self._nak(frame, P.NAK_BAD_PAYLOAD, str(exc))
+
+    def _on_current(self, frame: P.Frame) -> None:
+        """Streaming: take the current (clamped; NaN latches FAULT), answer with one STATE, one physics tick.
+
+        The sim applies a command one servo period after it is given (docs/architecture.md), so
+        the state that answers command n was computed before command n arrived: the reply goes
+        out at once and the physics tick runs afterwards, off the round trip (as a real device
+        samples its sensors when the command arrives). The sequence of states the host sees is
+        exactly that of ``SimDevice.read()/command()`` run directly.
+        """
+        self.watchdog_armed = True
+        self.cmd_seq = frame.seq
+        if self.rendering:
+            return  # the firmware owns the output while rendering
+        i = P.decode_current(frame.payload)
+        lim = self.wire.info.current_amplifier_A
+        if not math.isfinite(i):
+            self.fault_latched = True
+            i = 0.0
+        i = max(-lim, min(lim, i))
+        if self.tripped or self.fault_latched:
+            i = 0.0
+        phys = self.phys
+        phys._send_current(i)  # the current the next period applies (SimDevice's output-delay slot)
+        self.applied_A = i
+        self._send_state(phys.read())
+        phys.command(i)  # next period: applies i; holds i until the next CURRENT replaces it
+        self._keep_hand_busy()
+
+    def _on_hello(self, frame: P.Frame) -> None:
+        if self.faults.silent:
+            return
+        if len(frame.payload) != P.HELLO_STRUCT.size:
+            self._nak(frame, P.NAK_BAD_PAYLOAD, "HELLO carries the host protocol version (2 bytes)")
+            return
+        self.send(P.INFO, P.encode_info(self.wire))
+
+    def _on_set_mode(self, frame: P.Frame) -> None:
+        mode, dec = P._unpack(P.MODE_STRUCT, frame.payload, "SET_MODE")
+        if mode == P.MODE_ON_DEVICE and not self.caps & P.CAP_ON_DEVICE:
+            self._nak(frame, P.NAK_BAD_STATE, "on-device rendering not enabled on this device")
+            return
+        if mode not in (P.MODE_STREAMING, P.MODE_ON_DEVICE) or dec < 1:
+            self._nak(frame, P.NAK_BAD_PAYLOAD, f"mode {mode} decimation {dec}")
+            return
+        if mode == P.MODE_STREAMING:
+            self._stop_render()
+        self.mode = mode
+        self.decimation = dec
+        self._ack(frame)
+
+    def _on_set_watchdog(self, frame: P.Frame) -> None:
+        (ms,) = P._unpack(P.WATCHDOG_STRUCT, frame.payload, "SET_WATCHDOG")
+        if ms < 1:
+            self._nak(frame, P.NAK_BAD_PAYLOAD, "watchdog must be >= 1 ms")
+            return
+        self.watchdog_ms = ms
+        self._ack(frame)
+
+    def _on_clear_faults(self, frame: P.Frame) -> None:
+        self.tripped = False
+        self.fault_latched = False
+        self.last_cmd = time.monotonic()
+        self._ack(frame)
+
+    def _on_calibration(self, frame: P.Frame) -> None:
+        from .firmware_logic import Calibration
+
+        self.fw.cal = Calibration.from_payload(frame.payload)
+        self._ack(frame)
+
+    def _on_limits(self, frame: P.Frame) -> None:
+        cont, peak, amp = P._unpack(P.LIMITS_STRUCT, frame.payload, "LIMITS")
+        info = self.wire.info  # never beyond the device's own limits
+        self.fw.set_limits(min(cont, info.current_continuous_A), min(peak, info.current_peak_A, amp))
+        self._ack(frame)
+
+    def _on_rearm_commit(self, frame: P.Frame) -> None:
+        (n,) = P._unpack(P.DATA_OFFSET_STRUCT, frame.payload, "REARM_COMMIT")
+        self.fw.rearm_commit(n)
+        self._ack(frame)
+
+    def _on_render_start(self, frame: P.Frame) -> None:
+        if self.mode != P.MODE_ON_DEVICE:
+            self._nak(frame, P.NAK_BAD_STATE, "RENDER_START needs SET_MODE on-device first")
+            return
+        self._ack(frame)
+        self._start_render()
+
+    def _on_render_stop(self, frame: P.Frame) -> None:
+        self._stop_render()
+        self._ack(frame)
+
+    def _acked(fw_call):
+        """Handler for a configuration frame: decode, hand to the firmware renderer, ACK."""
+        def handler(self, frame: P.Frame) -> None:
+            fw_call(self.fw, frame.payload)
+            self._ack(frame)
+        return handler
+
+    _HANDLERS = {
+        P.CURRENT: _on_current,
+        P.KEEPALIVE: lambda self, frame: None,
+        P.HELLO: _on_hello,
+        P.PING: lambda self, frame: self.send(P.PONG, frame.payload),
+        P.SET_MODE: _on_set_mode,
+        P.SET_WATCHDOG: _on_set_watchdog,
+        P.CLEAR_FAULTS: _on_clear_faults,
+        P.SET_CALIBRATION: _on_calibration,
+        P.WALL: _acked(lambda fw, pl: fw.set_wall(*P._unpack(P.WALL_STRUCT, pl, "WALL"))),
+        P.LIMITS: _on_limits,
+        P.TRANSIENT_PARAM: _acked(lambda fw, pl: fw.set_param_transient(
+            *P._unpack(P.TRANSIENT_PARAM_STRUCT, pl, "TRANSIENT_PARAM"))),
+        P.TABLE_BEGIN: _acked(lambda fw, pl: fw.table_begin(*P.decode_table_begin(pl))),
+        P.TABLE_DATA: _acked(lambda fw, pl: fw.table_data(*P.decode_data_chunk(pl))),
+        P.TABLE_COMMIT: _acked(lambda fw, pl: fw.table_commit()),
+        P.REARM_DATA: _acked(lambda fw, pl: fw.rearm_data(*P.decode_data_chunk(pl))),
+        P.REARM_COMMIT: _on_rearm_commit,
+        P.RENDER_START: _on_render_start,
+        P.RENDER_STOP: _on_render_stop,
+    }
+    del _acked
 
     # -- on-device rendering ------------------------------------------------------------
     def _start_render(self) -> None:
@@ -426,7 +465,7 @@ class Emulator:
         events = self.fw.events
         while events:
             ev = events.pop(0)
-            ev["watchdog"] = self.tripped
+            ev["watchdog"] = ev.get("watchdog", False)
             self.send(P.EVENT, P.encode_event(ev))
 
     def _tick(self) -> None:
@@ -482,6 +521,7 @@ class Emulator:
             self.tripped = True
             self.applied_A = 0.0
             self.stats["watchdog_trips"] += 1
+            self.fw.watchdog_during_event = self.fw.in_event
             if not self.rendering:
                 # zero the held current now (a real amplifier output drops at once), and report it
                 self.phys.zero()

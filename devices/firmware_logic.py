@@ -120,6 +120,7 @@ class FirmwareRenderer:
         self.reset_contact()
         self.events: list[dict] = []
         self.n_events = 0
+        self.watchdog_during_event = False  # set by the firmware loop when its watchdog trips mid-contact
         self.clipping = False
         self.velocity_m_s = 0.0
         # thermal: (R_w * R_th, 1 - exp(-dt/tau), T_max) or None
@@ -318,7 +319,9 @@ class FirmwareRenderer:
         self.n_events += 1
         self.events.append({"t_us": self.ev_t_us, "incoming_velocity_m_s": self.ev_v, "grip_N": self.ev_grip,
                             "max_penetration_m": self.ev_pen, "peak_accel_m_s2": self.ev_peak,
-                            "clipped": self.ev_clipped, "kind": self.ev_kind, "index": self.n_events})
+                            "clipped": self.ev_clipped, "kind": self.ev_kind, "index": self.n_events,
+                            "watchdog": self.watchdog_during_event})
+        self.watchdog_during_event = False
 
     def _transient_sample(self, k: int) -> float:
         kind = self.ev_kind

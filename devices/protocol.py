@@ -381,7 +381,8 @@ def encode_table_begin(velocities_m_s, grips_N, n_samples: int, fs_hz: float, ga
                        max_extrapolation: float = 1.0) -> bytes:
     v = [float(x) for x in velocities_m_s]
     g = [float(x) for x in grips_N]
-    body = TABLE_BEGIN_STRUCT.pack(len(v), len(g), n_samples, fs_hz, gain, max_extrapolation) + struct.pack(f"<{len(v) + len(g)}f", *v, *g)
+    body = (TABLE_BEGIN_STRUCT.pack(len(v), len(g), n_samples, fs_hz, gain, max_extrapolation)
+            + struct.pack(f"<{len(v) + len(g)}f", *v, *g))
     if len(body) > MAX_PAYLOAD:
         raise ValueError(f"transient table has too many levels ({len(v)} velocities, {len(g)} grips) for one frame")
     return body

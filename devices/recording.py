@@ -173,7 +173,7 @@ def incoming_velocity_m_s(position_m: np.ndarray, fs_hz: float) -> float:
 
 def record_taps(device, velocities_m_s, grip_N: float = 2.0, window_s: float = 0.1, pre_s: float = 0.005,
                 velocity_window_s: float = 0.005, approach_height_m: float = 0.01, detect: str = "auto",
-                max_wait_s: float = 30.0):
+                max_wait_s: float = 30.0, trajectory_options: dict | None = None):
     """Tap a surface once per velocity with the motor unpowered and capture the handle acceleration.
 
     Parameters
@@ -195,6 +195,10 @@ def record_taps(device, velocities_m_s, grip_N: float = 2.0, window_s: float = 0
         (true state, sim only); ``"position"``: first tick with the measured
         position at or below the surface (height 0) coming from above;
         ``"auto"``: contact on sim devices, position otherwise.
+    trajectory_options : dict or None
+        Sim only: extra keyword arguments of the simulated hand's
+        :class:`~devices.sim.TapTrajectory` (e.g. ``press_depth_m``, ``brake``:
+        how the hand stops below the surface).
 
     Returns
     -------
@@ -229,7 +233,7 @@ def record_taps(device, velocities_m_s, grip_N: float = 2.0, window_s: float = 0
             if is_sim:
                 from .sim import TapTrajectory
 
-                traj = TapTrajectory(v, 1, approach_height_m=approach_height_m)
+                traj = TapTrajectory(v, 1, approach_height_m=approach_height_m, **(trajectory_options or {}))
                 device.set_user(traj, grip_N=grip_N)
                 n_max = int(math.ceil(traj.duration_s * fs))
             else:

@@ -114,8 +114,9 @@ class ProtocolDevice(Device):
     ----------
     mode : {"streaming", "on-device"}
     timeout_s : float
-        How long ``read()`` waits for a state frame before retrying (streaming:
-        re-sends the last command) and, after ``retries`` tries, raising DeviceError.
+        How long ``read()`` first waits for a state frame before retrying (streaming:
+        re-sends the last command); each retry doubles the wait (20, 40, 80, 160 ms by
+        default: a lost frame costs 20 ms, a stalled link has 300 ms), then DeviceError.
     hello_timeout_s : float
         How long the hello handshake may take (the hello is repeated meanwhile).
     calibration : path or None
@@ -206,7 +207,26 @@ class ProtocolDevice(Device):
         raise NotImplementedError
 
     # -- lifecycle ---------------------------------------------------------------------
+    def _reset_link(self) -> None:
+        """Forget everything about a previous connection (the object may be reopened after a disconnect)."""
+        self._parser = P.FrameParser()
+        self._rx_seq = None
+        self._states.clear()
+        self._replies.clear()
+        self._info_payload = None
+        self._have_state = False
+        self._cmd_pending = False
+        self._rendering = False
+        self._disconnected = False
+        self._disconnect_reported = False
+        self.last_error = ""
+        self._state.status = 0
+        self._state.extra.pop("error", None)
+        self._t_wraps = 0
+        self._t_last_us = None
+
     def _open(self) -> None:
+        self._reset_link()
         try:
             self._t = self._make_transport()
         except TransportClosed as exc:
@@ -411,7 +431,9 @@ class ProtocolDevice(Device):
         if not self._cmd_pending:
             self._send_current(0.0)
         tries = 0
-        deadline = time.monotonic() + self.timeout_s
+        wait = self.timeout_s
+        deadline = time.monotonic() + wait
+        t_start = time.monotonic()
         while True:
             states = self._states
             while states:
@@ -423,37 +445,41 @@ class ProtocolDevice(Device):
                 self.stats["stale_states"] += 1
                 self._apply_status_only(raw)
             left = deadline - time.monotonic()
-            if left <= 0:
+            if left <= 0 and not self._final_poll():
                 self.stats["timeouts"] += 1
                 tries += 1
                 if tries > self.retries:
-                    raise self._fail(f"no state frame within {self.timeout_s * 1000:.0f} ms after "
-                                     f"{tries} tries; device not responding (output zeroed by its watchdog)")
+                    raise self._fail(f"no state frame within {(time.monotonic() - t_start) * 1000:.0f} ms "
+                                     f"({tries} tries); device not responding (output zeroed by its watchdog)")
                 for frame in self._parser.skip_partial():
                     self._dispatch(frame)
                 self.stats["retransmits"] += 1
                 self._last_cmd_seq = self._tx(P.CURRENT, P.encode_current(self._last_current))
-                deadline = time.monotonic() + self.timeout_s
+                wait *= 2  # back off: a lost frame is retried at once, a stalled link gets time
+                deadline = time.monotonic() + wait
                 continue
             self._poll(left)
 
     def _read_telemetry(self) -> DeviceState:
-        deadline = time.monotonic() + self.timeout_s
+        # the device free-runs: a late frame means a stalled link or device, never a lost command
+        wait = max(self.timeout_s, 0.05)
+        t_start = time.monotonic()
+        deadline = t_start + wait
         tries = 0
         states = self._states
         while not states:
             now = time.monotonic()
             self._keepalive(now)
             left = deadline - now
-            if left <= 0:
+            if left <= 0 and not self._final_poll():
                 self.stats["timeouts"] += 1
                 tries += 1
                 for frame in self._parser.skip_partial():
                     self._dispatch(frame)
                 if tries > self.retries:
-                    raise self._fail(f"no telemetry within {self.timeout_s * 1000:.0f} ms x {tries}; "
-                                     "device not responding")
-                deadline = now + self.timeout_s
+                    raise self._fail(f"no telemetry for {(now - t_start) * 1000:.0f} ms; device not responding")
+                wait *= 2
+                deadline = now + wait
                 continue
             self._poll(min(left, 0.005))
         state = self._apply(P.decode_state(states.popleft()))
@@ -462,6 +488,16 @@ class ProtocolDevice(Device):
         if self._rearm:
             self._maybe_rearm(now, state)
         return state
+
+    def _final_poll(self) -> bool:
+        """At a deadline: take what already arrived (non-blocking) before calling it a timeout.
+
+        A host thread that was descheduled (loaded machine, another thread holding the GIL)
+        may wake after its deadline with the reply already waiting in the tty buffer.
+        """
+        n = len(self._states)
+        self._poll(0.0)
+        return len(self._states) > n
 
     def _keepalive(self, now: float) -> None:
         wd = self.wire_info.watchdog_ms if self.watchdog_ms is None else self.watchdog_ms
@@ -498,7 +534,7 @@ class ProtocolDevice(Device):
         self._state.status = raw.status
 
     def clear_faults(self) -> None:
-        """Clear latched device faults (a tripped watchdog keeps the output at zero until this)."""
+        """Clear the latched FAULT (a non-finite command keeps the output at zero until this)."""
         self._request(P.CLEAR_FAULTS)
         self._state.status &= ~int(Status.WATCHDOG_TRIPPED | Status.FAULT)
 

@@ -127,7 +127,7 @@ class RendererConfig:
     position_limit_m: float = 0.25
     log_capacity_s: float = 60.0
     pacing: str = "sleep_spin"
-    spin_margin_s: float = 60e-6
+    spin_margin_s: float = 80e-6
     max_catchup_s: float = 0.1
     until_every: int = 16
 

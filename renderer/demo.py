@@ -18,11 +18,10 @@ See ``docs/demo.md``.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
+import multiprocessing as mp
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,27 +115,79 @@ def in_library_range(library, v_m_s: float) -> bool:
     return float(library.velocities_m_s[0]) <= v_m_s <= float(library.velocities_m_s[-1])
 
 
-def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress) -> tuple[dict, dict]:
-    """Tap every rendering at every velocity x grip; returns (traces, references)."""
+_JOB: tuple | None = None  # (cfg, pipe, refs) shared with forked tap workers
+
+
+def _can_fork() -> bool:
+    """Fork workers only from a single-threaded process (a fork copies locks other threads may hold)."""
+    import threading
+
+    return "fork" in mp.get_all_start_methods() and threading.active_count() == 1
+
+
+def _hand(cfg: DemoConfig) -> dict:
+    """The simulated hand of the recordings, used for every rendering too (same tap, apples to apples)."""
+    return {"stop_time_s": cfg.pipeline.tap_stop_time_s}
+
+
+def _tap_rendering(index: int) -> tuple[str, dict, float]:
+    """Tap one rendering at every velocity x grip on a device of its own (seeded by the rendering's index)."""
+    from devices.registry import make_device
+
+    cfg, pipe, refs = _JOB
+    r = cfg.renderings[index]
+    t0 = time.perf_counter()
+    dev = make_device(cfg.pipeline.device, seed=cfg.pipeline.seed + 2 + index)
+    out = {}
+    with dev:
+        transient = runs.make_transient(r, pipe.library, cfg.medium_grip_N)
+        for v in cfg.velocities_m_s:
+            for g in cfg.grips_N:
+                out[(r.name, v, g)] = [runs.add_metrics(runs.tap_sim(dev, r, transient, v, g, pipe.fs_hz,
+                                                                     **_hand(cfg)), refs[v],
+                                                        pipe.fs_hz) for _ in range(cfg.taps)]
+    return r.name, out, time.perf_counter() - t0
+
+
+def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int | None = None) -> tuple[dict, dict]:
+    """Tap every rendering at every velocity x grip; returns (traces, references).
+
+    Renderings are spread over ``workers`` forked processes (default: up to 2,
+    the CPUs of the reference machine); each rendering runs on a device seeded
+    by its index, so the results do not depend on the number of workers.
+    """
+    global _JOB
     from devices.registry import make_device
 
     fs = pipe.fs_hz
-    dev = make_device(cfg.pipeline.device, seed=cfg.pipeline.seed + 1)
-    traces: dict = {}
     refs: dict = {}
+    dev = make_device(cfg.pipeline.device, seed=cfg.pipeline.seed + 1)
     with dev:
         # the reference: the real sample tapped like the library's recordings (same grip), per velocity
         for v in cfg.velocities_m_s:
-            refs[v] = runs.tap_sim(dev, runs.REAL, None, v, cfg.pipeline.record_grip_N, fs).accel
-        n_conditions = len(cfg.velocities_m_s) * len(cfg.grips_N) * cfg.taps
-        for r in cfg.renderings:
-            t0 = time.perf_counter()
-            transient = runs.make_transient(r, pipe.library, cfg.medium_grip_N)
-            for v in cfg.velocities_m_s:
-                for g in cfg.grips_N:
-                    traces[(r.name, v, g)] = [runs.add_metrics(runs.tap_sim(dev, r, transient, v, g, fs), refs[v], fs)
-                                              for _ in range(cfg.taps)]
-            progress.say(f"{r.name:22s} {n_conditions} taps in {time.perf_counter() - t0:.2f} s")
+            refs[v] = runs.tap_sim(dev, runs.REAL, None, v, cfg.pipeline.record_grip_N, fs, **_hand(cfg)).accel
+    workers = min(2, os.cpu_count() or 1) if workers is None else workers
+    n_cond = len(cfg.velocities_m_s) * len(cfg.grips_N) * cfg.taps
+    _JOB = (cfg, pipe, refs)
+    try:
+        if workers > 1 and _can_fork():
+            with mp.get_context("fork").Pool(workers) as pool:
+                done = pool.imap(_tap_rendering, range(len(cfg.renderings)))
+                results = []
+                for name, out, dt in done:
+                    progress.say(f"{name:22s} {n_cond} taps in {dt:.2f} s")
+                    results.append(out)
+        else:
+            results = []
+            for i in range(len(cfg.renderings)):
+                name, out, dt = _tap_rendering(i)
+                progress.say(f"{name:22s} {n_cond} taps in {dt:.2f} s")
+                results.append(out)
+    finally:
+        _JOB = None
+    traces: dict = {}
+    for out in results:
+        traces.update(out)
     return traces, refs
 
 
@@ -204,6 +255,11 @@ def format_table(cfg: DemoConfig, rows: list[dict], library) -> str:
         taps = sum(x["taps"] for x in rr)
         lines.append(f"{r.name:22s} {m('peak_accel_m_s2'):11.1f} {f_dom:8.0f} {m('penetration_mean_m') * 1e3:7.2f} "
                      f"{m('nrmse', inr):6.3f} {m('correlation', inr):6.3f} {clipped:>4d}/{taps:<3d}")
+    cuts = penetration_cuts(cfg, rows)
+    if cuts:
+        lines.append("Mean penetration cut by the transient vs the same wall alone: "
+                     + ", ".join(f"{name} {cut * 100:.0f} %" for name, cut in cuts.items())
+                     + " (thesis 4.5.5: about a factor of two; docs/demo.md, 'The simulated tap')")
     out_of_range = [v for v in cfg.velocities_m_s if not lib_lo <= v <= lib_hi]
     hf = [x for x in rows if x["rendering"] == "hfam_firm"]
     if out_of_range and hf:
@@ -215,6 +271,26 @@ def format_table(cfg: DemoConfig, rows: list[dict], library) -> str:
                          f"/{sum(x['taps'] for x in sel)}")
         lines.append("HFAM over firm beyond the library range (extrapolated transient): " + "; ".join(parts))
     return "\n".join(lines)
+
+
+def penetration_cuts(cfg: DemoConfig, rows: list[dict]) -> dict:
+    """Fraction by which each transient rendering cuts the mean penetration of its wall alone (section 4.5.5).
+
+    Pairs every rendering with a transient with the plain wall of the same
+    stiffness; means over all velocities x grips. Returns name -> 1 - pen/pen_wall.
+    """
+    def pen(name):
+        vals = [x["penetration_mean_m"] for x in rows if x["rendering"] == name and math.isfinite(x["penetration_mean_m"])]
+        return float(np.mean(vals)) if vals else math.nan
+
+    walls = {r.stiffness_N_m: r.name for r in cfg.renderings if r.transient == "none" and not r.is_real}
+    out = {}
+    for r in cfg.renderings:
+        if r.transient != "none" and r.stiffness_N_m in walls:
+            p_tr, p_wall = pen(r.name), pen(walls[r.stiffness_N_m])
+            if math.isfinite(p_tr) and p_wall > 0:
+                out[r.name] = 1.0 - p_tr / p_wall
+    return out
 
 
 def write_traces(result: DemoResult, path: Path) -> Path:
@@ -237,8 +313,8 @@ def write_traces(result: DemoResult, path: Path) -> Path:
     return Path(path)
 
 
-def make_figures(cfg: DemoConfig, result: DemoResult, out: Path) -> dict:
-    """Write the four figures into ``out``; returns name -> path."""
+def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figures: bool = True) -> dict:
+    """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``)."""
     from . import demo_figures as figs
 
     fs, pre = result.fs_hz, runs.PRE_S
@@ -261,9 +337,18 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path) -> dict:
                  if ("hfam_fixed_grip_firm", v, g) in tr and g != cfg.medium_grip_N}
         out_figs["hfam_grid"] = figs.hfam_grid_figure(cells, result.references, cur, fixed, vs, grips, fs, pre,
                                                       out / "fig_hfam_grid.png")
-    out_figs["library"] = figs.library_figure(result.pipeline.library, g_mid, out / "fig_library.png")
-    out_figs["bode"] = figs.bode_figure(result.pipeline.etfe_npz, result.pipeline.model_set, out / "fig_bode.png")
+    if pipeline_figures:
+        out_figs.update(_pipeline_figures(result.pipeline, cfg, out))
     return out_figs
+
+
+def _pipeline_figures(pipe: Pipeline, cfg: DemoConfig, out: Path) -> dict:
+    """The figures that depend only on the cached pipeline: the library (Fig. 4.8) and the Bode plot."""
+    from . import demo_figures as figs
+
+    g_mid = cfg.medium_grip_N
+    return {"library": figs.library_figure(pipe.library, g_mid, Path(out) / "fig_library.png"),
+            "bode": figs.bode_figure(pipe.etfe_npz, pipe.model_set, Path(out) / "fig_bode.png")}
 
 
 def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, rebuild: bool = False,
@@ -279,6 +364,11 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.say(f"[1-3/5] identification, recordings and HFAM library from the cache: {pipe.directory}",
                      indent=False)
     t_pipe = time.perf_counter() - t0
+    side = None
+    if figures and _can_fork() and (os.cpu_count() or 1) > 1:
+        # the library and Bode figures need only the pipeline: draw them while the user taps
+        side = mp.get_context("fork").Process(target=_pipeline_figures, args=(pipe, cfg, out), daemon=True)
+        side.start()
     progress.start(f"simulated user tapping {len(cfg.renderings)} renderings")
     traces, refs = simulate(cfg, pipe, progress)
     t_sim = progress.done()
@@ -289,7 +379,13 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
     t_fig = 0.0
     if figures:
         progress.start("drawing figures")
-        result.figures = make_figures(cfg, result, out)
+        result.figures = make_figures(cfg, result, out, pipeline_figures=side is None)
+        if side is not None:
+            side.join()
+            if side.exitcode != 0:  # draw them here after all, so a failure shows its traceback
+                result.figures.update(_pipeline_figures(pipe, cfg, out))
+            else:
+                result.figures.update({"library": out / "fig_library.png", "bode": out / "fig_bode.png"})
         t_fig = progress.done()
     result.timings_s = {"pipeline": t_pipe, "taps": t_sim, "figures": t_fig, "total": time.perf_counter() - t0,
                         "pipeline_cached": pipe.from_cache}
@@ -306,7 +402,7 @@ def register(subparsers) -> None:
                     "write DIR/summary.csv and figures. With a hardware device a person taps. See docs/demo.md.")
     p.add_argument("--device", default="sim", help="sim (default), sim:lti, sim:<params file>, serial:<port>, "
                                                   "hid:<vid>:<pid>")
-    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default ./demo_out)")
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default ./out/demo)")
     p.add_argument("--cache-dir", type=Path, default=None,
                    help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {default_cache_base()})")
     p.add_argument("--rebuild", action="store_true", help="rebuild the cached identification/recordings/library")
@@ -314,6 +410,15 @@ def register(subparsers) -> None:
                                                        + ",".join(f"{v:g}" for v in DemoConfig.velocities_m_s) + ")")
     p.add_argument("--grips", default=None, help="comma-separated grips in N (sim; default "
                                                   + ",".join(f"{g:g}" for g in DemoConfig.grips_N) + ")")
+    p.add_argument("--tap-stop-time", type=float, default=None, metavar="S",
+                   help="sim: seconds after contact at which the simulated hand's aim comes to rest (default "
+                        f"{PipelineSettings.tap_stop_time_s:g}; longer = more of a press; docs/demo.md)")
+    p.add_argument("--record-velocities", default=None, metavar="LIST",
+                   help="sim: comma-separated speeds (m/s) of the recorded real taps that build the library "
+                        "(default " + ",".join(f"{v:g}" for v in PipelineSettings.record_velocities_m_s) + ")")
+    p.add_argument("--sweep-amplitude", type=float, default=None, metavar="A",
+                   help="sim: swept-sine current amplitude of the identification (default "
+                        f"{PipelineSettings.sweep_amplitude_A:g} A)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--library", type=Path, default=None,
                    help="hardware mode: HFAM library (.npz) built for this device (default: none, HFAM skipped)")
@@ -347,7 +452,16 @@ def run(args) -> int:
     t0 = time.perf_counter()
     vels = _floats(args.velocities, "--velocities")
     grips = _floats(args.grips, "--grips")
-    changes = {"pipeline": PipelineSettings(device=args.device)}
+    pipe_changes = {"device": args.device}
+    if args.tap_stop_time is not None:
+        pipe_changes["tap_stop_time_s"] = args.tap_stop_time
+    rec = _floats(args.record_velocities, "--record-velocities")
+    if rec:
+        pipe_changes["record_velocities_m_s"] = rec
+        pipe_changes["library_velocities"] = min(PipelineSettings.library_velocities, len(rec))
+    if args.sweep_amplitude is not None:
+        pipe_changes["sweep_amplitude_A"] = args.sweep_amplitude
+    changes = {"pipeline": PipelineSettings(**pipe_changes)}
     if vels:
         changes["velocities_m_s"] = vels
         fig_v = min(vels, key=lambda v: abs(v - 0.11))

@@ -20,7 +20,6 @@ import multiprocessing as mp
 import os
 import signal
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -190,6 +189,13 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
         if parent.poll(5.0):
             msg = _recv(parent)
     finally:
+        if scope is not None:  # the final state of the ring, so the scope ends on what happened last
+            k = ring_n.value
+            n = min(k, RING, 600)
+            if n > 1:
+                idx = (np.arange(k - n, k) % RING) * 3
+                buf = np.frombuffer(ring, dtype=np.float64)
+                scope.update(buf[idx], buf[idx + 1], buf[idx + 2], int(events[0]), n_taps)
         proc.join(timeout=5.0)
         if proc.is_alive():
             proc.terminate()
@@ -287,7 +293,12 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
             transient = runs.make_transient(r, library)
             result = tap_session(spec, cfg, transient, n_taps, timeout_s, scope)
             traces[r.name] = traces_from_result(r.name, result, fs, info.force_per_amp_N_A)
-            say(f"    {len(traces[r.name])} taps recorded ({result.stop_reason})")
+            tm = result.timing
+            say(f"    {len(traces[r.name])} taps recorded (stop: {result.stop_reason}); {tm.get('ticks', 0)} ticks in "
+                f"{tm.get('wall_time_s', math.nan):.1f} s, period p99 {tm.get('period_p99_us', math.nan):.0f} us, "
+                f"overruns {tm.get('overruns', 0)}")
+    except (KeyboardInterrupt, EOFError):  # Ctrl-C / Ctrl-D at a prompt: keep what was tapped so far
+        say("\ninterrupted: saving the taps recorded so far")
     finally:
         if scope is not None and not isinstance(scope, TextScope):
             scope.close()

@@ -3,10 +3,10 @@
 Each rendering is a proportional wall (Table 4.1 stiffnesses), optionally with
 an event-based transient, or the real ``wood_on_foam`` sample with the motor
 off. The simulated hand taps it once per (velocity, grip) condition: a fresh
-single-tap :class:`devices.sim.TapTrajectory` per tap, because the sim places
-the device at rest at the start of each trajectory, which makes the incoming
-velocity that of the trajectory (later taps of one multi-tap trajectory
-arrive measurably slower, the handle still lagging the hand's lift).
+single-tap :class:`devices.sim.TapTrajectory` per tap (the sim places the
+device at rest at the start of each trajectory), so every tap starts from the
+same state whatever ran before it, and the run stops as soon as the contact
+is over instead of simulating the lift and pause.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import demo_metrics as dm
+from .demo_pipeline import TAP_STOP_TIME_S, tap_trajectory_options
 
 PRE_S = 0.01    # contact window before impact (s)
 POST_S = 0.1    # ... and after it: the HFAM transient's 100 ms (section 4.4.2)
@@ -167,7 +168,8 @@ class TapTrace:
     transient_current: np.ndarray | None = None
 
 
-def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N: float, fs_hz: float) -> TapTrace:
+def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N: float, fs_hz: float,
+            stop_time_s: float = TAP_STOP_TIME_S) -> TapTrace:
     """Let the simulated hand tap ``rendering`` once and cut the contact window.
 
     Parameters
@@ -177,6 +179,10 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
     transient : stimuli transient or None
     velocity_m_s, grip_N : float
         Tap speed (m/s) and grip (N) of the simulated hand.
+    stop_time_s : float
+        How long after crossing the surface the hand's desired position comes
+        to rest (s): it aims :func:`~renderer.demo_pipeline.tap_press_depth_m`
+        below the surface.
     """
     from devices.sim import TapTrajectory
 
@@ -184,7 +190,8 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
     from .loop import ServoLoop
 
     device.set_sample(rendering.sample)
-    traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=approach_height_m(velocity_m_s))
+    traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=approach_height_m(velocity_m_s),
+                         **tap_trajectory_options(velocity_m_s, stop_time_s))
     device.set_user(traj, grip_N=float(grip_N))
     cfg = RendererConfig(stiffness_N_m=rendering.stiffness_N_m, motor_enabled=not rendering.is_real,
                          log_capacity_s=traj.duration_s + 0.01)

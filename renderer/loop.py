@@ -516,6 +516,7 @@ class ServoLoop:
         d0 = wall_h - p0 if wall is not None else pen1d(p0)[0]
         armed = d0 <= 0.0
         ev = None
+        crossing = False
         ev_pen = 0.0
         ev_acc = 0.0
         ev_clip = False
@@ -627,21 +628,12 @@ class ServoLoop:
                     d, nz = pen1d(pos)
                 # contact events
                 if d > 0.0:
-                    if armed:
+                    if armed:  # impact: the event work is done right after command() (below)
                         armed = False
+                        crossing = True
                         if ev is not None:
                             ev.max_penetration_m, ev.peak_accel_m_s2, ev.clipped = ev_pen, ev_acc, ev_clip
-                        v_in = -impact_velocity.at(pnew, vel) * nz
-                        if v_in < 0.0:
-                            v_in = 0.0
-                        tlen = fill(v_in, grip, tgain * g_th) if g_th > 0.0 else 0
-                        tj = 0
-                        ev = ContactEvent(t_s=t, incoming_velocity_m_s=v_in, grip_N=grip, transient=tname,
-                                          tick=n, transient_samples=tlen, thermal_gain=g_th)
-                        events.append(ev)
-                        ev_pen = d
-                        ev_acc = 0.0
-                        ev_clip = False
+                            ev = None
                     else:
                         out_n = 0
                     f_p = k * d * nz
@@ -695,6 +687,21 @@ class ServoLoop:
                     g_th = 1.0
                 tc = clock()
                 command(i)
+                if crossing:
+                    # after the command, so the crossing tick's output is not delayed: the fit and the
+                    # transient lookup use the rest of the period; sample 0 plays on the next tick
+                    crossing = False
+                    v_in = -impact_velocity.at(pnew, vel) * nz
+                    if v_in < 0.0:
+                        v_in = 0.0
+                    tlen = fill(v_in, grip, tgain * g_th) if g_th > 0.0 else 0
+                    tj = 0
+                    ev = ContactEvent(t_s=t, incoming_velocity_m_s=v_in, grip_N=grip, transient=tname,
+                                      tick=n, transient_samples=tlen, thermal_gain=g_th)
+                    events.append(ev)
+                    ev_pen = d
+                    ev_acc = 0.0
+                    ev_clip = False
                 if ev is not None:
                     if d > ev_pen:
                         ev_pen = d
@@ -827,6 +834,12 @@ class ServoLoop:
             return float(np.percentile(a, q)) if len(a) else 0.0
 
         period_us = 1e6 / self.fs_hz
+        lateness = np.zeros(0)
+        if realtime and n_logged:
+            # how late each tick's read() returned after its deadline (t0 + (n + 1) period)
+            first = ticks - n_logged
+            idx = np.arange(first + 1, ticks + 1, dtype=np.float64)
+            lateness = log["wall_ns"] / 1000.0 - idx * period_us
         timing = {
             "sim_time_s": sim_time,
             "wall_time_s": wall_s,
@@ -842,6 +855,9 @@ class ServoLoop:
             "period_error_p99_us": pct(np.abs(periods - period_us), 99),
             "period_error_max_us": float(np.abs(periods - period_us).max()) if len(periods) else 0.0,
             "overruns": int(st.get("overruns", 0)),
+            "lateness_p50_us": pct(lateness, 50),
+            "lateness_p99_us": pct(lateness, 99),
+            "lateness_max_us": float(lateness.max()) if len(lateness) else 0.0,
             "compute_p50_us": pct(compute, 50),
             "compute_p99_us": pct(compute, 99),
             "compute_max_us": float(compute.max()) if len(compute) else 0.0,

@@ -18,7 +18,6 @@ with neither cannot detect real-sample saturation, which session.json records
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -28,6 +27,10 @@ from .rater import Reference, tap_features
 # full-rate channels kept in the per-attempt trace files (float32 except t_s)
 TRACE_CHANNELS = ("position_m", "force_prop_N", "force_transient_N", "current_A", "accel_m_s2", "grip_N")
 REFERENCE_VELOCITIES_M_S = (0.04, 0.06, 0.08, 0.10, 0.13, 0.17, 0.22, 0.28)
+
+
+class ServoStopped(RuntimeError):
+    """The servo loop stopped itself (watchdog, invalid sensors, disconnect); the output is already zero."""
 
 
 class TapResult:
@@ -99,13 +102,16 @@ class Apparatus:
         self.fs_hz = float(self.info.servo_rate_hz)
         self.force_limit_N = self.info.force_per_amp_N_A * self.info.current_amplifier_A
         self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m))
-        capacity_s = protocol.first_tap_timeout_s + max(protocol.tap_window_s, protocol.familiarization_window_s) + 1.0
+        # the log ring keeps the last window + 1 s: enough for 50 ms before the first impact, and a 16 s
+        # ring (timeout + window) per attempt would only cost allocation time
+        capacity_s = max(protocol.tap_window_s, protocol.familiarization_window_s) + 1.0
         self.loops = {}
         for s in catalog:
             transient = s.make_transient(library_dir=library_dir) if s.kind == "virtual" else None
             cfg = RendererConfig(stiffness_N_m=s.stiffness_N_m if s.kind == "virtual" else 0.0,
                                  motor_enabled=s.kind == "virtual", log_capacity_s=capacity_s,
-                                 until_every=4 if s.kind == "real" else 16)
+                                 until_every=4 if s.kind == "real" else 16,
+                                 watchdog_overrun_s=protocol.servo_watchdog_s)
             loop = ServoLoop(device, cfg, transient)
             loop.prepare()  # raises ValueError now (e.g. a library unusable on this device), not mid-session
             self.loops[s.name] = loop
@@ -198,22 +204,26 @@ class Apparatus:
         real = smp.kind == "real"
         if self.is_sim:
             dev.motor_enabled = not real
+        # read() once, here, outside the loop: it returns the same state object, updated in place by the loop's
+        # own reads, so the callback below looks at the latest sample without an extra (on hardware: blocking) read
+        st = dev.read()
         force_of = None
         if real:
             if self.is_sim:
                 force_of = lambda: dev.true_state()["contact_force_N"]  # noqa: E731
-            elif "contact_force_N" in dev.read().extra:
-                force_of = lambda: dev.read().extra["contact_force_N"]  # noqa: E731
+            elif "contact_force_N" in st.extra:
+                force_of = lambda: st.extra["contact_force_N"]  # noqa: E731
         flim = self.force_limit_N
         clip_bit = 8  # devices.base.Status.CLIPPING
-        t_start = dev.read().t_s
-        state = {"sat": False, "fmax": 0.0, "checked": 0, "toned": -2}
+        t_start = st.t_s
+        state = {"sat": False, "fmax": 0.0, "checked": 0}
+        toned = set()
 
         def saturation(index: int) -> None:
             # one low tone per saturating tap, as soon as it is seen (section 4.5.3)
             state["sat"] = True
-            if index != state["toned"]:
-                state["toned"] = index
+            if index not in toned:
+                toned.add(index)
                 if on_clip is not None:
                     on_clip()
 
@@ -226,7 +236,7 @@ class Apparatus:
                     state["fmax"] = f
                 if f > flim:
                     saturation(current)
-            elif dev.read().status & clip_bit:
+            elif st.status & clip_bit:
                 saturation(current)
             for j in range(state["checked"], current):  # events closed since the last call
                 if evs[j].clipped:
@@ -245,8 +255,11 @@ class Apparatus:
             if self.is_sim:
                 dev.motor_enabled = True
         if result.stop_reason not in ("until", "duration"):
-            raise RuntimeError(f"servo loop stopped: {result.stop_reason} {result.error}")
+            raise ServoStopped(f"servo loop stopped ({result.stop_reason}): {result.error}")
         events = list(result.events)
+        for j, e in enumerate(events):
+            if e.clipped:   # clipped in the last moments of the window, or between two checks
+                saturation(j)
         log = result.log
         window_start = events[0].t_s if events else None
         if window_start is not None:

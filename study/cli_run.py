@@ -32,11 +32,12 @@ from .protocol import Schedule
 def register(subparsers) -> None:
     p = subparsers.add_parser("run", help="run a blind realism session (sim rehearsal or real subjects)",
                               description=__doc__, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
-    p.add_argument("--device", default="sim", help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
-                                                   "hid:<vid>:<pid> (default: sim)")
-    p.add_argument("--participant", choices=("simulated", "keyboard"), default="simulated",
+    p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
+                                                 "hid:<vid>:<pid> (default: sim, or the resumed session's)")
+    p.add_argument("--participant", choices=("simulated", "keyboard"), default=None,
                    help="simulated (sim devices only: simulated hand and synthetic rater) or keyboard (a person "
-                        "using the subject view; with a sim device the simulated hand still taps)")
+                        "using the subject view; with a sim device the simulated hand still taps); default: "
+                        "simulated, or the resumed session's")
     p.add_argument("--subject", required=True, help="subject id (letters, digits, _ and -)")
     p.add_argument("--out", required=True, help="data folder; the session goes to OUT/<subject>/")
     p.add_argument("--seed", type=int, default=None, help="randomization seed (default: random, stored)")
@@ -55,7 +56,9 @@ def register(subparsers) -> None:
     p.add_argument("--experience", choices=EXPERIENCE, default=None,
                    help="prior haptic experience: none (never), few (a few times), regular")
     p.add_argument("--audio", choices=("auto", "on", "off"), default="auto",
-                   help="masking audio: auto = on for hardware (required), off for sim; on = also in sim")
+                   help="masking audio: auto = on for hardware (required: refuses to start without an output "
+                        "device), off for sim; on = also in sim; off = also on hardware (bench tests without a "
+                        "subject; recorded in session.json)")
     p.add_argument("--audio-device", default=None, help="PortAudio output device (name or index)")
     p.add_argument("--masking-level", type=float, default=None, dest="masking_level_dbfs",
                    help="white-noise RMS level in dBFS (default -20)")
@@ -120,11 +123,25 @@ def load_study_catalog(catalog_path, library_dir, samples_arg, is_sim: bool, fam
     if familiarization_sample:
         fam = [s for s in catalog if s.name == familiarization_sample]
         if not fam:
-            raise ValueError(f"familiarization_sample {familiarization_sample!r} is not in the catalog ({names}); "
+            raise ValueError(f"familiarization_sample {familiarization_sample!r} is not among the session's "
+                             f"samples ({[s.name for s in catalog]}); "
                              "set familiarization_sample = \"\" in --protocol to skip familiarization")
         if fam[0].kind != "real":
             raise ValueError(f"familiarization_sample {familiarization_sample!r} must be a real sample")
     return catalog
+
+
+def _check_same_catalog(before: list[dict], now: list[dict], where) -> None:
+    """A resumed session must present exactly the same samples (names, parameters, library contents)."""
+    keys = ("name", "kind", "stiffness_N_m", "transient", "params", "real_sample", "library_sha256")
+    for a, b in zip(before, now):
+        diff = [k for k in keys if a.get(k) != b.get(k)]
+        if diff:
+            raise ValueError(f"--resume: sample {a['name']!r} changed since the session started ({where}): "
+                             f"{', '.join(diff)} differ; restore the original catalog/library files")
+    if len(before) != len(now):
+        raise ValueError(f"--resume: the catalog changed since the session started ({where}): "
+                         f"{[c['name'] for c in before]} -> {[c['name'] for c in now]}")
 
 
 def software_versions() -> dict:
@@ -143,12 +160,24 @@ def run_command(args) -> int:
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     subject = check_subject_id(args.subject)
     store = SessionStore(args.out, subject, resume=args.resume)
+    store.check()  # unwritable folder, existing subject without --resume: refused before anything starts
+    previous = store.load_session() if args.resume else None
+    if previous is not None:
+        was_sim = previous["device"]["spec"].split(":", 1)[0] == "sim"
+        args.device = args.device or previous["device"]["spec"]
+        if (args.device.split(":", 1)[0] == "sim") != was_sim:
+            raise ValueError(f"--resume: the session ran on {previous['device']['spec']!r}; it cannot continue on "
+                             f"{args.device!r} (sim and hardware data must not mix)")
+        args.participant = args.participant or previous["participant"]
+        if args.participant != previous["participant"]:
+            raise ValueError(f"--resume: the session ran with --participant {previous['participant']}, "
+                             f"not {args.participant}")
+    args.device = args.device or "sim"
+    args.participant = args.participant or "simulated"
     is_sim = args.device.split(":", 1)[0] == "sim"
     if args.participant == "simulated" and not is_sim:
         raise ValueError("--participant simulated needs a sim device (--device sim); use --participant keyboard "
                          "for a person")
-    store.check()  # unwritable folder, existing subject without --resume: refused before anything starts
-    previous = store.load_session() if args.resume else None
 
     protocol_overrides = {"repetitions": args.repetitions, "tap_window_s": args.tap_window_s,
                           "masking_level_dbfs": args.masking_level_dbfs}
@@ -169,15 +198,16 @@ def run_command(args) -> int:
         info = SubjectInfo(subject, args.age, args.gender or "unspecified", args.handedness or "unspecified",
                            args.experience or "few")
 
-    catalog = load_study_catalog(args.catalog if previous is None else previous.get("catalog_file"),
-                                 args.library_dir if previous is None else previous.get("library_dir"),
+    # stored absolute, so a resume from another working directory finds the same files
+    library_dir = (str(Path(args.library_dir).resolve()) if args.library_dir else None) if previous is None \
+        else previous.get("library_dir")
+    catalog_file = (str(Path(args.catalog).resolve()) if args.catalog else None) if previous is None \
+        else previous.get("catalog_file")
+    catalog = load_study_catalog(catalog_file, library_dir,
                                  args.samples if previous is None else ",".join(s["name"] for s in previous["catalog"]),
                                  is_sim, protocol.familiarization_sample)
     if previous is not None:
-        names = [s.name for s in catalog]
-        if names != [s["name"] for s in previous["catalog"]]:
-            raise ValueError(f"the catalog changed since the session started ({store.session_path}): "
-                             f"now {names}")
+        _check_same_catalog(previous["catalog"], _catalog_entries(catalog), store.session_path)
 
     # masking audio: required on hardware, silent in sim unless asked
     from .audio import MaskingAudio, SilentAudio, check_output_device
@@ -191,8 +221,13 @@ def run_command(args) -> int:
                       "cue_source": audio.cue_source}
     else:
         audio = SilentAudio()
+        if is_sim:
+            say("note: sim session runs silently (no masking audio); use --audio on to play it")
+        else:
+            audio.cue_source = "none (--audio off: no masking, not valid for a blind study)"
+            print("warning: --audio off: no masking noise or cues; the session is not blind to sound",
+                  file=sys.stderr)
         audio_info = {"output": None, "level_dbfs": None, "cue_source": audio.cue_source}
-        say("note: sim session runs silently (no masking audio); use --audio on to play it")
 
     from devices import make_device
 
@@ -211,7 +246,7 @@ def run_command(args) -> int:
     if isolate:
         from .isolated import IsolatedApparatus
 
-        apparatus = IsolatedApparatus(args.device, device_options, catalog, protocol, args.library_dir,
+        apparatus = IsolatedApparatus(args.device, device_options, catalog, protocol, library_dir,
                                       sim_participant, realtime=True if args.realtime else None)
         device_info = apparatus.device_info
     else:
@@ -225,7 +260,7 @@ def run_command(args) -> int:
         device_info = asdict(device.info)
     try:
         if apparatus is None:
-            apparatus = Apparatus(device, catalog, protocol, library_dir=args.library_dir,
+            apparatus = Apparatus(device, catalog, protocol, library_dir=library_dir,
                                   sim_participant=sim_participant, realtime=True if args.realtime else None)
         participant = sim_participant if args.participant == "simulated" else _KeyboardParticipant()
         schedule = Schedule([s.name for s in catalog], protocol.repetitions, seed,
@@ -234,12 +269,13 @@ def run_command(args) -> int:
             session = {
                 "subject": subject, "age": info.age, "gender": info.gender, "handedness": info.handedness,
                 "experience": info.experience, "seed": seed, "repetitions": protocol.repetitions,
-                "catalog": _catalog_entries(catalog), "catalog_file": args.catalog, "library_dir": args.library_dir,
+                "catalog": _catalog_entries(catalog), "catalog_file": catalog_file, "library_dir": library_dir,
                 "protocol": protocol.to_dict(), "device": {"spec": args.device, "info": _jsonable(device_info),
                            "servo_process": isolate},
                 "participant": args.participant,
                 "simulated_participant": sim_participant.describe() if sim_participant else None,
-                "participant_config_file": args.participant_config,
+                "participant_config_file": (str(Path(args.participant_config).resolve())
+                                            if args.participant_config else None),
                 "audio": audio_info, "real_saturation_detection": apparatus.real_saturation_detection,
                 "software_version": software_versions(), "started_at": utc_now(), "finished_at": None,
                 "resumed_at": [], "planned_order": {k: v.summary()["planned"] for k, v in schedule.phases.items()},
@@ -255,7 +291,8 @@ def run_command(args) -> int:
             fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
             store.session.setdefault("resumed_at", []).append(utc_now())
             store.write_session()
-            store.log_event({"event": "resume", "attempts_on_disk": len(rows)})
+            store.log_event({"event": "resume", "attempts_on_disk": len(rows),
+                             "software_version": software_versions()})
 
         from .runner import StudyRunner
         from .webui import UiState, WebUI
@@ -286,11 +323,16 @@ def run_command(args) -> int:
         print(f"interrupted: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
         return 130
     except Exception as exc:
+        from .apparatus import ServoStopped
         from .webui import Aborted
 
         if isinstance(exc, Aborted):
             print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
             return 3
+        if isinstance(exc, ServoStopped):
+            print(f"error: {exc}; the output was zeroed, the attempt in progress is not recorded; data so far is "
+                  f"in {store.dir}; continue with --resume", file=sys.stderr)
+            return 4
         raise
     finally:
         if device is not None:

@@ -49,6 +49,9 @@ class ProtocolConfig:
     masking_level_dbfs : float
         White-noise RMS level re digital full scale.
     audio_fs_hz : float
+    servo_watchdog_s : float
+        The renderer's watchdog bound (``RendererConfig.watchdog_overrun_s``): a servo period
+        longer than nominal by more than this zeroes the output and stops the session.
     """
 
     repetitions: int = 3
@@ -62,12 +65,13 @@ class ProtocolConfig:
     familiarization_max_windows: int = 60
     masking_level_dbfs: float = -20.0
     audio_fs_hz: float = 44100.0
+    servo_watchdog_s: float = 0.02
 
     def __post_init__(self) -> None:
         if not (isinstance(self.repetitions, int) and not isinstance(self.repetitions, bool) and self.repetitions >= 1):
             raise ValueError(f"repetitions must be an integer >= 1, got {self.repetitions!r}")
         for key in ("tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s", "homing_before_max_s",
-                    "familiarization_window_s", "audio_fs_hz"):
+                    "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s"):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{key} must be a positive finite number, got {value!r}")

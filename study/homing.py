@@ -101,15 +101,16 @@ class HomingController:
         self._alpha = wc / (1.0 + wc)
 
     def run(self, duration_s: float, until_settled: bool = False, min_duration_s: float = 0.0,
-            until=None, check_every: int = 200, realtime: bool = False) -> HomingResult:
+            until=None, check_every: int = 200, realtime: bool = False, zero_at_end: bool = True) -> HomingResult:
         """Hold the stylus at home for at most ``duration_s``.
 
         Stops early when settled (if ``until_settled``, after ``min_duration_s``)
         or when ``until()`` returns True (checked every ``check_every`` ticks,
         e.g. "the subject has rated" in keyboard sessions). ``realtime`` paces
         an unpaced (sim) device to wall-clock time at each check, so waiting
-        for a person does not spin a core. Returns a :class:`HomingResult`;
-        the output is zeroed on every exit path.
+        for a person does not spin a core. Returns a :class:`HomingResult`.
+        The output is zeroed when anything raises, and at the end unless
+        ``zero_at_end`` is False (back-to-back calls that keep holding home).
         """
         dev = self.device
         cfg = self.config
@@ -163,7 +164,10 @@ class HomingController:
                 if until_settled and tick >= n_min and abs(x - home) < tol and abs(v) < vtol:
                     settled = True
                     break
-        finally:
+        except BaseException:
+            dev.command(0.0)
+            raise
+        if zero_at_end:
             dev.command(0.0)
         x = state.position_m
         if not settled:

@@ -15,12 +15,16 @@ loops and the homing controller live in a child process started with the
   saturation and the parent plays the low tone as it arrives.
 
 The child zeroes and closes the device on every exit path (the Device base
-class guarantees it); if the parent dies, the child sees the pipe close and exits.
+class guarantees it); if the parent dies, the child sees the pipe close and exits. With a hardware
+device the child keeps homing between requests, so the device is commanded
+every tick for the whole session (a streaming device's watchdog would
+otherwise zero it in the gaps while the parent writes data).
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import queue
 import signal
 
@@ -28,6 +32,11 @@ import signal
 def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
            sim_participant, realtime) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C there closes the pipe
+    if realtime is not False:
+        try:  # a higher CFS priority for the servo (not SCHED_FIFO: its busy-waits would trip RT throttling)
+            os.nice(-10)
+        except OSError:
+            pass  # not permitted for this user: run at normal priority
     from devices import make_device
 
     from .apparatus import Apparatus
@@ -43,6 +52,11 @@ def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
         conn.send(("ok", {"real_saturation_detection": app.real_saturation_detection, "device_info": asdict(device.info),
                           "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz}))
         while True:
+            if not app.is_sim:
+                # a streaming device must be commanded every tick (its watchdog zeroes it otherwise): keep homing
+                # while the parent writes data, updates the views or waits for the next request
+                while not conn.poll(0):
+                    app.homing.run(0.02, zero_at_end=False)
             try:
                 method, args = conn.recv()
             except EOFError:
@@ -93,6 +107,7 @@ class IsolatedApparatus:
         self.device_info = info["device_info"]
         self.sim_participant = sim_participant
         self.reference = None
+        self._pending = False
 
     def _recv(self, on_wait=None):
         while not self._conn.poll(0.02):
@@ -108,12 +123,19 @@ class IsolatedApparatus:
                 raise {"ValueError": ValueError, "FileNotFoundError": FileNotFoundError}[kind](message)
             if kind == "DeviceError":
                 raise ValueError(f"device: {message}")
+            if kind == "ServoStopped":
+                from .apparatus import ServoStopped
+
+                raise ServoStopped(message)
             raise RuntimeError(f"servo process: {kind}: {message}")
         return payload
 
     def _call(self, method: str, *args, on_wait=None):
         self._conn.send((method, args))
-        return self._recv(on_wait)
+        self._pending = True
+        result = self._recv(on_wait)
+        self._pending = False
+        return result
 
     def now_s(self) -> float:
         return self._call("now_s")
@@ -163,13 +185,19 @@ class IsolatedApparatus:
         return self.reference
 
     def close(self) -> None:
+        """End the child: finish (or cut short, for a hold) its current call, then close the device there."""
         try:
+            self._hold.set()  # an abort can leave the child holding home for the UI: release it
+            if self._pending and self._proc.is_alive() and self._conn.poll(30.0):
+                self._conn.recv()
+            self._pending = False
             if self._proc.is_alive():
                 self._call("close")
         except (RuntimeError, OSError, EOFError):
             pass
         finally:
             self._proc.join(timeout=10)
-            if self._proc.is_alive():
+            if self._proc.is_alive():  # last resort; the device's own watchdog must zero the output then
                 self._proc.kill()
+                self._proc.join(timeout=5)
             self._conn.close()

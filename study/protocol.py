@@ -26,6 +26,16 @@ PHASE_CODES = {name: i + 1 for i, name in enumerate(PHASES)}
 REDRAW_REASONS = ("saturated", "rejected", "overpowered", "no_tap")
 
 
+def reason_of(row: dict) -> str:
+    """Why an attempt was invalid, from its recorded flags (priority: rejected, saturated, overpowered, no tap)."""
+    if row.get("valid"):
+        return ""
+    for key in ("rejected", "saturated", "overpowered"):
+        if row.get(key):
+            return key
+    return "no_tap" if not row.get("n_taps") else ""
+
+
 def phase_rng(seed: int, phase: str, index: int, subject: str = "") -> np.random.Generator:
     """Independent generator for the ``index``-th random choice of a phase (seeded, stateless).
 
@@ -232,7 +242,7 @@ class Schedule:
             if got != (trial.phase, trial.trial, attempt, trial.sample):
                 raise ValueError(f"trials.csv row {i + 2}: expected {trial.phase} trial {trial.trial} attempt "
                                  f"{attempt} ({trial.sample}) for this seed, found {got}")
-            self.record(trial, attempt, bool(row["valid"]), row.get("reason", ""))
+            self.record(trial, attempt, bool(row["valid"]), row.get("reason") or reason_of(row))
         if familiarization_ended and self.phase == "familiarization":
             self.end_familiarization()
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .data import SessionStore, utc_now
-from .protocol import Schedule, Trial
+from .protocol import Schedule, Trial, reason_of
 from .webui import Aborted
 
 SUBJECT_TEXT = {
@@ -34,6 +34,7 @@ SUBJECT_TEXT = {
             "Press 1 (not at all) to 7 (exactly like it), or x to reject the trial.",
     "done": "The study is complete. Thank you!",
     "paused": "Short pause. Please wait.",
+    "no_tap": "No tap was detected. This sample will come again later.",
 }
 
 
@@ -53,6 +54,8 @@ class AttemptRecord:
     penetrations: list
     started_at: str
     duration_s: float
+    end_familiarization: bool = False
+    trace: dict | None = None
 
     @property
     def valid(self) -> bool:
@@ -62,11 +65,8 @@ class AttemptRecord:
 
     @property
     def reason(self) -> str:
-        for flag, name in ((self.rejected, "rejected"), (self.saturated, "saturated"),
-                           (self.overpowered, "overpowered"), (self.no_tap, "no_tap")):
-            if flag:
-                return name
-        return ""
+        return reason_of({"valid": self.valid, "rejected": self.rejected, "saturated": self.saturated,
+                          "overpowered": self.overpowered, "n_taps": len(self.velocities)})
 
     def row(self, subject: str) -> dict:
         v = [float(x) for x in self.velocities]
@@ -192,6 +192,10 @@ class StudyRunner:
                 end_fam = plan.end_familiarization
             else:
                 end_fam = self.ui.familiarization_ended()
+        elif not tap.velocities:
+            # nobody tapped within first_tap_timeout_s: nothing to rate, the trial is repeated later
+            self._subject("no_tap")
+            contacts = 0
         else:
             self._subject("rate", "rate")
             contacts = self.apparatus.after_window(self.protocol.homing_after_s)
@@ -242,7 +246,7 @@ class StudyRunner:
             if trial.phase == "familiarization":
                 self.fam_taps += len(record.velocities)
             redraw = self.schedule.record(trial, attempt, record.valid, record.reason,
-                                          end_familiarization=getattr(record, "end_familiarization", False))
+                                          end_familiarization=record.end_familiarization)
             if trial.phase == "familiarization" and self.schedule.phase != "familiarization":
                 self.store.log_event({"event": "familiarization_ended", "windows": trial.trial, "taps": self.fam_taps})
             if redraw is not None:

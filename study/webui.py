@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hmac
 import json
+import math
 import secrets
 import threading
 import time
@@ -34,6 +35,17 @@ FAM_HINT = "Keep tapping on the wood. Press Enter when you are done."
 
 class Aborted(RuntimeError):
     """The operator aborted the session (data written so far is kept; resume with --resume)."""
+
+
+def _json_safe(obj):
+    """Replace NaN/inf (e.g. the mean velocity of an attempt without taps) by None: browsers reject NaN in JSON."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
 
 
 class UiState:
@@ -61,7 +73,7 @@ class UiState:
 
     def set_operator(self, **fields) -> None:
         with self._cond:
-            self.operator.update(fields)
+            self.operator.update(_json_safe(fields))
             self.operator["seq"] += 1
             self._cond.notify_all()
 
@@ -171,7 +183,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def _json(self, obj, status: int = 200) -> None:
-        self._send(status, json.dumps(obj).encode(), "application/json")
+        self._send(status, json.dumps(obj, allow_nan=False).encode(), "application/json")
 
     def _token_ok(self, query: dict) -> bool:
         given = self.headers.get("X-Study-Token") or (query.get("token") or [""])[0]

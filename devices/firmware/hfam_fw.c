@@ -6,7 +6,7 @@
  * devices/firmware_logic.py): hello/INFO, streaming (one CURRENT in -> one STATE out),
  * on-device rendering of wall + pulse / decaying sinusoid / host re-armed sampled transient
  * with a steady-state and a peak current limit (thesis Fig. 4.9), contact events, and a
- * watchdog that zeroes the motor when the host goes quiet (latched until CLEAR_FAULTS).
+ * watchdog that zeroes the motor while the host is quiet (reported; output resumes with the host).
  *
  * Hardware (pins as on an Uno; change the #defines for another board):
  *   quadrature encoder A/B on INT0 (PD2) / INT1 (PD3), x4 decoding in the interrupts;
@@ -164,7 +164,7 @@ static void hw_init(void) {
 static hfam_parser_t parser;
 static uint8_t tx_seq, cmd_seq;
 static uint8_t mode_on_device, rendering, decimation = 1;
-static uint8_t tripped, fault_latched, watchdog_armed;
+static uint8_t tripped, trip_report, ev_tripped, fault_latched, watchdog_armed;
 static uint16_t watchdog_ms = WATCHDOG_MS_DEFAULT;
 static uint32_t last_cmd_tick;
 
@@ -239,9 +239,10 @@ static void send_state(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_t 
     put_u32(p + 4, (uint32_t)enc);
     put_u16(p + 8, accel_raw); /* raw ADC counts; the host subtracts the INFO/calibration offset */
     put_u16(p + 10, grip_raw);
-    p[12] = (uint8_t)((tripped ? ST_WATCHDOG_TRIPPED : 0) | (fault_latched ? ST_FAULT : 0) |
+    p[12] = (uint8_t)(((tripped || trip_report) ? ST_WATCHDOG_TRIPPED : 0) | (fault_latched ? ST_FAULT : 0) |
                       (clipping ? ST_CLIPPING : 0) | (over_temp ? ST_OVER_TEMPERATURE : 0));
     p[13] = cmd_seq;
+    trip_report = 0;
     put_u16(p + 14, (uint16_t)(int16_t)lroundf(applied_A * 1000.0f));
     send(MSG_STATE, p, 16);
 }
@@ -255,7 +256,8 @@ static void finish_event(void) {
     put_f32(p + 8, ev_grip);
     put_f32(p + 12, ev_pen);
     put_f32(p + 16, ev_peak);
-    p[20] = (uint8_t)((ev_clipped ? 1 : 0) | (tripped ? 2 : 0));
+    p[20] = (uint8_t)((ev_clipped ? 1 : 0) | (ev_tripped ? 2 : 0));
+    ev_tripped = 0;
     p[21] = ev_kind;
     put_u16(p + 22, ev_index);
     send(MSG_EVENT, p, 24);
@@ -347,7 +349,10 @@ static uint8_t finite4(const uint8_t *p, uint8_t n) {
 static void handle_frame(void) {
     uint8_t type = parser.buf[3], seq = parser.buf[4], n = parser.buf[2];
     const uint8_t *p = parser.buf + 5;
-    if ((!mode_on_device && type == MSG_CURRENT) || rendering) last_cmd_tick = tick_count;
+    if ((!mode_on_device && type == MSG_CURRENT) || rendering) {
+        last_cmd_tick = tick_count;
+        if (tripped) { tripped = 0; trip_report = 1; } /* host back: resume, report the trip once */
+    }
     switch (type) {
     case MSG_HELLO:
         if (n != 2) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
@@ -360,7 +365,7 @@ static void handle_frame(void) {
         if (n != 4) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
         float amps = get_f32(p);
         if (!(amps == amps)) { fault_latched = 1; amps = 0.0f; }
-        if (tripped || fault_latched) amps = 0.0f;
+        if (fault_latched) amps = 0.0f;
         motor_set(amps);
         uint16_t acc = adc_read(0), grip = adc_read(1);
         int32_t enc;
@@ -467,6 +472,7 @@ static void servo_tick(void) {
     /* device-side watchdog: no command within watchdog_ms -> zero current, latched, reported */
     if (watchdog_armed && !tripped && (tick_count - last_cmd_tick) * 1000UL > (uint32_t)watchdog_ms * SERVO_HZ) {
         tripped = 1;
+        if (in_event) ev_tripped = 1;
         motor_set(0.0f);
         if (!rendering) {
             int32_t enc;

@@ -162,3 +162,28 @@ def test_synthetic_command_then_report(tmp_path, capsys):
     assert "not empty" in capsys.readouterr().err
     assert main(["report", str(data), "--out", str(tmp_path / "rep"), "--no-figures"]) == 0
     assert (tmp_path / "rep" / "pairwise_ttests.csv").stat().st_size > 1000
+
+
+def test_report_html_renders_in_chromium(report):
+    """The self-contained report opens in Debian's headless Chromium with every figure decoded."""
+    import shutil
+    from playwright.sync_api import sync_playwright
+    out, _ = report
+    exe = shutil.which("chromium")
+    assert exe, "Debian chromium is required (make system-deps)"
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=exe, args=[
+            "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+            "--disable-sync", "--no-first-run"])
+        try:
+            page = browser.new_page()
+            requests = []
+            page.on("request", lambda r: requests.append(r.url))
+            page.goto((out / "report.html").as_uri())
+            widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.complete ? i.naturalWidth : -1)")
+            headings = page.eval_on_selector_all("h2", "hs => hs.map(h => h.textContent)")
+        finally:
+            browser.close()
+    assert len(widths) == 4 and min(widths) > 300
+    assert "Summary" in headings and any("pairwise_ttests.csv" in h for h in headings)
+    assert [u for u in requests if not u.startswith(("file:", "data:"))] == []   # nothing fetched from outside

@@ -7,16 +7,17 @@ change of the format on either side shows up here.
 from __future__ import annotations
 
 import warnings
-from types import SimpleNamespace
+from pathlib import Path
 
 import numpy as np
 
-from analysis.load import TRIAL_COLUMNS, load_study
+from analysis.load import TRIAL_COLUMNS
 from analysis.pipeline import analyse
 from analysis.report import write_report
 from analysis.stats import valid_testing
 from analysis.synthetic import DEFAULT_SAMPLES
 from analysis.traces import typical_taps
+
 
 def test_trial_columns_agree():
     import study.data as study_data  # imported here: a study mid-edit fails this test, not the collection
@@ -77,7 +78,6 @@ def test_files_written_by_the_study_store_are_analysed(tmp_path):
     np.testing.assert_allclose(res.summary["penetration_mean_m"], 1e-4 * np.arange(1, 13), rtol=1e-9)
     assert res.warnings == ()
     dirs = dict(zip(res.study.subjects["subject"], res.study.subjects["folder"]))
-    from pathlib import Path
     taps, v, notes = typical_taps(valid_testing(res.study), {s: Path(d) for s, d in dirs.items()}, names, 0.1)
     assert set(taps) == set(names) and notes == []
     assert all(abs(tap.v_in_m_s - 0.1) < 0.02 for tap in taps.values())

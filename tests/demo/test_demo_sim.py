@@ -1,8 +1,8 @@
 """What the virtual-wall demo must show (issue 9), checked on the sim device with real numbers.
 
 One pipeline (identification, recordings, library) and one set of taps is built per module in a
-temporary cache and shared by all tests; velocities 0.05 and 0.11 m/s are inside the library's
-velocity range, 0.3 m/s is beyond it.
+temporary cache and shared by all tests; velocities 0.04, 0.11 and 0.115 m/s are inside the library's
+velocity range (0.039-0.12 m/s: its edges included), 0.3 m/s is beyond it.
 """
 
 import csv
@@ -16,7 +16,7 @@ from renderer import demo
 from renderer import demo_runs as runs
 from renderer.demo_pipeline import PipelineSettings, Progress, build_or_load, cache_key
 
-IN_RANGE = (0.05, 0.11)
+IN_RANGE = (0.04, 0.11, 0.115)
 GRIPS = (1.0, 2.0, 3.0)
 
 
@@ -24,7 +24,7 @@ GRIPS = (1.0, 2.0, 3.0)
 def result(tmp_path_factory):
     cache = tmp_path_factory.mktemp("cache")
     out = tmp_path_factory.mktemp("out")
-    cfg = demo.DemoConfig(velocities_m_s=IN_RANGE + (0.3,), grips_N=GRIPS, grid_velocities_m_s=IN_RANGE + (0.3,))
+    cfg = demo.DemoConfig(velocities_m_s=IN_RANGE + (0.3,), grips_N=GRIPS, grid_velocities_m_s=(0.04, 0.11, 0.3))
     res = demo.run_sim_demo(cfg, out, cache, figures=False, progress=Progress(5, quiet=True))
     res.cfg, res.out, res.cache = cfg, out, cache
     return res
@@ -73,7 +73,8 @@ def test_proportional_walls_give_smaller_lower_frequency_contact_accelerations(r
             assert wall["peak_accel_m_s2"] < 0.3 * real["peak_accel_m_s2"], (wall, real)
             assert wall["dominant_freq_hz"] < 0.6 * real["dominant_freq_hz"], (wall, real)
         assert mean(result, name, "peak_accel_m_s2") < 0.25 * real_peak
-        assert mean(result, name, "dominant_freq_hz") < 0.4 * real_f
+        # the walls' own content: their ~24 Hz mass-spring mode and the arm's braking (~30-50 Hz, docs/demo.md)
+        assert mean(result, name, "dominant_freq_hz") < 0.5 * real_f
 
 
 def test_grip_compensation_matters(result):
@@ -95,15 +96,21 @@ def test_grip_compensation_matters(result):
 
 
 def test_transients_cut_penetration(result):
-    """Pulse and HFAM cut penetration; the decaying sinusoid does not on this sim (see docs/demo.md)."""
+    """Pulse and HFAM cut penetration at every velocity (section 4.5.5), by a clear margin, not by noise.
+
+    The simulated hand stops pushing 45 ms after contact (docs/demo.md, "The simulated tap"); its
+    damping, not the incoming momentum, sets most of the penetration, so the cut is 15-20 %, not the
+    thesis's factor of two.
+    """
     all_v = result.cfg.velocities_m_s
     for with_tr, wall in (("pulse_firm", "firm"), ("hfam_firm", "firm"), ("hfam_soft", "soft")):
-        pen_tr = mean(result, with_tr, "penetration_mean_m", velocities=all_v)
-        pen_wall = mean(result, wall, "penetration_mean_m", velocities=all_v)
-        assert pen_tr < pen_wall, (with_tr, pen_tr, pen_wall)
-    # HFAM (and the pulse) cut it by a clear margin, not by noise
-    assert mean(result, "hfam_firm", "penetration_mean_m", velocities=all_v) < \
-        0.95 * mean(result, "firm", "penetration_mean_m", velocities=all_v)
+        for v in all_v:
+            pen_tr = mean(result, with_tr, "penetration_mean_m", velocities=(v,))
+            pen_wall = mean(result, wall, "penetration_mean_m", velocities=(v,))
+            assert pen_tr < 0.9 * pen_wall, (with_tr, v, pen_tr, pen_wall)
+        cut = 1 - mean(result, with_tr, "penetration_mean_m", velocities=all_v) / \
+            mean(result, wall, "penetration_mean_m", velocities=all_v)
+        assert cut >= 0.13, (with_tr, cut)
     # stiffer walls penetrate less: the penetration numbers mean what they say
     assert mean(result, "very_firm", "penetration_mean_m") < mean(result, "firm", "penetration_mean_m") < \
         mean(result, "soft", "penetration_mean_m")

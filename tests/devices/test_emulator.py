@@ -1,9 +1,5 @@
 """The emulator as a command and a child process; fault-spec parsing; the latency command."""
 
-import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -28,9 +24,20 @@ def test_fault_spec_parsing_and_errors():
         FaultSpec.parse("corrupt=x")
 
 
-def test_latency_command_against_a_child_process_emulator(capsys):
-    # the child is `python -m devices emulate --pty ...`: this also checks the command prints its port
-    port, handle = start_emulator(process=True)
+def test_child_process_emulator_starts_and_stops():
+    # the child is `python -m devices emulate --pty ...`: start_emulator reads the port it prints
+    port, handle = start_emulator(process=True, faults="drop=0.001")
+    try:
+        assert handle.alive and port.startswith("/dev/pts/")
+        with SerialDevice(port) as dev:
+            assert dev.info.name == "hfam-emulator(sim-joystick)"
+    finally:
+        handle.stop()
+    assert not handle.alive and handle.process.returncode == 0
+
+
+def test_latency_command(capsys):
+    port, handle = start_emulator()
     try:
         assert handle.alive
         assert devices_main(["latency", "--device", f"serial:{port}", "--n", "300", "--warmup", "20"]) == 0

@@ -70,7 +70,8 @@ def test_c_firmware_speaks_the_protocol_and_renders_like_the_python_firmware(tmp
     cal = Calibration(0, 1, 0.345, 512, 0.0098, 0)
     stream = _frames((P.HELLO, P.HELLO_STRUCT.pack(1, 0)), (P.SET_MODE, P.MODE_STRUCT.pack(1, 1)),
                      (P.CLEAR_FAULTS, b""), (P.SET_CALIBRATION, cal.to_payload()),
-                     (P.WALL, P.WALL_STRUCT.pack(0.0, 500.0, 0.0, 0.001)), (P.LIMITS, P.LIMITS_STRUCT.pack(0.8, 2.0, 2.0)),
+                     (P.WALL, P.WALL_STRUCT.pack(0.0, 500.0, 0.0, 0.001)),
+                     (P.LIMITS, P.LIMITS_STRUCT.pack(0.8, 2.0, 2.0)),
                      (P.TRANSIENT_PARAM, P.TRANSIENT_PARAM_STRUCT.pack(P.TRANSIENT_PULSE, 5.0, 0.002, 0, 0)),
                      (P.TABLE_BEGIN, P.encode_table_begin([0.1], [1.0], 10, 4000.0)), (P.PING, b"abc"),
                      (0x1F, b""), (P.RENDER_START, b""))  # 0x1F: unknown type, a false sync to both parsers

@@ -45,11 +45,11 @@ def test_streaming_over_the_pty_is_transparent_to_the_physics(emulator):
     ref.open()
     ref.command(0.0)  # the emulator's warm-up tick
     ref.set_user(TapTrajectory([0.05, 0.1, 0.2], n_taps=3), grip_N=2.0)
-    ref.command(0.0)  # the zero command Device.open sends
+    # the zero command Device.open sends is answered with this state, then applied
     res = ref.info.position_resolution_m
     with SerialDevice(port) as dev:
         n_contact = 0
-        for k in range(3000):
+        for k in range(2000):  # within the hand's 3-tap trajectory (the emulator restarts it when done)
             s = dev.read()
             r = ref.read()
             assert s.position_m == pytest.approx(r.position_m, abs=res / 2 + 1e-12)
@@ -61,7 +61,7 @@ def test_streaming_over_the_pty_is_transparent_to_the_physics(emulator):
             dev.command(i)
             ref.command(i)
         assert n_contact > 50  # the hand did reach the wall
-        assert s.extra["current_A"] == pytest.approx(dev.last_command_A, abs=1e-3)
+        assert dev.read().extra["current_A"] == pytest.approx(dev.last_command_A, abs=1e-3)  # echoed, in mA
         stats = dev.link_stats()
     assert stats["crc_errors"] == stats["seq_gaps"] == stats["timeouts"] == 0
 
@@ -121,15 +121,24 @@ def test_watchdog_trips_when_the_host_stops_commanding(emulator):
             time.sleep(0.005)
         waited = time.monotonic() - t0
         assert 0.025 < waited < 0.2
-        assert emu.applied_A == 0.0 and emu.phys._held_A == 0.0
-        dev.command(1.0)  # ignored while tripped: latched until cleared
+        assert emu.applied_A == 0.0 and emu.phys._held_A == 0.0  # zeroed at once, not at the next tick
+        dev.command(0.5)  # the host is back: output resumes, the gap is reported in this reply
         s = dev.read()
-        assert s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == 0.0
+        assert s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(0.5)
         assert dev.link_stats()["watchdog_trips"] == 1
-        dev.clear_faults()
-        dev.command(1.0)
+        dev.command(0.5)
         s = dev.read()
-        assert not s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(1.0)
+        assert not s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(0.5)
+        # a NaN command, in contrast, latches FAULT and zero output until cleared
+        dev._send_current(float("nan"))
+        assert dev.read().status & Status.FAULT
+        dev.command(0.5)
+        s = dev.read()
+        assert s.status & Status.FAULT and s.extra["current_A"] == 0.0
+        dev.clear_faults()
+        dev.command(0.5)
+        s = dev.read()
+        assert not s.status & Status.FAULT and s.extra["current_A"] == pytest.approx(0.5)
 
 
 @pytest.mark.parametrize("emulator", [{"faults": "disconnect_after_s=0.4"}], indirect=True)
@@ -247,3 +256,27 @@ def test_bad_calibration_file_names_file_and_key(tmp_path):
     with pytest.raises(ValueError, match="not valid JSON"):
         load_calibration(path, "d/1", Calibration())
     assert load_calibration(tmp_path / "missing.json", "d/1", Calibration(5)) == Calibration(5)
+
+
+def test_reopen_after_close_and_after_a_lost_link(emulator):
+    port, handle = emulator
+    dev = SerialDevice(port, timeout_s=0.005, retries=1)
+    for _ in range(2):
+        with dev:
+            for _ in range(20):
+                dev.read()
+                dev.command(0.1)
+    dev.open()
+    handle.emulator.faults = handle.emulator.faults.__class__(drop=1.0)  # the device goes mute
+    for _ in range(5):
+        s = dev.read()
+        if s.status & Status.DISCONNECTED:
+            break
+        dev.command(0.0)
+    assert s.status & Status.DISCONNECTED
+    dev.close()
+    handle.emulator.faults = handle.emulator.faults.__class__()  # back to normal: reopen works
+    dev.timeout_s, dev.retries = 0.02, 3
+    with dev:
+        assert not dev.read().status & Status.DISCONNECTED
+        assert dev.link_stats()["timeouts"] >= 2  # counters are cumulative over the object's life

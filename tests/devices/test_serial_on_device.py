@@ -46,7 +46,8 @@ def _contact_rows(rows, ev):
 
 
 def _wall_A(dev, pen_m):
-    return np.minimum(WALL["stiffness_N_m"] * np.maximum(pen_m, 0.0) / dev.info.force_per_amp_N_A, LIMITS["continuous_A"])
+    force_N = WALL["stiffness_N_m"] * np.maximum(pen_m, 0.0)
+    return np.minimum(force_N / dev.info.force_per_amp_N_A, LIMITS["continuous_A"])
 
 
 def test_pulse_rendered_on_board_starts_at_the_contact_tick(on_device):
@@ -146,15 +147,17 @@ def test_on_device_watchdog_zeroes_output_when_the_host_goes_quiet(on_device):
     dev, handle = on_device
     import time
 
-    dev.configure_rendering(WALL, LIMITS, None)
+    dev.configure_rendering(WALL, dict(LIMITS, continuous_A=1.0), None)
+    emu = handle.emulator
     _run(dev, 200)
     time.sleep(0.4)  # no reads, no keepalives: the firmware's 200 ms watchdog trips
-    assert handle.emulator.tripped and handle.emulator.applied_A == 0.0
-    rows, _ = _run(dev, 3000)
-    tripped = rows[:, 3].astype(int) & Status.WATCHDOG_TRIPPED
-    assert np.all(tripped[-2000:]) and np.all(rows[-2000:, 2] == 0.0)
-    dev.stop_rendering()
-    dev.clear_faults()
+    assert emu.tripped and emu.applied_A == 0.0 and emu.stats["watchdog_trips"] == 1
+    rows, _ = _run(dev, 3000)  # reading again sends keepalives: rendering resumes
+    assert not emu.tripped
+    bits = rows[:, 3].astype(int) & Status.WATCHDOG_TRIPPED
+    assert bits.any() and not bits[-2000:].any()
+    assert np.all(rows[bits != 0, 2] == 0.0)
+    assert dev.link_stats()["watchdog_trips"] == 1
 
 
 def test_configure_rendering_validates(on_device):

@@ -27,7 +27,7 @@ def _renderer_run(spec, out, tmp_path, capsys, duration_s="2.5"):
 
 @pytest.mark.parametrize("mode", ["streaming", "on-device"])
 def test_renderer_run_over_the_emulated_serial_port(mode, tmp_path, capsys):
-    port, handle = start_emulator(mode, process=True, taps_m_s=(0.05, 0.1, 0.2), watchdog_ms=250)
+    port, handle = start_emulator(mode, process=True, taps_m_s=(0.05, 0.1, 0.2))
     try:
         spec = f"serial:{port}" + ("?mode=on-device" if mode == "on-device" else "")
         out = tmp_path / "run"

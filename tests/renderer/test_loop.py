@@ -513,3 +513,10 @@ def test_events_csv_with_numpy_scalars(tmp_path):
     row = (tmp_path / "events.csv").read_text().splitlines()[1]
     assert row == "0.5,0.1,2.0,0.001,3.0,pulse,true,7,0,1.0"
     assert RunResult.load(tmp_path).events[0] == ContactEvent(0.5, 0.1, 2.0, 0.001, 3.0, "pulse", True, 7)
+
+
+def test_starting_inside_the_surface_fires_no_event_until_it_left():
+    # the hand holds the handle 2 mm inside the wall: no crossing from outside, no event, but full wall force
+    res = ServoLoop(MassDevice(x0_m=-0.002, grip_N=2.0), RendererConfig()).run(duration_s=0.2)
+    assert res.events == []
+    assert np.all(res.log["force_prop_N"][:10] > 0)

@@ -30,7 +30,10 @@ def write(path: Path, text: str) -> Path:
 
 
 def run_study(*args) -> int:
-    return main(["run", "--device", "sim", "--participant", "simulated", "--quiet", *map(str, args)])
+    args = [str(a) for a in args]
+    if "--resume" in args:   # device and participant come from the session
+        return main(["run", "--quiet", *args])
+    return main(["run", "--device", "sim", "--participant", "simulated", "--quiet", *args])
 
 
 def quick_args(tmp: Path, subject: str, seed: int, *extra, mistakes: bool = False) -> list:

@@ -8,7 +8,7 @@ import pytest
 
 from study.data import TRIAL_COLUMNS, SessionStore, check_subject_id, format_row
 
-from .helpers import quick_args, run_study, write
+from .helpers import run_study, write
 
 
 def row(**over):

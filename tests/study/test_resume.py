@@ -59,8 +59,35 @@ def test_sigkill_then_resume_completes_without_loss_or_duplicates(tmp_path):
     assert sorted(r["sample"] for r in rows if r["phase"] == "demonstration" and r["valid"] == "true") == sorted(names)
     session = read_session(folder)
     assert session["finished_at"] is not None and len(session["resumed_at"]) == 1
+    # the stored order covers the attempts from before the kill too, redraw reasons included
+    run = session["order"]["demonstration"]["run"] + session["order"]["testing"]["run"]
+    assert [(d["trial"], d["attempt"], d["sample"]) for d in run] == \
+        [(int(r["trial"]), int(r["attempt"]), r["sample"]) for r in rows if r["phase"] != "familiarization"]
+    redraws = session["order"]["demonstration"]["redraws"] + session["order"]["testing"]["redraws"]
+    invalid = [r for r in rows if r["phase"] != "familiarization" and r["valid"] == "false"]
+    assert len(redraws) == len(invalid) and all(d["reason"] in ("rejected", "saturated", "overpowered", "no_tap")
+                                                for d in redraws)
     assert len(list((folder / "traces").glob("*.npz"))) == len(rows)
     assert not list(folder.rglob("*.tmp"))
 
     # a finished session cannot be resumed again
     assert run_study("--subject", "K01", "--out", tmp_path / "DATA", "--resume") == 2
+
+
+def test_resume_refuses_a_changed_library(tmp_path, capsys):
+    import json
+
+    assert run_study(*quick_args(tmp_path, "L01", 2, "--samples", "wood,hfam_firm", "--repetitions", "1")) == 0
+    path = tmp_path / "DATA" / "L01" / "session.json"
+    session = json.loads(path.read_text())
+    assert run_study("--subject", "L01", "--out", tmp_path / "DATA", "--resume") == 2   # finished: refused
+    session["finished_at"] = None                  # pretend it was interrupted ...
+    for entry in session["catalog"]:
+        if entry["transient"] == "hfam":
+            entry["library_sha256"] = "0" * 64     # ... and the library file was rebuilt since
+    path.write_text(json.dumps(session))
+    rows_before = (tmp_path / "DATA" / "L01" / "trials.csv").read_bytes()
+    capsys.readouterr()
+    assert run_study("--subject", "L01", "--out", tmp_path / "DATA", "--resume") == 2
+    assert "sample 'hfam_firm' changed since the session started" in capsys.readouterr().err
+    assert (tmp_path / "DATA" / "L01" / "trials.csv").read_bytes() == rows_before

@@ -189,3 +189,90 @@ def test_keyboard_session_driven_through_both_views(browser, tmp_path):
         assert a != b or a.startswith("real sample")
     session = json.loads((tmp_path / "DATA" / "P01" / "session.json").read_text())
     assert session["experience"] == "none" and session["handedness"] == "left" and session["finished_at"]
+
+
+def test_operator_abort_keeps_data_and_resume_continues(tmp_path):
+    """Abort from the operator API mid-session: exit code 3, rows kept, session unfinished, resumable."""
+    proto = write(tmp_path / "p.toml", QUICK_PROTOCOL + 'familiarization_sample = ""\n')
+    base = ["--device", "sim", "--subject", "P02", "--out", str(tmp_path / "DATA"), "--token", "tok"]
+    cmd = [sys.executable, "-m", "study", "run", *base, "--participant", "keyboard", "--seed", "5",
+           "--protocol", str(proto), "--samples", "firm,soft", "--repetitions", "1", "--age", "40",
+           "--gender", "male", "--handedness", "right", "--experience", "regular"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        port = None
+        while port is None:
+            line = proc.stdout.readline()
+            assert line, proc.stderr.read()
+            m = re.match(r"operator view:\s+http://127.0.0.1:(\d+)/", line)
+            port = m and int(m.group(1))
+        api = f"http://127.0.0.1:{port}"
+        hdr = {"X-Study-Token": "tok", "Content-Type": "application/json"}
+        done = 0
+        deadline = time.monotonic() + 60
+        while done < 2 and time.monotonic() < deadline:   # two attempts: confirm placement, then rate
+            op = json.loads(http("GET", api + "/api/operator", headers=hdr)[1])
+            subj = json.loads(http("GET", api + "/api/subject")[1])
+            if op["awaiting_confirm"]:
+                http("POST", api + "/api/operator/confirm", {}, hdr)
+            elif subj["prompt"] == "rate":
+                assert json.loads(http("POST", api + "/api/key", {"key": "4"}, {"Content-Type": "application/json"})[1])["accepted"]
+                done += 1
+            time.sleep(0.03)
+        while not json.loads(http("GET", api + "/api/operator", headers=hdr)[1])["awaiting_confirm"]:
+            time.sleep(0.03)
+        assert http("POST", api + "/api/operator/abort", {}, hdr)[0] == 200
+        assert proc.wait(timeout=30) == 3
+        assert "resume" in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    folder = tmp_path / "DATA" / "P02"
+    rows = read_rows(folder)
+    assert [r["rating"] for r in rows] == ["4", "4"]
+    assert json.loads((folder / "session.json").read_text())["finished_at"] is None
+    # resume: the simulated rater cannot take over a person's session
+    from study.__main__ import main
+
+    assert main(["run", "--subject", "P02", "--out", str(tmp_path / "DATA"), "--resume",
+                 "--participant", "simulated"]) == 2
+    cmd = [sys.executable, "-m", "study", "run", *base, "--resume"]   # device and participant from session.json
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        port = None
+        while port is None:
+            line = proc.stdout.readline()
+            assert line, proc.stderr.read()
+            m = re.match(r"operator view:\s+http://127.0.0.1:(\d+)/", line)
+            port = m and int(m.group(1))
+        api = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline:
+            try:
+                op = json.loads(http("GET", api + "/api/operator", headers=hdr)[1])
+                subj = json.loads(http("GET", api + "/api/subject")[1])
+            except (urllib.error.URLError, ConnectionError):
+                break
+            if op["awaiting_confirm"]:
+                http("POST", api + "/api/operator/confirm", {}, hdr)
+            elif subj["prompt"] == "rate":
+                http("POST", api + "/api/key", {"key": "6"}, {"Content-Type": "application/json"})
+            time.sleep(0.03)
+        assert proc.wait(timeout=30) == 0, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    rows = read_rows(folder)
+    assert [r["rating"] for r in rows][:2] == ["4", "4"] and set(r["rating"] for r in rows[2:]) <= {"6"}
+    assert sorted(r["sample"] for r in rows if r["phase"] == "testing" and r["valid"] == "true") == ["firm", "soft"]
+    assert json.loads((folder / "session.json").read_text())["finished_at"] is not None
+
+
+def test_attempt_without_taps_keeps_the_operator_api_valid_json(served):
+    ui, web = served
+    ui.set_operator(last_attempt={"sample": "firm", "n_taps": 0, "incoming_velocity_mean_m_s": float("nan"),
+                                  "incoming_velocities_m_s": []})
+    status, body = http("GET", f"http://127.0.0.1:{web.port}/api/operator", headers={"X-Study-Token": "t0ken-123"})
+    assert status == 200
+    assert json.loads(body, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))[
+        "last_attempt"]["incoming_velocity_mean_m_s"] is None

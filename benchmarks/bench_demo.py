@@ -1,0 +1,65 @@
+"""Demo benchmark: wall time of ``python -m renderer demo --device sim`` cold and cached (issue 9: < 60 s, < 15 s).
+
+``python -m benchmarks demo`` (or ``.venv/bin/python benchmarks/bench_demo.py [--quick]``).
+Each run is the real command in a fresh interpreter (imports, JIT and figures
+included), timed from outside:
+
+* fresh: empty demo cache *and* empty numba and matplotlib caches (what a
+  first ``make demo`` on a new machine pays, minus the pip install);
+* cold: empty demo cache (identification, recordings and library rebuilt),
+  JIT and font caches warm;
+* cached: the demo cache from the previous run reused.
+
+The machine is shared and noisy: medians over repeats, plus the ratio to the issue's budget.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+BUDGET_S = {"fresh": 60.0, "cold": 60.0, "cached": 15.0}
+
+
+def _run_demo(out: Path, cache: Path, env_extra: dict | None = None) -> float:
+    env = dict(os.environ)
+    env.update(env_extra or {})
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "renderer", "demo", "--device", "sim", "--out", str(out),
+                           "--cache-dir", str(cache)], cwd=ROOT, env=env, capture_output=True, text=True)
+    dt = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"demo failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    return dt
+
+
+def main(argv=None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    quick = "--quick" in argv
+    reps = {"fresh": 1, "cold": 1 if quick else 2, "cached": 1 if quick else 3}
+    times: dict[str, list[float]] = {k: [] for k in reps}
+    with tempfile.TemporaryDirectory(prefix="bench_demo_") as tmp:
+        tmp = Path(tmp)
+        for i in range(reps["fresh"]):
+            env = {"NUMBA_CACHE_DIR": str(tmp / f"numba{i}"), "MPLCONFIGDIR": str(tmp / f"mpl{i}")}
+            times["fresh"].append(_run_demo(tmp / "out", tmp / f"fresh{i}", env))
+        for i in range(reps["cold"]):
+            times["cold"].append(_run_demo(tmp / "out", tmp / f"cold{i}"))
+        for _ in range(reps["cached"]):
+            times["cached"].append(_run_demo(tmp / "out", tmp / "cold0"))
+    print(f"   make demo wall time (python -m renderer demo --device sim), {os.cpu_count()} CPUs, "
+          f"load {os.getloadavg()[0]:.1f}")
+    for k, v in times.items():
+        med = statistics.median(v)
+        print(f"   {k:7s}: median {med:6.1f} s over {len(v)} run(s) ({', '.join(f'{x:.1f}' for x in v)}); "
+              f"budget {BUDGET_S[k]:.0f} s -> {med / BUDGET_S[k]:.2f} of budget")
+
+
+if __name__ == "__main__":
+    main()
