@@ -1,6 +1,6 @@
-# Set-up and entry points. Needs only Python 3.11 on the machine; system
-# libraries that are optional at run time (PortAudio for masking audio,
-# Chromium for the browser tests) are installed by `make system-deps` (root).
+# Set-up and entry points. Needs only Python 3.11 on the machine; the Debian
+# packages the study audio, browser tests and firmware build use are installed
+# by `make system-deps` (root; .ci/run calls it).
 PYTHON ?= python3.11
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -27,11 +27,11 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m benchmarks
 
-# Debian packages: PortAudio for sounddevice, Chromium for the study's browser tests,
-# the AVR toolchain to build the reference firmware (devices/firmware).
+# Debian packages: PortAudio for sounddevice, espeak-ng for the study's spoken cues,
+# Chromium for the browser tests, the AVR toolchain to build the reference firmware.
 system-deps:
 	apt-get update -qq
-	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 chromium chromium-driver gcc-avr binutils-avr avr-libc
+	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 espeak-ng chromium chromium-driver gcc-avr binutils-avr avr-libc
 
 clean:
 	rm -rf $(VENV) build *.egg-info

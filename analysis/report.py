@@ -63,8 +63,9 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
     cfg, out, pairs = res.config, [], {}
     subj = res.study.subjects
     exp_counts = subj["experience"].value_counts()
-    out.append(f"{len(subj)} subjects ({', '.join(f'{n} {e}' for e, n in exp_counts.items())} prior haptic "
-               f"experience); {len(res.study.catalog)} samples; {int(res.matrix.counts.sum())} valid testing "
+    experience_words = {"none": "never used a haptic device", "few": "used one a few times",
+                        "regular": "use one regularly"}
+    out.append(f"{len(subj)} subjects ({', '.join(f'{n} {experience_words.get(e, e)}' for e, n in exp_counts.items())}); {len(res.study.catalog)} samples; {int(res.matrix.counts.sum())} valid testing "
                f"attempts analysed.")
     for g, sub in res.anova.groupby("group", sort=False):
         a = sub[sub["test"] == "rm_anova"].iloc[0]

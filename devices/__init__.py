@@ -1,9 +1,9 @@
 """Haptic devices: the interface, the simulated device, hardware drivers, identification, models."""
 
 from .base import Device, DeviceError, DeviceInfo, DeviceState, Status
-from .registry import DEVICE_KINDS, make_device, open_device
+from .registry import DEVICE_KINDS, check_device_spec, make_device, open_device
 
-__all__ = ["Device", "DeviceError", "DeviceInfo", "DeviceState", "Status", "DEVICE_KINDS", "make_device", "open_device",
+__all__ = ["Device", "DeviceError", "DeviceInfo", "DeviceState", "Status", "DEVICE_KINDS", "check_device_spec", "make_device", "open_device",
            "load_model"]
 
 

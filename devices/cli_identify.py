@@ -68,8 +68,9 @@ def register(subparsers) -> None:
                     "handle acceleration and position, validate on transients, and write recordings, one model "
                     "JSON per grip and output, model_set.json, Bode PNGs and a fit report into --out.")
     p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, hid:VID:PID)")
-    p.add_argument("--grip", type=_floats, default=(0.0, 1.0, 2.0, 3.0, 4.0),
-                   help="comma-separated grip levels in N (default 0,1,2,3,4)")
+    p.add_argument("--grip", type=_floats, default=None,
+                   help="comma-separated grip levels in N (default: spans the device's grip range, "
+                        "0,1,2,3,5,10 on the sim, so an HFAM library built from the set covers every grip)")
     p.add_argument("--trials", type=int, default=4, help="good trials per grip, half reversed (default 4)")
     p.add_argument("--amplitude", type=float, default=0.75, help="sweep amplitude in A (default 0.75)")
     p.add_argument("--f-start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
@@ -110,6 +111,14 @@ def register(subparsers) -> None:
     q.set_defaults(func=run_fit)
 
 
+def default_grip_levels(grip_range_N: tuple[float, float]) -> tuple[float, ...]:
+    """Grip levels that span a device's grip range: dense where people usually hold (the first 3 N), then
+    the middle and the top of the range, so interpolation never has to extrapolate (section 3.4.6)."""
+    lo, hi = float(grip_range_N[0]), float(grip_range_N[1])
+    levels = {lo, hi, (lo + hi) / 2.0} | {lo + k for k in (1.0, 2.0, 3.0) if lo + k < hi}
+    return tuple(sorted(levels))
+
+
 def run_identify(args) -> int:
     from .identify.pipeline import IdentifyConfig, identify_device
     from .identify.sweep import SweepConfig
@@ -120,7 +129,8 @@ def run_identify(args) -> int:
         sweep = SweepConfig(amplitude_A=args.amplitude, f_start_hz=args.f_start, f_end_hz=args.f_end,
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
         band = tuple(args.band) if args.band else None
-        cfg = IdentifyConfig(grips_N=args.grip, trials=args.trials, sweep=sweep,
+        grips = args.grip if args.grip is not None else default_grip_levels(dev.info.grip_range_N)
+        cfg = IdentifyConfig(grips_N=grips, trials=args.trials, sweep=sweep,
                              accel_options=_fit_options(args, band, "mean"),
                              position_options=_fit_options(args, band, "mean"), validate=not args.no_validate,
                              detrend=args.detrend, reverse_half=not args.no_reverse)

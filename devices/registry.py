@@ -17,6 +17,36 @@ from .base import Device
 DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>")
 
 
+def _split(spec: str) -> tuple[str, str, dict]:
+    """``kind, rest, options`` of a device string; ValueError listing the valid forms if malformed."""
+    if not isinstance(spec, str):
+        raise ValueError(f"device string must be text, got {spec!r}; valid forms: {', '.join(DEVICE_KINDS)}")
+    kind, _, rest = spec.partition(":")
+    options: dict = {}
+    if kind in ("serial", "hid") and "?" in rest:
+        rest, query = rest.split("?", 1)
+        options = _parse_options(spec, query)
+    if kind == "sim" or (kind == "serial" and rest):
+        return kind, rest, options
+    if kind == "hid" and rest.count(":") == 1:
+        vid, pid = rest.split(":")
+        try:
+            int(vid, 16), int(pid, 16)
+        except ValueError:
+            raise ValueError(f"device string {spec!r}: vendor and product ids must be hex numbers "
+                             f"(e.g. hid:16c0:0486)") from None
+        return kind, rest, options
+    raise ValueError(f"unknown device string {spec!r}; valid forms: {', '.join(DEVICE_KINDS)}")
+
+
+def check_device_spec(spec: str) -> str:
+    """Validate the form of a device string without touching any device; return its kind.
+
+    Commands call this before any other set-up, so a typo is reported as such.
+    """
+    return _split(spec)[0]
+
+
 def make_device(spec: str, **options) -> Device:
     """Create (not open) the device named by ``spec``; see the module doc.
 
@@ -25,27 +55,20 @@ def make_device(spec: str, **options) -> Device:
     ValueError
         For an unknown or malformed device string, listing the valid forms.
     """
-    kind, _, rest = spec.partition(":")
-    if kind in ("serial", "hid") and "?" in rest:
-        rest, query = rest.split("?", 1)
-        options = {**_parse_options(spec, query), **options}
+    kind, rest, spec_options = _split(spec)
+    options = {**spec_options, **options}
     if kind == "sim":
         from .sim import SimDevice
 
         return SimDevice.from_spec(rest or None, **options)
-    if kind == "serial" and rest:
+    if kind == "serial":
         from .serial_device import SerialDevice
 
         return SerialDevice(rest, **options)
-    if kind == "hid" and rest.count(":") == 1:
-        from .hid_device import HidDevice
+    from .hid_device import HidDevice
 
-        vid, pid = rest.split(":")
-        try:
-            return HidDevice(int(vid, 16), int(pid, 16), **options)
-        except ValueError:
-            pass
-    raise ValueError(f"unknown device string {spec!r}; valid forms: {', '.join(DEVICE_KINDS)}")
+    vid, pid = rest.split(":")
+    return HidDevice(int(vid, 16), int(pid, 16), **options)
 
 
 def _parse_options(spec: str, query: str) -> dict:

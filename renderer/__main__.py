@@ -6,6 +6,8 @@ import argparse
 import importlib
 import sys
 
+from devices.base import DeviceError
+
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
 COMMAND_MODULES: tuple[str, ...] = ("renderer.cmd_run", "renderer.demo")
 
@@ -18,7 +20,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

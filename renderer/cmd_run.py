@@ -149,7 +149,14 @@ def run_command(args) -> int:
     else:
         from .process import run_in_process
 
-        result = run_in_process(args.device, cfg, transient, duration_s=args.duration)
+        try:
+            result = run_in_process(args.device, cfg, transient, duration_s=args.duration)
+        except RuntimeError as exc:  # the servo process failed: keep what it logged before failing
+            partial = getattr(exc, "partial_result", None)
+            if partial is not None:
+                partial.save(args.out)
+                print(f"partial run saved to {args.out}", file=sys.stderr)
+            raise
     result.save(args.out)
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")

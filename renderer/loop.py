@@ -569,6 +569,7 @@ class ServoLoop:
                     if sts & _STATUS_DISCONNECTED:
                         command(0.0)
                         reason = "disconnected"
+                        st["error"] = str(s.extra.get("error", "device reported a disconnect"))
                         break
                     if sts & _STATUS_SENSOR_INVALID:
                         flags = 8
@@ -796,6 +797,7 @@ class ServoLoop:
                 n += 1
                 if s.status & _STATUS_DISCONNECTED:
                     reason = "disconnected"
+                    st["error"] = str(s.extra.get("error", "device reported a disconnect"))
                     break
                 if n % cfg.until_every == 0:
                     self.ticks = n

@@ -134,6 +134,11 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
         return result
     if exc_type in ("ValueError", "FileNotFoundError"):
         raise ValueError(text)
-    err = RuntimeError(f"servo process failed: {exc_type}: {text}")
+    if exc_type == "DeviceError":  # e.g. a missing port: a user error, reported as such by __main__
+        from devices.base import DeviceError
+
+        err = DeviceError(text)
+    else:
+        err = RuntimeError(f"servo process failed: {exc_type}: {text}")
     err.partial_result = result
     raise err

@@ -55,19 +55,22 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _device_limits(args) -> tuple[float, float | None, float | None]:
-    """(force_per_amp_N_A, peak_current_A, servo_rate_hz) from --device and the overrides."""
-    fpa, peak, rate = args.force_per_amp, args.peak_current_A, None
+def _device_limits(args) -> tuple[float, float | None, float | None, tuple | None]:
+    """(force_per_amp_N_A, peak_current_A, servo_rate_hz, grip_range_N) from --device and the overrides."""
+    fpa, peak, rate, grips = args.force_per_amp, args.peak_current_A, None, None
     if args.device.lower() != "none":
         from devices.registry import make_device
 
-        info = make_device(args.device).info
+        # a hardware device learns its info in the hello handshake, so open it (zero current) to read it
+        with make_device(args.device) as dev:
+            info = dev.info
         fpa = info.force_per_amp_N_A if fpa is None else fpa
         peak = info.current_peak_A if peak is None else peak
         rate = info.servo_rate_hz
+        grips = tuple(float(g) for g in info.grip_range_N)
     if fpa is None:
         raise ValueError("--force-per-amp is required with --device none")
-    return fpa, peak, rate
+    return fpa, peak, rate, grips
 
 
 def expand_model_paths(paths) -> list[Path]:
@@ -110,7 +113,7 @@ def run(args) -> int:
             taps_sel = tuple(int(x) for x in args.taps.split(","))
         except ValueError:
             raise ValueError(f"--taps {args.taps!r}: expected comma-separated integers") from None
-    fpa, peak, rate = _device_limits(args)
+    fpa, peak, rate, grip_range = _device_limits(args)
     settings = BuildSettings(
         n_velocities=args.n_velocities, taps=taps_sel, duration_s=args.duration_s, smooth_hz=args.smooth_hz,
         highpass_hz=args.highpass_hz, added_zero_hz=args.added_zero_hz, added_zero_zeta=args.added_zero_zeta,
@@ -139,6 +142,12 @@ def run(args) -> int:
     print(format_verification(report, settings.verify_band_hz))
     for msg in report.scaled:
         print(f"warning: {msg}")
+    g = library.grips_N
+    if grip_range is not None and len(g) > 1 and (g[0] > grip_range[0] + 1e-9 or g[-1] < grip_range[1] - 1e-9):
+        # the renderer and the study refuse such a library on this device (HfamLibrary.check_device)
+        print(f"warning: model grip levels {g[0]:g}..{g[-1]:g} N do not cover device {args.device!r} grip range "
+              f"{grip_range[0]:g}..{grip_range[1]:g} N: renderer and study will refuse this library on it; "
+              f"identify at grips spanning the range (e.g. --grip 0,1,2,3,5,10)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     library.save(args.out)
     print(f"wrote {args.out}: {len(library.velocities_m_s)} velocities x {len(library.grips_N)} grip level(s) x "

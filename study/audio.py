@@ -6,10 +6,12 @@ low tone marks taps whose force exceeded the amplifier limit.
 
 The noise is generated block by block inside the PortAudio callback from a
 seeded PCG64 generator (Gaussian, RMS set by ``level_dbfs``), so it never
-repeats (no stored loop). Cues are precomputed arrays mixed in by the callback.
-The spoken cue is spoken by ``espeak-ng`` when it is installed; otherwise it is
-a synthesized three-note rising chime ("tap now") — :attr:`MaskingAudio.cue_source`
-says which.
+repeats (no stored loop). The spoken cues ("Tap now.", "Stop. Please rate.")
+are synthesized once when the session starts with ``espeak-ng -w`` (Debian
+package espeak-ng), resampled to the stream rate and scaled to ``cue_level_db``
+relative to the noise; the callback mixes these precomputed arrays in. Without
+espeak-ng the cues are synthesized chimes, and :attr:`MaskingAudio.cue_source`
+says so and why.
 """
 
 from __future__ import annotations
@@ -19,9 +21,12 @@ import shutil
 import subprocess
 import tempfile
 import threading
+import time
+import wave
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import resample_poly
 
 
 class AudioUnavailable(ValueError):
@@ -67,37 +72,167 @@ def low_tone(fs_hz: float, amplitude: float = 0.5) -> np.ndarray:
     return tone(180.0, 0.3, fs_hz, amplitude)
 
 
-def chime_cue(fs_hz: float, amplitude: float = 0.4) -> np.ndarray:
-    """Synthesized 'tap now' cue: three rising notes (C5 E5 G5), 0.12 s each with 30 ms gaps."""
+#: The phrases the protocol speaks, by cue name: the tap cue when the operator
+#: has confirmed (section 4.5.3, "a recorded voice in the headphones") and the
+#: rating prompt when the tap window ends (taps after it count as overpowering).
+CUE_PHRASES = {"tap": "Tap now.", "rate": "Stop. Please rate."}
+
+
+class SpeechUnavailable(RuntimeError):
+    """espeak-ng is not installed or could not speak (the cues fall back to chimes)."""
+
+
+def chime(freqs_hz, fs_hz: float, amplitude: float = 0.4) -> np.ndarray:
+    """Notes of 0.12 s each at ``freqs_hz`` with 30 ms gaps (raised-cosine ramps), float32."""
     gap = np.zeros(int(0.03 * fs_hz), np.float32)
     parts = []
-    for f in (523.25, 659.25, 783.99):
+    for f in freqs_hz:
         parts += [tone(f, 0.12, fs_hz, amplitude), gap]
     return np.concatenate(parts)
 
 
-def spoken_cue(text: str, fs_hz: float, amplitude: float = 0.5) -> np.ndarray | None:
-    """Speak ``text`` with espeak-ng into an array at ``fs_hz``; None when espeak-ng is not installed."""
-    exe = shutil.which("espeak-ng")
-    if exe is None:
-        return None
-    from scipy.io import wavfile
-    from scipy.signal import resample_poly
+def chime_cue(fs_hz: float, amplitude: float = 0.4) -> np.ndarray:
+    """Fallback 'tap now' cue: three rising notes (C5 E5 G5), 0.12 s each with 30 ms gaps."""
+    return chime((523.25, 659.25, 783.99), fs_hz, amplitude)
 
+
+#: Fallback chimes by cue name when espeak-ng is missing: rising for "tap", falling (G5 C5) for "rate".
+CHIME_NOTES_HZ = {"tap": (523.25, 659.25, 783.99), "rate": (783.99, 523.25)}
+
+
+def active_rms(y: np.ndarray, fs_hz: float, frame_s: float = 0.02, floor_db: float = 30.0) -> float:
+    """RMS over the active part of a cue: the ``frame_s`` frames within ``floor_db`` of the loudest frame.
+
+    A simplified active speech level (in the spirit of ITU-T P.56): pauses
+    between and around words do not lower the level, so a phrase with a pause
+    is as loud as one without.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Cue samples (full scale 1.0).
+    fs_hz : float
+        Sample rate.
+
+    Returns
+    -------
+    float
+        RMS of the active frames (same unit as ``y``); 0 for silence.
+    """
+    n = max(1, int(round(frame_s * fs_hz)))
+    m = len(y) // n
+    if m == 0:
+        return float(np.sqrt(np.mean(np.square(y, dtype=np.float64)))) if len(y) else 0.0
+    power = np.mean(np.square(y[:m * n].reshape(m, n), dtype=np.float64), axis=1)
+    if power.max() <= 0.0:
+        return 0.0
+    active = power >= power.max() * 10.0 ** (-floor_db / 10.0)
+    return float(np.sqrt(power[active].mean()))
+
+
+def speak(text: str, fs_hz: float, voice: str = "en", speed_wpm: int = 150, exe: str | None = None) -> np.ndarray:
+    """Speak ``text`` with espeak-ng (``espeak-ng -w file.wav``) and return it at ``fs_hz``.
+
+    espeak-ng writes 16-bit mono WAV at its own rate (22 050 Hz); the samples
+    are read with the stdlib ``wave`` module, resampled with
+    :func:`scipy.signal.resample_poly` and trimmed of leading and trailing
+    silence (below 1 % of the peak).
+
+    Parameters
+    ----------
+    text : str
+        The phrase.
+    fs_hz : float
+        Output sample rate (rounded to an integer).
+    voice, speed_wpm : str, int
+        espeak-ng ``-v`` voice and ``-s`` words per minute.
+    exe : str, optional
+        Path of the program; default: ``espeak-ng`` found on ``PATH``.
+
+    Returns
+    -------
+    ndarray, shape (n,), float64
+        The speech, peak 1.0.
+
+    Raises
+    ------
+    SpeechUnavailable
+        espeak-ng is not on PATH, fails, or produces no sound (the message says which).
+    """
+    exe = exe or shutil.which("espeak-ng")
+    if exe is None:
+        raise SpeechUnavailable("espeak-ng not found on PATH (Debian package espeak-ng, 'make system-deps')")
     with tempfile.TemporaryDirectory() as tmp:
-        wav = Path(tmp) / "cue.wav"
+        path = Path(tmp) / "cue.wav"
         try:
-            subprocess.run([exe, "-w", str(wav), text], check=True, capture_output=True, timeout=10)
-            rate, data = wavfile.read(wav)
-        except (OSError, subprocess.SubprocessError, ValueError):
-            return None
-    y = data.astype(np.float64)
-    if y.ndim > 1:
-        y = y.mean(axis=1)
-    peak = np.max(np.abs(y)) or 1.0
-    g = math.gcd(int(fs_hz), int(rate))
-    y = resample_poly(y / peak, int(fs_hz) // g, int(rate) // g)
-    return (amplitude * y).astype(np.float32)
+            subprocess.run([exe, "-v", voice, "-s", str(int(speed_wpm)), "-w", str(path), text], check=True,
+                           capture_output=True, timeout=10)
+            with wave.open(str(path), "rb") as w:
+                rate, width, channels = w.getframerate(), w.getsampwidth(), w.getnchannels()
+                raw = w.readframes(w.getnframes())
+        except subprocess.CalledProcessError as exc:
+            err = exc.stderr.decode(errors="replace").strip() or f"exit code {exc.returncode}"
+            raise SpeechUnavailable(f"espeak-ng failed to speak {text!r}: {err}") from None
+        except (OSError, subprocess.SubprocessError, wave.Error, EOFError) as exc:
+            raise SpeechUnavailable(f"espeak-ng failed to speak {text!r}: {exc}") from None
+    if width != 2:
+        raise SpeechUnavailable(f"espeak-ng wrote {8 * width}-bit samples for {text!r}; expected 16-bit WAV")
+    y = np.frombuffer(raw, "<i2").astype(np.float64).reshape(-1, channels).mean(axis=1)
+    peak = float(np.max(np.abs(y))) if y.size else 0.0
+    if peak == 0.0:
+        raise SpeechUnavailable(f"espeak-ng produced silence for {text!r} (voice {voice!r})")
+    loud = np.flatnonzero(np.abs(y) >= 0.01 * peak)
+    y = y[loud[0]:loud[-1] + 1] / peak
+    fs_out = int(round(fs_hz))
+    g = math.gcd(fs_out, int(rate))
+    y = resample_poly(y, fs_out // g, int(rate) // g)
+    return y / np.max(np.abs(y))
+
+
+def make_cues(fs_hz: float, target_rms: float, phrases: dict | None = None) -> tuple[dict, str, bool]:
+    """Synthesize the protocol's cues once, each scaled to an active RMS of ``target_rms``.
+
+    Parameters
+    ----------
+    fs_hz : float
+        Stream sample rate.
+    target_rms : float
+        Active RMS (:func:`active_rms`) of every cue, full scale 1.0.
+    phrases : dict, optional
+        Cue name -> phrase; default :data:`CUE_PHRASES`.
+
+    Returns
+    -------
+    cues : dict of str -> ndarray (float32)
+    source : str
+        What made them: ``"espeak-ng (voice en)"`` or ``"synthesized chime (<why espeak-ng was not used>)"``.
+    spoken : bool
+        True when the cues are speech.
+
+    Raises
+    ------
+    ValueError
+        A cue would clip at this level (its peak above 0.99 of full scale).
+    """
+    phrases = dict(CUE_PHRASES if phrases is None else phrases)
+    try:
+        raw = {name: speak(text, fs_hz) for name, text in phrases.items()}
+        source, spoken = "espeak-ng (voice en)", True
+    except SpeechUnavailable as exc:
+        raw = {name: chime(CHIME_NOTES_HZ.get(name, CHIME_NOTES_HZ["tap"]), fs_hz, 1.0).astype(np.float64)
+               for name in phrases}
+        source, spoken = f"synthesized chime ({exc})", False
+    cues = {}
+    for name, y in raw.items():
+        y = y * (target_rms / active_rms(y, fs_hz))
+        peak = float(np.max(np.abs(y)))
+        if peak > 0.99:
+            raise ValueError(f"the {name!r} cue ({source.split(' (')[0]}) would clip: its peak would be "
+                             f"{peak:.2f} of full scale at an active RMS of {20 * math.log10(target_rms):.1f} dBFS; "
+                             f"lower cue_level_db or masking_level_dbfs by at least "
+                             f"{20 * math.log10(peak / 0.99):.1f} dB")
+        cues[name] = y.astype(np.float32)
+    return cues, source, spoken
 
 
 class MaskingAudio:
@@ -119,16 +254,31 @@ class MaskingAudio:
         1 (mono) or 2 (same signal on both ears).
     blocksize : int
         Frames per callback.
+    cue_level_db : float
+        Active RMS of the spoken cues (or the fallback chimes) relative to the
+        noise RMS, dB (0: as loud as the noise).
+
+    Attributes
+    ----------
+    cues : dict of str -> ndarray
+        The cues by name (:data:`CUE_PHRASES`), float32 at ``fs_hz``.
+    cue_source : str
+        ``"espeak-ng (voice en)"`` or ``"synthesized chime (<reason>)"``.
+    cue_spoken : bool
+        Whether the cues are speech.
     """
 
     def __init__(self, level_dbfs: float = -20.0, fs_hz: float = 44100.0, seed: int = 0, device=None,
-                 channels: int = 1, blocksize: int = 1024) -> None:
+                 channels: int = 1, blocksize: int = 1024, cue_level_db: float = 0.0) -> None:
         if not (math.isfinite(level_dbfs) and level_dbfs <= -3.0):
             raise ValueError(f"masking level_dbfs must be finite and <= -3 dBFS (headroom for cues), got {level_dbfs}")
+        if not math.isfinite(cue_level_db):
+            raise ValueError(f"cue_level_db must be finite, got {cue_level_db}")
         if channels not in (1, 2):
             raise ValueError(f"audio channels must be 1 or 2, got {channels}")
         self.level_dbfs = float(level_dbfs)
         self.rms = 10.0 ** (level_dbfs / 20.0)
+        self.cue_level_db = float(cue_level_db)
         self.fs_hz = float(fs_hz)
         self.device = device
         self.channels = channels
@@ -140,9 +290,9 @@ class MaskingAudio:
         self._stream = None
         self.frames_played = 0
         self.status_flags = 0
-        cue = spoken_cue("Tap now", self.fs_hz)
-        self.cue_source = "espeak-ng" if cue is not None else "synthesized chime (espeak-ng not installed)"
-        self.tap_cue = cue if cue is not None else chime_cue(self.fs_hz)
+        # synthesized once here (session start), never in the callback
+        self.cues, self.cue_source, self.cue_spoken = make_cues(self.fs_hz, self.rms * 10.0 ** (cue_level_db / 20.0))
+        self.tap_cue = self.cues["tap"]
         self.low_tone = low_tone(self.fs_hz)
 
     # -- PortAudio callback ------------------------------------------------
@@ -182,13 +332,39 @@ class MaskingAudio:
         with self._lock:
             self._cues.append([np.asarray(samples, np.float32), 0])
 
+    def cue(self, name: str) -> None:
+        """Mix the cue ``name`` (a key of :attr:`cues`) into the output."""
+        self.play(self.cues[name])
+
     def cue_tap(self) -> None:
-        self.play(self.tap_cue)
+        """'Tap now.' (the operator has confirmed the sample)."""
+        self.play(self.cues["tap"])
+
+    def cue_rate(self) -> None:
+        """'Stop. Please rate.' (the tap window has ended)."""
+        self.play(self.cues["rate"])
 
     def cue_low_tone(self) -> None:
         self.play(self.low_tone)
 
+    def wait_cues(self, timeout_s: float) -> bool:
+        """Wait until the cues asked for have been handed to PortAudio (at most ``timeout_s``).
+
+        Called before :meth:`stop` at the end of a session so the last
+        "Stop. Please rate." is not cut off. Returns True when none is pending.
+        """
+        deadline = time.monotonic() + timeout_s
+        while self._stream is not None and self._stream.active:
+            with self._lock:
+                if not self._cues:
+                    return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return not self._cues
+
     def stop(self) -> None:
+        """Stop the stream; what was handed to PortAudio still plays (``Pa_StopStream``)."""
         if self._stream is not None:
             try:
                 self._stream.stop()
@@ -211,6 +387,7 @@ class SilentAudio:
 
     def __init__(self) -> None:
         self.tap_cues = 0
+        self.rate_cues = 0
         self.low_tones = 0
 
     def start(self) -> "SilentAudio":
@@ -219,8 +396,14 @@ class SilentAudio:
     def cue_tap(self) -> None:
         self.tap_cues += 1
 
+    def cue_rate(self) -> None:
+        self.rate_cues += 1
+
     def cue_low_tone(self) -> None:
         self.low_tones += 1
+
+    def wait_cues(self, timeout_s: float) -> bool:
+        return True
 
     def stop(self) -> None:
         pass

@@ -24,6 +24,8 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
+from devices.registry import check_device_spec
+
 from .config import GENDERS, HANDEDNESS, SubjectInfo, load_protocol
 from .data import EXPERIENCE, SessionStore, check_subject_id, utc_now
 from .protocol import Schedule
@@ -62,6 +64,8 @@ def register(subparsers) -> None:
     p.add_argument("--audio-device", default=None, help="PortAudio output device (name or index)")
     p.add_argument("--masking-level", type=float, default=None, dest="masking_level_dbfs",
                    help="white-noise RMS level in dBFS (default -20)")
+    p.add_argument("--cue-level", type=float, default=None, dest="cue_level_db",
+                   help="spoken cues' active RMS level in dB re the noise (default 0)")
     p.add_argument("--servo-process", choices=("auto", "on", "off"), default="auto",
                    help="run device, servo loop and homing in a child process so UI and audio threads never delay "
                         "them (auto: on for hardware, off for sim)")
@@ -173,14 +177,15 @@ def run_command(args) -> int:
             raise ValueError(f"--resume: the session ran with --participant {previous['participant']}, "
                              f"not {args.participant}")
     args.device = args.device or "sim"
+    check_device_spec(args.device)  # a typo in the device string is reported before audio or participant checks
     args.participant = args.participant or "simulated"
     is_sim = args.device.split(":", 1)[0] == "sim"
     if args.participant == "simulated" and not is_sim:
-        raise ValueError("--participant simulated needs a sim device (--device sim); use --participant keyboard "
-                         "for a person")
+        raise ValueError(f"--participant simulated needs a sim device (--device sim), not {args.device!r}; "
+                         "use --participant keyboard for a person")
 
     protocol_overrides = {"repetitions": args.repetitions, "tap_window_s": args.tap_window_s,
-                          "masking_level_dbfs": args.masking_level_dbfs}
+                          "masking_level_dbfs": args.masking_level_dbfs, "cue_level_db": args.cue_level_db}
     if previous is not None:
         protocol = load_protocol(None, **previous["protocol"])
         if args.seed is not None and args.seed != previous["seed"]:
@@ -216,9 +221,12 @@ def run_command(args) -> int:
     if want_audio:
         device_name = check_output_device(_audio_device(args.audio_device))
         audio = MaskingAudio(level_dbfs=protocol.masking_level_dbfs, fs_hz=protocol.audio_fs_hz,
-                             seed=seed, device=_audio_device(args.audio_device))
+                             seed=seed, device=_audio_device(args.audio_device), cue_level_db=protocol.cue_level_db)
         audio_info = {"output": device_name, "level_dbfs": protocol.masking_level_dbfs,
-                      "cue_source": audio.cue_source}
+                      "cue_source": audio.cue_source, "cue_spoken": audio.cue_spoken,
+                      "cue_level_db": protocol.cue_level_db}
+        if not audio.cue_spoken:
+            print(f"warning: the cues are chimes, not spoken: {audio.cue_source}", file=sys.stderr)
     else:
         audio = SilentAudio()
         if is_sim:
@@ -227,7 +235,8 @@ def run_command(args) -> int:
             audio.cue_source = "none (--audio off: no masking, not valid for a blind study)"
             print("warning: --audio off: no masking noise or cues; the session is not blind to sound",
                   file=sys.stderr)
-        audio_info = {"output": None, "level_dbfs": None, "cue_source": audio.cue_source}
+        audio_info = {"output": None, "level_dbfs": None, "cue_source": audio.cue_source, "cue_spoken": False,
+                      "cue_level_db": None}
 
     from devices import make_device
 
@@ -290,6 +299,8 @@ def run_command(args) -> int:
             rows = store.read_trials()
             fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
             store.session.setdefault("resumed_at", []).append(utc_now())
+            # parallel to resumed_at: the audio (cue source) of each resumed part, which may differ from the first
+            store.session.setdefault("audio_resumed", []).append(audio_info)
             store.write_session()
             store.log_event({"event": "resume", "attempts_on_disk": len(rows),
                              "software_version": software_versions()})
@@ -315,6 +326,7 @@ def run_command(args) -> int:
         audio.start()
         try:
             runner.run()
+            audio.wait_cues(3.0)  # let the last "Stop. Please rate." finish
         finally:
             audio.stop()
         store.session["order"] = schedule.summary()

@@ -48,6 +48,9 @@ class ProtocolConfig:
         Safety cap on familiarization windows.
     masking_level_dbfs : float
         White-noise RMS level re digital full scale.
+    cue_level_db : float
+        Active RMS level of the spoken cues (or fallback chimes) relative to the
+        noise RMS, dB (0: as loud as the noise; a cue that would clip is refused).
     audio_fs_hz : float
     servo_watchdog_s : float
         The renderer's watchdog bound (``RendererConfig.watchdog_overrun_s``): a servo period
@@ -64,6 +67,7 @@ class ProtocolConfig:
     familiarization_window_s: float = 5.0
     familiarization_max_windows: int = 60
     masking_level_dbfs: float = -20.0
+    cue_level_db: float = 0.0
     audio_fs_hz: float = 44100.0
     servo_watchdog_s: float = 0.02
 
@@ -80,6 +84,9 @@ class ProtocolConfig:
                              f"{self.familiarization_max_windows!r}")
         if not (math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
             raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")
+        if not (isinstance(self.cue_level_db, (int, float)) and math.isfinite(self.cue_level_db)
+                and -30.0 <= self.cue_level_db <= 30.0):
+            raise ValueError(f"cue_level_db must be between -30 and +30 dB re the noise, got {self.cue_level_db!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -198,6 +198,7 @@ class StudyRunner:
             contacts = 0
         else:
             self._subject("rate", "rate")
+            self.audio.cue_rate()
             contacts = self.apparatus.after_window(self.protocol.homing_after_s)
             rating, rejected, contacts_rating = self.get_rating(trial, attempt, plan, tap)
             contacts += contacts_rating

@@ -61,5 +61,6 @@ def test_renderer_run_keeps_its_data_when_the_device_disconnects(tmp_path, capsy
     assert code == 1 and "stop: disconnected" in stdout
     run = json.loads((out / "run.json").read_text())
     assert run["stop_reason"] == "disconnected" and 1.0 < run["sim_time_s"] < 2.0
+    assert "disconnect" in run["error"]  # the driver's reason reaches run.json
     with open(out / "events.csv") as fh:
         assert len(list(csv.DictReader(fh))) >= 1  # the taps before the disconnect are kept

@@ -1,19 +1,24 @@
 """Masking audio really goes through PortAudio: ALSA's default device is routed to a file and read back."""
 
+import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import textwrap
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy import signal
+from scipy.io import wavfile
 
 ROOT = Path(__file__).resolve().parents[2]
 FS = 44100
 
 
-def play_through_alsa_file(tmp_path, level_dbfs, body):
+def play_through_alsa_file(tmp_path, level_dbfs, body, extra="", **env_extra):
     raw = tmp_path / "played.raw"
     conf = tmp_path / "asound.conf"
     conf.write_text(f'</usr/share/alsa/alsa.conf>\npcm.!default {{ type file slave.pcm "null" '
@@ -22,13 +27,13 @@ def play_through_alsa_file(tmp_path, level_dbfs, body):
         import time
         from study.audio import MaskingAudio, check_output_device
         print(check_output_device())
-        a = MaskingAudio(level_dbfs={level_dbfs}, fs_hz={FS}, seed=5)
+        a = MaskingAudio(level_dbfs={level_dbfs}, fs_hz={FS}, seed=5, {extra})
         a.start()
         {body}
         a.stop()
         print(a.frames_played)
     """)
-    env = dict(os.environ, ALSA_CONFIG_PATH=str(conf))
+    env = dict(os.environ, ALSA_CONFIG_PATH=str(conf), **env_extra)
     out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 0, out.stderr
@@ -92,3 +97,168 @@ def test_real_session_without_audio_output_refuses(tmp_path):
                           "--experience", "none", "--subject", "A2", "--out", str(tmp_path / "DATA")], cwd=ROOT,
                          env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "masking audio" in out.stderr, out.stderr
+
+
+# -- spoken cues ------------------------------------------------------------------------------------------------
+
+def espeak_reference(text, fs_hz=FS):
+    """The phrase as espeak-ng speaks it (the runner's voice and speed), resampled here to the stream rate."""
+    exe = shutil.which("espeak-ng")
+    assert exe, "espeak-ng is not installed (Debian package espeak-ng: 'make system-deps')"
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run([exe, "-v", "en", "-s", "150", "-w", f"{tmp}/ref.wav", text], check=True, timeout=30)
+        rate, y = wavfile.read(f"{tmp}/ref.wav")
+    loud = np.flatnonzero(np.abs(y) >= 0.01 * np.abs(y).max())  # documented: silence around the phrase trimmed
+    y = y[loud[0]:loud[-1] + 1]
+    g = np.gcd(fs_hz, rate)
+    return signal.resample_poly(y.astype(np.float64), fs_hz // g, rate // g)
+
+
+def find_cue(x, ref):
+    """Normalized cross-correlation of the recorded stream with ``ref`` at every lag (1 = identical shape)."""
+    c = signal.correlate(x, ref, mode="valid", method="fft")
+    energy = signal.correlate(x ** 2, np.ones(len(ref)), mode="valid", method="fft").clip(1e-20)
+    return c / (np.sqrt(energy) * np.linalg.norm(ref))
+
+
+def active_level(y, fs_hz=FS):
+    """RMS over the 20 ms frames within 30 dB of the loudest (the level definition of the docs)."""
+    n = int(0.02 * fs_hz)
+    p = np.mean(y[:len(y) // n * n].reshape(-1, n) ** 2, axis=1)
+    return np.sqrt(p[p >= p.max() * 1e-3].mean())
+
+
+def test_spoken_cues_are_played_through_portaudio_at_the_set_level(tmp_path):
+    body = ("print(a.cue_source, a.cue_spoken)\n"
+            "while a.frames_played < 100_000: time.sleep(0.001)\n"
+            "a.cue_tap()\n"
+            "while a.frames_played < 250_000: time.sleep(0.001)\n"
+            "a.cue_rate()\n"
+            "print(a.wait_cues(5.0))").replace("\n", "\n        ")
+    x, out = play_through_alsa_file(tmp_path, -30.0, body, "cue_level_db=6.0")
+    assert "\nTrue\n" in out  # the last cue was handed over in full before the stream stopped
+    assert "espeak-ng (voice en) True" in out
+    x = x.astype(np.float64)
+    noise_rms = np.sqrt(np.mean(x[:90_000] ** 2))
+    assert abs(20 * np.log10(noise_rms) + 30.0) < 0.2
+    for text, after in (("Tap now.", 100_000), ("Stop. Please rate.", 250_000)):
+        ref = espeak_reference(text)
+        rho = find_cue(x, ref)
+        lag = int(np.argmax(rho))
+        # found once, at high correlation, after it was asked for, and nowhere else
+        assert rho[lag] > 0.75, (text, rho[lag])
+        assert after - 2048 <= lag < after + 100_000, (text, lag)
+        far = np.abs(np.arange(len(rho)) - lag) > len(ref)
+        assert np.abs(rho[far]).max() < 0.25, text
+        # level: least-squares gain of the reference in the stream -> active level 6 dB above the noise
+        seg = x[lag:lag + len(ref)]
+        gain = seg @ ref / (ref @ ref)
+        level_db = 20 * np.log10(gain * active_level(ref) / noise_rms)
+        assert abs(level_db - 6.0) < 0.5, (text, level_db)
+        # what is left is the masking noise alone: the cue was added, not distorted or clipped
+        resid = seg - gain * ref
+        assert abs(20 * np.log10(np.sqrt(np.mean(resid ** 2)) / noise_rms)) < 0.3
+    # the two phrases are different: the rating prompt does not match the tap cue
+    tap = espeak_reference("Tap now.")
+    rate = espeak_reference("Stop. Please rate.")
+    assert np.abs(find_cue(np.concatenate([rate, np.zeros(len(tap))]), tap)).max() < 0.5
+
+
+def test_without_espeak_ng_the_cues_are_chimes_and_say_so(tmp_path):
+    # espeak-ng made unavailable: PATH holds only an empty folder (python is called by its full path)
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    body = ("print(a.cue_source, a.cue_spoken)\n"
+            "while a.frames_played < 100_000: time.sleep(0.001)\n"
+            "a.cue_tap()\n"
+            "while a.frames_played < 250_000: time.sleep(0.001)\n"
+            "a.cue_rate()\n"
+            "while a.frames_played < 400_000: time.sleep(0.001)").replace("\n", "\n        ")
+    x, out = play_through_alsa_file(tmp_path, -30.0, body, "cue_level_db=6.0", PATH=str(empty))
+    assert "synthesized chime (espeak-ng not found on PATH" in out and out.split("\n")[1].endswith("False")
+    x = x.astype(np.float64)
+    noise_rms = np.sqrt(np.mean(x[:90_000] ** 2))
+    # the notes in the played stream, in time order: C5 E5 G5 rising (tap), then G5 C5 falling (rate)
+    f, t, z = signal.stft(x, FS, nperseg=1024)
+    onsets = []
+    for freq in (523.25, 659.25, 783.99):
+        power = np.abs(z[np.argmin(np.abs(f - freq))]) ** 2
+        loud = np.flatnonzero(power > 30 * np.median(power))
+        runs = np.split(loud, np.flatnonzero(np.diff(loud) > 2) + 1)
+        onsets += [(t[r[0]], freq, (r[-1] - r[0] + 1) * (t[1] - t[0])) for r in runs if len(r)]
+    onsets.sort()
+    assert [o[1] for o in onsets] == [523.25, 659.25, 783.99, 783.99, 523.25], onsets
+    assert all(0.08 < o[2] < 0.2 for o in onsets), onsets          # 0.12 s notes
+    assert 100_000 / FS - 0.05 < onsets[0][0] < 200_000 / FS
+    assert onsets[3][0] > 250_000 / FS - 0.05
+    # level: the chime's active RMS 6 dB above the noise (power of the notes minus the noise power)
+    i0 = int(onsets[0][0] * FS)
+    chime = x[i0:i0 + int(0.12 * FS)]
+    level_db = 10 * np.log10((np.mean(chime ** 2) - noise_rms ** 2) / noise_rms ** 2)
+    assert abs(level_db - 6.0) < 1.0, level_db
+
+
+def test_espeak_ng_failing_or_a_clipping_level_is_reported(tmp_path, monkeypatch):
+    from study.audio import MaskingAudio, active_rms, make_cues
+
+    fake = tmp_path / "bin" / "espeak-ng"
+    fake.parent.mkdir()
+    fake.write_text("#!/bin/sh\necho 'no voice data' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", str(fake.parent))
+    cues, source, spoken = make_cues(FS, 0.05)
+    assert not spoken and "espeak-ng failed to speak 'Tap now.': no voice data" in source
+    assert abs(active_rms(cues["tap"], FS) - 0.05) < 1e-4
+    monkeypatch.undo()
+    # a spoken cue 20 dB above -20 dBFS noise would clip: refused, naming the setting and the margin
+    with pytest.raises(ValueError, match=r"would clip.*lower cue_level_db or masking_level_dbfs by at least"):
+        MaskingAudio(level_dbfs=-20.0, cue_level_db=20.0)
+    # pauses do not lower the active level
+    tone = np.sin(np.arange(FS // 2) * 0.1)
+    assert abs(active_rms(np.concatenate([tone, np.zeros(FS), tone]), FS) - np.sqrt(0.5)) < 0.01
+
+
+def run_sim_session_with_audio(tmp_path, subject, *extra, **env_extra):
+    raw = tmp_path / f"{subject}.raw"
+    conf = tmp_path / f"{subject}.conf"
+    conf.write_text(f'</usr/share/alsa/alsa.conf>\npcm.!default {{ type file slave.pcm "null" '
+                    f'file "{raw}" format "raw" }}\n')
+    proto = tmp_path / "quick.toml"
+    proto.write_text('tap_window_s = 1.0\nhoming_after_s = 0.5\nhoming_before_max_s = 0.2\n'
+                     'familiarization_sample = ""\n')
+    env = dict(os.environ, ALSA_CONFIG_PATH=str(conf), **env_extra)
+    out = subprocess.run([sys.executable, "-m", "study", "run", "--device", "sim", "--participant", "simulated",
+                          "--subject", subject, "--seed", "3", "--out", str(tmp_path / "DATA"), "--protocol",
+                          str(proto), "--samples", "wood,firm", "--repetitions", "1", "--audio", "on", "--quiet",
+                          *extra], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    return out, raw
+
+
+def test_session_records_the_cue_source_and_speaks(tmp_path):
+    out, raw = run_sim_session_with_audio(tmp_path, "V1", "--cue-level", "6", "--masking-level", "-30")
+    assert out.returncode == 0, out.stderr
+    assert "not spoken" not in out.stderr
+    audio = json.loads((tmp_path / "DATA" / "V1" / "session.json").read_text())["audio"]
+    assert audio == {"output": "default", "level_dbfs": -30.0, "cue_source": "espeak-ng (voice en)",
+                     "cue_spoken": True, "cue_level_db": 6.0}
+    x = np.fromfile(raw, dtype=np.float32).astype(np.float64)
+    rho = find_cue(x[np.flatnonzero(x)[0]:], espeak_reference("Tap now."))
+    # 2 demonstration + 2 testing trials. The null sink has no clock, so where the cues land in the stream (and
+    # whether a tap cue overlaps a rating prompt or is cut by the end of the session) depends on thread
+    # scheduling: ask for one clean cue and no more cues than trials; the exact mixing is tested above.
+    peaks, _ = signal.find_peaks(rho, height=0.5, distance=int(0.7 * FS))
+    assert 1 <= len(peaks) <= 4 and rho.max() > 0.8, rho[peaks]
+    # and the rating prompt after each window
+    assert find_cue(x[np.flatnonzero(x)[0]:], espeak_reference("Stop. Please rate.")).max() > 0.7
+    # without espeak-ng: chimes, a warning, and session.json says so
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    out, _ = run_sim_session_with_audio(tmp_path, "V2", PATH=str(empty))
+    assert out.returncode == 0, out.stderr
+    assert "warning: the cues are chimes, not spoken: synthesized chime (espeak-ng not found on PATH" in out.stderr
+    audio = json.loads((tmp_path / "DATA" / "V2" / "session.json").read_text())["audio"]
+    assert audio["cue_spoken"] is False and audio["cue_source"].startswith("synthesized chime (espeak-ng not found")
+    # a cue level that would clip is refused before the session starts
+    out, _ = run_sim_session_with_audio(tmp_path, "V3", "--cue-level", "25")
+    assert out.returncode == 2 and "would clip" in out.stderr, out.stderr
+    assert not (tmp_path / "DATA" / "V3").exists()

@@ -1,0 +1,1 @@
+"""Cross-package command-line behaviour (errors, exit codes)."""
