@@ -8,10 +8,13 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 DPI = 110
+# cells of Fig. 4.18 without a p-value: a colour outside the grey scale, so NaN never reads as p = 1
+NO_P_STYLE = dict(facecolor="#f2d0d0", edgecolor="#b03030", hatch="///", linewidth=0.0)
 
 
 def _labels(samples) -> list[str]:
@@ -59,6 +62,8 @@ def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path) -> Path:
     """Figure 4.18: p-values of the paired t-tests as shaded matrices, one panel per group.
 
     Light = high p (indistinguishable), dark = low p; '*' marks Holm-adjusted p < 0.05.
+    Cells without a p-value (a sample against itself, or a pair excluded from the
+    tests) are hatched in red, so they cannot be mistaken for p = 1 (white).
     """
     group_names = list(dict.fromkeys(pairwise["group"]))
     fig, axes = plt.subplots(1, len(group_names), figsize=(6.6 * len(group_names), 5.8), squeeze=False)
@@ -69,6 +74,8 @@ def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path) -> Path:
         sub = pairwise[pairwise["group"] == g]
         p, holm = _p_matrix(sub, samples)
         im = ax.imshow(p, cmap="gray", vmin=0.0, vmax=1.0)
+        for i, j in zip(*np.nonzero(np.isnan(p))):
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, **NO_P_STYLE))
         for i, j in zip(*np.nonzero(holm < 0.05)):
             ax.text(j, i, "*", ha="center", va="center", color="white", fontsize=9)
         n = int(sub["n"].max()) if len(sub) else 0
@@ -77,6 +84,8 @@ def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path) -> Path:
         ax.set_yticks(range(len(samples)), labels, fontsize=7)
     if im is not None:
         fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="p (paired t-test); * Holm p < 0.05")
+        fig.legend(handles=[Rectangle((0, 0), 1, 1, label="n/a: no test (same sample, or pair excluded)",
+                                      **NO_P_STYLE)], loc="lower left", fontsize=8, frameon=False)
     return _save(fig, path)
 
 

@@ -21,7 +21,8 @@ FIGURES = {
     "fig_4_17_ratings.png": "Figure 4.17: mean realism rating per sample (bars), median of the per-subject means "
                             "(circles) and standard error across subjects (caps).",
     "fig_4_18_pvalues.png": "Figure 4.18: p-values of paired t-tests on per-subject mean ratings for every pair of "
-                            "samples; light squares = indistinguishable, * = Holm-adjusted p < 0.05.",
+                            "samples; light squares = indistinguishable, * = Holm-adjusted p < 0.05, red hatched = "
+                            "n/a (a sample against itself, or a pair excluded from the tests).",
     "fig_4_19_penetration.png": "Figure 4.19: mean penetration depth versus mean realism rating per sample; "
                                 "error bars one standard deviation.",
     "fig_4_20_accelerations.png": "Figure 4.20: typical handle accelerations per sample for taps at a common "
@@ -176,7 +177,7 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     fig_paths, notes = make_figures(res, out, target_v_m_s) if figures else ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
     cfg = res.config
-    md = [f"# Realism study analysis", "",
+    md = ["# Realism study analysis", "",
           f"Data: `{res.study.subjects['folder'].iloc[0].rsplit('/', 1)[0] if len(res.study.subjects) else ''}` · "
           f"reference `{cfg.reference}` · equivalence margin ±{cfg.margin:g} · groups `{cfg.group}` · "
           f"α = {cfg.alpha}", "", "## Summary", ""]

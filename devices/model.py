@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import signal
+
+from .fileio import atomic_write_text, read_json_file
 
 INPUTS = ("current_A",)
 OUTPUTS = ("accel_m_s2", "position_m")
@@ -273,12 +274,7 @@ class ZpkModel:
         if not self.is_stable:
             bad = self.poles_rad_s[self.poles_rad_s.real >= 0]
             raise ValueError(f"{path}: refusing to save an unstable model (poles_rad_s with Re >= 0: {bad})")
-        text = json.dumps(self.to_dict(), indent=2, allow_nan=False)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(text + "\n")
-        os.replace(tmp, path)
-        return path
+        return atomic_write_text(path, json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
 
     @classmethod
     def from_dict(cls, data: dict, where: str = "model") -> "ZpkModel":
@@ -328,14 +324,7 @@ def load_model(path) -> ZpkModel:
         numbers, improper (more zeros than poles) or unstable (Re(p) >= 0)
         models.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"model file not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
-    return ZpkModel.from_dict(data, where=str(path))
+    return ZpkModel.from_dict(read_json_file(path, "model file"), where=str(path))
 
 
 # -- helpers -------------------------------------------------------------------

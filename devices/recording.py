@@ -12,21 +12,27 @@ File format (long-format CSV, one row per sample, UTF-8, ``,`` separated)::
 * ``t_s``: time relative to impact, uniform steps of 1/fs (the servo rate), first sample <= 0;
 * ``accel_m_s2``: measured handle acceleration (positive up).
 
-Every tap has the same sampling rate. :func:`read_tap_recording` validates all
-of this and names the file and line of the first problem.
+Every tap has the same sampling rate. :func:`read_taps` (tap ids kept) and
+:func:`read_tap_recording` (plain tuples) validate all of this and name the
+file and line of the first problem; this is the one reader of the format
+(``stimuli.recordings`` builds on it).
 """
 
 from __future__ import annotations
 
 import csv
 import math
-import os
-import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .fileio import atomic_write_text
+
 COLUMNS = ("tap", "incoming_velocity_m_s", "t_s", "accel_m_s2")
+# t_s steps may wobble by 1 % (timestamp rounding, e.g. 7 decimals at 10 kHz) before they count as
+# non-uniform or as a different sampling rate
+STEP_RTOL = 0.01
 
 
 def write_tap_recording(path, taps, fs_hz: float) -> Path:
@@ -53,42 +59,33 @@ def write_tap_recording(path, taps, fs_hz: float) -> Path:
             raise ValueError(f"write_tap_recording: tap {i}: values must be finite and velocity > 0")
         vs = f"{v:.6g}"
         lines.extend(f"{i},{vs},{tk:.7f},{ak:.6g}" for tk, ak in zip(t.tolist(), a.tolist()))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write("\n".join(lines) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_text(path, "\n".join(lines) + "\n")
 
 
-def read_tap_recording(path) -> tuple[float, list[tuple[float, np.ndarray, np.ndarray]]]:
-    """Read and validate a tap recording.
+@dataclass(frozen=True)
+class Tap:
+    """One recorded impact, as read from a tap recording.
 
-    Returns
-    -------
-    fs_hz : float
-        Sampling rate (from the t_s step, common to all taps).
-    taps : list of (incoming_velocity_m_s, t_s, accel_m_s2)
-        One entry per tap in file order; arrays of shape (n,).
-
-    Raises
-    ------
-    FileNotFoundError
-        If the file does not exist.
-    ValueError
-        Naming the file and line (or tap) of a bad header, non-numeric or
-        non-finite value, non-contiguous/mis-ordered tap, inconsistent
-        velocity, non-uniform or inconsistent sampling, or a tap whose first
-        sample is after the impact.
+    Attributes
+    ----------
+    tap : int
+        Tap id from the file's ``tap`` column.
+    v_in_m_s : float
+        Incoming speed in m/s (> 0).
+    t_s : ndarray, shape (n,)
+        Time relative to impact in s (uniform steps of 1/fs, first <= 0).
+    accel_m_s2 : ndarray, shape (n,)
+        Handle acceleration in m/s^2 (up positive).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"tap recording not found: {path}")
+
+    tap: int
+    v_in_m_s: float
+    t_s: np.ndarray
+    accel_m_s2: np.ndarray
+
+
+def _parse_rows(path: Path) -> list[tuple[int, float, list[float], list[float], list[int]]]:
+    """Rows of a tap recording grouped per tap: (tap, v, t_s values, accel values, line numbers)."""
     with open(path, encoding="utf-8", newline="") as fh:
         reader = csv.reader(fh)
         try:
@@ -97,23 +94,27 @@ def read_tap_recording(path) -> tuple[float, list[tuple[float, np.ndarray, np.nd
             raise ValueError(f"{path}: empty file (expected header {','.join(COLUMNS)})") from None
         header = [h.strip() for h in header]
         if tuple(header) != COLUMNS:
-            raise ValueError(f"{path}: line 1: header must be {','.join(COLUMNS)}, got {','.join(header)}")
-        taps_raw: list[list] = []
+            missing = [c for c in COLUMNS if c not in header]
+            hint = f" (missing column(s) {', '.join(missing)})" if missing else ""
+            raise ValueError(f"{path}: line 1: header must be {','.join(COLUMNS)}, got {','.join(header)}{hint}")
+        groups: list = []
         seen: set[int] = set()
         current = None
         for row in reader:
             line = reader.line_num
             if not row or all(not c.strip() for c in row):
                 continue
-            if len(row) != 4:
-                raise ValueError(f"{path}: line {line}: expected 4 values, got {len(row)}")
-            try:
-                tap = int(row[0])
-                v, t, a = (float(c) for c in row[1:])
-            except ValueError:
-                raise ValueError(f"{path}: line {line}: non-numeric value in {row!r}") from None
-            if not (math.isfinite(v) and math.isfinite(t) and math.isfinite(a)):
-                raise ValueError(f"{path}: line {line}: non-finite value in {row!r}")
+            if len(row) != len(COLUMNS):
+                raise ValueError(f"{path}: line {line}: expected {len(COLUMNS)} values, got {len(row)}")
+            values = []
+            for col, cell in zip(COLUMNS, row):
+                try:
+                    values.append(int(cell) if col == "tap" else float(cell))
+                except ValueError:
+                    raise ValueError(f"{path}: line {line}: non-numeric value in column {col}: {cell!r}") from None
+                if not math.isfinite(values[-1]):
+                    raise ValueError(f"{path}: line {line}: non-finite value in column {col}: {cell!r}")
+            tap, v, t, a = values
             if tap != current:
                 if tap in seen:
                     raise ValueError(f"{path}: line {line}: rows of tap {tap} are not contiguous")
@@ -121,37 +122,82 @@ def read_tap_recording(path) -> tuple[float, list[tuple[float, np.ndarray, np.nd
                 current = tap
                 if not v > 0:
                     raise ValueError(f"{path}: line {line}: incoming_velocity_m_s must be > 0, got {v}")
-                taps_raw.append([tap, v, [], [], line])
-            entry = taps_raw[-1]
-            if v != entry[1]:
+                groups.append((tap, v, [], [], []))
+            if v != groups[-1][1]:
                 raise ValueError(f"{path}: line {line}: incoming_velocity_m_s changes within tap {tap}")
-            entry[2].append(t)
-            entry[3].append(a)
-    if not taps_raw:
+            groups[-1][2].append(t)
+            groups[-1][3].append(a)
+            groups[-1][4].append(line)
+    if not groups:
         raise ValueError(f"{path}: no data rows")
+    return groups
+
+
+def read_taps(path) -> tuple[float, list[Tap]]:
+    """Read and validate a tap recording, keeping each tap's id from the file.
+
+    Returns
+    -------
+    fs_hz : float
+        Sampling rate (from the t_s steps, common to all taps).
+    taps : list of Tap
+        One per tap in file order; arrays of shape (n,).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        Naming the file and line (and tap or column) of a bad header (missing
+        column), non-numeric or non-finite value, non-contiguous tap, changing or
+        non-positive velocity, time not strictly increasing, non-uniform or
+        inconsistent sampling, or a tap whose first sample is after the impact.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"tap recording not found: {path}")
     fs_hz = None
     taps = []
-    for tap, v, ts, acc, line in taps_raw:
+    for tap, v, ts, acc, lines in _parse_rows(path):
+        where = f"{path}: tap {tap}"
         t = np.array(ts)
         if t.size < 2:
-            raise ValueError(f"{path}: tap {tap} (line {line}): needs at least 2 samples")
+            raise ValueError(f"{where} (line {lines[0]}): needs at least 2 samples")
         dt = np.diff(t)
+        if np.any(dt <= 0):
+            i = int(np.flatnonzero(dt <= 0)[0])
+            raise ValueError(f"{where}: time is not strictly increasing at line {lines[i + 1]} "
+                             f"(t_s {t[i]} then {t[i + 1]})")
         step = float(np.median(dt))
-        if not step > 0 or np.any(np.abs(dt - step) > 1e-3 * step + 2e-7):
-            bad = int(np.argmax(np.abs(dt - step))) + 1
-            raise ValueError(f"{path}: tap {tap} (line {line + bad}): t_s must increase in uniform steps")
+        if np.any(np.abs(dt - step) > STEP_RTOL * step):
+            i = int(np.argmax(np.abs(dt - step)))
+            raise ValueError(f"{where} (line {lines[i + 1]}): t_s must increase in uniform steps "
+                             f"(step {dt[i]:.6g} s, median {step:.6g} s)")
         fs = 1.0 / step
         if fs_hz is None:
             fs_hz = fs
-        elif abs(fs - fs_hz) > 1e-3 * fs_hz:
-            raise ValueError(f"{path}: tap {tap} (line {line}): sampling rate {fs:.6g} Hz differs from "
+        elif abs(fs - fs_hz) > STEP_RTOL * fs_hz:
+            raise ValueError(f"{where} (line {lines[0]}): sampling rate {fs:.6g} Hz differs from "
                              f"the first tap's {fs_hz:.6g} Hz")
         if t[0] > 1e-12:
-            raise ValueError(f"{path}: tap {tap} (line {line}): first t_s must be <= 0 (impact at t=0), got {t[0]}")
-        taps.append((v, t, np.array(acc)))
+            raise ValueError(f"{where} (line {lines[0]}): first t_s must be <= 0 (impact at t=0), got {t[0]}")
+        taps.append(Tap(tap, v, t, np.array(acc)))
     # a rate written with 7 decimals of t_s: snap to the nearest plausible rate
-    fs_hz = float(round(fs_hz, 3))
-    return fs_hz, taps
+    return float(round(fs_hz, 3)), taps
+
+
+def read_tap_recording(path) -> tuple[float, list[tuple[float, np.ndarray, np.ndarray]]]:
+    """Read and validate a tap recording (see :func:`read_taps` for the checks).
+
+    Returns
+    -------
+    fs_hz : float
+        Sampling rate (from the t_s step, common to all taps).
+    taps : list of (incoming_velocity_m_s, t_s, accel_m_s2)
+        One entry per tap in file order; arrays of shape (n,).
+    """
+    fs_hz, taps = read_taps(path)
+    return fs_hz, [(tp.v_in_m_s, tp.t_s, tp.accel_m_s2) for tp in taps]
 
 
 def incoming_velocity_m_s(position_m: np.ndarray, fs_hz: float) -> float:

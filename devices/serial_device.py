@@ -26,13 +26,13 @@ import collections
 import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 from . import protocol as P
 from .base import Device, DeviceError, DeviceInfo, DeviceState, Status
+from .fileio import atomic_write_text
 from .firmware_logic import Calibration
 from .transport import SerialTransport, Transport, TransportClosed
 
@@ -85,12 +85,7 @@ def save_calibration(path, device_id: str, cal: Calibration) -> Path:
             raise ValueError(f"{path}: not valid JSON, refusing to overwrite ({exc})") from None
         data.setdefault("devices", {})
     data["devices"][device_id] = asdict(cal)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(data, fh, indent=2)
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, json.dumps(data, indent=2))
 
 
 def _transient_upload_kind(transient, caps: int) -> str:

@@ -66,23 +66,22 @@ def _velocities(text: str) -> list[float]:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("run", help="render a virtual wall under a simulated or real user tapping",
-                              description=__doc__.split("\n\n")[0] + " Outputs: events.csv, run.json, log.npz.",
-                              formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--device", default="sim", help="device string: sim, sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
-    p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient")
-    p.add_argument("--library", help="HFAM library file (for --transient hfam)")
+                              description=__doc__.split("\n\n")[0] + " Outputs: events.csv, run.json, log.npz.")
+    p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
+    p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient (default none)")
+    p.add_argument("--library", help="HFAM library file (needed for --transient hfam)")
     p.add_argument("--transient-gain", type=float, default=None,
                    help="gain of the transient (stimuli gain; default: Table 4.1 / the library's own)")
     p.add_argument("--stiffness", type=float, default=None,
                    help="proportional stiffness k (N/m); default 680 or the config file's")
-    p.add_argument("--damping", type=float, default=None, help="virtual damping on entry (N s/m)")
-    p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md)")
-    p.add_argument("--taps", type=int, default=10, help="sim: number of taps")
+    p.add_argument("--damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
+    p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md); default: built-in settings")
+    p.add_argument("--taps", type=int, default=10, help="sim: number of taps (default 10)")
     p.add_argument("--velocity", type=_velocities, default=[0.1],
-                   help="sim: tap speed in m/s (comma list: one per tap, cycled)")
-    p.add_argument("--grip", type=float, default=2.0, help="sim: grip force (N)")
-    p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus")
-    p.add_argument("--seed", type=int, default=0, help="sim: noise seed")
+                   help="sim: tap speed in m/s (comma list: one per tap, cycled; default 0.1)")
+    p.add_argument("--grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
+    p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
+    p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
     p.add_argument("--duration", type=_positive("--duration"), default=None,
                    help="run length in s (hardware default: until Ctrl-C; sim: until the taps are done)")
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
@@ -165,10 +164,11 @@ def run_command(args) -> int:
 
 def format_table(result) -> str:
     """A short human-readable summary: one row per event plus timing."""
-    lines = [f"{'#':>3} {'t_s':>8} {'v_in m/s':>9} {'grip N':>7} {'pen mm':>7} {'peak a':>8} {'clip':>5}"]
+    # every header names its unit; '#' counts events and 'clipped' is yes/no
+    lines = [f"{'#':>3} {'t s':>8} {'v_in m/s':>9} {'grip N':>7} {'pen mm':>7} {'peak a m/s2':>11} {'clipped':>7}"]
     for k, ev in enumerate(result.events, 1):
         lines.append(f"{k:>3} {ev.t_s:8.3f} {ev.incoming_velocity_m_s:9.4f} {ev.grip_N:7.2f} "
-                     f"{1000 * ev.max_penetration_m:7.3f} {ev.peak_accel_m_s2:8.1f} {'yes' if ev.clipped else 'no':>5}")
+                     f"{1000 * ev.max_penetration_m:7.3f} {ev.peak_accel_m_s2:11.1f} {'yes' if ev.clipped else 'no':>7}")
     tm = result.timing
     lines.append(f"transient {result.transient}; {len(result.events)} events; stop: {result.stop_reason}"
                  + (f" ({result.error})" if result.error else ""))

@@ -150,6 +150,15 @@ def make_scope(kind: str):
     return TextScope()
 
 
+def _show_ring(scope, ring, k: int, n_events: int, n_taps: int) -> None:
+    """Pass the last (up to 600) ticks of the shared ring (``k`` ticks written so far) to the scope."""
+    n = min(k, RING, 600)
+    if n > 1:
+        idx = (np.arange(k - n, k) % RING) * 3
+        buf = np.frombuffer(ring, dtype=np.float64)
+        scope.update(buf[idx], buf[idx + 1], buf[idx + 2], n_events, n_taps)
+
+
 def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=None, scope_period_s: float = 0.05):
     """Run one rendering while a person taps; returns the :class:`renderer.RunResult`.
 
@@ -178,24 +187,14 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
                     msg = _recv(parent)
                 break
             if scope is not None:
-                k = ring_n.value
-                n = min(k, RING, 600)
-                if n > 1:
-                    idx = (np.arange(k - n, k) % RING) * 3
-                    buf = np.frombuffer(ring, dtype=np.float64)
-                    scope.update(buf[idx], buf[idx + 1], buf[idx + 2], int(events[0]), n_taps)
+                _show_ring(scope, ring, ring_n.value, int(events[0]), n_taps)
     except KeyboardInterrupt:
         stop.set()
         if parent.poll(5.0):
             msg = _recv(parent)
     finally:
         if scope is not None:  # the final state of the ring, so the scope ends on what happened last
-            k = ring_n.value
-            n = min(k, RING, 600)
-            if n > 1:
-                idx = (np.arange(k - n, k) % RING) * 3
-                buf = np.frombuffer(ring, dtype=np.float64)
-                scope.update(buf[idx], buf[idx + 1], buf[idx + 2], int(events[0]), n_taps)
+            _show_ring(scope, ring, ring_n.value, int(events[0]), n_taps)
         proc.join(timeout=5.0)
         if proc.is_alive():
             proc.terminate()
@@ -315,7 +314,7 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
                          "correlation": m["correlation"], "clipped": int(tp.clipped)})
     write_summary(rows, out / "summary.csv")
     say("")
-    say(f"{'rendering':22s} {'taps':>4} {'v_in m/s':>9} {'peak a':>7} {'f_dom':>6} {'pen mm':>7} {'NRMSE':>6} "
+    say(f"{'rendering':22s} {'taps':>4} {'v_in m/s':>9} {'peak a m/s2':>11} {'f_dom Hz':>8} {'pen mm':>7} {'NRMSE':>6} "
         f"{'corr':>6} {'clipped':>7}")
     for name, taps in traces.items():
         sel = [x for x in rows if x["rendering"] == name]
@@ -327,8 +326,8 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
             vals = [x[key] for x in sel if isinstance(x[key], (int, float)) and math.isfinite(x[key])]
             return float(np.mean(vals)) if vals else math.nan
 
-        say(f"{name:22s} {len(sel):4d} {m('velocity_m_s'):9.3f} {m('peak_accel_m_s2'):7.1f} "
-            f"{m('dominant_freq_hz'):6.0f} {m('penetration_mean_m') * 1e3:7.2f} {m('nrmse'):6.3f} "
+        say(f"{name:22s} {len(sel):4d} {m('velocity_m_s'):9.3f} {m('peak_accel_m_s2'):11.1f} "
+            f"{m('dominant_freq_hz'):8.0f} {m('penetration_mean_m') * 1e3:7.2f} {m('nrmse'):6.3f} "
             f"{m('correlation'):6.3f} {sum(x['clipped'] for x in sel):4d}/{len(sel)}")
     say(f"NRMSE/correlation: each tap against the real tap of closest incoming velocity (within "
         f"{MATCH_TOLERANCE:.0%}), 20-1000 Hz (limited by Nyquist at {fs:g} Hz).")

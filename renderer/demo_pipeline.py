@@ -279,7 +279,7 @@ def _build(out: Path, s: PipelineSettings, progress: Progress) -> dict:
     from devices.recording import record_taps, write_tap_recording
     from devices.registry import make_device
     from stimuli.hfam import BuildSettings, build_library, format_verification
-    from stimuli.recordings import read_recording
+    from stimuli.recordings import read_tap_csv
 
     timings = {}
     dev = make_device(s.device, seed=s.seed)
@@ -307,7 +307,7 @@ def _build(out: Path, s: PipelineSettings, progress: Progress) -> dict:
 
     mset = load_model_set(out / "identify")
     models = [(f"identify/accel_g{g:g}N.json", m) for g, m in zip(mset.grip_N, mset.models["accel_m_s2"])]
-    fs_rec, rec_taps = read_recording(out / "recordings.csv")
+    fs_rec, rec_taps = read_tap_csv(out / "recordings.csv")
     # the reader estimates fs from t_s steps (9999.99999...); the library must carry the servo rate exactly
     fs_rec = fs if abs(fs_rec - fs) < 1e-6 * fs else fs_rec
     bs = BuildSettings(n_velocities=min(s.library_velocities, len(rec_taps)), smooth_hz=s.smooth_hz,
@@ -372,12 +372,12 @@ def identify_grips(dev, s: PipelineSettings, out: Path, say) -> str:
 def _load(entry: Path, settings: PipelineSettings) -> Pipeline:
     from devices.identify.modelset import load_model_set
     from stimuli import HfamLibrary
-    from stimuli.recordings import read_recording
+    from stimuli.recordings import read_tap_csv
 
     manifest = json.loads((entry / "manifest.json").read_text())
     if manifest.get("settings") != settings.to_dict():
         raise ValueError("settings in manifest.json differ from the requested ones")
     mset = load_model_set(entry / "identify")
     lib = HfamLibrary.load(entry / "library.npz")
-    _, taps = read_recording(entry / "recordings.csv")
+    _, taps = read_tap_csv(entry / "recordings.csv")
     return Pipeline(entry, mset, lib, lib.fs_hz, taps, True, manifest.get("timings_s", {}))

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .hfam import BuildSettings, build_library, format_verification, source_entry
-from .recordings import read_recording
+from .recordings import read_tap_csv
 
 
 def register(subparsers) -> None:
@@ -122,7 +122,7 @@ def run(args) -> int:
         peak_current_A=peak, scale_to_limit=args.scale_to_limit, max_extrapolation=args.max_extrapolation,
     )
     print(f"reading {args.recordings}", flush=True)
-    fs, taps = read_recording(args.recordings)
+    fs, taps = read_tap_csv(args.recordings)
     print(f"  {len(taps)} taps at {fs:g} Hz, velocities {min(t.v_in_m_s for t in taps):.4g}.."
           f"{max(t.v_in_m_s for t in taps):.4g} m/s", flush=True)
     if rate is not None and abs(rate - fs) > 1e-6 * rate:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from devices.base import DeviceError
@@ -26,4 +27,12 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        code = main()
+        sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
+    except BrokenPipeError:
+        # recipe of the Python docs (signal module, "Note on SIGPIPE"): point stdout at devnull so the
+        # interpreter's final flush cannot raise again, and exit 1 without a traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(1)
+    sys.exit(code)

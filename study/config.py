@@ -92,28 +92,53 @@ class ProtocolConfig:
         return asdict(self)
 
 
-def load_protocol(path, **overrides) -> ProtocolConfig:
-    """Load a :class:`ProtocolConfig` from TOML/JSON; CLI ``overrides`` (not None) win."""
+def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
+    """Build the frozen dataclass ``cls`` from a TOML (``.toml``) or JSON file.
+
+    Parameters
+    ----------
+    path : str, Path or None
+        The file; None: only ``overrides`` (and the dataclass defaults).
+    cls : type
+        Frozen dataclass whose field names are the valid keys.
+    what : str
+        What the file is, for messages ("protocol", "participant").
+    overrides : dict or None
+        Values that win over the file's (entries that are None are ignored).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        Naming the file for a parse error, unknown key(s) (listing the valid
+        ones) or a value ``cls`` refuses.
+    """
     data: dict = {}
     where = "command line"
     if path is not None:
         p = Path(path)
         where = str(p)
         if not p.is_file():
-            raise FileNotFoundError(f"protocol file {p} not found")
+            raise FileNotFoundError(f"{what} file {p} not found")
         try:
             data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
         except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{p}: cannot parse ({exc})") from None
-    known = {f.name for f in fields(ProtocolConfig)}
+    known = {f.name for f in fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
-        raise ValueError(f"{where}: unknown protocol key(s) {unknown}; valid keys: {sorted(known)}")
-    data.update({k: v for k, v in overrides.items() if v is not None})
+        raise ValueError(f"{where}: unknown {what} key(s) {unknown}; valid keys: {sorted(known)}")
+    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     try:
-        return ProtocolConfig(**data)
+        return cls(**data)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
+
+
+def load_protocol(path, **overrides) -> ProtocolConfig:
+    """Load a :class:`ProtocolConfig` from TOML/JSON; CLI ``overrides`` (not None) win."""
+    return load_dataclass_file(path, ProtocolConfig, "protocol", overrides)
 
 
 @dataclass(frozen=True)

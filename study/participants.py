@@ -12,14 +12,12 @@ same choices as an uninterrupted one.
 
 from __future__ import annotations
 
-import json
 import math
-import tomllib
 from dataclasses import asdict, dataclass, fields
-from pathlib import Path
 
 import numpy as np
 
+from .config import load_dataclass_file
 from .protocol import PHASE_CODES, stable_code
 from .rater import RaterProfile, rate, realism_score
 
@@ -94,21 +92,7 @@ def load_participant_config(path) -> SimParticipantConfig:
     """Load :class:`SimParticipantConfig` from TOML/JSON (unknown keys refused, naming file and key)."""
     if path is None:
         return SimParticipantConfig()
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"participant config {p} not found")
-    try:
-        data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{p}: cannot parse ({exc})") from None
-    known = {f.name for f in fields(SimParticipantConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{p}: unknown participant key(s) {unknown}; valid keys: {sorted(known)}")
-    try:
-        return SimParticipantConfig(**data)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{p}: {exc}") from None
+    return load_dataclass_file(path, SimParticipantConfig, "participant")
 
 
 @dataclass(frozen=True)

@@ -23,12 +23,12 @@ range the nearest model is used (no extrapolation).
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..fileio import atomic_write_text, read_json_file
 from ..model import OUTPUTS, ZpkModel, load_model
 from .fit import FitOptions, fit_frequency_response
 
@@ -141,11 +141,7 @@ class ModelSet:
                 names[out].append(name)
         index = {"kind": "model_set", "grip_N": [float(g) for g in self.grip_N], "models": names,
                  "interpolation": INTERPOLATION}
-        path = d / INDEX_NAME
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(index, indent=2) + "\n")
-        os.replace(tmp, path)
-        return path
+        return atomic_write_text(d / INDEX_NAME, json.dumps(index, indent=2) + "\n")
 
 
 def load_model_set(path) -> ModelSet:
@@ -161,12 +157,7 @@ def load_model_set(path) -> ModelSet:
     path = Path(path)
     if path.is_dir():
         path = path / INDEX_NAME
-    if not path.is_file():
-        raise FileNotFoundError(f"model set index not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    data = read_json_file(path, "model set index")
     if not isinstance(data, dict) or data.get("kind") != "model_set":
         raise ValueError(f"{path}: key 'kind' must be \"model_set\"")
     for key in ("grip_N", "models"):

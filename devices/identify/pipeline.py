@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..base import Device
+from ..fileio import atomic_write_text
 from .etfe import Etfe, etfe
 from .figures import bode_plot
 from .fit import FitError, FitOptions, fit_etfes
@@ -199,6 +199,4 @@ def format_report(report: dict) -> str:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(data, indent=2, default=float) + "\n")

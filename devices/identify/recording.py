@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from ..fileio import atomic_open, atomic_write_text, read_json_file
 from .sweep import SweepConfig
 
 COLUMNS = ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N")
@@ -99,19 +99,21 @@ def write_recording(path, rec: Recording) -> Path:
     Path
         The CSV path.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table = np.column_stack([rec.t_s, rec.current_A, rec.accel_m_s2, rec.position_m, rec.grip_N])
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as fh:
-        fh.write(",".join(COLUMNS) + "\n")
-        np.savetxt(fh, table, fmt="%.10g", delimiter=",")
-    os.replace(tmp, path)
-    side = sidecar_path(path)
-    tmp = side.with_name(side.name + ".tmp")
-    tmp.write_text(json.dumps(rec.sidecar(), indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, side)
+    path = write_csv_columns(path, COLUMNS, [rec.t_s, rec.current_A, rec.accel_m_s2, rec.position_m, rec.grip_N])
+    atomic_write_text(sidecar_path(path), json.dumps(rec.sidecar(), indent=2, allow_nan=False) + "\n")
     return path
+
+
+def write_csv_columns(path, columns, arrays) -> Path:
+    """Write equal-length 1-D ``arrays`` (one per name in ``columns``) as a CSV with a header line.
+
+    Atomic (see :func:`devices.fileio.atomic_open`); values as ``%.10g``.
+    The counterpart of :func:`read_csv_columns`.
+    """
+    with atomic_open(path) as fh:
+        fh.write(",".join(columns) + "\n")
+        np.savetxt(fh, np.column_stack(arrays), fmt="%.10g", delimiter=",")
+    return Path(path)
 
 
 def _sweep_from_sidecar(data: dict, where: str) -> SweepConfig:
@@ -133,6 +135,38 @@ def _sweep_from_sidecar(data: dict, where: str) -> SweepConfig:
         raise ValueError(f"{where}: {exc}") from None
 
 
+def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
+    """Read the named numeric columns of a CSV with a header line (other columns are ignored).
+
+    Returns
+    -------
+    dict of column name -> ndarray, shape (n,)
+
+    Raises
+    ------
+    ValueError
+        Naming the file for an unparsable CSV or missing column(s), and file,
+        line and column of the first non-numeric or NaN/inf value.
+    """
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot parse CSV ({exc})") from None
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)} (header must have {', '.join(columns)})")
+    arrays = {}
+    for col in columns:
+        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            row = int(bad[0])
+            raise ValueError(f"{path}: line {row + 2}, column {col!r}: value {df[col].iloc[row]!r} is not a "
+                             f"finite number (NaN/inf or text); {bad.size} such row(s)")
+        arrays[col] = values
+    return arrays
+
+
 def read_recording(path) -> Recording:
     """Read and validate a recording (CSV + sidecar).
 
@@ -152,27 +186,9 @@ def read_recording(path) -> Recording:
     side = sidecar_path(path)
     if not side.is_file():
         raise FileNotFoundError(f"recording sidecar not found: {side} (needed next to {path})")
-    try:
-        meta = json.loads(side.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{side}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    meta = read_json_file(side, "recording sidecar")
     sweep = _sweep_from_sidecar(meta, str(side))
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot parse CSV ({exc})") from None
-    missing = [c for c in COLUMNS if c not in df.columns]
-    if missing:
-        raise ValueError(f"{path}: missing column(s) {', '.join(missing)} (header must have {', '.join(COLUMNS)})")
-    arrays = {}
-    for col in COLUMNS:
-        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            row = int(bad[0])
-            raise ValueError(f"{path}: line {row + 2}, column {col!r}: value {df[col].iloc[row]!r} is not a "
-                             f"finite number (NaN/inf or text); {bad.size} such row(s)")
-        arrays[col] = values
+    arrays = read_csv_columns(path, COLUMNS)
     rec = Recording(sweep, arrays["t_s"], arrays["current_A"], arrays["accel_m_s2"], arrays["position_m"],
                     arrays["grip_N"], {k: v for k, v in meta.items() if k not in SIDECAR_KEYS}, path)
     check_recording(rec)

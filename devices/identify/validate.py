@@ -90,20 +90,12 @@ def record_transients(dev: Device, amplitude_A: float, grip_N: float | None = No
 
 def write_transient_recording(path, fs_hz: float, current_A, accel_m_s2, position_m, grip_N=None):
     """Write a transient recording CSV (``t_s,current_A,accel_m_s2,position_m,grip_N``), atomically."""
-    import os
-    from pathlib import Path
+    from .recording import write_csv_columns
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     n = len(current_A)
     g = np.zeros(n) if grip_N is None else np.broadcast_to(np.asarray(grip_N, dtype=float), (n,))
-    table = np.column_stack([np.arange(n) / fs_hz, current_A, accel_m_s2, position_m, g])
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as fh:
-        fh.write("t_s,current_A,accel_m_s2,position_m,grip_N\n")
-        np.savetxt(fh, table, fmt="%.10g", delimiter=",")
-    os.replace(tmp, path)
-    return path
+    return write_csv_columns(path, ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N"),
+                             [np.arange(n) / fs_hz, current_A, accel_m_s2, position_m, g])
 
 
 def read_transient_recording(path, output: str = "accel_m_s2") -> tuple[float, np.ndarray, np.ndarray]:
@@ -122,24 +114,12 @@ def read_transient_recording(path, output: str = "accel_m_s2") -> tuple[float, n
     """
     from pathlib import Path
 
-    import pandas as pd
+    from .recording import read_csv_columns
 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"transient recording not found: {path}")
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot parse CSV ({exc})") from None
-    cols = {}
-    for col in ("t_s", "current_A", output):
-        if col not in df.columns:
-            raise ValueError(f"{path}: missing column {col!r}")
-        v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(v))
-        if bad.size:
-            raise ValueError(f"{path}: line {int(bad[0]) + 2}, column {col!r}: not a finite number")
-        cols[col] = v
+    cols = read_csv_columns(path, ("t_s", "current_A", output))
     t = cols["t_s"]
     if t.size < 16:
         raise ValueError(f"{path}: too few samples ({t.size})")

@@ -187,3 +187,18 @@ def test_report_html_renders_in_chromium(report):
     assert len(widths) == 4 and min(widths) > 300
     assert "Summary" in headings and any("pairwise_ttests.csv" in h for h in headings)
     assert [u for u in requests if not u.startswith(("file:", "data:"))] == []   # nothing fetched from outside
+
+
+def test_pvalue_matrix_marks_untested_pairs_apart_from_p_one(tmp_path):
+    from analysis.figures import fig_pvalues
+
+    def reddish_and_white(p_ac):
+        pairwise = pd.DataFrame({"group": "all", "sample_a": ["a", "a", "b"], "sample_b": ["b", "c", "c"],
+                                 "p": [1.0, p_ac, 0.5], "p_holm": [1.0, p_ac, 1.0], "n": 8})
+        img = mpimg.imread(fig_pvalues(pairwise, ["a", "b", "c"], tmp_path / "p.png"))[..., :3]
+        return int(np.sum(img[..., 0] - img[..., 2] > 0.1)), int(np.sum(np.all(img > 0.99, axis=2)))
+
+    red_tested, white_tested = reddish_and_white(1.0)       # only the 3 diagonal cells lack a p-value
+    red_excluded, white_excluded = reddish_and_white(np.nan)  # the a-c pair excluded: 2 more cells
+    assert red_excluded == pytest.approx(red_tested * 5 / 3, rel=0.1)
+    assert white_excluded < white_tested                    # NaN is no longer drawn like p = 1
