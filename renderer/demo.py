@@ -93,6 +93,8 @@ class DemoResult:
     pipeline : Pipeline
     figures : dict name -> Path
     timings_s : dict
+    reactive : dict
+        :func:`reactive_hand_cuts` (empty if not applicable).
     """
 
     rows: list
@@ -102,6 +104,7 @@ class DemoResult:
     figures: dict
     timings_s: dict
     fs_hz: float = 10_000.0
+    reactive: dict = field(default_factory=dict)
 
     def row(self, rendering: str, velocity_m_s: float, grip_N: float) -> dict:
         for r in self.rows:
@@ -293,6 +296,71 @@ def penetration_cuts(cfg: DemoConfig, rows: list[dict]) -> dict:
     return out
 
 
+#: tap speeds (m/s) of the reactive-hand penetration check: section 4.5.5's slow-to-moderate taps
+REACTIVE_VELOCITY_RANGE_M_S = (0.05, 0.15)
+_REACTIVE_RENDERINGS = ("firm", "pulse_firm", "hfam_firm")
+
+
+def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
+    """Penetration cut of pulse and HFAM over firm with the reactive simulated hand (section 4.5.5).
+
+    The demo's hand (eq. 3.34, tied to its trajectory) is a velocity source,
+    so a transient's impulse barely changes penetration. This taps firm,
+    pulse over firm and HFAM over firm once more, at the demo's velocities
+    inside ``REACTIVE_VELOCITY_RANGE_M_S`` x its grips, with
+    :class:`devices.sim.ReactiveHand` (default, physiologically motivated
+    parameters: a 0.2 kg hand driven by a 120 N/m, 2 N s/m muscle impedance,
+    40 ms contact reflex), the same tap trajectory and the same transients.
+
+    Returns
+    -------
+    dict
+        Empty if not applicable (no velocity in range, a device other than
+        the nonlinear sim, or a rendering missing); else ``velocities_m_s``,
+        ``grips_N``, ``taps``, ``penetration_m`` (rendering -> mean maximum
+        penetration, m) and ``cuts`` (``pulse_firm``/``hfam_firm`` -> 1 -
+        pen/pen_firm).
+    """
+    from devices.registry import make_device
+    from devices.sim import ReactiveHand
+
+    lo, hi = REACTIVE_VELOCITY_RANGE_M_S
+    vels = tuple(v for v in cfg.velocities_m_s if lo <= v <= hi)
+    by_name = {r.name: r for r in cfg.renderings}
+    if not vels or any(n not in by_name for n in _REACTIVE_RENDERINGS):
+        return {}
+    dev = make_device(cfg.pipeline.device, seed=cfg.pipeline.seed + 1000)
+    if getattr(getattr(dev, "params", None), "model", None) != "nonlinear":
+        return {}
+    hand = ReactiveHand()
+    pen = {}
+    with dev:
+        for name in _REACTIVE_RENDERINGS:
+            r = by_name[name]
+            transient = runs.make_transient(r, pipe.library, cfg.medium_grip_N)
+            vals = [runs.tap_sim(dev, r, transient, v, g, pipe.fs_hz, hand=hand, **_hand(cfg)).penetration_m
+                    for v in vels for g in cfg.grips_N for _ in range(cfg.taps)]
+            vals = [x for x in vals if math.isfinite(x)]
+            if not vals:
+                return {}
+            pen[name] = float(np.mean(vals))
+    cuts = {name: 1.0 - pen[name] / pen["firm"] for name in _REACTIVE_RENDERINGS[1:]}
+    return {"velocities_m_s": vels, "grips_N": tuple(cfg.grips_N),
+            "taps": len(_REACTIVE_RENDERINGS) * len(vels) * len(cfg.grips_N) * cfg.taps,
+            "penetration_m": pen, "cuts": cuts}
+
+
+def format_reactive(reactive: dict) -> str:
+    """The printed line of :func:`reactive_hand_cuts` ("" if empty)."""
+    if not reactive:
+        return ""
+    c = reactive["cuts"]
+    return (f"With the reactive hand model (0.2 kg hand, 120 N/m muscle, 40 ms reflex; "
+            f"{', '.join(f'{v:g}' for v in reactive['velocities_m_s'])} m/s): cut {c['pulse_firm'] * 100:.0f} % "
+            f"(pulse), {c['hfam_firm'] * 100:.0f} % (HFAM) vs firm alone "
+            f"(docs/demo.md, 'The reactive hand')")
+
+
 def write_traces(result: DemoResult, path: Path) -> Path:
     """Save every contact window: ``accel`` and ``current`` [n_taps, n] plus per-tap keys (npz)."""
     keys = sorted(result.traces, key=lambda k: (k[0], k[1], k[2]))
@@ -371,9 +439,12 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         side.start()
     progress.start(f"simulated user tapping {len(cfg.renderings)} renderings")
     traces, refs = simulate(cfg, pipe, progress)
+    reactive = reactive_hand_cuts(cfg, pipe)
+    if reactive:
+        progress.say(f"{'reactive hand':22s} {reactive['taps']} taps on firm, pulse and HFAM over firm")
     t_sim = progress.done()
     rows = summarize(cfg, traces, pipe.library)
-    result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz)
+    result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz, reactive)
     write_summary(rows, out / "summary.csv")
     write_traces(result, out / "traces.npz")
     t_fig = 0.0
@@ -476,6 +547,8 @@ def run(args) -> int:
     res = run_sim_demo(cfg, args.out, args.cache_dir, args.rebuild, figures=not args.no_figures)
     print()
     print(format_table(cfg, res.rows, res.pipeline.library))
+    if res.reactive:
+        print(format_reactive(res.reactive))
     print()
     print(f"detail (one row per rendering x velocity x grip): {args.out / 'summary.csv'}")
     for name, path in res.figures.items():

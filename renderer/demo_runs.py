@@ -169,7 +169,7 @@ class TapTrace:
 
 
 def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N: float, fs_hz: float,
-            stop_time_s: float = TAP_STOP_TIME_S) -> TapTrace:
+            stop_time_s: float = TAP_STOP_TIME_S, hand=None) -> TapTrace:
     """Let the simulated hand tap ``rendering`` once and cut the contact window.
 
     Parameters
@@ -183,6 +183,9 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
         How long after crossing the surface the hand's desired position comes
         to rest (s): it aims :func:`~renderer.demo_pipeline.tap_press_depth_m`
         below the surface.
+    hand : devices.sim.ReactiveHand or None
+        None: the default simulated hand (tied to its trajectory); a
+        ``ReactiveHand``: hand mass, muscle impedance and contact reflex.
     """
     from devices.sim import TapTrajectory
 
@@ -192,7 +195,10 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
     device.set_sample(rendering.sample)
     traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=approach_height_m(velocity_m_s),
                          **tap_trajectory_options(velocity_m_s, stop_time_s))
-    device.set_user(traj, grip_N=float(grip_N))
+    if hand is None:
+        device.set_user(traj, grip_N=float(grip_N))
+    else:
+        device.set_user(traj, grip_N=float(grip_N), hand=hand)
     cfg = RendererConfig(stiffness_N_m=rendering.stiffness_N_m, motor_enabled=not rendering.is_real,
                          log_capacity_s=traj.duration_s + 0.01)
     loop = ServoLoop(device, cfg, transient=transient)

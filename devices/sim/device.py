@@ -17,7 +17,7 @@ from scipy import signal
 
 from ..base import Device, DeviceState, Status
 from . import kernel as K
-from .hand import HoldTrajectory, sample_grip
+from .hand import HoldTrajectory, ReactiveHand, sample_grip
 from .params import SimParams, default_params, load_sim_params
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
@@ -58,6 +58,7 @@ class SimDevice(Device):
         self._grip = np.zeros(1)
         self._traj_ticks = 0
         self.trajectory = None
+        self.hand = None
         self.sample_name = "placeholder"
         self.set_sample(sample)
         self._refresh_state()
@@ -210,7 +211,7 @@ class SimDevice(Device):
         """True if the handle touched the sample during the last servo period (true state)."""
         return bool(self._s[K.S_CONTACT] != 0.0)
 
-    def set_user(self, trajectory=None, grip_N=2.0) -> None:
+    def set_user(self, trajectory=None, grip_N=2.0, hand: ReactiveHand | None = None) -> None:
         """Set the simulated hand: a desired trajectory and a grip force.
 
         Parameters
@@ -224,7 +225,16 @@ class SimDevice(Device):
             Grip force in N, constant or a function of time since now (s);
             a callable is sampled over the trajectory's duration (the last
             value holds afterwards).
+        hand : ReactiveHand or None
+            None (default): the hand is the grip spring-damper tied to the
+            desired trajectory (eq. 3.34). A :class:`ReactiveHand` adds a
+            hand/arm mass, a muscle impedance and a contact reflex (nonlinear
+            model only). Stays in force until the next ``set_user``.
         """
+        if hand is not None and not isinstance(hand, ReactiveHand):
+            raise ValueError(f"set_user: hand must be a ReactiveHand or None, got {type(hand).__name__}")
+        if hand is not None and self.params.model != "nonlinear":
+            raise ValueError(f"set_user: the reactive hand needs the nonlinear sim model, not {self.params.model!r}")
         if trajectory is None:
             trajectory = HoldTrajectory(self._s[K.S_XH])
         elif isinstance(trajectory, (int, float)):
@@ -244,6 +254,17 @@ class SimDevice(Device):
         self._grip = np.ascontiguousarray(grip)
         self._traj_ticks = int(round(trajectory.duration_s * fs))
         self._user_tick = self._tick
+        p = self._p
+        p[K.P_HAND_ON] = 0.0 if hand is None else 1.0
+        if hand is not None:
+            p[K.P_HAND_MA] = hand.arm_mass_kg
+            p[K.P_HAND_KM] = hand.muscle_stiffness_N_m
+            p[K.P_HAND_BM] = hand.muscle_damping_Ns_m
+            p[K.P_HAND_DELAY] = hand.reflex_delay_s
+            p[K.P_HAND_FTHR] = hand.reflex_force_N
+            # the arm's internal model knows the tool it holds: the device's masses in handle space
+            p[K.P_HAND_MTOOL] = p[K.P_MM] + p[K.P_MD] + p[K.P_MH]
+        self.hand = hand
         self._place_at(traj[0])
 
     def _place_at(self, x0: float) -> None:
@@ -255,6 +276,8 @@ class SimDevice(Device):
         s[K.S_XLPREV] = 0.0
         s[K.S_LTI:K.S_LTI + K.LTI_MAX_ORDER] = 0.0
         s[K.S_XU] = x0
+        s[K.S_XA], s[K.S_VA] = x0, 0.0            # reactive hand (unused otherwise)
+        s[K.S_RFX_T], s[K.S_RFX_X], s[K.S_RFX_ON] = -1.0, x0, 0.0
         self._refresh_state()
 
     def set_sample(self, name: str) -> None:
@@ -296,6 +319,8 @@ class SimDevice(Device):
             "block_position_m": float(s[K.S_XB]), "block_velocity_m_s": float(s[K.S_VB]),
             "in_contact": bool(s[K.S_CONTACT] != 0.0), "contact_force_N": float(s[K.S_FCONTACT]),
             "hand_position_m": float(s[K.S_XU]), "hand_velocity_m_s": float(s[K.S_VU]),
+            "arm_position_m": float(s[K.S_XA]), "arm_velocity_m_s": float(s[K.S_VA]),
+            "reflex_holding": bool(s[K.S_RFX_ON] != 0.0),
             "grip_N": float(self._grip[k]),
             "winding_temp_rise_K": float(s[K.S_TEMP]),
             "pending_current_A": self._held_A,

@@ -34,6 +34,9 @@ S_FL, S_FHAT, S_XLPREV = 6, 7, 8          # hysteresis: filtered force, coarse f
 S_IAMP, S_ACCF, S_XB, S_VB = 9, 10, 11, 12
 S_TEMP, S_CONTACT, S_AH, S_FCONTACT = 13, 14, 15, 16
 S_XU, S_VU = 17, 18                          # desired hand position/velocity (last substep)
+S_XA, S_VA = 19, 20                          # reactive hand only: hand/arm mass position/velocity
+# reactive hand only: time since contact-force onset (s, < 0: none), held target (m), holding (0/1)
+S_RFX_T, S_RFX_X, S_RFX_ON = 21, 22, 23
 S_LTI = 24                                   # LTI transmission states start here
 S_LTI_TMP = 44                               # scratch for the LTI state update
 LTI_MAX_ORDER = 16
@@ -55,6 +58,9 @@ P_TEMP_MAX = 43
 P_LTI_N = 42
 P_LTI_MATS = 48        # A (n*n), B (n), C (n), D (1), row-major
 N_PARAM = 48 + 40 * 40
+# reactive hand (devices.sim.hand.ReactiveHand); the LTI matrices end well before these
+P_HAND_ON, P_HAND_MA, P_HAND_KM, P_HAND_BM = N_PARAM - 8, N_PARAM - 7, N_PARAM - 6, N_PARAM - 5
+P_HAND_DELAY, P_HAND_FTHR, P_HAND_MTOOL = N_PARAM - 4, N_PARAM - 3, N_PARAM - 2
 
 
 @njit(cache=True, inline="always")
@@ -128,6 +134,46 @@ def _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb):
             flag = 1.0
         return f, (-f - skf * xb - sbf * vb) / smb, flag
     return 0.0, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km, bmu, rdelay, fthr, mtool, dt):
+    """One substep of the reactive hand (:class:`devices.sim.hand.ReactiveHand`).
+
+    The grip spring-damper (k_u, b_u of eq. 3.34) couples the handle to a hand
+    mass ``ma`` instead of to the desired trajectory; the hand mass is driven
+    towards its target by the muscle impedance (``km``, ``bmu``) plus the
+    feedforward ``(ma + mtool) * a_t`` (an internal model of the free-motion
+    dynamics of arm and tool). Contact reflex: once the force the handle
+    pushes up on the hand exceeds ``fthr`` while the target is not
+    accelerating, after ``rdelay`` seconds the target stops descending (holds
+    where it is) until the desired trajectory rises above it.
+
+    Returns (force of the hand on the handle N, xa, va, rt, rx, ron).
+    """
+    fu = -ku * (xh - xa) - bu * (vh - va)
+    # target: the desired trajectory, or the held position after the reflex
+    xt, vt, at = xu, vu, au
+    if ron != 0.0:
+        if xu > rx:
+            ron = 0.0
+            rt = -1.0
+        else:
+            xt, vt, at = rx, 0.0, 0.0
+    if rt >= 0.0:
+        rt += dt
+        if ron == 0.0 and rt >= rdelay:
+            ron = 1.0
+            rx = xu
+            xt, vt, at = xu, 0.0, 0.0
+    elif ron == 0.0 and abs(at) < 0.1 and -fu > fthr:
+        # armed only while the target is not accelerating: the reaching motion's own
+        # tool-drag (m_tool * a_t plus the grip lag) is expected, not a contact
+        rt = 0.0
+    fa = -fu + km * (xt - xa) + bmu * (vt - va) + (ma + mtool) * at
+    va += fa / ma * dt
+    xa += va * dt
+    return fu, xa, va, rt, rx, ron
 
 
 @njit(cache=True, inline="always")
@@ -214,6 +260,81 @@ def _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd):
     s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH] = xm, vm, xd, vd, xh, vh
     s[S_FL], s[S_FHAT], s[S_XLPREV] = fl, fhat, xlp
     s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
+    s[S_AH] = ah
+    s[S_FCONTACT] = fs
+    return contact_any
+
+
+@njit(cache=True)
+def _substeps_nonlinear_reactive(s, p, xu0, xu1, au, g, i_cmd):
+    """As :func:`_substeps_nonlinear` with the reactive hand (:func:`_reactive_hand_step`) instead of eq. 3.34's
+    trajectory-tied hand; a separate function so the default hand's hot loop is untouched."""
+    dt = p[P_DT]
+    nsub = int(p[P_NSUB])
+    vu = (xu1 - xu0) / (dt * nsub)
+    ku = p[P_KU_PER_N] * g
+    bu = p[P_BU_PER_N] * g
+    kf = p[P_KF]
+    lowpass = p[P_AMP_LOWPASS] != 0.0
+    alpha = p[P_AMP_ALPHA]
+    beta = p[P_ACC_BETA]
+    mm, bm, cm, kc, bc = p[P_MM], p[P_BM], p[P_CM], p[P_KC], p[P_BC]
+    md, bd, cd, bl, mh = p[P_MD], p[P_BD], p[P_CD], p[P_BL], p[P_MH]
+    klp, kln, flp, fln, gam = p[P_KLP], p[P_KLN], p[P_FLP], p[P_FLN], p[P_GAMMA]
+    hyst = p[P_HYST] != 0.0
+    kmean = 0.5 * (klp + kln)
+    vstick = p[P_VSTICK]
+    kind, sk, salpha, smb, skf, sbf = p[P_S_KIND], p[P_S_K], p[P_S_ALPHA], p[P_S_MB], p[P_S_KF], p[P_S_BF]
+    inv_mm, inv_md, inv_mh = 1.0 / mm, 1.0 / md, 1.0 / mh
+    xm, vm, xd, vd, xh, vh = s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH]
+    fl, fhat, xlp = s[S_FL], s[S_FHAT], s[S_XLPREV]
+    ma, km, bmu, rdelay, fthr = p[P_HAND_MA], p[P_HAND_KM], p[P_HAND_BM], p[P_HAND_DELAY], p[P_HAND_FTHR]
+    mtool = p[P_HAND_MTOOL]
+    xa, va, rt, rx, ron = s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON]
+    iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
+    ah = 0.0
+    fs = 0.0
+    contact_any = 0.0
+    dxu = (xu1 - xu0) / nsub
+    for j in range(nsub):
+        xu = xu0 + dxu * (j + 1)
+        if lowpass:
+            iamp += alpha * (i_cmd - iamp)
+        else:
+            iamp = i_cmd
+        fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
+        if flag > 0.0:
+            contact_any = 1.0
+        fu, xa, va, rt, rx, ron = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
+                                                      ma, km, bmu, rdelay, fthr, mtool, dt)
+        # hysteretic linkage between drum and handle (sec. 3.5.3)
+        xl = xd - xh
+        if hyst:
+            fl, fhat = hysteresis_step(xl, xlp, fl, fhat, flp, klp, fln, kln, gam)
+        else:
+            fl = kmean * xl
+        xlp = xl
+        fl_total = fl + bl * (vd - vh)
+        fc = kc * (xd - xm) + bc * (vd - vm)         # cable force on the motor
+        fm = fc + kf * iamp - bm * vm                # eq. 3.32 without friction
+        fd = -fc - bd * vd - fl_total                # eq. 3.33 without friction
+        cmf, stuck_m = _friction(vm, fm, cm, vstick)
+        cdf, stuck_d = _friction(vd, fd, cd, vstick)
+        ah = (fl_total + fu + fs) * inv_mh           # eq. 3.34 with the sample's contact force
+        vm = 0.0 if stuck_m else vm + (fm + cmf) * inv_mm * dt
+        vd = 0.0 if stuck_d else vd + (fd + cdf) * inv_md * dt
+        vh += ah * dt
+        xm += vm * dt
+        xd += vd * dt
+        xh += vh * dt
+        if kind == 2.0:
+            vb += ab * dt
+            xb += vb * dt
+        accf += beta * (ah - accf)
+    s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH] = xm, vm, xd, vd, xh, vh
+    s[S_FL], s[S_FHAT], s[S_XLPREV] = fl, fhat, xlp
+    s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
+    s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON] = xa, va, rt, rx, ron
     s[S_AH] = ah
     s[S_FCONTACT] = fs
     return contact_any
@@ -325,8 +446,17 @@ def tick(s, p, rs, traj, grip, k, i_cmd):
         i_cmd = -imax
     if p[P_MOTOR_ON] == 0.0:
         i_cmd = 0.0
+    au = 0.0
+    if p[P_HAND_ON] != 0.0:
+        # desired hand acceleration over this period: the reactive hand's feedforward
+        km1 = k - 1 if k - 1 >= 0 else 0
+        km1 = km1 if km1 < n else n - 1
+        per = p[P_DT] * p[P_NSUB]
+        au = (xu1 - 2.0 * xu0 + traj[km1]) / (per * per) if k + 1 < n and k >= 1 else 0.0
     if p[P_MODEL] == 1.0:
         contact_any = _substeps_lti(s, p, xu0, xu1, g, i_cmd)
+    elif p[P_HAND_ON] != 0.0:
+        contact_any = _substeps_nonlinear_reactive(s, p, xu0, xu1, au, g, i_cmd)
     else:
         contact_any = _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd)
     s[S_CONTACT] = contact_any

@@ -116,6 +116,29 @@ def test_transients_cut_penetration(result):
         mean(result, "soft", "penetration_mean_m")
 
 
+def test_reactive_hand_transients_cut_penetration_more(result):
+    """With the reactive simulated hand (devices.sim.ReactiveHand: hand mass, muscle impedance, reflex),
+    a transient's impulse decelerates a real mass, so the cut grows (docs/demo.md, "The reactive hand").
+
+    Measured (0.11 and 0.115 m/s x 1-3 N): pulse 40 % (default hand 15 %), HFAM 23 % (default hand 18 %)."""
+    rx = result.reactive
+    assert rx["velocities_m_s"] == (0.11, 0.115) and rx["grips_N"] == GRIPS
+    pen = rx["penetration_m"]
+    assert 0.5e-3 < pen["firm"] < 2e-3                 # a real tap into the firm wall, not a miss
+    in_v = rx["velocities_m_s"]
+
+    def default_cut(name):
+        return 1 - mean(result, name, "penetration_mean_m", velocities=in_v) / \
+            mean(result, "firm", "penetration_mean_m", velocities=in_v)
+
+    assert rx["cuts"]["pulse_firm"] >= 0.30
+    assert rx["cuts"]["pulse_firm"] >= 2 * default_cut("pulse_firm")
+    assert rx["cuts"]["hfam_firm"] > default_cut("hfam_firm")
+    assert rx["cuts"]["hfam_firm"] >= 0.12
+    line = demo.format_reactive(rx)
+    assert f"cut {rx['cuts']['pulse_firm'] * 100:.0f} % (pulse)" in line and "(HFAM)" in line
+
+
 def test_summary_csv_has_one_row_per_condition(result):
     path = result.out / "summary.csv"
     with open(path, newline="") as fh:
