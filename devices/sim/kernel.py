@@ -197,8 +197,14 @@ def _xorshift_normal(rs):
 
 
 @njit(cache=True)
-def _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd):
-    """All substeps of one servo period of eq. 3.32-3.35; state kept in locals (no aliasing reloads)."""
+def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
+    """All substeps of one servo period of eq. 3.32-3.35; state kept in locals (no aliasing reloads).
+
+    With ``p[P_HAND_ON]`` set, the grip spring-damper ties the handle to the reactive hand
+    (:func:`_reactive_hand_step`, fed the desired acceleration ``au``) instead of to the desired
+    trajectory itself (eq. 3.34); the branch is taken the same way every substep, so it costs the
+    default hand nothing measurable.
+    """
     dt = p[P_DT]
     nsub = int(p[P_NSUB])
     vu = (xu1 - xu0) / (dt * nsub)
@@ -218,76 +224,7 @@ def _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd):
     inv_mm, inv_md, inv_mh = 1.0 / mm, 1.0 / md, 1.0 / mh
     xm, vm, xd, vd, xh, vh = s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH]
     fl, fhat, xlp = s[S_FL], s[S_FHAT], s[S_XLPREV]
-    iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
-    ah = 0.0
-    fs = 0.0
-    contact_any = 0.0
-    dxu = (xu1 - xu0) / nsub
-    for j in range(nsub):
-        xu = xu0 + dxu * (j + 1)
-        if lowpass:
-            iamp += alpha * (i_cmd - iamp)
-        else:
-            iamp = i_cmd
-        fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
-        if flag > 0.0:
-            contact_any = 1.0
-        fu = -ku * (xh - xu) - bu * (vh - vu)
-        # hysteretic linkage between drum and handle (sec. 3.5.3)
-        xl = xd - xh
-        if hyst:
-            fl, fhat = hysteresis_step(xl, xlp, fl, fhat, flp, klp, fln, kln, gam)
-        else:
-            fl = kmean * xl
-        xlp = xl
-        fl_total = fl + bl * (vd - vh)
-        fc = kc * (xd - xm) + bc * (vd - vm)         # cable force on the motor
-        fm = fc + kf * iamp - bm * vm                # eq. 3.32 without friction
-        fd = -fc - bd * vd - fl_total                # eq. 3.33 without friction
-        cmf, stuck_m = _friction(vm, fm, cm, vstick)
-        cdf, stuck_d = _friction(vd, fd, cd, vstick)
-        ah = (fl_total + fu + fs) * inv_mh           # eq. 3.34 with the sample's contact force
-        vm = 0.0 if stuck_m else vm + (fm + cmf) * inv_mm * dt
-        vd = 0.0 if stuck_d else vd + (fd + cdf) * inv_md * dt
-        vh += ah * dt
-        xm += vm * dt
-        xd += vd * dt
-        xh += vh * dt
-        if kind == 2.0:
-            vb += ab * dt
-            xb += vb * dt
-        accf += beta * (ah - accf)
-    s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH] = xm, vm, xd, vd, xh, vh
-    s[S_FL], s[S_FHAT], s[S_XLPREV] = fl, fhat, xlp
-    s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
-    s[S_AH] = ah
-    s[S_FCONTACT] = fs
-    return contact_any
-
-
-@njit(cache=True)
-def _substeps_nonlinear_reactive(s, p, xu0, xu1, au, g, i_cmd):
-    """As :func:`_substeps_nonlinear` with the reactive hand (:func:`_reactive_hand_step`) instead of eq. 3.34's
-    trajectory-tied hand; a separate function so the default hand's hot loop is untouched."""
-    dt = p[P_DT]
-    nsub = int(p[P_NSUB])
-    vu = (xu1 - xu0) / (dt * nsub)
-    ku = p[P_KU_PER_N] * g
-    bu = p[P_BU_PER_N] * g
-    kf = p[P_KF]
-    lowpass = p[P_AMP_LOWPASS] != 0.0
-    alpha = p[P_AMP_ALPHA]
-    beta = p[P_ACC_BETA]
-    mm, bm, cm, kc, bc = p[P_MM], p[P_BM], p[P_CM], p[P_KC], p[P_BC]
-    md, bd, cd, bl, mh = p[P_MD], p[P_BD], p[P_CD], p[P_BL], p[P_MH]
-    klp, kln, flp, fln, gam = p[P_KLP], p[P_KLN], p[P_FLP], p[P_FLN], p[P_GAMMA]
-    hyst = p[P_HYST] != 0.0
-    kmean = 0.5 * (klp + kln)
-    vstick = p[P_VSTICK]
-    kind, sk, salpha, smb, skf, sbf = p[P_S_KIND], p[P_S_K], p[P_S_ALPHA], p[P_S_MB], p[P_S_KF], p[P_S_BF]
-    inv_mm, inv_md, inv_mh = 1.0 / mm, 1.0 / md, 1.0 / mh
-    xm, vm, xd, vd, xh, vh = s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH]
-    fl, fhat, xlp = s[S_FL], s[S_FHAT], s[S_XLPREV]
+    reactive = p[P_HAND_ON] != 0.0
     ma, km, bmu, rdelay, fthr = p[P_HAND_MA], p[P_HAND_KM], p[P_HAND_BM], p[P_HAND_DELAY], p[P_HAND_FTHR]
     mtool = p[P_HAND_MTOOL]
     xa, va, rt, rx, ron = s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON]
@@ -305,8 +242,11 @@ def _substeps_nonlinear_reactive(s, p, xu0, xu1, au, g, i_cmd):
         fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
         if flag > 0.0:
             contact_any = 1.0
-        fu, xa, va, rt, rx, ron = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
-                                                      ma, km, bmu, rdelay, fthr, mtool, dt)
+        if reactive:
+            fu, xa, va, rt, rx, ron = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
+                                                          ma, km, bmu, rdelay, fthr, mtool, dt)
+        else:
+            fu = -ku * (xh - xu) - bu * (vh - vu)
         # hysteretic linkage between drum and handle (sec. 3.5.3)
         xl = xd - xh
         if hyst:
@@ -334,7 +274,8 @@ def _substeps_nonlinear_reactive(s, p, xu0, xu1, au, g, i_cmd):
     s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH] = xm, vm, xd, vd, xh, vh
     s[S_FL], s[S_FHAT], s[S_XLPREV] = fl, fhat, xlp
     s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
-    s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON] = xa, va, rt, rx, ron
+    if reactive:
+        s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON] = xa, va, rt, rx, ron
     s[S_AH] = ah
     s[S_FCONTACT] = fs
     return contact_any
@@ -455,10 +396,8 @@ def tick(s, p, rs, traj, grip, k, i_cmd):
         au = (xu1 - 2.0 * xu0 + traj[km1]) / (per * per) if k + 1 < n and k >= 1 else 0.0
     if p[P_MODEL] == 1.0:
         contact_any = _substeps_lti(s, p, xu0, xu1, g, i_cmd)
-    elif p[P_HAND_ON] != 0.0:
-        contact_any = _substeps_nonlinear_reactive(s, p, xu0, xu1, au, g, i_cmd)
     else:
-        contact_any = _substeps_nonlinear(s, p, xu0, xu1, g, i_cmd)
+        contact_any = _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd)
     s[S_CONTACT] = contact_any
     s[S_XU] = xu1
     s[S_VU] = (xu1 - xu0) * (1.0 / (p[P_DT] * p[P_NSUB]))
