@@ -319,6 +319,15 @@ class ServoLoop:
         """Ask a running loop (e.g. from a UI thread) to stop within ``cfg.until_every`` ticks."""
         self.stop_requested = True
 
+    def _stop_check(self, until) -> str:
+        """Stop reason from a stop request or the caller's ``until`` predicate, else ""; polled every
+        ``until_every`` ticks (not per tick) by both loops."""
+        if self.stop_requested:
+            return "stopped"
+        if until is not None and until(self):
+            return "until"
+        return ""
+
     def _alloc_log(self, capacity: int) -> dict:
         # repetition writes every page now, so the loop never takes a first-touch page fault
         return {name: array.array(code, [0.0 if code == "d" else 0]) * capacity for name, code, _, _ in LOG_CHANNELS}
@@ -737,11 +746,9 @@ class ServoLoop:
                     self.ticks = n
                     self.time_s = t
                     self.temp_rise_K = temp
-                    if self.stop_requested:
-                        reason = "stopped"
-                        break
-                    if until is not None and until(self):
-                        reason = "until"
+                    stop = self._stop_check(until)
+                    if stop:
+                        reason = stop
                         break
             else:
                 reason = "duration"
@@ -802,11 +809,9 @@ class ServoLoop:
                 if n % cfg.until_every == 0:
                     self.ticks = n
                     self.time_s = t
-                    if self.stop_requested:
-                        reason = "stopped"
-                        break
-                    if until is not None and until(self):
-                        reason = "until"
+                    stop = self._stop_check(until)
+                    if stop:
+                        reason = stop
                         break
         finally:
             self.ticks = n
