@@ -12,8 +12,8 @@ from stimuli.hfam.pipeline import PipelineSettings
 from . import runs
 from .cache import default_cache_base
 from .config import DemoConfig
-from .report import format_reactive, format_table
-from .sim_demo import run_sim_demo
+from .report import format_reactive
+from .sim_demo import format_table, run_sim_demo
 
 
 # ---------------------------------------------------------------------------------------------- CLI

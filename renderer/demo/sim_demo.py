@@ -140,6 +140,69 @@ def summarize(cfg: DemoConfig, traces: dict, library) -> list[dict]:
     return rows
 
 
+def penetration_cuts(cfg: DemoConfig, rows: list[dict]) -> dict:
+    """Fraction by which each transient rendering cuts the mean penetration of its wall alone (section 4.5.5).
+
+    Pairs every rendering with a transient with the plain wall of the same
+    stiffness; means over all velocities x grips. Returns name -> 1 - pen/pen_wall.
+    """
+    def pen(name):
+        vals = [x["penetration_mean_m"] for x in rows if x["rendering"] == name and math.isfinite(x["penetration_mean_m"])]
+        return float(np.mean(vals)) if vals else math.nan
+
+    walls = {r.stiffness_N_m: r.name for r in cfg.renderings if r.transient == "none" and not r.is_real}
+    out = {}
+    for r in cfg.renderings:
+        if r.transient != "none" and r.stiffness_N_m in walls:
+            p_tr, p_wall = pen(r.name), pen(walls[r.stiffness_N_m])
+            if math.isfinite(p_tr) and p_wall > 0:
+                out[r.name] = 1.0 - p_tr / p_wall
+    return out
+
+
+def format_table(cfg: DemoConfig, rows: list[dict], library) -> str:
+    """The printed table: one line per rendering (means over velocities x grips; see the header)."""
+    lib_lo, lib_hi = float(library.velocities_m_s[0]), float(library.velocities_m_s[-1])
+    lines = [
+        f"Renderings tapped by the simulated user at {', '.join(f'{v:g}' for v in cfg.velocities_m_s)} m/s x "
+        f"grips {', '.join(f'{g:g}' for g in cfg.grips_N)} N ({cfg.taps} tap(s) each).",
+        f"NRMSE and correlation: handle acceleration vs the real sample at the same velocity, 20-1000 Hz, "
+        f"mean over velocities inside the library range ({lib_lo:.3f}-{lib_hi:.3f} m/s); other columns: "
+        f"mean (dominant frequency: median) over all taps.",
+        f"{'rendering':22s} {'peak a m/s2':>11} {'f_dom Hz':>8} {'pen mm':>7} {'NRMSE':>6} {'corr':>6} "
+        f"{'clipped':>8}",
+    ]
+    for r in cfg.renderings:
+        rr = [x for x in rows if x["rendering"] == r.name]
+        inr = [x for x in rr if x["in_library_range"]]
+
+        def m(key, sel=rr):
+            vals = [x[key] for x in sel if math.isfinite(x[key])]
+            return float(np.mean(vals)) if vals else math.nan
+
+        f_dom = float(np.nanmedian([x["dominant_freq_hz"] for x in rr]))
+        clipped = sum(x["clipped"] for x in rr)
+        taps = sum(x["taps"] for x in rr)
+        lines.append(f"{r.name:22s} {m('peak_accel_m_s2'):11.1f} {f_dom:8.0f} {m('penetration_mean_m') * 1e3:7.2f} "
+                     f"{m('nrmse', inr):6.3f} {m('correlation', inr):6.3f} {clipped:>4d}/{taps:<3d}")
+    cuts = penetration_cuts(cfg, rows)
+    if cuts:
+        lines.append("Mean penetration cut by the transient vs the same wall alone: "
+                     + ", ".join(f"{name} {cut * 100:.0f} %" for name, cut in cuts.items())
+                     + " (thesis 4.5.5: about a factor of two; docs/demo.md, 'The simulated tap')")
+    out_of_range = [v for v in cfg.velocities_m_s if not lib_lo <= v <= lib_hi]
+    hf = [x for x in rows if x["rendering"] == "hfam_firm"]
+    if out_of_range and hf:
+        parts = []
+        for v in out_of_range:
+            sel = [x for x in hf if x["velocity_m_s"] == v]
+            parts.append(f"{v:g} m/s NRMSE {np.mean([x['nrmse'] for x in sel]):.2f}, corr "
+                         f"{np.mean([x['correlation'] for x in sel]):.2f}, clipped {sum(x['clipped'] for x in sel)}"
+                         f"/{sum(x['taps'] for x in sel)}")
+        lines.append("HFAM over firm beyond the library range (extrapolated transient): " + "; ".join(parts))
+    return "\n".join(lines)
+
+
 #: tap speeds (m/s) of the reactive-hand penetration check: section 4.5.5's slow-to-moderate taps
 REACTIVE_VELOCITY_RANGE_M_S = (0.05, 0.15)
 _REACTIVE_RENDERINGS = ("firm", "pulse_firm", "hfam_firm")

@@ -161,7 +161,7 @@ def test_summary_csv_has_one_row_per_condition(result):
 
 
 def test_table_and_figures(result, tmp_path):
-    text = report.format_table(result.cfg, result.rows, result.pipeline.library)
+    text = sim_demo.format_table(result.cfg, result.rows, result.pipeline.library)
     for r in result.cfg.renderings:
         assert r.name in text
     assert "beyond the library range" in text  # 0.3 m/s is reported as extrapolated
