@@ -1,4 +1,9 @@
-"""``python -m analysis <command>``: each command lives in its own module with ``register(subparsers)``."""
+"""``python -m analysis <command>``: analyse a study folder, or write a synthetic one.
+
+Its own small dispatcher (analysis imports none of the other packages, so it
+cannot share :mod:`devices.dispatch`); same rule: the commands are a table,
+a command's module is imported only when it runs or its ``--help`` is asked.
+"""
 
 from __future__ import annotations
 
@@ -7,15 +12,25 @@ import importlib
 import os
 import sys
 
-# command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ("analysis.cli_report", "analysis.cli_synthetic")
+#: (name, module, help); each module has ``register(subparsers)``
+COMMAND_TABLE = (
+    ("report", "analysis.cli_report", "analyse a study folder: tables, figures, report.md/.html"),
+    ("synthetic", "analysis.cli_synthetic", "write a synthetic study folder in the study's data format"),
+)
 
 
 def main(argv=None) -> int:
+    """Run ``python -m analysis`` with ``argv`` (default: the command line); returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(prog="python -m analysis", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    sub = parser.add_subparsers(dest="command", required=True,
+                                metavar="{" + ",".join(name for name, _, _ in COMMAND_TABLE) + "}")
+    wanted = next((a for a in argv if not a.startswith("-")), None)
+    for name, module, help_text in COMMAND_TABLE:
+        if name == wanted:
+            importlib.import_module(module).register(sub)
+        else:
+            sub.add_parser(name, help=help_text)  # placeholder: lists the command, imports nothing
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -1,44 +1,24 @@
-"""``python -m devices <command>``: each command lives in its own module with ``register(subparsers)``."""
+"""``python -m devices <command>``: record taps, identify a device, fit a model, emulate the firmware, measure latency."""
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import os
-import sys
+from devices.dispatch import Command, main as dispatch, run_as_script
 
-from devices.base import DeviceError
-
-# command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES = ("devices.cli_record", "devices.cli_identify", "devices.cli_hardware")
+#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+COMMANDS = (
+    Command("record", "devices.cli_record", "tap a sample and record 100 ms of handle acceleration per tap (CSV)"),
+    Command("identify", "devices.cli_identify", "record swept sines at several grips and fit a model set (H_ha and G_i)"),
+    Command("fit", "devices.cli_identify", "fit a model to swept-sine recordings made anywhere"),
+    Command("emulate", "devices.cli_hardware",
+            "firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)"),
+    Command("latency", "devices.cli_hardware", "measure command->state round trip and achieved update rate of a device"),
+)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m devices", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        module.register(sub)
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    """Run ``python -m devices`` with ``argv`` (default: the command line); returns the exit code."""
+    return dispatch("python -m devices", __doc__.splitlines()[0], COMMANDS, argv)
 
 
 if __name__ == "__main__":
-    try:
-        code = main()
-        sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
-    except BrokenPipeError:
-        # recipe of the Python docs (signal module, "Note on SIGPIPE"): point stdout at devnull so the
-        # interpreter's final flush cannot raise again, and exit 1 without a traceback
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        sys.exit(1)
-    sys.exit(code)
+    run_as_script(main)

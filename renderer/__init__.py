@@ -3,19 +3,35 @@
 Public API (contract in docs/architecture.md, "renderer")::
 
     from renderer import ServoLoop, RendererConfig, RunResult, ContactEvent
+
+The names are loaded on first use (PEP 562 ``__getattr__``), so ``python -m renderer --help`` does not
+import the servo loop.
 """
 
-from .config import RendererConfig, config_from_dict, load_config, load_scene
-from .loop import LOG_CHANNELS, ContactEvent, RunResult, ServoLoop
-from .scene import Box, Plane, Scene, Sphere, Wall, parse_scene
+import importlib
+
+_EXPORTS = {
+    "RendererConfig": "config", "config_from_dict": "config", "load_config": "config", "load_scene": "config",
+    "LOG_CHANNELS": "loop", "ContactEvent": "loop", "RunResult": "loop", "ServoLoop": "loop",
+    "Box": "scene", "Plane": "scene", "Scene": "scene", "Sphere": "scene", "Wall": "scene", "parse_scene": "scene",
+}
 
 __all__ = ["ServoLoop", "RendererConfig", "RunResult", "ContactEvent", "LOG_CHANNELS", "load_config",
            "config_from_dict", "load_scene", "Scene", "Wall", "Plane", "Sphere", "Box", "parse_scene",
            "run_in_process"]
 
 
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'renderer' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)  # deferred: keeps --help fast
+    globals()[name] = value
+    return value
+
+
 def run_in_process(*args, **kwargs):
     """Run a servo loop in its own process (see :func:`renderer.process.run_in_process`)."""
-    from .process import run_in_process as _run
+    from .process import run_in_process as _run  # deferred: multiprocessing set-up only when used
 
     return _run(*args, **kwargs)

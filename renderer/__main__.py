@@ -1,38 +1,21 @@
-"""``python -m renderer <command>``: each command lives in its own module with ``register(subparsers)``."""
+"""``python -m renderer <command>``: render a virtual wall, or run the virtual-wall demo."""
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import os
-import sys
+from devices.dispatch import Command, main as dispatch, run_as_script
 
-from devices.base import DeviceError
-
-# command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ("renderer.cli_run", "renderer.demo.cli_demo")
+#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+COMMANDS = (
+    Command("run", "renderer.cli_run", "render a virtual wall under a simulated or real user tapping"),
+    Command("demo", "renderer.demo.cli_demo",
+            "virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample"),
+)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m renderer", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    """Run ``python -m renderer`` with ``argv`` (default: the command line); returns the exit code."""
+    return dispatch("python -m renderer", __doc__.splitlines()[0], COMMANDS, argv)
 
 
 if __name__ == "__main__":
-    try:
-        code = main()
-        sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
-    except BrokenPipeError:
-        # recipe of the Python docs (signal module, "Note on SIGPIPE"): point stdout at devnull so the
-        # interpreter's final flush cannot raise again, and exit 1 without a traceback
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        sys.exit(1)
-    sys.exit(code)
+    run_as_script(main)

@@ -1,10 +1,22 @@
 """Event-based contact transients: parametric pulses and decaying sinusoids, HFAM libraries, the sample catalog.
 
 See docs/architecture.md ("stimuli") for the contract and docs/hfam_library.md for the library file.
+The names are loaded on first use (PEP 562 ``__getattr__``), so ``python -m stimuli --help`` stays fast.
 """
 
-from .catalog import CatalogSample, load_catalog
-from .library import HfamLibrary
-from .transients import DecayingSinusoid, NoTransient, Pulse, Transient
+import importlib
+
+_EXPORTS = {"CatalogSample": "catalog", "load_catalog": "catalog", "HfamLibrary": "library",
+            "DecayingSinusoid": "transients", "NoTransient": "transients", "Pulse": "transients",
+            "Transient": "transients"}
 
 __all__ = ["Pulse", "DecayingSinusoid", "NoTransient", "HfamLibrary", "Transient", "CatalogSample", "load_catalog"]
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'stimuli' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)  # deferred: keeps --help fast
+    globals()[name] = value
+    return value

@@ -1,38 +1,22 @@
-"""``python -m stimuli <command>``: each command lives in its own module with ``register(subparsers)``."""
+"""``python -m stimuli <command>``: build, show and rebuild HFAM transient libraries."""
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import os
-import sys
+from devices.dispatch import Command, main as dispatch, run_as_script
 
-from devices.base import DeviceError
-
-# command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ("stimuli.cli_build", "stimuli.cli_show", "stimuli.cli_sim_library")
+#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+COMMANDS = (
+    Command("build-library", "stimuli.cli_build", "build an HFAM transient library (section 4.4.1)"),
+    Command("show", "stimuli.cli_show", "plot an HFAM library (accelerations and currents per velocity/grip) to a PNG"),
+    Command("sim-library", "stimuli.cli_sim_library",
+            "record simulated taps and build the shipped default library through the sim's LTI models"),
+)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m stimuli", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    """Run ``python -m stimuli`` with ``argv`` (default: the command line); returns the exit code."""
+    return dispatch("python -m stimuli", __doc__.splitlines()[0], COMMANDS, argv)
 
 
 if __name__ == "__main__":
-    try:
-        code = main()
-        sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
-    except BrokenPipeError:
-        # recipe of the Python docs (signal module, "Note on SIGPIPE"): point stdout at devnull so the
-        # interpreter's final flush cannot raise again, and exit 1 without a traceback
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        sys.exit(1)
-    sys.exit(code)
+    run_as_script(main)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal
 
 from ..base import Device, DeviceState, Status
 from . import kernel as K
@@ -125,7 +124,9 @@ class SimDevice(Device):
 
             p[K.P_MH] = pr.lti["handle_mass_kg"]
             a, b, c, d = lti_transmission_ss(pr.lti)
-            ad, bd, cd, dd, _ = signal.cont2discrete((a, b, c, d), dt, method="zoh")
+            from scipy.signal import cont2discrete  # deferred: ~1 s import, only the sim:lti branch needs it
+
+            ad, bd, cd, dd, _ = cont2discrete((a, b, c, d), dt, method="zoh")
             n = ad.shape[0]
             if n > K.LTI_MAX_ORDER:
                 raise ValueError(f"{pr.source}: LTI transmission order {n} exceeds {K.LTI_MAX_ORDER}")

@@ -1,0 +1,88 @@
+"""The ``python -m <package> <command>`` dispatcher shared by devices, renderer, stimuli and study.
+
+Each package's ``__main__`` lists its commands once, as a table of
+:class:`Command` (name, module, one-line help). ``--help`` of the package
+lists them without importing a single command module; only the command that
+runs (or whose ``--help`` is asked) is imported, and its module's
+``register(subparsers)`` builds its parser. So ``python -m renderer --help``
+does not pay for numba, scipy.signal or matplotlib.
+
+Errors the user can fix (:class:`ValueError`, :class:`FileNotFoundError`,
+:class:`devices.base.DeviceError`) print one ``error: ...`` line and exit 2;
+a reader that goes away (``| head``) exits 1 without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from typing import NamedTuple, Sequence
+
+from .base import DeviceError
+
+
+class Command(NamedTuple):
+    """One subcommand: its name, the module that implements it (``register(subparsers)``), its help line."""
+
+    name: str
+    module: str
+    help: str
+
+
+def build_parser(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str]):
+    """The package's parser; only the command named in ``argv`` (if any) is imported and registered.
+
+    Parameters
+    ----------
+    prog, description : str
+        Shown by ``--help``.
+    commands : sequence of Command
+    argv : sequence of str
+        The arguments; the first one that is not an option names the command.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+    """
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{" + ",".join(c.name for c in commands) + "}")
+    wanted = next((a for a in argv if not a.startswith("-")), None)
+    for c in commands:
+        if c.name == wanted:
+            importlib.import_module(c.module).register(sub)  # may register its sibling commands too
+    for c in commands:
+        if c.name not in sub.choices:
+            sub.add_parser(c.name, help=c.help)  # placeholder: lists the command, imports nothing
+    return parser
+
+
+def main(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` (default ``sys.argv[1:]``), run the command and return its exit code.
+
+    Returns
+    -------
+    int
+        The command's exit code; 2 after an ``error:`` line for a user error.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(prog, description, commands, argv).parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def run_as_script(main_func) -> None:
+    """``if __name__ == "__main__"`` body: run ``main_func()`` and exit with its code; quiet on a broken pipe."""
+    try:
+        code = main_func()
+        sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
+    except BrokenPipeError:
+        # recipe of the Python docs (signal module, "Note on SIGPIPE"): point stdout at devnull so the
+        # interpreter's final flush cannot raise again, and exit 1 without a traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(1)
+    sys.exit(code)
