@@ -1,12 +1,10 @@
 /* Framing and CRC of docs/protocol.md; mirrors devices/protocol.py (FrameParser, crc16_bitwise). */
 #include "hfam_protocol.h"
 
+/* The bitwise loop (~110 AVR cycles per byte) pushed the 4 kHz servo tick over its 4,000-cycle
+ * budget in simavr; hfam_crc16_byte (hfam_protocol.h) is the byte-wise update. */
 uint16_t hfam_crc16(uint16_t crc, const uint8_t *data, uint16_t n) {
-    while (n--) {
-        crc ^= (uint16_t)(*data++) << 8;
-        for (uint8_t i = 0; i < 8; i++)
-            crc = (crc & 0x8000) ? (uint16_t)((crc << 1) ^ 0x1021) : (uint16_t)(crc << 1);
-    }
+    while (n--) crc = hfam_crc16_byte(crc, *data++);
     return crc;
 }
 
@@ -26,16 +24,22 @@ static uint8_t known_type(uint8_t t) {
            (t >= MSG_INFO && t <= MSG_PONG);
 }
 
-/* 0: need more bytes, 1: complete CRC-valid frame, 2: not a frame (bad sync/type/CRC). */
+/* 0: need more bytes, 1: complete CRC-valid frame, 2: not a frame (bad sync/type/CRC).
+ * The CRC runs along as bytes arrive (p->crc), so completing a long frame costs no CRC pass. */
 static uint8_t check(hfam_parser_t *p) {
     const uint8_t *b = p->buf;
     uint16_t pos = p->pos;
     if (pos >= 2 && b[1] != HFAM_SYNC1) return 2;
     if (pos >= 4 && !known_type(b[3])) return 2;
     if (pos < 5 || pos < (uint16_t)b[2] + HFAM_OVERHEAD) return 0;
-    if (hfam_crc16(0xFFFF, b + 2, (uint16_t)b[2] + 3) == get_u16(b + 5 + b[2])) return 1;
+    if (p->crc == get_u16(b + 5 + b[2])) return 1;
     p->crc_errors++;
     return 2;
+}
+
+static void crc_add(hfam_parser_t *p, uint16_t i) {
+    if (i == 2) p->crc = 0xFFFF;
+    if (i >= 2 && i < (uint16_t)p->buf[2] + 5) p->crc = hfam_crc16_byte(p->crc, p->buf[i]);
 }
 
 /* Byte-at-a-time version of the Python FrameParser: on a rejected candidate, resume the sync
@@ -47,7 +51,9 @@ uint8_t hfam_parse_byte(hfam_parser_t *p, uint8_t byte) {
         p->garbage++;
         return 0;
     }
-    b[p->pos++] = byte;
+    b[p->pos] = byte;
+    crc_add(p, p->pos);
+    p->pos++;
     for (;;) {
         uint8_t r = check(p);
         if (r == 0) return 0;
@@ -61,5 +67,6 @@ uint8_t hfam_parse_byte(hfam_parser_t *p, uint8_t byte) {
         for (uint16_t j = i; j < n; j++) b[j - i] = b[j];
         p->pos = n - i;
         if (p->pos == 0) return 0;
+        for (uint16_t j = 2; j < p->pos; j++) crc_add(p, j); /* resync (errors only): CRC of what is kept */
     }
 }
