@@ -482,14 +482,14 @@ static void sh_send(uint8_t type, const uint8_t *p, uint8_t n) {
     uint16_t len = hfam_encode(f, type, sh_seq++, p, n);
     host_push(f, len);
 }
-static int sh_stage;
+static int sh_stage, sh_decimation = 1;
 static double sh_next_t, sh_rearm_t;
 static void selfhost_step(void) {
     double t = avr->cycle / (double)F_CPU_HZ;
     uint8_t p[64];
     if (sh_stage == 0 && t > 0.002) {
         put_u16(p, 0x0001); sh_send(MSG_HELLO, p, 2);
-        p[0] = 1; put_u16(p + 1, 1); sh_send(MSG_SET_MODE, p, 3); /* on-device, telemetry every tick */
+        p[0] = 1; put_u16(p + 1, (uint16_t)sh_decimation); sh_send(MSG_SET_MODE, p, 3); /* on-device rendering */
         sh_send(MSG_CLEAR_FAULTS, p, 0);
         put_f32(p, 0.0f); put_f32(p + 4, 1000.0f); put_f32(p + 8, 1.0f); put_f32(p + 12, 0.001f);
         sh_send(MSG_WALL, p, 16);
@@ -620,6 +620,7 @@ int main(int argc, char **argv) {
         else if (OPT("--fault")) parse_faults(val);
         else if (OPT("--seed")) rng_state = (unsigned)atoi(val);
         else if (!strcmp(a, "--selfhost")) selfhost = 1;
+        else if (OPT("--decimation")) sh_decimation = atoi(val) < 1 ? 1 : atoi(val);
         else if (OPT("--profile")) profile = atoi(val); /* GPIOR0 mark to profile: 1 tick, 3 frame */
         else { fprintf(stderr, "error: unknown or incomplete option %s\n", a); return 2; }
     }

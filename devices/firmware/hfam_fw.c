@@ -106,7 +106,7 @@ static uint8_t tx_begin(uint16_t n) {
     tx_crc = 0xFFFF;
     return 1;
 }
-static inline void tx_put(uint8_t c, uint8_t crc) {
+static inline __attribute__((always_inline)) void tx_put(uint8_t c, uint8_t crc) {
     tx_buf[tx_w] = c;
     tx_w = (uint8_t)(tx_w + 1);
     if (crc) tx_crc = hfam_crc16_byte(tx_crc, c);
@@ -142,12 +142,18 @@ ISR(TIMER1_COMPA_vect) {
     tick_flag = 1;
 }
 
-static uint16_t adc_read(uint8_t channel) {
+static void adc_start(uint8_t channel) {
     ADMUX = _BV(REFS0) | (channel & 0x07);
     ADCSRA |= _BV(ADSC);
+}
+static uint16_t adc_result(void) {
     while (ADCSRA & _BV(ADSC)) {
     }
     return ADC;
+}
+static uint16_t adc_read(uint8_t channel) {
+    adc_start(channel);
+    return adc_result();
 }
 
 static float applied_A;
