@@ -719,9 +719,10 @@ int main(int argc, char **argv) {
         if (!selfhost) {
             if (pace_realtime) {
                 double ahead = sim_s / speed - (now - t0);
-                if (ahead > 0.0005) {
+                if (ahead > 0.0002) { /* ahead of the wall clock: sleep, but wake at once for host bytes */
                     struct pollfd pfd = {master_fd, POLLIN, 0};
-                    poll(&pfd, master_fd >= 0 ? 1 : 0, (int)(ahead * 1000));
+                    struct timespec ts = {0, (long)(ahead * 1e9)};
+                    ppoll(&pfd, master_fd >= 0 ? 1 : 0, &ts, NULL);
                 } else if (-ahead > max_lag) max_lag = -ahead;
             } else {
                 /* fast: run while the host keeps up; wait while it has unread telemetry or output is blocked */

@@ -309,12 +309,20 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
     stats = Path(tmp.name) / "stats.json"
     cmd = _harness_cmd(b, stats, pace=pace, speed=speed, taps_m_s=taps_m_s, hold_m=hold_m, grip_N=grip_N,
                        faults=faults, seed=seed)
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    ready, _, _ = select.select((proc.stdout,), (), (), startup_timeout_s)
-    line = proc.stdout.readline() if ready else ""
-    if not line.startswith("PORT "):
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.monotonic() + startup_timeout_s
+    fd = proc.stdout.fileno()
+    out = b""
+    while b"PORT " not in out or not out.split(b"PORT ", 1)[1].count(b"\n"):  # libsimavr prints "Loaded ..." first
+        ready, _, _ = select.select((fd,), (), (), max(0.0, deadline - time.monotonic()))
+        chunk = os.read(fd, 4096) if ready else b""
+        if not chunk:
+            break
+        out += chunk
+    line = ("PORT " + out.split(b"PORT ", 1)[1].split(b"\n")[0].decode()) if b"PORT " in out else out.decode()
+    if not line.startswith("PORT ") or "\n" in line:
         proc.kill()
-        err = proc.stderr.read() if proc.stderr else ""
+        err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
         proc.wait()
         tmp.cleanup()
         raise FwSimError(f"simavr harness did not report its pty within {startup_timeout_s:g} s: {line!r} {err}")
