@@ -263,7 +263,8 @@ static avr_cycle_count_t phys_cb(avr_t *a, avr_cycle_count_t when, void *param) 
         a_meas = (v - v0) / dt;
     } else {
         if (hand_mode == HAND_TAP) hand_target(dt);
-        else x_target = hold_m;
+        else if (x_target < hold_m) x_target = fmin(hold_m, x_target + 0.05 * dt); /* lift from home, 5 cm/s */
+        else x_target = fmax(hold_m, x_target - 0.05 * dt);
         double f = FORCE_PER_AMP * i_motor + k_hand * (x_target - x) - b_hand * v - b_paddle * v;
         double acc = f / m_paddle;
         v += acc * dt; /* semi-implicit Euler */
@@ -657,7 +658,6 @@ int main(int argc, char **argv) {
     avr_register_io_write(avr, A_GPIOR0, gpior0_write, NULL);
     x = x_target = 0.0; /* powered up at the home position: the encoder's zero */
     if (hand_mode == HAND_SWEEP) x = sweep_amp_m, x_target = x;
-    if (hand_mode == HAND_HOLD) x = x_target = hold_m;
     enc_true = enc_emitted = enc_c0 = enc_count_of(x);
     set_pins(enc_true);
     set_adc(0, ACCEL_OFFSET);

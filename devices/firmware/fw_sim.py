@@ -352,6 +352,10 @@ class FwSimDevice(SerialDevice):
             raise ValueError(f"fw-sim: pace must be 'realtime' or 'fast', got {pace!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
         self.handle: FwSimHandle | None = None
+        if pace == "fast" and options.get("watchdog_ms") is None:
+            # simulated time outruns the host's clock (keepalives every watchdog_ms/4 of wall time):
+            # give the firmware watchdog room, or it trips between two keepalives
+            options["watchdog_ms"] = 2000
         super().__init__("(not started)", **options)
 
     @property
