@@ -209,6 +209,8 @@ static float rearm_buf[REARM_MAX];
 static uint16_t rearm_n, rearm_pending_n;
 static uint8_t rearm_pending;
 static float vel_ring[VEL_WINDOW];
+static uint16_t vel_tick[VEL_WINDOW]; /* servo period number of each sample (low 16 bits) */
+static uint16_t render_tick_n; /* servo period number of the current tick (low 16 bits) */
 static uint8_t vel_i, vel_filled;
 static uint8_t armed, in_event, ev_clipped, ev_kind, clipping, over_temp;
 static float temp_rise_K; /* first-order winding model: dT = (i^2 R_w R_th - T) dt / tau */
@@ -300,11 +302,14 @@ static void finish_event(void) {
 static float render_tick(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_t grip_raw) {
     float x = (float)cal_sign * (float)(enc - cal_zero) * POS_RES_M;
     float old = vel_ring[vel_i];
+    uint16_t tick_now = render_tick_n, ticks = (uint16_t)(tick_now - vel_tick[vel_i]);
     vel_ring[vel_i] = x;
+    vel_tick[vel_i] = tick_now;
     vel_i = (uint8_t)((vel_i + 1) % VEL_WINDOW);
     float v = 0.0f;
     if (vel_filled < VEL_WINDOW) vel_filled++;
-    else v = (x - old) * ((float)SERVO_HZ / VEL_WINDOW);
+    else if (ticks == VEL_WINDOW) v = (x - old) * ((float)SERVO_HZ / VEL_WINDOW);
+    else v = (x - old) * ((float)SERVO_HZ / (float)ticks); /* a late tick: divide by the time that passed */
     float pen = wall_h - x;
     if (rearm_pending && !in_event && tr_k >= tr_n) {
         rearm_n = rearm_pending_n;
@@ -523,7 +528,10 @@ static void handle_frame(void) {
 /* One servo period (Timer1 flag): watchdog, then on-board rendering and telemetry. */
 static uint8_t dec_count;
 static void servo_tick_body(void) {
-    uint32_t t_us = now_us();
+    uint32_t tk;
+    cli(); tk = tick_count; sei(); /* 32-bit counter written by the timer interrupt: read it whole */
+    uint32_t t_us = tk * (1000000UL / SERVO_HZ);
+    render_tick_n = (uint16_t)tk;
     /* device-side watchdog: no command within watchdog_ms -> zero current, latched, reported */
     if (watchdog_armed && !tripped && (tick_count - last_cmd_tick) * 1000UL > (uint32_t)watchdog_ms * SERVO_HZ) {
         tripped = 1;
@@ -553,9 +561,13 @@ static void servo_tick(void) {
     TRACE_MARK(MARK_TICK_END);
 }
 
-/* Parse received bytes; stop as soon as a servo tick is due (the tick goes first, always). */
+/* Parse received bytes; stop when a servo tick is due (the tick goes first), but take at least
+ * RX_MIN_PER_LOOP bytes per pass: when ticks overrun, the host's frames (keepalives!) still get in. */
+#define RX_MIN_PER_LOOP 24
 static void service_uart(void) {
-    while (rx_tail != rx_head && !tick_flag) {
+    uint8_t n = 0;
+    while (rx_tail != rx_head && (!tick_flag || n < RX_MIN_PER_LOOP)) {
+        n++;
         uint8_t c = rx_buf[rx_tail];
         rx_tail = (uint8_t)((rx_tail + 1) & (RX_SIZE - 1));
         if (hfam_parse_byte(&parser, c)) {
