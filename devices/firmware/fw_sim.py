@@ -66,7 +66,18 @@ def _deps_root() -> Path:
 
 
 def tool(name: str) -> str | None:
-    """Path of program ``name``: ``<repo>/.deps/bin`` first, then ``PATH``."""
+    """Path of program ``name``: ``<repo>/.deps/bin`` first, then ``PATH``.
+
+    Parameters
+    ----------
+    name : str
+        Program name (``"avr-gcc"``, ``"avr-nm"``, ``"cc"``, ``"make"``).
+
+    Returns
+    -------
+    str or None
+        Full path, or None when it is nowhere to be found.
+    """
     sd = _sysdeps()
     if sd is not None:
         return sd.tool(name)
@@ -85,7 +96,18 @@ def _tool_env() -> dict:
 
 
 def simavr_flags() -> tuple[list[str], list[str]]:
-    """``-I``/``-L``/rpath flags for libsimavr: ``<repo>/.deps/root/usr/...`` when provisioned, else the system."""
+    """``-I``/``-L``/rpath flags for libsimavr: ``<repo>/.deps/root/usr/...`` when provisioned, else the system.
+
+    Returns
+    -------
+    cflags, ldflags : list of str
+        ``-I<include>/simavr``; ``-L<lib> -Wl,-rpath,<lib>`` (provisioned only) ``-lsimavr -lm``.
+
+    Raises
+    ------
+    FwSimError
+        No simavr headers anywhere.
+    """
     root = _deps_root() / "root" / "usr"
     cflags, ldflags = [], []
     for inc in (root / "include", Path("/usr/include"), Path("/usr/local/include")):
@@ -303,6 +325,17 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
     faults : str or None
         Device -> host faults as the emulator's ``--fault``: ``drop=P,corrupt=P,garbage=P,duplicate=P,
         disconnect_after_s=T`` (T in simulated seconds after the host's first byte).
+    hold_m : float or None
+        With no taps: the handle height (m) the hand lifts the paddle to from its power-up position 0.
+    grip_N : float
+        Grip force the FSR channel (ADC1) reads, N.
+    seed : int
+        Seed of the fault injection.
+
+    Returns
+    -------
+    port, handle : str, FwSimHandle
+        The pty's slave path (open it with ``serial:<port>``) and the running harness.
     """
     b = build()
     tmp = tempfile.TemporaryDirectory(prefix="fw-sim-")
@@ -385,7 +418,22 @@ class FwSimDevice(SerialDevice):
 
 # -- timing report ---------------------------------------------------------------------------------
 def run_selfhosted(sweep_m_s, decimation: int = 1, timeout_s: float = 120.0) -> dict:
-    """The scripted worst case with no pty (see module doc); returns the harness's final stats."""
+    """The scripted worst case with no pty (see module doc).
+
+    Parameters
+    ----------
+    sweep_m_s : sequence of float
+        Paddle speeds (m/s); the paddle moves down and up through +-5 mm once at each.
+    decimation : int
+        Telemetry every N servo ticks.
+    timeout_s : float
+        Wall-clock limit of the run.
+
+    Returns
+    -------
+    dict
+        The harness's final stats (``tick_cycles``, ``isr``, ``sweeps``, ...) and ``build`` sizes.
+    """
     b = build()
     with tempfile.TemporaryDirectory(prefix="fw-sim-") as tmp:
         stats = Path(tmp) / "stats.json"
@@ -435,7 +483,18 @@ def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), dec
 
 
 def format_report(r: dict) -> str:
-    """The report as text (what ``python -m devices firmware-report`` prints)."""
+    """The report as text (what ``python -m devices firmware-report`` prints).
+
+    Parameters
+    ----------
+    r : dict
+        What :func:`timing_report` returned.
+
+    Returns
+    -------
+    str
+        One line per measurement.
+    """
     tk, bd, ram = r["tick"], r["tick_body"], r["ram"]
     lines = [
         f"firmware on simavr: ATmega328P at {r['f_cpu_hz'] / 1e6:g} MHz, servo {r['servo_hz']} Hz "
