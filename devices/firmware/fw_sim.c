@@ -680,6 +680,7 @@ int main(int argc, char **argv) {
         printf("PORT %s\n", name);
         fflush(stdout);
     }
+    pid_t parent = getppid();
     double t0 = wall_s(), last_stats = t0, max_lag = 0;
     avr_cycle_count_t next_service = SERVICE_CYCLES;
     int state = cpu_Running;
@@ -734,7 +735,11 @@ int main(int argc, char **argv) {
                 }
             }
         }
-        if (now - last_stats > 0.05) { write_stats(0); last_stats = now; }
+        if (now - last_stats > 0.05) {
+            write_stats(0);
+            last_stats = now;
+            if (getppid() != parent) break; /* the host program is gone: do not run on as an orphan */
+        }
     }
     write_stats(1);
     if (profile)
