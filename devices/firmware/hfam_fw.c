@@ -210,6 +210,9 @@ static uint16_t rearm_n, rearm_pending_n;
 static uint8_t rearm_pending;
 static float vel_ring[VEL_WINDOW];
 static uint16_t vel_tick[VEL_WINDOW]; /* servo period number of each sample (low 16 bits) */
+/* SERVO_HZ / k for a window of k ticks, without a division in the tick */
+static const float VEL_RATE[2 * VEL_WINDOW] = {0.0f, SERVO_HZ / 1.0f, SERVO_HZ / 2.0f, SERVO_HZ / 3.0f, SERVO_HZ / 4.0f,
+                                               SERVO_HZ / 5.0f, SERVO_HZ / 6.0f, SERVO_HZ / 7.0f};
 static uint16_t render_tick_n; /* servo period number of the current tick (low 16 bits) */
 static uint8_t vel_i, vel_filled;
 static uint8_t armed, in_event, ev_clipped, ev_kind, clipping, over_temp;
@@ -300,7 +303,8 @@ static void finish_event(void) {
 
 /* One on-device servo tick: same algorithm as FirmwareRenderer.tick. */
 static float render_tick(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_t grip_raw) {
-    float x = (float)cal_sign * (float)(enc - cal_zero) * POS_RES_M;
+    int32_t counts = enc - cal_zero;
+    float x = (float)(cal_sign < 0 ? -counts : counts) * POS_RES_M; /* one int->float, one multiply */
     float old = vel_ring[vel_i];
     uint16_t tick_now = render_tick_n, ticks = (uint16_t)(tick_now - vel_tick[vel_i]);
     vel_ring[vel_i] = x;
@@ -309,7 +313,8 @@ static float render_tick(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_
     float v = 0.0f;
     if (vel_filled < VEL_WINDOW) vel_filled++;
     else if (ticks == VEL_WINDOW) v = (x - old) * ((float)SERVO_HZ / VEL_WINDOW);
-    else v = (x - old) * ((float)SERVO_HZ / (float)ticks); /* a late tick: divide by the time that passed */
+    else if (ticks < 2 * VEL_WINDOW) v = (x - old) * VEL_RATE[ticks]; /* late ticks: the time that passed */
+    else v = (x - old) * ((float)SERVO_HZ / (float)ticks);
     float pen = wall_h - x;
     if (rearm_pending && !in_event && tr_k >= tr_n) {
         rearm_n = rearm_pending_n;

@@ -55,12 +55,14 @@
 #define ST_WATCHDOG_TRIPPED 4
 #define ST_CLIPPING 8
 
-/* CRC-16/CCITT-FALSE update by one byte: the XMODEM update (same polynomial 0x1021, no reflection;
- * only the initial value differs, and callers start at 0xFFFF). On the AVR, avr-libc's hand-written
- * _crc_xmodem_update (~20 cycles); elsewhere the shift-and-xor form of the same update. */
+/* CRC-16/CCITT-FALSE update by one byte (polynomial 0x1021, no reflection; callers start at 0xFFFF).
+ * On the AVR a table in flash; elsewhere the table-free shift-and-xor form of the same update. */
 #ifdef __AVR__
-#include <util/crc16.h>
-static inline uint16_t hfam_crc16_byte(uint16_t crc, uint8_t byte) { return _crc_xmodem_update(crc, byte); }
+#include <avr/pgmspace.h>
+extern const uint16_t hfam_crc_table[256] PROGMEM; /* 512 bytes of flash: ~12 cycles per byte, inlined */
+static inline uint16_t hfam_crc16_byte(uint16_t crc, uint8_t byte) {
+    return (uint16_t)((crc << 8) ^ pgm_read_word(&hfam_crc_table[(uint8_t)(crc >> 8) ^ byte]));
+}
 #else
 static inline uint16_t hfam_crc16_byte(uint16_t crc, uint8_t byte) {
     crc = (uint16_t)((crc >> 8) | (crc << 8));
