@@ -79,7 +79,7 @@ def tool(name: str) -> str | None:
         Full path, or None when it is nowhere to be found.
     """
     sd = _sysdeps()
-    if sd is not None:
+    if sd is not None and name != "make":  # make is a base tool, never provisioned
         return sd.tool(name)
     p = _deps_root() / "bin" / name
     if p.is_file() and os.access(p, os.X_OK):
@@ -88,6 +88,9 @@ def tool(name: str) -> str | None:
 
 
 def _tool_env() -> dict:
+    sd = _sysdeps()
+    if sd is not None:
+        return sd.tool_env()
     env = dict(os.environ)
     deps_bin = _deps_root() / "bin"
     if deps_bin.is_dir():
