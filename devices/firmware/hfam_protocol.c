@@ -1,4 +1,4 @@
-/* Framing and CRC of docs/protocol.md; mirrors devices/protocol.py (FrameParser, crc16_bitwise). */
+/* Framing and CRC of docs/protocol.md; mirrors devices/hardware/wire_protocol.py (FrameParser, crc16_bitwise). */
 #include "hfam_protocol.h"
 
 /* The bitwise loop (~110 AVR cycles per byte) pushed the 4 kHz servo tick over its 4,000-cycle
