@@ -33,7 +33,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..serial_device import SerialDevice
+from ..hardware.serial_device import SerialDevice
 
 FIRMWARE_DIR = Path(__file__).resolve().parent
 REPO = FIRMWARE_DIR.parents[1]
@@ -373,7 +373,7 @@ class FwSimDevice(SerialDevice):
 
     Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (realtime | fast), ``speed`` (times real time),
     ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``grip_N``, ``faults``, plus every
-    :class:`~devices.serial_device.SerialDevice` option (``mode``, ``timeout_s``, ...).
+    :class:`~devices.hardware.serial_device.SerialDevice` option (``mode``, ``timeout_s``, ...).
     """
 
     def __init__(self, pace: str = "realtime", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,

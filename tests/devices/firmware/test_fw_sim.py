@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from devices import DeviceError, Status
-from devices import protocol as P
+from devices.hardware import wire_protocol as P
 from devices.firmware import fw_sim
-from devices.firmware_logic import FirmwareRenderer
+from devices.firmware.logic import FirmwareRenderer
 from devices.registry import make_device
-from devices.serial_device import SerialDevice
+from devices.hardware.serial_device import SerialDevice
 
 WALL = {"height_m": 0.0, "stiffness_N_m": 1000.0, "damping_N_s_m": 0.5, "rearm_margin_m": 0.001}
 LIMITS = {"continuous_A": 0.8, "peak_A": 2.0, "amplifier_A": 2.0}
@@ -156,7 +156,7 @@ def test_firmware_watchdog_zeroes_the_motor_in_mcu_time():
 def test_link_faults_are_counted_and_survived(faults):
     port, handle = fw_sim.start_fw_sim(taps_m_s=(), faults=faults)
     try:
-        with SerialDevice(port) as dev:
+        with SerialDevice(port, timeout_s=0.05) as dev:  # a loaded machine may stall the simulator process
             for _ in range(500):
                 dev.read()
                 dev.command(0.1)
@@ -205,28 +205,6 @@ def test_device_string_and_bad_options():
         make_device("fw-sim?pace=warp")
     with pytest.raises(ValueError, match="taps must be"):
         make_device("fw-sim?taps=fast")
-
-
-def test_renderer_run_on_the_real_firmware(tmp_path, capsys):
-    """`renderer run --device fw-sim?mode=on-device`: the renderer's own command against the AVR firmware."""
-    import csv
-    import json
-
-    from renderer.__main__ import main as renderer_main
-
-    cfg = tmp_path / "cfg.toml"
-    cfg.write_text("watchdog_overrun_s = 0.2\n")
-    out = tmp_path / "run"
-    code = renderer_main(["run", "--in-process", "--device", "fw-sim?mode=on-device&pace=fast", "--duration", "1.5",
-                          "--transient", "pulse", "--config", str(cfg), "--out", str(out)])
-    stdout = capsys.readouterr().out
-    assert code == 0, stdout
-    run = json.loads((out / "run.json").read_text())
-    assert run["rate_hz"] == 4000.0 and run["stop_reason"] == "duration"
-    assert run["device"]["name"] == "hapkit-paddle"
-    with open(out / "events.csv") as fh:
-        events = list(csv.DictReader(fh))
-    assert len(events) >= 2 and all(e["transient"] == "pulse" for e in events)  # the hand's taps, on board
 
 
 def test_firmware_report_command(capsys):
