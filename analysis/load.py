@@ -52,7 +52,8 @@ class Study:
         floats in SI units, ``rating`` float with NaN when none, lists kept as strings) plus
         ``file`` (path of the trials.csv) and ``line`` (1-based line number in it).
     subjects : pandas.DataFrame
-        One row per subject: ``subject, experience, age, gender, handedness, finished, folder``.
+        One row per subject: ``subject, experience, age, gender, handedness, finished, seed,
+        software_version, device, folder`` (seed/version/device as session.json gives them, else None).
     catalog : tuple of str
         Sample names in catalog order (from ``session.json``'s ``catalog``).
     kinds : dict
@@ -134,7 +135,7 @@ def read_session(path: Path) -> dict:
     """Read and check one ``session.json``; errors name the file, line or key.
 
     Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
-    finished``.
+    finished, seed, software_version, device``.
     """
     try:
         text = path.read_text(encoding="utf-8")
@@ -161,6 +162,7 @@ def read_session(path: Path) -> dict:
         "subject": subject, "experience": exp, "catalog": names, "kinds": kinds,
         "age": raw.get("age"), "gender": raw.get("gender"), "handedness": raw.get("handedness"),
         "finished": raw.get("finished_at") is not None,
+        "seed": raw.get("seed"), "software_version": raw.get("software_version"), "device": raw.get("device"),
     }
 
 
@@ -435,7 +437,8 @@ def load_study(data_dir) -> Study:
             acc.extend(col)
         all_lines.extend(lines)
         file_of_row.append((str(trials_path), len(lines)))
-        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished")}
+        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
+                                               "seed", "software_version", "device")}
                          | {"folder": str(folder), "session_file": str(sess_path), "trials_file": str(trials_path)})
     subjects = pd.DataFrame(subj_rows)
     # object dtype: pandas' own string dtype costs more to build than the checks gain
