@@ -200,10 +200,16 @@ def pairwise_ttests(matrix: RatingMatrix, group: str) -> pd.DataFrame:
     n = ok.sum(axis=0)
     t = np.full(ia.size, np.nan)
     p, lo, hi, md, dz = t.copy(), t.copy(), t.copy(), t.copy(), t.copy()
-    # one vectorised ttest_rel per distinct subject set (usually a single call for all pairs)
-    patterns, inverse = np.unique(ok.T, axis=0, return_inverse=True)
+    # one vectorised ttest_rel per distinct subject set (usually a single call for all pairs); the
+    # sets are told apart by their bit-packed masks as byte strings: linear in the number of subjects
+    # (np.unique(ok.T, axis=0) sorts rows of n booleans, worse than linear)
+    packed = np.ascontiguousarray(np.packbits(ok, axis=0).T)
+    keys = packed.view(np.dtype((np.void, max(packed.shape[1], 1)))).reshape(-1) if packed.size else \
+        np.zeros(ia.size, dtype="V1")
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     inverse = np.asarray(inverse).reshape(-1)
-    for g, rows in enumerate(patterns):
+    for g, col0 in enumerate(first):
+        rows = ok[:, col0]
         cols = np.flatnonzero(inverse == g)
         if rows.sum() < 2:
             continue
