@@ -209,3 +209,18 @@ def test_report_has_no_horizontal_overflow_in_chromium(written):
         assert r["captions"] == 4 and max(r["imgs"]) <= width
     # the pairwise table is wider than a phone: it scrolls inside its box instead of widening the page
     assert max(w for _, w in results[390]["tables"]) > 390
+
+
+def test_figstyle_is_a_leaf_package():
+    """figstyle imports no project package, so every package may use it without a new arrow."""
+    import subprocess
+    import sys
+    code = ("import sys, figstyle, figstyle.gallery\n"
+            "bad = [m for m in ('devices', 'renderer', 'stimuli', 'study', 'analysis') if m in sys.modules]\n"
+            "assert not bad, bad\n")
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert figstyle.figsize("column")[0] == 3.5 and figstyle.figsize("slide")[0] == 10.0
+    with figstyle.style("slide") as plt:
+        assert plt.rcParams["font.size"] == pytest.approx(8 * figstyle.SLIDE_FONT_SCALE)
