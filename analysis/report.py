@@ -222,9 +222,25 @@ details{margin:.5rem 0}
 """
 
 
-def _table_html(df) -> str:
+# tables longer than this show their first rows in report.md/.html (the CSV has them all): a
+# per-subject table of 10,000 subjects would make the report megabytes long and slow to write
+REPORT_MAX_ROWS = 200
+
+
+def _shown(df, csv_name: str):
+    """``(rows shown, note)``: the first :data:`REPORT_MAX_ROWS` rows and a note naming the CSV."""
+    if len(df) <= REPORT_MAX_ROWS:
+        return df, ""
+    return df.head(REPORT_MAX_ROWS), f"First {REPORT_MAX_ROWS} of {len(df)} rows; all of them are in {csv_name}."
+
+
+def _table_html(df, csv_name: str = "") -> str:
+    if not len(df):
+        return "<p>(none)</p>"
+    df, note = _shown(df, csv_name)
     return ("<div class='table-wrap'>" + df.to_html(index=False, float_format=lambda v: _fmt(v), na_rep="–",
-                                                     border=0) + "</div>") if len(df) else "<p>(none)</p>"
+                                                     border=0) + "</div>" + (f"<p>{html.escape(note)}</p>" if note
+                                                                             else ""))
 
 
 def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Path],
@@ -250,7 +266,7 @@ def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Pa
                     f"<code>{html.escape(p.with_suffix('.svg').name)}</code>.</figcaption></figure>")
     for title, attr in TABLE_TITLES:
         body.append(f"<h2>{html.escape(title)}</h2>")
-        body.append(_table_html(getattr(res, attr)))
+        body.append(_table_html(getattr(res, attr), _csv_name(title)))
     body.append("<h2>Provenance</h2><div class='table-wrap'><table class='prov'><tbody>"
                 + "".join(f"<tr><th scope='row'>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in prov)
                 + "</tbody></table></div>")
@@ -258,6 +274,10 @@ def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Pa
             "<meta name='viewport' content='width=device-width, initial-scale=1'>"
             f"<title>Realism study analysis</title><style>{REPORT_CSS}</style></head><body>{''.join(body)}"
             "</body></html>\n")
+
+
+def _csv_name(title: str) -> str:
+    return title.rsplit("(", 1)[-1].rstrip(")") if title.endswith(")") else "the CSV"
 
 
 TABLE_TITLES = (
@@ -293,7 +313,9 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     for p in fig_paths:
         md += [f"![{FIGURES[p.name].split(':')[0]}]({p.name})", "", f"*{FIGURES[p.name]}*", ""]
     for title, attr in TABLE_TITLES:
-        md += [f"## {title}", "", markdown_table(getattr(res, attr)) if len(getattr(res, attr)) else "(none)", ""]
+        df = getattr(res, attr)
+        shown, note = _shown(df, _csv_name(title))
+        md += [f"## {title}", "", markdown_table(shown) if len(df) else "(none)", ""] + ([note, ""] if note else [])
     md_path = out / "report.md"
     prov = provenance(res, out)
     md += ["## Provenance", "", "| item | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in prov] + [""]
