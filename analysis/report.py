@@ -136,6 +136,8 @@ def _strong(text: str) -> str:
 
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
     """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures)."""
+    import numpy as np
+
     from analysis import figures
     from analysis.stats import valid_testing
     from analysis.traces import typical_taps
@@ -146,7 +148,14 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) ->
                figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
     notes = []
     dirs = dict(zip(res.study.subjects["subject"], map(Path, res.study.subjects["folder"])))
-    taps, v, why = typical_taps(valid_testing(res.study), dirs, res.study.catalog, target_v_m_s)
+    t = res.study.trials
+    sel = ((t["phase"] == "testing") & t["valid"]).to_numpy()
+    values, row = res.study.taps["incoming_velocities_m_s"]
+    keep = sel[row]
+    # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse)
+    velocities = (values[keep], (np.cumsum(sel) - 1)[row[keep]])
+    taps, v, why = typical_taps(valid_testing(res.study), dirs, res.study.catalog, target_v_m_s,
+                                velocities=velocities)
     if taps:
         written.append(figures.fig_accelerations(taps, res.study.catalog, v, out / "fig_4_20_accelerations.png"))
         if why:

@@ -55,11 +55,15 @@ def _study_captions(report_md: Path) -> dict:
     return out
 
 
+# CSVs larger than this stay out of the committed gallery (the command writes them next to each figure)
+MAX_CSV_BYTES = 400_000
+
+
 def _copy(src_dir: Path, stem: str, dst_dir: Path, formats) -> list[str]:
     names = []
     for ext in formats:
         src = src_dir / f"{stem}.{ext}"
-        if src.exists():
+        if src.exists() and not (ext == "csv" and src.stat().st_size > MAX_CSV_BYTES):
             shutil.copyfile(src, dst_dir / src.name)
             names.append(src.name)
     return names
@@ -95,7 +99,8 @@ def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "
               f"({subjects} subjects, seed {seed}; `python -m analysis synthetic`, not a model of human "
               "perception) and the simulated demo (`python -m renderer demo --device sim`). Every figure is "
               "drawn in the project style (`figstyle`, docs/figures.md) and saved as PNG and SVG with the "
-              "plotted numbers as CSV beside it.", "", "## Realism study (thesis section 4.5)", ""]
+              "plotted numbers as CSV beside it (CSVs over 400 kB are left out of the committed gallery; "
+              "the commands write them).", "", "## Realism study (thesis section 4.5)", ""]
         for stem in STUDY_ORDER:
             files = _copy(tmp / "report", stem, out / "study", formats)
             if not files:
