@@ -155,18 +155,10 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True) -> dict:
     out = {}
     meta = {"png": {"Software": None}, "svg": {"Date": None, "Creator": None}, "pdf": {"CreationDate": None}}
     with plt.style.context(str(STYLE_PATH)):     # the save options (dpi, tight box, SVG text) apply here
-        # lay the figure out and find its tight box once, then freeze both: otherwise every format
-        # draws the figure twice more (layout solver, tight box), most of the cost of a large figure
-        fig.draw_without_rendering()
-        if fig.get_layout_engine() is not None:
-            fig.set_layout_engine("none")
-        import matplotlib
-
-        box = fig.get_tightbbox(fig.canvas.get_renderer()).padded(matplotlib.rcParams["savefig.pad_inches"])
         for fmt in formats:
             target = stem.with_name(stem.name + "." + fmt)
             tmp = target.with_name(target.name + ".tmp." + fmt)
-            fig.savefig(tmp, format=fmt, metadata=meta.get(fmt), bbox_inches=box)
+            fig.savefig(tmp, format=fmt, metadata=meta.get(fmt))
             tmp.replace(target)
             out[fmt] = target
     if data is not None:
