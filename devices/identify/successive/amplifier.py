@@ -1,0 +1,82 @@
+"""Stage 2: the current amplifier with the motor locked: gain, offset, bandwidth, saturation (sec. 3.5.2,
+"Current Amplifier", eq. 3.17)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .bench import Bench
+from .common import ModelBuilder, StageError, StageResult
+from .experiment import Experiment, chirp
+
+CONFIG = "motor_locked"
+# a first-order corner above this fraction of the servo rate is indistinguishable from an ideal amplifier
+IDEAL_ABOVE_FRACTION = 0.5
+
+
+def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: float = 0.5) -> StageResult:
+    """DC steps for gain and offset, steps past the rated limit for saturation, a swept sine for bandwidth.
+
+    The amplifier output is measured by the device's current sense (the sim's true amplifier current). The
+    first-order model ``i[k] = beta i[k-1] + (1 - beta) u[k-1]`` is fitted by linear least squares;
+    ``beta = exp(-2 pi f_c T)``. Identifies ``device.current_amplifier_A``, ``amplifier.kind`` (ideal or
+    lowpass), ``amplifier.bandwidth_hz``, and the calibration ``amplifier.gain``, ``amplifier.offset_A``.
+
+    Raises
+    ------
+    StageError
+        Without a current measurement (hardware without a sense channel), or if the motor moved (not locked).
+    """
+    t0 = time.perf_counter()
+    bench.configure(CONFIG)
+    info = bench.info
+    fs = info.servo_rate_hz
+    n = int(0.02 * fs)
+    levels = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * info.current_continuous_A
+    over = info.current_amplifier_A * np.array([0.9, 1.1, 1.25])
+    seq = np.concatenate([levels, over, -over])
+    ff = np.repeat(seq, n)
+    tr = bench.run(Experiment("dc steps", ff), measure_current=True)
+    if tr.iamp_A is None:
+        raise StageError("amplifier stage needs the amplifier's output current (current sense); none available")
+    if np.ptp(tr.x_m) > 2 * info.position_resolution_m:
+        raise StageError(f"amplifier stage: the motor moved {np.ptp(tr.x_m) * 1e3:.3f} mm; lock the motor")
+    means = np.array([tr.iamp_A[k * n + n // 2:(k + 1) * n].mean() for k in range(seq.size)])
+    nl = levels.size
+    gain, offset = np.polyfit(levels, means[:nl], 1)
+    sat = float(np.max(np.abs(means[nl:])))
+    # bandwidth: swept sine, regression of the first-order model on the sampled amplifier output
+    u = chirp(fs, sweep_amplitude_A, 10.0, 0.45 * fs, 0.5)
+    tr2 = bench.run(Experiment("bandwidth sweep", u), measure_current=True)
+    cmd, cur = tr2.i_A, tr2.iamp_A
+    y = cur[1:] - cmd[:-1]
+    z = cur[:-1] - cmd[:-1]
+    beta = float(np.dot(y, z) / np.dot(z, z)) if np.dot(z, z) > 0 else 0.0
+    period = 1.0 / fs
+    if beta <= 1e-6:
+        fc = math.inf
+    else:
+        fc = -math.log(min(beta, 1 - 1e-12)) / (2 * math.pi * period)
+    ideal = fc > IDEAL_ABOVE_FRACTION * fs
+    vals = {"device.current_amplifier_A": sat, "amplifier.gain": float(gain), "amplifier.offset_A": float(offset),
+            "amplifier.bandwidth_hz": float(fc) if not ideal else 2000.0}
+    builder.base["amplifier"]["kind"] = "ideal" if ideal else "lowpass"
+    builder.values["device.current_amplifier_A"] = sat
+    if not ideal:
+        builder.values["amplifier.bandwidth_hz"] = float(fc)
+    pred = np.empty_like(cur)
+    pred[0] = cur[0]
+    b = 0.0 if ideal else beta
+    pred[1:] = b * cur[:-1] + (1 - b) * cmd[:-1]
+    resid = float(np.linalg.norm(cur - pred) / (np.linalg.norm(cur - cur.mean()) or 1.0))
+    notes = [f"gain {gain:.4f} A/A, offset {offset * 1e3:.3f} mA, saturation {sat:.3f} A, "
+             + ("ideal (no measurable low-pass below Nyquist)" if ideal else f"first-order low-pass {fc:.0f} Hz")]
+    fig = {"levels_A": levels, "measured_A": means[:nl], "cmd_A": cmd, "iamp_A": cur, "fs_hz": fs,
+           "sat_cmd_A": np.concatenate([over, -over]), "sat_meas_A": means[nl:]}
+    return StageResult("amplifier", CONFIG, vals,
+                       {"device.current_amplifier_A": 0.0, "amplifier.gain": resid, "amplifier.offset_A": resid,
+                        "amplifier.bandwidth_hz": resid},
+                       figure_data=fig, notes=notes, elapsed_s=time.perf_counter() - t0)

@@ -1,0 +1,92 @@
+"""Stage 8: the user's impedance from held sweeps at several grips and its grip dependence (thesis sec. 3.5.2
+"Handle and User Impedance", Figure 3.22; stiffness and damping rising linearly with grip from zero)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .bench import Bench
+from .common import ModelBuilder, StageError, StageResult, fit_on_model
+from .experiment import Experiment, chirp
+
+CONFIG = "assembled"
+NOMINAL_GRIP_N = 2.0
+
+
+def _regression_init(tr, kf: float, mass: float, c: float, b_dev: float) -> tuple[float, float]:
+    """Rigid-body estimate: kf i = M a + (b_dev + b_u) v + c sgn(v) + k_u x, solved for k_u, b_u."""
+    from scipy.signal import savgol_filter  # heavy: only this estimate needs it
+
+    fs = tr.fs_hz
+    x = savgol_filter(tr.x_m, 101, 3)
+    v = savgol_filter(tr.x_m, 101, 3, deriv=1) * fs
+    a = savgol_filter(tr.x_m, 101, 3, deriv=2) * fs * fs
+    F = np.concatenate([[0.0], tr.i_A[:-1]]) * kf - mass * a - b_dev * v - c * np.sign(v)
+    A = np.column_stack([x, v])
+    (k, b), *_ = np.linalg.lstsq(A[200:-200], F[200:-200], rcond=None)
+    return float(k), float(b)
+
+
+def identify_user(bench: Bench, builder: ModelBuilder, grips_N=(1.0, 2.0, 3.0, 4.0),
+                  amplitude_A: float = 0.3) -> StageResult:
+    """Identify ``user.k_u_N_m`` and ``user.b_u_Ns_m`` at ``user.nominal_grip_N`` (2 N).
+
+    At each grip a current step (the hand's spring shows in the creep to its final deflection, its damping
+    in the time constant b_u/k_u) and a low-frequency swept sine (1-40 Hz) are played while the user holds; k_u(g) and b_u(g) are fitted on the full model (encoder position), then lines
+    through the origin give the per-newton slopes (k_u = s_k g).
+
+    Raises
+    ------
+    StageError
+        If a grip's fit misses (NRMSE > 0.3) or no grip gives a positive stiffness.
+    """
+    t0 = time.perf_counter()
+    bench.configure(CONFIG)
+    info = bench.info
+    fs, kf = info.servo_rate_hz, info.force_per_amp_N_A
+    v = builder.values
+    mass = v["mechanics.m_m_kg"] + v["mechanics.m_d_kg"] + v["mechanics.m_h_kg"]
+    c = v["mechanics.c_m_N"] + v["mechanics.c_d_N"]
+    b_dev = v["mechanics.b_m_Ns_m"] + v["mechanics.b_d_Ns_m"]
+    ks, bs, errs, fig_sw = [], [], [], []
+    for g in grips_N:
+        n = int(1.2 * fs)
+        step = np.concatenate([np.full(n, amplitude_A), np.zeros(n)])
+        exps = [Experiment(f"held step {g:g} N", step, grip_N=g),
+                Experiment(f"held sweep {g:g} N", chirp(fs, amplitude_A, 1.0, 40.0, 1.0, taper_s=0.1), grip_N=g)]
+        trs = [bench.run(e) for e in exps]
+        k0, b0 = _regression_init(trs[0], kf, mass, c, b_dev)
+        k0, b0 = max(k0, 1.0), max(b0, 0.1)
+        scale = NOMINAL_GRIP_N / g
+        vals, err, sims = fit_on_model(builder, CONFIG, exps, trs,
+                                       {"user.k_u_N_m": (k0 * scale, k0 * scale / 5, k0 * scale * 5),
+                                        "user.b_u_Ns_m": (b0 * scale, b0 * scale / 5, b0 * scale * 5)},
+                                       fixed={"user.nominal_grip_N": NOMINAL_GRIP_N}, max_nfev=40,
+                                       log_params=("user.k_u_N_m", "user.b_u_Ns_m"))
+        if err > 0.3:
+            raise StageError(f"user stage: held sweep at {g:g} N fits poorly (NRMSE {err:.2f}); was the handle "
+                             "held steadily at that grip?")
+        ks.append(vals["user.k_u_N_m"] / scale)
+        bs.append(vals["user.b_u_Ns_m"] / scale)
+        errs.append(err)
+        fig_sw.append((g, trs[0].x_m, sims[0].x_m, trs[1].x_m, sims[1].x_m))
+    g = np.asarray(grips_N, float)
+    s_k = float(np.dot(g, ks) / np.dot(g, g))
+    s_b = float(np.dot(g, bs) / np.dot(g, g))
+    if s_k <= 0:
+        raise StageError("user stage: no positive user stiffness identified")
+    lin_k = float(np.sqrt(np.mean((np.asarray(ks) - s_k * g) ** 2)) / (s_k * g.mean()))
+    lin_b = float(np.sqrt(np.mean((np.asarray(bs) - s_b * g) ** 2)) / (s_b * g.mean()))
+    vals = {"user.k_u_N_m": s_k * NOMINAL_GRIP_N, "user.b_u_Ns_m": s_b * NOMINAL_GRIP_N,
+            "user.nominal_grip_N": NOMINAL_GRIP_N}
+    builder.values.update(vals)
+    fig = {"grips_N": list(grips_N), "k_u": ks, "b_u": bs, "s_k": s_k, "s_b": s_b, "sweeps": fig_sw, "fs_hz": fs}
+    return StageResult("user", CONFIG, vals,
+                       {"user.k_u_N_m": float(np.mean(errs)) + lin_k, "user.b_u_Ns_m": float(np.mean(errs)) + lin_b,
+                        "user.nominal_grip_N": 0.0}, figure_data=fig,
+                       notes=[f"k_u(g) = {s_k:.2f} N/m per N (linearity residual {lin_k:.3f}), b_u(g) = {s_b:.3f} "
+                              f"N s/m per N ({lin_b:.3f}); per grip k_u " + ", ".join(f"{k:.1f}" for k in ks)
+                              + " N/m, b_u " + ", ".join(f"{b:.2f}" for b in bs) + " N s/m"],
+                       elapsed_s=time.perf_counter() - t0)
