@@ -31,6 +31,9 @@ _PLACEHOLDER_MECHANICS = {"m_m_kg": 1.0, "b_m_Ns_m": 0.0, "c_m_N": 0.0, "k_c_N_m
                           "hysteresis": True}
 
 
+OFFSET = "_encoder_offset_m"
+
+
 class StageError(ValueError):
     """A stage's measurement is implausible or was made in the wrong configuration (message says which)."""
 
@@ -164,10 +167,15 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
     """
     from scipy.optimize import least_squares  # heavy: only the fitting stages need it
 
-    names = list(free)
     fixed = dict(fixed or {})
     if quantized is None:
         quantized = any(e.ref_m is not None for e in experiments)
+    free = dict(free)
+    if not quantized and "x" in channel:
+        # the counts read q(X0 + x) - q(X0): on average x plus an unknown offset within half a count
+        res = builder.params().device_info().position_resolution_m
+        free[OFFSET] = (0.0, -0.5 * res, 0.5 * res)
+    names = list(free)
 
     def to_x(vals):
         return np.array([math.log(v) if n in log_params else v for n, v in zip(names, vals)])
@@ -186,12 +194,14 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
         scales.append((sx, sa))
 
     def residual(x):
-        sims = builder.simulate(config, experiments, {**fixed, **from_x(x)}, quantized)
+        vals = from_x(x)
+        off = vals.pop(OFFSET, 0.0)
+        sims = builder.simulate(config, experiments, {**fixed, **vals}, quantized)
         parts = []
         for tr, sm, (sx, sa) in zip(traces, sims, scales):
             w = 1.0 / math.sqrt(tr.x_m.size)
             if "x" in channel:
-                parts.append((sm.x_m - tr.x_m) / sx * w)
+                parts.append((sm.x_m + off - tr.x_m) / sx * w)
             if "a" in channel:
                 parts.append((sm.a_m_s2 - tr.a_m_s2) / sa * w)
         r = np.concatenate(parts)
@@ -200,11 +210,12 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
     res = least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-3, max_nfev=max_nfev,
                         method="trf")
     vals = from_x(res.x)
+    off = vals.pop(OFFSET, 0.0)
     sims = builder.simulate(config, experiments, {**fixed, **vals}, quantized)
     err = []
     for tr, sm in zip(traces, sims):
         if "x" in channel:
-            err.append(nrmse(tr.x_m, sm.x_m))
+            err.append(nrmse(tr.x_m, sm.x_m + off))
         if "a" in channel:
             err.append(nrmse(tr.a_m_s2, sm.a_m_s2))
     return vals, float(np.mean(err)), sims

@@ -99,8 +99,8 @@ def identify_linkage(bench: Bench, builder: ModelBuilder, sweep_amplitudes_A=(0.
         if e < best_err:
             best, best_err = float(g), e
     free = {"mechanics.k_lp_N_m": (kp, kp / 2, kp * 2), "mechanics.k_ln_N_m": (kn, kn / 2, kn * 2),
-            "mechanics.f_lp_N": (init["mechanics.f_lp_N"], -span, 2 * span),
-            "mechanics.f_ln_N": (init["mechanics.f_ln_N"], -2 * span, span),
+            "mechanics.f_lp_N": (init["mechanics.f_lp_N"], 1e-6, 2 * span),
+            "mechanics.f_ln_N": (init["mechanics.f_ln_N"], -2 * span, -1e-6),
             "mechanics.gamma_l_rad_m": (best, best / 10, best * 10)}
     vals, err, sims = fit_on_model(builder, CONFIG, [exp], [tr], free, fixed=fixed, max_nfev=80,
                                    log_params=("mechanics.k_lp_N_m", "mechanics.k_ln_N_m",
