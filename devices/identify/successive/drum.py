@@ -10,7 +10,7 @@ import numpy as np
 
 from .bench import Bench
 from .common import ModelBuilder, StageError, StageResult, fit_on_model, log_grid_init
-from .experiment import Experiment, step_sequence
+from .experiment import Experiment, step_sequence, virtual_spring_kd
 from .friction import slow_motion_friction
 
 CONFIG = "linkage_off"
@@ -32,7 +32,9 @@ def identify_drum(bench: Bench, builder: ModelBuilder) -> StageResult:
     b_d = max(b_tot - builder.values["mechanics.b_m_Ns_m"], 0.0)
     builder.values.update({"mechanics.c_d_N": c_d, "mechanics.b_d_Ns_m": b_d})
     exps = []
-    for kp, kd, steps in ((600.0, 0.2, (0.003, -0.002, 0.0)), (2000.0, 0.3, (0.001, -0.0005, 0.0))):
+    m_guess = 2 * builder.values["mechanics.m_m_kg"]
+    for kp, steps in ((600.0, (0.003, -0.002, 0.0)), (2000.0, (0.001, -0.0005, 0.0))):
+        kd = virtual_spring_kd(kp, m_guess, fs_hz=fs)
         ref = step_sequence(fs, steps, 0.12)
         exps.append(Experiment(f"steps kp {kp:g}", np.zeros(ref.size), ref, kp, kd))
     traces = [bench.run(e) for e in exps]

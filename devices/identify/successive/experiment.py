@@ -159,6 +159,12 @@ def run_on_sim_fast(dev, exp: Experiment) -> Trace:
     return Trace(xs, acc, cmd, fs, cur)
 
 
+def virtual_spring_kd(kp_N_m: float, mass_kg: float, zeta: float = 0.1, fs_hz: float = 10000.0) -> float:
+    """Damping gain for a lightly damped virtual spring: ``zeta`` of critical for ``mass_kg`` plus what the
+    servo cycle's delay (about 1.5 periods, phase lag of the sampled PD law) takes away (kp * 1.5 T)."""
+    return 2.0 * zeta * math.sqrt(kp_N_m * mass_kg) + kp_N_m * 1.5 / fs_hz
+
+
 # ---- signal builders ------------------------------------------------------------------------------------------
 def ramp_profile(fs_hz: float, distance_m: float, speed_m_s: float, dwell_s: float = 0.2):
     """Reference for slow closed-loop motion: rest, constant speed forward over ``distance_m``, dwell,

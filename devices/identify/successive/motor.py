@@ -9,17 +9,19 @@ import numpy as np
 
 from .bench import Bench
 from .common import ModelBuilder, StageError, StageResult, fit_on_model, log_grid_init
-from .experiment import Experiment, step_sequence
+from .experiment import Experiment, step_sequence, virtual_spring_kd
 from .friction import slow_motion_friction
 
 CONFIG = "motor_only"
 
 
-def step_experiments(fs: float, gains=((500.0, 0.3), (1500.0, 0.5)), steps_m=(0.002, -0.001, 0.0005),
+def step_experiments(fs: float, mass_guess_kg: float, gains=(500.0, 1500.0), steps_m=(0.002, -0.001, 0.0005),
                      hold_s: float = 0.12) -> list[Experiment]:
-    """Position steps under PD virtual springs (lightly damped oscillations highlight the inertia)."""
+    """Position steps under PD virtual springs (lightly damped oscillations highlight the inertia); the damping
+    gain keeps about 10 % of critical damping for ``mass_guess_kg`` (a few times off is harmless)."""
     ref = step_sequence(fs, steps_m, hold_s)
-    return [Experiment(f"steps kp {kp:g}", np.zeros(ref.size), ref, kp, kd) for kp, kd in gains]
+    return [Experiment(f"steps kp {kp:g}", np.zeros(ref.size), ref, kp, virtual_spring_kd(kp, mass_guess_kg, fs_hz=fs))
+            for kp in gains]
 
 
 def identify_motor(bench: Bench, builder: ModelBuilder) -> StageResult:
@@ -35,7 +37,10 @@ def identify_motor(bench: Bench, builder: ModelBuilder) -> StageResult:
     fs = bench.info.servo_rate_hz
     c, b, rel, fig = slow_motion_friction(bench)
     builder.values.update({"mechanics.c_m_N": c, "mechanics.b_m_Ns_m": b})
-    exps = step_experiments(fs)
+    # mass guess from the motor's data sheet scale (eq. 3.19 order of magnitude): rho^2 J / h^2 with J ~ 1e-6
+    info = bench.info
+    m_guess = info.gear_ratio ** 2 * 1e-6 / info.handle_length_m ** 2
+    exps = step_experiments(fs, m_guess)
     traces = [bench.run(e) for e in exps]
     m0 = log_grid_init(builder, CONFIG, exps, traces, "mechanics.m_m_kg", 1e-4, 1.0, n=17)
     vals, err, sims = fit_on_model(builder, CONFIG, exps, traces,
