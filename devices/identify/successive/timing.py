@@ -39,6 +39,8 @@ def identify_timing(bench: Bench, builder: ModelBuilder, duration_s: float = 0.2
         raise StageError(f"servo timing: {missed} missed cycles, jitter {jitter * 1e6:.2f} us over {n} cycles; "
                          "identification needs a fixed rate (sec. 3.5.2)")
     rate = 1.0 / period
+    if abs(rate - fs) <= 1e-6 * fs:
+        rate = fs  # the nominal rate, to the clock's resolution
     builder.values["device.servo_rate_hz"] = rate
     return StageResult("timing", CONFIG, {"device.servo_rate_hz": rate},
                        {"device.servo_rate_hz": jitter / period},
