@@ -39,7 +39,7 @@ def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: f
     over = info.current_amplifier_A * np.array([0.9, 1.1, 1.25])
     seq = np.concatenate([levels, over, -over])
     ff = np.repeat(seq, n)
-    tr = bench.run(Experiment("dc steps", ff), measure_current=True)
+    tr = bench.run(Experiment("dc steps", ff), measure_current=True, allow_saturation=True)
     if tr.iamp_A is None:
         raise StageError("amplifier stage needs the amplifier's output current (current sense); none available")
     if np.ptp(tr.x_m) > 2 * info.position_resolution_m:
@@ -65,6 +65,7 @@ def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: f
             "amplifier.bandwidth_hz": float(fc) if not ideal else 2000.0}
     builder.base["amplifier"]["kind"] = "ideal" if ideal else "lowpass"
     builder.values["device.current_amplifier_A"] = sat
+    bench.saturation_A = sat
     if not ideal:
         builder.values["amplifier.bandwidth_hz"] = float(fc)
     pred = np.empty_like(cur)

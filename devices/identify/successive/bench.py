@@ -35,6 +35,7 @@ class Bench:
         self.simulated = bool(getattr(dev, "simulated", False)) and hasattr(dev, "set_mechanical_config")
         self.config = None
         self.ticks = 0
+        self.saturation_A = float(dev.info.current_amplifier_A)  # the amplifier stage measures it
 
     @property
     def info(self):
@@ -69,9 +70,22 @@ class Bench:
             raise StageError(f"configuration {cfg.name!r}: the motor did not move under a 0.1 A pulse; is it "
                              "still locked?")
 
-    def run(self, exp: Experiment, measure_current: bool = False) -> Trace:
-        """Play ``exp`` with the user holding at ``exp.grip_N`` (0: hands off) and return the trace."""
+    def run(self, exp: Experiment, measure_current: bool = False, allow_saturation: bool = False) -> Trace:
+        """Play ``exp`` with the user holding at ``exp.grip_N`` (0: hands off) and return the trace.
+
+        Raises
+        ------
+        StageError
+            If the test would saturate the amplifier (open loop: the feedforward's peak is at or above the
+            amplifier limit; closed loop: the command reached it), unless ``allow_saturation`` (the
+            amplifier stage's own saturation test): a saturated test does not show the mechanics.
+        """
         dev = self.dev
+        limit = self.saturation_A
+        peak = float(np.max(np.abs(exp.ff_A))) if exp.n else 0.0
+        if not allow_saturation and peak >= limit:
+            raise StageError(f"test {exp.name!r} saturates the amplifier: its current peaks at {peak:.3g} A, the "
+                             f"amplifier limit is {limit:.3g} A; use a smaller amplitude")
         if self.simulated:
             dev.set_user(None, grip_N=exp.grip_N)
         elif exp.grip_N > 0:
@@ -83,4 +97,8 @@ class Bench:
             else:
                 meas = None
         self.ticks += exp.n
-        return run_on_device(dev, exp, meas)
+        tr = run_on_device(dev, exp, meas)
+        if not allow_saturation and exp.ref_m is not None and float(np.max(np.abs(tr.i_A))) >= limit:
+            raise StageError(f"test {exp.name!r} saturated the amplifier (the controller asked for "
+                             f"{float(np.max(np.abs(tr.i_A))):.3g} A, limit {limit:.3g} A); the result is not used")
+        return tr

@@ -137,6 +137,8 @@ def identify_successive(device_spec_or_factory="sim", stages=STAGE_NAMES, state_
         for st in done:
             _apply(builder, st)
         bench = Bench(dev, prompt=prompt, log=log, config_override=config_override)
+        if "device.current_amplifier_A" in builder.values:
+            bench.saturation_A = builder.values["device.current_amplifier_A"]
         have = {s.stage for s in done}
         order = [n for n in STAGE_NAMES if n in stages]
         for i, stage in enumerate(order):
