@@ -215,3 +215,29 @@ def test_fit_by_purpose_high_low_mean(tmp_path):
         f = np.array([110.0, 115.0, 120.0])  # the small-current resonance: the high curve is > 3 dB above
         mags[purpose] = 20 * np.log10(np.abs(m.frequency_response(f)))
     assert np.all(mags["hfam"] > mags["cimm"] + 2.0)
+
+
+def test_fast_sim_play_is_tick_for_tick_the_python_loop():
+    """``record.play`` runs the sim in one numba call: same samples and final device state as read/command."""
+    from devices.identify import record as R
+    from devices.identify.sweep import SweepConfig, swept_sine
+
+    u = swept_sine(SweepConfig(amplitude_A=3.9, duration_s=0.3, fs_hz=1e4)) * 1.1  # clips at 4 A too
+    out = []
+    for fast in (True, False):
+        d = SimDevice(seed=5)
+        d.set_user(None, grip_N=2.0)
+        for _ in range(7):
+            d.read()
+            d.command(0.3)
+        if not fast:
+            d.__class__ = type("PlainSim", (SimDevice,), {})  # not recognised: the Python loop
+        rec = R.play(d, u)
+        for _ in range(5):
+            d.read()
+            d.command(0.1)
+        st = d.read()
+        out.append((rec, (st.t_s, st.position_m, st.accel_m_s2, st.status, d.last_command_A), d.true_state()))
+    for a, b in zip(out[0][0], out[1][0]):
+        np.testing.assert_array_equal(a, b)
+    assert out[0][1:] == out[1][1:]
