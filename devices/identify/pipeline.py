@@ -130,16 +130,12 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
         # fork: the workers inherit the imported (and numba-compiled) modules, so they start at once
         ctx = multiprocessing.get_context("fork")
         with ProcessPoolExecutor(max_workers=min(cfg.workers, len(jobs)), mp_context=ctx) as pool:
-            results = list(pool.map(_grip_worker, [(device_spec, seed, k, g, cfg, label) for k, g in jobs]))
+            results = list(pool.map(_grip_worker, [(device_spec, seed, k, g, cfg, label, out) for k, g in jobs]))
     else:
-        results = [_identify_grip(dev, k, g, cfg, label) for k, g in jobs]
-    for (k, g), (recs, row, gcurves, gfits, trans, msgs) in zip(jobs, results):
+        results = [_identify_grip(dev, k, g, cfg, label, out) for k, g in jobs]
+    for (k, g), (row, gcurves, gfits, msgs) in zip(jobs, results):
         for m in msgs:
             log(m)
-        for j, rec in enumerate(recs):
-            write_recording(out / "recordings" / f"g{g:g}N_t{j}.csv", rec)
-        if trans is not None:
-            write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", sweep.fs_hz, *trans, g)
         for output in OUTPUT_SHORT:
             curves[output].extend(gcurves[output])
             fits[output].append(gfits[output])
@@ -177,15 +173,15 @@ def _grip_worker(job):
     """Process-pool entry: a fresh simulated device for one grip (see ``IdentifyConfig.workers``)."""
     from ..registry import make_device
 
-    spec, seed, k, g, cfg, label = job
+    spec, seed, k, g, cfg, label, out = job
     dev = make_device(spec, seed=seed + 1000 * k)
     with dev:
-        return _identify_grip(dev, k, g, cfg, label)
+        return _identify_grip(dev, k, g, cfg, label, out)
 
 
-def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: str):
-    """Record, fit and validate one grip level. Returns (recordings, report row, curves per output, fit per
-    output (FitResult or None), transient recording (u, a, x) or None, log messages)."""
+def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: str, out: Path):
+    """Record, fit and validate one grip level; write its recordings (``out/recordings``). Returns (report
+    row, curves per output, fit per output (FitResult or None), log messages)."""
     from dataclasses import replace
 
     msgs = []
@@ -199,7 +195,9 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
         cond = f"grip {g:g} N" if len(amps) == 1 else f"grip {g:g} N, {amp:g} A"
         for rec in recs:
             rec.meta["condition"] = cond
-        recs_all.extend(recs)
+        for rec in recs:
+            write_recording(out / "recordings" / f"g{g:g}N_t{len(recs_all)}.csv", rec)
+            recs_all.append(rec)
         by_amp.append((cond, recs))
     row = {"grip_N": float(g), "grip_measured_N": float(np.mean([r.meta["grip_mean_N"] for r in recs_all])),
            "trials": len(recs_all), "purpose": cfg.purpose}
@@ -226,15 +224,14 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
         msgs.append(f"grip {g:g} N {short}: order {m['order']}, delay {m['delay_s'] * 1e3:.3f} ms, "
                     f"RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, worst band {m['worst_band_db']:.2f} dB "
                     f"over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz")
-    trans = None
     if cfg.validate and gfits["accel_m_s2"] is not None:
         u, a, x, windows = record_transients(dev, cfg.validation_amplitude_A, float(g))
-        trans = (u, a, x)
+        write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", cfg.sweep.fs_hz, u, a, x, g)
         v = validate_model(gfits["accel_m_s2"].model, u, a, cfg.sweep.fs_hz, windows)
         row["validation"] = {"nrmse": v["nrmse"], "nrmse_per_transient": v["nrmse_per_transient"]}
         msgs.append(f"grip {g:g} N accel time-domain validation: NRMSE {v['nrmse']:.3f} "
                     f"(per transient {', '.join(f'{x:.3f}' for x in v['nrmse_per_transient'])})")
-    return recs_all, row, gcurves, gfits, trans, msgs
+    return row, gcurves, gfits, msgs
 
 
 def main_resonance(curve: Etfe, band_hz) -> tuple[float, float]:
