@@ -16,6 +16,7 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def register(subparsers) -> None:
+    """Add the ``linearity`` command to ``python -m devices``."""
     p = subparsers.add_parser(
         "linearity", help="linearity and time-invariance report: ETFEs at several amplitudes, grips, positions",
         description="Measure handle-acceleration ETFEs (with coherence) at several current magnitudes, grips and "
@@ -38,6 +39,7 @@ def register(subparsers) -> None:
 
 
 def run_linearity(args) -> int:
+    """Run ``linearity`` (see the parser's description); returns the exit code."""
     from .fileio import atomic_write_text
     from .identify.linearity import default_conditions, format_linearity, linearity_figure, linearity_report
     from .registry import check_device_spec, make_device

@@ -17,6 +17,7 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def register(subparsers) -> None:
+    """Add the ``validate`` command to ``python -m devices``."""
     p = subparsers.add_parser(
         "validate", help="validate an identified model against the device (ETFEs, held transients)",
         description="MODEL is a nonlinear model file from 'identify --method successive' (model.json, a sim "
@@ -62,6 +63,7 @@ def _load(path: Path, grip: float):
 
 
 def run_validate(args) -> int:
+    """Run ``validate`` (see the parser's description); returns the exit code."""
     from .identify.validate_td import etfe_agreement, time_domain_figure, time_domain_validation
     from .registry import check_device_spec, make_device
 

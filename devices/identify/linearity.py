@@ -31,6 +31,7 @@ class Condition:
 
     @property
     def label(self) -> str:
+        """Human-readable condition, e.g. ``0.5 A, grip 2 N, x 0 mm``."""
         s = f"{self.amplitude_A:g} A, grip {self.grip_N:g} N, x {self.position_m * 1e3:g} mm"
         return s + (" (repeat)" if self.repeat else "")
 

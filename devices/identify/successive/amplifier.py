@@ -25,6 +25,19 @@ def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: f
     ``beta = exp(-2 pi f_c T)``. Identifies ``device.current_amplifier_A``, ``amplifier.kind`` (ideal or
     lowpass), ``amplifier.bandwidth_hz``, and the calibration ``amplifier.gain``, ``amplifier.offset_A``.
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+    sweep_amplitude_A : float
+        Amplitude of the bandwidth sweep (A).
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

@@ -39,6 +39,7 @@ class Bench:
 
     @property
     def info(self):
+        """The device's :class:`DeviceInfo`."""
         return self.dev.info
 
     def configure(self, key: str) -> None:

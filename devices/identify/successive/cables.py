@@ -31,6 +31,19 @@ def quasi_static_stiffness(bench: Bench, amplitude_A: float, f_hz: float = 2.0, 
 def identify_cables(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: float = 1.0) -> StageResult:
     """Identify ``mechanics.k_c_N_m`` and ``mechanics.b_c_Ns_m``.
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+    sweep_amplitude_A : float
+        Swept-sine amplitude (A); the slow cycle uses twice that (at most 75 % of peak).
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

@@ -67,6 +67,7 @@ class StageResult:
     elapsed_s: float = 0.0
 
     def to_json(self) -> dict:
+        """JSON-able summary (everything but the figure arrays)."""
         return {"stage": self.stage, "config": self.config, "values": dict(self.values),
                 "residuals": dict(self.residuals), "notes": list(self.notes), "elapsed_s": self.elapsed_s}
 

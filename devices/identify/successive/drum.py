@@ -19,6 +19,17 @@ CONFIG = "linkage_off"
 def identify_drum(bench: Bench, builder: ModelBuilder) -> StageResult:
     """Identify ``mechanics.m_d_kg``, ``mechanics.b_d_Ns_m``, ``mechanics.c_d_N``.
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

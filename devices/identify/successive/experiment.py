@@ -50,6 +50,7 @@ class Experiment:
 
     @property
     def n(self) -> int:
+        """Number of servo ticks."""
         return int(self.ff_A.size)
 
 

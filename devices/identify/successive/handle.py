@@ -17,6 +17,19 @@ CONFIG = "assembled"
 def identify_handle(bench: Bench, builder: ModelBuilder, amplitudes_A=(0.3, 1.0)) -> StageResult:
     """Identify ``mechanics.m_h_kg`` (user absent, grip 0).
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+    amplitudes_A : sequence of float
+        Swept-sine amplitudes (A).
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

@@ -64,6 +64,19 @@ def asymptotes(x_l, F_l, sgn):
 def identify_linkage(bench: Bench, builder: ModelBuilder, sweep_amplitudes_A=(0.3, 1.0, 2.0)) -> StageResult:
     """Identify the hysteresis parameters and ``mechanics.b_l_Ns_m``.
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+    sweep_amplitudes_A : sequence of float
+        Swept-sine amplitudes for b_l (A).
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

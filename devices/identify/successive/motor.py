@@ -27,6 +27,17 @@ def step_experiments(fs: float, mass_guess_kg: float, gains=(500.0, 1500.0), ste
 def identify_motor(bench: Bench, builder: ModelBuilder) -> StageResult:
     """Identify ``mechanics.c_m_N``, ``mechanics.b_m_Ns_m`` (slow motion) and ``mechanics.m_m_kg`` (steps).
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

@@ -18,6 +18,19 @@ def identify_timing(bench: Bench, builder: ModelBuilder, duration_s: float = 0.2
     A simulated device's clock is exact; hardware time stamps show drift, jitter and missed cycles.
     Identifies ``device.servo_rate_hz``.
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+    duration_s : float
+        Recording length (s).
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError

@@ -37,6 +37,21 @@ def identify_user(bench: Bench, builder: ModelBuilder, grips_N=(1.0, 2.0, 3.0, 4
     in the time constant b_u/k_u) and a low-frequency swept sine (1-40 Hz) are played while the user holds; k_u(g) and b_u(g) are fitted on the full model (encoder position), then lines
     through the origin give the per-newton slopes (k_u = s_k g).
 
+    Parameters
+    ----------
+    bench : Bench
+        The device under test (configured by this stage).
+    builder : ModelBuilder
+        The built-up model; the identified values are added to ``builder.values``.
+    grips_N : sequence of float
+        Grips the user holds at (N).
+    amplitude_A : float
+        Step and sweep amplitude (A).
+
+    Returns
+    -------
+    StageResult
+
     Raises
     ------
     StageError
