@@ -25,13 +25,16 @@ class Bench:
     log : callable
     config_override : dict or None
         Tests only: ``{requested: actual}`` configuration, to play an operator's mistake on the sim.
+    hand : object or None
+        Simulated device: the person holding it (``set_user``'s ``hand``; None: the sim's default).
     """
 
-    def __init__(self, dev: Device, prompt=None, log=print, config_override: dict | None = None):
+    def __init__(self, dev: Device, prompt=None, log=print, config_override: dict | None = None, hand=None):
         self.dev = dev
         self.prompt = prompt or input
         self.log = log
         self.override = dict(config_override or {})
+        self.hand = hand
         self.simulated = bool(getattr(dev, "simulated", False)) and hasattr(dev, "set_mechanical_config")
         self.config = None
         self.ticks = 0
@@ -88,7 +91,10 @@ class Bench:
             raise StageError(f"test {exp.name!r} saturates the amplifier: its current peaks at {peak:.3g} A, the "
                              f"amplifier limit is {limit:.3g} A; use a smaller amplitude")
         if self.simulated:
-            dev.set_user(None, grip_N=exp.grip_N)
+            if self.hand is None:
+                dev.set_user(None, grip_N=exp.grip_N)
+            else:
+                dev.set_user(None, grip_N=exp.grip_N, hand=self.hand)
         elif exp.grip_N > 0:
             hold_user(dev, exp.grip_N, log=self.log)
         meas = None

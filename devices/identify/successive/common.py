@@ -21,7 +21,30 @@ UNITS = {
     "mechanics.k_lp_N_m": "N/m", "mechanics.k_ln_N_m": "N/m", "mechanics.f_lp_N": "N", "mechanics.f_ln_N": "N",
     "mechanics.gamma_l_rad_m": "rad/m", "mechanics.b_l_Ns_m": "N s/m", "mechanics.m_h_kg": "kg",
     "user.k_u_N_m": "N/m", "user.b_u_Ns_m": "N s/m", "user.nominal_grip_N": "N",
+    "person.arm_mass_kg": "kg",
 }
+PERSON_PREFIX = "person."
+
+
+def default_person():
+    """The sim's default simulated person if it has a hand mass (``devices.sim.person.DEFAULT_PERSON``),
+    else None (the prescribed hand of eq. 3.34: spring-damper to a position source)."""
+    try:
+        from ...sim.person import DEFAULT_PERSON
+    except ImportError:
+        return None
+    return DEFAULT_PERSON if hasattr(DEFAULT_PERSON, "arm_mass_kg") else None
+
+
+def person_with(values: dict):
+    """The default person with ``person.<field>`` values replaced, or None if none is given/available."""
+    fields = {k[len(PERSON_PREFIX):]: v for k, v in values.items() if k.startswith(PERSON_PREFIX)}
+    base = default_person()
+    if not fields or base is None:
+        return None
+    from dataclasses import replace
+
+    return replace(base, **fields)
 
 # placeholders for elements not identified yet: every stage's configuration disconnects or locks them,
 # so their values never reach a fit (the procedure does not use any device's Table 3.1 values)
@@ -135,9 +158,11 @@ class ModelBuilder:
         return dev
 
     def simulate(self, config: str, experiments, extra: dict | None = None, quantized: bool = True) -> list[Trace]:
-        """Run ``experiments`` on the model (one fresh device per call, each experiment from rest)."""
+        """Run ``experiments`` on the model (one fresh device per call, each experiment from rest); values
+        ``person.<field>`` (e.g. the hand mass) set the simulated person holding the model's handle."""
         dev = self.device(config, extra, quantized)
-        return [run_on_sim_fast(dev, e) for e in experiments]
+        hand = person_with({**self.values, **(extra or {})})
+        return [run_on_sim_fast(dev, e, hand) for e in experiments]
 
 
 def nrmse(y: np.ndarray, y_hat: np.ndarray) -> float:

@@ -136,16 +136,32 @@ def run_on_device(dev: Device, exp: Experiment, measure_current=None) -> Trace:
 _RUN = None
 
 
-def run_on_sim_fast(dev, exp: Experiment) -> Trace:
+def run_on_sim_fast(dev, exp: Experiment, hand=None) -> Trace:
     """Play ``exp`` on a :class:`devices.sim.SimDevice` in one numba call (same law and timing as
-    :func:`run_on_device`, used for the model side of every fit). Places the device at rest first
-    (``set_user(None, grip)``); the amplifier output is recorded too."""
+    :func:`run_on_device`, used for the model side of every fit).
+
+    Parameters
+    ----------
+    dev : SimDevice
+        Placed at rest first (``set_user(None, grip)``).
+    exp : Experiment
+    hand : object or None
+        The simulated person holding the handle (``set_user``'s ``hand``); None: the device's default.
+
+    Returns
+    -------
+    Trace
+        Including the amplifier output current.
+    """
     global _RUN
     if _RUN is None:
         from ._fastrun import run_pd  # numba-compiled: imported on first use
 
         _RUN = run_pd
-    dev.set_user(None, grip_N=exp.grip_N)
+    if hand is None:
+        dev.set_user(None, grip_N=exp.grip_N)
+    else:
+        dev.set_user(None, grip_N=exp.grip_N, hand=hand)
     n = exp.n
     fs = dev.info.servo_rate_hz
     kf = dev.info.force_per_amp_N_A

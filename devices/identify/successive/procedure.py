@@ -87,7 +87,7 @@ def _open_device(device_spec_or_factory, seed: int):
 
 def identify_successive(device_spec_or_factory="sim", stages=STAGE_NAMES, state_dir=None, resume: bool = False,
                         log=print, prompt=None, seed: int = 0, config_override: dict | None = None,
-                        name: str = "successive-isolation") -> SuccessiveResult:
+                        name: str = "successive-isolation", hand=None) -> SuccessiveResult:
     """Identify the nonlinear model of eq. 3.32-3.35 stage by stage (thesis sec. 3.5).
 
     Parameters
@@ -108,6 +108,8 @@ def identify_successive(device_spec_or_factory="sim", stages=STAGE_NAMES, state_
         Noise seed of a simulated device made from a device string.
     config_override : dict or None
         Tests: mechanical configuration actually used for a requested one (an operator's mistake).
+    hand : object or None
+        Simulated device: the person holding it (None: the sim's default person).
 
     Returns
     -------
@@ -136,7 +138,7 @@ def identify_successive(device_spec_or_factory="sim", stages=STAGE_NAMES, state_
         builder = ModelBuilder(base_params_dict(dev.info, name=name))
         for st in done:
             _apply(builder, st)
-        bench = Bench(dev, prompt=prompt, log=log, config_override=config_override)
+        bench = Bench(dev, prompt=prompt, log=log, config_override=config_override, hand=hand)
         if "device.current_amplifier_A" in builder.values:
             bench.saturation_A = builder.values["device.current_amplifier_A"]
         have = {s.stage for s in done}

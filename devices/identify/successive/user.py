@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from .bench import Bench
-from .common import ModelBuilder, StageError, StageResult, fit_on_model
+from .common import ModelBuilder, StageError, StageResult, default_person, fit_on_model
 from .experiment import Experiment, chirp
 
 CONFIG = "assembled"
@@ -27,6 +27,14 @@ def _regression_init(tr, kf: float, mass: float, c: float, b_dev: float) -> tupl
     A = np.column_stack([x, v])
     (k, b), *_ = np.linalg.lstsq(A[200:-200], F[200:-200], rcond=None)
     return float(k), float(b)
+
+
+def _fit_grip(builder: ModelBuilder, exps, trs, k0: float, b0: float):
+    """k_u, b_u (expressed at the nominal grip) fitted to one grip's held responses."""
+    return fit_on_model(builder, CONFIG, exps, trs,
+                        {"user.k_u_N_m": (k0, k0 / 5, k0 * 5), "user.b_u_Ns_m": (b0, b0 / 5, b0 * 5)},
+                        fixed={"user.nominal_grip_N": NOMINAL_GRIP_N}, max_nfev=40,
+                        log_params=("user.k_u_N_m", "user.b_u_Ns_m"))
 
 
 def identify_user(bench: Bench, builder: ModelBuilder, grips_N=(1.0, 2.0, 3.0, 4.0),
@@ -65,7 +73,8 @@ def identify_user(bench: Bench, builder: ModelBuilder, grips_N=(1.0, 2.0, 3.0, 4
     mass = v["mechanics.m_m_kg"] + v["mechanics.m_d_kg"] + v["mechanics.m_h_kg"]
     c = v["mechanics.c_m_N"] + v["mechanics.c_d_N"]
     b_dev = v["mechanics.b_m_Ns_m"] + v["mechanics.b_d_Ns_m"]
-    ks, bs, errs, fig_sw = [], [], [], []
+    person = default_person()
+    per_grip = {}
     for g in grips_N:
         n = int(1.2 * fs)
         step = np.concatenate([np.full(n, amplitude_A), np.zeros(n)])
@@ -73,16 +82,30 @@ def identify_user(bench: Bench, builder: ModelBuilder, grips_N=(1.0, 2.0, 3.0, 4
                 Experiment(f"held sweep {g:g} N", chirp(fs, amplitude_A, 1.0, 40.0, 1.0, taper_s=0.1), grip_N=g)]
         trs = [bench.run(e) for e in exps]
         k0, b0 = _regression_init(trs[0], kf, mass, c, b_dev)
-        k0, b0 = max(k0, 1.0), max(b0, 0.1)
-        scale = NOMINAL_GRIP_N / g
-        vals, err, sims = fit_on_model(builder, CONFIG, exps, trs,
-                                       {"user.k_u_N_m": (k0 * scale, k0 * scale / 5, k0 * scale * 5),
-                                        "user.b_u_Ns_m": (b0 * scale, b0 * scale / 5, b0 * scale * 5)},
-                                       fixed={"user.nominal_grip_N": NOMINAL_GRIP_N}, max_nfev=40,
-                                       log_params=("user.k_u_N_m", "user.b_u_Ns_m"))
+        per_grip[g] = (exps, trs, max(k0, 1.0) * NOMINAL_GRIP_N / g, max(b0, 0.1) * NOMINAL_GRIP_N / g)
+    fits = {g: _fit_grip(builder, *per_grip[g]) for g in grips_N}
+    m_arm = None
+    if person is not None:
+        # a person with momentum: the hand mass behind the grip impedance, from the held responses at the
+        # middle grip with that grip's impedance, then every grip refitted with it
+        g_mid = grips_N[len(grips_N) // 2]
+        exps, trs, _, _ = per_grip[g_mid]
+        m0 = float(person.arm_mass_kg)
+        vm, _, _ = fit_on_model(builder, CONFIG, exps, trs, {"person.arm_mass_kg": (m0, m0 / 10, m0 * 10)},
+                                fixed={**fits[g_mid][0], "user.nominal_grip_N": NOMINAL_GRIP_N}, max_nfev=30,
+                                log_params=("person.arm_mass_kg",))
+        m_arm = vm["person.arm_mass_kg"]
+        builder.values["person.arm_mass_kg"] = m_arm
+        fits = {g: _fit_grip(builder, per_grip[g][0], per_grip[g][1], fits[g][0]["user.k_u_N_m"],
+                             fits[g][0]["user.b_u_Ns_m"]) for g in grips_N}
+    ks, bs, errs, fig_sw = [], [], [], []
+    for g in grips_N:
+        vals, err, sims = fits[g]
         if err > 0.3:
             raise StageError(f"user stage: held sweep at {g:g} N fits poorly (NRMSE {err:.2f}); was the handle "
                              "held steadily at that grip?")
+        scale = NOMINAL_GRIP_N / g
+        trs = per_grip[g][1]
         ks.append(vals["user.k_u_N_m"] / scale)
         bs.append(vals["user.b_u_Ns_m"] / scale)
         errs.append(err)
@@ -97,11 +120,16 @@ def identify_user(bench: Bench, builder: ModelBuilder, grips_N=(1.0, 2.0, 3.0, 4
     vals = {"user.k_u_N_m": s_k * NOMINAL_GRIP_N, "user.b_u_Ns_m": s_b * NOMINAL_GRIP_N,
             "user.nominal_grip_N": NOMINAL_GRIP_N}
     builder.values.update(vals)
+    residuals = {"user.k_u_N_m": float(np.mean(errs)) + lin_k, "user.b_u_Ns_m": float(np.mean(errs)) + lin_b,
+                 "user.nominal_grip_N": 0.0}
+    notes = []
+    if m_arm is not None:
+        vals["person.arm_mass_kg"] = m_arm
+        residuals["person.arm_mass_kg"] = float(np.mean(errs))
+        notes.append(f"hand mass behind the grip impedance {m_arm * 1e3:.1f} g")
     fig = {"grips_N": list(grips_N), "k_u": ks, "b_u": bs, "s_k": s_k, "s_b": s_b, "sweeps": fig_sw, "fs_hz": fs}
-    return StageResult("user", CONFIG, vals,
-                       {"user.k_u_N_m": float(np.mean(errs)) + lin_k, "user.b_u_Ns_m": float(np.mean(errs)) + lin_b,
-                        "user.nominal_grip_N": 0.0}, figure_data=fig,
-                       notes=[f"k_u(g) = {s_k:.2f} N/m per N (linearity residual {lin_k:.3f}), b_u(g) = {s_b:.3f} "
+    return StageResult("user", CONFIG, vals, residuals, figure_data=fig,
+                       notes=notes + [f"k_u(g) = {s_k:.2f} N/m per N (linearity residual {lin_k:.3f}), b_u(g) = {s_b:.3f} "
                               f"N s/m per N ({lin_b:.3f}); per grip k_u " + ", ".join(f"{k:.1f}" for k in ks)
                               + " N/m, b_u " + ", ".join(f"{b:.2f}" for b in bs) + " N s/m"],
                        elapsed_s=time.perf_counter() - t0)
