@@ -98,7 +98,19 @@ class StageResult:
 def base_params_dict(info, name: str = "identified") -> dict:
     """A parameter dict (file format) for a device described by ``info`` (DeviceInfo: data-sheet values),
     with sensor and simulation settings of the sim and placeholder mechanics. The user section starts at
-    zero impedance (no user)."""
+    zero impedance (no user).
+
+    Parameters
+    ----------
+    info : DeviceInfo
+    name : str
+        Model name written into the file.
+
+    Returns
+    -------
+    dict
+        Nested dict in the sim parameter file format (``devices.sim.params``).
+    """
     t = default_params("nonlinear").to_dict()
     d = {"model": "nonlinear", "name": name}
     d["device"] = {
@@ -166,7 +178,17 @@ class ModelBuilder:
 
 
 def nrmse(y: np.ndarray, y_hat: np.ndarray) -> float:
-    """||y - y_hat|| / ||y - mean(y)||."""
+    """Normalized RMS error ``||y - y_hat|| / ||y - mean(y)||`` (0 perfect, 1 as bad as the mean).
+
+    Parameters
+    ----------
+    y, y_hat : array_like, shape (n,)
+        Measured and predicted signal.
+
+    Returns
+    -------
+    float
+    """
     y = np.asarray(y, float)
     den = np.linalg.norm(y - y.mean())
     return float(np.linalg.norm(y - np.asarray(y_hat, float)) / den) if den > 0 else float("inf")
@@ -249,7 +271,22 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
 
 def log_grid_init(builder: ModelBuilder, config: str, experiments, traces, name: str, lo: float, hi: float,
                   n: int = 13, channel: str = "x", fixed: dict | None = None, quantized: bool = True) -> float:
-    """Best value of one parameter on a log grid (initial value for a fit without an analytic estimate)."""
+    """Best value of one parameter on a log grid (initial value for a fit without an analytic estimate).
+
+    Parameters
+    ----------
+    builder, config, experiments, traces
+        As for :func:`fit_on_model`.
+    name : str
+        ``"section.key"`` of the parameter.
+    lo, hi : float
+        Grid bounds (same unit as the parameter); ``n`` points, geometric.
+
+    Returns
+    -------
+    float
+        The grid value with the smallest summed NRMSE.
+    """
     best, best_err = lo, math.inf
     for v in np.geomspace(lo, hi, n):
         sims = builder.simulate(config, experiments, {**(fixed or {}), name: float(v)}, quantized)

@@ -201,7 +201,20 @@ def ramp_profile(fs_hz: float, distance_m: float, speed_m_s: float, dwell_s: flo
 
 
 def step_sequence(fs_hz: float, steps_m, hold_s: float) -> np.ndarray:
-    """Reference of successive position steps (m), each held ``hold_s``, starting from 0 for ``hold_s/4``."""
+    """Reference of successive position steps, each held ``hold_s``, starting from 0 for ``hold_s/4``.
+
+    Parameters
+    ----------
+    fs_hz : float
+    steps_m : sequence of float
+        Step targets (m, handle space, relative to the start).
+    hold_s : float
+
+    Returns
+    -------
+    ndarray
+        Reference position per servo tick (m).
+    """
     n_h = int(round(hold_s * fs_hz))
     parts = [np.zeros(n_h // 4)] + [np.full(n_h, float(s)) for s in steps_m]
     return np.concatenate(parts)
@@ -209,7 +222,21 @@ def step_sequence(fs_hz: float, steps_m, hold_s: float) -> np.ndarray:
 
 def chirp(fs_hz: float, amplitude_A: float, f0_hz: float, f1_hz: float, duration_s: float,
           taper_s: float = 0.01) -> np.ndarray:
-    """Linear swept sine (eq. 3.11-3.12) with short cosine tapers at both ends."""
+    """Linear swept sine (eq. 3.11-3.12) with short cosine tapers at both ends.
+
+    Parameters
+    ----------
+    fs_hz : float
+    amplitude_A : float
+    f0_hz, f1_hz : float
+        Start and end frequency.
+    duration_s, taper_s : float
+
+    Returns
+    -------
+    ndarray
+        Current per servo tick (A).
+    """
     n = int(round(duration_s * fs_hz))
     t = np.arange(n) / fs_hz
     u = amplitude_A * np.sin(2 * np.pi * (f0_hz * t + 0.5 * (f1_hz - f0_hz) / duration_s * t * t))
