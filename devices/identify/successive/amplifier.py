@@ -54,7 +54,7 @@ def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: f
     ff = np.repeat(seq, n)
     tr = bench.run(Experiment("dc steps", ff), measure_current=True, allow_saturation=True)
     if tr.iamp_A is None:
-        raise StageError("amplifier stage needs the amplifier's output current (current sense); none available")
+        return _amplifier_by_ammeter(bench, builder, t0)
     if np.ptp(tr.x_m) > 2 * info.position_resolution_m:
         raise StageError(f"amplifier stage: the motor moved {np.ptp(tr.x_m) * 1e3:.3f} mm; lock the motor")
     means = np.array([tr.iamp_A[k * n + n // 2:(k + 1) * n].mean() for k in range(seq.size)])
@@ -94,3 +94,34 @@ def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: f
                        {"device.current_amplifier_A": 0.0, "amplifier.gain": resid, "amplifier.offset_A": resid,
                         "amplifier.bandwidth_hz": resid},
                        figure_data=fig, notes=notes, elapsed_s=time.perf_counter() - t0)
+
+
+def _amplifier_by_ammeter(bench: Bench, builder: ModelBuilder, t0: float) -> StageResult:
+    """No current sense (hardware): the operator reads an ammeter in series with the locked motor at two DC
+    commands (sec. 3.5.2: gain and offset calibrated with a precision ammeter); the bandwidth cannot be
+    measured this way and the amplifier is taken as ideal (noted in the result)."""
+    info = bench.info
+    fs = info.servo_rate_hz
+    levels = (0.5 * info.current_continuous_A, -0.5 * info.current_continuous_A)
+    readings = []
+    for level in levels:
+        n = int(3.0 * fs)  # hold the command while the operator reads the meter
+        bench.dev.command(0.0)
+        answer = bench.prompt(f"\n>>> The motor is locked; {level:+.3f} A will be commanded for 3 s. Read the "
+                              "ammeter, then type the reading in A: ")
+        bench.run(Experiment(f"dc {level:+.3f} A", np.full(n, level)))
+        try:
+            readings.append(float(answer))
+        except ValueError:
+            raise StageError(f"amplifier stage: ammeter reading {answer!r} is not a number") from None
+    gain = (readings[0] - readings[1]) / (levels[0] - levels[1])
+    offset = readings[0] - gain * levels[0]
+    if not 0.5 < gain < 2.0:
+        raise StageError(f"amplifier stage: implausible gain {gain:.3f} A/A from the ammeter readings {readings}")
+    sat = float(info.current_amplifier_A)
+    builder.base["amplifier"]["kind"] = "ideal"
+    vals = {"device.current_amplifier_A": sat, "amplifier.gain": float(gain), "amplifier.offset_A": float(offset)}
+    return StageResult("amplifier", CONFIG, vals, {k: 0.0 for k in vals},
+                       notes=[f"gain {gain:.4f} A/A, offset {offset * 1e3:.3f} mA by ammeter; no current sense: "
+                              "bandwidth not measured, amplifier taken as ideal, saturation from the device info"],
+                       elapsed_s=time.perf_counter() - t0)

@@ -247,3 +247,19 @@ def test_fast_sim_play_is_tick_for_tick_the_python_loop():
     for a, b in zip(out[0][0], out[1][0]):
         np.testing.assert_array_equal(a, b)
     assert out[0][1:] == out[1][1:]
+
+
+def test_amplifier_by_ammeter_prompts_without_current_sense():
+    """Hardware without a current sense: the operator reads an ammeter (here: answers what the sim carries)."""
+    from devices.identify.successive.amplifier import identify_amplifier
+    from devices.identify.successive.common import ModelBuilder, base_params_dict
+
+    dev = SimDevice()
+    answers = iter(["", "0.632", "-0.628"])  # Enter after locking the motor, then two meter readings
+    bench = Bench(dev, prompt=lambda text: next(answers))
+    bench.simulated = False
+    dev.set_mechanical_config("motor_locked")
+    r = identify_amplifier(bench, ModelBuilder(base_params_dict(dev.info)))
+    assert r.values["amplifier.gain"] == pytest.approx((0.632 + 0.628) / 1.26)
+    assert r.values["amplifier.offset_A"] == pytest.approx(0.632 - (0.632 + 0.628) / 1.26 * 0.63)
+    assert "bandwidth not measured" in r.notes[0]
