@@ -61,6 +61,11 @@ def identify_amplifier(bench: Bench, builder: ModelBuilder, sweep_amplitude_A: f
     nl = levels.size
     gain, offset = np.polyfit(levels, means[:nl], 1)
     sat = float(np.max(np.abs(means[nl:])))
+    if abs(sat - info.current_amplifier_A) <= 5e-3 * info.current_amplifier_A:
+        sat = float(info.current_amplifier_A)  # the rated limit, to the measurement's resolution
+    elif sat < info.current_peak_A:
+        raise StageError(f"amplifier stage: the amplifier saturates at {sat:.3f} A, below the device's rated peak "
+                         f"{info.current_peak_A:g} A; check the supply and the amplifier's current limit")
     # bandwidth: swept sine, regression of the first-order model on the sampled amplifier output
     u = chirp(fs, sweep_amplitude_A, 10.0, 0.45 * fs, 0.5)
     tr2 = bench.run(Experiment("bandwidth sweep", u), measure_current=True)

@@ -263,3 +263,14 @@ def test_amplifier_by_ammeter_prompts_without_current_sense():
     assert r.values["amplifier.gain"] == pytest.approx((0.632 + 0.628) / 1.26)
     assert r.values["amplifier.offset_A"] == pytest.approx(0.632 - (0.632 + 0.628) / 1.26 * 0.63)
     assert "bandwidth not measured" in r.notes[0]
+
+
+def test_amplifier_bandwidth_of_a_lowpass_amplifier():
+    from devices.identify.successive.amplifier import identify_amplifier
+    from devices.identify.successive.common import ModelBuilder, base_params_dict
+
+    dev = SimDevice(default_params().replace(amplifier={"kind": "lowpass", "bandwidth_hz": 700.0}))
+    mb = ModelBuilder(base_params_dict(dev.info))
+    r = identify_amplifier(Bench(dev), mb)
+    assert r.values["amplifier.bandwidth_hz"] == pytest.approx(700.0, rel=1e-3)
+    assert mb.params().amplifier["kind"] == "lowpass" and r.values["device.current_amplifier_A"] == 4.0
