@@ -18,7 +18,7 @@ from scipy import signal
 from ..base import Device, DeviceState, Status
 from . import kernel as K
 from .hand import HoldTrajectory, ReactiveHand, sample_grip
-from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, MechanicalConfig, get_config
+from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, get_config
 from .params import SimParams, default_params, load_sim_params
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
