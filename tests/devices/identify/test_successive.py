@@ -274,3 +274,27 @@ def test_amplifier_bandwidth_of_a_lowpass_amplifier():
     r = identify_amplifier(Bench(dev), mb)
     assert r.values["amplifier.bandwidth_hz"] == pytest.approx(700.0, rel=1e-3)
     assert mb.params().amplifier["kind"] == "lowpass" and r.values["device.current_amplifier_A"] == 4.0
+
+
+def test_comprehensive_grips_in_parallel_processes(tmp_path):
+    """Issue 21: on a simulated device the grips run in worker processes (fork); same outputs as serial."""
+    from devices.identify import IdentifyConfig, identify_device, load_model_set
+    from devices.identify.sweep import SweepConfig
+
+    dev = SimDevice.from_spec("lti")
+    sweep = SweepConfig(amplitude_A=0.75, f_start_hz=5.0, f_end_hz=1000.0, duration_s=0.5, fs_hz=1e4)
+    opts = FitOptions(max_order=7)
+    cfg = IdentifyConfig(grips_N=(1.0, 3.0), trials=1, sweep=sweep, validate=True, accel_options=opts,
+                         position_options=opts, workers=2)
+    logs = []
+    report = identify_device(dev, cfg, tmp_path, log=logs.append, device_spec="sim:lti", seed=5)
+    assert report["model_set_grips_N"] == [1.0, 3.0]
+    assert sorted(p.name for p in (tmp_path / "recordings").glob("*.csv")) == \
+        ["g1N_t0.csv", "g3N_t0.csv", "transients_g1N.csv", "transients_g3N.csv"]
+    mset = load_model_set(tmp_path)
+    truth = dev.linear_model(3.0, "accel_m_s2")
+    f = np.array([50.0, 129.0, 400.0])
+    err_db = 20 * np.log10(np.abs(mset.response_at(3.0, f, "accel_m_s2") / truth.frequency_response(f)))
+    assert np.all(np.abs(err_db) < 1.0)
+    assert all(r["validation"]["nrmse"] < 0.1 for r in report["grips"])
+    assert any(m.startswith("grip 3 N accel: order") for m in logs)
