@@ -273,6 +273,8 @@ class SimDevice(Device):
         p[K.P_HAND_ON] = 0.0 if hand_obj is None else 1.0
         p[K.P_HAND_KCOMP] = 0.0
         p[K.P_HAND_CALPHA] = 0.0
+        p[K.P_HAND_CTOOL] = 0.0
+        p[K.P_HAND_BTOOL] = 0.0
         if hand_obj is not None:
             p[K.P_HAND_MA] = hand_obj.arm_mass_kg
             p[K.P_HAND_KM] = hand_obj.muscle_stiffness_N_m
@@ -282,6 +284,9 @@ class SimDevice(Device):
             # the arm's internal model knows the tool it holds: the device's masses in handle space
             p[K.P_HAND_MTOOL] = p[K.P_MM] + p[K.P_MD] + p[K.P_MH]
             if isinstance(hand_obj, Person):
+                # the internal model also knows the tool's drag (Coulomb friction and damping, Table 3.1)
+                p[K.P_HAND_CTOOL] = p[K.P_CM] + p[K.P_CD]
+                p[K.P_HAND_BTOOL] = p[K.P_BM] + p[K.P_BD]
                 p[K.P_HAND_KCOMP] = hand_obj.compensation_stiffness_N_m
                 p[K.P_HAND_CALPHA] = 1.0 - math.exp(-2 * math.pi * hand_obj.compensation_bandwidth_hz * p[K.P_DT])
         self.hand = hand_obj if hand_obj is not None else PRESCRIBED

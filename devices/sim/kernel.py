@@ -67,6 +67,8 @@ P_HAND_DELAY, P_HAND_FTHR, P_HAND_MTOOL = N_PARAM - 4, N_PARAM - 3, N_PARAM - 2
 P_HAND_KCOMP, P_HAND_CALPHA = N_PARAM - 9, N_PARAM - 10
 # viscoelastic foam (standard linear solid): Maxwell-branch stiffness N/m and decay factor per substep
 P_S_K1, P_S_MXDECAY = N_PARAM - 11, N_PARAM - 12
+# person's internal model of the tool's drag: Coulomb friction (N) and viscous damping (N s/m) in handle space
+P_HAND_CTOOL, P_HAND_BTOOL = N_PARAM - 13, N_PARAM - 14
 
 
 @njit(cache=True, inline="always")
@@ -153,7 +155,7 @@ def _contact(kind, sk, salpha, smb, skf, sbf, sk1, mxdecay, dt, xh, vh, xb, vb, 
 
 @njit(cache=True, inline="always")
 def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km, bmu, rdelay, fthr, mtool, dt,
-                        ef, kcomp, calpha):
+                        ef, kcomp, calpha, ctool, btool):
     """One substep of the person (:class:`devices.sim.person.Person`; also the older ``ReactiveHand``).
 
     The grip spring-damper (k_u, b_u of eq. 3.34) couples the handle to a hand
@@ -193,9 +195,14 @@ def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km,
     ef += calpha * (xt - xa - ef)
     # the internal model plans free motion only: below the surface (height 0) the person leaves the
     # braking to the surface and the reflex, no voluntary feedforward
-    if xt < 0.0:
-        at = 0.0
-    fa = -fu + km * (xt - xa) + bmu * (vt - va) + kcomp * ef + (ma + mtool) * at
+    ff = 0.0
+    if xt >= 0.0:
+        ff = (ma + mtool) * at + btool * vt
+        if vt > 0.0:
+            ff += ctool
+        elif vt < 0.0:
+            ff -= ctool
+    fa = -fu + km * (xt - xa) + bmu * (vt - va) + kcomp * ef + ff
     va += fa / ma * dt
     xa += va * dt
     return fu, xa, va, rt, rx, ron, ef
@@ -255,6 +262,7 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
     mtool = p[P_HAND_MTOOL]
     xa, va, rt, rx, ron = s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON]
     ef, kcomp, calpha = s[S_EF], p[P_HAND_KCOMP], p[P_HAND_CALPHA]
+    ctool, btool = p[P_HAND_CTOOL], p[P_HAND_BTOOL]
     iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
     ah = 0.0
     fs = 0.0
@@ -272,7 +280,7 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
         if reactive:
             fu, xa, va, rt, rx, ron, ef = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
                                                               ma, km, bmu, rdelay, fthr, mtool, dt,
-                                                              ef, kcomp, calpha)
+                                                              ef, kcomp, calpha, ctool, btool)
         else:
             fu = -ku * (xh - xu) - bu * (vh - vu)
         # hysteretic linkage between drum and handle (sec. 3.5.3)

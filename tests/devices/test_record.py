@@ -25,7 +25,8 @@ def test_record_command_wood_on_foam(tmp_path, capsys):
         assert t.size == 1000                                   # 100 ms at the servo rate
         assert t[0] <= 0 < t[-1] and np.sum(t < 0) == 50        # 5 ms before impact
         assert np.allclose(np.diff(t), 1e-4)
-        assert v == pytest.approx(v_cmd, rel=0.05)              # measured from the encoder
+        assert v == pytest.approx(v_cmd, rel=0.12)              # measured from the encoder; the person's
+        # arm (a mass, not a velocity source) arrives within ~10 % of its planned speed
         assert np.max(np.abs(a[t < -1e-4])) < 1.0               # quiet before impact
         peaks.append(np.max(np.abs(a)))
     assert peaks[0] < peaks[1] < peaks[2]
