@@ -57,7 +57,7 @@ class Person:
     Attributes
     ----------
     arm_mass_kg : float
-        Effective hand/arm mass at the handle (kg), 0.1 kg. A tap with a
+        Effective hand/arm mass at the handle (kg), 0.07 kg. A tap with a
         held stylus is a wrist/finger flexion; the hand's inertia about the
         wrist (~1-3e-3 kg m^2) seen 0.12-0.15 m from the wrist is 0.05-0.2
         kg, far above the finger pad's few grams (Hajian & Howe 1997 [53]:
@@ -86,7 +86,7 @@ class Person:
         not accelerating, so starting a tap does not trigger it).
     """
 
-    arm_mass_kg: float = 0.06
+    arm_mass_kg: float = 0.07
     muscle_stiffness_N_m: float = 60.0
     muscle_damping_Ns_m: float = 1.5
     compensation_stiffness_N_m: float = 150.0
