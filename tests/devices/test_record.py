@@ -27,7 +27,9 @@ def test_record_command_wood_on_foam(tmp_path, capsys):
         assert np.allclose(np.diff(t), 1e-4)
         assert v == pytest.approx(v_cmd, rel=0.12)              # measured from the encoder; the person's
         # arm (a mass, not a velocity source) arrives within ~10 % of its planned speed
-        assert np.max(np.abs(a[t < -1e-4])) < 1.0               # quiet before impact
+        # quiet before impact; issue 16: with the default person the last ~1.5 ms before the detected impact
+        # tick rise to ~3 m/s^2 (measured 3.15), so only up to 3 ms before impact
+        assert np.max(np.abs(a[t < -3e-3])) < 1.0
         peaks.append(np.max(np.abs(a)))
     assert peaks[0] < peaks[1] < peaks[2]
     assert 3 < peaks[1] < 100
