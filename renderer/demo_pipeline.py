@@ -59,6 +59,16 @@ def tap_press_depth_m(velocity_m_s: float, stop_time_s: float = TAP_STOP_TIME_S)
     return float(velocity_m_s) * float(stop_time_s) / 1.5
 
 
+def tap_approach_height_m(velocity_m_s: float) -> float:
+    """Start height of the simulated hand's tap: 40 ms of travel at the tap speed, at least 4 mm.
+
+    The same for the recordings and every rendering: the simulated person's
+    arm has its own slow dynamics (the 8 Hz compensation), so the state it
+    arrives in depends on how long it has travelled (issue 16).
+    """
+    return max(0.004, 0.04 * float(velocity_m_s))
+
+
 def tap_trajectory_options(velocity_m_s: float, stop_time_s: float = TAP_STOP_TIME_S) -> dict:
     """Keyword arguments of the simulated hand's :class:`devices.sim.TapTrajectory` for one tap."""
     return {"press_depth_m": tap_press_depth_m(velocity_m_s, stop_time_s)}
@@ -296,6 +306,7 @@ def _build(out: Path, s: PipelineSettings, progress: Progress) -> dict:
         # one call per velocity: the hand's aim below the surface scales with the tap speed
         taps = [tap for v in s.record_velocities_m_s
                 for tap in record_taps(dev, [float(v)], grip_N=s.record_grip_N,
+                                       approach_height_m=tap_approach_height_m(v),
                                        trajectory_options=tap_trajectory_options(v, s.tap_stop_time_s))]
         write_tap_recording(out / "recordings.csv", taps, fs)
         timings["record"] = progress.done(f"{len(taps)} taps, peak |a| "

@@ -15,7 +15,7 @@ cell's velocity and grip, record the handle acceleration, correct, repeat)::
 so each step is the Newton-like correction of the LTI model and the
 measurement supplies the nonlinear truth. The sim plays it here with a
 minimal proportional-wall loop (the renderer's convention: the transient's
-first sample is commanded on the tick that detects the crossing), the
+first sample is commanded on the tick after the one that detects the crossing), the
 person of ``devices.sim`` tapping at the cell's velocity (adjusted so the
 measured incoming velocity matches) and grip.
 """
@@ -50,6 +50,8 @@ class RefineSettings:
         Grip levels below this are not refined (no hand holds the handle at 0 N).
     stop_time_s : float
         The simulated tap's stop time (renderer.demo's tap, 45 ms).
+    hand : devices.sim.Person, "prescribed" or None
+        The simulated user that taps (None: the device's default); the one that tapped the recordings.
     """
 
     iterations: int = 3
@@ -58,6 +60,7 @@ class RefineSettings:
     band_hz: tuple = (20.0, 1000.0)
     min_grip_N: float = 0.5
     stop_time_s: float = 0.045
+    hand: object = None
 
     def __post_init__(self):
         if int(self.iterations) != self.iterations or self.iterations < 1:
@@ -69,7 +72,7 @@ class RefineSettings:
 
 
 def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: float, wall_N_m: float,
-                 stop_time_s: float = 0.045) -> tuple[np.ndarray, float]:
+                 stop_time_s: float = 0.045, hand=None) -> tuple[np.ndarray, float]:
     """One simulated tap on a proportional wall with a transient; the handle acceleration after impact.
 
     Parameters
@@ -77,13 +80,16 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     device : devices.sim.SimDevice
         The sim (its default person taps; the motor is enabled here).
     current_A : ndarray, shape (n,)
-        Transient current, sample k commanded k ticks after the tick that detects the crossing.
+        Transient current, sample k commanded k + 1 ticks after the tick that detects the crossing (as
+        :class:`renderer.loop.ServoLoop` plays it).
     velocity_m_s, grip_N : float
         The person's planned tap speed (m/s) and grip (N).
     wall_N_m : float
         Proportional wall stiffness (eq. 4.1, F = -k x below the surface).
     stop_time_s : float
         When the plan stops after crossing the surface (s).
+    hand : devices.sim.Person, "prescribed" or None
+        The simulated user (None: the device's default); use the hand that tapped the recordings.
 
     Returns
     -------
@@ -101,7 +107,7 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=max(0.004, 0.04 * velocity_m_s),
                          press_depth_m=float(velocity_m_s) * stop_time_s / 1.5)
     device.set_sample("placeholder")
-    device.set_user(traj, grip_N=float(grip_N))
+    device.set_user(traj, grip_N=float(grip_N), hand=hand)
     device.motor_enabled = True
     n_hist = int(round(0.005 * fs))
     hist = []
@@ -114,12 +120,12 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
         x = device.read().position_m
         if k_imp < 0:
             hist.append(x)
-            if prev > 0.0 >= x:
+            if prev >= 0.0 > x:                         # the renderer: depth -x > 0
                 k_imp = k
         i_cmd = (-wall_N_m * x / kf) if x < 0.0 else 0.0
         j = k - k_imp if k_imp >= 0 else -1
-        if 0 <= j < n:
-            i_cmd += float(current_A[j])
+        if 1 <= j <= n:
+            i_cmd += float(current_A[j - 1])           # the renderer's timing: sample 0 on the next tick
         device.command(i_cmd)
         if 0 <= j < n:
             acc[j] = device.read().accel_m_s2      # the state one period after the command
@@ -188,7 +194,8 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
         for (i, j) in cells:
             v_lib, g = float(library.velocities_m_s[i]), float(library.grips_N[j])
             dev = device_factory()
-            y, v_in = play_on_wall(dev, cur[i, j], v_plan[(i, j)], g, settings.wall_N_m, settings.stop_time_s)
+            y, v_in = play_on_wall(dev, cur[i, j], v_plan[(i, j)], g, settings.wall_N_m, settings.stop_time_s,
+                                 settings.hand)
             if not np.all(np.isfinite(y)) or not math.isfinite(v_in) or v_in <= 0:
                 rows.append((v_lib, g, math.nan, math.nan))
                 continue

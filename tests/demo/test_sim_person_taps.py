@@ -16,7 +16,7 @@ GRIPS = (1.0, 2.0, 3.0)
 
 @pytest.fixture(scope="module")
 def taps():
-    from devices.sim import SimDevice
+    from devices.sim import DEFAULT_PERSON, SimDevice
     from renderer import demo_runs as runs
     from renderer.demo_runs import REAL, Rendering, make_transient
 
@@ -28,7 +28,7 @@ def taps():
     out = {}
     for r in rends:
         tr = make_transient(r)
-        out[r.name] = [runs.add_metrics(runs.tap_sim(dev, r, tr, v, g, fs), None, fs)
+        out[r.name] = [runs.add_metrics(runs.tap_sim(dev, r, tr, v, g, fs, hand=DEFAULT_PERSON), None, fs)
                        for v in VELOCITIES for g in GRIPS]
     return out, fs
 

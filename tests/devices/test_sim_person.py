@@ -16,7 +16,7 @@ from devices.sim.person import DEFAULT_PERSON, PRESCRIBED, Person
 def test_person_parameters_validated():
     assert SimDevice().hand == PRESCRIBED                  # before set_user nothing holds the handle
     dev = SimDevice()
-    dev.set_user(0.0, grip_N=2.0)
+    dev.set_user(0.0, grip_N=2.0, hand=DEFAULT_PERSON)
     assert dev.hand is DEFAULT_PERSON
     assert DEFAULT_PERSON.replace(arm_mass_kg=0.1).arm_mass_kg == 0.1
     for bad in ({"arm_mass_kg": 0.0}, {"reflex_delay_s": float("nan")}, {"muscle_stiffness_N_m": -1.0},
@@ -38,7 +38,8 @@ def test_person_carries_momentum_into_the_surface():
     """Free flight follows the plan; a wall stops a real mass: the handle's speed at the crossing is
     within 12 % of the plan's and the arm is still moving down when the handle has stopped."""
     dev = SimDevice(seed=3)
-    dev.set_user(TapTrajectory(0.1, n_taps=1, approach_height_m=0.01, press_depth_m=0.003), grip_N=2.0)
+    dev.set_user(TapTrajectory(0.1, n_taps=1, approach_height_m=0.01, press_depth_m=0.003), grip_N=2.0,
+                 hand=DEFAULT_PERSON)
     dev.motor_enabled = False
     dev.set_sample("foam")
     v_cross = None
