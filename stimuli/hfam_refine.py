@@ -52,6 +52,8 @@ class RefineSettings:
         The simulated tap's stop time (renderer.demo's tap, 45 ms).
     hand : devices.sim.Person, "prescribed" or None
         The simulated user that taps (None: the device's default); the one that tapped the recordings.
+    headroom : float
+        Refined currents are clipped at ``headroom`` x the peak current (the wall's current adds to them).
     """
 
     iterations: int = 3
@@ -61,6 +63,7 @@ class RefineSettings:
     min_grip_N: float = 0.5
     stop_time_s: float = 0.045
     hand: object = None
+    headroom: float = 0.85
 
     def __post_init__(self):
         if int(self.iterations) != self.iterations or self.iterations < 1:
@@ -180,7 +183,8 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
     sos = signal.butter(4, list(settings.band_hz), btype="bandpass", fs=fs, output="sos")
     cur = np.array(library.currents_A, dtype=float)
     n_v, n_g, n_t = cur.shape
-    peak = float(build_settings.peak_current_A)
+    # headroom under the peak limit: the wall's own current adds to the transient in the renderer
+    peak = settings.headroom * float(build_settings.peak_current_A)
     pre, post = int(round(build_settings.pre_pad_s * fs)), int(round(build_settings.post_pad_s * fs))
     cells = [(i, j) for i in range(n_v) for j in range(n_g) if library.grips_N[j] >= settings.min_grip_N]
     v_plan = {c: float(library.velocities_m_s[c[0]]) for c in cells}

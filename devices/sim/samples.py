@@ -73,8 +73,8 @@ class SampleParams:
 SAMPLES: dict[str, SampleParams] = {
     "placeholder": SampleParams("placeholder", KIND_NONE, 0.0),
     "wood": SampleParams("wood", KIND_HALFSPACE, 70000.0, contact_k_N_m=70000.0, contact_alpha_s_m=0.3),
-    "wood_on_foam": SampleParams("wood_on_foam", KIND_BLOCK_ON_FOAM, 350.0, contact_k_N_m=30000.0,
-                                 contact_alpha_s_m=5.0, block_mass_kg=0.12, foam_k_N_m=352.0, foam_b_Ns_m=5.0,
+    "wood_on_foam": SampleParams("wood_on_foam", KIND_BLOCK_ON_FOAM, 350.0, contact_k_N_m=15000.0,
+                                 contact_alpha_s_m=2.0, block_mass_kg=0.12, foam_k_N_m=352.0, foam_b_Ns_m=5.0,
                                  maxwell_k_N_m=18000.0, maxwell_tau_s=2.0),
     "foam": SampleParams("foam", KIND_HALFSPACE, 220.0, contact_k_N_m=220.0, contact_alpha_s_m=5.0,
                          maxwell_k_N_m=30.0, maxwell_tau_s=0.05),
