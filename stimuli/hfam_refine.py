@@ -184,7 +184,10 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
     cur = np.array(library.currents_A, dtype=float)
     n_v, n_g, n_t = cur.shape
     # headroom under the peak limit: the wall's own current adds to the transient in the renderer
-    peak = settings.headroom * float(build_settings.peak_current_A)
+    peak_A = build_settings.peak_current_A
+    if peak_A is None:
+        peak_A = device_factory().info.current_peak_A
+    peak = settings.headroom * float(peak_A)
     pre, post = int(round(build_settings.pre_pad_s * fs)), int(round(build_settings.post_pad_s * fs))
     cells = [(i, j) for i in range(n_v) for j in range(n_g) if library.grips_N[j] >= settings.min_grip_N]
     v_plan = {c: float(library.velocities_m_s[c[0]]) for c in cells}

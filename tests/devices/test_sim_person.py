@@ -77,7 +77,7 @@ def _press_stiffness(sample: str, depth_m: float, hold_s: float) -> float:
 
 @pytest.mark.parametrize("sample,target,depth,hold", [
     ("wood", 70000.0, 2e-5, 0.1),
-    ("wood_on_foam", 350.0, 0.004, 15.0),                 # Maxwell branch relaxes with tau = 2 s
+    ("wood_on_foam", 350.0, 0.004, 30.0),                 # the Maxwell branch creeps out over ~15 s
     ("foam", 220.0, 0.004, 1.0),
 ])
 def test_quasi_static_stiffness_table_4_1(sample, target, depth, hold):
