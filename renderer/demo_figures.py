@@ -198,6 +198,7 @@ def penetration_figure(penetration_m: dict, labels: dict, path: Path) -> Path:
     ax.set_xlabel("mean peak penetration (mm), bars: +/- 1 s.d. over velocities x grips")
     ax.set_title("Penetration per rendering and sample (cf. thesis Figure 4.19)")
     ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
     return _save(fig, path)
 
 
