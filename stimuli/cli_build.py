@@ -153,7 +153,7 @@ def run(args) -> int:
             raise ValueError(f"--refine plays the transients on a simulated device; --device {args.device!r} is not "
                              f"one (on hardware refinement needs repeated taps by a person, see docs/hfam_library.md)")
         from devices.registry import make_device
-        from .hfam_refine import RefineSettings, refine_library
+        from .hfam.refine import RefineSettings, refine_library
 
         library, _ = refine_library(library, models, lambda: make_device(args.device, seed=0),
                                     RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall), settings,
