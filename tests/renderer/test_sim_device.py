@@ -148,7 +148,8 @@ def test_cli_run_hfam_library_on_sim(tmp_path, capsys):
     assert main(["run", "--transient", "hfam", "--library", str(path), "--taps", "2", "--velocity", "0.1,0.2",
                  "--out", str(out)]) == 0
     back = __import__("renderer").RunResult.load(out)
-    assert [ev.transient for ev in back.events] == ["hfam", "hfam"]
+    # issue 16: the default simulated person can bounce once on the wall (a third event), so >= 2
+    assert len(back.events) >= 2 and all(ev.transient == "hfam" for ev in back.events)
     ev = back.events[1]
     expected = lib.current(ev.incoming_velocity_m_s, ev.grip_N) * info.force_per_amp_N_A
     np.testing.assert_allclose(back.log["force_transient_N"][ev.tick + 1:ev.tick + 1001], expected, rtol=1e-12)
