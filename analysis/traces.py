@@ -143,19 +143,20 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
     from analysis.load import parse_lists
 
     notes = []
-    lists = trials["incoming_velocities_m_s"].fillna("").astype(str).to_numpy(dtype=object)
-    where = trials["file"].to_numpy(dtype=object) if "file" in trials else np.full(len(trials), "?", dtype=object)
-    lines = trials["line"].to_numpy() if "line" in trials else np.zeros(len(trials), dtype=np.int64)
+    n_rows = len(trials)
     # all velocities in one vectorised parse (linear in rows; a Python loop per row was not)
     if velocities is None:
+        lists = trials["incoming_velocities_m_s"].fillna("").astype(str).to_numpy(dtype=object)
+        where = trials["file"].to_numpy(dtype=object) if "file" in trials else np.full(n_rows, "?", dtype=object)
+        lines = trials["line"].to_numpy() if "line" in trials else np.zeros(n_rows, dtype=np.int64)
         allv, row, counts = parse_lists(lists, where, lines, "incoming_velocities_m_s")
     else:
         allv, row = velocities
-        counts = np.bincount(row, minlength=len(lists))
+        counts = np.bincount(row, minlength=n_rows)
     starts = np.concatenate([[0], np.cumsum(counts)])
     if target_v_m_s is None:
         target_v_m_s = float(np.median(allv)) if allv.size else 0.1
-    dist = np.full(len(lists), np.inf)
+    dist = np.full(n_rows, np.inf)
     if allv.size:
         np.minimum.at(dist, row, np.abs(allv - target_v_m_s))
 
