@@ -1,4 +1,4 @@
-"""``python -m devices <command>``: record taps, identify a device, fit a model, emulate the firmware, measure latency."""
+"""``python -m devices <command>``: record taps, identify and validate a device, fit a model, emulate or simulate the firmware."""
 
 from __future__ import annotations
 
@@ -9,9 +9,15 @@ COMMANDS = (
     Command("record", "devices.cli_record", "tap a sample and record 100 ms of handle acceleration per tap (CSV)"),
     Command("identify", "devices.cli_identify", "record swept sines at several grips and fit a model set (H_ha and G_i)"),
     Command("fit", "devices.cli_identify", "fit a model to swept-sine recordings made anywhere"),
+    Command("validate", "devices.cli_validate", "validate an identified model against the device (ETFEs, held transients)"),
+    Command("linearity", "devices.cli_linearity",
+            "linearity and time-invariance report: ETFEs at several amplitudes, grips, positions"),
     Command("emulate", "devices.cli_hardware",
             "firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)"),
     Command("latency", "devices.cli_hardware", "measure command->state round trip and achieved update rate of a device"),
+    Command("firmware-report", "devices.cli_firmware",
+            "timing of the real AVR firmware on simavr (tick cycles, ISRs, RAM, encoder)"),
+    Command("fw-sim", "devices.cli_firmware", "run the real firmware on simavr behind a pty (connect with serial:<pty>)"),
 )
 
 
