@@ -7,7 +7,8 @@ from devices.dispatch import Command, main as dispatch, run_as_script
 #: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
 COMMANDS = (
     Command("record", "devices.cli_record", "tap a sample and record 100 ms of handle acceleration per tap (CSV)"),
-    Command("identify", "devices.cli_identify", "record swept sines at several grips and fit a model set (H_ha and G_i)"),
+    Command("identify", "devices.cli_identify",
+            "identify a device: comprehensive evaluation (LTI model set) or successive isolation (nonlinear physical model)"),
     Command("fit", "devices.cli_identify", "fit a model to swept-sine recordings made anywhere"),
     Command("validate", "devices.cli_validate", "validate an identified model against the device (ETFEs, held transients)"),
     Command("linearity", "devices.cli_linearity",

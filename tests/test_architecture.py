@@ -1,0 +1,145 @@
+"""Package arrows and import cycles, read from the code (ast): the allowed arrows are written once, here.
+
+stimuli -> devices; renderer -> devices, stimuli; study -> renderer, devices, stimuli; analysis and devices
+import none of the others. The renderer core must not import its demo or teleoperation applications.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("devices", "renderer", "stimuli", "study", "analysis")
+ALLOWED = {
+    "devices": set(),
+    "stimuli": {"devices"},
+    "renderer": {"devices", "stimuli"},
+    "study": {"renderer", "devices", "stimuli"},
+    "analysis": set(),
+}
+APPLICATIONS = ("renderer.demo", "renderer.teleop")  # the renderer core (renderer/*.py) must not import these
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def imports_of(path: Path) -> list[tuple[str, int, bool]]:
+    """(imported module, line, inside a function) for every import in ``path``, relative ones resolved."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = []
+
+    def visit(node, in_function):
+        for child in ast.iter_child_nodes(node):
+            inner = in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef))
+            if isinstance(child, ast.Import):
+                out.extend((a.name, child.lineno, in_function) for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                if child.level:
+                    base = package.split(".")
+                    base = base[:len(base) - child.level + 1]
+                    mod = ".".join(base + ([child.module] if child.module else []))
+                else:
+                    mod = child.module
+                out.extend((f"{mod}.{a.name}", child.lineno, in_function) for a in child.names)
+            visit(child, inner)
+
+    visit(ast.parse(path.read_text(encoding="utf-8")), False)
+    return out
+
+
+def all_modules():
+    return [p for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))]
+
+
+def test_packages_import_only_along_the_allowed_arrows():
+    bad = []
+    for path in all_modules():
+        own = path.relative_to(ROOT).parts[0]
+        for mod, line, _ in imports_of(path):
+            top = mod.split(".")[0]
+            if top in PACKAGES and top != own and top not in ALLOWED[own]:
+                bad.append(f"{path.relative_to(ROOT)}:{line}: {own} imports {mod}")
+    assert not bad, "imports against the package arrows:\n" + "\n".join(bad)
+
+
+def test_renderer_core_does_not_import_its_applications():
+    bad = []
+    for path in sorted((ROOT / "renderer").glob("*.py")):
+        if path.name == "__main__.py":
+            continue  # the command table names the demo's command module as a string, not an import
+        for mod, line, _ in imports_of(path):
+            if mod.startswith(APPLICATIONS):
+                bad.append(f"{path.relative_to(ROOT)}:{line}: imports {mod}")
+    assert not bad, "\n".join(bad)
+
+
+def _graph(level):
+    """Import graph between modules (level 'module') or between sub-packages (level 'subpackage')."""
+    modules = {_module_name(p): p for p in all_modules()}
+
+    def node(mod):
+        while mod and mod not in modules:
+            mod = mod.rpartition(".")[0]
+        if not mod:
+            return None
+        path = modules[mod]
+        if level == "subpackage":
+            return ".".join(path.relative_to(ROOT).parts[:-1]) if path.parent != ROOT else mod
+        return mod
+
+    graph = {}
+    for name, path in modules.items():
+        src = node(name)
+        for mod, _, _ in imports_of(path):
+            if mod.rpartition(".")[0] in modules and mod in modules:
+                pass  # ``from pkg import module``: the edge is to the module
+            elif mod not in modules and mod.rpartition(".")[0] in modules:
+                mod = mod.rpartition(".")[0]  # ``from module import name``
+            dst = node(mod)
+            # a module or sub-package using its parent package (devices.sim -> devices) is the layout, not a cycle
+            if dst and dst != src and not src.startswith(dst + "."):
+                graph.setdefault(src, set()).add(dst)
+    return graph
+
+
+def _cycles(graph):
+    """Strongly connected components with more than one node (Tarjan)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def strong(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in list(graph):
+        if v not in index:
+            strong(v)
+    return out
+
+
+@pytest.mark.parametrize("level", ["subpackage", "module"])
+def test_no_import_cycles(level):
+    assert _cycles(_graph(level)) == []
