@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .hfam import BuildSettings, build_library, format_verification, source_entry
+from .hfam.settings import BuildSettings
 from .recordings import read_tap_csv
 
 
@@ -107,6 +107,8 @@ def expand_model_paths(paths) -> list[Path]:
 
 
 def run(args) -> int:
+    from .hfam.build import build_library, format_verification, source_entry  # deferred: scipy.signal (~1 s)
+
     from devices.model import load_model
 
     if args.out.exists() and not args.force:

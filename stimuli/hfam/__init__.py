@@ -9,11 +9,24 @@
               library (``python -m stimuli sim-library``), the demo's identify/record/build steps
 """
 
-from .build import BuildReport, build_library, file_digest, format_verification, source_entry
-from .inversion import band_sos, check_model, forward_simulate, highpass_target, invert, make_proper, nrmse_corr
-from .selection import Selection, select_taps
-from .settings import MAX_SMOOTH_HZ, BuildSettings
+import importlib
+
+_EXPORTS = {"BuildReport": "build", "build_library": "build", "file_digest": "build",
+            "format_verification": "build", "source_entry": "build", "band_sos": "inversion",
+            "check_model": "inversion", "forward_simulate": "inversion", "highpass_target": "inversion",
+            "invert": "inversion", "make_proper": "inversion", "nrmse_corr": "inversion",
+            "Selection": "selection", "select_taps": "selection", "MAX_SMOOTH_HZ": "settings",
+            "BuildSettings": "settings"}
 
 __all__ = ["MAX_SMOOTH_HZ", "BuildReport", "BuildSettings", "Selection", "band_sos", "build_library", "check_model",
            "file_digest", "format_verification", "forward_simulate", "highpass_target", "invert", "make_proper",
            "nrmse_corr", "select_taps", "source_entry"]
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'stimuli.hfam' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)  # deferred: scipy.signal is ~1 s
+    globals()[name] = value
+    return value

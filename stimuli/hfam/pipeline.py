@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import BuildSettings, build_library, format_verification
 from ..recordings import Tap
+from .settings import BuildSettings
 
 DEFAULT_VELOCITIES_M_S = (0.03, 0.05, 0.07, 0.09, 0.11, 0.14, 0.17, 0.2, 0.25, 0.3)
 DEFAULT_GRIPS_N = (0.0, 2.5, 5.0, 7.5, 10.0)
@@ -78,6 +78,8 @@ def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_o
 def build_sim_library(out=None, velocities_m_s=DEFAULT_VELOCITIES_M_S, grips_N=DEFAULT_GRIPS_N,
                       settings: BuildSettings | None = None, log=print):
     """Record sim taps and build (and optionally save) a library through the sim's LTI models."""
+    from .build import build_library, format_verification  # deferred: scipy.signal costs ~1 s at start-up
+
     from devices.sim import SimDevice
 
     dev = SimDevice()
@@ -242,7 +244,7 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
     """
     from devices.recording import record_taps, write_tap_recording
     from devices.registry import make_device
-    from stimuli.hfam import BuildSettings, build_library, format_verification
+    from .build import build_library, format_verification  # deferred: scipy.signal costs ~1 s at start-up
     from stimuli.recordings import read_tap_csv
 
     timings = {}
