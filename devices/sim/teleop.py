@@ -270,6 +270,7 @@ class Testbed:
     servo_rate_hz: float = 5000.0
     substep_s: float = 10e-6
     rigid: bool = False
+    __test__ = False  # not a pytest class
 
     def nsub(self) -> int:
         """Substeps per servo period."""

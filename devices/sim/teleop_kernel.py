@@ -217,9 +217,14 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
         # ---------------- sensors at t_k ----------------
         if master_ext != 0:
             xm_meas = out[k, O_XM]
-        else:
+        elif math.isfinite(s[SB_MASTER + CS_XM]):
             xm_meas = p[P_ENC_M] * math.floor(s[SB_MASTER + CS_XM] / p[P_ENC_M])
-        xs_meas = p[P_ENC_S] * math.floor(s[SB_SLAVE + CS_XM] / p[P_ENC_S])
+        else:
+            xm_meas = math.nan
+        if math.isfinite(s[SB_SLAVE + CS_XM]):
+            xs_meas = p[P_ENC_S] * math.floor(s[SB_SLAVE + CS_XM] / p[P_ENC_S])
+        else:
+            xs_meas = math.nan
         fe = s[S_FS] + p[P_FS_N] * _xorshift_normal(rs)
         a_s = s[S_AS_F] + p[P_AC_N] * _xorshift_normal(rs)
         if a_s > p[P_AC_R]:
@@ -301,7 +306,8 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
             ihf = 0.0
         # ---------------- safety: NaN, divergence, saturation ----------------
         fault = 0
-        if not (math.isfinite(f_m) and math.isfinite(f_s) and math.isfinite(ihf) and math.isfinite(xm_meas)):
+        if not (math.isfinite(f_m) and math.isfinite(f_s) and math.isfinite(ihf) and math.isfinite(xm_meas)
+                and math.isfinite(xs_meas) and math.isfinite(fe)):
             fault = FAULT_NAN
             s[S_NAN] += 1.0
         elif abs(xs_meas - xc) > p[P_DIV_POS] or abs(vs_est) > p[P_DIV_VEL] or abs(vm_est) > p[P_DIV_VEL]:
