@@ -122,6 +122,8 @@ def register(sub) -> None:
     q.add_argument("--conditions", default=",".join(SWEEP_CONDITIONS),
                    help=f"comma list of {', '.join(SWEEP_CONDITIONS)}")
     q.add_argument("--seed", type=int, default=1, help="seed of the blind randomisation")
+    q.add_argument("--robustness", action="store_true",
+                   help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
     _add_common(q)
     q.set_defaults(func=run_sweep)
 
@@ -247,6 +249,36 @@ def largest_stable(rows: list[dict], cond: str) -> float:
     return best
 
 
+def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
+    """The CIMM model with +/- ``error`` in the user stiffness (k_u and q_u together) and the hand mass
+    (the model's handle mass, which carries the hand's effective mass).
+
+    Returns
+    -------
+    dict name -> CimmModel (including ``"nominal"``)
+    """
+    from dataclasses import replace  # local: only this helper copies models
+
+    mh = cimm.params.mechanics["m_h_kg"]
+    out = {"nominal": cimm}
+    for sign, f in (("-", 1 - error), ("+", 1 + error)):
+        out[f"user stiffness {sign}{error:.0%}"] = replace(cimm, k_u_N_m=cimm.k_u_N_m * f,
+                                                          q_u_N_m5=cimm.q_u_N_m5 * f)
+        out[f"hand mass {sign}{error:.0%}"] = replace(cimm, params=cimm.params.replace(
+            mechanics={"m_h_kg": mh * f}))
+    return out
+
+
+def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: float = 1.0, seed: int = 1,
+               error: float = 0.3, progress=None) -> dict:
+    """Largest stable lambda of ``pf+cimm`` for each of :func:`model_variants` (the +/-30 % table)."""
+    out = {}
+    for name, model in model_variants(cimm, error).items():
+        rows = sweep(tb, model, lambdas, ["pf+cimm"], taps=taps, mu=mu, seed=seed, progress=progress)
+        out[name] = largest_stable(rows, "pf+cimm")
+    return out
+
+
 def run_sweep(args) -> int:
     """The ``teleop-sweep`` command."""
     lambdas = _parse_lambdas(args.lam)
@@ -298,6 +330,12 @@ def run_sweep(args) -> int:
         "versions": software_versions()}, indent=1, default=str))
     figure_511(rows, conds, out / "figure_5_11.png")
     print("\n".join(table))
+    if args.robustness:
+        rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed)
+        lines = ["| CIMM model | largest stable lambda |", "|---|---|"]
+        lines += [f"| {k} | {v:g} |" for k, v in rob.items()]
+        atomic_write_text(out / "robustness.md", "\n".join(lines) + "\n")
+        print("\n".join(lines))
     print(f"wrote {out}")
     return 0
 

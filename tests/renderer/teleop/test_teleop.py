@@ -145,3 +145,13 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
     assert main(["teleop-sweep", "--lambda", "5:1", "--out", str(tmp_path / "x")]) == 2
     assert "error: --lambda" in capsys.readouterr().err
     assert set(SWEEP_CONDITIONS) >= {"pf", "pf+cimm", "pf+b", "pf+K_mu", "pf+K_lambda"}
+
+
+def test_cimm_robust_to_30_percent_model_errors(testbed, cimm_model, sweep_rows):
+    from renderer.teleop.cli_teleop import robustness
+    lmax_pf = largest_stable(sweep_rows, "pf")
+    table = robustness(testbed, cimm_model, (1.0, 2.0, 3.0), taps=1, seed=4)
+    print("robustness (largest stable lambda):", table)
+    assert len(table) == 5
+    for name, lam in table.items():
+        assert lam >= 3 * lmax_pf, name
