@@ -87,6 +87,27 @@ def build_testbed(args) -> Testbed:
     return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz)
 
 
+def build_hfam(args, tb: Testbed, out: Path):
+    """HFAM filter from H_ha: ``--hha-model FILE`` or the comprehensive identification of the master."""
+    from devices.model import load_model
+
+    from .hfam import design_hfam, identify_master_hha  # deferred: scipy / identification only for pd+hfam
+
+    if args.hha_model:
+        model = load_model(args.hha_model)
+        print(f"H_ha: {args.hha_model}")
+    else:
+        print("identifying H_ha of the master (swept sine, ETFE, fit; about 30 s)...", flush=True)
+        model = identify_master_hha(tb.master, tb.servo_rate_hz)
+        model.save(out / "H_ha_model.json")
+    hf = design_hfam(model, tb.servo_rate_hz, max_current_A=args.hfam_max_current)
+    c = hf.check
+    print(f"HFAM inverse: Tustin vs continuous over {c['band_hz'][0]:.0f}-{c['band_hz'][1]:.0f} Hz: "
+          f"max {c['max_mag_error_db']:.2f} dB, {c['max_phase_error_deg']:.1f} deg; "
+          f"{c['reflected_rhp_zeros']} right-half-plane zero(s) reflected")
+    return hf
+
+
 def build_cimm(args) -> CimmModel:
     """CIMM model from the configured source (``--cimm-model``), never the simulator's parameters."""
     params, source = cimm_params(args.cimm_model)
@@ -114,6 +135,8 @@ def register(sub) -> None:
     p.add_argument("--k-mu-hz", type=float, default=0.0, help="position-command low-pass K_mu (eq. 5.10)")
     p.add_argument("--k-lambda-hz", type=float, default=0.0, help="force-feedback low-pass K_lambda (eq. 5.11)")
     p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--hha-model", default=None, help="H_ha model file for pd+hfam (default: identify the master)")
+    p.add_argument("--hfam-max-current", type=float, default=4.0, help="saturation of the HFAM channel, A")
     _add_common(p)
     p.set_defaults(func=run_teleop)
     q = sub.add_parser("teleop-sweep", help="lambda sweep with/without cancellation and stabilisers (Fig. 5.11)")
@@ -135,9 +158,10 @@ def run_teleop(args) -> int:
     cfg = TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b,
                        k_mu_hz=args.k_mu_hz, k_lambda_hz=args.k_lambda_hz)
     tb = build_testbed(args)
-    if args.controller == "pd+hfam":
-        raise ValueError("controller pd+hfam is not implemented yet on this branch (see docs/teleop.md)")
     out = _new_dir(Path(args.out))
+    hfam = None
+    if args.controller == "pd+hfam":
+        hfam = build_hfam(args, tb, out)
     cimm = build_cimm(args) if args.controller == "pf+cimm" else None
     check = None
     if cimm is not None:
@@ -147,7 +171,10 @@ def run_teleop(args) -> int:
               f"(max ratio {check['max_ratio']:.2f}): no positive feedback (eq. 5.14)")
     path, crossings = default_path(tb.servo_rate_hz, args.mu, n_taps=args.taps, speed_m_s=args.speed)
     t0 = time.perf_counter()
-    res = run_session(tb, cfg, path, cimm=cimm, impact_ticks=crossings)
+    stroke = None
+    if args.environment == "texture":
+        stroke = np.cumsum(np.where(path < 0.5e-3 / args.mu, 0.02, 0.0)) / tb.servo_rate_hz  # 20 mm/s in contact
+    res = run_session(tb, cfg, path, cimm=cimm, hfam=hfam, impact_ticks=crossings, stroke_m=stroke)
     wall = time.perf_counter() - t0
     metrics = session_metrics(res)
     n = len(res.traces) if not res.fault else res.fault_tick + 1
@@ -169,6 +196,17 @@ def run_teleop(args) -> int:
            "versions": software_versions(), "duration_s": len(path) / tb.servo_rate_hz,
            "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
            "unstable_taps": unstable, "taps": taps}
+    if cfg.controller.startswith("pd"):
+        from .hfam import accel_match, figure_45  # deferred: scipy-based analysis, PD controllers only
+        match = accel_match(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
+        run["accel_match_22_1000Hz"] = match
+        if hfam is not None:
+            run["hfam"] = {"check": hfam.check, "max_current_A": hfam.max_current_A, "gain": hfam.gain}
+        print(f"master handle vs slave tip (22-1000 Hz, delay {match['delay_s'] * 1e3:.1f} ms removed): "
+              f"correlation {match['correlation']:.2f}, NRMSE {match['nrmse']:.2f}, RMS ratio {match['rms_ratio']:.2f}")
+        if not args.no_figures:
+            figure_45(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz, match["delay_samples"],
+                      out / "figure_4_5.png", f"{cfg.controller}, {args.environment}")
     atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
     if not args.no_figures:
         figure_510(res, out / "figure_5_10.png", f"{cfg.controller}, lambda = {cfg.lam:g}, mu = {cfg.mu:g}")
