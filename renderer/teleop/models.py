@@ -1,26 +1,58 @@
 """Where the CIMM master model comes from (one place, so tests and commands share the source).
 
 The CIMM model must come from the project's own identification of the master, never from the
-simulator's true parameters. Successive isolation (issue 17, ``devices.identify.successive``) is not
-on this branch yet; until it is, :func:`cimm_params` returns **clearly marked perturbed Table 3.1
-parameters** (every mechanical parameter off by 5-20 %, the direction a careful identification
-typically errs), or a parameter file given by the user (``--cimm-model FILE``, loadable by
-``load_sim_params``, e.g. the file the successive-isolation saver writes).
+simulator's true parameters. Default (:func:`identified_params`): successive isolation
+(``devices.identify.successive.identify_successive``, thesis section 3.5) of the simulated master,
+cached as a ``model.json`` under ``$XDG_CACHE_HOME/hfam-haptics/teleop/`` keyed by the simulator's
+parameter file. Alternatives: a parameter file (``--cimm-model FILE``, loadable by
+``load_sim_params``) or ``--cimm-model stand-in``: **clearly marked perturbed Table 3.1 parameters**
+(every mechanical parameter off by 5-20 %), for quick runs and a harder robustness case.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 
-from devices.sim.params import SimParams, default_params, load_sim_params
+from devices.sim.params import DEFAULT_PARAMS_FILE, SimParams, default_params, load_sim_params
 
 # relative errors of the stand-in model (until successive isolation is merged): name -> factor
 STAND_IN_ERRORS = {"m_m_kg": 1.08, "m_d_kg": 0.92, "m_h_kg": 1.10, "k_c_N_m": 0.90, "b_c_Ns_m": 1.20,
                    "c_m_N": 0.85, "c_d_N": 1.15, "k_lp_N_m": 1.05, "k_ln_N_m": 0.95, "gamma_l_rad_m": 1.10,
                    "b_d_Ns_m": 1.2}
-STAND_IN_SOURCE = "stand-in: Table 3.1 with 5-20 % errors (successive isolation not merged yet)"
+STAND_IN_SOURCE = "stand-in: Table 3.1 with 5-20 % errors (not identified)"
+SUCCESSIVE_SOURCE = "successive isolation (devices.identify.successive) of the simulated master"
+
+
+def identified_params(log=print) -> tuple[SimParams, str]:
+    """Successive-isolation identification of the simulated master (about 40 s once, then cached).
+
+    Returns
+    -------
+    params : SimParams
+        Loaded from the saved ``model.json``.
+    source : str
+    """
+    from devices.identify.successive import identify_successive, save_result  # deferred: heavy, first run only
+
+    key = hashlib.sha256(Path(DEFAULT_PARAMS_FILE).read_bytes()).hexdigest()[:16]
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "hfam-haptics" / "teleop" / key
+    model = base / "model.json"
+    if not model.is_file():
+        log("identifying the master by successive isolation (about 40 s, cached afterwards)...")
+        result = identify_successive("sim", log=lambda *a, **k: None)
+        tmp = base.with_name(base.name + f".tmp{os.getpid()}")
+        save_result(result, tmp, figures=False)
+        tmp.mkdir(parents=True, exist_ok=True)
+        try:
+            tmp.rename(base)
+        except OSError:  # another process finished first: use its result
+            pass
+    return load_sim_params(model), f"{SUCCESSIVE_SOURCE}: {model}"
 
 
 def cimm_params(path=None) -> tuple[SimParams, str]:
@@ -29,14 +61,17 @@ def cimm_params(path=None) -> tuple[SimParams, str]:
     Parameters
     ----------
     path : str or Path or None
-        A parameter file (TOML/JSON, nonlinear model); None: the marked stand-in.
+        A parameter file (TOML/JSON, nonlinear model); ``"stand-in"``: the marked stand-in;
+        None: :func:`identified_params` (successive isolation).
 
     Returns
     -------
     params : SimParams
     source : str
     """
-    if path is not None:
+    if path is None:
+        return identified_params()
+    if str(path) != "stand-in":
         p = load_sim_params(path)
         if p.model != "nonlinear":
             raise ValueError(f"{path}: the CIMM model needs a nonlinear (sixth-order) parameter file")

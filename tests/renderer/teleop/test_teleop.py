@@ -1,8 +1,8 @@
 """Teleoperation on the simulated testbed (issue 18): Figure 5.10/5.11 behaviour, safety, commands.
 
-The CIMM model source is one fixture (``cimm_model``): until successive isolation (issue 17) is merged
-it is the marked stand-in of ``renderer.teleop.models`` (Table 3.1 with 5-20 % errors), never the
-simulator's own parameters.
+The CIMM model source is one fixture (``cimm_model``): successive isolation (thesis section 3.5,
+``devices.identify.successive``) of the simulated master, saved with the project's saver and loaded
+with ``load_sim_params`` -- never the simulator's own parameters.
 """
 
 from __future__ import annotations
@@ -31,11 +31,19 @@ def testbed():
 
 
 @pytest.fixture(scope="module")
-def cimm_model():
-    """The one place the CIMM model comes from (stand-in until identify_successive is on main)."""
-    params, source = cimm_params()
-    assert source == STAND_IN_SOURCE
-    assert params.mechanics["k_c_N_m"] != default_params().mechanics["k_c_N_m"]  # not the true parameters
+def cimm_file(tmp_path_factory):
+    """The one place the CIMM model comes from: successive isolation of the simulated master (~40 s)."""
+    from devices.identify.successive import identify_successive, save_result
+
+    out = tmp_path_factory.mktemp("successive")
+    save_result(identify_successive("sim", log=lambda *a, **k: None), out, figures=False)
+    return out / "model.json"
+
+
+@pytest.fixture(scope="module")
+def cimm_model(cimm_file):
+    params, source = cimm_params(cimm_file)
+    assert params.mechanics["k_c_N_m"] != default_params().mechanics["k_c_N_m"]  # identified, not copied
     return CimmModel(params, source=source)
 
 
@@ -124,23 +132,25 @@ def test_slave_stops_when_master_link_lost(testbed):
     assert np.all(res.traces[lost:, K.O_XC] == res.traces[lost, K.O_XC])
 
 
-def test_teleop_command_writes_run_folder_and_refuses_overwrite(tmp_path, capsys):
+def test_teleop_command_writes_run_folder_and_refuses_overwrite(tmp_path, capsys, cimm_file):
     out = tmp_path / "run"
-    assert main(["teleop", "--controller", "pf+cimm", "--lambda", "2", "--taps", "2", "--out", str(out)]) == 0
+    assert main(["teleop", "--controller", "pf+cimm", "--lambda", "2", "--taps", "2", "--cimm-model",
+                 str(cimm_file), "--out", str(out)]) == 0
     run = json.loads((out / "run.json").read_text())
-    assert run["cimm_model"]["source"] == STAND_IN_SOURCE
+    assert run["cimm_model"]["source"] == f"file: {cimm_file}"
     assert run["unstable_taps"] == 0 and run["fault"] == 0 and len(run["taps"]) == 2
     assert (out / "figure_5_10.png").stat().st_size > 10000
     cols = (out / "traces.csv").read_text().splitlines()[0].split(",")
     assert "x_hat_mi_hf_m" in cols and "F_f_N" in cols
-    assert main(["teleop", "--out", str(out)]) == 2
+    assert main(["teleop", "--cimm-model", "stand-in", "--out", str(out)]) == 2
     assert "exists and is not empty" in capsys.readouterr().err
 
 
 def test_sweep_command_and_bad_lambda(tmp_path, capsys):
     out = tmp_path / "sweep"
     assert main(["teleop-sweep", "--lambda", "0.5,3", "--taps", "1", "--conditions", "pf,pf+cimm",
-                 "--out", str(out)]) == 0
+                 "--cimm-model", "stand-in", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["cimm_model"]["source"] == STAND_IN_SOURCE
     assert (out / "figure_5_11.png").exists() and "pf+cimm" in (out / "table.md").read_text()
     assert main(["teleop-sweep", "--lambda", "5:1", "--out", str(tmp_path / "x")]) == 2
     assert "error: --lambda" in capsys.readouterr().err
