@@ -401,3 +401,26 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
         s[S_CONTACT] = contact
         out[k, O_CONTACT] = contact
     return 0, -1
+
+
+@njit(cache=True)
+def cimm_model_run(p, s, force_N, out_x):
+    """Advance only the CIMM induced-motion model (sections 5.6-5.7) one servo tick per input sample.
+
+    Parameters
+    ----------
+    p, s : float64 arrays (N_PARAM,), (N_STATE,)
+        Packed with a CIMM model (``Testbed.pack(cimm)``); only the model block is touched.
+    force_N : float64 array (n,)
+        Force applied at the master motor during each tick (N).
+    out_x : float64 array (n,)
+        Model motor position x_hat_mi,hf at the end of each tick (m).
+    """
+    nsub = int(p[P_NSUB])
+    mdt_n = int(p[P_MDT_N])
+    mdt = p[P_DT] * mdt_n
+    for k in range(force_N.shape[0]):
+        for j in range(nsub // mdt_n):
+            fum = _grip_force(p, P_MKU, P_MQU, P_MBU, s[SB_MODEL + CS_XH], s[SB_MODEL + CS_VH])
+            _chain_substep(s, SB_MODEL, p, PB_MODEL, force_N[k], fum, mdt)
+        out_x[k] = s[SB_MODEL + CS_XM]
