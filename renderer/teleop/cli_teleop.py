@@ -31,6 +31,8 @@ from .session import CONTROLLERS, TeleopConfig, default_path, run_session, sessi
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
                  "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
 
+HFAM_K_MU_HZ = 40.0   # pd+hfam: low-pass on x_c so the HFAM-induced master motion does not close a loop
+
 # sweep conditions: name -> (controller, extra TeleopConfig fields)
 SWEEP_CONDITIONS = {
     "pf": ("pf", {}),
@@ -132,7 +134,9 @@ def register(sub) -> None:
     p.add_argument("--lambda", dest="lam", type=float, default=1.0, help="force-feedback gain lambda")
     p.add_argument("--taps", type=int, default=10)
     p.add_argument("--b", type=float, default=0.0, help="master damping b, N s/m (eq. 5.9)")
-    p.add_argument("--k-mu-hz", type=float, default=0.0, help="position-command low-pass K_mu (eq. 5.10)")
+    p.add_argument("--k-mu-hz", type=float, default=None,
+                   help="position-command low-pass K_mu (eq. 5.10); default 0 (off), 40 Hz for pd+hfam, whose "
+                        "high-frequency master motion would otherwise excite the slave through x_c")
     p.add_argument("--k-lambda-hz", type=float, default=0.0, help="force-feedback low-pass K_lambda (eq. 5.11)")
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--hha-model", default=None, help="H_ha model file for pd+hfam (default: identify the master)")
@@ -155,8 +159,9 @@ def run_teleop(args) -> int:
     """The ``teleop`` command."""
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if args.controller == "pd+hfam" else 0.0)
     cfg = TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b,
-                       k_mu_hz=args.k_mu_hz, k_lambda_hz=args.k_lambda_hz)
+                       k_mu_hz=k_mu, k_lambda_hz=args.k_lambda_hz)
     tb = build_testbed(args)
     out = _new_dir(Path(args.out))
     hfam = None
