@@ -163,6 +163,39 @@ def bode_figure(etfe_npz: Path, model_set, path: Path) -> Path:
                      title="Identified sim device: ETFE (solid) and fitted models (dashed) per grip")
 
 
+def penetration_figure(penetration_m: dict, labels: dict, path: Path) -> Path:
+    """Mean peak penetration per rendering with its spread (thesis Figure 4.19 style).
+
+    Parameters
+    ----------
+    penetration_m : dict
+        Rendering name -> sequence of per-tap maximum penetrations (m).
+    labels : dict
+        Rendering name -> axis label.
+    path : Path
+        PNG to write.
+
+    Returns
+    -------
+    Path
+    """
+    plt = _plt()
+    names = [n for n in labels if n in penetration_m and len(penetration_m[n])]
+    mean = [1e3 * float(np.mean(penetration_m[n])) for n in names]
+    sd = [1e3 * float(np.std(penetration_m[n])) for n in names]
+    fig, ax = plt.subplots(figsize=figstyle.figsize("page", height_in=3.8))
+    y = np.arange(len(names))
+    colors = [figstyle.color(n) for n in names]
+    ax.barh(y, mean, xerr=sd, color=colors, capsize=3)
+    ax.set_yticks(y, [labels[n] for n in names])
+    ax.invert_yaxis()
+    ax.set_xlabel("mean peak penetration (mm), bars: +/- 1 s.d. over velocities x grips")
+    ax.set_title("Penetration per rendering and sample (cf. thesis Figure 4.19)")
+    ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, path, {"rendering": names, "mean_penetration_mm": mean, "sd_penetration_mm": sd})
+
+
 def _save(fig, path: Path, data=None) -> Path:
     """Save as PNG (returned) plus SVG and the plotted data as CSV (figstyle.save), then leave the style."""
     paths = figstyle.save(fig, path, data)
