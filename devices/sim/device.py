@@ -18,6 +18,7 @@ from scipy import signal
 from ..base import Device, DeviceState, Status
 from . import kernel as K
 from .hand import HoldTrajectory, ReactiveHand, sample_grip
+from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, get_config
 from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .params import SimParams, default_params, load_sim_params
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
@@ -61,6 +62,7 @@ class SimDevice(Device):
         self.trajectory = None
         self.hand = PRESCRIBED
         self.sample_name = "placeholder"
+        self.mechanical_config = ASSEMBLED
         self.set_sample(sample)
         self._refresh_state()
 
@@ -324,6 +326,37 @@ class SimDevice(Device):
         self._s[K.S_VB] = 0.0
         self.sample_name = name
         self.sample = smp
+
+    def set_mechanical_config(self, config="assembled") -> None:
+        """Put the device into a mechanical test configuration for successive isolation (sec. 3.5.1).
+
+        Parameters
+        ----------
+        config : MechanicalConfig or str
+            A :class:`devices.sim.mechconfig.MechanicalConfig` or a key of
+            ``devices.sim.mechconfig.CONFIGS`` (``motor_locked``, ``motor_only``,
+            ``drum_locked``, ``linkage_off``, ``handle_locked``, ``assembled``).
+            Disconnected cables or linkage exert no force; a locked mass keeps
+            its position (its inertia becomes ``LOCKED_MASS_KG``). Applies from
+            the next ``command()``; ``set_user`` then places the device at rest.
+        """
+        cfg = get_config(config)
+        if self.params.model != "nonlinear" and cfg != ASSEMBLED:
+            raise ValueError(f"mechanical configurations need the nonlinear sim model, not {self.params.model!r}")
+        if self.params.model == "nonlinear":
+            m = self.params.mechanics
+            p = self._p
+            p[K.P_KC] = m["k_c_N_m"] if cfg.cables else 0.0
+            p[K.P_BC] = m["b_c_Ns_m"] if cfg.cables else 0.0
+            p[K.P_MM] = LOCKED_MASS_KG if cfg.motor_locked else m["m_m_kg"]
+            p[K.P_MD] = LOCKED_MASS_KG if cfg.drum_locked else m["m_d_kg"]
+            p[K.P_MH] = LOCKED_MASS_KG if cfg.handle_locked else m["m_h_kg"]
+            for idx, key in ((K.P_KLP, "k_lp_N_m"), (K.P_KLN, "k_ln_N_m"), (K.P_FLP, "f_lp_N"),
+                             (K.P_FLN, "f_ln_N"), (K.P_BL, "b_l_Ns_m")):
+                p[idx] = m[key] if cfg.linkage else 0.0
+            p[K.P_HYST] = 1.0 if (m["hysteresis"] and cfg.linkage) else 0.0
+            self._s[K.S_FL] = self._s[K.S_FHAT] = 0.0
+        self.mechanical_config = cfg
 
     def _refresh_state(self) -> None:
         st = self._state
