@@ -489,7 +489,7 @@ class Emulator:
     def _keep_hand_busy(self) -> None:
         phys = self.phys
         if getattr(phys, "trajectory_done", False) and getattr(phys, "trajectory", None) is not None:
-            phys.set_user(phys.trajectory, grip_N=self._grip_N)
+            phys.set_user(phys.trajectory, grip_N=self._grip_N, hand=getattr(self, "_hand", None))
 
     def _run_due_ticks(self, now: float) -> float:
         """Run the ticks that are due; return how long select may sleep."""
@@ -531,6 +531,7 @@ class Emulator:
     def set_hand(self, trajectory, grip_N: float = 2.0, hand=None) -> None:
         """The emulated device's simulated hand (``hand`` as :meth:`devices.sim.SimDevice.set_user`)."""
         self._grip_N = grip_N
+        self._hand = hand
         self.phys.set_user(trajectory, grip_N=grip_N, hand=hand)
 
     def serve(self, stop: threading.Event) -> None:
