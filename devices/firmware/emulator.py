@@ -489,7 +489,7 @@ class Emulator:
     def _keep_hand_busy(self) -> None:
         phys = self.phys
         if getattr(phys, "trajectory_done", False) and getattr(phys, "trajectory", None) is not None:
-            phys.set_user(phys.trajectory, grip_N=self._grip_N)
+            phys.set_user(phys.trajectory, grip_N=self._grip_N, hand=getattr(self, "_hand", None))
 
     def _run_due_ticks(self, now: float) -> float:
         """Run the ticks that are due; return how long select may sleep."""
@@ -528,9 +528,11 @@ class Emulator:
                 self._send_state(self.phys.read())
 
     # -- main loop ---------------------------------------------------------------------------
-    def set_hand(self, trajectory, grip_N: float = 2.0) -> None:
+    def set_hand(self, trajectory, grip_N: float = 2.0, hand=None) -> None:
+        """The emulated device's simulated hand (``hand`` as :meth:`devices.sim.SimDevice.set_user`)."""
         self._grip_N = grip_N
-        self.phys.set_user(trajectory, grip_N=grip_N)
+        self._hand = hand
+        self.phys.set_user(trajectory, grip_N=grip_N, hand=hand)
 
     def serve(self, stop: threading.Event) -> None:
         """Run until ``stop`` is set or the disconnect fault fires."""
@@ -638,7 +640,9 @@ def build_emulator(mode: str = "streaming", faults: FaultSpec | str | None = Non
     phys.command(0.0)  # compile/load the physics kernel now, not inside the host's first round trip
     emu = Emulator(phys, mode=mode, faults=faults, watchdog_ms=watchdog_ms, pace=pace, seed=seed, t0_us=t0_us)
     if taps_m_s:
-        emu.set_hand(TapTrajectory(list(taps_m_s), n_taps=len(taps_m_s)), grip_N=grip_N)
+        # the test harness's tapping hand: the prescribed (velocity-source) hand, one clean event per tap
+        # (issue 16: the default simulated person bounces and its taps depend on its reflex state)
+        emu.set_hand(TapTrajectory(list(taps_m_s), n_taps=len(taps_m_s)), grip_N=grip_N, hand="prescribed")
     else:
         emu.set_hand(0.01, grip_N=grip_N)
     return emu

@@ -44,7 +44,7 @@ def test_streaming_over_the_pty_is_transparent_to_the_physics(emulator):
     assert ref.info.servo_rate_hz == 1000.0
     ref.open()
     ref.command(0.0)  # the emulator's warm-up tick
-    ref.set_user(TapTrajectory([0.05, 0.1, 0.2], n_taps=3), grip_N=2.0)
+    ref.set_user(TapTrajectory([0.05, 0.1, 0.2], n_taps=3), grip_N=2.0, hand="prescribed")  # as the harness
     # the zero command Device.open sends is answered with this state, then applied
     res = ref.info.position_resolution_m
     with SerialDevice(port) as dev:
