@@ -80,6 +80,7 @@ class AttemptRecord:
             "penetration_mean_m": float(np.mean(p)) if p else math.nan,
             "incoming_velocities_m_s": v, "penetration_depths_m": p,
             "started_at": self.started_at, "duration_s": self.duration_s,
+            "ends_familiarization": bool(self.end_familiarization and self.trial.phase == "familiarization"),
         }
 
 
