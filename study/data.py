@@ -170,7 +170,7 @@ def format_row(row: dict) -> dict:
     """Turn an attempt record into CSV strings (lists ';'-joined, booleans true|false, rating empty if None)."""
     out = {}
     for key in TRIAL_COLUMNS:
-        value = row[key]
+        value = row.get(key) if key == "ends_familiarization" else row[key]
         if key in ("rejected", "saturated", "overpowered", "valid"):
             out[key] = _fmt_bool(value)
         elif key in ("incoming_velocities_m_s", "penetration_depths_m"):
