@@ -109,6 +109,21 @@ class SubjectLock:
         except (OSError, ValueError, KeyError, TypeError):
             return "a process that has not written its pid yet"
 
+    @staticmethod
+    def busy(path: Path) -> bool:
+        """True when a runner holds the lock file ``path`` (tested without creating or writing anything)."""
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            return False
+        except OSError:
+            return True
+        finally:
+            os.close(fd)
+
     def acquire(self, subject: str) -> None:
         """Take the lock or raise :class:`SubjectBusy` naming the holder; then write our pid and host."""
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
@@ -256,7 +271,7 @@ class SessionStore:
             aside = self.root / f".{self.subject}.abandoned-{_dt.datetime.now():%Y%m%dT%H%M%S}-{os.getpid()}"
             os.rename(self.dir, aside)
             print(f"note: {self.dir} held an interrupted start-up with no recorded attempt; moved to {aside}")
-        if self.dir.is_dir():
+        if self.dir.is_dir() and self.resume:
             self.lock = SubjectLock(self.dir)
             self.lock.acquire(self.subject)  # SubjectBusy names the holder
         if self.resume:
@@ -269,7 +284,9 @@ class SessionStore:
                 raise ValueError(f"--resume: session {self.session_path} already finished at "
                                  f"{session['finished_at']}")
         elif self.dir.exists():
-            raise ValueError(f"subject {self.subject!r} already has data in {self.dir}; "
+            lock_path = self.dir / LOCK_NAME
+            busy = f" (in use right now by {SubjectLock.holder(lock_path)})" if SubjectLock.busy(lock_path) else ""
+            raise ValueError(f"subject {self.subject!r} already has data in {self.dir}{busy}; "
                              "use --resume to continue it or choose another subject id (nothing was overwritten)")
 
     def _startup_dirs(self) -> list[Path]:
