@@ -22,25 +22,27 @@ def _run(spec, out, tmp_path, capsys, duration_s, overrun_s="0.2"):
 
 
 def test_one_drop_in_200_and_one_corruption_in_500_complete_10_s_at_1_khz(tmp_path, capsys):
-    port, handle = start_emulator("streaming", "drop_every=200,corrupt_every=500", process=True,
+    port, handle = start_emulator("streaming", "drop_every=200,corrupt_every=500", process=False,
                                   taps_m_s=(0.05, 0.1, 0.2))
     try:
-        code, stdout = _run(f"serial:{port}", tmp_path / "run", tmp_path, capsys, 10)
+        # loaded machine: a reply later than 20 ms (default 5 ms) counts as lost, like the widened watchdog
+        code, stdout = _run(f"serial:{port}?loss_timeout_s=0.02", tmp_path / "run", tmp_path, capsys, 10,
+                            overrun_s="0.5")  # 10 s on a shared machine: stalls of ~0.3 s were seen
+        emu = dict(handle.emulator.stats)
     finally:
         handle.stop()
     assert code == 0, stdout
     run = json.loads((tmp_path / "run" / "run.json").read_text())
-    assert run["stop_reason"] == "duration" and run["rate_hz"] == 1000.0
-    assert run["ticks"] == 10000
+    assert run["stop_reason"] == "duration" and run["rate_hz"] == 1000.0 and run["ticks"] == 10000
     link = run["link"]
-    # frames counted by the emulator's script: every 200th dropped, every 500th corrupted (of ~10000 sent)
-    sent_by_device = link["frames_rx"] + link["seq_gaps"]  # received + the gaps its sequence numbers show
-    dropped = sent_by_device // 200
-    corrupted = (sent_by_device - dropped) // 500
-    assert abs(link["seq_gaps"] - (dropped + corrupted)) <= 2, link     # a corrupt frame also leaves a gap
-    assert abs(link["crc_errors"] - corrupted) <= 1, link
-    # every injected loss is counted; a frame late beyond loss_timeout_s on a loaded machine counts too
-    assert link["losses"] >= dropped + corrupted - 2, link
+    # the script: every 200th frame dropped, every 500th corrupted (of ~10000 the device sent)
+    assert emu["frames_out"] >= 9900, emu
+    assert 45 <= emu["dropped"] <= 52 and 18 <= emu["corrupted"] <= 21, emu
+    assert link["crc_errors"] == emu["corrupted"], (link, emu)
+    # a dropped or discarded frame shows as a gap in the device's sequence numbers (the last may be in flight)
+    assert emu["dropped"] + emu["corrupted"] - 2 <= link["seq_gaps"] <= emu["dropped"] + emu["corrupted"], (link, emu)
+    # every injected loss is counted; a reply late beyond loss_timeout_s on a loaded machine counts too
+    assert link["losses"] >= emu["dropped"] + emu["corrupted"] - 2, (link, emu)
     assert link["losses"] < 0.05 * 10000 and link["max_consecutive_losses"] < 10
     assert link["frames_tx"] >= 10000 and link["frames_rx"] >= 10000 - link["losses"] - 5
     assert 0 < link["rtt_median_s"] <= link["rtt_p99_s"] <= link["rtt_max_s"]
