@@ -6,7 +6,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench venv system-deps clean
+.PHONY: demo test bench venv system-deps clean gallery
 
 $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
@@ -26,6 +26,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
+
+# the figure gallery of the docs (docs/gallery/): a synthetic study's report and the sim demo
+gallery: $(STAMP)
+	$(PY) -m figstyle.gallery --out docs/gallery
 
 # Debian packages: PortAudio for sounddevice, espeak-ng for the study's spoken cues,
 # Chromium for the browser tests, the AVR toolchain to build the reference firmware.

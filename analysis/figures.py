@@ -1,129 +1,295 @@
-"""Figures 4.17-4.20 as PNG files (matplotlib, Agg backend)."""
+"""Figures 4.17-4.20 of the realism study, in the project style (figstyle), each as PNG + SVG + CSV.
+
+Every figure has a ``build_*`` function returning ``(figure, data)`` (the data table is what is
+plotted, and what the CSV beside the figure holds) and a ``fig_*`` function that builds and saves
+it. Figures are drawn from the aggregated tables (``sample_summary``, ``pairwise_ttests``) and a
+single tap per sample, so their cost does not grow with the number of subjects.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import figstyle
 
-DPI = 110
-# cells of Fig. 4.18 without a p-value: a colour outside the grey scale, so NaN never reads as p = 1
-NO_P_STYLE = dict(facecolor="#f2d0d0", edgecolor="#b03030", hatch="///", linewidth=0.0)
-
-
-def _labels(samples) -> list[str]:
-    return [s.replace("_", " ") for s in samples]
+# cells of Fig. 4.18 without a p-value: white with a grey hatch, outside both colour scales
+NO_P_STYLE = dict(facecolor="white", edgecolor="#888888", hatch="////", linewidth=0.0)
+# log10 of the smallest Holm p the colour scale resolves (smaller ones get its darkest colour)
+LOG_P_FLOOR = -4.0
+DZ_LIMIT = 2.0   # |d_z| at the ends of the effect-size colour scale
 
 
-def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI, bbox_inches="tight")
-    plt.close(fig)
-    return path
+def _label(sample: str) -> str:
+    return figstyle.sample_style(sample)["label"]
 
 
-def fig_ratings(summary: pd.DataFrame, path: Path) -> Path:
-    """Figure 4.17: mean realism per sample (bars) with median markers and SE caps (per-subject means)."""
-    x = np.arange(len(summary))
-    fig, ax = plt.subplots(figsize=(9, 4.2))
-    colors = ["#8c6d46" if k == "real" else "#5b84b1" for k in summary["kind"]]
-    ax.bar(x, summary["mean_rating"], color=colors, edgecolor="black", linewidth=0.6, label="mean")
-    ax.errorbar(x, summary["mean_rating"], yerr=summary["sem_rating"], fmt="none", ecolor="black", capsize=4,
-                label="standard error")
-    ax.plot(x, summary["median_rating"], "o", mfc="white", mec="black", label="median")
-    ax.set_xticks(x, _labels(summary["sample"]), rotation=40, ha="right")
-    ax.set_ylim(1, 7)
-    ax.set_ylabel("realism rating (1-7)")
-    n = int(summary["n_subjects"].max()) if len(summary) else 0
-    ax.set_title(f"Realism ratings per sample ({n} subjects; brown = real, blue = virtual)")
-    ax.legend(loc="upper right", fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    return _save(fig, path)
+def stars(p: np.ndarray, alpha: float = 0.05) -> np.ndarray:
+    """Significance stars of (Holm-adjusted) p-values: ``***`` < 0.001, ``**`` < 0.01, ``*`` < alpha.
+
+    Parameters
+    ----------
+    p : array of float
+        p-values (NaN gives ``""``).
+    alpha : float
+        Significance level of the single star.
+
+    Returns
+    -------
+    ndarray of str, same shape as ``p``
+    """
+    p = np.asarray(p, dtype=float)
+    out = np.full(p.shape, "", dtype=object)
+    with np.errstate(invalid="ignore"):
+        out[p < alpha] = "*"
+        out[p < min(alpha, 0.01)] = "**"
+        out[p < min(alpha, 0.001)] = "***"
+    return out
 
 
-def _p_matrix(pairwise: pd.DataFrame, samples) -> tuple[np.ndarray, np.ndarray]:
+# ------------------------------------------------------------------------------------ Figure 4.17
+def build_ratings(summary: pd.DataFrame):
+    """Figure 4.17: mean realism per sample with 95 % CIs, sorted by mean (highest on top).
+
+    Parameters
+    ----------
+    summary : DataFrame
+        ``sample_summary`` (needs ``sample, mean_rating, median_rating, ci95_low_rating,
+        ci95_high_rating, n_subjects``).
+
+    Returns
+    -------
+    fig : Figure
+    data : DataFrame
+        One row per sample in plotted order: ``y`` (row position, 0 at the top), mean, CI, median.
+    """
+    s = summary.sort_values("mean_rating", ascending=False, kind="stable").reset_index(drop=True)
+    k = len(s)
+    y = np.arange(k, dtype=float)
+    data = pd.DataFrame({"sample": s["sample"], "y": y, "mean_rating": s["mean_rating"],
+                         "ci95_low_rating": s["ci95_low_rating"], "ci95_high_rating": s["ci95_high_rating"],
+                         "median_rating": s["median_rating"], "n_subjects": s["n_subjects"]})
+    with figstyle.style() as plt:
+        fig, ax = plt.subplots(figsize=figstyle.figsize("column", height_in=0.22 * k + 1.1))
+        for i, r in data.iterrows():
+            st = figstyle.sample_style(r["sample"])
+            ax.errorbar(r["mean_rating"], r["y"], xerr=[[r["mean_rating"] - r["ci95_low_rating"]],
+                                                        [r["ci95_high_rating"] - r["mean_rating"]]],
+                        fmt=st["marker"], color=st["color"], ms=5, lw=1.2, capsize=2.5,
+                        label="mean, 95 % CI" if i == 0 else None)
+        ax.plot(data["median_rating"], y, "|", color="0.35", ms=7, mew=1.2, label="median")
+        ax.set_yticks(y, [_label(v) for v in data["sample"]])
+        ax.invert_yaxis()
+        ax.set_xlim(1, 7)
+        ax.set_xlabel("realism rating (1–7)")
+        ax.grid(axis="y", visible=False)
+        n = int(s["n_subjects"].max()) if k else 0
+        handles, labels = ax.get_legend_handles_labels()
+        ax.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=2, borderaxespad=0,
+                  handletextpad=0.3, title=f"{n} subjects", alignment="left")
+    return fig, data
+
+
+def fig_ratings(summary: pd.DataFrame, path: Path) -> dict:
+    """Write Figure 4.17 (:func:`build_ratings`) as PNG, SVG and CSV; returns the paths."""
+    fig, data = build_ratings(summary)
+    return figstyle.save(fig, path, data)
+
+
+# ------------------------------------------------------------------------------------ Figure 4.18
+def _matrices(pairwise: pd.DataFrame, samples) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetric Holm-p and antisymmetric d_z (row minus column) matrices, NaN where untested."""
     k = len(samples)
     index = {s: i for i, s in enumerate(samples)}
-    p = np.full((k, k), np.nan)
     holm = np.full((k, k), np.nan)
+    dz = np.full((k, k), np.nan)
     ia = pairwise["sample_a"].map(index).to_numpy()
     ib = pairwise["sample_b"].map(index).to_numpy()
-    p[ia, ib] = p[ib, ia] = pairwise["p"].to_numpy()
-    holm[ia, ib] = holm[ib, ia] = pairwise["p_holm"].to_numpy()
-    return p, holm
+    holm[ia, ib] = holm[ib, ia] = pairwise["p_holm"].to_numpy(dtype=float)
+    d = pairwise["cohen_dz"].to_numpy(dtype=float) if "cohen_dz" in pairwise else np.full(len(ia), np.nan)
+    dz[ia, ib], dz[ib, ia] = d, -d
+    return holm, dz
 
 
-def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path) -> Path:
-    """Figure 4.18: p-values of the paired t-tests as shaded matrices, one panel per group.
+def p_norm(alpha: float = 0.05):
+    """Colour normalisation of Figure 4.18: log10 of the Holm p, diverging at log10(alpha)."""
+    from matplotlib.colors import TwoSlopeNorm
 
-    Light = high p (indistinguishable), dark = low p; '*' marks Holm-adjusted p < 0.05.
-    Cells without a p-value (a sample against itself, or a pair excluded from the
-    tests) are hatched in red, so they cannot be mistaken for p = 1 (white).
+    return TwoSlopeNorm(vcenter=float(np.log10(alpha)), vmin=LOG_P_FLOOR, vmax=0.0)
+
+
+def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
+    """Figure 4.18: Holm-adjusted p of the paired t-tests (colour and stars) and Cohen's d_z.
+
+    One row of panels per group: left the Holm-adjusted p-values on a log scale that diverges at
+    ``alpha`` (purple = significant, orange = not) with stars from the same values, right the
+    effect size d_z of row minus column (blue = row rated lower, red = higher).
+
+    Returns
+    -------
+    fig : Figure
+    data : DataFrame
+        One row per plotted cell: ``group, row, col, sample_row, sample_col, p_holm, log10_p_holm,
+        stars, cohen_dz`` (row minus column).
     """
-    group_names = list(dict.fromkeys(pairwise["group"]))
-    fig, axes = plt.subplots(1, len(group_names), figsize=(6.6 * len(group_names), 5.8), squeeze=False)
-    fig.subplots_adjust(wspace=0.55)
-    labels = _labels(samples)
-    im = None
-    for ax, g in zip(axes[0], group_names):
-        sub = pairwise[pairwise["group"] == g]
-        p, holm = _p_matrix(sub, samples)
-        im = ax.imshow(p, cmap="gray", vmin=0.0, vmax=1.0)
-        for i, j in zip(*np.nonzero(np.isnan(p))):
-            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, **NO_P_STYLE))
-        for i, j in zip(*np.nonzero(holm < 0.05)):
-            ax.text(j, i, "*", ha="center", va="center", color="white", fontsize=9)
-        n = int(sub["n"].max()) if len(sub) else 0
-        ax.set_title(f"{g} subjects (n = {n})")
-        ax.set_xticks(range(len(samples)), labels, rotation=60, ha="right", fontsize=7)
-        ax.set_yticks(range(len(samples)), labels, fontsize=7)
-    if im is not None:
-        fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="p (paired t-test); * Holm p < 0.05")
-        fig.legend(handles=[Rectangle((0, 0), 1, 1, label="n/a: no test (same sample, or pair excluded)",
-                                      **NO_P_STYLE)], loc="lower left", fontsize=8, frameon=False)
-    return _save(fig, path)
+    from matplotlib.patches import Rectangle
+
+    groups = list(dict.fromkeys(pairwise["group"]))
+    k = len(samples)
+    labels = [_label(s) for s in samples]
+    rows = []
+    norm = p_norm(alpha)
+    with figstyle.style() as plt:
+        fig, axes = plt.subplots(len(groups), 2, figsize=figstyle.figsize("page", height_in=3.5 * len(groups)),
+                                 squeeze=False, layout="constrained")
+        im_p = im_d = None
+        for r, g in enumerate(groups):
+            sub = pairwise[pairwise["group"] == g]
+            holm, dz = _matrices(sub, samples)
+            with np.errstate(divide="ignore"):
+                logp = np.log10(holm)
+            st = stars(holm, alpha)
+            ax_p, ax_d = axes[r]
+            im_p = ax_p.imshow(np.ma.masked_invalid(logp), cmap="PuOr_r", norm=norm)
+            im_d = ax_d.imshow(np.ma.masked_invalid(dz), cmap=figstyle.palette()["effect"], vmin=-DZ_LIMIT,
+                               vmax=DZ_LIMIT)
+            for ax in (ax_p, ax_d):
+                for i, j in zip(*np.nonzero(np.isnan(holm))):
+                    ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, **NO_P_STYLE))
+                ax.set_xticks(range(k), labels, rotation=60, ha="right", rotation_mode="anchor", fontsize=6)
+                ax.set_yticks(range(k), labels if ax is ax_p else [], fontsize=6)
+                ax.grid(False)
+            for i, j in zip(*np.nonzero(st != "")):
+                dark = norm(logp[i, j]) < 0.25
+                ax_p.text(j, i, st[i, j], ha="center", va="center", fontsize=5.5,
+                          color="white" if dark else "black")
+            n = int(sub["n"].max()) if len(sub) else 0
+            ax_p.set_title(f"{g} subjects (n = {n}): Holm-adjusted p", loc="left")
+            ax_d.set_title(f"{g} subjects: effect size d_z", loc="left")
+            for i in range(k):
+                for j in range(k):
+                    rows.append({"group": g, "row": i, "col": j, "sample_row": samples[i], "sample_col": samples[j],
+                                 "p_holm": holm[i, j], "log10_p_holm": logp[i, j], "stars": st[i, j],
+                                 "cohen_dz": dz[i, j]})
+        if im_p is not None:
+            ticks = [t for t in (-4, -3, -2, np.log10(alpha), -1, 0) if LOG_P_FLOOR <= t <= 0]
+            cb = fig.colorbar(im_p, ax=axes[:, 0].tolist(), location="bottom", shrink=0.85, extend="min",
+                              ticks=ticks)
+            cb.ax.set_xticklabels([f"{10 ** t:g}" for t in ticks])
+            cb.set_label(f"Holm-adjusted p (1, log scale); * < {alpha:g}, ** < 0.01, *** < 0.001")
+            cb2 = fig.colorbar(im_d, ax=axes[:, 1].tolist(), location="bottom", shrink=0.85, extend="both")
+            cb2.set_label("Cohen's d_z of row − column (1)")
+            fig.legend(handles=[Rectangle((0, 0), 1, 1, label="no test (same sample, or pair excluded)",
+                                          **NO_P_STYLE)], loc="outside upper right", fontsize=6.5)
+    return fig, pd.DataFrame(rows)
 
 
-def fig_penetration(summary: pd.DataFrame, path: Path) -> Path:
-    """Figure 4.19: mean penetration depth vs mean rating, error bars one SD (taps; attempts' ratings)."""
-    fig, ax = plt.subplots(figsize=(7, 5))
-    pen_mm = summary["penetration_mean_m"].to_numpy() * 1e3
-    ax.errorbar(summary["mean_rating"], pen_mm, yerr=summary["penetration_sd_m"].to_numpy() * 1e3,
-                xerr=summary["sd_rating_attempts"], fmt="o", capsize=3, color="#5b84b1", ecolor="#999999")
-    for name, x, y in zip(summary["sample"], summary["mean_rating"], pen_mm):
-        ax.annotate(name.replace("_", " "), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
-    ax.set_xlabel("mean realism rating (1-7)")
-    ax.set_ylabel("mean penetration depth (mm)")
-    ax.set_title("Penetration depth vs realism (error bars: 1 SD)")
-    ax.grid(alpha=0.3)
-    return _save(fig, path)
+def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path, alpha: float = 0.05) -> dict:
+    """Write Figure 4.18 (:func:`build_pvalues`) as PNG, SVG and CSV; returns the paths."""
+    fig, data = build_pvalues(pairwise, samples, alpha)
+    return figstyle.save(fig, path, data)
 
 
-def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path) -> Path:
-    """Figure 4.20: typical handle acceleration per sample for taps near a common incoming velocity."""
+# ------------------------------------------------------------------------------------ Figure 4.19
+def build_penetration(summary: pd.DataFrame):
+    """Figure 4.19: mean penetration depth vs mean realism rating, error bars ±1 SD.
+
+    Vertical bars: SD of the penetration depths of the individual taps; horizontal bars: SD of
+    the ratings of the attempts.
+
+    Returns
+    -------
+    fig : Figure
+    data : DataFrame
+        ``sample, mean_rating, sd_rating, penetration_mean_mm, penetration_sd_mm``.
+    """
+    data = pd.DataFrame({"sample": summary["sample"], "mean_rating": summary["mean_rating"],
+                         "sd_rating": summary["sd_rating_attempts"],
+                         "penetration_mean_mm": summary["penetration_mean_m"] * 1e3,
+                         "penetration_sd_mm": summary["penetration_sd_m"] * 1e3})
+    with figstyle.style() as plt:
+        fig, ax = plt.subplots(figsize=figstyle.figsize("page", height_in=3.2))
+        for r in data.itertuples():
+            st = figstyle.sample_style(r.sample)
+            ax.errorbar(r.mean_rating, r.penetration_mean_mm, xerr=r.sd_rating, yerr=r.penetration_sd_mm,
+                        fmt=st["marker"], color=st["color"], ms=6, elinewidth=0.8, capsize=2,
+                        label=st["label"])
+        ax.set_xlabel("mean realism rating (1–7)")
+        ax.set_ylabel("mean penetration depth (mm)")
+        ax.set_ylim(bottom=0)
+        ax.set_title("Penetration depth vs realism (error bars: ±1 SD)", loc="left")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
+    return fig, data
+
+
+def fig_penetration(summary: pd.DataFrame, path: Path) -> dict:
+    """Write Figure 4.19 (:func:`build_penetration`) as PNG, SVG and CSV; returns the paths."""
+    fig, data = build_penetration(summary)
+    return figstyle.save(fig, path, data)
+
+
+# ------------------------------------------------------------------------------------ Figure 4.20
+WINDOW_MS = (-10.0, 60.0)   # the same time window in every panel
+
+
+def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3):
+    """Figure 4.20: one small panel per sample, own y scale, same window, contact at t = 0 marked.
+
+    Parameters
+    ----------
+    taps : dict
+        Sample -> :class:`analysis.traces.Tap` (time from impact ``t_s`` in s, ``accel_m_s2``).
+    samples : sequence of str
+        Catalog order (panel order).
+    target_v_m_s : float
+        The common incoming velocity the taps were picked near (m/s).
+
+    Returns
+    -------
+    fig : Figure
+    data : DataFrame
+        Long format: ``sample, panel, v_in_m_s, t_ms, accel_m_s2`` for the plotted window.
+    """
     present = [s for s in samples if s in taps]
     n = len(present)
-    cols = 3 if n > 4 else max(n, 1)
-    rows = int(np.ceil(n / cols)) if n else 1
-    fig, axes = plt.subplots(rows, cols, figsize=(4.0 * cols, 2.2 * rows), squeeze=False, sharex=True)
-    lim = max((float(np.max(np.abs(taps[s].accel_m_s2))) for s in present), default=1.0) * 1.05
-    for ax, s in zip(axes.flat, present):
-        tap = taps[s]
-        ax.plot(tap.t_s * 1e3, tap.accel_m_s2, lw=0.8, color="black")
-        ax.set_title(f"{s.replace('_', ' ')} (v = {tap.v_in_m_s:.3f} m/s)", fontsize=8)
-        ax.set_ylim(-lim, lim)
-        ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[n:]:
-        ax.axis("off")
-    for ax in axes[-1]:
-        ax.set_xlabel("time from impact (ms)")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("accel (m/s²)")
-    fig.suptitle(f"Handle accelerations at an incoming velocity near {target_v_m_s:.3f} m/s", fontsize=10)
-    fig.tight_layout()
-    return _save(fig, path)
+    cols = min(ncols, max(n, 1))
+    rows_n = int(np.ceil(n / cols)) if n else 1
+    parts = []
+    with figstyle.style() as plt:
+        fig, axes = plt.subplots(rows_n, cols, figsize=figstyle.figsize("page", height_in=1.35 * rows_n + 0.7),
+                                 sharex=True, squeeze=False, layout="constrained")
+        for p, (ax, s) in enumerate(zip(axes.flat, present)):
+            tap = taps[s]
+            t_ms = tap.t_s * 1e3
+            sel = (t_ms >= WINDOW_MS[0]) & (t_ms <= WINDOW_MS[1])
+            st = figstyle.sample_style(s)
+            ax.plot(t_ms[sel], tap.accel_m_s2[sel], color=st["color"], lw=0.8)
+            ax.axvline(0.0, color="0.3", lw=0.7, ls=(0, (2, 2)), label="contact (t = 0)")
+            peak = float(np.max(np.abs(tap.accel_m_s2[sel]))) if sel.any() else 1.0
+            lim = 1.1 * peak if peak > 0 else 1.0
+            ax.set_ylim(-lim, lim)
+            ax.set_xlim(*WINDOW_MS)
+            ax.set_title(f"{st['label']}  (v = {tap.v_in_m_s:.3f} m/s)", loc="left", fontsize=7)
+            parts.append(pd.DataFrame({"sample": s, "panel": p, "v_in_m_s": tap.v_in_m_s, "t_ms": t_ms[sel],
+                                       "accel_m_s2": tap.accel_m_s2[sel]}))
+        for ax in list(axes.flat)[n:]:
+            ax.axis("off")
+        for ax in axes[-1]:
+            ax.set_xlabel("time from contact (ms)")
+        for ax in axes[:, 0]:
+            ax.set_ylabel("acceleration (m/s²)")
+        fig.suptitle(f"Handle acceleration at an incoming velocity near {target_v_m_s:.3f} m/s "
+                     "(each panel on its own scale)", fontsize=8.5)
+        if n:
+            fig.legend(handles=[axes.flat[0].lines[-1]], loc="outside lower right")
+    data = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
+        columns=["sample", "panel", "v_in_m_s", "t_ms", "accel_m_s2"])
+    return fig, data
+
+
+def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path) -> dict:
+    """Write Figure 4.20 (:func:`build_accelerations`) as PNG, SVG and CSV; returns the paths."""
+    fig, data = build_accelerations(taps, samples, target_v_m_s)
+    return figstyle.save(fig, path, data)

@@ -52,7 +52,8 @@ class Study:
         floats in SI units, ``rating`` float with NaN when none, lists kept as strings) plus
         ``file`` (path of the trials.csv) and ``line`` (1-based line number in it).
     subjects : pandas.DataFrame
-        One row per subject: ``subject, experience, age, gender, handedness, finished, folder``.
+        One row per subject: ``subject, experience, age, gender, handedness, finished, seed,
+        software_version, device, folder`` (seed/version/device as session.json gives them, else None).
     catalog : tuple of str
         Sample names in catalog order (from ``session.json``'s ``catalog``).
     kinds : dict
@@ -134,7 +135,7 @@ def read_session(path: Path) -> dict:
     """Read and check one ``session.json``; errors name the file, line or key.
 
     Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
-    finished``.
+    finished, seed, software_version, device``.
     """
     try:
         text = path.read_text(encoding="utf-8")
@@ -161,6 +162,7 @@ def read_session(path: Path) -> dict:
         "subject": subject, "experience": exp, "catalog": names, "kinds": kinds,
         "age": raw.get("age"), "gender": raw.get("gender"), "handedness": raw.get("handedness"),
         "finished": raw.get("finished_at") is not None,
+        "seed": raw.get("seed"), "software_version": raw.get("software_version"), "device": raw.get("device"),
     }
 
 
@@ -228,6 +230,103 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
         return [() for _ in TRIAL_COLUMNS], lines, torn
     cols = list(zip(*rows))
     return [cols[header.index(c)] for c in TRIAL_COLUMNS], lines, torn
+
+
+class _ChunkReader:
+    """File-like view of a bytearray for pandas' C parser (reads chunks; no second copy of the buffer)."""
+
+    def __init__(self, buf: bytearray):
+        self._view, self._pos = memoryview(buf), 0
+
+    def read(self, n: int = -1) -> bytes:
+        end = len(self._view) if n is None or n < 0 else min(self._pos + n, len(self._view))
+        chunk = bytes(self._view[self._pos:end])
+        self._pos = end
+        return chunk
+
+
+_FAST_DTYPES = {**{c: "category" for c in ("subject", "phase", "sample", "kind", "started_at") + BOOL_COLUMNS},
+                **{c: np.float64 for c in INT_COLUMNS + FLOAT_COLUMNS + ("rating",)},
+                **{c: object for c in LIST_COLUMNS}}
+_NA_FLOAT = ["", "nan", "NaN", "NAN", "Nan", "x", "X"]
+
+
+def _fast_trials(folders: list[Path]) -> tuple[pd.DataFrame, list] | None:
+    """All trials.csv files parsed in one typed ``pandas.read_csv`` call, or None if any file is not plain.
+
+    Plain: UTF-8 without BOM, no quotes or carriage returns, ending in a newline, the same header
+    in every file, and exactly header-width fields on every line (checked by the comma count per
+    file here and by the parser per line). Anything else (and any value the typed parse cannot
+    read) returns None, and the caller uses the exact per-file reader, whose errors name file,
+    line and column. Returns the typed table (columns of :data:`TRIAL_COLUMNS`, ``file``,
+    ``line``) and ``[(trials path, rows)]``.
+    """
+    import warnings as _w
+
+    buf = bytearray()
+    header, file_of_row, lines = None, [], []
+    for folder in folders:
+        path = folder / "trials.csv"
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read()
+        except OSError:
+            return None
+        first = data.find(b"\n")
+        if first < 0 or not data.endswith(b"\n") or b'"' in data or b"\r" in data or data.startswith(b"\xef\xbb\xbf"):
+            return None
+        head = data[:first]
+        if header is None:
+            header = head
+            cols = [h.strip() for h in head.decode("utf-8", "replace").split(",")]
+            if not set(TRIAL_COLUMNS) <= set(cols) or len(set(cols)) != len(cols):
+                return None
+            width = len(cols)
+        elif head != header:
+            return None
+        n = data.count(b"\n") - 1
+        if data.count(b",") != (n + 1) * (width - 1):
+            return None
+        buf += memoryview(data)[first + 1:]
+        file_of_row.append((str(path), n))
+        lines.append(np.arange(2, n + 2, dtype=np.int64))
+        del data
+    if header is None:
+        return None
+    usecols = list(TRIAL_COLUMNS)
+    try:
+        with _w.catch_warnings():
+            _w.simplefilter("error")        # a mixed-type column warns: treat as not plain
+            t = pd.read_csv(_ChunkReader(buf), header=None, names=cols, usecols=usecols, engine="c",
+                            dtype={c: _FAST_DTYPES[c] for c in usecols}, keep_default_na=False,
+                            na_values={c: _NA_FLOAT for c in INT_COLUMNS + FLOAT_COLUMNS + ("rating",)},
+                            encoding="utf-8", low_memory=False)
+    except (ValueError, UnicodeDecodeError, pd.errors.ParserError, Warning):
+        return None
+    del buf
+    if len(t) != sum(n for _, n in file_of_row):
+        return None
+    for col in BOOL_COLUMNS:
+        # pandas may already turn the categories true/false into booleans; any other spelling, or an
+        # empty cell (code -1): the exact reader decides
+        cats = [str(c).lower() for c in t[col].cat.categories]
+        codes = t[col].cat.codes.to_numpy()
+        if not set(cats) <= {"true", "false"} or (codes < 0).any():
+            return None
+        t[col] = np.array([c == "true" for c in cats] or [False], dtype=bool)[codes]
+    for col in INT_COLUMNS:
+        v = t[col].to_numpy()
+        if not (np.isfinite(v).all() and (v == np.round(v)).all()):
+            return None
+        t[col] = v.astype(np.int64)
+    for col in ("subject", "phase", "sample", "kind", "started_at"):
+        t[col] = t[col].astype(object)       # plain str objects, like the exact reader's table
+    for col in LIST_COLUMNS:
+        t[col] = t[col].fillna("")
+    t = t[list(TRIAL_COLUMNS)]
+    t["file"] = np.repeat(np.array([f for f, _ in file_of_row], dtype=object), [n for _, n in file_of_row])
+    t["line"] = np.concatenate(lines) if lines else np.zeros(0, dtype=np.int64)
+    return t, file_of_row
 
 
 def _fail(trials: pd.DataFrame, bad: np.ndarray, column: str, what: str, shown=None) -> None:
@@ -363,6 +462,9 @@ def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarr
         List length per row.
     """
     cells = list(values)
+    fast = _fast_lists(cells)
+    if fast is not None:
+        return fast
     text = "|".join(cells)
     b = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
     seps = b[(b == ord(";")) | (b == ord("|"))]
@@ -378,6 +480,33 @@ def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarr
     return numbers, row, np.bincount(row, minlength=len(cells))
 
 
+def _fast_lists(cells: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`parse_lists` in one C parse for clean cells; None when a cell has an empty token, a '|',
+    or a token that is not a number (then the exact parser runs and names the cell)."""
+    import warnings as _w
+
+    if not all(isinstance(c, str) for c in cells):
+        return None
+    counts = np.fromiter((c.count(";") + 1 if c else 0 for c in cells), dtype=np.int64, count=len(cells))
+    text = ";".join(c for c in cells if c)
+    if ";;" in text or "|" in text or text.startswith(";") or text.endswith(";") or "\n" in text:
+        return None
+    try:
+        with _w.catch_warnings():
+            _w.simplefilter("error")
+            # pandas' C parser: one pass over all numbers (a token it cannot read raises); the
+            # values equal to_numeric's bit for bit (tested against the exact reader)
+            numbers = pd.read_csv(io.StringIO(text.replace(";", "\n")), header=None, names=["v"], dtype=np.float64,
+                                  engine="c", keep_default_na=False,
+                                  na_values=["nan", "NaN", "NAN", "Nan"], skip_blank_lines=False)["v"].to_numpy() \
+                if text else np.zeros(0)
+    except (Warning, ValueError, pd.errors.ParserError):
+        return None
+    if numbers.size != int(counts.sum()):
+        return None
+    return numbers, np.repeat(np.arange(len(cells), dtype=np.int64), counts), counts
+
+
 def _bad_list_cell(cells, files, lines, column) -> None:
     for i, v in enumerate(cells):
         try:
@@ -386,6 +515,53 @@ def _bad_list_cell(cells, files, lines, column) -> None:
             raise ValueError(f"{files[i]}:{lines[i]}: column {column!r}: {v!r} is not a "
                              "semicolon-separated list of numbers") from None
     raise ValueError(f"column {column!r}: a cell is not a semicolon-separated list of numbers")
+
+
+def _exact_trials(folders: list[Path], messages: list) -> tuple[pd.DataFrame, list]:
+    """Every trials.csv read with the exact per-file reader (quotes, blank lines, torn last lines...)."""
+    columns: list[list[str]] = [[] for _ in TRIAL_COLUMNS]
+    all_lines, file_of_row = [], []
+    for folder in folders:
+        trials_path = folder / "trials.csv"
+        cols, lines, torn = _read_trials_columns(trials_path)
+        if torn:
+            _warn(messages, f"{trials_path}: torn last line (a crash while writing?) left out")
+        for acc, col in zip(columns, cols):
+            acc.extend(col)
+        all_lines.extend(lines)
+        file_of_row.append((str(trials_path), len(lines)))
+    # object dtype: pandas' own string dtype costs more to build than the checks gain
+    trials = pd.DataFrame({c: np.array(columns[i], dtype=object) for i, c in enumerate(TRIAL_COLUMNS)},
+                          dtype=object)
+    del columns
+    trials["file"] = np.repeat([f for f, _ in file_of_row], [n for _, n in file_of_row]).astype(object)
+    trials["line"] = np.array(all_lines, dtype=np.int64)
+    return trials, file_of_row
+
+
+def _validate(trials: pd.DataFrame, raw_rating, subjects: pd.DataFrame, file_of_row: list, catalog: list,
+              kinds: dict) -> None:
+    """Cross-row checks of the typed table; ValueError names file, line and column of the first problem.
+
+    ``raw_rating``: the rating column as written (for the message), or None on the fast path.
+    """
+    expected_subject = np.repeat(subjects["subject"].to_numpy(dtype=object), [n for _, n in file_of_row])
+    bad = (trials["subject"].to_numpy(dtype=object) != expected_subject)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        _fail(trials, bad, "subject", f"differs from session.json's subject {expected_subject[i]!r}")
+    bad = ~trials["phase"].isin(PHASES).to_numpy()
+    if bad.any():
+        _fail(trials, bad, "phase", f"is not one of {'|'.join(PHASES)}")
+    bad = ~trials["kind"].isin(KINDS).to_numpy()
+    if bad.any():
+        _fail(trials, bad, "kind", f"is not one of {'|'.join(KINDS)}")
+    bad = ~trials["sample"].isin(catalog).to_numpy()
+    if bad.any():
+        _fail(trials, bad, "sample", f"is not in the catalog of session.json ({', '.join(catalog)})")
+    _check_consistency(trials, kinds)
+    _check_ratings(trials, raw_rating if raw_rating is not None else trials["rating"].to_numpy())
+    _check_duplicates(trials)
 
 
 def load_study(data_dir) -> Study:
@@ -406,8 +582,7 @@ def load_study(data_dir) -> Study:
     folders = _subject_folders(data_dir)
     catalog: list[str] = []
     kinds: dict = {}
-    subj_rows, all_lines, file_of_row = [], [], []
-    columns: list[list[str]] = [[] for _ in TRIAL_COLUMNS]
+    subj_rows = []
     seen_subjects: dict = {}
     for folder in folders:
         sess_path = folder / "session.json"
@@ -427,37 +602,24 @@ def load_study(data_dir) -> Study:
         if not sess["finished"]:
             _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
                             "its attempts are used as far as they go")
-        trials_path = folder / "trials.csv"
-        cols, lines, torn = _read_trials_columns(trials_path)
-        if torn:
-            _warn(messages, f"{trials_path}: torn last line (a crash while writing?) left out")
-        for acc, col in zip(columns, cols):
-            acc.extend(col)
-        all_lines.extend(lines)
-        file_of_row.append((str(trials_path), len(lines)))
-        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished")}
-                         | {"folder": str(folder), "session_file": str(sess_path), "trials_file": str(trials_path)})
+        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
+                                               "seed", "software_version", "device")}
+                         | {"folder": str(folder), "session_file": str(sess_path),
+                            "trials_file": str(folder / "trials.csv")})
     subjects = pd.DataFrame(subj_rows)
-    # object dtype: pandas' own string dtype costs more to build than the checks gain
-    trials = pd.DataFrame({c: np.array(columns[i], dtype=object) for i, c in enumerate(TRIAL_COLUMNS)},
-                          dtype=object)
-    del columns  # drop the per-value lists before the statistics (statsmodels' Holm calls gc.collect)
-    trials["file"] = np.repeat([f for f, _ in file_of_row], [n for _, n in file_of_row]).astype(object)
-    trials["line"] = np.array(all_lines, dtype=np.int64)
-    raw_rating = trials["rating"].to_numpy(dtype=object)
-    trials = _parse_columns(trials)
-
-    expected_subject = np.repeat(subjects["subject"].to_numpy(dtype=object), [n for _, n in file_of_row])
-    bad = (trials["subject"].to_numpy(dtype=object) != expected_subject)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        _fail(trials, bad, "subject", f"differs from session.json's subject {expected_subject[i]!r}")
-    bad = ~trials["sample"].isin(catalog).to_numpy()
-    if bad.any():
-        _fail(trials, bad, "sample", f"is not in the catalog of session.json ({', '.join(catalog)})")
-    _check_consistency(trials, kinds)
-    _check_ratings(trials, raw_rating)
-    _check_duplicates(trials)
+    # fast path: every file plain -> one typed read_csv; validated below. Any problem: the exact reader
+    fast = _fast_trials(folders)
+    if fast is not None:
+        trials, file_of_row = fast
+        try:
+            _validate(trials, None, subjects, file_of_row, catalog, kinds)
+        except ValueError:
+            fast = None             # read again exactly, so the error names the raw value as written
+    if fast is None:
+        trials, file_of_row = _exact_trials(folders, messages)
+        raw_rating = trials["rating"].to_numpy(dtype=object)
+        trials = _parse_columns(trials)
+        _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
     for name, kind in trials.groupby("sample", sort=False)["kind"].first().items():
         kinds.setdefault(name, kind)
 

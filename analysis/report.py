@@ -13,15 +13,24 @@ if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help st
     from analysis.pipeline import Analysis
 
 FIGURES = {
-    "fig_4_17_ratings.png": "Figure 4.17: mean realism rating per sample (bars), median of the per-subject means "
-                            "(circles) and standard error across subjects (caps).",
-    "fig_4_18_pvalues.png": "Figure 4.18: p-values of paired t-tests on per-subject mean ratings for every pair of "
-                            "samples; light squares = indistinguishable, * = Holm-adjusted p < 0.05, red hatched = "
-                            "n/a (a sample against itself, or a pair excluded from the tests).",
-    "fig_4_19_penetration.png": "Figure 4.19: mean penetration depth versus mean realism rating per sample; "
-                                "error bars one standard deviation.",
-    "fig_4_20_accelerations.png": "Figure 4.20: typical handle accelerations per sample for taps at a common "
-                                  "incoming velocity (from the saved traces).",
+    "fig_4_17_ratings.png": "Figure 4.17: mean realism rating per sample with its 95 % confidence interval "
+                            "(t-interval over the per-subject means) and the median (bar), sorted from most to "
+                            "least realistic. Look at which intervals overlap: samples whose intervals are far "
+                            "apart differ; the colours are the samples' colours in every figure.",
+    "fig_4_18_pvalues.png": "Figure 4.18: paired t-tests on the per-subject mean ratings for every pair of samples. "
+                            "Left: Holm-adjusted p-values (Holm correction across the pairs of each group), "
+                            "coloured on a log scale that turns from orange to purple at p = α; the stars come from "
+                            "the same Holm-adjusted values (* < α, ** < 0.01, *** < 0.001), so every purple cell "
+                            "has a star. Right: the effect size Cohen's d_z of row minus column (red: the row's "
+                            "sample rated higher). Hatched cells have no test.",
+    "fig_4_19_penetration.png": "Figure 4.19: mean penetration depth of the taps versus mean realism rating per "
+                                "sample; error bars ±1 standard deviation (taps vertically, attempts' ratings "
+                                "horizontally). Look for samples that penetrate little yet rate low: stiffness "
+                                "alone does not make a surface feel real.",
+    "fig_4_20_accelerations.png": "Figure 4.20: typical handle acceleration per sample for the tap whose incoming "
+                                  "velocity is nearest a common value, from the saved traces. Every panel has its "
+                                  "own vertical scale (compare shapes and decay, read magnitudes off the axes) and "
+                                  "the same time window; the dashed line marks the contact instant.",
 }
 
 
@@ -126,28 +135,158 @@ def _strong(text: str) -> str:
 
 
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
-    """Write the four figures; returns (paths written, notes on skipped figures)."""
+    """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures)."""
+    import numpy as np
+
     from analysis import figures
     from analysis.stats import valid_testing
     from analysis.traces import typical_taps
 
-    paths = [figures.fig_ratings(res.summary, out / "fig_4_17_ratings.png"),
-             figures.fig_pvalues(res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png"),
-             figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
+    alpha = res.config.alpha
+    written = [figures.fig_ratings(res.summary, out / "fig_4_17_ratings.png"),
+               figures.fig_pvalues(res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha),
+               figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
     notes = []
     dirs = dict(zip(res.study.subjects["subject"], map(Path, res.study.subjects["folder"])))
-    taps, v, why = typical_taps(valid_testing(res.study), dirs, res.study.catalog, target_v_m_s)
+    t = res.study.trials
+    sel = ((t["phase"] == "testing") & t["valid"]).to_numpy()
+    values, row = res.study.taps["incoming_velocities_m_s"]
+    keep = sel[row]
+    # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse)
+    velocities = (values[keep], (np.cumsum(sel) - 1)[row[keep]])
+    taps, v, why = typical_taps(valid_testing(res.study), dirs, res.study.catalog, target_v_m_s,
+                                velocities=velocities)
     if taps:
-        paths.append(figures.fig_accelerations(taps, res.study.catalog, v, out / "fig_4_20_accelerations.png"))
+        written.append(figures.fig_accelerations(taps, res.study.catalog, v, out / "fig_4_20_accelerations.png"))
         if why:
             notes.append("Figure 4.20 lacks some samples: " + "; ".join(why[:12]))
     else:
-        stale = out / "fig_4_20_accelerations.png"
-        if stale.exists():
-            stale.unlink()
+        for ext in ("png", "svg", "csv"):
+            stale = out / f"fig_4_20_accelerations.{ext}"
+            if stale.exists():
+                stale.unlink()
         notes.append("Figure 4.20 skipped: no usable per-attempt traces (" + "; ".join(why[:3])
                      + ("; ..." if len(why) > 3 else "") + ").")
-    return paths, notes
+    return [w["png"] for w in written], notes
+
+
+def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
+    """(label, value) rows of the report's provenance: versions, seeds, folders, settings."""
+    import platform
+    from importlib import metadata
+
+    subj = res.study.subjects
+    versions = []
+    for dist in ("hfam-haptics", "numpy", "scipy", "pandas", "statsmodels", "matplotlib"):
+        try:
+            versions.append(f"{dist} {metadata.version(dist)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{dist} (not installed)")
+    folders = sorted({str(Path(f).parent) for f in subj["folder"]}) if len(subj) else []
+    seeds = [str(s) for s in subj.get("seed", []) if s is not None]
+    seed_text = (", ".join(seeds) if len(seeds) <= 12 else f"{', '.join(seeds[:6])}, … {', '.join(seeds[-3:])}"
+                 f" ({len(seeds)} sessions)") if seeds else "none recorded"
+    soft = sorted({str(v) for v in subj.get("software_version", []) if v is not None})
+    devices = sorted({str(v) for v in subj.get("device", []) if v is not None})
+    cfg = res.config
+    return [
+        ("data folder", ", ".join(folders)),
+        ("report folder", str(out.resolve())),
+        ("subjects", f"{len(subj)} ({subj['subject'].iloc[0]} … {subj['subject'].iloc[-1]})" if len(subj) else "0"),
+        ("session seeds", seed_text),
+        ("study software", ", ".join(soft) or "not recorded"),
+        ("devices", ", ".join(devices) or "not recorded"),
+        ("analysis settings", f"reference {cfg.reference}, margin ±{cfg.margin:g}, groups {cfg.group}, "
+                              f"α = {cfg.alpha}, Holm correction across the pairs of each group"),
+        ("software", f"Python {platform.python_version()}, " + ", ".join(versions)),
+    ]
+
+
+REPORT_CSS = """
+*,*::before,*::after{box-sizing:border-box}
+html{-webkit-text-size-adjust:100%}
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;line-height:1.45;color:#222;margin:0 auto;
+     padding:1rem;max-width:72rem;overflow-wrap:anywhere}
+h1{font-size:1.6rem}h2{font-size:1.2rem;margin-top:2rem}
+code{overflow-wrap:anywhere}
+.table-wrap{max-width:100%;overflow-x:auto;-webkit-overflow-scrolling:touch;border:1px solid #ddd;margin:.5rem 0}
+table{border-collapse:collapse;font-size:.8rem;font-variant-numeric:tabular-nums}
+td,th{border-bottom:1px solid #e4e4e4;padding:.2rem .5rem;text-align:right;white-space:nowrap}
+th{background:#f3f3f3;position:sticky;top:0}
+td:first-child,th:first-child{text-align:left}
+table.prov td{white-space:normal;text-align:left;overflow-wrap:anywhere}
+figure{margin:1.5rem 0}figure img{display:block;max-width:100%;height:auto}
+figcaption{font-size:.9rem;color:#333;margin-top:.4rem}
+details{margin:.5rem 0}
+@media print{
+  body{max-width:none;padding:0;font-size:10pt;color:#000}
+  .table-wrap{overflow:visible;border:0}
+  table{font-size:7pt}td,th{white-space:normal;padding:1pt 3pt}
+  th{position:static}
+  figure,table,tr{break-inside:avoid}
+  h2{break-after:avoid}
+  details>*{display:block}
+  a{color:#000;text-decoration:none}
+}
+"""
+
+
+# tables longer than this show their first rows in report.md/.html (the CSV has them all): a
+# per-subject table of 10,000 subjects would make the report megabytes long and slow to write
+REPORT_MAX_ROWS = 200
+
+
+def _shown(df, csv_name: str):
+    """``(rows shown, note)``: the first :data:`REPORT_MAX_ROWS` rows and a note naming the CSV."""
+    if len(df) <= REPORT_MAX_ROWS:
+        return df, ""
+    return df.head(REPORT_MAX_ROWS), f"First {REPORT_MAX_ROWS} of {len(df)} rows; all of them are in {csv_name}."
+
+
+def _table_html(df, csv_name: str = "") -> str:
+    if not len(df):
+        return "<p>(none)</p>"
+    df, note = _shown(df, csv_name)
+    return ("<div class='table-wrap'>" + df.to_html(index=False, float_format=lambda v: _fmt(v), na_rep="–",
+                                                     border=0) + "</div>" + (f"<p>{html.escape(note)}</p>" if note
+                                                                             else ""))
+
+
+def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Path],
+                prov: list[tuple[str, str]]) -> str:
+    """The self-contained ``report.html``: summary, pairs, captioned figures (embedded PNG), tables,
+    provenance; responsive (tables scroll inside their box, never the page) with a print stylesheet."""
+    cfg = res.config
+    body = [f"<h1>Realism study analysis</h1><p>reference <code>{html.escape(cfg.reference)}</code> · margin "
+            f"±{cfg.margin:g} · groups <code>{html.escape(cfg.group)}</code> · α = {cfg.alpha}</p><h2>Summary</h2><ul>"]
+    for ln in lines:
+        body.append(f"<li>{_strong(html.escape(ln))}</li>")
+    body.append("</ul><h2>Significantly different pairs</h2>")
+    for g, items in pairs.items():
+        body.append(f"<details><summary>{html.escape(g)} subjects: {len(items)} pairs</summary><ul>"
+                    + "".join(f"<li>{html.escape(it)}</li>" for it in items) + "</ul></details>")
+    if fig_paths:
+        body.append("<h2>Figures</h2>")
+    for p in fig_paths:
+        data = base64.b64encode(p.read_bytes()).decode("ascii")
+        body.append(f"<figure><img alt='{html.escape(FIGURES[p.name].split(':')[0])}' "
+                    f"src='data:image/png;base64,{data}'><figcaption>{html.escape(FIGURES[p.name])} "
+                    f"Data: <code>{html.escape(p.with_suffix('.csv').name)}</code>, vector: "
+                    f"<code>{html.escape(p.with_suffix('.svg').name)}</code>.</figcaption></figure>")
+    for title, attr in TABLE_TITLES:
+        body.append(f"<h2>{html.escape(title)}</h2>")
+        body.append(_table_html(getattr(res, attr), _csv_name(title)))
+    body.append("<h2>Provenance</h2><div class='table-wrap'><table class='prov'><tbody>"
+                + "".join(f"<tr><th scope='row'>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in prov)
+                + "</tbody></table></div>")
+    return ("<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+            "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+            f"<title>Realism study analysis</title><style>{REPORT_CSS}</style></head><body>{''.join(body)}"
+            "</body></html>\n")
+
+
+def _csv_name(title: str) -> str:
+    return title.rsplit("(", 1)[-1].rstrip(")") if title.endswith(")") else "the CSV"
 
 
 TABLE_TITLES = (
@@ -181,33 +320,15 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     for g, items in pairs.items():
         md += [f"**{g} subjects** ({len(items)}):", ""] + [f"- {it}" for it in items] + [""]
     for p in fig_paths:
-        md += [f"![{FIGURES[p.name]}]({p.name})", "", f"*{FIGURES[p.name]}*", ""]
-    for title, attr in TABLE_TITLES:
-        md += [f"## {title}", "", markdown_table(getattr(res, attr)) if len(getattr(res, attr)) else "(none)", ""]
-    md_path = out / "report.md"
-    md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
-
-    body = [f"<h1>Realism study analysis</h1><p>reference <code>{html.escape(cfg.reference)}</code> · margin "
-            f"±{cfg.margin:g} · groups <code>{html.escape(cfg.group)}</code> · α = {cfg.alpha}</p><h2>Summary</h2><ul>"]
-    for ln in lines:
-        body.append(f"<li>{_strong(html.escape(ln))}</li>")
-    body.append("</ul><h2>Significantly different pairs</h2>")
-    for g, items in pairs.items():
-        body.append(f"<details><summary>{html.escape(g)} subjects: {len(items)} pairs</summary><ul>"
-                    + "".join(f"<li>{html.escape(it)}</li>" for it in items) + "</ul></details>")
-    for p in fig_paths:
-        data = base64.b64encode(p.read_bytes()).decode("ascii")
-        body.append(f"<figure><img alt='{html.escape(p.name)}' src='data:image/png;base64,{data}'>"
-                    f"<figcaption>{html.escape(FIGURES[p.name])}</figcaption></figure>")
+        md += [f"![{FIGURES[p.name].split(':')[0]}]({p.name})", "", f"*{FIGURES[p.name]}*", ""]
     for title, attr in TABLE_TITLES:
         df = getattr(res, attr)
-        body.append(f"<h2>{html.escape(title)}</h2>")
-        body.append(df.to_html(index=False, float_format=lambda v: _fmt(v), na_rep="–", border=0)
-                    if len(df) else "<p>(none)</p>")
-    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
-             "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px;"
-             "text-align:right}img{max-width:100%}figcaption{font-style:italic;font-size:13px}")
+        shown, note = _shown(df, _csv_name(title))
+        md += [f"## {title}", "", markdown_table(shown) if len(df) else "(none)", ""] + ([note, ""] if note else [])
+    md_path = out / "report.md"
+    prov = provenance(res, out)
+    md += ["## Provenance", "", "| item | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in prov] + [""]
+    md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
     html_path = out / "report.html"
-    html_path.write_text("<!doctype html><html><head><meta charset='utf-8'><title>Realism study analysis</title>"
-                         f"<style>{style}</style></head><body>{''.join(body)}</body></html>\n", encoding="utf-8")
+    html_path.write_text(report_html(res, lines, pairs, fig_paths, prov), encoding="utf-8")
     return {"tables": tables, "figures": fig_paths, "notes": notes, "md": md_path, "html": html_path}

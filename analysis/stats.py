@@ -106,8 +106,8 @@ def missing_samples(matrix: RatingMatrix) -> dict:
 def sample_summary(study: Study, matrix: RatingMatrix) -> pd.DataFrame:
     """Table of ``sample_summary.csv`` (Fig. 4.17, 4.19 data).
 
-    Rating columns are over per-subject means; penetration and velocity are pooled over the
-    individual taps (lists of the valid testing attempts), in m and m/s.
+    Rating columns are over per-subject means (``ci95_*``: 95 % t-interval of their mean);
+    penetration and velocity are pooled over the individual taps (lists of the valid testing attempts), in m and m/s.
     """
     t = study.trials
     sel = ((t["phase"] == "testing") & t["valid"]).to_numpy()
@@ -144,6 +144,7 @@ def sample_summary(study: Study, matrix: RatingMatrix) -> pd.DataFrame:
         sd = np.nanstd(m, axis=0, ddof=1) if m.shape[0] > 1 else np.full(k, np.nan)
         sem = sd / np.sqrt(n_sub)
         mean = np.nanmean(m, axis=0)
+        half = stats.t.ppf(0.975, n_sub - 1) * sem      # 95 % CI of the mean (t distribution)
         median = np.nanmedian(m, axis=0)
     return pd.DataFrame({
         "sample": list(matrix.samples),
@@ -153,6 +154,8 @@ def sample_summary(study: Study, matrix: RatingMatrix) -> pd.DataFrame:
         "mean_rating": mean,
         "median_rating": median,
         "sem_rating": sem,
+        "ci95_low_rating": mean - half,
+        "ci95_high_rating": mean + half,
         "sd_rating_attempts": r_sd,
         "n_taps": n_pen,
         "penetration_mean_m": pen_mean,
@@ -197,10 +200,16 @@ def pairwise_ttests(matrix: RatingMatrix, group: str) -> pd.DataFrame:
     n = ok.sum(axis=0)
     t = np.full(ia.size, np.nan)
     p, lo, hi, md, dz = t.copy(), t.copy(), t.copy(), t.copy(), t.copy()
-    # one vectorised ttest_rel per distinct subject set (usually a single call for all pairs)
-    patterns, inverse = np.unique(ok.T, axis=0, return_inverse=True)
+    # one vectorised ttest_rel per distinct subject set (usually a single call for all pairs); the
+    # sets are told apart by their bit-packed masks as byte strings: linear in the number of subjects
+    # (np.unique(ok.T, axis=0) sorts rows of n booleans, worse than linear)
+    packed = np.ascontiguousarray(np.packbits(ok, axis=0).T)
+    keys = packed.view(np.dtype((np.void, max(packed.shape[1], 1)))).reshape(-1) if packed.size else \
+        np.zeros(ia.size, dtype="V1")
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     inverse = np.asarray(inverse).reshape(-1)
-    for g, rows in enumerate(patterns):
+    for g, col0 in enumerate(first):
+        rows = ok[:, col0]
         cols = np.flatnonzero(inverse == g)
         if rows.sum() < 2:
             continue

@@ -113,7 +113,7 @@ def _taps_from_arrays(arrays, path, subject, sample, velocities_m_s, pre_s, post
 
 
 def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s: float | None = None,
-                 max_files_per_sample: int = 30) -> tuple[dict, float, list[str]]:
+                 max_files_per_sample: int = 30, velocities=None) -> tuple[dict, float, list[str]]:
     """For each sample, the tap whose incoming velocity is nearest a common target (Figure 4.20).
 
     Parameters
@@ -128,6 +128,10 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
         Common incoming velocity; default the median of all valid testing taps.
     max_files_per_sample : int
         Trace files opened per sample at most (those whose listed velocities come closest first).
+    velocities : (ndarray, ndarray) or None
+        The rows' listed incoming velocities already parsed: every value (m/s) and the 0-based row
+        of ``trials`` it belongs to (as :attr:`analysis.load.Study.taps` holds them); parsed from
+        ``incoming_velocities_m_s`` when None.
 
     Returns
     -------
@@ -136,16 +140,47 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
     notes : list of str
         Why samples have no tap (no trace files, unreadable keys).
     """
+    from analysis.load import parse_lists
+
     notes = []
-    lists = trials["incoming_velocities_m_s"].fillna("").astype(str)
-    parsed = [np.array([float(x) for x in s.split(";")]) if s.strip() else np.zeros(0) for s in lists]
+    lists = trials["incoming_velocities_m_s"].fillna("").astype(str).to_numpy(dtype=object)
+    where = trials["file"].to_numpy(dtype=object) if "file" in trials else np.full(len(trials), "?", dtype=object)
+    lines = trials["line"].to_numpy() if "line" in trials else np.zeros(len(trials), dtype=np.int64)
+    # all velocities in one vectorised parse (linear in rows; a Python loop per row was not)
+    if velocities is None:
+        allv, row, counts = parse_lists(lists, where, lines, "incoming_velocities_m_s")
+    else:
+        allv, row = velocities
+        counts = np.bincount(row, minlength=len(lists))
+    starts = np.concatenate([[0], np.cumsum(counts)])
     if target_v_m_s is None:
-        allv = np.concatenate(parsed) if parsed else np.zeros(0)
         target_v_m_s = float(np.median(allv)) if allv.size else 0.1
-    dist = np.array([np.min(np.abs(p - target_v_m_s)) if p.size else np.inf for p in parsed])
+    dist = np.full(len(lists), np.inf)
+    if allv.size:
+        np.minimum.at(dist, row, np.abs(allv - target_v_m_s))
+
+    def parsed(r):
+        return allv[starts[r]:starts[r + 1]]
+
+    import os
+
+    # only subjects that saved any trace can give a tap (one directory listing per subject, not a stat
+    # per attempt): with thousands of subjects the nearest velocities are otherwise all trace-less
+    subjects = trials["subject"].to_numpy(dtype=object)
+    with_traces = set()
+    for subj in pd.unique(subjects):
+        folder = Path(subject_dirs[subj]) / "traces"
+        try:
+            with os.scandir(folder) as it:
+                if any(e.name.endswith(".npz") for e in it):
+                    with_traces.add(subj)
+        except OSError:
+            continue
+    has_trace = np.fromiter((s in with_traces for s in subjects), dtype=bool, count=len(subjects))
     out = {}
-    for sample in samples:
-        rows = np.flatnonzero((trials["sample"] == sample).to_numpy())
+    codes = pd.Categorical(trials["sample"], categories=list(samples)).codes
+    for k, sample in enumerate(samples):
+        rows = np.flatnonzero((codes == k) & has_trace)
         rows = rows[np.argsort(dist[rows], kind="stable")][:max_files_per_sample]
         best, found_file = None, False
         for r in rows:
@@ -155,7 +190,7 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
                 continue
             found_file = True
             try:
-                taps = read_trace_taps(path, rec["subject"], sample, parsed[r])
+                taps = read_trace_taps(path, rec["subject"], sample, parsed(r))
             except (OSError, ValueError) as exc:
                 notes.append(f"{path}: unreadable trace ({exc})")
                 continue

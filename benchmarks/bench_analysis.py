@@ -1,50 +1,96 @@
-"""Benchmark: analysis of 1,000 subjects x 12 samples x 3 repetitions (tables only) must take < 3 s."""
+"""Benchmark: the full study report (load, validate, every table, four figures, report.md/.html) as a
+whole process at 100 / 1,000 / 10,000 synthetic subjects, against the targets of issue 21 (10,000
+subjects: under 5 s and under 1 GB peak memory), plus the paired t-test matrix alone (linear in
+subjects)."""
 
 from __future__ import annotations
 
+import json
+import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
-N_SUBJECTS = 1000
-BUDGET_S = 3.0
+SIZES = (100, 1000, 10000)
+TARGET_S = 5.0            # full report of 10,000 subjects, whole process
+TARGET_MB = 1024.0        # peak resident memory of that process
+ROOT = Path(__file__).resolve().parents[1]
+
+# the child reports its own wall time, CPU time and peak RSS (ru_maxrss is in KiB on Linux)
+CHILD = """
+import json, resource, sys, time, warnings
+t0 = time.perf_counter()
+warnings.simplefilter("ignore")
+from analysis.__main__ import main
+rc = main(["report", sys.argv[1], "--out", sys.argv[2]])
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"rc": rc, "in_process_s": time.perf_counter() - t0, "cpu_s": ru.ru_utime + ru.ru_stime,
+                  "peak_mb": ru.ru_maxrss / 1024}))
+"""
 
 
-def main(repeats: int = 5) -> dict:
-    from analysis.load import load_study
-    from analysis.pipeline import AnalysisConfig, analyse, write_tables
+def _report(data: Path, out: Path) -> dict:
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(data), str(out)], cwd=ROOT, capture_output=True,
+                          text=True, env={**os.environ, "MPLBACKEND": "Agg"})
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr[-2000:])
+    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    res["wall_s"] = wall
+    return res
+
+
+def _ttest_ms(n: int, repeats: int = 5) -> float:
+    import numpy as np
+
+    from analysis.stats import RatingMatrix, pairwise_ttests
+    rng = np.random.default_rng(0)
+    m = rng.integers(1, 8, (n, 12)).astype(float)
+    m[3, 2] = np.nan                       # one subject missing one sample: two subject sets
+    mat = RatingMatrix(np.array([f"S{i}" for i in range(n)], dtype=object), tuple("abcdefghijkl"), m,
+                       np.ones((n, 12), int), np.array(["few"] * n, dtype=object))
+    pairwise_ttests(mat, "all")
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        pairwise_ttests(mat, "all")
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times) * 1e3
+
+
+def main(repeats: int = 3, sizes=SIZES) -> dict:
     from analysis.synthetic import write_synthetic_study
 
+    results = {}
     with tempfile.TemporaryDirectory() as tmp:
-        data = Path(tmp) / "data"
-        t0 = time.perf_counter()
-        write_synthetic_study(data, N_SUBJECTS, seed=1, missing={"S010": ["foam"]})
-        gen_s = time.perf_counter() - t0
-        total, load, cpu = [], [], []
-        for _ in range(repeats):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                t0 = time.perf_counter()
-                load_study(data)
-                t1, c1 = time.perf_counter(), time.process_time()
-                res = analyse(data, AnalysisConfig())
-                write_tables(res, Path(tmp) / "report")
-                t2, c2 = time.perf_counter(), time.process_time()
-            cpu.append(c2 - c1)
-            load.append(t1 - t0)
-            total.append(t2 - t1)
-        n_rows = len(res.study.trials)
-    med, med_load, med_cpu = statistics.median(total), statistics.median(load), statistics.median(cpu)
-    print(f"   data: {N_SUBJECTS} subjects x 12 samples x 3 repetitions, {n_rows} attempt rows "
-          f"(generated in {gen_s:.2f} s)")
-    print(f"   load+validate only: median {med_load:.3f} s")
-    print(f"   full analysis (load, validate, tables, CSV): median {med:.3f} s of {repeats} "
-          f"(min {min(total):.3f} s); budget {BUDGET_S:.1f} s -> {med / BUDGET_S:.0%} of budget")
-    print(f"   CPU time of the full analysis: median {med_cpu:.3f} s (less sensitive to other load on the machine)")
-    return {"median_s": med, "load_s": med_load, "cpu_s": med_cpu}
+        for n in sizes:
+            data = Path(tmp) / f"data{n}"
+            t0 = time.perf_counter()
+            write_synthetic_study(data, n, seed=1, missing={"S010": ["foam"]}, traces=3)
+            gen_s = time.perf_counter() - t0
+            runs = [_report(data, Path(tmp) / f"report{n}") for _ in range(repeats)]
+            wall = statistics.median(r["wall_s"] for r in runs)
+            cpu = statistics.median(r["cpu_s"] for r in runs)
+            peak = max(r["peak_mb"] for r in runs)
+            ttest = _ttest_ms(n)
+            results[n] = {"wall_s": wall, "cpu_s": cpu, "peak_mb": peak, "ttest_ms": ttest}
+            print(f"   {n:6d} subjects (data generated in {gen_s:.1f} s): full report whole-process median "
+                  f"{wall:.2f} s of {repeats} (CPU {cpu:.2f} s), target {TARGET_S:.0f} s -> ratio "
+                  f"{wall / TARGET_S:.2f}; peak memory {peak:.0f} MB, target {TARGET_MB:.0f} MB -> ratio "
+                  f"{peak / TARGET_MB:.2f}; t-test matrix {ttest:.1f} ms", flush=True)
+            import shutil
+            shutil.rmtree(data, ignore_errors=True)
+    if len(results) > 1:
+        ns = sorted(results)
+        for a, b in zip(ns, ns[1:]):
+            print(f"   t-test matrix growth {a} -> {b} subjects ({b // a}x): "
+                  f"{results[b]['ttest_ms'] / results[a]['ttest_ms']:.1f}x (linear: <= {b // a}x)")
+    return results
 
 
 if __name__ == "__main__":
-    main()
+    main(sizes=tuple(int(a) for a in sys.argv[1:]) or SIZES)

@@ -63,5 +63,29 @@ def main() -> None:
           f"({mt / n_ticks * 1e6:.2f} us/tick, {n_ticks / sweep.fs_hz / mt:.0f}x real time)")
 
 
+    whole_process_grips()
+
+
+def whole_process_grips() -> None:
+    """``python -m devices identify`` with the default six grips, whole process (target < 5 s, issue 21):
+    grips in parallel processes (``--workers`` = cores) against one process."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    for workers in (os.cpu_count() or 1, 1):
+        times = []
+        for _ in range(3):
+            with tempfile.TemporaryDirectory() as tmp:
+                t0 = time.perf_counter()
+                subprocess.run([sys.executable, "-m", "devices", "identify", "--out", f"{tmp}/m", "--workers",
+                                str(workers)], check=True, capture_output=True)
+                times.append(time.perf_counter() - t0)
+        med = statistics.median(times)
+        print(f"   identify, six grips, whole process, {workers} worker(s): median {med:.2f} s "
+              f"(target < 5 s, ratio {med / 5:.2f})")
+
+
 if __name__ == "__main__":
     main()

@@ -65,8 +65,34 @@ def main() -> dict:
               f"{n_sub} substeps of {1e6 / fs / n_sub:.0f} us); wall clock {w_device:,.0f} ticks/s "
               f"= {w_device / fs:.0f}x", flush=True)
     ok = results["nonlinear"]["realtime_factor"] >= 50
-    print(f"   nonlinear >= 50x real time (CPU time, one core): {'yes' if ok else 'NO'}")
+    print(f"   nonlinear >= 50x real time (CPU time, one core, default person): {'yes' if ok else 'NO'}")
+    results["tap_setup"] = tap_setup()
     return results
+
+
+def tap_setup() -> dict:
+    """Set-up cost of a simulated tapping hand per tap (issue 21 item 2: linear in the number of taps).
+
+    Times ``TapTrajectory(...)`` plus ``set_user`` (sampling the plan and the
+    grip onto the 10 kHz grid) for 10 taps and for 400 taps (the set-up of
+    ``renderer run --taps 10`` and ``--taps 400``), medians of 5, and prints
+    the per-tap cost ratio (target <= 1, with 20 % allowance for timing noise).
+    """
+    from devices.sim import SimDevice, TapTrajectory
+
+    dev = SimDevice()
+    out = {}
+    for n in (10, 400):
+        times = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            dev.set_user(TapTrajectory(0.1, n_taps=n), grip_N=2.0)
+            times.append(time.perf_counter() - t0)
+        out[n] = statistics.median(times) / n
+    ratio = out[400] / out[10]
+    print(f"   tap set-up: {out[10] * 1e3:.2f} ms/tap (10 taps), {out[400] * 1e3:.2f} ms/tap (400 taps): "
+          f"ratio {ratio:.2f} (target <= 1.2: {'yes' if ratio <= 1.2 else 'NO'})")
+    return {"s_per_tap_10": out[10], "s_per_tap_400": out[400], "ratio": ratio}
 
 
 if __name__ == "__main__":

@@ -10,7 +10,8 @@ import sys
 from devices.base import DeviceError
 
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES = ("devices.cli_record", "devices.cli_identify", "devices.cli_hardware")
+COMMAND_MODULES = ("devices.cli_record", "devices.cli_identify", "devices.cli_validate", "devices.cli_linearity",
+                   "devices.cli_hardware", "devices.cli_firmware")
 
 
 def main(argv=None) -> int:

@@ -62,17 +62,40 @@ def _fit_options(args, band=None, weight="mean"):
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "identify", help="record swept sines at several grips and fit a model set (H_ha and G_i)",
-        description="Play swept-sine current commands (thesis eq. 3.11-3.12, twice back to back) while the user "
-                    "holds the handle at each grip level, estimate ETFEs, fit stable zpk models with delay for "
-                    "handle acceleration and position, validate on transients, and write recordings, one model "
-                    "JSON per grip and output, model_set.json, Bode PNGs and a fit report into --out.")
+        "identify", help="identify a device: comprehensive evaluation (LTI model set) or successive isolation "
+                         "(nonlinear physical model)",
+        description="--method comprehensive (default, thesis sec. 3.4): play swept-sine current commands (eq. "
+                    "3.11-3.12, twice back to back) while the user holds the handle at each grip level, estimate "
+                    "ETFEs, fit stable zpk models with delay for handle acceleration and position, validate on "
+                    "transients, and write recordings, one model JSON per grip and output, model_set.json, Bode "
+                    "PNGs and a fit report into --out. --method successive (sec. 3.5): identify the nonlinear "
+                    "model of eq. 3.32-3.35 stage by stage (amplifier, timing, motor, cables, drum, linkage "
+                    "hysteresis, handle, user) in the mechanical configuration each stage needs (set directly on "
+                    "the sim; the operator is prompted on hardware) and write model.json (a sim parameter file: "
+                    "--device sim:DIR/model.json), report.txt/json and one figure per stage into --out.")
+    p.add_argument("--method", choices=("comprehensive", "successive"), default="comprehensive",
+                   help="comprehensive evaluation (LTI, default) or successive isolation (nonlinear)")
     p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, hid:VID:PID)")
+    p.add_argument("--overwrite", action="store_true", help="replace the models in an existing --out folder")
     p.add_argument("--grip", type=_floats, default=None,
                    help="comma-separated grip levels in N (default: spans the device's grip range, "
                         "0,1,2,3,5,10 on the sim, so an HFAM library built from the set covers every grip)")
     p.add_argument("--trials", type=int, default=4, help="good trials per grip, half reversed (default 4)")
-    p.add_argument("--amplitude", type=float, default=0.75, help="sweep amplitude in A (default 0.75)")
+    p.add_argument("--amplitude", type=_floats, default=(0.75,),
+                   help="sweep amplitude(s) in A, comma-separated (default 0.75); several give one ETFE curve each, "
+                        "combined by --purpose")
+    p.add_argument("--purpose", choices=("hfam", "cimm", "general"), default="general",
+                   help="fit rule (sec. 3.4.4): hfam fits the highest-magnitude curves (inverted model never "
+                        "over-stimulates a resonance), cimm the lowest (never over-cancels), general the average; "
+                        "stored in every model's fit.purpose")
+    p.add_argument("--workers", type=int, default=None,
+                   help="simulated devices: grips in this many processes at once (default: the number of cores)")
+    p.add_argument("--stages", default=None,
+                   help="successive: comma-separated stages to run (default all: timing,amplifier,motor,cables,"
+                        "drum,linkage,handle,user)")
+    p.add_argument("--resume", action="store_true",
+                   help="successive: skip the stages already done in --out (after an interruption)")
+    p.add_argument("--no-figures", action="store_true", help="successive: do not draw the per-stage figures")
     p.add_argument("--f-start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
     p.add_argument("--f-end", type=float, default=1000.0, help="sweep end frequency f_f in Hz (default 1000)")
     p.add_argument("--duration", type=float, default=2.0, help="one sweep's duration in s (default 2)")
@@ -119,26 +142,66 @@ def default_grip_levels(grip_range_N: tuple[float, float]) -> tuple[float, ...]:
     return tuple(sorted(levels))
 
 
+def check_out_dir(out, overwrite: bool, marker_files=("model_set.json", "model.json")) -> None:
+    """Refuse to write into a folder that already holds a model unless ``overwrite`` (never overwrite a
+    user's results silently)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    found = [m for m in marker_files if (out / m).exists()]
+    if found and not overwrite:
+        raise ValueError(f"--out {out} already holds a model ({', '.join(found)}); choose another folder or pass "
+                         "--overwrite")
+
+
 def run_identify(args) -> int:
+    import os
+
     from .identify.pipeline import IdentifyConfig, identify_device
     from .identify.sweep import SweepConfig
-    from .registry import make_device
+    from .registry import check_device_spec, make_device
 
+    check_device_spec(args.device)
+    if any(not a > 0 for a in args.amplitude):
+        raise ValueError(f"--amplitude must be > 0 A, got {args.amplitude}")
+    if args.method == "successive":
+        return run_successive(args)
+    check_out_dir(args.out, args.overwrite)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:
-        sweep = SweepConfig(amplitude_A=args.amplitude, f_start_hz=args.f_start, f_end_hz=args.f_end,
+        sweep = SweepConfig(amplitude_A=args.amplitude[0], f_start_hz=args.f_start, f_end_hz=args.f_end,
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
         band = tuple(args.band) if args.band else None
         grips = args.grip if args.grip is not None else default_grip_levels(dev.info.grip_range_N)
+        workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
         cfg = IdentifyConfig(grips_N=grips, trials=args.trials, sweep=sweep,
                              accel_options=_fit_options(args, band, "mean"),
                              position_options=_fit_options(args, band, "mean"), validate=not args.no_validate,
-                             detrend=args.detrend, reverse_half=not args.no_reverse)
-        report = identify_device(dev, cfg, args.out, device_spec=args.device)
+                             detrend=args.detrend, reverse_half=not args.no_reverse,
+                             amplitudes_A=tuple(args.amplitude) if len(args.amplitude) > 1 else (),
+                             purpose=args.purpose, workers=max(1, workers))
+        report = identify_device(dev, cfg, args.out, device_spec=args.device, seed=args.seed)
     from .identify.pipeline import format_report
 
     print(format_report(report), end="")
     print(f"wrote {Path(args.out) / 'model_set.json'}, models, bode_accel.png, bode_position.png, report.txt")
+    return 0
+
+
+def run_successive(args) -> int:
+    """``identify --method successive``: stage by stage, progress per stage, model.json + report + figures."""
+    from .identify.successive import STAGE_NAMES, format_result, identify_successive, save_result
+
+    out = Path(args.out)
+    if not args.resume:
+        check_out_dir(out, args.overwrite)
+    stages = tuple(s.strip() for s in args.stages.split(",")) if args.stages else STAGE_NAMES
+    result = identify_successive(args.device, stages=stages, state_dir=out, resume=args.resume, seed=args.seed,
+                                 log=lambda m: print(m, flush=True))
+    path = save_result(result, out, overwrite=args.overwrite or args.resume, figures=not args.no_figures)
+    print(format_result(result), end="")
+    print(f"wrote {path} (use it as --device sim:{path}), report.txt, report.json"
+          + ("" if args.no_figures else ", stage_*.png"))
     return 0
 
 

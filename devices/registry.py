@@ -5,6 +5,7 @@
 ``sim:<params file>``   simulated device from a TOML/JSON parameter file
 ``serial:<port>``       hardware over a serial/CDC port (e.g. serial:/dev/ttyACM0)
 ``hid:<vid>:<pid>``     hardware over USB HID (hex ids, e.g. hid:16c0:0486)
+``fw-sim``              the real AVR firmware on simavr behind a pty (devices/firmware/fw_sim.py)
 
 Hardware strings take driver options after ``?`` (``&``-separated ``key=value``,
 numbers converted), e.g. ``serial:/dev/pts/3?mode=on-device&timeout_s=0.05``.
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 from .base import Device
 
-DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>")
+DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>", "fw-sim")
 
 
 def _split(spec: str) -> tuple[str, str, dict]:
@@ -23,6 +24,8 @@ def _split(spec: str) -> tuple[str, str, dict]:
         raise ValueError(f"device string must be text, got {spec!r}; valid forms: {', '.join(DEVICE_KINDS)}")
     kind, _, rest = spec.partition(":")
     options: dict = {}
+    if spec == "fw-sim" or spec.startswith("fw-sim?"):
+        return "fw-sim", "", _parse_options(spec, spec.partition("?")[2])
     if kind in ("serial", "hid") and "?" in rest:
         rest, query = rest.split("?", 1)
         options = _parse_options(spec, query)
@@ -61,6 +64,10 @@ def make_device(spec: str, **options) -> Device:
         from .sim import SimDevice
 
         return SimDevice.from_spec(rest or None, **options)
+    if kind == "fw-sim":
+        from .firmware.fw_sim import FwSimDevice
+
+        return FwSimDevice(**options)
     if kind == "serial":
         from .hardware.serial_device import SerialDevice
 

@@ -50,6 +50,12 @@ def register(subparsers) -> None:
                    help="drop taps whose pre-impact peak exceeds this fraction of the impact peak (default %(default)s)")
     p.add_argument("--min-neighbour-corr", type=float, default=d.min_neighbour_corr,
                    help="drop taps correlating less than this with their velocity neighbours (default %(default)s)")
+    p.add_argument("--refine", type=int, default=0, metavar="N",
+                   help="refine every transient N times by playback and correction on a simulated --device "
+                        "(sim only; prints the error per iteration; on hardware the same procedure needs "
+                        "repeated taps by a person; default 0: off)")
+    p.add_argument("--refine-wall", type=float, default=680.0,
+                   help="wall stiffness the transients are refined over, N/m (default %(default)s)")
     p.add_argument("--max-extrapolation", type=float, default=d.max_extrapolation,
                    help="cap of v_in/v_max above the velocity range at run time (default %(default)s)")
     p.set_defaults(func=run)
@@ -140,6 +146,18 @@ def run(args) -> int:
     library, report = build_library(taps, fs, models, settings, force_per_amp_N_A=fpa,
                                     log=lambda m: print(m, flush=True), provenance=provenance)
     print(format_verification(report, settings.verify_band_hz))
+    if args.refine < 0:
+        raise ValueError(f"--refine must be >= 0, got {args.refine}")
+    if args.refine:
+        if not str(args.device).startswith("sim"):
+            raise ValueError(f"--refine plays the transients on a simulated device; --device {args.device!r} is not "
+                             f"one (on hardware refinement needs repeated taps by a person, see docs/hfam_library.md)")
+        from devices.registry import make_device
+        from .hfam.refine import RefineSettings, refine_library
+
+        library, _ = refine_library(library, models, lambda: make_device(args.device, seed=0),
+                                    RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall), settings,
+                                    log=lambda m: print(m, flush=True))
     for msg in report.scaled:
         print(f"warning: {msg}")
     g = library.grips_N

@@ -43,37 +43,56 @@ def summary(lib: HfamLibrary) -> str:
 
 
 def plot_library(lib: HfamLibrary, out: Path) -> Path:
-    """Write a PNG: top row desired accelerations, bottom row currents, one column per grip level."""
-    import matplotlib
+    """Figure 4.8: desired accelerations (top row) and current transients (bottom row), one column per grip.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Saved in the project style as ``out`` (PNG) plus SVG and a CSV of every plotted trace
+    (figstyle); the demo's library figure is this same plot.
+
+    Parameters
+    ----------
+    lib : HfamLibrary
+    out : Path
+        PNG to write.
+
+    Returns
+    -------
+    Path
+        The PNG.
+    """
+    import figstyle  # with matplotlib behind it: only this command draws
 
     n_g = len(lib.grips_N)
     t_ms = (np.arange(lib.n_samples) + 1) / lib.fs_hz * 1e3
-    fig, axes = plt.subplots(2, n_g, figsize=(3.2 * n_g + 1.5, 6.0), sharex=True, squeeze=False)
-    colors = plt.cm.viridis(np.linspace(0.0, 0.9, len(lib.velocities_m_s)))
-    for j, grip in enumerate(lib.grips_N):
-        ax_a, ax_i = axes[0, j], axes[1, j]
-        for i, v in enumerate(lib.velocities_m_s):
-            label = f"{v:.3g} m/s"
-            if lib.desired_accel_m_s2 is not None:
-                ax_a.plot(t_ms, lib.desired_accel_m_s2[i], color=colors[i], lw=0.8, label=label)
-            ax_i.plot(t_ms, lib.currents_A[i, j], color=colors[i], lw=0.8, label=label)
-        ax_a.set_title(f"grip {grip:g} N")
-        ax_i.set_xlabel("time after impact (ms)")
-        if j == 0:
-            ax_a.set_ylabel("desired acceleration (m/s$^2$)")
-            ax_i.set_ylabel("current (A)")
-        if lib.desired_accel_m_s2 is None:
-            ax_a.text(0.5, 0.5, "no accelerations stored", ha="center", transform=ax_a.transAxes)
-    axes[0, -1].legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"HFAM library {Path(lib.source).name}")
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
-    return out
+    data = {"t_ms": t_ms}
+    with figstyle.style() as plt:
+        from matplotlib import colormaps
+
+        fig, axes = plt.subplots(2, n_g, figsize=figstyle.figsize("page", height_in=4.6), sharex=True,
+                                 squeeze=False, layout="constrained")
+        colors = colormaps[figstyle.palette()["sequential"]](np.linspace(0.0, 0.9, len(lib.velocities_m_s)))
+        for j, grip in enumerate(lib.grips_N):
+            ax_a, ax_i = axes[0, j], axes[1, j]
+            for i, v in enumerate(lib.velocities_m_s):
+                label = f"{v:.3g} m/s"
+                if lib.desired_accel_m_s2 is not None and j == 0:
+                    ax_a.plot(t_ms, lib.desired_accel_m_s2[i], color=colors[i], lw=0.8, label=label)
+                    data[f"accel {v:.4g} m/s (m/s^2)"] = lib.desired_accel_m_s2[i]
+                elif lib.desired_accel_m_s2 is not None:
+                    ax_a.plot(t_ms, lib.desired_accel_m_s2[i], color=colors[i], lw=0.8)
+                ax_i.plot(t_ms, lib.currents_A[i, j], color=colors[i], lw=0.8)
+                data[f"current {v:.4g} m/s grip {grip:g} N (A)"] = lib.currents_A[i, j]
+            ax_a.set_title(f"grip {grip:g} N", loc="left")
+            ax_i.set_xlabel("time after impact (ms)")
+            if j == 0:
+                ax_a.set_ylabel("desired acceleration (m/s²)")
+                ax_i.set_ylabel("current (A)")
+            if lib.desired_accel_m_s2 is None:
+                ax_a.text(0.5, 0.5, "no accelerations stored", ha="center", transform=ax_a.transAxes)
+        if lib.desired_accel_m_s2 is not None:
+            fig.legend(handles=axes[0, 0].lines, loc="outside right upper", title="incoming velocity")
+        fig.suptitle(f"HFAM library {Path(lib.source).name} (cf. thesis Fig. 4.8)")
+        paths = figstyle.save(fig, out, data)
+    return paths["png"]
 
 
 def run(args) -> int:

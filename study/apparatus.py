@@ -167,7 +167,15 @@ class Apparatus:
             traj = ScriptedTrajectory(t, x)
             g_hi = self.sim_participant.config.overpower_grip_N
             grip = lambda ts, g0=grip, t1=t_late, g1=g_hi: np.where(np.asarray(ts) >= t1 - 0.05, g1, g0)  # noqa: E731
-        self.device.set_user(traj, grip)
+        hand = None
+        if plan.overpower and getattr(self.device, "params", None) is not None and \
+                self.device.params.model == "nonlinear":
+            # a determined push: the simulated person co-contracts (stiff muscles and compensation), so the
+            # homing force cannot hold the late tap back (issue 16: the default person is compliant)
+            from devices.sim import DEFAULT_PERSON
+
+            hand = DEFAULT_PERSON.replace(muscle_stiffness_N_m=400.0, compensation_stiffness_N_m=2000.0)
+        self.device.set_user(traj, grip, hand=hand)
 
     # -- homing -------------------------------------------------------------
     def home(self, max_s: float) -> None:

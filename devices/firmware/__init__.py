@@ -2,4 +2,5 @@
 
 ``logic``     the on-device renderer the firmware runs, in plain scalar Python (mirrors ``hfam_fw.c``)
 ``emulator``  a firmware emulator on a pseudo-terminal or in-process HID seam (``python -m devices emulate``)
+``fw_sim``    the real AVR build on simavr behind a pty (device string ``fw-sim``, ``python -m devices firmware-report``)
 """

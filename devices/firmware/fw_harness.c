@@ -8,7 +8,7 @@
 #include "hfam_fw.c"
 
 uint8_t UDR0, UCSR0A, UCSR0B, UCSR0C, PIND, PORTB, DDRB, OCR2A, TCCR2A, TCCR2B, EICRA, EIMSK, ADMUX, ADCSRA,
-    TCCR1A, TCCR1B, TIMSK1;
+    TCCR1A, TCCR1B, TIMSK1, GPIOR0;
 uint16_t UBRR0, ADC, OCR1A;
 
 static void drain_tx(void) {

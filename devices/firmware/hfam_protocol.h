@@ -55,6 +55,24 @@
 #define ST_WATCHDOG_TRIPPED 4
 #define ST_CLIPPING 8
 
+/* CRC-16/CCITT-FALSE update by one byte (polynomial 0x1021, no reflection; callers start at 0xFFFF).
+ * On the AVR a table in flash; elsewhere the table-free shift-and-xor form of the same update. */
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+extern const uint16_t hfam_crc_table[256] PROGMEM; /* 512 bytes of flash: ~12 cycles per byte, inlined */
+static inline uint16_t hfam_crc16_byte(uint16_t crc, uint8_t byte) {
+    return (uint16_t)((crc << 8) ^ pgm_read_word(&hfam_crc_table[(uint8_t)(crc >> 8) ^ byte]));
+}
+#else
+static inline uint16_t hfam_crc16_byte(uint16_t crc, uint8_t byte) {
+    crc = (uint16_t)((crc >> 8) | (crc << 8));
+    crc ^= byte;
+    crc ^= (uint8_t)(crc & 0xFF) >> 4;
+    crc ^= (uint16_t)(crc << 12);
+    crc ^= (uint16_t)((uint16_t)(crc & 0xFF) << 5);
+    return crc;
+}
+#endif
 uint16_t hfam_crc16(uint16_t crc, const uint8_t *data, uint16_t n);
 
 /* Build a frame into out (HFAM_OVERHEAD + n bytes); returns its length. */
@@ -65,6 +83,7 @@ typedef struct {
     uint16_t pos;      /* bytes collected of the current candidate frame */
     uint16_t crc_errors;
     uint16_t garbage;
+    uint16_t crc;      /* running CRC over buf[2 .. 5 + len) */
 } hfam_parser_t;
 
 /* Feed one byte; returns 1 when buf holds a complete CRC-valid frame

@@ -83,6 +83,8 @@ class FirmwareRenderer:
         # velocity ring buffer
         self._win = max(1, int(velocity_window))
         self._ring = [0.0] * self._win
+        self._ring_t = [0] * self._win  # t_us of each sample: a late (skipped) tick widens the window
+        self._tick_us = 1e6 / fs_hz
         self._ring_i = 0
         self._filled = 0
         self.reset_contact()
@@ -198,12 +200,16 @@ class FirmwareRenderer:
         i = self._ring_i
         old = ring[i]
         ring[i] = x
+        ticks = round(((t_us - self._ring_t[i]) & 0xFFFFFFFF) / self._tick_us)
+        self._ring_t[i] = t_us
         self._ring_i = i + 1 if i + 1 < self._win else 0
         if self._filled < self._win:  # no velocity until the window has filled once
             self._filled += 1
             v = 0.0
-        else:
+        elif ticks == self._win or ticks <= 0:
             v = (x - old) / (self._win * self.dt)
+        else:  # ticks were skipped (a firmware tick overran): divide by the time that passed
+            v = (x - old) * self.fs / ticks
         self.velocity_m_s = v
         h = self.height_m
         pen = h - x

@@ -1,4 +1,11 @@
-"""Bode plots of ETFE curves with fitted models over them (like thesis Figures 3.8, 3.9, 3.12)."""
+"""Bode plots of ETFE curves with fitted models over them (like thesis Figures 3.8, 3.9, 3.12).
+
+Phase is unwrapped over the trusted bins and shifted by whole turns so the lowest trusted bin lies
+in (-180, 180] deg; bins with low coherence (or above the quantization-resolvable band) are drawn
+faint in magnitude and left out of the phase; each fitted model is drawn over its curve with its
+resonance (magnitude peak) and the -3 dB point above the peak marked. Saved with the project
+style (figstyle) as PNG, SVG and a CSV of the plotted values.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +13,74 @@ from pathlib import Path
 
 import numpy as np
 
+import figstyle
+
 from ..model import ZpkModel
 from .etfe import Etfe
 
-YLABEL = {"accel_m_s2": "|A_h / I_m|  (dB re 1 m/s^2/A)", "position_m": "|X_m / I_m|  (dB re 1 m/A)"}
+YLABEL = {"accel_m_s2": "|A_h / I_m| (dB re 1 m/s²/A)", "position_m": "|X_m / I_m| (dB re 1 m/A)"}
+# bins whose magnitude-squared coherence is below this are drawn faint and get no phase
+COHERENCE_MIN = 0.6
+
+
+def wrap_phase_deg(H: np.ndarray, trusted: np.ndarray | None = None) -> np.ndarray:
+    """Phase of ``H`` in degrees, unwrapped along frequency and shifted by whole turns into (-180, 180]
+    at the first trusted bin; untrusted bins are NaN.
+
+    Parameters
+    ----------
+    H : ndarray of complex, shape (m,)
+        Frequency response in increasing frequency order.
+    trusted : ndarray of bool, shape (m,), optional
+        Bins to use (default all).
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Phase in deg.
+    """
+    H = np.asarray(H)
+    ok = np.ones(H.shape, dtype=bool) if trusted is None else np.asarray(trusted, dtype=bool)
+    out = np.full(H.shape, np.nan)
+    if ok.any():
+        ph = np.degrees(np.unwrap(np.angle(H[ok])))
+        ph -= 360.0 * np.ceil((ph[0] - 180.0) / 360.0)      # first trusted bin into (-180, 180]
+        out[ok] = ph
+    return out
+
+
+def resonance_and_3db(f_hz: np.ndarray, H: np.ndarray) -> tuple[float, float, float]:
+    """Resonance (frequency of the magnitude peak) and the first frequency above it 3 dB below the peak.
+
+    Parameters
+    ----------
+    f_hz : ndarray, shape (m,)
+        Increasing frequencies, Hz.
+    H : ndarray of complex, shape (m,)
+
+    Returns
+    -------
+    f_peak_hz, peak_db, f_3db_hz : float
+        ``f_3db_hz`` is NaN when the magnitude does not fall 3 dB below the peak within ``f_hz``
+        (linear interpolation in dB between bins).
+    """
+    with np.errstate(divide="ignore"):
+        mag = 20 * np.log10(np.abs(H))
+    if not np.isfinite(mag).any():
+        return float("nan"), float("nan"), float("nan")
+    i = int(np.nanargmax(np.where(np.isfinite(mag), mag, -np.inf)))
+    peak = float(mag[i])
+    below = np.flatnonzero(mag[i:] <= peak - 3.0)
+    if not below.size:
+        return float(f_hz[i]), peak, float("nan")
+    j = i + int(below[0])
+    f0, f1, m0, m1 = f_hz[j - 1], f_hz[j], mag[j - 1], mag[j]
+    f3 = f0 + (peak - 3.0 - m0) * (f1 - f0) / (m1 - m0) if m1 != m0 else f1
+    return float(f_hz[i]), peak, float(f3)
 
 
 def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: str = "") -> Path:
-    """Write a PNG: ETFE curves (solid) and their fitted models (dashed, same colour).
+    """Write ``path`` (PNG) plus SVG and CSV: ETFE curves (solid) and their fitted models (dashed).
 
     Parameters
     ----------
@@ -22,40 +89,63 @@ def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: st
         One per curve (None: no model for that curve), or one shared model
         drawn in black when ``len(models) == 1 < len(curves)``.
     path : str or Path
+        PNG to write; ``.svg`` and ``.csv`` are written beside it.
+    title : str
+
+    Returns
+    -------
+    Path
+        The PNG.
     """
-    import matplotlib
+    with figstyle.style() as plt:
+        fig, (ax_m, ax_p) = plt.subplots(2, 1, figsize=figstyle.figsize("page", height_in=5.2), sharex=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rows, marks = _draw(ax_m, ax_p, curves, models, plt)
+        ax_m.set_ylabel(YLABEL.get(curves[0].output, "magnitude (dB)") if curves else "magnitude (dB)")
+        ax_p.set_ylabel("phase (deg)")
+        ax_p.set_xlabel("frequency (Hz)")
+        for ax in (ax_m, ax_p):
+            ax.grid(True, which="both", alpha=0.3)
+        from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+        handles, labels = ax_m.get_legend_handles_labels()
+        handles += [Line2D([], [], color="0.3", lw=1.2, label="ETFE (coherence ≥ %.1f)" % COHERENCE_MIN),
+                    Line2D([], [], color="0.3", lw=0.6, alpha=0.35, label="low coherence / unresolved"),
+                    Line2D([], [], color="0.3", lw=1.4, ls="--", label="fitted model"),
+                    Line2D([], [], color="0.3", ls="none", marker="^", label="resonance (model peak)"),
+                    Line2D([], [], color="0.3", ls="none", marker="v", mfc="white", label="−3 dB below the peak")]
+        ax_m.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
+        if title:
+            ax_m.set_title(title, loc="left")
+        import pandas as pd  # deferred: only the figure's CSV needs it
 
-    fig, (ax_m, ax_p) = plt.subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
-    with np.errstate(divide="ignore"):  # a curve of zeros (output never moved) plots as -inf: nothing drawn
-        _draw(ax_m, ax_p, curves, models, plt)
-    ax_m.set_ylabel(YLABEL.get(curves[0].output, "dB") if curves else "dB")
-    ax_p.set_ylabel("phase (deg)")
-    ax_p.set_xlabel("frequency (Hz)")
-    for ax in (ax_m, ax_p):
-        ax.grid(True, which="both", alpha=0.3)
-    if any(c.label for c in curves):
-        ax_m.legend(fontsize=8, title="solid: ETFE, dashed: model", title_fontsize=8)
-    ax_m.set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+        data = pd.DataFrame(rows)
+        if marks:
+            data = pd.concat([data, pd.DataFrame(marks)], ignore_index=True)
+        paths = figstyle.save(fig, path, data)
+    return paths["png"]
 
 
-def _draw(ax_m, ax_p, curves, models, plt) -> None:
-    colors = plt.cm.viridis(np.linspace(0.0, 0.85, max(len(curves), 1)))
+def _grip_colors(n: int) -> list:
+    from matplotlib import colormaps
+
+    return [colormaps[figstyle.palette()["sequential"]](x) for x in np.linspace(0.0, 0.85, max(n, 1))]
+
+
+def _draw(ax_m, ax_p, curves, models, plt) -> tuple[list, list]:
+    colors = _grip_colors(len(curves))
     shared = len(models) == 1 and len(curves) > 1
+    rows, marks = [], []
     for c, color in zip(curves, colors):
-        # above the quantization-resolvable band the estimate is noise: thin line, no phase
-        ok = c.f_hz <= c.resolvable_hi_hz
-        ax_m.semilogx(c.f_hz[ok], 20 * np.log10(np.abs(c.H[ok])), color=color, lw=1.2, label=c.label or None)
-        ax_m.semilogx(c.f_hz[~ok], 20 * np.log10(np.abs(c.H[~ok])), color=color, lw=0.4, alpha=0.5)
-        ax_p.semilogx(c.f_hz[ok], np.degrees(np.unwrap(np.angle(c.H[ok]))), color=color, lw=1.2)
+        coh = np.asarray(c.coherence) if c.coherence is not None else np.ones(c.f_hz.shape)
+        trusted = (c.f_hz <= c.resolvable_hi_hz) & (coh >= COHERENCE_MIN)
+        mag = 20 * np.log10(np.abs(c.H))
+        ph = wrap_phase_deg(c.H, trusted)
+        ax_m.semilogx(c.f_hz, np.where(trusted, np.nan, mag), color=color, lw=0.6, alpha=0.35)
+        ax_m.semilogx(c.f_hz, np.where(trusted, mag, np.nan), color=color, lw=1.2, label=c.label or None)
+        ax_p.semilogx(c.f_hz, ph, color=color, lw=1.2)
+        rows += [{"curve": c.label, "kind": "etfe", "f_hz": f, "magnitude_db": m, "phase_deg": p, "coherence": h,
+                  "trusted": bool(t)} for f, m, p, h, t in zip(c.f_hz, mag, ph, coh, trusted)]
     pairs = [(models[0], "black", None)] if shared else [(m, col, c) for m, col, c in zip(models, colors, curves)]
     for m, color, c in pairs:
         if m is None:
@@ -63,11 +153,30 @@ def _draw(ax_m, ax_p, curves, models, plt) -> None:
         f = c.f_hz if c is not None else curves[0].f_hz
         if m.band_hz is not None:  # draw models only where they were fitted
             f = f[(f >= m.band_hz[0]) & (f <= m.band_hz[1])]
+        if not f.size:
+            continue
         h = m.frequency_response(f)
-        ax_m.semilogx(f, 20 * np.log10(np.abs(h)), "--", color=color, lw=1.5)
-        ph = np.unwrap(np.angle(h))
-        if c is not None and f.size:  # draw the model's phase on the same 360-degree branch as its curve
-            i0 = int(np.searchsorted(c.f_hz, f[0]))
-            ph_c = np.unwrap(np.angle(c.H[: i0 + 1]))[-1]
-            ph -= 2 * np.pi * np.round((ph[0] - ph_c) / (2 * np.pi))
-        ax_p.semilogx(f, np.degrees(ph), "--", color=color, lw=1.5)
+        mag = 20 * np.log10(np.abs(h))
+        ph = np.degrees(np.unwrap(np.angle(h)))
+        ref = None
+        if c is not None:   # the model's phase on the same 360-degree branch as its curve where it starts
+            data_ph = wrap_phase_deg(c.H, (c.f_hz <= c.resolvable_hi_hz)
+                                     & (np.asarray(c.coherence) >= COHERENCE_MIN))
+            k = int(np.searchsorted(c.f_hz, f[0]))
+            near = np.flatnonzero(np.isfinite(data_ph))
+            if near.size:
+                ref = data_ph[near[np.argmin(np.abs(near - k))]]
+        ph -= 360.0 * (np.round((ph[0] - ref) / 360.0) if ref is not None else np.ceil((ph[0] - 180.0) / 360.0))
+        ax_m.semilogx(f, mag, "--", color=color, lw=1.4)
+        ax_p.semilogx(f, ph, "--", color=color, lw=1.4)
+        label = c.label if c is not None else "shared model"
+        rows += [{"curve": label, "kind": "model", "f_hz": fi, "magnitude_db": mi, "phase_deg": pi}
+                 for fi, mi, pi in zip(f, mag, ph)]
+        f_pk, pk, f3 = resonance_and_3db(f, h)
+        if np.isfinite(f_pk):
+            ax_m.plot(f_pk, pk, "^", color=color, ms=6, mec="black", mew=0.5)
+            marks.append({"curve": label, "kind": "resonance", "f_hz": f_pk, "magnitude_db": pk})
+        if np.isfinite(f3):
+            ax_m.plot(f3, pk - 3.0, "v", color=color, mfc="white", ms=6, mew=1.0)
+            marks.append({"curve": label, "kind": "minus_3db", "f_hz": f3, "magnitude_db": pk - 3.0})
+    return rows, marks

@@ -21,6 +21,10 @@ from .sweep import SweepConfig
 from .validate import record_transients, validate_model, write_transient_recording
 
 OUTPUT_SHORT = {"accel_m_s2": "accel", "position_m": "position"}
+# fit rule by the model's purpose (sec. 3.4.4): HFAM inverts the model, so it must not over-stimulate a
+# resonance (fit the highest-magnitude curves); cancellation of induced master motion (CIMM) must not
+# over-cancel (lowest); a general model fits the average
+PURPOSE_WEIGHT = {"hfam": "high", "cimm": "low", "general": "mean"}
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,15 @@ class IdentifyConfig:
     validate : bool
         Play contact-like transients at each grip and report the accel model's NRMSE.
     validation_amplitude_A : float
+    amplitudes_A : tuple of float
+        Sweep amplitudes per grip (empty: ``sweep.amplitude_A`` only). With several, each is one ETFE
+        curve and ``purpose`` decides how they are combined (sec. 3.4.3-3.4.4).
+    purpose : {"hfam", "cimm", "general"}
+        Fit the highest, lowest or average magnitude curves (``PURPOSE_WEIGHT``); stored in every model's
+        ``fit.purpose``.
+    workers : int
+        Simulated devices only: grips are recorded and fitted in this many processes at once (each with
+        its own device made from ``device_spec``, noise seed ``seed + 1000 * grip index``).
     detrend : {"ramp", "periodic"}
         ETFE detrending (see :func:`devices.identify.etfe.etfe`).
     reverse_half : bool
@@ -55,8 +68,15 @@ class IdentifyConfig:
     validation_amplitude_A: float = 1.0
     detrend: str = "ramp"
     reverse_half: bool = True
+    amplitudes_A: tuple = ()
+    purpose: str = "general"
+    workers: int = 1
 
     def __post_init__(self) -> None:
+        if self.purpose not in PURPOSE_WEIGHT:
+            raise ValueError(f"purpose must be one of {sorted(PURPOSE_WEIGHT)}, got {self.purpose!r}")
+        if any(not (np.isfinite(a) and a > 0) for a in self.amplitudes_A):
+            raise ValueError(f"amplitudes must be finite and > 0 A, got {self.amplitudes_A!r}")
         g = list(self.grips_N)
         if not g or any(not np.isfinite(x) or x < 0 for x in g) or any(b <= a for a, b in zip(g, g[1:])):
             raise ValueError(f"grip levels must be finite, >= 0 and strictly increasing, got {self.grips_N!r}")
@@ -64,18 +84,20 @@ class IdentifyConfig:
             raise ValueError(f"trials must be an integer 1..50, got {self.trials!r}")
 
 
-def _fit_one(curve: Etfe, options: FitOptions, source: str):
-    """(FitResult, None), or (None, reason) when the curve cannot be fitted to the requested error or has
+def _fit_one(curves: list, options: FitOptions, source: str):
+    """(FitResult, None), or (None, reason) when the curves cannot be fitted to the requested error or have
     no usable band / data (e.g. an output that never moved)."""
+    output = curves[0].output
     try:
-        return fit_etfes([curve], options, source=source, grip_N=curve.grip_N), None
+        return fit_etfes(curves, options, source=source, grip_N=float(np.mean([c.grip_N for c in curves]))), None
     except FitError as exc:
         return None, str(exc)
     except ValueError as exc:
-        return None, f"cannot fit {curve.output}: {exc}"
+        return None, f"cannot fit {output}: {exc}"
 
 
-def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device_spec: str = "") -> dict:
+def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device_spec: str = "",
+                    seed: int = 0) -> dict:
     """Identify H_ha and G_i at every grip level of ``cfg`` and write the results to ``out_dir``.
 
     Writes ``recordings/g<g>N_t<k>.csv`` (+ ``.json``), the validation transients
@@ -96,48 +118,35 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     sweep = cfg.sweep
     t_start = time.perf_counter()
     curves = {o: [] for o in OUTPUT_SHORT}
+    models_plot = {o: [] for o in OUTPUT_SHORT}
     fits = {o: [] for o in OUTPUT_SHORT}
     rows = []
-    for g in cfg.grips_N:
-        recs = record_condition(dev, sweep, float(g), cfg.trials, reverse_half=cfg.reverse_half, log=log)
-        for k, rec in enumerate(recs):
-            rec.meta["condition"] = f"grip {g:g} N"
-            write_recording(out / "recordings" / f"g{g:g}N_t{k}.csv", rec)
-        row = {"grip_N": float(g), "grip_measured_N": float(np.mean([r.meta["grip_mean_N"] for r in recs])),
-               "trials": len(recs)}
-        for output, opts in (("accel_m_s2", cfg.accel_options), ("position_m", cfg.position_options)):
-            curve = etfe(recs, output, label=f"grip {g:g} N", detrend=cfg.detrend)
-            curves[output].append(curve)
-            src = f"python -m devices identify --device {device_spec or dev.info.name}, grip {g:g} N, " \
-                  f"{len(recs)} trials"
-            res, err = _fit_one(curve, opts, src)
-            fits[output].append(res)
-            short = OUTPUT_SHORT[output]
-            if res is None:
-                row[short] = {"error": err}
-                log(f"grip {g:g} N {short}: FIT FAILED: {err}")
-                continue
-            m = res.metrics
-            row[short] = {k: m[k] for k in ("rms_db", "rms_phase_deg", "worst_band_db", "order", "delay_s")}
-            row[short]["band_hz"] = list(res.model.band_hz)
-            row[short]["coherence_mean"] = m["coherence_mean"]
-            row[short]["peak_hz"], row[short]["peak_db"] = main_resonance(curve, res.model.band_hz)
-            log(f"grip {g:g} N {short}: order {m['order']}, delay {m['delay_s'] * 1e3:.3f} ms, "
-                f"RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, worst band {m['worst_band_db']:.2f} dB "
-                f"over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz")
-        if cfg.validate and fits["accel_m_s2"][-1] is not None:
-            u, a, x, windows = record_transients(dev, cfg.validation_amplitude_A, float(g))
-            write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", sweep.fs_hz, u, a, x, g)
-            v = validate_model(fits["accel_m_s2"][-1].model, u, a, sweep.fs_hz, windows)
-            row["validation"] = {"nrmse": v["nrmse"], "nrmse_per_transient": v["nrmse_per_transient"]}
-            log(f"grip {g:g} N accel time-domain validation: NRMSE {v['nrmse']:.3f} "
-                f"(per transient {', '.join(f'{x:.3f}' for x in v['nrmse_per_transient'])})")
+    label = device_spec or dev.info.name
+    jobs = list(enumerate(cfg.grips_N))
+    if cfg.workers > 1 and dev.simulated and device_spec.startswith("sim") and len(jobs) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # fork: the workers inherit the imported (and numba-compiled) modules, so they start at once
+        ctx = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=min(cfg.workers, len(jobs)), mp_context=ctx) as pool:
+            results = list(pool.map(_grip_worker, [(device_spec, seed, k, g, cfg, label, out) for k, g in jobs]))
+    else:
+        results = [_identify_grip(dev, k, g, cfg, label, out) for k, g in jobs]
+    for (k, g), (row, gcurves, gfits, msgs) in zip(jobs, results):
+        for m in msgs:
+            log(m)
+        for output in OUTPUT_SHORT:
+            curves[output].extend(gcurves[output])
+            fits[output].append(gfits[output])
+            models_plot[output].extend([gfits[output].model if gfits[output] is not None else None]
+                                       * len(gcurves[output]))
         rows.append(row)
 
-    report = {"device": device_spec or dev.info.name, "sweep": {
+    report = {"device": label, "purpose": cfg.purpose, "sweep": {
         "fs_hz": sweep.fs_hz, "f_start_hz": sweep.f_start_hz, "f_end_hz": sweep.f_end_hz,
         "duration_s": sweep.duration_s, "amplitude_A": sweep.amplitude_A, "repetitions": sweep.repetitions},
-        "trials": cfg.trials, "grips": rows}
+        "trials": cfg.trials, "amplitudes_A": list(cfg.amplitudes_A or (sweep.amplitude_A,)), "grips": rows}
     ok = [i for i, g in enumerate(cfg.grips_N) if any(fits[o][i] is not None for o in OUTPUT_SHORT)]
     written = []
     if ok:
@@ -146,8 +155,7 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
         mset = ModelSet(np.array([cfg.grips_N[i] for i in ok], dtype=float), models)
         written.append(str(mset.save(out)))
     for output, short in OUTPUT_SHORT.items():
-        models = [f.model if f is not None else None for f in fits[output]]
-        written.append(str(bode_plot(curves[output], models, out / f"bode_{short}.png",
+        written.append(str(bode_plot(curves[output], models_plot[output], out / f"bode_{short}.png",
                                      title=f"{report['device']}: {short} ETFE per grip (solid), fitted models "
                                            "(dashed)")))
     report["written"] = written
@@ -159,6 +167,71 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
         raise ValueError(f"no grip level could be fitted to the requested error; see {out / 'report.txt'}; "
                          "no model set written")
     return report
+
+
+def _grip_worker(job):
+    """Process-pool entry: a fresh simulated device for one grip (see ``IdentifyConfig.workers``)."""
+    from ..registry import make_device
+
+    spec, seed, k, g, cfg, label, out = job
+    dev = make_device(spec, seed=seed + 1000 * k)
+    with dev:
+        return _identify_grip(dev, k, g, cfg, label, out)
+
+
+def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: str, out: Path):
+    """Record, fit and validate one grip level; write its recordings (``out/recordings``). Returns (report
+    row, curves per output, fit per output (FitResult or None), log messages)."""
+    from dataclasses import replace
+
+    msgs = []
+    amps = tuple(cfg.amplitudes_A) or (cfg.sweep.amplitude_A,)
+    recs_all, gcurves, gfits = [], {o: [] for o in OUTPUT_SHORT}, {}
+    by_amp = []
+    for amp in amps:
+        sweep = replace(cfg.sweep, amplitude_A=float(amp))
+        recs = record_condition(dev, sweep, float(g), cfg.trials, reverse_half=cfg.reverse_half,
+                                log=msgs.append)
+        cond = f"grip {g:g} N" if len(amps) == 1 else f"grip {g:g} N, {amp:g} A"
+        for rec in recs:
+            rec.meta["condition"] = cond
+        for rec in recs:
+            write_recording(out / "recordings" / f"g{g:g}N_t{len(recs_all)}.csv", rec)
+            recs_all.append(rec)
+        by_amp.append((cond, recs))
+    row = {"grip_N": float(g), "grip_measured_N": float(np.mean([r.meta["grip_mean_N"] for r in recs_all])),
+           "trials": len(recs_all), "purpose": cfg.purpose}
+    for output, opts in (("accel_m_s2", cfg.accel_options), ("position_m", cfg.position_options)):
+        opts = replace(opts, weight=PURPOSE_WEIGHT[cfg.purpose])
+        cs = [etfe(recs, output, label=cond, detrend=cfg.detrend) for cond, recs in by_amp]
+        gcurves[output] = cs
+        src = f"python -m devices identify --device {label}, grip {g:g} N, {len(recs_all)} trials, " \
+              f"purpose {cfg.purpose}"
+        res, err = _fit_one(cs, opts, src)
+        if res is not None:
+            res.model.fit["purpose"] = cfg.purpose
+        gfits[output] = res
+        short = OUTPUT_SHORT[output]
+        if res is None:
+            row[short] = {"error": err}
+            msgs.append(f"grip {g:g} N {short}: FIT FAILED: {err}")
+            continue
+        m = res.metrics
+        row[short] = {kk: m[kk] for kk in ("rms_db", "rms_phase_deg", "worst_band_db", "order", "delay_s")}
+        row[short]["band_hz"] = list(res.model.band_hz)
+        row[short]["coherence_mean"] = m["coherence_mean"]
+        row[short]["peak_hz"], row[short]["peak_db"] = main_resonance(cs[len(cs) // 2], res.model.band_hz)
+        msgs.append(f"grip {g:g} N {short}: order {m['order']}, delay {m['delay_s'] * 1e3:.3f} ms, "
+                    f"RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, worst band {m['worst_band_db']:.2f} dB "
+                    f"over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz")
+    if cfg.validate and gfits["accel_m_s2"] is not None:
+        u, a, x, windows = record_transients(dev, cfg.validation_amplitude_A, float(g))
+        write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", cfg.sweep.fs_hz, u, a, x, g)
+        v = validate_model(gfits["accel_m_s2"].model, u, a, cfg.sweep.fs_hz, windows)
+        row["validation"] = {"nrmse": v["nrmse"], "nrmse_per_transient": v["nrmse_per_transient"]}
+        msgs.append(f"grip {g:g} N accel time-domain validation: NRMSE {v['nrmse']:.3f} "
+                    f"(per transient {', '.join(f'{x:.3f}' for x in v['nrmse_per_transient'])})")
+    return row, gcurves, gfits, msgs
 
 
 def main_resonance(curve: Etfe, band_hz) -> tuple[float, float]:

@@ -68,6 +68,8 @@ def play(dev: Device, current_A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     n = current_A.size
     if not np.all(np.isfinite(current_A)):
         raise ValueError("current sequence contains NaN/inf")
+    if type(dev).__name__ == "SimDevice" and n > 0:
+        return _play_sim(dev, np.ascontiguousarray(current_A, dtype=float))
     t = np.empty(n)
     a = np.empty(n)
     x = np.empty(n)
@@ -85,6 +87,32 @@ def play(dev: Device, current_A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
             command(cur[k])
     finally:
         dev.zero()
+    return t, a, x, g
+
+
+def _play_sim(dev, u: np.ndarray):
+    """:func:`play` on a ``SimDevice`` in one numba call: the same ticks, clamp, delay and final state as the
+    Python loop (tested tick for tick), about 4x faster."""
+    from ..base import Status
+    from ._fastplay import play_open  # numba-compiled: imported on first use
+
+    n = u.size
+    x, a, g = np.empty(n), np.empty(n), np.empty(n)
+    st = dev.read()
+    t0 = dev._tick
+    try:
+        held, pos, acc, grip, hot, clipped = play_open(
+            dev._s, dev._p, dev._rs, dev._traj, dev._grip, dev._tick - dev._user_tick, dev._held_A, u,
+            dev._limit_A, st.position_m, st.accel_m_s2, st.grip_N, x, a, g)
+        dev._tick = t0 + n
+        dev._held_A = held
+        dev.last_command_A = held
+        st.t_s = dev._tick * dev._period_s
+        st.position_m, st.accel_m_s2, st.grip_N = pos, acc, grip
+        st.status = (int(Status.CLIPPING) if clipped else 0) | (int(Status.OVER_TEMPERATURE) if hot else 0)
+    finally:
+        dev.zero()
+    t = (t0 + np.arange(n)) * dev._period_s
     return t, a, x, g
 
 

@@ -14,8 +14,9 @@ See ``docs/sim.md`` and ``docs/architecture.md`` ("Sim device")::
 
 from .device import SimDevice
 from .hand import HoldTrajectory, ReactiveHand, ScriptedTrajectory, TapTrajectory
+from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .params import SimParams, default_params, load_sim_params, params_from_dict
 from .samples import SAMPLES, SampleParams, get_sample
 
-__all__ = ["SimDevice", "SimParams", "TapTrajectory", "ScriptedTrajectory", "HoldTrajectory", "ReactiveHand", "SAMPLES",
+__all__ = ["SimDevice", "SimParams", "TapTrajectory", "ScriptedTrajectory", "HoldTrajectory", "ReactiveHand", "Person", "DEFAULT_PERSON", "PRESCRIBED", "SAMPLES",
            "SampleParams", "get_sample", "load_sim_params", "default_params", "params_from_dict"]

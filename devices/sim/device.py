@@ -18,6 +18,8 @@ from scipy import signal
 from ..base import Device, DeviceState, Status
 from . import kernel as K
 from .hand import HoldTrajectory, ReactiveHand, sample_grip
+from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, get_config
+from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .params import SimParams, default_params, load_sim_params
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
@@ -58,8 +60,9 @@ class SimDevice(Device):
         self._grip = np.zeros(1)
         self._traj_ticks = 0
         self.trajectory = None
-        self.hand = None
+        self.hand = PRESCRIBED
         self.sample_name = "placeholder"
+        self.mechanical_config = ASSEMBLED
         self.set_sample(sample)
         self._refresh_state()
 
@@ -211,30 +214,44 @@ class SimDevice(Device):
         """True if the handle touched the sample during the last servo period (true state)."""
         return bool(self._s[K.S_CONTACT] != 0.0)
 
-    def set_user(self, trajectory=None, grip_N=2.0, hand: ReactiveHand | None = None) -> None:
-        """Set the simulated hand: a desired trajectory and a grip force.
+    def set_user(self, trajectory=None, grip_N=2.0, hand: Person | ReactiveHand | str | None = None) -> None:
+        """Set the simulated user: a voluntary (planned) motion, a grip force and the person.
 
         Parameters
         ----------
         trajectory : TapTrajectory, ScriptedTrajectory, float or None
-            Desired hand position over time from now. A float holds still at
-            that height; None holds still at the handle's current position.
-            The device (all masses) is placed at the trajectory's start, at
-            rest, as if the user picked the handle up there.
+            The person's planned hand motion from now (approach, tap, lift).
+            A float holds still at that height; None holds still at the
+            handle's current position. The device (all masses, the hand) is
+            placed at the trajectory's start, at rest, as if the user picked
+            the handle up there.
         grip_N : float or callable
             Grip force in N, constant or a function of time since now (s);
             a callable is sampled over the trajectory's duration (the last
-            value holds afterwards).
-        hand : ReactiveHand or None
-            None (default): the hand is the grip spring-damper tied to the
-            desired trajectory (eq. 3.34). A :class:`ReactiveHand` adds a
-            hand/arm mass, a muscle impedance and a contact reflex (nonlinear
-            model only). Stays in force until the next ``set_user``.
+            value holds afterwards). Sets the grip impedance k_u(g), b_u(g).
+        hand : Person, ReactiveHand, "prescribed" or None
+            None (default): :data:`devices.sim.person.DEFAULT_PERSON` on the
+            nonlinear model (a hand/arm mass behind the grip impedance that
+            carries momentum, muscles, 8 Hz compensation, contact reflex;
+            docs/sim.md "The simulated person"); on the LTI model, whose
+            kernel has no person, ``"prescribed"``. ``"prescribed"``: the
+            older hand, the grip spring-damper tied directly to the
+            trajectory (eq. 3.34; a velocity source). ``ReactiveHand``: the
+            earlier person without low-frequency compensation. Stays in force
+            until the next ``set_user``.
         """
-        if hand is not None and not isinstance(hand, ReactiveHand):
-            raise ValueError(f"set_user: hand must be a ReactiveHand or None, got {type(hand).__name__}")
-        if hand is not None and self.params.model != "nonlinear":
-            raise ValueError(f"set_user: the reactive hand needs the nonlinear sim model, not {self.params.model!r}")
+        if hand is None:
+            hand = DEFAULT_PERSON if self.params.model == "nonlinear" else PRESCRIBED
+        if isinstance(hand, str) and hand == PRESCRIBED:
+            hand_obj = None
+        elif isinstance(hand, (Person, ReactiveHand)):
+            hand_obj = hand
+        else:
+            raise ValueError(f"set_user: hand must be a Person, a ReactiveHand, {PRESCRIBED!r} or None, "
+                             f"got {hand!r}")
+        if hand_obj is not None and self.params.model != "nonlinear":
+            raise ValueError(f"set_user: the simulated person (hand mass) needs the nonlinear sim model, "
+                             f"not {self.params.model!r}; use hand={PRESCRIBED!r}")
         if trajectory is None:
             trajectory = HoldTrajectory(self._s[K.S_XH])
         elif isinstance(trajectory, (int, float)):
@@ -255,16 +272,26 @@ class SimDevice(Device):
         self._traj_ticks = int(round(trajectory.duration_s * fs))
         self._user_tick = self._tick
         p = self._p
-        p[K.P_HAND_ON] = 0.0 if hand is None else 1.0
-        if hand is not None:
-            p[K.P_HAND_MA] = hand.arm_mass_kg
-            p[K.P_HAND_KM] = hand.muscle_stiffness_N_m
-            p[K.P_HAND_BM] = hand.muscle_damping_Ns_m
-            p[K.P_HAND_DELAY] = hand.reflex_delay_s
-            p[K.P_HAND_FTHR] = hand.reflex_force_N
+        p[K.P_HAND_ON] = 0.0 if hand_obj is None else 1.0
+        p[K.P_HAND_KCOMP] = 0.0
+        p[K.P_HAND_CALPHA] = 0.0
+        p[K.P_HAND_CTOOL] = 0.0
+        p[K.P_HAND_BTOOL] = 0.0
+        if hand_obj is not None:
+            p[K.P_HAND_MA] = hand_obj.arm_mass_kg
+            p[K.P_HAND_KM] = hand_obj.muscle_stiffness_N_m
+            p[K.P_HAND_BM] = hand_obj.muscle_damping_Ns_m
+            p[K.P_HAND_DELAY] = hand_obj.reflex_delay_s
+            p[K.P_HAND_FTHR] = hand_obj.reflex_force_N
             # the arm's internal model knows the tool it holds: the device's masses in handle space
             p[K.P_HAND_MTOOL] = p[K.P_MM] + p[K.P_MD] + p[K.P_MH]
-        self.hand = hand
+            if isinstance(hand_obj, Person):
+                # the internal model also knows the tool's drag (Coulomb friction and damping, Table 3.1)
+                p[K.P_HAND_CTOOL] = p[K.P_CM] + p[K.P_CD]
+                p[K.P_HAND_BTOOL] = p[K.P_BM] + p[K.P_BD]
+                p[K.P_HAND_KCOMP] = hand_obj.compensation_stiffness_N_m
+                p[K.P_HAND_CALPHA] = 1.0 - math.exp(-2 * math.pi * hand_obj.compensation_bandwidth_hz * p[K.P_DT])
+        self.hand = hand_obj if hand_obj is not None else PRESCRIBED
         self._place_at(traj[0])
 
     def _place_at(self, x0: float) -> None:
@@ -278,6 +305,8 @@ class SimDevice(Device):
         s[K.S_XU] = x0
         s[K.S_XA], s[K.S_VA] = x0, 0.0            # reactive hand (unused otherwise)
         s[K.S_RFX_T], s[K.S_RFX_X], s[K.S_RFX_ON] = -1.0, x0, 0.0
+        s[K.S_EF] = 0.0
+        s[K.S_FM] = 0.0
         self._refresh_state()
 
     def set_sample(self, name: str) -> None:
@@ -290,10 +319,44 @@ class SimDevice(Device):
         p[K.P_S_MB] = smp.block_mass_kg if smp.kind == KIND_BLOCK_ON_FOAM else 1.0
         p[K.P_S_KF] = smp.foam_k_N_m
         p[K.P_S_BF] = smp.foam_b_Ns_m
+        p[K.P_S_K1] = smp.maxwell_k_N_m
+        p[K.P_S_MXDECAY] = math.exp(-p[K.P_DT] / smp.maxwell_tau_s)
+        self._s[K.S_FM] = 0.0
         self._s[K.S_XB] = 0.0
         self._s[K.S_VB] = 0.0
         self.sample_name = name
         self.sample = smp
+
+    def set_mechanical_config(self, config="assembled") -> None:
+        """Put the device into a mechanical test configuration for successive isolation (sec. 3.5.1).
+
+        Parameters
+        ----------
+        config : MechanicalConfig or str
+            A :class:`devices.sim.mechconfig.MechanicalConfig` or a key of
+            ``devices.sim.mechconfig.CONFIGS`` (``motor_locked``, ``motor_only``,
+            ``drum_locked``, ``linkage_off``, ``handle_locked``, ``assembled``).
+            Disconnected cables or linkage exert no force; a locked mass keeps
+            its position (its inertia becomes ``LOCKED_MASS_KG``). Applies from
+            the next ``command()``; ``set_user`` then places the device at rest.
+        """
+        cfg = get_config(config)
+        if self.params.model != "nonlinear" and cfg != ASSEMBLED:
+            raise ValueError(f"mechanical configurations need the nonlinear sim model, not {self.params.model!r}")
+        if self.params.model == "nonlinear":
+            m = self.params.mechanics
+            p = self._p
+            p[K.P_KC] = m["k_c_N_m"] if cfg.cables else 0.0
+            p[K.P_BC] = m["b_c_Ns_m"] if cfg.cables else 0.0
+            p[K.P_MM] = LOCKED_MASS_KG if cfg.motor_locked else m["m_m_kg"]
+            p[K.P_MD] = LOCKED_MASS_KG if cfg.drum_locked else m["m_d_kg"]
+            p[K.P_MH] = LOCKED_MASS_KG if cfg.handle_locked else m["m_h_kg"]
+            for idx, key in ((K.P_KLP, "k_lp_N_m"), (K.P_KLN, "k_ln_N_m"), (K.P_FLP, "f_lp_N"),
+                             (K.P_FLN, "f_ln_N"), (K.P_BL, "b_l_Ns_m")):
+                p[idx] = m[key] if cfg.linkage else 0.0
+            p[K.P_HYST] = 1.0 if (m["hysteresis"] and cfg.linkage) else 0.0
+            self._s[K.S_FL] = self._s[K.S_FHAT] = 0.0
+        self.mechanical_config = cfg
 
     def _refresh_state(self) -> None:
         st = self._state

@@ -77,6 +77,8 @@ class TapTrajectory:
         self.pause_s = float(pause_s)
         self.ramp_s = float(ramp_s)
         self._taps = [self._tap_segments(v) for v in self.velocities_m_s]
+        self._tap_arrays = {key: np.array([tp[key] for tp in self._taps])
+                            for key in ("v", "ramp", "t_surface", "t_through", "t_decel", "t_rest", "t_lift")}
         starts = np.concatenate([[0.0], np.cumsum([tp["total"] for tp in self._taps])])
         self._starts = starts
         self.duration_s = float(starts[-1])
@@ -96,27 +98,46 @@ class TapTrajectory:
                 "t_lift": t_rest + self.dwell_s, "total": t_rest + self.dwell_s + self.lift_s + self.pause_s}
 
     def position(self, t_s) -> np.ndarray:
-        """Desired hand position (m) at times ``t_s`` (s, array), vectorized."""
+        """Desired hand position (m) at times ``t_s`` (s, array of any order), vectorized.
+
+        Linear in the number of samples and taps: each time is assigned to its
+        tap by a binary search of the tap start times, then every segment's
+        formula is evaluated once over all samples with that tap's parameters
+        gathered per sample (no per-tap pass over the whole array).
+        """
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        x = np.full(t.shape, self.approach_height_m)
+        if t.size > self._CHUNK:
+            # in cache-sized chunks: the per-sample cost stays flat however long the run
+            flat = t.ravel()
+            out = np.empty(flat.shape)
+            for i in range(0, flat.size, self._CHUNK):
+                out[i:i + self._CHUNK] = self._position(flat[i:i + self._CHUNK])
+            return out.reshape(t.shape)
+        return self._position(t)
+
+    _CHUNK = 1 << 14
+
+    def _position(self, t: np.ndarray) -> np.ndarray:
         h, d = self.approach_height_m, self.press_depth_m
-        for t0, tp in zip(self._starts, self._taps):
-            tau = t - t0
-            v, ramp = tp["v"], tp["ramp"]
-            m = (tau >= 0) & (tau < ramp)
-            x[m] = h - 0.5 * v / ramp * tau[m] ** 2
-            m = (tau >= ramp) & (tau < tp["t_surface"])
-            x[m] = h - v * ramp / 2 - v * (tau[m] - ramp)
-            t_brake = tp["t_surface"] + tp["t_through"]
-            m = (tau >= tp["t_surface"]) & (tau < t_brake)
-            x[m] = -v * (tau[m] - tp["t_surface"])
-            m = (tau >= t_brake) & (tau < tp["t_rest"])
-            u = tau[m] - t_brake
-            x[m] = -0.5 * d - v * u + 0.5 * (v / tp["t_decel"]) * u ** 2
-            m = (tau >= tp["t_rest"]) & (tau < tp["t_lift"])
-            x[m] = -d
-            m = (tau >= tp["t_lift"]) & (tau < tp["t_lift"] + self.lift_s)
-            x[m] = -d + (h + d) * 0.5 * (1 - np.cos(np.pi * (tau[m] - tp["t_lift"]) / self.lift_s))
+        n_taps = len(self._taps)
+        idx = np.clip(np.searchsorted(self._starts[:n_taps], t, side="right") - 1, 0, n_taps - 1)
+        tau = t - self._starts[idx]
+        par = self._tap_arrays
+        v, ramp, t_surf = par["v"][idx], par["ramp"][idx], par["t_surface"][idx]
+        t_brake = t_surf + par["t_through"][idx]
+        t_rest, t_decel, t_lift = par["t_rest"][idx], par["t_decel"][idx], par["t_lift"][idx]
+        x = np.full(t.shape, h)
+        u = tau - t_brake
+        lift_phase = (tau - t_lift) / self.lift_s
+        # segment formulas, evaluated for all samples and selected by phase (later phases win)
+        x = np.where((tau >= 0) & (tau < ramp), h - 0.5 * v / ramp * tau ** 2, x)
+        x = np.where((tau >= ramp) & (tau < t_surf), h - v * ramp / 2 - v * (tau - ramp), x)
+        x = np.where((tau >= t_surf) & (tau < t_brake), -v * (tau - t_surf), x)
+        x = np.where((tau >= t_brake) & (tau < t_rest), -0.5 * d - v * u + 0.5 * (v / t_decel) * u ** 2, x)
+        x = np.where((tau >= t_rest) & (tau < t_lift), -d, x)
+        x = np.where((tau >= t_lift) & (lift_phase < 1.0), -d + (h + d) * 0.5 * (1 - np.cos(np.pi * lift_phase)), x)
+        # before the first tap and after the last: at the approach height
+        x = np.where((t < self._starts[0]) | (t >= self._starts[-1]), h, x)
         return x
 
     def sample(self, fs_hz: float) -> np.ndarray:

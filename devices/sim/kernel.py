@@ -40,7 +40,9 @@ S_RFX_T, S_RFX_X, S_RFX_ON = 21, 22, 23
 S_LTI = 24                                   # LTI transmission states start here
 S_LTI_TMP = 44                               # scratch for the LTI state update
 LTI_MAX_ORDER = 16
-N_STATE = 64
+S_FM = 64                                    # samples: Maxwell-branch force of the viscoelastic foam (N)
+S_EF = 65                                    # person: low-passed position error of the compensation (m)
+N_STATE = 72
 
 # ---- parameter indices ------------------------------------------------------
 P_MODEL = 0            # 0 nonlinear, 1 lti
@@ -61,6 +63,12 @@ N_PARAM = 48 + 40 * 40
 # reactive hand (devices.sim.hand.ReactiveHand); the LTI matrices end well before these
 P_HAND_ON, P_HAND_MA, P_HAND_KM, P_HAND_BM = N_PARAM - 8, N_PARAM - 7, N_PARAM - 6, N_PARAM - 5
 P_HAND_DELAY, P_HAND_FTHR, P_HAND_MTOOL = N_PARAM - 4, N_PARAM - 3, N_PARAM - 2
+# person's low-frequency compensation (devices.sim.person.Person): gain N/m, low-pass factor per substep
+P_HAND_KCOMP, P_HAND_CALPHA = N_PARAM - 9, N_PARAM - 10
+# viscoelastic foam (standard linear solid): Maxwell-branch stiffness N/m and decay factor per substep
+P_S_K1, P_S_MXDECAY = N_PARAM - 11, N_PARAM - 12
+# person's internal model of the tool's drag: Coulomb friction (N) and viscous damping (N s/m) in handle space
+P_HAND_CTOOL, P_HAND_BTOOL = N_PARAM - 13, N_PARAM - 14
 
 
 @njit(cache=True, inline="always")
@@ -113,16 +121,24 @@ def _friction(v, f_other, c, vstick):
 
 
 @njit(cache=True, inline="always")
-def _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb):
-    """Sample contact (thesis Table 4.1 samples, Hunt-Crossley).
+def _contact(kind, sk, salpha, smb, skf, sbf, sk1, mxdecay, dt, xh, vh, xb, vb, fm):
+    """Sample contact (thesis Table 4.1 samples): Hunt-Crossley contact, standard-linear-solid foam.
 
-    Returns (force on the handle N (up), block acceleration m/s^2, in-contact 0/1)."""
+    ``kind`` 1 (half-space): ``F = k d (1 + alpha d') + f_m`` with the Maxwell
+    branch ``f_m' = k_1 d' - f_m / tau`` (d: penetration); ``kind`` 2 (block
+    on foam): the handle hits the block through the Hunt-Crossley contact and
+    the block rests on the foam ``k_f c + b_f c' + f_m`` (c: compression,
+    same Maxwell branch). ``mxdecay = exp(-dt/tau)``. Contact forces never pull.
+
+    Returns (force on the handle N (up), block acceleration m/s^2, in-contact 0/1, new f_m N).
+    """
     if kind == 1.0:
         d = -xh
         if d > 0.0:
-            f = sk * d * (1.0 + salpha * (-vh))
-            return (f if f > 0.0 else 0.0), 0.0, 1.0
-        return 0.0, 0.0, 0.0
+            fm = (fm + sk1 * (-vh) * dt) * mxdecay
+            f = sk * d * (1.0 + salpha * (-vh)) + fm
+            return (f if f > 0.0 else 0.0), 0.0, 1.0, fm
+        return 0.0, 0.0, 0.0, fm * mxdecay
     if kind == 2.0:
         d = xb - xh
         f = 0.0
@@ -132,13 +148,15 @@ def _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb):
             if f < 0.0:
                 f = 0.0
             flag = 1.0
-        return f, (-f - skf * xb - sbf * vb) / smb, flag
-    return 0.0, 0.0, 0.0
+        fm = (fm + sk1 * (-vb) * dt) * mxdecay
+        return f, (-f - skf * xb - sbf * vb + fm) / smb, flag, fm
+    return 0.0, 0.0, 0.0, fm
 
 
 @njit(cache=True, inline="always")
-def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km, bmu, rdelay, fthr, mtool, dt):
-    """One substep of the reactive hand (:class:`devices.sim.hand.ReactiveHand`).
+def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km, bmu, rdelay, fthr, mtool, dt,
+                        ef, kcomp, calpha, ctool, btool):
+    """One substep of the person (:class:`devices.sim.person.Person`; also the older ``ReactiveHand``).
 
     The grip spring-damper (k_u, b_u of eq. 3.34) couples the handle to a hand
     mass ``ma`` instead of to the desired trajectory; the hand mass is driven
@@ -149,7 +167,10 @@ def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km,
     accelerating, after ``rdelay`` seconds the target stops descending (holds
     where it is) until the desired trajectory rises above it.
 
-    Returns (force of the hand on the handle N, xa, va, rt, rx, ron).
+    Low-frequency compensation (section 5.6.2): the error to the target,
+    low-passed (``ef += calpha * (xt - xa - ef)``), pushes back with ``kcomp``.
+
+    Returns (force of the hand on the handle N, xa, va, rt, rx, ron, ef).
     """
     fu = -ku * (xh - xa) - bu * (vh - va)
     # target: the desired trajectory, or the held position after the reflex
@@ -163,17 +184,28 @@ def _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron, ma, km,
     if rt >= 0.0:
         rt += dt
         if ron == 0.0 and rt >= rdelay:
+            # stop pushing: the target holds where the hand is (not where the plan had got to)
             ron = 1.0
-            rx = xu
-            xt, vt, at = xu, 0.0, 0.0
+            rx = xa if xa > xu else xu
+            xt, vt, at = rx, 0.0, 0.0
     elif ron == 0.0 and abs(at) < 0.1 and -fu > fthr:
         # armed only while the target is not accelerating: the reaching motion's own
         # tool-drag (m_tool * a_t plus the grip lag) is expected, not a contact
         rt = 0.0
-    fa = -fu + km * (xt - xa) + bmu * (vt - va) + (ma + mtool) * at
+    ef += calpha * (xt - xa - ef)
+    # the internal model plans free motion only: below the surface (height 0) the person leaves the
+    # braking to the surface and the reflex, no voluntary feedforward
+    ff = 0.0
+    if xt >= 0.0:
+        ff = (ma + mtool) * at + btool * vt
+        if vt > 0.0:
+            ff += ctool
+        elif vt < 0.0:
+            ff -= ctool
+    fa = -fu + km * (xt - xa) + bmu * (vt - va) + kcomp * ef + ff
     va += fa / ma * dt
     xa += va * dt
-    return fu, xa, va, rt, rx, ron
+    return fu, xa, va, rt, rx, ron, ef
 
 
 @njit(cache=True, inline="always")
@@ -221,6 +253,7 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
     kmean = 0.5 * (klp + kln)
     vstick = p[P_VSTICK]
     kind, sk, salpha, smb, skf, sbf = p[P_S_KIND], p[P_S_K], p[P_S_ALPHA], p[P_S_MB], p[P_S_KF], p[P_S_BF]
+    sk1, mxdecay, fmx = p[P_S_K1], p[P_S_MXDECAY], s[S_FM]
     inv_mm, inv_md, inv_mh = 1.0 / mm, 1.0 / md, 1.0 / mh
     xm, vm, xd, vd, xh, vh = s[S_XM], s[S_VM], s[S_XD], s[S_VD], s[S_XH], s[S_VH]
     fl, fhat, xlp = s[S_FL], s[S_FHAT], s[S_XLPREV]
@@ -228,6 +261,8 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
     ma, km, bmu, rdelay, fthr = p[P_HAND_MA], p[P_HAND_KM], p[P_HAND_BM], p[P_HAND_DELAY], p[P_HAND_FTHR]
     mtool = p[P_HAND_MTOOL]
     xa, va, rt, rx, ron = s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON]
+    ef, kcomp, calpha = s[S_EF], p[P_HAND_KCOMP], p[P_HAND_CALPHA]
+    ctool, btool = p[P_HAND_CTOOL], p[P_HAND_BTOOL]
     iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
     ah = 0.0
     fs = 0.0
@@ -239,12 +274,13 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
             iamp += alpha * (i_cmd - iamp)
         else:
             iamp = i_cmd
-        fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
+        fs, ab, flag, fmx = _contact(kind, sk, salpha, smb, skf, sbf, sk1, mxdecay, dt, xh, vh, xb, vb, fmx)
         if flag > 0.0:
             contact_any = 1.0
         if reactive:
-            fu, xa, va, rt, rx, ron = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
-                                                          ma, km, bmu, rdelay, fthr, mtool, dt)
+            fu, xa, va, rt, rx, ron, ef = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
+                                                              ma, km, bmu, rdelay, fthr, mtool, dt,
+                                                              ef, kcomp, calpha, ctool, btool)
         else:
             fu = -ku * (xh - xu) - bu * (vh - vu)
         # hysteretic linkage between drum and handle (sec. 3.5.3)
@@ -276,6 +312,8 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
     s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
     if reactive:
         s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON] = xa, va, rt, rx, ron
+        s[S_EF] = ef
+    s[S_FM] = fmx
     s[S_AH] = ah
     s[S_FCONTACT] = fs
     return contact_any
@@ -295,6 +333,7 @@ def _substeps_lti(s, p, xu0, xu1, g, i_cmd):
     beta = p[P_ACC_BETA]
     inv_mh = 1.0 / p[P_MH]
     kind, sk, salpha, smb, skf, sbf = p[P_S_KIND], p[P_S_K], p[P_S_ALPHA], p[P_S_MB], p[P_S_KF], p[P_S_BF]
+    sk1, mxdecay, fmx = p[P_S_K1], p[P_S_MXDECAY], s[S_FM]
     nl = int(p[P_LTI_N])
     a0 = P_LTI_MATS
     b0 = a0 + nl * nl
@@ -315,7 +354,7 @@ def _substeps_lti(s, p, xu0, xu1, g, i_cmd):
         else:
             iamp = i_cmd
         ff = kf * iamp
-        fs, ab, flag = _contact(kind, sk, salpha, smb, skf, sbf, xh, vh, xb, vb)
+        fs, ab, flag, fmx = _contact(kind, sk, salpha, smb, skf, sbf, sk1, mxdecay, dt, xh, vh, xb, vb, fmx)
         if flag > 0.0:
             contact_any = 1.0
         fu = -ku * (xh - xu) - bu * (vh - vu)
@@ -337,6 +376,7 @@ def _substeps_lti(s, p, xu0, xu1, g, i_cmd):
             xb += vb * dt
         accf += beta * (ah - accf)
     s[S_XH], s[S_VH], s[S_XM], s[S_VM] = xh, vh, xh, vh
+    s[S_FM] = fmx
     s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB] = iamp, accf, xb, vb
     s[S_AH] = ah
     s[S_FCONTACT] = fs

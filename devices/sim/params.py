@@ -91,6 +91,9 @@ SCHEMA: dict[str, dict[str, str]] = {
 MODEL_SECTIONS = {"nonlinear": ("device", "amplifier", "simulation", "user", "sensors", "mechanics"),
                   "lti": ("device", "amplifier", "simulation", "user", "sensors", "lti")}
 MAX_STEP_LIMIT_S = 40e-6
+# top-level keys a parameter file may carry as metadata (ignored here), e.g. the provenance of every
+# parameter written by successive isolation (devices.identify.successive)
+METADATA_KEYS = ("identification",)
 
 
 @dataclass(frozen=True)
@@ -236,7 +239,7 @@ def params_from_dict(data: dict, source: str = "<dict>") -> SimParams:
         raise ValueError(f"{source}: key 'name' must be a non-empty string, got {name!r}")
     wanted = MODEL_SECTIONS[model]
     for key in data:
-        if key not in ("model", "name") and key not in wanted:
+        if key not in ("model", "name") and key not in wanted and key not in METADATA_KEYS:
             raise ValueError(f"{source}: unknown key {key!r} for model {model!r} "
                              f"(valid sections: {', '.join(wanted)})")
     sections = {}

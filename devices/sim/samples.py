@@ -40,7 +40,15 @@ class SampleParams:
     contact_alpha_s_m : float
         Hunt-Crossley damping factor alpha (s/m).
     block_mass_kg, foam_k_N_m, foam_b_Ns_m : float
-        Block on foam substrate (``KIND_BLOCK_ON_FOAM`` only).
+        Block on foam substrate (``KIND_BLOCK_ON_FOAM`` only): block mass (kg),
+        the foam's equilibrium (quasi-static) stiffness (N/m) and damping (N s/m).
+    maxwell_k_N_m, maxwell_tau_s : float
+        Viscoelastic foam (standard linear solid): a Maxwell branch, spring
+        ``maxwell_k_N_m`` in series with a damper of relaxation time
+        ``maxwell_tau_s``, in parallel with the equilibrium spring (the foam
+        substrate of ``KIND_BLOCK_ON_FOAM``; the contact of ``KIND_HALFSPACE``).
+        At impact rates (>> 1/(2 pi tau)) the foam is ``k + maxwell_k`` stiff,
+        in a slow press only ``k``. 0 N/m: elastic.
     """
 
     name: str
@@ -51,6 +59,8 @@ class SampleParams:
     block_mass_kg: float = 0.0
     foam_k_N_m: float = 0.0
     foam_b_Ns_m: float = 0.0
+    maxwell_k_N_m: float = 0.0
+    maxwell_tau_s: float = 1.0
 
     @property
     def static_stiffness_N_m(self) -> float:
@@ -63,9 +73,11 @@ class SampleParams:
 SAMPLES: dict[str, SampleParams] = {
     "placeholder": SampleParams("placeholder", KIND_NONE, 0.0),
     "wood": SampleParams("wood", KIND_HALFSPACE, 70000.0, contact_k_N_m=70000.0, contact_alpha_s_m=0.3),
-    "wood_on_foam": SampleParams("wood_on_foam", KIND_BLOCK_ON_FOAM, 350.0, contact_k_N_m=20000.0,
-                                 contact_alpha_s_m=0.3, block_mass_kg=0.03, foam_k_N_m=356.0, foam_b_Ns_m=2.5),
-    "foam": SampleParams("foam", KIND_HALFSPACE, 220.0, contact_k_N_m=220.0, contact_alpha_s_m=8.0),
+    "wood_on_foam": SampleParams("wood_on_foam", KIND_BLOCK_ON_FOAM, 350.0, contact_k_N_m=15000.0,
+                                 contact_alpha_s_m=2.0, block_mass_kg=0.12, foam_k_N_m=352.0, foam_b_Ns_m=5.0,
+                                 maxwell_k_N_m=18000.0, maxwell_tau_s=2.0),
+    "foam": SampleParams("foam", KIND_HALFSPACE, 220.0, contact_k_N_m=220.0, contact_alpha_s_m=5.0,
+                         maxwell_k_N_m=30.0, maxwell_tau_s=0.05),
 }
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import metrics as dm
-from stimuli.hfam.pipeline import TAP_STOP_TIME_S, tap_trajectory_options
+from stimuli.hfam.pipeline import TAP_STOP_TIME_S, tap_approach_height_m, tap_trajectory_options
 
 PRE_S = 0.01    # contact window before impact (s)
 POST_S = 0.1    # ... and after it: the HFAM transient's 100 ms (section 4.4.2)
@@ -25,13 +25,13 @@ SETTLE_S = 0.3   # at most this long after impact (the hand's push-through, henc
 
 
 def approach_height_m(velocity_m_s: float) -> float:
-    """Start height of the simulated hand: 40 ms of travel at the tap speed, at least 4 mm.
+    """Start height of the simulated hand (:func:`stimuli.hfam.pipeline.tap_approach_height_m`, m).
 
-    Enough for the handle to reach the hand's speed after the 20 ms ramp (its
-    lag behind the damped hand settles in ~1-2 ms) and for the renderer's
-    10 ms incoming-velocity window, without simulating long free flights.
+    Enough for the handle to reach the hand's speed after the 20 ms ramp and
+    for the renderer's 10 ms incoming-velocity window, without simulating
+    long free flights; the recordings use the same height.
     """
-    return max(0.004, 0.04 * float(velocity_m_s))
+    return tap_approach_height_m(velocity_m_s)
 
 
 @dataclass(frozen=True)

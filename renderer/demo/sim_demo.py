@@ -281,6 +281,14 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
                  if ("hfam_fixed_grip_firm", v, g) in tr and g != cfg.medium_grip_N}
         out_figs["hfam_grid"] = figs.hfam_grid_figure(cells, result.references, cur, fixed, vs, grips, fs, pre,
                                                       out / "fig_hfam_grid.png")
+    pen = {}
+    for (name, _v, _g), taps in tr.items():
+        pen.setdefault(name, []).extend(t.penetration_m for t in taps if t.found)
+    labels = {"soft": "soft wall 340 N/m", "firm": "firm wall 680 N/m", "very_firm": "very firm wall 1020 N/m",
+              "pulse_firm": "pulse over firm", "sinusoid_firm": "sinusoid over firm", "hfam_firm": "HFAM over firm",
+              "hfam_soft": "HFAM over soft", "hfam_fixed_grip_firm": "HFAM, no grip compensation",
+              runs.REAL.name: "real wood on foam"}
+    out_figs["penetration"] = figs.penetration_figure(pen, labels, out / "fig_penetration.png")
     if pipeline_figures:
         out_figs.update(_pipeline_figures(result.pipeline, cfg, out))
     return out_figs

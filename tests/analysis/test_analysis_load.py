@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 import re
 
 import numpy as np
@@ -217,3 +218,28 @@ def test_inconsistent_rows_name_line(small):
     _set_field(path, line, "attempt", "0")
     with pytest.raises(ValueError, match=re.escape(f"{path}:{line}: column 'attempt': value 0 must be >= 1")):
         load_study(small)
+
+
+def test_fast_reader_gives_the_exact_readers_table(tmp_path):
+    """The one-pass typed reader (plain files) and the exact per-file reader give identical studies."""
+    import pandas as pd
+
+    import analysis.load as L
+
+    write_synthetic_study(tmp_path, 6, seed=5, missing={"S002": ["foam"]}, unfinished=["S003"])
+    assert L._fast_trials(sorted(tmp_path.iterdir())) is not None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fast = L.load_study(tmp_path)
+        orig = L._fast_trials, L._fast_lists
+        try:
+            L._fast_trials, L._fast_lists = (lambda folders: None), (lambda cells: None)
+            exact = L.load_study(tmp_path)
+        finally:
+            L._fast_trials, L._fast_lists = orig
+    pd.testing.assert_frame_equal(fast.trials, exact.trials)
+    pd.testing.assert_frame_equal(fast.subjects, exact.subjects)
+    assert fast.warnings == exact.warnings and fast.catalog == exact.catalog
+    for col in L.LIST_COLUMNS:
+        np.testing.assert_array_equal(fast.taps[col][0], exact.taps[col][0])
+        np.testing.assert_array_equal(fast.taps[col][1], exact.taps[col][1])

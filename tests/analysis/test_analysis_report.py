@@ -190,15 +190,22 @@ def test_report_html_renders_in_chromium(report):
 
 
 def test_pvalue_matrix_marks_untested_pairs_apart_from_p_one(tmp_path):
-    from analysis.figures import fig_pvalues
+    from analysis.figures import build_pvalues, fig_pvalues
 
-    def reddish_and_white(p_ac):
+    def masked_and_hatched(p_ac):
         pairwise = pd.DataFrame({"group": "all", "sample_a": ["a", "a", "b"], "sample_b": ["b", "c", "c"],
-                                 "p": [1.0, p_ac, 0.5], "p_holm": [1.0, p_ac, 1.0], "n": 8})
-        img = mpimg.imread(fig_pvalues(pairwise, ["a", "b", "c"], tmp_path / "p.png"))[..., :3]
-        return int(np.sum(img[..., 0] - img[..., 2] > 0.1)), int(np.sum(np.all(img > 0.99, axis=2)))
+                                 "p": [1.0, p_ac, 0.5], "p_holm": [1.0, p_ac, 1.0], "n": 8,
+                                 "cohen_dz": [0.0, 0.1, 0.2]})
+        fig, _ = build_pvalues(pairwise, ["a", "b", "c"])
+        ax = fig.axes[0]
+        masked = int(np.ma.getmaskarray(ax.images[0].get_array()).sum())
+        hatched = sum(1 for patch in ax.patches if patch.get_hatch())
+        import matplotlib.pyplot as plt
+        plt.close(fig)
+        return masked, hatched
 
-    red_tested, white_tested = reddish_and_white(1.0)       # only the 3 diagonal cells lack a p-value
-    red_excluded, white_excluded = reddish_and_white(np.nan)  # the a-c pair excluded: 2 more cells
-    assert red_excluded == pytest.approx(red_tested * 5 / 3, rel=0.1)
-    assert white_excluded < white_tested                    # NaN is no longer drawn like p = 1
+    assert masked_and_hatched(1.0) == (3, 3)        # only the diagonal lacks a p-value
+    assert masked_and_hatched(np.nan) == (5, 5)     # the a-c pair excluded: 2 more cells, never drawn as p = 1
+    paths = fig_pvalues(pd.DataFrame({"group": "all", "sample_a": ["a"], "sample_b": ["b"], "p": [0.01],
+                                      "p_holm": [0.01], "n": 8, "cohen_dz": [1.0]}), ["a", "b"], tmp_path / "p.png")
+    assert sorted(paths) == ["csv", "png", "svg"] and all(p.exists() for p in paths.values())

@@ -40,7 +40,9 @@ def test_nonlinear_sim_fits_reported_per_grip_and_resonance_drops_with_grip(nonl
         assert {"rms_db", "rms_phase_deg", "worst_band_db", "order", "delay_s"} <= set(r["accel"])
         assert r["accel"]["rms_db"] < 3.0 and abs(r["grip_measured_N"] - r["grip_N"]) < 0.05
     # section 3.4.6: higher grip, lower magnitude at the main resonance (ETFE and fitted model)
-    assert rows[4.0]["accel"]["peak_db"] < rows[1.0]["accel"]["peak_db"] - 1.0
+    # issue 16: with the default simulated person (an arm mass behind the grip) the drop is 0.26 dB (was > 1 dB
+    # with the prescribed hand tied to ground)
+    assert rows[4.0]["accel"]["peak_db"] < rows[1.0]["accel"]["peak_db"] - 0.1
     mset = load_model_set(out)
     m1, m4 = mset.model_at(1.0), mset.model_at(4.0)
     f = np.arange(40.0, 200.0, 0.5)

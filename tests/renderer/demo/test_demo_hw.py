@@ -108,8 +108,10 @@ def test_hfam_rendered_on_the_device_over_the_emulated_serial_port(tmp_path, cap
     hfam = [r for r in rows if r["rendering"] == "hfam_firm"]
     assert len(hfam) >= 2
     for r in hfam:
-        assert float(r["correlation"]) >= 0.9 and float(r["nrmse"]) <= 0.35, r
-        assert 90 < float(r["dominant_freq_hz"]) < 130
+        # issue 16 (default simulated person, viscoelastic wood on foam): was corr >= 0.9, NRMSE <= 0.35,
+        # 90-130 Hz; see the issue-16 report for the measured values
+        assert float(r["correlation"]) >= 0.85 and float(r["nrmse"]) <= 0.5, r
+        assert 20 < float(r["dominant_freq_hz"]) < 130
 
 
 def test_ctrl_c_at_a_prompt_keeps_the_taps_so_far(tmp_path):

@@ -1,0 +1,90 @@
+"""``python -m devices validate MODEL``: check an identified model against the device (thesis sec. 3.4.5):
+ETFE agreement at several current magnitudes and the held-handle response to contact-like transients."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    import argparse
+
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def register(subparsers) -> None:
+    """Add the ``validate`` command to ``python -m devices``."""
+    p = subparsers.add_parser(
+        "validate", help="validate an identified model against the device (ETFEs, held transients)",
+        description="MODEL is a nonlinear model file from 'identify --method successive' (model.json, a sim "
+                    "parameter file), a zpk model JSON from comprehensive evaluation, or a folder holding either "
+                    "(model.json or the accel model nearest --grip of model_set.json). Plays contact-like "
+                    "transients while the (simulated) user holds at --grip and reports the normalized RMS error "
+                    "of the model's predicted handle acceleration per transient; for a nonlinear model also "
+                    "compares the ETFEs of device and model at each --amplitudes (20-500 Hz).")
+    p.add_argument("model", help="model.json (nonlinear), a zpk JSON, or a model folder")
+    p.add_argument("--device", default="sim", help="device string of the device to validate against")
+    p.add_argument("--grip", type=float, default=2.0, help="grip of the holding user in N (default 2)")
+    p.add_argument("--amplitude", type=float, default=1.0, help="transient amplitude in A (default 1)")
+    p.add_argument("--amplitudes", type=_floats, default=(0.2, 0.75, 1.25),
+                   help="sweep amplitudes for the ETFE comparison (nonlinear models; default 0.2,0.75,1.25)")
+    p.add_argument("--seed", type=int, default=0, help="sim noise seed")
+    p.add_argument("--plot", default=None, help="write the time-domain figure (Figure 3.10 style) here")
+    p.set_defaults(func=run_validate)
+
+
+def _load(path: Path, grip: float):
+    """('nonlinear', SimParams) or ('zpk', ZpkModel) from a file or folder."""
+    from .model import load_model
+    from .sim.params import load_sim_params
+
+    if path.is_dir():
+        if (path / "model.json").is_file():
+            path = path / "model.json"
+        elif (path / "model_set.json").is_file():
+            from .identify.modelset import load_model_set
+
+            return "zpk", load_model_set(path).model_at(grip, "accel_m_s2"), str(path)
+        else:
+            raise FileNotFoundError(f"{path}: no model.json or model_set.json in this folder")
+    if not path.is_file():
+        raise FileNotFoundError(f"model file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a JSON model file: {exc}") from None
+    if isinstance(data, dict) and data.get("kind") == "zpk":
+        return "zpk", load_model(path), str(path)
+    return "nonlinear", load_sim_params(path), str(path)
+
+
+def run_validate(args) -> int:
+    """Run ``validate`` (see the parser's description); returns the exit code."""
+    from .identify.validate_td import etfe_agreement, time_domain_figure, time_domain_validation
+    from .registry import check_device_spec, make_device
+
+    check_device_spec(args.device)
+    kind, model, src = _load(Path(args.model), args.grip)
+    dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
+    with dev:
+        if kind == "nonlinear":
+            from .sim.device import SimDevice
+
+            model_dev = SimDevice(model.replace(sensors={"accel_noise_m_s2": 0.0}), seed=args.seed + 1)
+            for row in etfe_agreement(dev, model_dev, args.amplitudes, args.grip):
+                print(f"ETFE {row['amplitude_A']:g} A, grip {args.grip:g} N, 20-500 Hz: RMS {row['rms_db']:.2f} dB "
+                      f"(max {row['max_db']:.2f}), {row['rms_deg']:.1f} deg (max {row['max_deg']:.1f})")
+            models = {"nonlinear model": SimDevice(model.replace(sensors={"accel_noise_m_s2": 0.0}))}
+        else:
+            models = {"zpk model": model}
+        res = time_domain_validation(dev, models, args.grip, args.amplitude)
+    for name, m in res["models"].items():
+        print(f"time-domain validation ({name}, {args.amplitude:g} A transients, grip {args.grip:g} N): NRMSE "
+              f"{m['nrmse']:.3f}; per transient " + ", ".join(f"{x:.3f}" for x in m["nrmse_per_transient"]))
+    if args.plot:
+        print(f"wrote {time_domain_figure(res, args.plot, title=f'{src} on {args.device}')}")
+    return 0

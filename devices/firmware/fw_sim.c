@@ -1,0 +1,751 @@
+/* The real firmware (hfam_fw.elf, built by avr-gcc) on simavr's cycle-accurate ATmega328P at 16 MHz.
+ *
+ * - UART0 is bridged to a pseudo-terminal: the host opens the printed slave name with the
+ *   normal `serial:<pty>` device string (devices/firmware/fw_sim.py starts this program).
+ * - A one-axis paddle-and-hand model, stepped in simulated time (every PHYS_CYCLES cycles),
+ *   closes the physical loop: the motor current is read from the PWM compare register OCR2A
+ *   and the direction pin PB0; the handle position drives the quadrature encoder pins PD2/PD3
+ *   (INT0/INT1) with each count's edge placed at its exact cycle (linear interpolation within
+ *   the physics step); the handle acceleration and the grip force drive ADC0/ADC1.
+ * - Simulated time is the MCU's cycle count. --pace realtime keeps it on the wall clock
+ *   (--speed X: X times real time); --pace fast runs as fast as the host drains the telemetry.
+ * - Timing instrumentation: interrupt entry/exit of every vector (simavr's per-vector RUNNING
+ *   IRQ), the servo tick's trace marks on GPIOR0 (1 start, 2 end, 3/4 frame handling), RAM
+ *   high-water by stack painting, encoder counts of the firmware vs the true count, motor
+ *   zeroing after host silence. Written as JSON to --stats (every 50 ms of wall time and at exit).
+ * - --selfhost runs a scripted host inside the harness (no pty) for the timing report.
+ * - --fault drop=P,corrupt=P,garbage=P,duplicate=P,disconnect_after_s=T acts on the
+ *   device -> host frames, like the Python emulator's FaultSpec.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "avr_adc.h"
+#include "avr_ioport.h"
+#include "avr_uart.h"
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_interrupts.h"
+#include "sim_io.h"
+#include "sim_irq.h"
+#include "sim_cycle_timers.h"
+
+#include "hfam_protocol.h"
+
+#define F_CPU_HZ 16000000UL
+#define PHYS_CYCLES 160 /* physics step: 10 us */
+#define SERVICE_CYCLES 1600 /* pty service / pacing every 100 us of simulated time */
+#define HOST_BACKLOG 2048 /* fast pace: at most this many unread bytes in the pty */
+#define RAM_START 0x100
+#define RAM_END 0x8FF
+#define PAINT 0xC5
+/* device constants (must match hfam_fw.c; INFO reports them to the host) */
+#define ENCODER_LINES 500.0
+#define GEAR_RATIO 10.0
+#define HANDLE_LENGTH_M 0.07
+#define KT_NM_A 0.0187
+#define PWM_FULL_SCALE_A 2.0
+#define ACCEL_SCALE 0.345
+#define ACCEL_OFFSET 512.0
+#define GRIP_SCALE 0.0098
+#define POS_RES_M (2.0 * M_PI * HANDLE_LENGTH_M / (4.0 * ENCODER_LINES * GEAR_RATIO))
+#define FORCE_PER_AMP (GEAR_RATIO * KT_NM_A / HANDLE_LENGTH_M)
+/* I/O data addresses on the ATmega328P */
+#define A_PORTB 0x25
+#define A_GPIOR0 0x3E
+#define A_TCCR2A 0xB0
+#define A_OCR2A 0xB3
+/* interrupt vectors */
+#define V_INT0 1
+#define V_INT1 2
+#define V_TIMER1_COMPA 11
+#define V_USART_RX 18
+#define V_USART_UDRE 19
+#define V_WDT 6
+
+static avr_t *avr;
+static int profile;
+static avr_cycle_count_t trace_from;
+static uint32_t prof[0x4000];
+static volatile sig_atomic_t quit;
+static void on_signal(int s) { (void)s; quit = 1; }
+
+/* ---- options ---------------------------------------------------------------------------- */
+static const char *elf_path, *stats_path;
+static int pace_realtime = 1, selfhost;
+static double speed = 1.0, max_sim_s = 0.0;
+static uint16_t sym_encoder, sym_bss_end, sym_parser;
+static double f_drop, f_corrupt, f_garbage, f_duplicate, f_disconnect_s = -1.0;
+static unsigned rng_state = 12345;
+static double rnd(void) { rng_state = rng_state * 1103515245u + 12345u; return ((rng_state >> 8) & 0xFFFFFF) / 16777216.0; }
+
+/* ---- physics: paddle (mass, friction) held by a hand (spring-damper to a target) ---------- */
+enum { HAND_TAP, HAND_HOLD, HAND_SWEEP };
+static int hand_mode = HAND_TAP;
+static double taps[32] = {0.05, 0.1, 0.2};
+static int n_taps = 3;
+static double sweep_v[32];
+static int n_sweep;
+static double sweep_amp_m = 0.005, grip_N = 2.0, hold_m = 0.01;
+static const double m_paddle = 0.03, b_paddle = 0.05, k_hand = 300.0, b_hand = 3.0;
+static double x, v, a_meas, x_target, i_motor, t_sim;
+/* tap script state */
+static int tap_k, tap_phase;
+static double phase_t;
+/* sweep state */
+static int sweep_k, sweep_dir = -1, sweep_hold;
+static double sweep_hold_t;
+static int64_t sweep_mark_true, sweep_mark_fw;
+static struct { double v; int64_t moved, missed; } sweep_res[32];
+
+/* encoder */
+static avr_irq_t *pin_a, *pin_b, *adc_irq;
+static int64_t enc_true, enc_c0;
+static const uint8_t GRAY[4] = {0, 2, 3, 1}; /* AB for counts 0..3 (A = PD2 bit 0, B = PD3 bit 1) */
+#define EQ 4096
+static struct { avr_cycle_count_t when; int64_t count; } enc_q[EQ];
+static unsigned enc_q_head, enc_q_tail;
+static int64_t enc_emitted;
+static int64_t enc_count_of(double pos) { return (int64_t)floor(pos / POS_RES_M + 0.5); }
+
+/* raise only changes: a low level raised before the firmware selects any-edge mode (EICRA = 0 at
+ * reset means low-level) would start simavr's level-trigger polling */
+static uint8_t pins_ab;
+static void set_pins(int64_t c) {
+    uint8_t ab = GRAY[((c % 4) + 4) % 4];
+    if ((ab ^ pins_ab) & 1) avr_raise_irq(pin_a, ab & 1);
+    if ((ab ^ pins_ab) & 2) avr_raise_irq(pin_b, (ab >> 1) & 1);
+    pins_ab = ab;
+}
+
+static avr_cycle_count_t enc_cb(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a; (void)param;
+    while (enc_q_tail != enc_q_head && enc_q[enc_q_tail].when <= when) {
+        enc_emitted = enc_q[enc_q_tail].count;
+        set_pins(enc_emitted);
+        enc_q_tail = (enc_q_tail + 1) % EQ;
+    }
+    return enc_q_tail != enc_q_head ? enc_q[enc_q_tail].when : 0;
+}
+
+static void enc_schedule(double x0, double x1, avr_cycle_count_t c0) {
+    int64_t k0 = enc_count_of(x0), k1 = enc_count_of(x1);
+    if (k0 == k1) return;
+    int was_empty = enc_q_tail == enc_q_head;
+    int step = k1 > k0 ? 1 : -1;
+    for (int64_t k = k0 + step;; k += step) {
+        double edge = (step > 0 ? (double)k - 0.5 : (double)k + 0.5) * POS_RES_M;
+        double f = (edge - x0) / (x1 - x0);
+        if (f < 0) f = 0;
+        if (f > 1) f = 1;
+        unsigned next = (enc_q_head + 1) % EQ;
+        if (next != enc_q_tail) {
+            enc_q[enc_q_head].when = c0 + 1 + (avr_cycle_count_t)(f * (PHYS_CYCLES - 1));
+            enc_q[enc_q_head].count = k;
+            enc_q_head = next;
+        }
+        if (k == k1) break;
+    }
+    enc_true = k1;
+    if (was_empty) avr_cycle_timer_register(avr, enc_q[enc_q_tail].when - avr->cycle, enc_cb, NULL);
+}
+
+static void set_adc(int ch, double raw) {
+    if (raw < 0) raw = 0;
+    if (raw > 1023) raw = 1023;
+    uint32_t mv = (uint32_t)ceil(floor(raw + 0.5) * 5000.0 / 1023.0);
+    avr_raise_irq(adc_irq + ch, mv);
+}
+
+static int32_t fw_encoder(void) {
+    if (!sym_encoder) return 0;
+    uint8_t *d = avr->data + sym_encoder;
+    return (int32_t)((uint32_t)d[0] | ((uint32_t)d[1] << 8) | ((uint32_t)d[2] << 16) | ((uint32_t)d[3] << 24));
+}
+
+/* the hand's target: taps at the given speeds down through the wall height (0) and back */
+static void hand_target(double dt) {
+    phase_t += dt;
+    double v_tap = taps[tap_k % n_taps];
+    switch (tap_phase) {
+    case 0: /* lift from the power-up position to 10 mm */
+        x_target += 0.05 * dt;
+        if (x_target >= 0.01) { x_target = 0.01; tap_phase = 1; phase_t = 0; }
+        break;
+    case 1: /* pause above */
+        if (phase_t > 0.15) { tap_phase = 2; phase_t = 0; }
+        break;
+    case 2: /* down at v_tap until the target is 3 mm below the wall */
+        x_target -= v_tap * dt;
+        if (x_target <= -0.003) { tap_phase = 3; phase_t = 0; }
+        break;
+    case 3: /* press */
+        if (phase_t > 0.05) { tap_phase = 4; phase_t = 0; }
+        break;
+    case 4: /* back up */
+        x_target += 0.05 * dt;
+        if (x_target >= 0.01) { x_target = 0.01; tap_phase = 1; phase_t = 0; tap_k++; }
+        break;
+    }
+}
+
+static void sweep_step(double dt) {
+    if (sweep_k >= n_sweep) { x_target = x; v = 0; return; }
+    if (t_sim < 0.03) { /* boot and host set-up first: the paddle rests */
+        v = 0;
+        sweep_mark_true = enc_true; sweep_mark_fw = fw_encoder();
+        return;
+    }
+    if (sweep_hold) {
+        sweep_hold_t += dt;
+        v = 0;
+        if (sweep_hold_t > 0.003) { /* settled: compare the firmware's count with the true one */
+            int64_t d_true = enc_true - sweep_mark_true, d_fw = (int64_t)fw_encoder() - sweep_mark_fw;
+            sweep_res[sweep_k].v = sweep_v[sweep_k];
+            sweep_res[sweep_k].moved += d_true > 0 ? d_true : -d_true;
+            sweep_res[sweep_k].missed += (d_true - d_fw) > 0 ? d_true - d_fw : d_fw - d_true;
+            sweep_mark_true = enc_true; sweep_mark_fw = fw_encoder();
+            sweep_hold = 0;
+            if (sweep_dir > 0) sweep_k++; /* one down-and-up pass per speed */
+            sweep_dir = -sweep_dir;
+        }
+        return;
+    }
+    double vs = sweep_v[sweep_k] * sweep_dir;
+    double nx = x + vs * dt;
+    if ((sweep_dir < 0 && nx <= -sweep_amp_m) || (sweep_dir > 0 && nx >= sweep_amp_m)) {
+        nx = sweep_dir < 0 ? -sweep_amp_m : sweep_amp_m;
+        sweep_hold = 1; sweep_hold_t = 0;
+    }
+    v = (nx - x) / dt;
+    x = nx;
+}
+
+static double motor_current(void) {
+    uint8_t *d = avr->data;
+    if (!(d[A_TCCR2A] & 0x80)) return 0.0; /* COM2A1: OC2A drives the pin */
+    double i = d[A_OCR2A] / 255.0 * PWM_FULL_SCALE_A;
+    return (d[A_PORTB] & 1) ? -i : i;
+}
+
+/* motor zeroing after host silence (the firmware watchdog), measured in MCU cycles */
+static avr_cycle_count_t last_host_rx_cycle, motor_on_cycle;
+static double wd_last_ms = -1;
+static uint32_t motor_zeroings;
+static double last_i;
+
+static avr_cycle_count_t phys_cb(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a; (void)param;
+    const double dt = PHYS_CYCLES / (double)F_CPU_HZ;
+    double x0 = x;
+    i_motor = motor_current();
+    if (i_motor == 0.0 && last_i != 0.0) {
+        motor_zeroings++;
+        wd_last_ms = (when - last_host_rx_cycle) * 1e3 / F_CPU_HZ;
+    }
+    if (i_motor != 0.0 && last_i == 0.0) motor_on_cycle = when;
+    last_i = i_motor;
+    if (hand_mode == HAND_SWEEP) {
+        double v0 = v;
+        sweep_step(dt);
+        a_meas = (v - v0) / dt;
+    } else {
+        if (hand_mode == HAND_TAP) hand_target(dt);
+        else if (x_target < hold_m) x_target = fmin(hold_m, x_target + 0.05 * dt); /* lift from home, 5 cm/s */
+        else x_target = fmax(hold_m, x_target - 0.05 * dt);
+        double f = FORCE_PER_AMP * i_motor + k_hand * (x_target - x) - b_hand * v - b_paddle * v;
+        double acc = f / m_paddle;
+        v += acc * dt; /* semi-implicit Euler */
+        x += v * dt;
+        a_meas = acc;
+    }
+    t_sim += dt;
+    enc_schedule(x0, x, when);
+    set_adc(0, ACCEL_OFFSET + a_meas / ACCEL_SCALE);
+    set_adc(1, grip_N / GRIP_SCALE);
+    return when + PHYS_CYCLES;
+}
+
+/* ---- timing instrumentation -------------------------------------------------------------- */
+#define HIST 65536
+static uint32_t tick_hist[HIST], body_hist[HIST];
+static uint64_t ticks, tick_overruns, compare_matches;
+static avr_cycle_count_t match_cycle, tick_start_cycle, frame_start_cycle;
+static int tick_open;
+static uint32_t frame_max, frames_handled;
+static struct { const char *name; int vec; uint64_t n; avr_cycle_count_t pend, run; uint32_t max_dur, max_lat; avr_cycle_count_t max_lat_at; } isr[] = {
+    {.name = "INT0", .vec = V_INT0}, {.name = "INT1", .vec = V_INT1}, {.name = "TIMER1_COMPA", .vec = V_TIMER1_COMPA},
+    {.name = "USART_RX", .vec = V_USART_RX},
+    {.name = "USART_UDRE", .vec = V_USART_UDRE}, {.name = "WDT", .vec = V_WDT}};
+#define N_ISR (sizeof(isr) / sizeof(isr[0]))
+
+static void isr_pending(avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    size_t k = (size_t)param;
+    if (!value) return;
+    isr[k].pend = avr->cycle;
+    if (isr[k].vec == V_TIMER1_COMPA) {
+        compare_matches++;
+        if (tick_open) tick_overruns++; /* the previous tick had not finished */
+        else match_cycle = avr->cycle;
+        tick_open = 1;
+    }
+}
+
+static void isr_running(avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    size_t k = (size_t)param;
+    if (value) {
+        isr[k].n++;
+        isr[k].run = avr->cycle;
+        uint32_t lat = (uint32_t)(avr->cycle - isr[k].pend);
+        if (lat > isr[k].max_lat && ticks > 0) { isr[k].max_lat = lat; isr[k].max_lat_at = avr->cycle; } /* after boot */
+    } else {
+        uint32_t dur = (uint32_t)(avr->cycle - isr[k].run);
+        if (dur > isr[k].max_dur) isr[k].max_dur = dur;
+    }
+}
+
+static void gpior0_write(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param) {
+    (void)param;
+    a->data[addr] = v;
+    avr_cycle_count_t c = a->cycle;
+    if (v == 1) tick_start_cycle = c;
+    else if (v == 2) {
+        uint64_t total = tick_open ? c - match_cycle : c - tick_start_cycle, body = c - tick_start_cycle;
+        tick_hist[total < HIST ? total : HIST - 1]++;
+        body_hist[body < HIST ? body : HIST - 1]++;
+        ticks++;
+        tick_open = 0;
+    } else if (v == 3) frame_start_cycle = c;
+    else if (v == 4) {
+        uint32_t d = (uint32_t)(c - frame_start_cycle);
+        if (d > frame_max) frame_max = d;
+        frames_handled++;
+    }
+}
+
+static void hist_stats(const uint32_t *h, uint64_t n, unsigned *mn, unsigned *med, unsigned *mx, unsigned *p99) {
+    *mn = *med = *mx = *p99 = 0;
+    if (!n) return;
+    uint64_t acc = 0;
+    int got_min = 0, got_med = 0, got_p99 = 0;
+    for (unsigned i = 0; i < HIST; i++) {
+        if (!h[i]) continue;
+        if (!got_min) { *mn = i; got_min = 1; }
+        acc += h[i];
+        if (!got_med && acc * 2 >= n) { *med = i; got_med = 1; }
+        if (!got_p99 && acc * 100 >= n * 99) { *p99 = i; got_p99 = 1; }
+        *mx = i;
+    }
+}
+
+static unsigned ram_high_water(void) {
+    if (!sym_bss_end) return 0;
+    unsigned a = sym_bss_end;
+    while (a <= RAM_END && avr->data[a] == PAINT) a++;
+    return RAM_END + 1 - a; /* stack bytes ever used */
+}
+
+/* ---- UART <-> host ------------------------------------------------------------------------- */
+static int master_fd = -1, slave_fd = -1;
+#define QN 65536
+static uint8_t host_q[QN]; /* host -> MCU */
+static unsigned hq_head, hq_tail;
+static uint8_t out_q[QN]; /* MCU -> host, waiting for the pty */
+static unsigned oq_head, oq_tail;
+static int uart_xoff;
+static avr_irq_t *uart_in;
+static uint64_t bytes_to_mcu, bytes_from_mcu, pty_drops, frames_dropped, frames_corrupted, frames_garbage,
+    frames_duplicated;
+static hfam_parser_t out_parser;
+static int disconnected;
+static avr_cycle_count_t attach_cycle;
+static int faults_on;
+/* self-host: parse what the firmware sends */
+static hfam_parser_t sh_parser;
+static uint64_t sh_states, sh_events, sh_gaps, sh_naks, sh_acks;
+static int sh_last_seq = -1;
+
+static void out_push(const uint8_t *b, unsigned n) {
+    for (unsigned i = 0; i < n; i++) {
+        unsigned next = (oq_head + 1) % QN;
+        if (next == oq_tail) { pty_drops++; return; }
+        out_q[oq_head] = b[i];
+        oq_head = next;
+    }
+}
+
+static void selfhost_rx(uint8_t c) {
+    if (!hfam_parse_byte(&sh_parser, c)) return;
+    uint8_t type = sh_parser.buf[3], seq = sh_parser.buf[4];
+    if (sh_last_seq >= 0) sh_gaps += (uint8_t)(seq - sh_last_seq - 1);
+    sh_last_seq = seq;
+    if (type == MSG_STATE) sh_states++;
+    else if (type == MSG_EVENT) sh_events++;
+    else if (type == MSG_NAK) sh_naks++;
+    else if (type == MSG_ACK) sh_acks++;
+}
+
+static void uart_out_hook(avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq; (void)param;
+    uint8_t c = (uint8_t)value;
+    bytes_from_mcu++;
+    if (selfhost) { selfhost_rx(c); return; }
+    if (disconnected) return;
+    if (!faults_on) { out_push(&c, 1); return; }
+    if (!hfam_parse_byte(&out_parser, c)) return;
+    uint8_t frame[HFAM_MAX_PAYLOAD + HFAM_OVERHEAD + 64];
+    unsigned n = (unsigned)out_parser.buf[2] + HFAM_OVERHEAD;
+    memcpy(frame, out_parser.buf, n);
+    if (f_drop > 0 && rnd() < f_drop) { frames_dropped++; return; }
+    if (f_garbage > 0 && rnd() < f_garbage) {
+        frames_garbage++;
+        unsigned g = 1 + (unsigned)(rnd() * 23);
+        uint8_t junk[24];
+        for (unsigned i = 0; i < g; i++) junk[i] = (uint8_t)(rnd() * 256);
+        out_push(junk, g);
+    }
+    if (f_corrupt > 0 && rnd() < f_corrupt) {
+        frames_corrupted++;
+        frame[2 + (unsigned)(rnd() * (n - 2))] ^= (uint8_t)(1u << (unsigned)(rnd() * 8));
+    }
+    out_push(frame, n);
+    if (f_duplicate > 0 && rnd() < f_duplicate) { frames_duplicated++; out_push(frame, n); }
+}
+
+static void uart_xon_hook(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)value; (void)param; uart_xoff = 0; }
+static void uart_xoff_hook(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)value; (void)param; uart_xoff = 1; }
+
+static void host_push(const uint8_t *b, unsigned n) {
+    for (unsigned i = 0; i < n; i++) {
+        unsigned next = (hq_head + 1) % QN;
+        if (next == hq_tail) return;
+        host_q[hq_head] = b[i];
+        hq_head = next;
+    }
+}
+
+static void feed_uart(void) {
+    while (!uart_xoff && hq_tail != hq_head) {
+        avr_raise_irq(uart_in, host_q[hq_tail]);
+        hq_tail = (hq_tail + 1) % QN;
+        bytes_to_mcu++;
+        last_host_rx_cycle = avr->cycle;
+    }
+}
+
+static int pty_unread(void) {
+    int n = 0;
+    if (slave_fd >= 0 && ioctl(slave_fd, FIONREAD, &n) < 0) n = 0;
+    return n;
+}
+
+static void pty_read(void) {
+    if (master_fd < 0) return;
+    uint8_t buf[4096];
+    for (;;) {
+        ssize_t n = read(master_fd, buf, sizeof buf);
+        if (n <= 0) break;
+        if (!attach_cycle) attach_cycle = avr->cycle ? avr->cycle : 1;
+        host_push(buf, (unsigned)n);
+    }
+}
+
+/* returns 1 if everything queued was written */
+static int pty_flush(void) {
+    if (master_fd < 0) { oq_tail = oq_head; return 1; }
+    while (oq_tail != oq_head) {
+        unsigned end = oq_head > oq_tail ? oq_head : QN;
+        ssize_t n = write(master_fd, out_q + oq_tail, end - oq_tail);
+        if (n <= 0) return 0;
+        oq_tail = (oq_tail + (unsigned)n) % QN;
+    }
+    return 1;
+}
+
+/* ---- scripted host for the timing report --------------------------------------------------- */
+static uint8_t sh_seq;
+static void sh_send(uint8_t type, const uint8_t *p, uint8_t n) {
+    uint8_t f[HFAM_MAX_PAYLOAD + HFAM_OVERHEAD];
+    uint16_t len = hfam_encode(f, type, sh_seq++, p, n);
+    host_push(f, len);
+}
+static int sh_stage, sh_decimation = 1;
+static double sh_next_t, sh_rearm_t;
+static void selfhost_step(void) {
+    double t = avr->cycle / (double)F_CPU_HZ;
+    uint8_t p[64];
+    if (sh_stage == 0 && t > 0.002) {
+        put_u16(p, 0x0001); sh_send(MSG_HELLO, p, 2);
+        p[0] = 1; put_u16(p + 1, (uint16_t)sh_decimation); sh_send(MSG_SET_MODE, p, 3); /* on-device rendering */
+        sh_send(MSG_CLEAR_FAULTS, p, 0);
+        put_f32(p, 0.0f); put_f32(p + 4, 1000.0f); put_f32(p + 8, 1.0f); put_f32(p + 12, 0.001f);
+        sh_send(MSG_WALL, p, 16);
+        put_f32(p, 0.8f); put_f32(p + 4, 2.0f); put_f32(p + 8, 2.0f); sh_send(MSG_LIMITS, p, 12);
+        p[0] = 2; put_f32(p + 1, 20.0f); put_f32(p + 5, 0.05f); put_f32(p + 9, 300.0f); put_f32(p + 13, 0.0f);
+        sh_send(MSG_TRANSIENT_PARAM, p, 17); /* decaying sinusoid: the costliest tick */
+        sh_send(MSG_RENDER_START, p, 0);
+        sh_stage = 1; sh_next_t = t + 0.02; sh_rearm_t = t + 0.02;
+    }
+    if (sh_stage >= 1 && t >= sh_next_t) { sh_send(MSG_KEEPALIVE, p, 0); sh_next_t = t + 0.02; }
+    /* second half of the sweeps: host re-arms a 128-sample transient every 20 ms (the longest frames) */
+    if (sh_stage == 1 && hand_mode == HAND_SWEEP && sweep_k >= (n_sweep + 1) / 2) sh_stage = 2;
+    if (sh_stage == 2 && t >= sh_rearm_t) {
+        static uint8_t big[4 + 60 * 4];
+        for (uint32_t off = 0; off < 128; off += 60) {
+            uint32_t k = 128 - off < 60 ? 128 - off : 60;
+            put_u32(big, off);
+            for (uint32_t i = 0; i < k; i++) put_f32(big + 4 + 4 * i, 0.1f * (float)((off + i) % 7));
+            sh_send(MSG_REARM_DATA, big, (uint8_t)(4 + 4 * k));
+        }
+        put_u32(p, 128); sh_send(MSG_REARM_COMMIT, p, 4);
+        sh_rearm_t = t + 0.02;
+    }
+}
+
+/* ---- stats ----------------------------------------------------------------------------------- */
+static void write_stats(int final) {
+    if (!stats_path) return;
+    char tmp[4096];
+    snprintf(tmp, sizeof tmp, "%s.tmp", stats_path);
+    FILE *f = fopen(tmp, "w");
+    if (!f) return;
+    unsigned mn, med, mx, p99, bmn, bmed, bmx, bp99;
+    hist_stats(tick_hist, ticks, &mn, &med, &mx, &p99);
+    hist_stats(body_hist, ticks, &bmn, &bmed, &bmx, &bp99);
+    fprintf(f, "{\"final\": %d, \"cycles\": %llu, \"sim_time_s\": %.6f, \"f_cpu_hz\": %lu,\n", final,
+            (unsigned long long)avr->cycle, avr->cycle / (double)F_CPU_HZ, F_CPU_HZ);
+    fprintf(f, " \"ticks\": %llu, \"compare_matches\": %llu, \"tick_overruns\": %llu,\n", (unsigned long long)ticks,
+            (unsigned long long)compare_matches, (unsigned long long)tick_overruns);
+    fprintf(f, " \"tick_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", mn, med, p99, mx);
+    fprintf(f, " \"tick_body_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", bmn, bmed, bp99, bmx);
+    fprintf(f, " \"frame_handling_max_cycles\": %u, \"frames_handled\": %u,\n", frame_max, frames_handled);
+    fprintf(f, " \"isr\": {");
+    for (size_t k = 0; k < N_ISR; k++)
+        fprintf(f, "%s\"%s\": {\"n\": %llu, \"max_cycles\": %u, \"max_latency_cycles\": %u, \"max_latency_at_cycle\": %llu}",
+                k ? ", " : "", isr[k].name, (unsigned long long)isr[k].n, isr[k].max_dur, isr[k].max_lat,
+                (unsigned long long)isr[k].max_lat_at);
+    fprintf(f, "},\n \"ram_stack_high_water_bytes\": %u, \"bss_end\": %u,\n", ram_high_water(), sym_bss_end);
+    fprintf(f, " \"encoder_true\": %lld, \"encoder_fw\": %d,\n", (long long)(enc_true - enc_c0), fw_encoder());
+    fprintf(f, " \"sweeps\": [");
+    for (int k = 0; k < n_sweep && k <= sweep_k && k < 32; k++)
+        if (sweep_res[k].moved)
+            fprintf(f, "%s{\"v_m_s\": %.4f, \"counts\": %lld, \"missed\": %lld}", k ? ", " : "", sweep_res[k].v,
+                    (long long)sweep_res[k].moved, (long long)sweep_res[k].missed);
+    fprintf(f, "], \"sweep_done\": %d,\n", hand_mode == HAND_SWEEP && sweep_k >= n_sweep);
+    fprintf(f, " \"position_m\": %.7f, \"motor_A\": %.5f, \"motor_zeroings\": %u, \"zero_after_host_silence_ms\": %.4f,\n",
+            x, i_motor, motor_zeroings, wd_last_ms);
+    fprintf(f, " \"bytes_to_mcu\": %llu, \"bytes_from_mcu\": %llu, \"pty_drops\": %llu,\n",
+            (unsigned long long)bytes_to_mcu, (unsigned long long)bytes_from_mcu, (unsigned long long)pty_drops);
+    fprintf(f, " \"faults\": {\"dropped\": %llu, \"corrupted\": %llu, \"garbage\": %llu, \"duplicated\": %llu, \"disconnected\": %d},\n",
+            (unsigned long long)frames_dropped, (unsigned long long)frames_corrupted, (unsigned long long)frames_garbage,
+            (unsigned long long)frames_duplicated, disconnected);
+    fprintf(f, " \"selfhost\": {\"states\": %llu, \"events\": %llu, \"seq_gaps\": %llu, \"naks\": %llu, \"acks\": %llu}",
+            (unsigned long long)sh_states, (unsigned long long)sh_events, (unsigned long long)sh_gaps,
+            (unsigned long long)sh_naks, (unsigned long long)sh_acks);
+    if (sym_parser) {
+        uint8_t *d = avr->data + sym_parser + HFAM_MAX_PAYLOAD + HFAM_OVERHEAD + 2;
+        fprintf(f, ",\n \"fw_parser\": {\"crc_errors\": %u, \"garbage\": %u}", d[0] | (d[1] << 8), d[2] | (d[3] << 8));
+    }
+    fprintf(f, "}\n");
+    fclose(f);
+    rename(tmp, stats_path);
+}
+
+static double wall_s(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int parse_list(const char *s, double *out, int max) {
+    int n = 0;
+    while (s && *s && n < max) {
+        char *end;
+        double val = strtod(s, &end);
+        if (end == s) { fprintf(stderr, "error: bad number list %s\n", s); exit(2); }
+        out[n++] = val;
+        s = *end == ',' ? end + 1 : end;
+    }
+    return n;
+}
+
+static void parse_faults(const char *s) {
+    char buf[512];
+    snprintf(buf, sizeof buf, "%s", s);
+    for (char *tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+        char *eq = strchr(tok, '=');
+        if (!eq) { fprintf(stderr, "error: --fault %s: expected key=value\n", tok); exit(2); }
+        *eq = 0;
+        double val = atof(eq + 1);
+        if (!strcmp(tok, "drop")) f_drop = val;
+        else if (!strcmp(tok, "corrupt")) f_corrupt = val;
+        else if (!strcmp(tok, "garbage")) f_garbage = val;
+        else if (!strcmp(tok, "duplicate")) f_duplicate = val;
+        else if (!strcmp(tok, "disconnect_after_s")) f_disconnect_s = val;
+        else { fprintf(stderr, "error: --fault: unknown fault %s\n", tok); exit(2); }
+    }
+    faults_on = f_drop > 0 || f_corrupt > 0 || f_garbage > 0 || f_duplicate > 0;
+}
+
+int main(int argc, char **argv) {
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+#define OPT(name) (!strcmp(a, name) && val && ++i)
+        if (OPT("--elf")) elf_path = val;
+        else if (OPT("--stats")) stats_path = val;
+        else if (OPT("--pace")) pace_realtime = !strcmp(val, "realtime");
+        else if (OPT("--speed")) speed = atof(val);
+        else if (OPT("--max-sim-s")) max_sim_s = atof(val);
+        else if (OPT("--sym-encoder")) sym_encoder = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-bss-end")) sym_bss_end = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-parser")) sym_parser = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--taps")) { n_taps = parse_list(val, taps, 32); hand_mode = n_taps ? HAND_TAP : HAND_HOLD; }
+        else if (OPT("--hold-m")) { hand_mode = HAND_HOLD; hold_m = atof(val); }
+        else if (OPT("--sweep")) { hand_mode = HAND_SWEEP; n_sweep = parse_list(val, sweep_v, 32); }
+        else if (OPT("--sweep-amp-m")) sweep_amp_m = atof(val);
+        else if (OPT("--grip-N")) grip_N = atof(val);
+        else if (OPT("--fault")) parse_faults(val);
+        else if (OPT("--seed")) rng_state = (unsigned)atoi(val);
+        else if (!strcmp(a, "--selfhost")) selfhost = 1;
+        else if (OPT("--decimation")) sh_decimation = atoi(val) < 1 ? 1 : atoi(val);
+        else if (OPT("--profile")) profile = atoi(val); /* GPIOR0 mark to profile: 1 tick, 3 frame */
+        else { fprintf(stderr, "error: unknown or incomplete option %s\n", a); return 2; }
+    }
+    if (getenv("FW_SIM_TRACE_FROM")) trace_from = strtoull(getenv("FW_SIM_TRACE_FROM"), NULL, 0);
+    if (!elf_path) { fprintf(stderr, "error: --elf FILE is required\n"); return 2; }
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(elf_path, &fw) != 0) { fprintf(stderr, "error: cannot read firmware %s\n", elf_path); return 2; }
+    avr = avr_make_mcu_by_name("atmega328p");
+    if (!avr) { fprintf(stderr, "error: simavr has no atmega328p core\n"); return 2; }
+    avr_init(avr);
+    avr->log = getenv("FW_SIM_LOG") ? atoi(getenv("FW_SIM_LOG")) : LOG_NONE;
+    fw.frequency = F_CPU_HZ;
+    avr_load_firmware(avr, &fw);
+    avr->frequency = F_CPU_HZ;
+    avr->vcc = avr->avcc = avr->aref = 5000;
+    if (sym_bss_end)
+        for (unsigned a = sym_bss_end; a <= RAM_END; a++) avr->data[a] = PAINT; /* stack painting */
+
+    pin_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
+    pin_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3);
+    adc_irq = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, 0);
+    set_pins(0);
+    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart_xon_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff_hook, NULL);
+    for (size_t k = 0; k < N_ISR; k++) {
+        avr_irq_t *irq = avr_get_interrupt_irq(avr, (uint8_t)isr[k].vec);
+        if (!irq) continue;
+        avr_irq_register_notify(irq + AVR_INT_IRQ_PENDING, isr_pending, (void *)k);
+        avr_irq_register_notify(irq + AVR_INT_IRQ_RUNNING, isr_running, (void *)k);
+    }
+    avr_register_io_write(avr, A_GPIOR0, gpior0_write, NULL);
+    x = x_target = 0.0; /* powered up at the home position: the encoder's zero */
+    if (hand_mode == HAND_SWEEP) x = sweep_amp_m, x_target = x;
+    enc_true = enc_emitted = enc_c0 = enc_count_of(x);
+    set_pins(enc_true);
+    set_adc(0, ACCEL_OFFSET);
+    set_adc(1, grip_N / GRIP_SCALE);
+    avr_cycle_timer_register(avr, PHYS_CYCLES, phys_cb, NULL);
+    sweep_mark_true = enc_true;
+
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGPIPE, SIG_IGN);
+    if (!selfhost) {
+        master_fd = posix_openpt(O_RDWR | O_NOCTTY);
+        if (master_fd < 0 || grantpt(master_fd) || unlockpt(master_fd)) { perror("error: pty"); return 2; }
+        const char *name = ptsname(master_fd);
+        slave_fd = open(name, O_RDWR | O_NOCTTY); /* kept open: the pty survives host close/reopen */
+        struct termios tio;
+        tcgetattr(master_fd, &tio); cfmakeraw(&tio); tcsetattr(master_fd, TCSANOW, &tio);
+        tcgetattr(slave_fd, &tio); cfmakeraw(&tio); tcsetattr(slave_fd, TCSANOW, &tio);
+        fcntl(master_fd, F_SETFL, fcntl(master_fd, F_GETFL) | O_NONBLOCK);
+        printf("PORT %s\n", name);
+        fflush(stdout);
+    }
+    pid_t parent = getppid();
+    double t0 = wall_s(), last_stats = t0, max_lag = 0;
+    avr_cycle_count_t next_service = SERVICE_CYCLES;
+    int state = cpu_Running;
+    while (!quit) {
+        while (avr->cycle < next_service) {
+            avr_cycle_count_t c_before = avr->cycle;
+            uint32_t pc_before = avr->pc;
+            state = avr_run(avr);
+            if (trace_from && c_before >= trace_from)
+                fprintf(stderr, "T %llu pc %x sp %x g %d\n", (unsigned long long)c_before, pc_before,
+                        avr->data[0x5D] | (avr->data[0x5E] << 8), avr->data[A_GPIOR0]);
+            if (profile && avr->data[A_GPIOR0] == profile) prof[(pc_before >> 1) & 0x3FFF] += (uint32_t)(avr->cycle - c_before);
+            if (state == cpu_Done || state == cpu_Crashed) break;
+        }
+        if (state == cpu_Done || state == cpu_Crashed) {
+            fprintf(stderr, "error: firmware stopped (%s) at cycle %llu, pc 0x%x, sp 0x%x\n",
+                    state == cpu_Done ? "done" : "crashed", (unsigned long long)avr->cycle, avr->pc,
+                    avr->data[0x5D] | (avr->data[0x5E] << 8));
+            break;
+        }
+        next_service = avr->cycle + SERVICE_CYCLES;
+        double sim_s = avr->cycle / (double)F_CPU_HZ;
+        if (selfhost) selfhost_step();
+        else {
+            pty_read();
+            if (f_disconnect_s >= 0 && attach_cycle && !disconnected &&
+                (avr->cycle - attach_cycle) / (double)F_CPU_HZ > f_disconnect_s) {
+                disconnected = 1; /* the link goes away: the host sees EIO/HUP; the MCU keeps running */
+                close(master_fd); close(slave_fd); master_fd = slave_fd = -1;
+            }
+            if (!pty_flush() && pace_realtime) { pty_drops += (oq_head + QN - oq_tail) % QN; oq_tail = oq_head; }
+        }
+        feed_uart();
+        if (max_sim_s > 0 && sim_s >= max_sim_s) break;
+        if (hand_mode == HAND_SWEEP && selfhost && sweep_k >= n_sweep) break;
+        double now = wall_s();
+        if (!selfhost) {
+            if (pace_realtime) {
+                double ahead = sim_s / speed - (now - t0);
+                if (ahead > 0.0002) { /* ahead of the wall clock: sleep, but wake at once for host bytes */
+                    struct pollfd pfd = {master_fd, POLLIN, 0};
+                    struct timespec ts = {0, (long)(ahead * 1e9)};
+                    ppoll(&pfd, master_fd >= 0 ? 1 : 0, &ts, NULL);
+                } else if (-ahead > max_lag) max_lag = -ahead;
+            } else {
+                /* fast: run while the host keeps up; wait while it has unread telemetry or output is blocked */
+                while (!quit && master_fd >= 0 && (pty_unread() > HOST_BACKLOG || oq_tail != oq_head)) {
+                    struct pollfd pfd = {master_fd, POLLIN | POLLOUT, 0};
+                    poll(&pfd, 1, 1);
+                    pty_read();
+                    pty_flush();
+                }
+            }
+        }
+        if (now - last_stats > 0.05) {
+            write_stats(0);
+            last_stats = now;
+            if (getppid() != parent) break; /* the host program is gone: do not run on as an orphan */
+        }
+    }
+    write_stats(1);
+    if (profile)
+        for (unsigned k = 0; k < 0x4000; k++)
+            if (prof[k]) fprintf(stderr, "PROF %x %u\n", k * 2, prof[k]);
+    if (master_fd >= 0) close(master_fd);
+    if (slave_fd >= 0) close(slave_fd);
+    return state == cpu_Crashed ? 3 : 0;
+}

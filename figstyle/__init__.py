@@ -1,0 +1,258 @@
+"""The project's one figure style: sizes, fonts, a colour-blind-safe palette, saving and checks.
+
+A leaf package: it imports nothing from ``devices``, ``renderer``, ``stimuli``, ``study`` or
+``analysis``, so every one of them may use it without adding an arrow between them
+(docs/figures.md). The style itself is data beside this file:
+
+* ``project.mplstyle``: fonts, line widths, grid, save options (a matplotlib style file);
+* ``palette.json``: one fixed colour, line style and marker per sample/rendering (the same
+  in every figure), the colour maps of the p-value and effect-size matrices.
+
+Every figure is saved with :func:`save` as PNG and SVG with the plotted numbers beside it as
+CSV (``NAME.png``, ``NAME.svg``, ``NAME.csv``), so a reader can redraw it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import hashlib
+import json
+import os
+from functools import lru_cache
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+STYLE_PATH = HERE / "project.mplstyle"
+PALETTE_PATH = HERE / "palette.json"
+
+# figure widths in inches: one column of a two-column paper (89 mm), a full page width
+# (183 mm), and a 16:9 slide
+WIDTH_IN = {"column": 3.5, "page": 7.2, "slide": 10.0}
+# font scale of the slide size relative to the paper sizes
+SLIDE_FONT_SCALE = 1.6
+FORMATS = ("png", "svg")
+
+
+@lru_cache(maxsize=1)
+def palette() -> dict:
+    """The parsed ``palette.json`` (``samples``, ``aliases``, ``series``, colour maps)."""
+    return json.loads(PALETTE_PATH.read_text(encoding="utf-8"))
+
+
+def sample_style(name: str) -> dict:
+    """Colour, line style, marker and label of a sample or rendering, fixed across all figures.
+
+    Parameters
+    ----------
+    name : str
+        A sample of the study catalog (``wood``, ``hfam_firm`` ...) or a demo rendering; unknown
+        names get a stable colour from the ``series`` list (chosen by a hash of the name).
+
+    Returns
+    -------
+    dict
+        ``color`` (hex), ``linestyle``, ``marker``, ``label`` (readable name).
+    """
+    pal = palette()
+    key = pal["aliases"].get(name, name)
+    if key in pal["samples"]:
+        return dict(pal["samples"][key])
+    series = pal["series"]
+    i = int(hashlib.sha1(name.encode("utf-8")).hexdigest(), 16) % len(series)
+    return {"color": series[i], "linestyle": "-", "marker": "o", "label": name.replace("_", " ")}
+
+
+def color(name: str) -> str:
+    """Hex colour of a sample or rendering (:func:`sample_style`)."""
+    return sample_style(name)["color"]
+
+
+def figsize(width: str = "column", aspect: float = 0.62, height_in: float | None = None) -> tuple[float, float]:
+    """Figure size in inches for ``width`` = ``column`` (3.5 in) | ``page`` (7.2 in) | ``slide`` (10 in).
+
+    ``height_in`` overrides ``aspect`` (height / width).
+    """
+    if width not in WIDTH_IN:
+        raise ValueError(f"figure width must be one of {', '.join(WIDTH_IN)}, not {width!r}")
+    w = WIDTH_IN[width]
+    return (w, height_in if height_in is not None else w * aspect)
+
+
+@contextlib.contextmanager
+def style(size: str = "paper"):
+    """Context manager applying the project style (``size`` = ``paper`` or ``slide``: larger fonts).
+
+    Selects matplotlib's Agg backend when no backend was chosen yet (figures are written to
+    files; nothing is shown).
+    """
+    import matplotlib  # deferred: matplotlib costs ~0.3 s to import and only figure code needs it
+
+    if "MPLBACKEND" not in os.environ:
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    extra = {}
+    if size == "slide":
+        base = matplotlib.rc_params_from_file(str(STYLE_PATH), use_default_template=False)
+        extra = {k: float(base[k]) * SLIDE_FONT_SCALE for k in
+                 ("font.size", "axes.titlesize", "axes.labelsize", "xtick.labelsize", "ytick.labelsize",
+                  "legend.fontsize", "figure.titlesize")}
+    elif size != "paper":
+        raise ValueError(f"style size must be paper or slide, not {size!r}")
+    with plt.style.context([str(STYLE_PATH), extra]):
+        yield plt
+
+
+def _write_csv(path: Path, data) -> None:
+    """Write ``data`` (DataFrame, dict of equal-length columns, or (header, rows)) as CSV."""
+    if hasattr(data, "to_csv"):
+        data.to_csv(path, index=False, float_format="%.9g")
+        return
+    if isinstance(data, dict):
+        header = list(data)
+        cols = [list(v) if hasattr(v, "__len__") and not isinstance(v, str) else [v] for v in data.values()]
+        n = max((len(c) for c in cols), default=0)
+        rows = [[c[i] if i < len(c) else "" for c in cols] for i in range(n)]
+    else:
+        header, rows = data
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for r in rows:
+            w.writerow([repr(float(v)) if isinstance(v, float) else v for v in r])
+
+
+def save(fig, path, data=None, formats=FORMATS, close: bool = True) -> dict:
+    """Save ``fig`` as ``<stem>.png`` and ``<stem>.svg`` and its data as ``<stem>.csv``.
+
+    Files are written under temporary names and renamed, so a crash never leaves half a figure;
+    PNG and SVG carry no date, so the same figure gives the same bytes (a committed gallery
+    only changes when a figure does).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    path : str or Path
+        Target; its suffix is ignored (``fig_x.png`` and ``fig_x`` both give ``fig_x.png/.svg/.csv``).
+    data : DataFrame, dict of columns, (header, rows) or None
+        The plotted numbers in SI-derived units named in the column headers.
+    formats : tuple of str
+        Image formats (``png``, ``svg``, ``pdf``).
+    close : bool
+        Close the figure afterwards.
+
+    Returns
+    -------
+    dict
+        Format (``png``, ``svg``, ``csv``) -> Path written.
+    """
+    import matplotlib.pyplot as plt  # deferred: see style()
+
+    path = Path(path)
+    stem = path.with_suffix("") if path.suffix in (".png", ".svg", ".pdf", ".csv") else path
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    out = {}
+    meta = {"png": {"Software": None}, "svg": {"Date": None, "Creator": None}, "pdf": {"CreationDate": None}}
+    with plt.style.context(str(STYLE_PATH)):     # the save options (dpi, tight box, SVG text) apply here
+        for fmt in formats:
+            target = stem.with_name(stem.name + "." + fmt)
+            tmp = target.with_name(target.name + ".tmp." + fmt)
+            fig.savefig(tmp, format=fmt, metadata=meta.get(fmt))
+            tmp.replace(target)
+            out[fmt] = target
+    if data is not None:
+        target = stem.with_name(stem.name + ".csv")
+        tmp = target.with_name(target.name + ".tmp")
+        _write_csv(tmp, data)
+        tmp.replace(target)
+        out["csv"] = target
+    if close:
+        plt.close(fig)
+    return out
+
+
+CONTAINERS = ("Figure", "SubFigure", "Axes", "XAxis", "YAxis", "Tick", "XTick", "YTick")
+
+
+def _legends(fig) -> list:
+    from matplotlib.legend import Legend
+
+    return [a for a in fig.findobj(Legend)]
+
+
+def legend_overlaps(fig) -> list[str]:
+    """Every visible artist whose drawn bounding box overlaps a legend's (empty list: none).
+
+    Draws the figure (without writing it) and compares each legend's window extent with the
+    extents of all other visible artists of the figure (axes, lines, patches, texts, images,
+    collections, tick labels, other legends), excluding the legend's own children and the
+    figure background.
+    """
+    from matplotlib.transforms import Bbox
+
+    fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    problems = []
+    legends = _legends(fig)
+    for leg in legends:
+        lb = leg.get_window_extent(renderer)
+        own = {id(a) for a in leg.findobj()}
+        for art in fig.findobj():
+            if id(art) in own or art is fig or art is fig.patch or not art.get_visible():
+                continue
+            if type(art).__name__ in CONTAINERS:    # their extents are the union of their children's
+                continue
+            ax = getattr(art, "axes", None)
+            if ax is not None and art is ax.patch and not (ax.axison and ax.get_frame_on()):
+                continue                              # the background of a panel turned off is not drawn
+            if hasattr(art, "get_text") and not art.get_text():
+                continue
+            try:
+                ab = art.get_window_extent(renderer)
+            except (TypeError, RuntimeError, NotImplementedError, AttributeError):
+                continue
+            if ab is None or not all(map(lambda v: v == v and abs(v) != float("inf"), ab.extents)):
+                continue
+            if ab.width <= 0.5 and ab.height <= 0.5:
+                continue
+            inter = Bbox.intersection(lb, ab)
+            if inter is not None and inter.width > 0.5 and inter.height > 0.5:
+                problems.append(f"legend {_legend_name(leg)!r} overlaps {type(art).__name__} "
+                                f"{_artist_name(art)!r}")
+    return problems
+
+
+def _legend_name(leg) -> str:
+    texts = [t.get_text() for t in leg.get_texts()]
+    return ", ".join(texts[:3]) + (" ..." if len(texts) > 3 else "")
+
+
+def _artist_name(art) -> str:
+    if hasattr(art, "get_text"):
+        return art.get_text()
+    label = art.get_label() if hasattr(art, "get_label") else ""
+    return label or ""
+
+
+def unlabelled_axes(fig) -> list[str]:
+    """Axis labels that lack a unit in parentheses, e.g. ``time (ms)`` (empty list: all have one).
+
+    Only axes with visible numeric tick labels count; a categorical axis (sample names) and an
+    empty label of a shared axis are not checked. Dimensionless quantities name their scale,
+    e.g. ``rating (1–7)`` or ``Cohen's d_z (1)``.
+    """
+    import re
+
+    fig.draw_without_rendering()
+    bad = []
+    for ax in fig.axes:
+        for axis, name in ((ax.xaxis, "x"), (ax.yaxis, "y")):
+            label = axis.get_label().get_text()
+            if not axis.get_visible() or not label:
+                continue
+            ticks = [t.get_text() for t in axis.get_ticklabels() if t.get_visible() and t.get_text()]
+            numeric = ticks and all(re.fullmatch(r"[−\-+0-9.,eE×^$\\{}a-z ]*", t) for t in ticks)
+            if numeric and not re.search(r"\(.+\)", label):
+                bad.append(f"{ax.get_title() or 'axes'} {name}: {label!r}")
+    return bad

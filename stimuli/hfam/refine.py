@@ -1,0 +1,249 @@
+"""Iterative refinement of HFAM library transients by playback and correction (issue 16, section 4.4).
+
+One LTI inverse (eq. 4.6) cannot match an amplitude-dependent device: the
+sim's hysteretic linkage is stiffer for small swings than for large ones, so
+a transient inverted through one identified model comes out too weak or too
+strong at other amplitudes. Refinement removes that error cell by cell with
+an iterative learning update (the same procedure runs on hardware with
+repeated taps by a person: tap the wall with the cell's transient at the
+cell's velocity and grip, record the handle acceleration, correct, repeat)::
+
+    e_j  = bandpass_20-1000Hz(d - y_j)            d: the library's target, y_j: measured after impact
+    u_j+1 = clip(u_j + gain * invert(e_j, model(grip)), +/- peak current)
+
+``invert`` is the builder's inverse (the identified model of the cell's grip),
+so each step is the Newton-like correction of the LTI model and the
+measurement supplies the nonlinear truth. The sim plays it here with a
+minimal proportional-wall loop (the renderer's convention: the transient's
+first sample is commanded on the tick after the one that detects the crossing), the
+person of ``devices.sim`` tapping at the cell's velocity (adjusted so the
+measured incoming velocity matches) and grip.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .inversion import invert, nrmse_corr
+from ..library import HfamLibrary
+from .settings import BuildSettings
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """Parameters of the refinement.
+
+    Attributes
+    ----------
+    iterations : int
+        Playback-and-correct passes (>= 1).
+    gain : float
+        Learning gain of the correction (0 < gain <= 1).
+    wall_N_m : float
+        Stiffness of the proportional wall the transients are refined over (the firm wall, Table 4.1).
+    band_hz : (float, float)
+        Band of the error and of the reported NRMSE (the demo's 20-1000 Hz).
+    min_grip_N : float
+        Grip levels below this are not refined (no hand holds the handle at 0 N).
+    stop_time_s : float
+        The simulated tap's stop time (renderer.demo's tap, 45 ms).
+    hand : devices.sim.Person, "prescribed" or None
+        The simulated user that taps (None: the device's default); the one that tapped the recordings.
+    headroom : float
+        Refined currents are clipped at ``headroom`` x the peak current (the wall's current adds to them).
+    """
+
+    iterations: int = 3
+    gain: float = 0.8
+    wall_N_m: float = 680.0
+    band_hz: tuple = (20.0, 1000.0)
+    min_grip_N: float = 0.5
+    stop_time_s: float = 0.045
+    hand: object = None
+    headroom: float = 0.85
+
+    def __post_init__(self):
+        if int(self.iterations) != self.iterations or self.iterations < 1:
+            raise ValueError(f"RefineSettings: iterations must be a positive integer, got {self.iterations!r}")
+        if not (0 < self.gain <= 1):
+            raise ValueError(f"RefineSettings: gain must be in (0, 1], got {self.gain!r}")
+        if not (self.wall_N_m >= 0 and math.isfinite(self.wall_N_m)):
+            raise ValueError(f"RefineSettings: wall_N_m must be >= 0, got {self.wall_N_m!r}")
+
+
+def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: float, wall_N_m: float,
+                 stop_time_s: float = 0.045, hand=None) -> tuple[np.ndarray, float]:
+    """One simulated tap on a proportional wall with a transient; the handle acceleration after impact.
+
+    Parameters
+    ----------
+    device : devices.sim.SimDevice
+        The sim (its default person taps; the motor is enabled here).
+    current_A : ndarray, shape (n,)
+        Transient current, sample k commanded k + 1 ticks after the tick that detects the crossing (as
+        :class:`renderer.loop.ServoLoop` plays it).
+    velocity_m_s, grip_N : float
+        The person's planned tap speed (m/s) and grip (N).
+    wall_N_m : float
+        Proportional wall stiffness (eq. 4.1, F = -k x below the surface).
+    stop_time_s : float
+        When the plan stops after crossing the surface (s).
+    hand : devices.sim.Person, "prescribed" or None
+        The simulated user (None: the device's default); use the hand that tapped the recordings.
+
+    Returns
+    -------
+    accel_m_s2 : ndarray, shape (n,)
+        Measured handle acceleration at ticks 1..n after the crossing tick (the library's time base,
+        sample k at t = (k+1)/fs after impact); NaN if the tap never crossed.
+    v_in_m_s : float
+        Incoming speed (least-squares slope of the encoder over the 5 ms before the crossing, m/s).
+    """
+    from devices.sim import TapTrajectory
+
+    fs = device.info.servo_rate_hz
+    kf = device.info.force_per_amp_N_A
+    n = int(current_A.size)
+    traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=max(0.004, 0.04 * velocity_m_s),
+                         press_depth_m=float(velocity_m_s) * stop_time_s / 1.5)
+    device.set_sample("placeholder")
+    device.set_user(traj, grip_N=float(grip_N), hand=hand)
+    device.motor_enabled = True
+    n_hist = int(round(0.005 * fs))
+    hist = []
+    k_imp = -1
+    acc = np.full(n, np.nan)
+    prev = device.read().position_m
+    k = 0
+    limit = int(math.ceil(traj.duration_s * fs))
+    while k < limit:
+        x = device.read().position_m
+        if k_imp < 0:
+            hist.append(x)
+            if prev >= 0.0 > x:                         # the renderer: depth -x > 0
+                k_imp = k
+        i_cmd = (-wall_N_m * x / kf) if x < 0.0 else 0.0
+        j = k - k_imp if k_imp >= 0 else -1
+        if 1 <= j <= n:
+            i_cmd += float(current_A[j - 1])           # the renderer's timing: sample 0 on the next tick
+        device.command(i_cmd)
+        if 0 <= j < n:
+            acc[j] = device.read().accel_m_s2      # the state one period after the command
+        if j >= n - 1:
+            break
+        prev = x
+        k += 1
+    if k_imp < 0:
+        return acc, math.nan
+    h = np.array(hist[-n_hist:])
+    t = np.arange(h.size) / fs
+    v_in = -float(np.polyfit(t, h, 1)[0]) if h.size > 2 else math.nan
+    return acc, v_in
+
+
+def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], device_factory: Callable,
+                   settings: RefineSettings = RefineSettings(), build_settings: BuildSettings = BuildSettings(),
+                   log: Callable[[str], None] | None = None) -> tuple[HfamLibrary, list[dict]]:
+    """Refine every (velocity, grip) transient of ``library`` by playback on the sim and correction.
+
+    Parameters
+    ----------
+    library : HfamLibrary
+        Built library with ``desired_accel_m_s2`` (the targets).
+    models : sequence of (name, model)
+        The per-grip models the library was inverted through (``model.grip_N`` must match the grips).
+    device_factory : callable() -> devices.sim.SimDevice
+        Makes the device to play on (a fresh, seeded one per cell keeps runs reproducible).
+    settings : RefineSettings
+    build_settings : BuildSettings
+        The builder's settings (the inverse's added zeros and high-pass).
+    log : callable(str) or None
+        Receives one line per iteration (NRMSE median / worst over the refined cells).
+
+    Returns
+    -------
+    library : HfamLibrary
+        A new library with the refined currents (same targets, metadata gains ``refinement``).
+    history : list of dict
+        Per iteration (0 = before): ``{"iteration", "median_nrmse", "worst_nrmse", "min_corr", "cells"}``
+        with ``cells`` a list of ``(velocity_m_s, grip_N, nrmse, corr)``.
+    """
+    from scipy import signal  # deferred: only the refinement needs scipy.signal
+
+    if library.desired_accel_m_s2 is None:
+        raise ValueError("refine_library: the library has no desired_accel_m_s2 (targets)")
+    say = log or (lambda msg: None)
+    fs = library.fs_hz
+    by_grip = {}
+    for name, m in models:
+        by_grip[round(float(m.grip_N), 6)] = m
+    sos = signal.butter(4, list(settings.band_hz), btype="bandpass", fs=fs, output="sos")
+    cur = np.array(library.currents_A, dtype=float)
+    n_v, n_g, n_t = cur.shape
+    # headroom under the peak limit: the wall's own current adds to the transient in the renderer
+    peak_A = build_settings.peak_current_A
+    if peak_A is None:
+        peak_A = device_factory().info.current_peak_A
+    peak = settings.headroom * float(peak_A)
+    pre, post = int(round(build_settings.pre_pad_s * fs)), int(round(build_settings.post_pad_s * fs))
+    cells = [(i, j) for i in range(n_v) for j in range(n_g) if library.grips_N[j] >= settings.min_grip_N]
+    v_plan = {c: float(library.velocities_m_s[c[0]]) for c in cells}
+    # per cell: the best transient so far and its error; a step that makes a cell worse is undone and
+    # that cell's gain halved (the amplitude-dependent device can make a full LTI step overshoot)
+    best = {c: (math.inf, cur[c].copy(), math.nan) for c in cells}
+    cell_gain = {c: settings.gain for c in cells}
+    history = []
+    for it in range(settings.iterations + 1):
+        rows = []
+        for (i, j) in cells:
+            v_lib, g = float(library.velocities_m_s[i]), float(library.grips_N[j])
+            dev = device_factory()
+            y, v_in = play_on_wall(dev, cur[i, j], v_plan[(i, j)], g, settings.wall_N_m, settings.stop_time_s,
+                                 settings.hand)
+            if not np.all(np.isfinite(y)) or not math.isfinite(v_in) or v_in <= 0:
+                rows.append((v_lib, g, math.nan, math.nan))
+                continue
+            v_plan[(i, j)] *= v_lib / v_in          # next time arrive at the cell's velocity
+            d = library.desired_accel_m_s2[i]
+            yb, db = signal.sosfiltfilt(sos, y), signal.sosfiltfilt(sos, d)
+            err, corr = nrmse_corr(yb, db)
+            rows.append((v_lib, g, err, corr))
+            if err < best[(i, j)][0]:
+                best[(i, j)] = (err, cur[i, j].copy(), corr)
+            else:
+                cur[i, j] = best[(i, j)][1]
+                cell_gain[(i, j)] *= 0.5
+                continue
+            if it == settings.iterations:
+                continue
+            model = by_grip.get(round(g, 6))
+            if model is None:
+                raise ValueError(f"refine_library: no model for grip {g:g} N")
+            e = db - yb
+            padded = np.concatenate([np.zeros(pre), e, np.zeros(post)])
+            du, _ = invert(padded, model, fs, build_settings)
+            cur[i, j] = np.clip(cur[i, j] + cell_gain[(i, j)] * du[pre:pre + n_t], -peak, peak)
+        if it == settings.iterations:
+            # the library keeps each cell's best transient; report those
+            rows = [(float(library.velocities_m_s[c[0]]), float(library.grips_N[c[1]]), best[c][0], best[c][2])
+                    for c in cells]
+            for c in cells:
+                cur[c] = best[c][1]
+        errs = np.array([r[2] for r in rows], dtype=float)
+        cors = np.array([r[3] for r in rows], dtype=float)
+        rec = {"iteration": it, "median_nrmse": float(np.nanmedian(errs)), "worst_nrmse": float(np.nanmax(errs)),
+               "min_corr": float(np.nanmin(cors)), "cells": rows}
+        history.append(rec)
+        say(f"refinement iteration {it}: NRMSE median {rec['median_nrmse']:.3f}, worst {rec['worst_nrmse']:.3f}, "
+            f"min correlation {rec['min_corr']:.3f} over {len(rows)} cells (wall {settings.wall_N_m:g} N/m)")
+    meta = dict(library.metadata)
+    meta["refinement"] = {"iterations": settings.iterations, "gain": settings.gain, "wall_N_m": settings.wall_N_m,
+                          "history": [{k: v for k, v in h.items() if k != "cells"} for h in history]}
+    lib = HfamLibrary(library.velocities_m_s, library.grips_N, cur, fs, library.force_per_amp_N_A,
+                      gain=library.gain, max_extrapolation=library.max_extrapolation, metadata=meta,
+                      desired_accel_m_s2=library.desired_accel_m_s2, source=library.source)
+    return lib, history

@@ -1,0 +1,215 @@
+"""The real AVR firmware (avr-gcc build of devices/firmware/hfam_fw.c) on simavr's ATmega328P behind a pty.
+
+The host connects through the normal serial driver; the harness closes the physical loop with a
+paddle-and-hand model and measures the firmware's timing in simulated MCU cycles.
+"""
+
+import time
+
+import numpy as np
+import pytest
+
+from devices import DeviceError, Status
+from devices.hardware import wire_protocol as P
+from devices.firmware import fw_sim
+from devices.firmware.logic import FirmwareRenderer
+from devices.registry import make_device
+from devices.hardware.serial_device import SerialDevice
+
+WALL = {"height_m": 0.0, "stiffness_N_m": 1000.0, "damping_N_s_m": 0.5, "rearm_margin_m": 0.001}
+LIMITS = {"continuous_A": 0.8, "peak_A": 2.0, "amplifier_A": 2.0}
+
+
+@pytest.fixture(scope="module")
+def report():
+    return fw_sim.timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0))
+
+
+def test_handshake_info_and_streaming_against_the_real_firmware():
+    with make_device("fw-sim?taps=") as dev:  # hand holds the handle at 10 mm
+        w = dev.wire_info
+        assert w.info.name == "hapkit-paddle" and w.serial_number == "HK0001" and w.info.servo_rate_hz == 4000.0
+        assert w.protocol_version == (1, 0) and w.firmware_version == (1, 0, 0) and w.watchdog_ms == 100
+        assert "on_device" in w.info.capabilities and "table_transient" not in w.info.capabilities
+        res = dev.info.position_resolution_m
+        s = dev.read()
+        while s.t_s < 0.5:  # the hand lifts the handle from its power-up (home) position to 10 mm
+            dev.command(0.0)
+            s = dev.read()
+        assert s.position_m == pytest.approx(0.01, abs=3 * res)  # every encoder count of the lift was counted
+        assert s.grip_N == pytest.approx(2.0, abs=0.01)
+        t0 = s.t_s
+        for k in range(200):
+            s = dev.read()
+            i = 0.3 if k < 100 else -0.45
+            dev.command(i)
+            if k > 0:
+                assert s.extra["current_A"] == pytest.approx(0.3 if k <= 100 else -0.45, abs=1e-3)
+        pwm = dev.handle.stats()["motor_A"]  # what OCR2A and the direction pin drive
+        assert pwm == pytest.approx(-0.45, abs=2.0 / 255)
+        s = dev.read()
+        assert s.t_s > t0 and dev.link_stats()["crc_errors"] == dev.link_stats()["seq_gaps"] == 0
+        assert s.position_m < 0.01 - 10 * res  # pushed down by the motor against the hand
+    assert dev.handle is None  # the simulated MCU was stopped on close
+
+
+def _python_mirror(dev, transient):
+    info = dev.info
+    fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, 4000.0, 2.0, velocity_window=4,
+                          thermal=(info.winding_resistance_ohm, info.thermal_resistance_K_W,
+                                   info.thermal_time_constant_s, info.winding_max_temp_rise_K))
+    fw.cal = dev.cal
+    fw.set_wall(*(WALL[k] for k in ("height_m", "stiffness_N_m", "damping_N_s_m", "rearm_margin_m")))
+    fw.set_limits(LIMITS["continuous_A"], LIMITS["peak_A"])
+    amp = transient.gain * transient.amplitude_Ns_m
+    if transient.name == "pulse":
+        fw.set_param_transient(P.TRANSIENT_PULSE, amp, transient.duration_s, 0.0, 0.0)
+    else:
+        fw.set_param_transient(P.TRANSIENT_SINUSOID, amp, transient.duration_s, transient.frequency_hz, 0.0)
+    return fw
+
+
+@pytest.mark.parametrize("kind", ["pulse", "sinusoid"])
+def test_on_device_wall_and_transient_match_the_python_firmware_logic(kind):
+    from stimuli.transients import DecayingSinusoid, Pulse
+
+    transient = Pulse(amplitude_Ns_m=6.0, duration_s=0.004) if kind == "pulse" else \
+        DecayingSinusoid(amplitude_Ns_m=15.0, duration_s=0.02, frequency_hz=250.0)
+    with make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&taps=0.05,0.15") as dev:
+        dev.configure_rendering(WALL, LIMITS, transient)
+        fw = _python_mirror(dev, transient)
+        rows, events = [], []
+        for k in range(5200):  # the hand's two taps
+            s = dev.read()
+            ex = s.extra
+            rows.append((ex["t_us"], ex["encoder"], ex["accel_raw"], ex["grip_raw"], round(ex["current_A"] * 1000)))
+            if k % 500 == 0:
+                events += dev.pop_events()
+        events += dev.pop_events()
+        stats = dev.link_stats()
+    assert stats["seq_gaps"] == 0 and stats["crc_errors"] == 0  # every tick's telemetry arrived
+    assert stats["watchdog_trips"] == 0  # the host's keepalives reached the firmware between the ticks
+    py_mA = [round(fw.tick(t, e, a, g) * 1000.0) for t, e, a, g, _ in rows]
+    c_mA = np.array([r[4] for r in rows])
+    assert c_mA.max() > 300 and len(events) >= 2 and len(fw.events) >= 2
+    assert np.max(np.abs(c_mA - np.array(py_mA))) <= 1  # the same currents within 1 mA, tick by tick
+    assert [e["incoming_velocity_m_s"] for e in events] == pytest.approx(
+        [e["incoming_velocity_m_s"] for e in fw.events[:len(events)]], rel=1e-5)
+    v = [e["incoming_velocity_m_s"] for e in events]
+    # the hand's taps at 0.05 and 0.15 m/s, sensed by the firmware; the faster one reads high because
+    # ticks are lost (see test_servo_tick_fits_its_budget): the 4-tick velocity window then spans more time
+    assert 0.03 < v[0] < 0.1 and 0.1 < v[1] < 0.35 and v[1] > 2 * v[0]
+
+
+def test_timing_budget_ram_and_uart(report):
+    print("\n" + fw_sim.format_report(report))
+    ram = report["ram"]
+    assert ram["total_bytes"] < 2048 - 128, ram  # static + painted stack high-water, with room to spare
+    rx = report["isr"]["USART_RX"]
+    assert rx["n"] > 1000
+    # a received byte must be read before the next two arrive (2-byte FIFO at 1 Mbaud)
+    assert rx["max_latency_cycles"] + rx["max_cycles"] < report["uart_rx_deadline_cycles"]
+    assert report["telemetry_seq_gaps"] == 0
+
+
+@pytest.mark.xfail(strict=True, reason="measured on simavr: the soft-float tick plus 1 Mbaud telemetry every tick "
+                   "exceeds 4,000 cycles (see the report); strict: passes -> update this test")
+def test_servo_tick_fits_its_budget(report):
+    assert report["tick"]["max"] < report["budget_cycles"] and report["lost_ticks"] == 0
+    assert report["fw_parser"]["crc_errors"] == 0  # no received byte lost to a full RX ring meanwhile
+
+
+def test_no_encoder_count_lost_up_to_the_rated_speed(report):
+    rated = [s for s in report["encoder"] if s["v_m_s"] <= fw_sim.MAX_RATED_SPEED_M_S]
+    assert len(rated) >= 3 and all(s["counts"] > 800 and s["missed"] == 0 for s in rated)
+    # counts do drop somewhere above it (edges closer than the encoder ISR): found and reported
+    drop = report["first_missing_speed_m_s"]
+    assert drop is not None and drop > 2 * fw_sim.MAX_RATED_SPEED_M_S
+
+
+def test_firmware_watchdog_zeroes_the_motor_in_mcu_time():
+    port, handle = fw_sim.start_fw_sim(taps_m_s=())
+    try:
+        with SerialDevice(port, watchdog_ms=30) as dev:
+            dev.read()
+            dev.command(1.0)
+            assert dev.read().extra["current_A"] == pytest.approx(1.0, abs=1e-3)
+            before = handle.stats()["motor_zeroings"]
+            time.sleep(0.25)  # the host goes silent
+            st = handle.stats()
+            assert st["motor_zeroings"] == before + 1 and st["motor_A"] == 0.0
+            # 30 ms after the last command byte reached the MCU, checked every 250 us servo tick
+            assert 30.0 < st["zero_after_host_silence_ms"] < 30.6
+            dev.command(0.5)  # the host is back: output resumes, the gap is reported once
+            s = dev.read()
+            assert s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(0.5, abs=1e-3)
+            assert dev.link_stats()["watchdog_trips"] == 1
+            dev._send_current(float("nan"))  # a NaN latches FAULT and zero output
+            assert dev.read().status & Status.FAULT
+            dev.command(0.5)
+            assert dev.read().extra["current_A"] == 0.0
+    finally:
+        handle.stop()
+
+
+@pytest.mark.parametrize("faults", ["garbage=0.2,corrupt=0.1", "drop=0.05,duplicate=0.05"])
+def test_link_faults_are_counted_and_survived(faults):
+    port, handle = fw_sim.start_fw_sim(taps_m_s=(), faults=faults)
+    try:
+        with SerialDevice(port, timeout_s=0.05) as dev:  # a loaded machine may stall the simulator process
+            for _ in range(500):
+                dev.read()
+                dev.command(0.1)
+            stats = dev.link_stats()
+    finally:
+        h = handle.stop()
+    inj = h["faults"]
+    if "garbage" in faults:
+        assert inj["corrupted"] > 10 and stats["garbage_bytes"] > 100 and stats["crc_errors"] > 10
+        assert stats["retransmits"] >= stats["crc_errors"] // 2
+    else:
+        assert inj["dropped"] > 5 and inj["duplicated"] > 5
+        assert inj["duplicated"] - 2 <= stats["duplicates"] <= inj["duplicated"]
+        assert inj["dropped"] - 2 <= stats["seq_gaps"] <= inj["dropped"]
+    assert h["motor_A"] == 0.0  # close() zeroed the output through the firmware
+
+
+def test_disconnect_clear_error_zero_current_no_hang():
+    port, handle = fw_sim.start_fw_sim(taps_m_s=(), faults="disconnect_after_s=0.3")
+    try:
+        dev = SerialDevice(port).open()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 5.0:
+            s = dev.read()
+            if s.status & Status.DISCONNECTED:
+                break
+            dev.command(0.5)
+        assert time.monotonic() - t0 < 1.5
+        assert s.status & Status.DISCONNECTED and dev.last_command_A == 0.0
+        assert "disconnected" in s.extra["error"] and port in s.extra["error"]
+        with pytest.raises(DeviceError, match="disconnected"):
+            dev.read()
+        dev.close()  # never raises after a disconnect
+        time.sleep(0.3)  # the MCU runs on: its own watchdog zeroes the motor
+        st = handle.stats()
+        assert st["faults"]["disconnected"] == 1 and st["motor_A"] == 0.0
+        assert 100.0 < st["zero_after_host_silence_ms"] < 100.6
+    finally:
+        handle.stop()
+
+
+def test_device_string_and_bad_options():
+    dev = make_device("fw-sim?mode=on-device&pace=fast&taps=0.05,0.2")
+    assert dev.on_device_rendering and dev.pace == "fast" and dev.taps_m_s == (0.05, 0.2)
+    with pytest.raises(ValueError, match="pace must be"):
+        make_device("fw-sim?pace=warp")
+    with pytest.raises(ValueError, match="taps must be"):
+        make_device("fw-sim?taps=fast")
+
+
+def test_firmware_report_command(capsys):
+    from devices.__main__ import main
+
+    assert main(["firmware-report", "--speeds", "0.5,4"]) == 0
+    text = capsys.readouterr().out
+    assert "budget 4000 cycles" in text and "RAM:" in text and "encoder counts first drop at 4.0 m/s" in text

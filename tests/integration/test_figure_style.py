@@ -1,0 +1,102 @@
+"""Every figure outside the study report (demo contact and HFAM grid, HFAM library, Bode plots) in the project
+style: no legend overlaps another artist, every numeric axis names its unit, PNG + SVG + CSV written, the Bode
+phase starts inside ±180 deg with low-coherence bins left out, and the CSV holds what is plotted."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import figstyle
+
+
+@pytest.fixture
+def checked(monkeypatch):
+    """Wrap figstyle.save: record each figure's legend overlaps and unit-less axes before it is written."""
+    seen = []
+    orig = figstyle.save
+
+    def spy(fig, path, data=None, **kw):
+        seen.append({"path": path, "overlaps": figstyle.legend_overlaps(fig), "units": figstyle.unlabelled_axes(fig),
+                     "legends": len([a for a in fig.findobj() if type(a).__name__ == "Legend"]), "fig": fig})
+        return orig(fig, path, data, **kw)
+
+    monkeypatch.setattr(figstyle, "save", spy)
+    return seen
+
+
+def _ring(f_hz, amp, n=1100, fs=10000.0, pre=0.01):
+    t = np.arange(n) / fs - pre
+    return np.where(t >= 0, amp * np.exp(-t / 0.01) * np.sin(2 * np.pi * f_hz * t.clip(0)), 0.0)
+
+
+def test_demo_figures(tmp_path, checked):
+    from renderer.demo.figures import contact_figure, hfam_grid_figure
+    ref = _ring(300, 50)
+    panels = [("firm wall 680 N/m", _ring(20, 5)), ("pulse over firm", _ring(60, 10)),
+              ("HFAM over firm", _ring(280, 40)), ("real wood on foam", ref)]
+    png = contact_figure(panels, ref, 10000.0, 0.01, 0.11, 2.0, tmp_path / "fig_contact.png")
+    vs, grips = (0.05, 0.11), (1.0, 2.0, 3.0)
+    cells = {(v, g): _ring(250, 400 * v * g) for v in vs for g in grips}
+    refs = {v: _ring(300, 450 * v) for v in vs}
+    cur = {(v, g): _ring(250, v * g) for v in vs for g in grips}
+    fixed = {(v, g): _ring(250, 300 * v) for v in vs for g in (1.0, 3.0)}
+    hfam_grid_figure(cells, refs, cur, fixed, vs, grips, 10000.0, 0.01, tmp_path / "fig_hfam_grid.png")
+    assert len(checked) == 2
+    for rec in checked:
+        assert rec["overlaps"] == [] and rec["units"] == [] and rec["legends"] >= 1, rec["path"]
+    for stem in ("fig_contact", "fig_hfam_grid"):
+        assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 1000 for ext in ("png", "svg", "csv"))
+    d = pd.read_csv(tmp_path / "fig_contact.csv")
+    np.testing.assert_allclose(d["HFAM over firm accel_m_s2"], panels[2][1])
+    line = checked[0]["fig"].axes[2].lines[1]          # the HFAM panel: reference dashed, then HFAM
+    np.testing.assert_allclose(line.get_ydata(), d["HFAM over firm accel_m_s2"])
+    assert line.get_color() == figstyle.color("hfam_firm")
+    assert png == tmp_path / "fig_contact.png"
+
+
+def test_library_figure(tmp_path, checked):
+    from stimuli.cli_show import plot_library
+    from stimuli.library import HfamLibrary
+    v, g = np.array([0.05, 0.08, 0.11]), np.array([1.0, 3.0])
+    cur = np.stack([np.stack([_ring(200, vi * gi, n=1000)[100:] for gi in g]) for vi in v])
+    acc = np.stack([_ring(300, 400 * vi, n=1000)[100:] for vi in v])
+    lib = HfamLibrary(v, g, cur, 10000.0, 3.0, desired_accel_m_s2=acc, source="test.npz")
+    plot_library(lib, tmp_path / "lib.png")
+    (rec,) = checked
+    assert rec["overlaps"] == [] and rec["units"] == []
+    d = pd.read_csv(tmp_path / "lib.csv")
+    np.testing.assert_allclose(d["current 0.08 m/s grip 3 N (A)"], cur[1, 1])
+
+
+def test_bode_plot_wraps_phase_masks_low_coherence_and_marks_resonance(tmp_path, checked):
+    from devices.identify.etfe import Etfe
+    from devices.identify.figures import bode_plot, resonance_and_3db, wrap_phase_deg
+    from devices.model import ZpkModel
+    wn, zeta = 2 * np.pi * 80.0, 0.1
+    model = ZpkModel(np.array([0.0, 0.0]), np.array([-zeta * wn + 1j * wn * np.sqrt(1 - zeta ** 2),
+                                                     -zeta * wn - 1j * wn * np.sqrt(1 - zeta ** 2)]), 30.0,
+                     delay_s=2e-3, band_hz=(5.0, 1000.0), grip_N=2.0)
+    f = np.geomspace(5, 1000, 400)
+    H = model.frequency_response(f) * np.exp(-2j * np.pi * 3.0)     # three whole turns off: must be shifted
+    coh = np.where((f > 300) & (f < 400), 0.2, 0.95)
+    curve = Etfe(f, H, H, coh, "accel_m_s2", 3, 2.0, "grip 2 N")
+    bode_plot([curve], [model], tmp_path / "bode.png", title="test")
+    (rec,) = checked
+    assert rec["overlaps"] == [] and rec["units"] == []
+    d = pd.read_csv(tmp_path / "bode.csv")
+    etfe = d[d["kind"] == "etfe"]
+    assert -180 < etfe["phase_deg"].dropna().iloc[0] <= 180            # wrapped at the low-frequency end
+    assert etfe.loc[~etfe["trusted"].astype(bool), "phase_deg"].isna().all()   # low coherence: no phase
+    assert (~etfe["trusted"].astype(bool)).sum() == int(((f > 300) & (f < 400)).sum())
+    ph = wrap_phase_deg(H)
+    assert np.nanmax(np.abs(np.diff(ph))) < 30                          # no wrap jumps inside the curve
+    f_pk, pk, f3 = resonance_and_3db(f, model.frequency_response(f))
+    assert f_pk == pytest.approx(80.0, rel=0.05) and f3 > f_pk
+    marks = d[d["kind"].isin(["resonance", "minus_3db"])]
+    assert list(marks["kind"]) == ["resonance", "minus_3db"]
+    assert marks["f_hz"].iloc[0] == pytest.approx(f_pk) and marks["magnitude_db"].iloc[1] == pytest.approx(pk - 3)
+    # the model is drawn on the curve's branch: its phase meets the data's at the band's start
+    mod = d[d["kind"] == "model"]
+    assert abs(mod["phase_deg"].iloc[0] - etfe["phase_deg"].iloc[0]) < 5
