@@ -195,6 +195,8 @@ class Emulator:
         self.slave_fd: int | None = None
         self.attached_at = None  # time of the first frame from a host
         self.disconnected = False
+        self.burst_started = None
+        self.last_cmd_after_burst = None
         self.stats = {"frames_in": 0, "frames_out": 0, "dropped": 0, "corrupted": 0, "duplicated": 0, "garbage": 0,
                       "delayed": 0, "naks": 0, "watchdog_trips": 0, "write_overflows": 0, "ticks": 0}
 
@@ -235,7 +237,7 @@ class Emulator:
                 if f.drop_burst and k == int(f.drop_burst_at):
                     self.burst_started = time.monotonic()
                 return
-            if f.corrupt_every and k % int(f.corrupt_every) == 0:
+            if f.corrupt_every and k % int(f.corrupt_every) == int(f.corrupt_every) - 1:  # never on a dropped one
                 self.stats["corrupted"] += 1
                 buf = bytearray(frame)
                 buf[len(buf) // 2] ^= 0x10
@@ -358,6 +360,8 @@ class Emulator:
         phys = self.phys
         phys._send_current(i)  # the current the next period applies (SimDevice's output-delay slot)
         self.applied_A = i
+        if self.burst_started is not None:  # scripted drop burst: the host's last command after it began
+            self.last_cmd_after_burst = (time.monotonic(), i)
         self._send_state(phys.read())
         phys.command(i)  # next period: applies i; holds i until the next CURRENT replaces it
         self._keep_hand_busy()
