@@ -76,6 +76,7 @@ def _forked(argv: list[str], env: dict) -> int:
 
 
 def read_rows(folder: Path) -> list[dict]:
+    """The rows of ``folder/trials.csv`` as dicts of strings."""
     with open(folder / "trials.csv", newline="") as fh:
         return list(csv.DictReader(fh))
 
@@ -150,6 +151,7 @@ def run_cases(work: Path, n: int, seed: int = 1) -> tuple[KillHarness, list[dict
 
 
 def main(n: int = 200) -> None:
+    """Run ``n`` kill/resume cases and print the counts (raises if any case differs from the reference)."""
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         harness, results = run_cases(Path(tmp), n)

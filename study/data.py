@@ -143,6 +143,7 @@ class SubjectLock:
         _HELD_LOCKS.add(self)
 
     def release(self) -> None:
+        """Drop the lock (closing our descriptor); harmless when not held."""
         if self.fd is not None:
             os.close(self.fd)  # closing the last descriptor drops the flock
             self.fd = None
