@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import sync_playwright
+from playwright.sync_api import expect, sync_playwright
 
 from study.webui import MAX_CONNECTIONS, REQUEST_DEADLINE_S
 
@@ -213,7 +213,7 @@ def test_a_page_on_another_origin_cannot_post_keys_or_frame_the_views(session):
             answers = []
             page.on("response", lambda r: answers.append((r.url, r.status)))
             page.goto(f"http://localhost:{srv.server_address[1]}/")
-            page.wait_for_function("document.title !== ''", timeout=5000)
+            expect(page).not_to_have_title("", timeout=5000)
             # the operator view refused to be framed (X-Frame-Options / frame-ancestors): its frame stays empty
             frame = page.frame_locator("#f")
             assert frame.locator("#place").count() == 0
@@ -222,8 +222,7 @@ def test_a_page_on_another_origin_cannot_post_keys_or_frame_the_views(session):
             errors = []
             view.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
             view.goto(f"http://127.0.0.1:{port}/operator?token=s3cret-token")
-            view.wait_for_function("document.getElementById('place').textContent.startsWith('Place:')",
-                                   timeout=5000)
+            expect(view.locator("#place")).to_contain_text("Place:", timeout=5000)  # no eval under the CSP
             assert not [e for e in errors if "Content Security Policy" in e], errors
             b.close()
     finally:
