@@ -181,7 +181,7 @@ def test_headers_on_every_answer(session):
         assert "cache-control: no-store" in head and "x-frame-options: deny" in head, path
         assert "content-security-policy: default-src 'none'; script-src 'self'" in head, path
         assert "unsafe-inline" not in head and time.monotonic() - t0 < 2.0
-    html = (ROOT / "study" / "web" / "operator.html").read_text() + (ROOT / "study" / "web" / "subject.html").read_text()
+    html = "".join((ROOT / "study" / "web" / name).read_text() for name in ("operator.html", "subject.html"))
     assert "<script>" not in html and "<style>" not in html  # no inline code or style: the CSP forbids them
 
 
