@@ -155,9 +155,9 @@ def test_keyboard_session_driven_through_both_views(browser, tmp_path):
             if m:
                 urls[m.group(1)] = m.group(2)
         assert urls["operator"].endswith("/operator?token=tok") and urls["subject"].startswith("http://127.0.0.1:")
-        op = browser.new_page()
+        op = browser.new_page(bypass_csp=True)  # eval for wait_for_function; CSP: test_web_attacks
         op.goto(urls["operator"])
-        subj = browser.new_page()
+        subj = browser.new_page(bypass_csp=True)
         subj.goto(urls["subject"])
         places, typed = [], []
         # 9: ignored with a hint; x: rejected (repeated later); then ratings for whatever attempts remain
