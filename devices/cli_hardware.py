@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -86,24 +87,61 @@ def set_realtime_priority(priority: int | None) -> str:
 
 
 def run_emulate(args) -> int:
+    """Serve the emulator on a pty until SIGTERM/SIGINT or ``--duration-s``; always release the pty and say why.
+
+    The signal handlers are installed first (before the physics kernel loads), so a SIGTERM at any moment
+    ends the process: within the serve loop's next pass (<= 20 ms), or, if that loop does not get there
+    within 2 s, by a forced exit after the report.
+    """
     from .firmware.emulator import FaultSpec, build_emulator
 
+    stop = threading.Event()
+    started = time.monotonic()
+    state = {"doing": "starting (loading the physics)", "emu": None, "signal": None}
+
+    def report() -> str:
+        emu = state["emu"]
+        what = state["doing"]
+        if emu is not None:
+            what += (f"; rendering on board: {'yes' if emu.rendering else 'no'}, watchdog "
+                     f"{'tripped' if emu.tripped else 'ok'}, last current {emu.applied_A:+.3f} A, frames in/out "
+                     f"{emu.stats['frames_in']}/{emu.stats['frames_out']}, dropped {emu.stats['dropped']}, "
+                     f"corrupted {emu.stats['corrupted']}")
+        return f"emulator: {state['signal'] or 'stopped'} after {time.monotonic() - started:.1f} s while {what}"
+
+    def _force_exit() -> None:
+        print(report() + " (forced exit: the serve loop did not stop within 2 s)", file=sys.stderr, flush=True)
+        emu = state["emu"]
+        if emu is not None:
+            try:
+                emu.close()
+            except Exception:
+                pass
+        os._exit(0)
+
+    def _stop(signum, _frame):
+        state["signal"] = signal.Signals(signum).name
+        stop.set()
+        t = threading.Timer(2.0, _force_exit)
+        t.daemon = True
+        t.start()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
     faults = FaultSpec.parse(args.fault)
     emu = build_emulator(args.mode, faults, args.sim, args.taps, args.grip_N, args.sample, args.watchdog_ms,
                          args.pace, args.seed, args.t0_us, args.rate_hz)
+    state["emu"] = emu
+    if stop.is_set():  # terminated while loading: nothing was opened yet
+        print(report(), file=sys.stderr, flush=True)
+        return 0
     port = emu.open_pty()
     sched = set_realtime_priority(args.rt_priority)
     print(f"PORT {port}", flush=True)
     print(f"emulating {emu.wire.info.name} ({args.mode}, watchdog {args.watchdog_ms} ms"
           f"{', faults ' + faults.to_text() if faults.to_text() else ''}, {sched}) on {port}", file=sys.stderr,
           flush=True)
-    stop = threading.Event()
-
-    def _stop(*_):
-        stop.set()
-
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
+    state["doing"] = f"serving {port}"
     timer = None
     if args.duration_s is not None:
         timer = threading.Timer(args.duration_s, stop.set)
@@ -112,11 +150,12 @@ def run_emulate(args) -> int:
     try:
         emu.serve(stop)
     finally:
-        emu.close()
+        emu.close()  # releases the pty (both ends)
         if timer is not None:
             timer.cancel()
     if emu.disconnected:
         print("emulator: disconnect fault fired, pty closed", file=sys.stderr)
+    print(report() + "; pty released", file=sys.stderr, flush=True)
     return 0
 
 

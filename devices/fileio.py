@@ -5,8 +5,43 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
+
+
+def current_umask() -> int:
+    """The process's umask, read without changing it (``/proc/self/status``; fallback: set and restore).
+
+    Returns
+    -------
+    int
+        e.g. ``0o022``.
+    """
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+def fsync_dir(path) -> None:
+    """fsync a directory so that a rename or a new entry in it survives a power loss (best effort)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 @contextmanager
@@ -15,7 +50,11 @@ def atomic_open(path, mode: str = "w", **kwargs):
 
     The rename is atomic, so a reader sees the old file or the new one, never a
     partial one; on any error the temporary file is deleted and ``path`` keeps
-    its old content. The parent folder is created if needed.
+    its old content. The parent folder is created if needed. The temporary file
+    has a unique name and is created exclusively (``mkstemp``); it is fsynced
+    before the rename and the folder after it, so the new content survives a
+    crash or power loss once this returns. The file gets the mode an ordinary
+    ``open`` would give (``0o666`` minus the user's umask), not ``mkstemp``'s 0600.
 
     Parameters
     ----------
@@ -36,13 +75,68 @@ def atomic_open(path, mode: str = "w", **kwargs):
         kwargs.setdefault("encoding", "utf-8")
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, path)
+        fsync_dir(path.parent)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically and durably (see :func:`atomic_open`); returns ``path`` as a Path."""
+    with atomic_open(path, "wb") as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def load_npz(path, what: str = ".npz file"):
+    """Open an ``.npz`` archive safely (no pickles); errors name the file and say what is wrong.
+
+    Distinguishes a missing file, an empty one, a pickle (refused: loading it could run code), a
+    single-array ``.npy`` file, another kind of file, and a truncated or corrupt zip archive.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        What the file should be, for the messages ("HFAM library", "trace").
+
+    Returns
+    -------
+    numpy.lib.npyio.NpzFile
+        Use it as a context manager.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line: ``"<path>: <what> ... (reason)"``.
+    """
+    import numpy as np  # numpy only where archives are read
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} not found: {path}")
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    if not head:
+        raise ValueError(f"{path}: {what} is empty (0 bytes)")
+    if head[:1] == b"\x80" or head[:1] in (b"(", b"]", b"}"):
+        raise ValueError(f"{path}: {what} is a Python pickle, not an .npz archive (refused: loading pickles can "
+                         "run code)")
+    if head.startswith(b"\x93NUMPY"):
+        raise ValueError(f"{path}: {what} is a single-array .npy file, not an .npz archive")
+    if not head.startswith(b"PK"):
+        raise ValueError(f"{path}: {what} is not an .npz (zip) archive (it starts with {head[:8]!r})")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise ValueError(f"{path}: {what} is a truncated or corrupt zip archive ({exc})") from None
 
 
 def atomic_write_text(path, text: str) -> Path:

@@ -1,4 +1,4 @@
-"""``python -m renderer <command>``: render a virtual wall, or run the virtual-wall demo."""
+"""``python -m renderer <command>``: render a virtual wall, run the virtual-wall demo or a teleoperation session."""
 
 from __future__ import annotations
 
@@ -9,6 +9,9 @@ COMMANDS = (
     Command("run", "renderer.cli_run", "render a virtual wall under a simulated or real user tapping"),
     Command("demo", "renderer.demo.cli_demo",
             "virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample"),
+    Command("teleop", "renderer.teleop.cli_teleop", "run a simulated teleoperation session (thesis ch. 5)"),
+    Command("teleop-sweep", "renderer.teleop.cli_teleop",
+            "lambda sweep with/without cancellation and stabilisers (Fig. 5.11)"),
 )
 
 

@@ -176,4 +176,11 @@ def format_table(result) -> str:
                  f"({tm['realtime_factor']:.1f}x real time); period p50/p99/max "
                  f"{tm['period_p50_us']:.1f}/{tm['period_p99_us']:.1f}/{tm['period_max_us']:.1f} us; "
                  f"overruns {tm['overruns']}; compute p50/p99 {tm['compute_p50_us']:.2f}/{tm['compute_p99_us']:.2f} us")
+    link = tm.get("link")
+    if link:
+        ms = (lambda v: "-" if v is None else f"{1000 * v:.2f}")
+        lines.append(f"link: {link['frames_tx']} frames sent, {link['frames_rx']} received, {link['crc_errors']} CRC "
+                     f"errors, {link['losses']} lost (longest run {link['max_consecutive_losses']}), longest gap "
+                     f"{ms(link['longest_gap_s'])} ms, round trip median/p99/max {ms(link['rtt_median_s'])}/"
+                     f"{ms(link['rtt_p99_s'])}/{ms(link['rtt_max_s'])} ms")
     return "\n".join(lines)

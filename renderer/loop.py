@@ -878,6 +878,9 @@ class ServoLoop:
             "final_temp_rise_K": float(self.temp_rise_K),
             "on_device": bool(self.on_device),
         }
+        link_stats = getattr(self.device, "link_stats", None)
+        if callable(link_stats):  # hardware links: frames, CRC errors, losses, longest gap, round trip
+            timing["link"] = link_stats()
         info = self.info
         device = dataclasses.asdict(info) if dataclasses.is_dataclass(info) else {}
         device["limits_used"] = dict(self.limits)

@@ -11,10 +11,11 @@ from __future__ import annotations
 import bisect
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
+
+from devices.fileio import atomic_open, load_npz
 
 FORMAT = "hfam-library"
 FORMAT_VERSION = 1
@@ -320,10 +321,8 @@ class HfamLibrary:
         }
         if self.desired_accel_m_s2 is not None:
             arrays["desired_accel_m_s2"] = np.asarray(self.desired_accel_m_s2)
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:  # a file object keeps numpy from appending ".npz"
+        with atomic_open(path, "wb") as fh:  # a file object keeps numpy from appending ".npz"
             np.savez_compressed(fh, **arrays)
-        os.replace(tmp, path)
         return path
 
     @classmethod
@@ -332,10 +331,7 @@ class HfamLibrary:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"HFAM library {path} does not exist")
-        try:
-            data = np.load(path, allow_pickle=False)
-        except Exception as exc:
-            raise ValueError(f"{path}: not a readable .npz HFAM library ({exc})") from None
+        data = load_npz(path, "HFAM library")  # names the file; pickle, .npy, non-zip and truncated told apart
         with data:
             missing = [k for k in ("velocities_m_s", "grips_N", "currents_A", "fs_hz", "force_per_amp_N_A") if k not in data]
             if missing:

@@ -170,11 +170,11 @@ class Apparatus:
         hand = None
         if plan.overpower and getattr(self.device, "params", None) is not None and \
                 self.device.params.model == "nonlinear":
-            # a determined push: the simulated person co-contracts (stiff muscles and compensation), so the
+            # a determined push: the simulated person co-contracts (stiff, damped muscles), so the
             # homing force cannot hold the late tap back (issue 16: the default person is compliant)
-            from devices.sim import DEFAULT_PERSON
+            from devices.sim import DEFAULT_PERSON  # deferred: devices.sim loads the numba kernel
 
-            hand = DEFAULT_PERSON.replace(muscle_stiffness_N_m=400.0, compensation_stiffness_N_m=2000.0)
+            hand = DEFAULT_PERSON.replace(muscle_stiffness_N_m=1500.0, muscle_damping_Ns_m=12.0)
         self.device.set_user(traj, grip, hand=hand)
 
     # -- homing -------------------------------------------------------------

@@ -20,7 +20,7 @@ import sys
 from dataclasses import asdict
 
 from .config import GENDERS, HANDEDNESS
-from .data import EXPERIENCE, SessionStore
+from .data import EXPERIENCE, SessionStore, release_all_locks
 from .protocol import Schedule
 from .session import plan_session, start_session
 
@@ -74,6 +74,14 @@ def register(subparsers) -> None:
 
 
 def run_command(args) -> int:
+    """Run (or resume) one session; the subject lock is released on every way out."""
+    try:
+        return _run_command(args)
+    finally:
+        release_all_locks()
+
+
+def _run_command(args) -> int:
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     plan = plan_session(args)
     store, previous, subject, is_sim = plan.store, plan.previous, plan.subject, plan.is_sim

@@ -7,26 +7,148 @@
 
 Write order per attempt: trace file (atomic rename), then the CSV row. A row
 therefore always has its trace; a trace without a row belongs to an attempt
-that was interrupted and is re-run (and rewritten) on ``--resume``.
+that was interrupted and is re-run (and rewritten) on ``--resume``. The row
+also says whether it ended familiarization (``ends_familiarization``), so the
+phase transition is in the same durable step as the attempt.
+
+Start-up is atomic: the folder is built as ``DATA/.<subject>.starting-*``
+(``session.json``, ``trials.csv`` header, ``schedule.jsonl`` with the plan,
+``traces/``) and renamed into place; a kill before the rename leaves no
+subject folder (the debris is ignored and cleaned by the next start).
+
+One writer per subject: ``DATA/<subject>/.lock`` is held with an exclusive
+``fcntl.flock`` for the whole run (it dies with the process); it holds the pid
+and host of the holder, which a second runner names in its error.
 """
 
 from __future__ import annotations
 
 import csv
 import datetime as _dt
+import errno
+import fcntl
 import io
 import json
 import os
 import re
+import shutil
+import signal
+import socket
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from devices.fileio import atomic_write_bytes as _atomic_write_bytes
+from devices.fileio import current_umask, fsync_dir
+
 TRIAL_COLUMNS = (
     "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
     "valid", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m", "incoming_velocities_m_s",
-    "penetration_depths_m", "started_at", "duration_s",
+    "penetration_depths_m", "started_at", "duration_s", "ends_familiarization",
 )
+# sessions written before ``ends_familiarization`` existed (their transition is in schedule.jsonl)
+LEGACY_TRIAL_COLUMNS = TRIAL_COLUMNS[:-1]
+LOCK_NAME = ".lock"
+
+
+class SubjectBusy(ValueError):
+    """Another runner holds the subject's lock (its pid and host are in the message)."""
+
+
+_CRASH_COUNT = 0
+
+
+def crash_point(name: str) -> None:
+    """Fault injection for the kill tests: SIGKILL this process at the N-th durable step.
+
+    With ``STUDY_CRASH_AT=N`` in the environment the N-th call (counted from 1 over the process's life)
+    kills the process with SIGKILL, exactly as a power cut or ``kill -9`` would at that point; with
+    ``STUDY_CRASH_LOG=<file>`` every call appends ``name`` to that file (to count a session's steps).
+    Without these variables this does nothing.
+    """
+    global _CRASH_COUNT
+    _CRASH_COUNT += 1
+    log = os.environ.get("STUDY_CRASH_LOG")
+    if log:
+        with open(log, "a") as fh:
+            fh.write(f"{_CRASH_COUNT} {name}\n")
+    at = os.environ.get("STUDY_CRASH_AT")
+    if at and int(at) == _CRASH_COUNT:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+_HELD_LOCKS: set = set()
+
+
+def release_all_locks() -> None:
+    """Drop every subject lock this process holds (the end of a run inside a longer-lived process, e.g. tests)."""
+    for lock in list(_HELD_LOCKS):
+        lock.release()
+
+
+class SubjectLock:
+    """Exclusive per-subject OS lock: ``fcntl.flock`` on ``<folder>/.lock``, released when the process dies.
+
+    Parameters
+    ----------
+    folder : Path
+        The subject folder (or the start-up folder that becomes it).
+    """
+
+    def __init__(self, folder: Path) -> None:
+        self.path = Path(folder) / LOCK_NAME
+        self.fd: int | None = None
+
+    @staticmethod
+    def holder(path: Path) -> str:
+        """``"pid N on host H"`` as written by the holder (or a placeholder when it is not written yet)."""
+        try:
+            info = json.loads(Path(path).read_text(encoding="utf-8"))
+            return f"pid {int(info['pid'])} on host {info['host']}"
+        except (OSError, ValueError, KeyError, TypeError):
+            return "a process that has not written its pid yet"
+
+    @staticmethod
+    def busy(path: Path) -> bool:
+        """True when a runner holds the lock file ``path`` (tested without creating or writing anything)."""
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            return False
+        except OSError:
+            return True
+        finally:
+            os.close(fd)
+
+    def acquire(self, subject: str) -> None:
+        """Take the lock or raise :class:`SubjectBusy` naming the holder; then write our pid and host."""
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EACCES, errno.EAGAIN):
+                raise SubjectBusy(f"subject {subject!r} is in use by another runner: {self.holder(self.path)} "
+                                  f"(lock {self.path}); nothing was written") from None
+            raise
+        data = json.dumps({"pid": os.getpid(), "host": socket.gethostname()}).encode()
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, data, 0)
+        os.fsync(fd)
+        self.fd = fd
+        _HELD_LOCKS.add(self)
+
+    def release(self) -> None:
+        """Drop the lock (closing our descriptor); harmless when not held."""
+        if self.fd is not None:
+            os.close(self.fd)  # closing the last descriptor drops the flock
+            self.fd = None
+        _HELD_LOCKS.discard(self)
+
 SUBJECT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 EXPERIENCE = ("none", "few", "regular")
 
@@ -44,26 +166,12 @@ def check_subject_id(subject: str) -> str:
     return subject
 
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+_fsync_dir = fsync_dir
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a fsynced temporary file and rename (never a half file)."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    """Write ``data`` to ``path`` via a unique, fsynced temporary file and rename; fsync the folder."""
+    _atomic_write_bytes(path, data)
 
 
 def _fmt_bool(value: bool) -> str:
@@ -78,7 +186,7 @@ def format_row(row: dict) -> dict:
     """Turn an attempt record into CSV strings (lists ';'-joined, booleans true|false, rating empty if None)."""
     out = {}
     for key in TRIAL_COLUMNS:
-        value = row[key]
+        value = row.get(key) if key == "ends_familiarization" else row[key]
         if key in ("rejected", "saturated", "overpowered", "valid"):
             out[key] = _fmt_bool(value)
         elif key in ("incoming_velocities_m_s", "penetration_depths_m"):
@@ -87,6 +195,8 @@ def format_row(row: dict) -> dict:
             out[key] = _fmt_float(value)
         elif key == "rating":
             out[key] = "" if value is None else str(int(value))
+        elif key == "ends_familiarization":
+            out[key] = _fmt_bool(bool(row.get(key, False)))
         else:
             out[key] = str(value)
     return out
@@ -95,7 +205,12 @@ def format_row(row: dict) -> dict:
 def parse_row(raw: dict, where: str) -> dict:
     """Inverse of :func:`format_row`; errors name ``where`` (file and line)."""
     row = dict(raw)
+    row.setdefault("ends_familiarization", None)  # legacy file: the transition is in schedule.jsonl
     try:
+        if row["ends_familiarization"] is not None:
+            if raw["ends_familiarization"] not in ("true", "false"):
+                raise ValueError(f"ends_familiarization={raw['ends_familiarization']!r} is not true|false")
+            row["ends_familiarization"] = raw["ends_familiarization"] == "true"
         for key in ("rejected", "saturated", "overpowered", "valid"):
             if raw[key] not in ("true", "false"):
                 raise ValueError(f"{key}={raw[key]!r} is not true|false")
@@ -132,6 +247,8 @@ class SessionStore:
         self.traces_dir = self.dir / "traces"
         self.resume = resume
         self.session: dict | None = None
+        self.lock: SubjectLock | None = None
+        self.legacy_columns = False
 
     # -- checks before anything starts -----------------------------------
     def check(self) -> None:
@@ -149,38 +266,129 @@ class SessionStore:
             probe.unlink()
         except OSError as exc:
             raise ValueError(f"data folder {self.root} is not writable: {exc.strerror}") from None
+        self._clean_startup_debris()
+        if self.dir.is_dir() and not self.session_path.is_file() and self._only_startup_debris():
+            # a start-up killed by an older version: no session.json, no attempt; keep it aside, never delete
+            aside = self.root / f".{self.subject}.abandoned-{_dt.datetime.now():%Y%m%dT%H%M%S}-{os.getpid()}"
+            os.rename(self.dir, aside)
+            print(f"note: {self.dir} held an interrupted start-up with no recorded attempt; moved to {aside}")
+        if self.dir.is_dir() and self.resume:
+            self.lock = SubjectLock(self.dir)
+            self.lock.acquire(self.subject)  # SubjectBusy names the holder
         if self.resume:
             if not self.session_path.is_file():
-                raise FileNotFoundError(f"--resume: no session to resume at {self.session_path}")
+                raise FileNotFoundError(f"--resume: no session to resume at {self.session_path} (a start-up "
+                                        "interrupted before the session was complete leaves no subject folder: "
+                                        "start the session again without --resume)")
             session = self.load_session()
             if session.get("finished_at"):
                 raise ValueError(f"--resume: session {self.session_path} already finished at "
                                  f"{session['finished_at']}")
         elif self.dir.exists():
-            raise ValueError(f"subject {self.subject!r} already has data in {self.dir}; "
+            lock_path = self.dir / LOCK_NAME
+            busy = f" (in use right now by {SubjectLock.holder(lock_path)})" if SubjectLock.busy(lock_path) else ""
+            raise ValueError(f"subject {self.subject!r} already has data in {self.dir}{busy}; "
                              "use --resume to continue it or choose another subject id (nothing was overwritten)")
+
+    def _startup_dirs(self) -> list[Path]:
+        return sorted(self.root.glob(f".{self.subject}.starting-*"))
+
+    def _clean_startup_debris(self) -> None:
+        """Remove start-up folders of this subject left by killed runners (those whose lock is free)."""
+        for folder in self._startup_dirs():
+            lock = SubjectLock(folder)
+            try:
+                lock.acquire(self.subject)
+            except (SubjectBusy, OSError):
+                continue  # another runner is starting this subject right now
+            try:
+                shutil.rmtree(folder, ignore_errors=True)
+            finally:
+                lock.release()
+
+    def _only_startup_debris(self) -> bool:
+        """True when the subject folder holds no session.json, no trace and no attempt row."""
+        if self.session_path.exists() or any(self.traces_dir.glob("*.npz")):
+            return False
+        if self.trials_path.exists():
+            lines = [ln for ln in self.trials_path.read_bytes().split(b"\n") if ln.strip()]
+            if len(lines) > 1:
+                return False
+        return True
+
+    def release(self) -> None:
+        """Drop the subject lock (also dropped by the OS when the process dies)."""
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
 
     # -- session.json ----------------------------------------------------
     def load_session(self) -> dict:
+        """Read ``session.json``; a binary, truncated or non-JSON file gives one line naming the file."""
         try:
-            return json.loads(self.session_path.read_text())
+            data = self.session_path.read_bytes()
+        except OSError as exc:
+            raise ValueError(f"{self.session_path}: cannot be read ({exc.strerror})") from None
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{self.session_path}: not a text file (byte {exc.start} is not UTF-8); "
+                             "session.json is damaged") from None
+        if not text.strip():
+            raise ValueError(f"{self.session_path}: empty file; session.json is damaged")
+        try:
+            session = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{self.session_path}: not valid JSON ({exc})") from None
+            truncated = exc.pos >= len(text.rstrip())
+            raise ValueError(f"{self.session_path}: {'truncated' if truncated else 'not valid'} JSON "
+                             f"(line {exc.lineno}: {exc.msg})") from None
+        if not isinstance(session, dict):
+            raise ValueError(f"{self.session_path}: expected a JSON object, found {type(session).__name__}")
+        return session
 
-    def create(self, session: dict) -> None:
-        self.dir.mkdir(parents=True, exist_ok=False)
-        self.traces_dir.mkdir()
-        self.session = dict(session)
-        self.write_session()
-        with open(self.trials_path, "w", newline="") as fh:
-            csv.writer(fh, lineterminator="\n").writerow(TRIAL_COLUMNS)
-            fh.flush()
-            os.fsync(fh.fileno())
-        self.schedule_path.touch()
-        _fsync_dir(self.dir)
+    def create(self, session: dict, events=()) -> None:
+        """Create the subject folder atomically: build it under a temporary name, then rename it into place.
+
+        The subject lock is taken inside the temporary folder before anything else and moves with it.
+        ``events`` (dicts) start ``schedule.jsonl`` (the planned orders).
+        """
+        tmp = Path(tempfile.mkdtemp(prefix=f".{self.subject}.starting-", dir=self.root))
+        os.chmod(tmp, 0o777 & ~current_umask())
+        lock = SubjectLock(tmp)
+        lock.acquire(self.subject)
+        crash_point("startup: folder made")
+        try:
+            (tmp / "traces").mkdir()
+            self.session = dict(session)
+            atomic_write_bytes(tmp / "session.json", (json.dumps(self.session, indent=2) + "\n").encode())
+            crash_point("startup: session.json written")
+            buf = io.StringIO()
+            csv.writer(buf, lineterminator="\n").writerow(TRIAL_COLUMNS)
+            atomic_write_bytes(tmp / "trials.csv", buf.getvalue().encode())
+            crash_point("startup: trials.csv written")
+            lines = "".join(json.dumps({"at": utc_now(), **e}) + "\n" for e in events)
+            atomic_write_bytes(tmp / "schedule.jsonl", lines.encode())
+            crash_point("startup: schedule.jsonl written")
+            fsync_dir(tmp)
+            try:
+                os.rename(tmp, self.dir)
+            except OSError as exc:
+                if exc.errno in (errno.EEXIST, errno.ENOTEMPTY):
+                    raise SubjectBusy(f"subject {self.subject!r} was created by another runner at the same time: "
+                                      f"{SubjectLock.holder(self.dir / LOCK_NAME)}; nothing was written") from None
+                raise
+            fsync_dir(self.root)
+        except BaseException:
+            lock.release()
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        lock.path = self.dir / LOCK_NAME
+        self.lock = lock
+        crash_point("startup: subject folder in place")
 
     def write_session(self) -> None:
         atomic_write_bytes(self.session_path, (json.dumps(self.session, indent=2) + "\n").encode())
+        crash_point("session.json rewritten")
 
     def finish(self) -> None:
         self.session["finished_at"] = utc_now()
@@ -197,17 +405,28 @@ class SessionStore:
                 fh.flush()
                 os.fsync(fh.fileno())
             data = data[:cut]
-        reader = csv.DictReader(io.StringIO(data.decode("utf-8")))
-        if tuple(reader.fieldnames or ()) != TRIAL_COLUMNS:
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = data[:exc.start].count(b"\n") + 1
+            raise ValueError(f"{self.trials_path} line {line}: not UTF-8 text (byte {exc.start}: "
+                             f"{data[exc.start:exc.start + 1]!r}); trials.csv is damaged") from None
+        reader = csv.DictReader(io.StringIO(text))
+        header = tuple(reader.fieldnames or ())
+        self.legacy_columns = header == LEGACY_TRIAL_COLUMNS
+        if header != TRIAL_COLUMNS and not self.legacy_columns:
             raise ValueError(f"{self.trials_path}: header {reader.fieldnames} is not {list(TRIAL_COLUMNS)}")
         return [parse_row(raw, f"{self.trials_path} line {i + 2}") for i, raw in enumerate(reader)]
 
     def append_trial(self, row: dict) -> None:
         """Append one attempt row, then flush and fsync (the row is on disk when this returns)."""
+        formatted = format_row(row)
+        columns = LEGACY_TRIAL_COLUMNS if self.legacy_columns else TRIAL_COLUMNS
         with open(self.trials_path, "a", newline="") as fh:
-            csv.DictWriter(fh, TRIAL_COLUMNS, lineterminator="\n").writerow(format_row(row))
+            csv.DictWriter(fh, columns, lineterminator="\n", extrasaction="ignore").writerow(formatted)
             fh.flush()
             os.fsync(fh.fileno())
+        crash_point(f"row written: {row['phase']} {row['trial']}/{row['attempt']}")
 
     # -- schedule.jsonl ----------------------------------------------------
     def log_event(self, event: dict) -> None:
@@ -215,6 +434,7 @@ class SessionStore:
             fh.write(json.dumps({"at": utc_now(), **event}) + "\n")
             fh.flush()
             os.fsync(fh.fileno())
+        crash_point(f"event logged: {event.get('event')}")
 
     def read_events(self) -> list[dict]:
         events = []
@@ -236,4 +456,5 @@ class SessionStore:
         buf = io.BytesIO()
         np.savez(buf, **arrays)
         atomic_write_bytes(path, buf.getvalue())
+        crash_point(f"trace written: {path.name}")
         return path

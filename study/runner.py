@@ -17,6 +17,7 @@ One attempt (section 4.5.3):
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +81,7 @@ class AttemptRecord:
             "penetration_mean_m": float(np.mean(p)) if p else math.nan,
             "incoming_velocities_m_s": v, "penetration_depths_m": p,
             "started_at": self.started_at, "duration_s": self.duration_s,
+            "ends_familiarization": bool(self.end_familiarization and self.trial.phase == "familiarization"),
         }
 
 
@@ -122,6 +124,9 @@ class StudyRunner:
         self.fam_taps = 0
         self.counts = {}
         self.attempts_run = 0
+        self._attempts_at_start = 0
+        self._t_start = time.monotonic()
+        self.last_rating = None
 
     # -- helpers -------------------------------------------------------------
     def _subject(self, key: str, prompt: str = "wait") -> None:
@@ -136,6 +141,22 @@ class StudyRunner:
             out[name] = {"total": total, "attempts": attempts, "valid": attempts - len(sched.redraws)}
         return out
 
+    def _status(self) -> dict:
+        """What the operator page shows: subject, trial n of N, estimated time left, last rating, audio/link."""
+        phases = [s for n, s in self.schedule.phases.items()]
+        total = sum(len(s.slots) for s in phases)
+        valid = sum(len(s.run_order) - len(s.redraws) for s in phases)
+        remaining = max(0, total - valid)
+        done = self.attempts_run - self._attempts_at_start
+        per_attempt = (time.monotonic() - self._t_start) / done if done else None
+        last = self.last_rating
+        return {"subject": self.store.subject, "trials_valid": valid, "trials_total": total,
+                "trial_n": min(total, valid + 1) if self.schedule.phase not in (None, "familiarization") else None,
+                "time_left_s": None if per_attempt is None else per_attempt * remaining,
+                "last_rating": last, "audio": getattr(self.audio, "cue_source", None) or type(self.audio).__name__,
+                "link": getattr(self.apparatus, "link_status", lambda: "ok")(),
+                "finished": self.schedule.phase is None}
+
     def restore(self, rows: list[dict], familiarization_ended: bool) -> None:
         """Replay recorded attempts (``--resume``)."""
         self.schedule.replay(rows, familiarization_ended)
@@ -144,12 +165,16 @@ class StudyRunner:
                 self.fam_taps += row["n_taps"]
             self.placement.on_stand = None if row["phase"] == "familiarization" else (
                 row["sample"] if row["kind"] == "real" else self.placement.on_stand)
-        self.attempts_run = len(rows)
+        self.attempts_run = self._attempts_at_start = len(rows)
+        rated = [r for r in rows if r["phase"] != "familiarization"]
+        if rated:
+            self.last_rating = "x" if rated[-1]["rejected"] else rated[-1]["rating"]
 
     def _wait_operator(self, place: str, trial: Trial, attempt: int) -> None:
         if self.ui is None:
             return
-        self.ui.set_operator(phase=trial.phase, trial=trial.trial, attempt=attempt, progress=self._progress())
+        self.ui.set_operator(phase=trial.phase, trial=trial.trial, attempt=attempt, progress=self._progress(),
+                             **self._status())
         if self.participant.kind == "simulated":
             self.ui.set_operator(place=place, awaiting_confirm=False)
             return
@@ -252,8 +277,13 @@ class StudyRunner:
                 self.store.log_event({"event": "familiarization_ended", "windows": trial.trial, "taps": self.fam_taps})
             if redraw is not None:
                 self.store.log_event({"event": "redraw", **redraw})
+            if trial.phase != "familiarization" and not record.no_tap:
+                self.last_rating = "x" if record.rejected else record.rating
             if self.ui is not None:
                 last = dict(row)
                 self.ui.set_operator(last_attempt=last, progress=self._progress(),
-                                     redraws=[r for s in self.schedule.phases.values() for r in s.redraws])
+                                     redraws=[r for s in self.schedule.phases.values() for r in s.redraws],
+                                     **self._status())
         self._subject("done")
+        if self.ui is not None:
+            self.ui.set_operator(phase="done", awaiting_confirm=False, **self._status())

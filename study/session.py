@@ -222,15 +222,18 @@ def start_session(plan: SessionPlan, args, schedule, device_info: dict, servo_pr
             "software_version": software_versions(), "started_at": utc_now(), "finished_at": None,
             "resumed_at": [], "planned_order": {k: v.summary()["planned"] for k, v in schedule.phases.items()},
         }
-        store.create(session)
-        for name, phase in schedule.phases.items():
-            store.log_event({"event": "plan", "phase": name, "order": phase.summary()["planned"],
-                             "trials": phase.summary()["planned_trials"]})
+        # one atomic step: session.json, the trials.csv header and the plan appear together or not at all
+        store.create(session, events=[{"event": "plan", "phase": name, "order": phase.summary()["planned"],
+                                       "trials": phase.summary()["planned_trials"]}
+                                      for name, phase in schedule.phases.items()])
         rows, fam_ended = [], False
     else:
         store.session = previous
         rows = store.read_trials()
-        fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
+        if store.legacy_columns:  # written before rows carried ends_familiarization
+            fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
+        else:  # the transition is in the row itself (same durable step as the attempt)
+            fam_ended = any(r["ends_familiarization"] for r in rows)
         store.session.setdefault("resumed_at", []).append(utc_now())
         # parallel to resumed_at: the audio (cue source) of each resumed part, which may differ from the first
         store.session.setdefault("audio_resumed", []).append(audio_info)

@@ -13,14 +13,39 @@ The server (``ThreadingHTTPServer``) binds to 127.0.0.1 unless asked
 otherwise and runs in daemon threads; the runner talks to it through
 :class:`study.uistate.UiState`, a lock-protected state with condition waits. Keys are
 validated by the server (the page's own check is only for the hint).
+
+Hardening (the server faces a browser that may also visit other sites, and
+anything on the lab network):
+
+* every request must arrive within ``REQUEST_DEADLINE_S`` (request line,
+  headers and body together; a slow sender gets 408 and the connection is
+  closed), at most ``MAX_CONNECTIONS`` connections are served at once (more
+  get 503), bodies are at most ``MAX_BODY_BYTES`` (a larger declared length
+  gets 413, a negative or non-numeric one 400, both without reading);
+* malformed JSON, a body that is not an object, wrong types and missing
+  fields get 400 with a one-line JSON error, never a traceback;
+* ``Host`` must name this server (an IP literal, ``localhost`` or the bound
+  name, with our port: DNS rebinding is refused with 400); a POST whose
+  ``Origin`` (or, without it, ``Referer``) is another origin is refused with
+  403, so another site open in the browser cannot post keys or actions;
+* every answer carries ``Cache-Control: no-store``, a Content-Security-Policy
+  that allows only this server's own scripts, styles and API
+  (``default-src 'none'``; no inline script), ``X-Frame-Options: DENY``,
+  ``X-Content-Type-Options: nosniff`` and ``Referrer-Policy: no-referrer``;
+* the token is compared with :func:`hmac.compare_digest` and never logged
+  (the server logs nothing).
 """
 
 from __future__ import annotations
 
 import hmac
+import io
+import ipaddress
 import json
 import secrets
+import socket
 import threading
+import time
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
@@ -28,22 +53,118 @@ from urllib.parse import parse_qs, urlparse
 
 from .uistate import UiState
 
+MAX_BODY_BYTES = 4096
+REQUEST_DEADLINE_S = 1.5
+MAX_CONNECTIONS = 32
+STATIC = {"operator.js": "text/javascript; charset=utf-8", "subject.js": "text/javascript; charset=utf-8",
+          "operator.css": "text/css; charset=utf-8", "subject.css": "text/css; charset=utf-8"}
+SECURITY_HEADERS = (
+    ("Cache-Control", "no-store"),
+    ("Content-Security-Policy", "default-src 'none'; script-src 'self'; style-src 'self'; connect-src 'self'; "
+                                "img-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"),
+    ("X-Frame-Options", "DENY"),
+    ("X-Content-Type-Options", "nosniff"),
+    ("Referrer-Policy", "no-referrer"),
+)
+
 
 def _asset(name: str) -> bytes:
     return resources.files("study").joinpath("web", name).read_bytes()
 
 
+class BadRequest(Exception):
+    """A request refused with ``status`` and a one-line reason (no traceback reaches the client)."""
+
+    def __init__(self, status: int, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+
+
+class _DeadlineReader(io.RawIOBase):
+    """The socket's input with one deadline for a whole request: a slowloris sender cannot hold a handler."""
+
+    def __init__(self, handler: "_Handler") -> None:
+        self.handler = handler
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buf) -> int:
+        remaining = self.handler.deadline - time.monotonic()
+        if remaining <= 0:
+            raise TimeoutError("request deadline passed")
+        self.handler.connection.settimeout(remaining)
+        return self.handler.connection.recv_into(buf)
+
+
+def _host_ok(host_header: str | None, server) -> bool:
+    """True when ``Host`` names this server: an IP literal, localhost or the bound name, with our port."""
+    if not host_header:
+        return False
+    host, _, port = host_header.rpartition(":") if not host_header.endswith("]") else (host_header, "", "")
+    if not host:
+        host, port = host_header, "80"
+    if port != str(server.server_address[1]):
+        return False
+    host = host.strip("[]").lower()
+    if host in ("localhost", server.bound_name):
+        return True
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False  # a DNS name other than ours: DNS rebinding
+    return True
+
+
 class _Handler(BaseHTTPRequestHandler):
     server_version = "study/1"
+    sys_version = ""
 
-    def log_message(self, fmt, *args) -> None:  # keep the console for the operator
+    def setup(self) -> None:
+        super().setup()
+        self.deadline = time.monotonic() + REQUEST_DEADLINE_S
+        self.rfile = io.BufferedReader(_DeadlineReader(self), 8192)
+
+    def log_message(self, fmt, *args) -> None:  # keep the console for the operator; never log the token
         pass
+
+    def handle_one_request(self) -> None:
+        self.deadline = time.monotonic() + REQUEST_DEADLINE_S
+        try:
+            super().handle_one_request()
+        except (ConnectionError, OSError):
+            self.close_connection = True
+
+    def log_error(self, fmt, *args) -> None:
+        # the stdlib catches a TimeoutError while reading a request and reports it only here: answer 408
+        if fmt.startswith("Request timed out"):
+            self._late()
+
+    def _late(self) -> None:
+        self.close_connection = True
+        try:
+            self.connection.settimeout(0.5)
+            self.connection.sendall(b"HTTP/1.0 408 Request Timeout\r\nContent-Length: 0\r\nConnection: close\r\n"
+                                    b"Cache-Control: no-store\r\n\r\n")
+        except OSError:
+            pass
+
+    def send_error(self, code, message=None, explain=None) -> None:  # the stdlib's parse errors, without detail
+        self.close_connection = True
+        self.request_version = "HTTP/1.0"  # the stdlib answers an unparsable request as HTTP/0.9: no status line
+        try:
+            self._send(code, f"{code}\n".encode(), "text/plain; charset=utf-8")
+        except OSError:
+            pass
 
     def _send(self, status: int, body: bytes, ctype: str) -> None:
         self.send_response(status)
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
+        for k, v in SECURITY_HEADERS:
+            self.send_header(k, v)
+        if self.close_connection:
+            self.send_header("Connection", "close")
         self.end_headers()
         self.wfile.write(body)
 
@@ -52,14 +173,73 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _token_ok(self, query: dict) -> bool:
         given = self.headers.get("X-Study-Token") or (query.get("token") or [""])[0]
-        return hmac.compare_digest(given.encode(), self.server.token.encode())
+        return hmac.compare_digest(given.encode("utf-8", "replace"), self.server.token.encode())
+
+    def _check_host(self) -> None:
+        if not _host_ok(self.headers.get("Host"), self.server):
+            raise BadRequest(400, "Host does not name this server")
+
+    def _check_origin(self) -> None:
+        """A state-changing request from a browser must come from one of our own pages."""
+        host = self.headers.get("Host", "")
+        origin = self.headers.get("Origin")
+        if origin is not None:
+            if origin != f"http://{host}":
+                raise BadRequest(403, "cross-origin request refused")
+            return
+        referer = self.headers.get("Referer")
+        if referer is not None and not referer.startswith(f"http://{host}/"):
+            raise BadRequest(403, "cross-origin request refused")
+        if self.headers.get("Sec-Fetch-Site", "same-origin") not in ("same-origin", "none"):
+            raise BadRequest(403, "cross-site request refused")
+
+    def _read_json(self) -> dict:
+        if self.headers.get("Transfer-Encoding"):
+            raise BadRequest(400, "Transfer-Encoding is not supported; send Content-Length")
+        raw = self.headers.get("Content-Length")
+        if raw is None:
+            length = 0
+        else:
+            if not raw.strip().isdigit():
+                raise BadRequest(400, "Content-Length must be a non-negative integer")
+            length = int(raw)
+            if length > MAX_BODY_BYTES:
+                raise BadRequest(413, f"body larger than {MAX_BODY_BYTES} bytes")
+        data = self.rfile.read(length) if length else b""
+        if len(data) != length:
+            raise BadRequest(400, "body shorter than Content-Length")
+        if not data:
+            return {}
+        try:
+            body = json.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+            raise BadRequest(400, "body is not JSON") from None
+        if not isinstance(body, dict):
+            raise BadRequest(400, "body must be a JSON object")
+        return body
+
+    def _dispatch(self, method) -> None:
+        try:
+            self._check_host()
+            method()
+        except BadRequest as exc:
+            self.close_connection = True
+            self._json({"error": str(exc)}, exc.status)
 
     def do_GET(self) -> None:
+        self._dispatch(self._get)
+
+    def do_POST(self) -> None:
+        self._dispatch(self._post)
+
+    def _get(self) -> None:
         url = urlparse(self.path)
         query = parse_qs(url.query)
         ui: UiState = self.server.ui
         if url.path in ("/", "/subject"):
             return self._send(200, _asset("subject.html"), "text/html; charset=utf-8")
+        if url.path.startswith("/static/") and url.path[8:] in STATIC:
+            return self._send(200, _asset(url.path[8:]), STATIC[url.path[8:]])
         if url.path == "/api/subject":
             return self._json(ui.snapshot("subject"))
         if url.path in ("/operator", "/api/operator"):
@@ -71,26 +251,57 @@ class _Handler(BaseHTTPRequestHandler):
             return self._json(ui.snapshot("operator"))
         self._send(404, b"not found", "text/plain")
 
-    def do_POST(self) -> None:
+    def _post(self) -> None:
         url = urlparse(self.path)
         query = parse_qs(url.query)
         ui: UiState = self.server.ui
-        length = min(int(self.headers.get("Content-Length") or 0), 4096)
-        try:
-            body = json.loads(self.rfile.read(length) or b"{}")
-        except json.JSONDecodeError:
-            return self._json({"error": "body is not JSON"}, 400)
+        self._check_origin()
         if url.path == "/api/key":
-            key = body.get("key")
+            body = self._read_json()
+            if "key" not in body:
+                raise BadRequest(400, "missing field 'key'")
+            key = body["key"]
             if not isinstance(key, str) or len(key) > 16:
-                return self._json({"error": "key must be a short string"}, 400)
+                raise BadRequest(400, "key must be a short string")
             return self._json(ui.subject_key(key))
         if url.path.startswith("/api/operator/"):
             if not self._token_ok(query):
                 return self._json({"error": "operator token required"}, 403)
+            self._read_json()
             result = ui.operator_action(url.path.rsplit("/", 1)[1])
             return self._json(result, 200 if result.get("ok") else 400)
         self._send(404, b"not found", "text/plain")
+
+
+class _Server(ThreadingHTTPServer):
+    """``ThreadingHTTPServer`` with a cap on concurrent connections (503 beyond it)."""
+
+    daemon_threads = True
+
+    def __init__(self, address, handler) -> None:
+        super().__init__(address, handler)
+        self.slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
+        self.bound_name = str(address[0]).lower()
+        self.refused_busy = 0
+
+    def process_request(self, request, client_address) -> None:
+        if not self.slots.acquire(blocking=False):
+            self.refused_busy += 1
+            try:
+                request.settimeout(0.2)
+                request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n"
+                                b"Retry-After: 1\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.slots.release()
 
 
 class WebUI:
@@ -99,8 +310,7 @@ class WebUI:
     def __init__(self, ui: UiState, host: str = "127.0.0.1", port: int = 0, token: str | None = None) -> None:
         self.ui = ui
         self.token = token or secrets.token_urlsafe(16)
-        self.httpd = ThreadingHTTPServer((host, port), _Handler)
-        self.httpd.daemon_threads = True
+        self.httpd = _Server((host, port), _Handler)
         self.httpd.ui = ui
         self.httpd.token = self.token
         self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},

@@ -50,7 +50,9 @@ class FaultSpec:
     bytes before the frame), ``delay`` (hold the frame ``delay_s`` first),
     ``disconnect_after_s`` (close the pty that many seconds after the first
     frame from a host), ``silent`` (never answer the hello), ``protocol_major`` (claim
-    another protocol version in INFO).
+    another protocol version in INFO). Scripted (deterministic, counted over the frames sent):
+    ``drop_every=N`` drops every N-th frame, ``corrupt_every=N`` flips a bit in every N-th,
+    ``drop_burst=K`` with ``drop_burst_at=N`` drops K frames in a row from the N-th on.
     """
 
     drop: float = 0.0
@@ -62,6 +64,10 @@ class FaultSpec:
     disconnect_after_s: float | None = None
     silent: bool = False
     protocol_major: int | None = None
+    drop_every: int = 0
+    corrupt_every: int = 0
+    drop_burst_at: int = 0
+    drop_burst: int = 0
 
     @classmethod
     def parse(cls, text: str | None) -> "FaultSpec":
@@ -90,7 +96,7 @@ class FaultSpec:
                 raise ValueError(f"--fault: {key}={raw} is a probability and must be <= 1")
             if key == "silent":
                 value = bool(value)
-            elif key == "protocol_major":
+            elif key in ("protocol_major", "drop_every", "corrupt_every", "drop_burst_at", "drop_burst"):
                 value = int(value)
             values[key] = value
         return cls(**values)
@@ -106,7 +112,8 @@ class FaultSpec:
 
     @property
     def any_frame_faults(self) -> bool:
-        return bool(self.drop or self.corrupt or self.duplicate or self.garbage or self.delay)
+        return bool(self.drop or self.corrupt or self.duplicate or self.garbage or self.delay or self.drop_every
+                    or self.corrupt_every or self.drop_burst)
 
 
 class Emulator:
@@ -188,6 +195,8 @@ class Emulator:
         self.slave_fd: int | None = None
         self.attached_at = None  # time of the first frame from a host
         self.disconnected = False
+        self.burst_started = None
+        self.last_cmd_after_burst = None
         self.stats = {"frames_in": 0, "frames_out": 0, "dropped": 0, "corrupted": 0, "duplicated": 0, "garbage": 0,
                       "delayed": 0, "naks": 0, "watchdog_trips": 0, "write_overflows": 0, "ticks": 0}
 
@@ -221,9 +230,18 @@ class Emulator:
         f = self.faults
         if f.any_frame_faults:
             rng = self.rng
-            if f.drop and rng.random() < f.drop:
+            k = self._frame_k = getattr(self, "_frame_k", 0) + 1
+            if ((f.drop and rng.random() < f.drop) or (f.drop_every and k % int(f.drop_every) == 0)
+                    or (f.drop_burst and f.drop_burst_at <= k < f.drop_burst_at + f.drop_burst)):
                 self.stats["dropped"] += 1
+                if f.drop_burst and k == int(f.drop_burst_at):
+                    self.burst_started = time.monotonic()
                 return
+            if f.corrupt_every and k % int(f.corrupt_every) == int(f.corrupt_every) - 1:  # never on a dropped one
+                self.stats["corrupted"] += 1
+                buf = bytearray(frame)
+                buf[len(buf) // 2] ^= 0x10
+                frame = bytes(buf)
             if f.garbage and rng.random() < f.garbage:
                 self.stats["garbage"] += 1
                 frame = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 24))) + frame
@@ -342,6 +360,8 @@ class Emulator:
         phys = self.phys
         phys._send_current(i)  # the current the next period applies (SimDevice's output-delay slot)
         self.applied_A = i
+        if self.burst_started is not None:  # scripted drop burst: the host's last command after it began
+            self.last_cmd_after_burst = (time.monotonic(), i)
         self._send_state(phys.read())
         phys.command(i)  # next period: applies i; holds i until the next CURRENT replaces it
         self._keep_hand_busy()
@@ -489,7 +509,7 @@ class Emulator:
     def _keep_hand_busy(self) -> None:
         phys = self.phys
         if getattr(phys, "trajectory_done", False) and getattr(phys, "trajectory", None) is not None:
-            phys.set_user(phys.trajectory, grip_N=self._grip_N)
+            phys.set_user(phys.trajectory, grip_N=self._grip_N, hand=getattr(self, "_hand", None))
 
     def _run_due_ticks(self, now: float) -> float:
         """Run the ticks that are due; return how long select may sleep."""
@@ -528,9 +548,11 @@ class Emulator:
                 self._send_state(self.phys.read())
 
     # -- main loop ---------------------------------------------------------------------------
-    def set_hand(self, trajectory, grip_N: float = 2.0) -> None:
+    def set_hand(self, trajectory, grip_N: float = 2.0, hand=None) -> None:
+        """The emulated device's simulated hand (``hand`` as :meth:`devices.sim.SimDevice.set_user`)."""
         self._grip_N = grip_N
-        self.phys.set_user(trajectory, grip_N=grip_N)
+        self._hand = hand
+        self.phys.set_user(trajectory, grip_N=grip_N, hand=hand)
 
     def serve(self, stop: threading.Event) -> None:
         """Run until ``stop`` is set or the disconnect fault fires."""
@@ -638,7 +660,9 @@ def build_emulator(mode: str = "streaming", faults: FaultSpec | str | None = Non
     phys.command(0.0)  # compile/load the physics kernel now, not inside the host's first round trip
     emu = Emulator(phys, mode=mode, faults=faults, watchdog_ms=watchdog_ms, pace=pace, seed=seed, t0_us=t0_us)
     if taps_m_s:
-        emu.set_hand(TapTrajectory(list(taps_m_s), n_taps=len(taps_m_s)), grip_N=grip_N)
+        # the test harness's tapping hand: the prescribed (velocity-source) hand, one clean event per tap
+        # (issue 16: the default simulated person bounces and its taps depend on its reflex state)
+        emu.set_hand(TapTrajectory(list(taps_m_s), n_taps=len(taps_m_s)), grip_N=grip_N, hand="prescribed")
     else:
         emu.set_hand(0.01, grip_N=grip_N)
     return emu

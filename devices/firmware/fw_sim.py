@@ -392,6 +392,9 @@ class FwSimDevice(SerialDevice):
             # simulated time outruns the host's clock (keepalives every watchdog_ms/4 of wall time):
             # give the firmware watchdog room, or it trips between two keepalives
             options["watchdog_ms"] = 2000
+        # the simulated MCU keeps its own pace (it may run slower than wall-clock time on a loaded machine), so
+        # a late reply is not a lost frame: strict mode (retransmit with backoff) unless asked otherwise
+        options.setdefault("max_consecutive_losses", 0)
         super().__init__("(not started)", **options)
 
     @property

@@ -29,7 +29,8 @@ def _renderer_run(spec, out, tmp_path, capsys, duration_s="2.5"):
 def test_renderer_run_over_the_emulated_serial_port(mode, tmp_path, capsys):
     port, handle = start_emulator(mode, process=True, taps_m_s=(0.05, 0.1, 0.2))
     try:
-        spec = f"serial:{port}" + ("?mode=on-device" if mode == "on-device" else "")
+        # loaded machine: a reply later than 20 ms (not the 5 ms default) counts as lost, as the watchdog is widened
+        spec = f"serial:{port}" + ("?mode=on-device" if mode == "on-device" else "?loss_timeout_s=0.02")
         out = tmp_path / "run"
         code, stdout = _renderer_run(spec, out, tmp_path, capsys)
         assert code == 0, stdout

@@ -56,7 +56,8 @@ def test_short_study_run_over_the_emulated_serial_port(mode, tmp_path):
     proto = tmp_path / "protocol.toml"
     proto.write_text('familiarization_sample = ""\ntap_window_s = 1.5\nfirst_tap_timeout_s = 3.0\n'
                      "homing_after_s = 0.2\n")
-    spec = f"serial:{port}" + ("?mode=on-device" if mode == "on-device" else "")
+    # loaded machine: a reply later than 20 ms (not the 5 ms default) counts as lost
+    spec = f"serial:{port}" + ("?mode=on-device" if mode == "on-device" else "?loss_timeout_s=0.02")
     cmd = [sys.executable, "-m", "study", "run", "--device", spec, "--participant", "keyboard", "--subject", "HW1",
            "--age", "30", "--gender", "female", "--handedness", "right", "--experience", "few", "--audio", "off",
            "--port", str(web_port), "--token", "tok", "--samples", "pulse_firm", "--repetitions", "1",

@@ -27,7 +27,7 @@ def test_keyboard_session_over_the_emulated_serial_device(tmp_path):
     port, handle = start_emulator("streaming", process=True, taps_m_s=(0.1,), watchdog_ms=250)
     # the renderer's watchdog is widened: a loaded CI machine can stall a process for > 20 ms
     proto = write(tmp_path / "p.toml", 'familiarization_sample = ""\ntap_window_s = 2.0\nservo_watchdog_s = 0.25\n')
-    cmd = [sys.executable, "-m", "study", "run", "--device", f"serial:{port}", "--participant", "keyboard",
+    cmd = [sys.executable, "-m", "study", "run", "--device", f"serial:{port}?loss_timeout_s=0.02", "--participant", "keyboard",
            "--subject", "H1", "--out", str(tmp_path / "DATA"), "--samples", "firm,pulse_firm", "--repetitions", "1",
            "--age", "30", "--gender", "male", "--handedness", "right", "--experience", "few", "--audio", "off",
            "--token", "tok", "--protocol", str(proto)]
@@ -74,7 +74,7 @@ def test_keyboard_session_over_the_emulated_serial_device(tmp_path):
         assert r["rating"] == "5"
         assert 2.0 < float(r["duration_s"]) < 30.0                          # device time: paced, not simulated
     session = read_session(folder)
-    assert session["device"]["spec"] == f"serial:{port}" and session["device"]["servo_process"] is True
+    assert session["device"]["spec"] == f"serial:{port}?loss_timeout_s=0.02" and session["device"]["servo_process"] is True
     assert session["audio"]["output"] is None and "--audio off" in session["audio"]["cue_source"]
     assert session["real_saturation_detection"].startswith("none")
     r = next(r for r in valid if r["sample"] == "pulse_firm")

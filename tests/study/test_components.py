@@ -40,8 +40,11 @@ def test_virtual_saturation_from_clipped_events(apparatus):
     apparatus.start_hand(TapPlan((0.1, 0.45), 2.0, False, False), 5.0)
     tones = []
     tap = apparatus.tap_window(5.0, 5.0, on_clip=lambda: tones.append(1))
-    assert [e.clipped for e in tap.events] == [False, True]
-    assert tap.saturated and len(tones) == 1
+    # issue 16: the default simulated person bounces on the wall after the 0.45 m/s tap (several events,
+    # was exactly [False, True]); the slow tap stays unclipped and the fast one clips
+    clipped = [e.clipped for e in tap.events]
+    assert clipped[0] is False and clipped[1] is True
+    assert tap.saturated and len(tones) >= 1
     assert np.any(tap.trace["clipped"] & 4)
 
 

@@ -130,7 +130,7 @@ def test_no_encoder_count_lost_up_to_the_rated_speed(report):
 def test_firmware_watchdog_zeroes_the_motor_in_mcu_time():
     port, handle = fw_sim.start_fw_sim(taps_m_s=())
     try:
-        with SerialDevice(port, watchdog_ms=30) as dev:
+        with SerialDevice(port, watchdog_ms=30, max_consecutive_losses=0) as dev:  # strict: simulated MCU pace
             dev.read()
             dev.command(1.0)
             assert dev.read().extra["current_A"] == pytest.approx(1.0, abs=1e-3)
@@ -156,7 +156,7 @@ def test_firmware_watchdog_zeroes_the_motor_in_mcu_time():
 def test_link_faults_are_counted_and_survived(faults):
     port, handle = fw_sim.start_fw_sim(taps_m_s=(), faults=faults)
     try:
-        with SerialDevice(port, timeout_s=0.05) as dev:  # a loaded machine may stall the simulator process
+        with SerialDevice(port, timeout_s=0.05, max_consecutive_losses=0) as dev:  # loaded machine: strict mode
             for _ in range(500):
                 dev.read()
                 dev.command(0.1)

@@ -91,6 +91,10 @@ def test_hfam_rendered_on_the_device_over_the_emulated_serial_port(tmp_path, cap
                                           sweep_duration_s=0.5, record_velocities_m_s=(0.04, 0.08, 0.12),
                                           library_velocities=3), tmp_path / "cache")
     port, handle = start_emulator("on-device", sample="wood_on_foam", taps_m_s=(0.1,), pace="host")
+    # the default simulated person taps (the library was recorded with it); the harness default is prescribed
+    from devices.sim import TapTrajectory
+
+    handle.emulator.set_hand(TapTrajectory([0.1], n_taps=1), grip_N=2.0, hand=None)
 
     def person(text):
         handle.emulator.phys.set_sample("wood_on_foam" if "wood-on-foam" in text else "placeholder")

@@ -1,0 +1,199 @@
+"""Real-time HFAM for teleoperation (thesis section 4.3.1, eq. 4.4-4.5).
+
+Slave tip acceleration -> 15-point modified Bartlett-Hanning smoothing (7-sample delay) -> second-order
+Butterworth high-pass at 22 Hz -> Tustin discretisation of the inverse of the identified
+current-to-handle-acceleration model H_ha (made proper by added high-frequency zeros, right-half-plane
+zeros reflected into the left half plane: same magnitude, stable causal inverse) -> its own saturation.
+The discrete inverse's frequency response is checked against the continuous one at start-up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from devices.model import ZpkModel
+
+FIR_TAPS = 15
+HIGHPASS_HZ = 22.0
+
+
+@dataclass(frozen=True)
+class HfamFilter:
+    """The causal HFAM filter as the kernel runs it.
+
+    Attributes
+    ----------
+    fir : ndarray (15,)
+        Modified Bartlett-Hanning window, unit DC gain.
+    sos : ndarray (n, 6)
+        High-pass then inverse model, scipy ``sos`` layout.
+    gain : float
+        Overall gain on the filter output (A per A: 1 for exact matching).
+    max_current_A : float
+        Saturation of the HFAM channel, separate from the PD channel.
+    check : dict
+        Start-up check: max magnitude (dB) and phase (deg) error of discrete vs continuous inverse over
+        22-1000 Hz, the number of reflected zeros and added zeros.
+    """
+
+    fir: np.ndarray
+    sos: np.ndarray
+    gain: float
+    max_current_A: float
+    check: dict
+
+
+def bartlett_hann_fir(n: int = FIR_TAPS) -> np.ndarray:
+    """Modified Bartlett-Hanning window (scipy.signal.windows.barthann), normalised to unit DC gain."""
+    from scipy.signal import windows  # deferred: scipy.signal is heavy
+
+    w = windows.barthann(n + 2)[1:-1]
+    return w / w.sum()
+
+
+def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, added_zero_hz: float = 1500.0,
+                added_zero_zeta: float = 0.7, gain: float = 1.0) -> HfamFilter:
+    """Causal real-time inverse of ``model`` (current -> handle acceleration) with the 22 Hz high-pass.
+
+    Parameters
+    ----------
+    model : ZpkModel
+        Identified H_ha (eq. 4.5); its pure delay is ignored (removed in the analysis).
+    fs_hz : float
+        Servo rate.
+    max_current_A : float
+        Saturation of the HFAM current.
+    added_zero_hz, added_zero_zeta : float
+        High-frequency zeros making the model proper (relative degree zero) before inversion.
+
+    Returns
+    -------
+    HfamFilter
+    """
+    from scipy import signal  # deferred: scipy.signal is heavy
+
+    from stimuli.hfam.inversion import make_proper
+
+    z = np.asarray(model.zeros_rad_s, complex)
+    p = np.asarray(model.poles_rad_s, complex)
+    n_rhp = int(np.sum(z.real > 0))
+    k = float(model.gain)
+    if n_rhp:
+        # reflect right-half-plane zeros: |s - z| = |s + conj(z)| on the jw axis; keep the high-frequency gain sign
+        z = np.where(z.real > 0, -np.conj(z), z)
+    # zeros at (or near) s = 0 of an acceleration model: the 22 Hz high-pass supplies s^2, so cancel them
+    zero_at_dc = np.abs(z) < 2 * math.pi * 5.0   # far below the 22 Hz band: treated as s = 0
+    n_dc = int(zero_at_dc.sum())
+    z_rest = z[~zero_at_dc]
+    zp, pp, kp, n_added = make_proper(z_rest, p, k, added_zero_hz, added_zero_zeta)
+    # extra poles at s = 0 from the cancelled zeros belong to the inverse; combine with the high-pass s^2
+    w = 2 * math.pi * HIGHPASS_HZ
+    hp_poles = np.roots([1.0, math.sqrt(2.0) * w, w * w])
+    if n_dc > 2:
+        raise ValueError(f"H_ha has {n_dc} zeros at DC; at most 2 can be absorbed by the 22 Hz high-pass")
+    # inverse: zeros <- model poles, poles <- model zeros; high-pass: s^2 / (s^2 + sqrt2 w s + w^2) with s^n_dc
+    inv_z = np.concatenate([pp, np.zeros(2 - n_dc, complex)])
+    inv_p = np.concatenate([zp, hp_poles])
+    inv_k = 1.0 / kp
+    # the continuous inverse, and its Tustin discretisation with prewarping at nothing (bilinear)
+    zd, pd, kd = signal.bilinear_zpk(inv_z, inv_p, inv_k, fs_hz)
+    if np.any(np.abs(pd) >= 1.0):
+        raise ValueError("HFAM inverse is unstable after discretisation")
+    sos = signal.zpk2sos(zd, pd, kd)
+    f = np.geomspace(HIGHPASS_HZ, min(1000.0, 0.45 * fs_hz), 200)
+    s = 2j * np.pi * f
+    hc = inv_k * np.prod([s - q for q in inv_z], axis=0) / np.prod([s - q for q in inv_p], axis=0)
+    _, hd = signal.sosfreqz(sos, worN=f, fs=fs_hz)
+    # the Tustin map warps frequency; compare at the same physical frequency
+    mag_db = 20 * np.log10(np.abs(hd) / np.abs(hc))
+    ph = np.degrees(np.angle(hd / hc))
+    check = {"max_mag_error_db": float(np.max(np.abs(mag_db))), "max_phase_error_deg": float(np.max(np.abs(ph))),
+             "band_hz": [float(f[0]), float(f[-1])], "reflected_rhp_zeros": n_rhp, "added_zeros": int(n_added),
+             "sections": int(len(sos))}
+    return HfamFilter(bartlett_hann_fir(), sos, gain, max_current_A, check)
+
+
+def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials: int = 2) -> ZpkModel:
+    """H_ha of the simulated master by the project's comprehensive identification (swept sine, ETFE, fit).
+
+    Parameters
+    ----------
+    master_params : SimParams
+        The simulated master (the identification only sees its sensors).
+    fs_hz : float
+        Servo rate of the teleoperator (the sweep runs at it).
+    """
+    from devices.identify.etfe import etfe
+    from devices.identify.fit import FitOptions, fit_etfes
+    from devices.identify.record import record_condition
+    from devices.identify.sweep import SweepConfig
+    from devices.sim.device import SimDevice
+
+    params = master_params.replace(device={"servo_rate_hz": float(fs_hz)},
+                                   simulation={"max_step_s": 1.0 / fs_hz / round(1.0 / fs_hz / 1e-5)})
+    dev = SimDevice(params, seed=7)
+    sweep = SweepConfig(amplitude_A=0.75, f_start_hz=5.0, f_end_hz=min(1000.0, 0.4 * fs_hz), duration_s=2.0,
+                        fs_hz=fs_hz)
+    recs = record_condition(dev, sweep, float(grip_N), trials)
+    curve = etfe(recs, "accel_m_s2", label=f"grip {grip_N:g} N")
+    return fit_etfes([curve], FitOptions(), source=f"teleop master, grip {grip_N:g} N", grip_N=float(grip_N)).model
+
+
+def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_hz: float,
+                band_hz=(HIGHPASS_HZ, 1000.0), max_delay_s: float = 0.02) -> dict:
+    """How well the master handle reproduces the slave tip acceleration (section 4.3.1, Figure 4.5).
+
+    Both signals are band-passed (4th-order Butterworth, ``band_hz``), the master is shifted by the
+    delay (0..``max_delay_s``) that maximises the correlation, then compared.
+
+    Returns
+    -------
+    dict: ``correlation``, ``nrmse`` (RMS error / RMS of the tip), ``delay_s``, ``rms_ratio``
+    (master / tip RMS), ``delay_samples``.
+    """
+    from scipy import signal  # deferred: scipy.signal is heavy
+
+    sos = signal.butter(4, [band_hz[0], min(band_hz[1], 0.45 * fs_hz)], btype="bandpass", fs=fs_hz, output="sos")
+    a = signal.sosfilt(sos, np.asarray(slave_tip_m_s2, float))
+    b = signal.sosfilt(sos, np.asarray(master_handle_m_s2, float))
+    n = len(a)
+    best_c, best_d = -2.0, 0
+    for d in range(0, int(max_delay_s * fs_hz) + 1):
+        x, y = a[:n - d], b[d:]
+        sx, sy = np.std(x), np.std(y)
+        c = float(np.mean((x - x.mean()) * (y - y.mean())) / (sx * sy)) if sx > 0 and sy > 0 else 0.0
+        if c > best_c:
+            best_c, best_d = c, d
+    x, y = a[:n - best_d], b[best_d:]
+    rms = float(np.sqrt(np.mean(x ** 2)))
+    return {"correlation": best_c, "nrmse": float(np.sqrt(np.mean((y - x) ** 2)) / rms) if rms > 0 else float("nan"),
+            "delay_s": best_d / fs_hz, "delay_samples": best_d,
+            "rms_ratio": float(np.sqrt(np.mean(y ** 2)) / rms) if rms > 0 else float("nan")}
+
+
+def figure_45(slave_tip_m_s2, master_handle_m_s2, fs_hz: float, delay_samples: int, path, title: str = "") -> None:
+    """Figure 4.5-style plot: slave tip vs master handle acceleration (22-1000 Hz, delay removed), first impact."""
+    import matplotlib  # deferred: plotting only
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy import signal  # deferred: scipy.signal is heavy
+
+    sos = signal.butter(4, [HIGHPASS_HZ, min(1000.0, 0.45 * fs_hz)], btype="bandpass", fs=fs_hz, output="sos")
+    a = signal.sosfilt(sos, np.asarray(slave_tip_m_s2, float))
+    b = signal.sosfilt(sos, np.asarray(master_handle_m_s2, float))
+    i0 = int(np.argmax(np.abs(a) > 0.2 * np.max(np.abs(a))))
+    lo, hi = max(0, i0 - int(0.01 * fs_hz)), min(len(a) - delay_samples, i0 + int(0.06 * fs_hz))
+    t = (np.arange(lo, hi) - i0) / fs_hz * 1e3
+    fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    ax.plot(t, a[lo:hi], label="slave tip")
+    ax.plot(t, b[lo + delay_samples:hi + delay_samples], label=f"master handle (delay {delay_samples / fs_hz * 1e3:.1f} ms removed)")
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel("acceleration 22-1000 Hz (m/s^2)")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,316 @@
+"""Teleoperation controllers and sessions on the simulated testbed (thesis sections 4.3, 5.1-5.7).
+
+Controllers: ``pd`` (bilateral position-position PD), ``pd+hfam`` (PD plus high-frequency
+acceleration matching, section 4.3.1), ``pf`` (position-force with mu, lambda and the stabilisers b,
+K_mu, K_lambda of section 5.4) and ``pf+cimm`` (position-force with cancellation of induced master
+motion, eq. 5.20). Settling time and stability are defined once here (docs/teleop.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from devices.sim import teleop_kernel as K
+from devices.sim.teleop import CimmModel, Testbed, tap_path
+
+CONTROLLERS = ("pd", "pd+hfam", "pf", "pf+cimm")
+
+# ---- definitions shared by docs/teleop.md, the sweep and the tests ----
+CONTACT_THRESHOLD_N = 0.05       # the tip is "in contact" when the measured force exceeds this
+SETTLE_BAND = 0.10               # settled: force within 10 % of its quasi-static value ...
+SETTLE_FLOOR_N = 0.05            # ... or within this absolute band, whichever is larger
+QS_WINDOW_S = (0.20, 0.30)       # reported quasi-static value: median of the low-passed force 200-300 ms after impact
+QS_CUTOFF_HZ = 8.0               # quasi-static force: zero-phase low-pass at the user's 8 Hz bandwidth
+GRACE_S = 0.030                  # contact breaks in the first 30 ms after impact are the impact's own bounce
+ANALYSIS_END_S = 0.30            # analysis window after impact (inside the 0.4 s dwell)
+
+
+@dataclass(frozen=True)
+class TeleopConfig:
+    """Controller settings of a session.
+
+    Attributes
+    ----------
+    controller : str
+        One of ``CONTROLLERS``.
+    mu, lam : float
+        Position scale and force-feedback gain (section 5.1).
+    kp_s_N_m, kd_s_Ns_m : float
+        Slave PD gains on the motor position.
+    kp_m_N_m, kd_m_Ns_m : float
+        Master PD gains (bilateral PD only).
+    b_Ns_m : float
+        Master damping (eq. 5.9), position-force only.
+    k_mu_hz, k_lambda_hz : float
+        First-order low-pass corner of the position-command filter K_mu (eq. 5.10) and of the
+        force-feedback filter K_lambda (eq. 5.11); 0 = filter off.
+    velocity_hz : float
+        Low-pass corner of the backward-difference velocity estimates.
+    divergence_m, divergence_m_s : float
+        Safety: |x_s - x_c| or a speed beyond these stops the session with zero output.
+    """
+
+    controller: str = "pf"
+    mu: float = 1.0
+    lam: float = 1.0
+    kp_s_N_m: float = 600.0
+    kd_s_Ns_m: float = 3.0
+    kp_m_N_m: float = 1500.0
+    kd_m_Ns_m: float = 6.0
+    b_Ns_m: float = 0.0
+    k_mu_hz: float = 0.0
+    k_lambda_hz: float = 0.0
+    velocity_hz: float = 500.0
+    divergence_m: float = 0.03
+    divergence_m_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        for name in ("mu", "kp_s_N_m", "divergence_m", "divergence_m_s", "velocity_hz"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        for name in ("lam", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m", "b_Ns_m", "k_mu_hz", "k_lambda_hz"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+
+
+@dataclass
+class SessionResult:
+    """Traces and counters of one session.
+
+    Attributes
+    ----------
+    traces : ndarray (n_ticks, N_OUT)
+        Columns ``devices.sim.teleop_kernel.O_*`` (time s, positions m, forces N, accelerations m/s^2,
+        currents A).
+    fs_hz : float
+    impact_ticks : ndarray of int
+        Nominal surface crossings of the operator's path.
+    fault : int
+        0 none, 1 NaN, 2 divergence (``teleop_kernel.FAULT_*``); ``fault_tick`` where it stopped.
+    counts : dict
+        Clip counts of master, slave and HFAM currents; NaN count.
+    """
+
+    traces: np.ndarray
+    fs_hz: float
+    impact_ticks: np.ndarray
+    fault: int
+    fault_tick: int
+    counts: dict = field(default_factory=dict)
+
+    def col(self, idx: int) -> np.ndarray:
+        """One trace column, cut at a fault."""
+        n = self.fault_tick + 1 if self.fault else len(self.traces)
+        return self.traces[:n, idx]
+
+
+def controller_params(p: np.ndarray, tb: Testbed, cfg: TeleopConfig, hfam=None) -> None:
+    """Write the controller part of the parameter array ``p`` (in place)."""
+    fs = tb.servo_rate_hz
+    p[K.P_MODE] = K.MODE_PD if cfg.controller.startswith("pd") else K.MODE_PF
+    p[K.P_MU], p[K.P_LAM] = cfg.mu, cfg.lam
+    p[K.P_KPS], p[K.P_KDS], p[K.P_KPM], p[K.P_KDM] = cfg.kp_s_N_m, cfg.kd_s_Ns_m, cfg.kp_m_N_m, cfg.kd_m_Ns_m
+    p[K.P_VEL_A] = 1 - math.exp(-2 * math.pi * cfg.velocity_hz / fs)
+    p[K.P_BDAMP] = cfg.b_Ns_m
+    p[K.P_KMU_A] = 1 - math.exp(-2 * math.pi * cfg.k_mu_hz / fs) if cfg.k_mu_hz > 0 else 1.0
+    p[K.P_KLAM_A] = 1 - math.exp(-2 * math.pi * cfg.k_lambda_hz / fs) if cfg.k_lambda_hz > 0 else 1.0
+    p[K.P_DIV_POS], p[K.P_DIV_VEL] = cfg.divergence_m, cfg.divergence_m_s
+    if cfg.controller == "pd+hfam":
+        if hfam is None:
+            raise ValueError("controller pd+hfam needs the HFAM filter (renderer.teleop.hfam.design_hfam)")
+        p[K.P_HF_ON] = 1.0
+        p[K.P_HF_GAIN] = hfam.gain
+        p[K.P_HF_IMAX] = hfam.max_current_A
+        p[K.P_FIR:K.P_FIR + K.N_FIR] = hfam.fir
+        sos = np.asarray(hfam.sos)
+        if len(sos) > K.MAX_SOS:
+            raise ValueError(f"HFAM filter has {len(sos)} sections, at most {K.MAX_SOS}")
+        p[K.P_HF_NSOS] = len(sos)
+        for q, row in enumerate(sos):
+            b0, b1, b2, a0, a1, a2 = row
+            p[K.P_SOS + 5 * q:K.P_SOS + 5 * q + 5] = (b0 / a0, b1 / a0, b2 / a0, a1 / a0, a2 / a0)
+
+
+def run_session(tb: Testbed, cfg: TeleopConfig, path_m: np.ndarray, *, cimm: CimmModel | None = None,
+                hfam=None, stroke_m: np.ndarray | None = None, seed: int = 1,
+                link_lost_tick: int | None = None, impact_ticks=None) -> SessionResult:
+    """Run one session on the simulated testbed (all in one compiled call).
+
+    Parameters
+    ----------
+    tb : Testbed
+    cfg : TeleopConfig
+    path_m : ndarray (n,)
+        Operator's voluntary path in master handle space (m), one value per servo tick.
+    cimm : CimmModel or None
+        Required for ``pf+cimm``.
+    hfam : HfamFilter or None
+        Required for ``pd+hfam``.
+    stroke_m : ndarray (n,) or None
+        Tangential coordinate along the texture (m) per tick.
+    link_lost_tick : int or None
+        Simulate loss of the master link from this tick: master output zero, slave holds.
+
+    Returns
+    -------
+    SessionResult
+    """
+    if cfg.controller == "pf+cimm" and cimm is None:
+        raise ValueError("controller pf+cimm needs a CIMM model")
+    use_cimm = cimm if cfg.controller == "pf+cimm" else None
+    p = tb.pack(use_cimm)
+    controller_params(p, tb, cfg, hfam)
+    if link_lost_tick is not None:
+        p[K.P_LINK_LOST_TICK] = float(link_lost_tick)
+    path = np.ascontiguousarray(path_m, dtype=np.float64)
+    n = len(path)
+    stroke = np.zeros(n) if stroke_m is None else np.ascontiguousarray(stroke_m, dtype=np.float64)
+    s = tb.initial_state(float(path[0]), cfg.mu)
+    rs = np.array([np.uint64(0x9E3779B97F4A7C15 ^ (seed * 0x2545F4914F6CDD1D % (1 << 64)) or 1)], dtype=np.uint64)
+    out = np.zeros((n, K.N_OUT))
+    fault, fault_tick = K.run_session(p, s, rs, path, stroke, out, 0, n, 0)
+    counts = {"master_clip_ticks": int(s[K.S_CLIP_M]), "slave_clip_ticks": int(s[K.S_CLIP_S]),
+              "hfam_clip_ticks": int(s[K.S_CLIP_HF]), "nan_ticks": int(s[K.S_NAN])}
+    return SessionResult(out, tb.servo_rate_hz, np.asarray(impact_ticks if impact_ticks is not None else []),
+                         int(fault), int(fault_tick), counts)
+
+
+# ---------------------------------------------------------------- analysis (docs/teleop.md)
+@dataclass(frozen=True)
+class TapMetrics:
+    """Contact-transient metrics of one tap (definitions in docs/teleop.md).
+
+    Attributes
+    ----------
+    impact_s : float
+        First time the measured force exceeds ``CONTACT_THRESHOLD_N`` (session time, s).
+    settling_s : float
+        Time from the impact until the force stays within max(10 % of F_qs(t), 0.05 N) of F_qs(t) up to
+        ``ANALYSIS_END_S`` (inf if it never does); F_qs(t) is :func:`quasi_static` of the force.
+    quasi_static_N : float
+        Median of F_qs 200-300 ms after the impact.
+    breaks : int
+        Contact losses (force below threshold for >= 1 ms) later than 30 ms after the impact.
+    stable : bool
+        No such contact loss, settled within the window, no fault.
+    hf_energy_fraction : float
+        Fraction of F_f's energy above 50 Hz in the first 100 ms after impact.
+    """
+
+    impact_s: float
+    settling_s: float
+    quasi_static_N: float
+    breaks: int
+    stable: bool
+    hf_energy_fraction: float
+
+
+def tap_metrics(force_N: np.ndarray, ff_N: np.ndarray, fs_hz: float, start: int, stop: int,
+                fault: bool = False) -> TapMetrics | None:
+    """Settling time and stability of one tap's contact-force transient (blind: force traces only).
+
+    Parameters
+    ----------
+    force_N : ndarray
+        Measured slave tip force (N, positive = pushed up by the environment).
+    ff_N : ndarray
+        Force applied at the master motor (N).
+    fs_hz : float
+    start, stop : int
+        Sample range of the tap (from before its impact to the end of its dwell).
+    fault : bool
+        The session stopped on a fault inside this range.
+
+    Returns
+    -------
+    TapMetrics or None (no contact in the range)
+    """
+    f = force_N[start:stop]
+    above = np.flatnonzero(f > CONTACT_THRESHOLD_N)
+    if len(above) == 0:
+        return None
+    i0 = int(above[0])
+    n_end = min(len(f), i0 + int(ANALYSIS_END_S * fs_hz))
+    fqs_t = quasi_static(f, fs_hz)
+    w0, w1 = i0 + int(QS_WINDOW_S[0] * fs_hz), i0 + int(QS_WINDOW_S[1] * fs_hz)
+    fqs = float(np.median(fqs_t[w0:min(w1, len(f))])) if w0 < len(f) else float("nan")
+    seg = f[i0:n_end]
+    ref = fqs_t[i0:n_end]
+    band = np.maximum(SETTLE_BAND * np.abs(ref), SETTLE_FLOOR_N)
+    outside = np.flatnonzero(np.abs(seg - ref) > band)
+    if len(outside) == 0:
+        settle = 0.0
+    elif outside[-1] >= len(seg) - int(0.02 * fs_hz):
+        settle = math.inf
+    else:
+        settle = (outside[-1] + 1) / fs_hz
+    # contact breaks after the grace period: runs of >= 1 ms below threshold
+    g = seg[int(GRACE_S * fs_hz):]
+    low = g <= CONTACT_THRESHOLD_N
+    min_run = max(1, int(0.001 * fs_hz))
+    breaks = 0
+    run = 0
+    for v in low:
+        run = run + 1 if v else 0
+        if run == min_run:
+            breaks += 1
+    ff = ff_N[start + i0:start + min(len(f), i0 + int(0.1 * fs_hz))]
+    hf = hf_energy_fraction(ff, fs_hz)
+    stable = (breaks == 0) and math.isfinite(settle) and not fault
+    return TapMetrics(start / fs_hz + i0 / fs_hz, settle, fqs, breaks, stable, hf)
+
+
+def quasi_static(force_N: np.ndarray, fs_hz: float) -> np.ndarray:
+    """Quasi-static force: zero-phase 2nd-order Butterworth low-pass at ``QS_CUTOFF_HZ`` (the user's
+    voluntary bandwidth, section 5.6.2); the contact transient is what lies outside it."""
+    from scipy.signal import butter, sosfiltfilt  # deferred: scipy.signal is heavy, only analysis needs it
+    if len(force_N) < 30:
+        return np.asarray(force_N, dtype=float)
+    sos = butter(2, QS_CUTOFF_HZ, fs=fs_hz, output="sos")
+    return sosfiltfilt(sos, force_N)
+
+
+def hf_energy_fraction(x: np.ndarray, fs_hz: float, f_cut_hz: float = 50.0) -> float:
+    """Fraction of the energy of ``x`` (mean removed, Hann window) above ``f_cut_hz``."""
+    if len(x) < 8:
+        return float("nan")
+    x = (x - np.mean(x)) * np.hanning(len(x))
+    X = np.abs(np.fft.rfft(x)) ** 2
+    f = np.fft.rfftfreq(len(x), 1 / fs_hz)
+    tot = X.sum()
+    return float(X[f > f_cut_hz].sum() / tot) if tot > 0 else 0.0
+
+
+def session_metrics(res: SessionResult) -> list[TapMetrics | None]:
+    """:func:`tap_metrics` for every tap of a session (split at the path's surface crossings)."""
+    fe = res.traces[:, K.O_FE]
+    ff = res.traces[:, K.O_FF]
+    n_valid = res.fault_tick + 1 if res.fault else len(fe)
+    ticks = list(res.impact_ticks) + [len(fe)]
+    out = []
+    for j in range(len(ticks) - 1):
+        a = max(0, int(ticks[j]) - int(0.02 * res.fs_hz))
+        b = min(int(ticks[j + 1]) - int(0.02 * res.fs_hz), a + int((ANALYSIS_END_S + 0.15) * res.fs_hz))
+        if a >= n_valid:
+            out.append(None)
+            continue
+        out.append(tap_metrics(fe[:n_valid], ff[:n_valid], res.fs_hz, a, min(b, n_valid),
+                               fault=bool(res.fault) and b >= n_valid))
+    return out
+
+
+def default_path(fs_hz: float, mu: float, n_taps: int = 10, speed_m_s: float = 0.1, **kw):
+    """Ten taps of the operator, scaled so the slave descends ``10 mm`` and presses ``2 mm`` (path, crossings)."""
+    return tap_path(n_taps, fs_hz, speed_m_s=speed_m_s, approach_m=0.01 / mu, press_m=0.002 / mu, **kw)
+
+
+def with_(cfg: TeleopConfig, **kw) -> TeleopConfig:
+    """Copy of ``cfg`` with changes (validated)."""
+    return replace(cfg, **kw)
