@@ -1,12 +1,16 @@
-# Set-up and entry points. Needs only Python 3.11 on the machine; the Debian
-# packages the study audio, browser tests and firmware build use are installed
-# by `make system-deps` (root; .ci/run calls it).
+# Set-up and entry points. Needs only Python 3.11 on the machine. The system parts
+# the tests use (PortAudio, espeak-ng, Chromium, the AVR toolchain, simavr) are
+# provisioned by `make test` without root into .deps/ (devices/provision.py: apt
+# download-only + dpkg-deb -x, else PyPI wheels; system copies are used where
+# present); `make system-deps` (root) installs them system-wide instead.
+# HFAM_DEPS=provision ignores system copies, HFAM_MISSING_DEPS=skip turns a
+# missing part's test failures into skips (see devices/sysdeps.py).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench venv system-deps clean
+.PHONY: demo test bench venv deps system-deps clean
 
 $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
@@ -20,9 +24,12 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m renderer demo --device sim
 
-test: $(STAMP)
-	@$(PY) -c "import sounddevice" 2>/dev/null || echo "note: PortAudio (libportaudio2) missing: masking-audio tests will fail; run 'make system-deps' as root"
+test: $(STAMP) deps
 	$(PY) -m pytest -q
+
+# once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
+deps: $(STAMP)
+	@$(PY) -m devices.provision
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
@@ -31,7 +38,8 @@ bench: $(STAMP)
 # Chromium for the browser tests, the AVR toolchain to build the reference firmware.
 system-deps:
 	apt-get update -qq
-	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 espeak-ng chromium chromium-driver gcc-avr binutils-avr avr-libc
+	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 espeak-ng chromium gcc-avr binutils-avr avr-libc \
+	    simavr libsimavr2 libsimavr-dev libsimavrparts1 gcc libc6-dev make
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info .deps

@@ -3,7 +3,6 @@
 import itertools
 import json
 import re
-import shutil
 import subprocess
 import sys
 import time
@@ -17,6 +16,7 @@ from playwright.sync_api import sync_playwright
 
 from study.webui import KEY_HINT, UiState, WebUI
 
+from ..needs import chromium
 from .helpers import read_rows, write, QUICK_PROTOCOL
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,8 +26,7 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networki
 
 @pytest.fixture(scope="module")
 def browser():
-    exe = shutil.which("chromium")
-    assert exe, "Debian chromium is required for the view tests (make system-deps)"
+    exe = chromium()
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
         yield b
