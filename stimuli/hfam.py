@@ -45,6 +45,8 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import signal
 
+from devices import provenance
+
 from .library import HfamLibrary
 from .recordings import Tap
 
@@ -671,12 +673,7 @@ def _model_dict(name: str, model) -> dict:
 
 
 def _software_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return f"hfam-haptics {version('hfam-haptics')}"
-    except Exception:  # running from a source tree without metadata
-        return "hfam-haptics (unknown version)"
+    return provenance.version_line()
 
 
 def file_digest(path) -> str:
