@@ -14,7 +14,7 @@ COMMAND_MODULES = ("devices.cli_record", "devices.cli_identify", "devices.cli_ha
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m devices", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=_prog(), description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
         try:
@@ -32,7 +32,8 @@ def main(argv=None) -> int:
         return 2
 
 
-if __name__ == "__main__":
+def run() -> None:
+    """Entry point of ``python -m devices`` and of the ``hfam-devices`` console script: exit with main()'s code."""
     try:
         code = main()
         sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
@@ -42,3 +43,13 @@ if __name__ == "__main__":
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         sys.exit(1)
     sys.exit(code)
+
+
+def _prog() -> str:
+    """``hfam-devices`` when run as the console script, else ``python -m devices`` (for usage and error lines)."""
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    return name if name.startswith("hfam-") else "python -m devices"
+
+
+if __name__ == "__main__":
+    run()
