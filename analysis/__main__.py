@@ -8,7 +8,7 @@ import os
 import sys
 
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ("analysis.report", "analysis.synthetic_cmd")
+COMMAND_MODULES: tuple[str, ...] = ("analysis.cli_report", "analysis.cli_synthetic")
 
 
 def main(argv=None) -> int:

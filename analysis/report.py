@@ -1,16 +1,11 @@
-"""``python -m analysis report DATA --out REPORT``: tables, figures, report.md and report.html."""
+"""The study report: tables, figures, report.md and report.html (command: :mod:`analysis.cli_report`)."""
 
 from __future__ import annotations
 
-import argparse
 import base64
 import html
-import sys
-import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
     import pandas as pd
@@ -216,44 +211,3 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     html_path.write_text("<!doctype html><html><head><meta charset='utf-8'><title>Realism study analysis</title>"
                          f"<style>{style}</style></head><body>{''.join(body)}</body></html>\n", encoding="utf-8")
     return {"tables": tables, "figures": fig_paths, "notes": notes, "md": md_path, "html": html_path}
-
-
-def run(args: argparse.Namespace) -> int:
-    cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha)
-    out = Path(args.out)
-    if out.resolve() == Path(args.data).resolve():
-        raise ValueError(f"--out {out} must not be the data folder {args.data}")
-    from analysis.load import AnalysisWarning
-    from analysis.pipeline import analyse
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", AnalysisWarning)
-        res = analyse(args.data, cfg)
-        written = write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity)
-    for w in caught:
-        if issubclass(w.category, AnalysisWarning):
-            print(f"warning: {w.message}", file=sys.stderr)
-    for note in written["notes"]:
-        print(f"note: {note}", file=sys.stderr)
-    print(f"wrote {len(written['tables'])} tables, {len(written['figures'])} figures, "
-          f"{written['md']} and {written['html']}")
-    return 0
-
-
-def register(subparsers) -> None:
-    p = subparsers.add_parser("report", help="analyse a study folder: tables, figures, report.md/.html",
-                              description="Analyse DATA (folder of subject folders with session.json and "
-                                          "trials.csv) and write tables, figures, report.md and report.html "
-                                          "into REPORT.")
-    p.add_argument("data", metavar="DATA", help="study data folder (one subfolder per subject)")
-    p.add_argument("--out", required=True, metavar="REPORT", help="output folder (created)")
-    p.add_argument("--reference", default=DEFAULT_REFERENCE,
-                   help=f"reference sample of the equivalence tests (default {DEFAULT_REFERENCE})")
-    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
-                   help=f"equivalence margin in rating points, set before looking (default {DEFAULT_MARGIN})")
-    p.add_argument("--group", default="both", choices=("both", "all", "experienced"),
-                   help="subject groups to test: all subjects, experienced (experience != none) or both (default)")
-    p.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")
-    p.add_argument("--velocity", type=float, default=None, metavar="V_M_S",
-                   help="common incoming velocity for Figure 4.20 in m/s (default: median of all taps)")
-    p.add_argument("--no-figures", action="store_true", help="tables and report without figures")
-    p.set_defaults(func=run)

@@ -12,8 +12,8 @@ import time
 
 def _streaming(n: int = 5000, process: bool = True, rt_priority: int | None = None) -> dict:
     from devices.cli_hardware import measure_latency
-    from devices.emulator import start_emulator
-    from devices.serial_device import SerialDevice
+    from devices.firmware.emulator import start_emulator
+    from devices.hardware.serial_device import SerialDevice
 
     import os
 
@@ -40,8 +40,8 @@ def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict
     import os
 
     from devices.cli_hardware import percentiles_us, set_realtime_priority
-    from devices.emulator import start_emulator
-    from devices.serial_device import SerialDevice
+    from devices.firmware.emulator import start_emulator
+    from devices.hardware.serial_device import SerialDevice
 
     port, handle = start_emulator("streaming", process=True, rt_priority=rt_priority)
     try:
@@ -76,8 +76,8 @@ def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict
 
 
 def _on_device(duration_s: float = 2.0) -> dict:
-    from devices.emulator import start_emulator
-    from devices.serial_device import SerialDevice
+    from devices.firmware.emulator import start_emulator
+    from devices.hardware.serial_device import SerialDevice
     from stimuli.transients import Pulse
 
     port, handle = start_emulator("on-device", process=True, pace="realtime")
@@ -103,7 +103,7 @@ def _on_device(duration_s: float = 2.0) -> dict:
 
 def _codec(n: int = 50_000) -> tuple[float, float]:
     """Host cost per frame (us): parse + CRC + decode of a STATE frame, encode of a CURRENT frame."""
-    from devices import protocol as P
+    from devices.hardware import wire_protocol as P
 
     frame = P.encode_frame(P.STATE, 1, P.encode_state(1, 2, 3, 4, 0, 5, 6))
     parser = P.FrameParser()

@@ -70,7 +70,8 @@ def servo_timing(isolated: bool, load: bool, window_s: float = 2.0) -> dict:
     from study.audio import MaskingAudio
     from study.config import ProtocolConfig
     from study.participants import SimulatedParticipant
-    from study.webui import UiState, WebUI
+    from study.uistate import UiState
+    from study.webui import WebUI
 
     catalog = [s for s in load_catalog() if s.name == "pulse_firm"]
     protocol = ProtocolConfig()

@@ -86,7 +86,7 @@ def set_realtime_priority(priority: int | None) -> str:
 
 
 def run_emulate(args) -> int:
-    from .emulator import FaultSpec, build_emulator
+    from .firmware.emulator import FaultSpec, build_emulator
 
     faults = FaultSpec.parse(args.fault)
     emu = build_emulator(args.mode, faults, args.sim, args.taps, args.grip_N, args.sample, args.watchdog_ms,

@@ -62,10 +62,10 @@ def make_device(spec: str, **options) -> Device:
 
         return SimDevice.from_spec(rest or None, **options)
     if kind == "serial":
-        from .serial_device import SerialDevice
+        from .hardware.serial_device import SerialDevice
 
         return SerialDevice(rest, **options)
-    from .hid_device import HidDevice
+    from .hardware.hid_device import HidDevice
 
     vid, pid = rest.split(":")
     return HidDevice(int(vid, 16), int(pid, 16), **options)

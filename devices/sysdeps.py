@@ -71,11 +71,11 @@ COMPONENTS: dict[str, Component] = {c.name: c for c in (
     Component("chromium", "Chromium browser (headless view tests)", ("chromium",),
               "tests/study/test_views_browser.py, tests/analysis/test_analysis_report.py"),
     Component("avr-toolchain", "AVR toolchain avr-gcc + avr-libc (firmware build)",
-              ("gcc-avr", "binutils-avr", "avr-libc"), "tests/devices/**/test_*firmware*.py (AVR build)"),
+              ("gcc-avr", "binutils-avr", "avr-libc"), "tests/devices/firmware/test_c_firmware.py (AVR build)"),
     Component("simavr", "simavr AVR simulator and libsimavr (running the firmware)",
-              ("simavr", "libsimavr2", "libsimavr-dev", "libsimavrparts1"), "the simavr firmware tests"),
+              ("simavr", "libsimavr2", "libsimavr-dev", "libsimavrparts1"), "the simavr firmware tests (tests/devices/firmware/)"),
     Component("cc", "host C compiler cc (C firmware checks)", ("gcc", "libc6-dev"),
-              "tests/devices/**/test_*firmware*.py (host builds)"),
+              "tests/devices/firmware/test_c_firmware.py (host builds)"),
 )}
 
 

@@ -10,7 +10,7 @@ import sys
 from devices.base import DeviceError
 
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ("renderer.cmd_run", "renderer.demo")
+COMMAND_MODULES: tuple[str, ...] = ("renderer.cli_run", "renderer.demo.cli_demo")
 
 
 def main(argv=None) -> int:

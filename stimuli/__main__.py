@@ -10,7 +10,7 @@ import sys
 from devices.base import DeviceError
 
 # command modules; each defines register(subparsers) -> adds its parser with set_defaults(func=...)
-COMMAND_MODULES: tuple[str, ...] = ("stimuli.cli_build", "stimuli.cli_show")
+COMMAND_MODULES: tuple[str, ...] = ("stimuli.cli_build", "stimuli.cli_show", "stimuli.cli_sim_library")
 
 
 def main(argv=None) -> int:

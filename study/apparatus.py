@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .homing import HomingConfig, HomingController
+from renderer.homing import HomingConfig, HomingController
 from .rater import Reference, tap_features
 
 # full-rate channels kept in the per-attempt trace files (float32 except t_s)

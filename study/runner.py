@@ -23,7 +23,7 @@ import numpy as np
 
 from .data import SessionStore, utc_now
 from .protocol import Schedule, Trial, reason_of
-from .webui import Aborted
+from .uistate import Aborted
 
 SUBJECT_TEXT = {
     "familiarization": "Tap on the wooden sample as often as you like to learn how it feels.\n"

@@ -11,7 +11,7 @@
 
 The server (``ThreadingHTTPServer``) binds to 127.0.0.1 unless asked
 otherwise and runs in daemon threads; the runner talks to it through
-:class:`UiState`, a lock-protected state with condition waits. Keys are
+:class:`study.uistate.UiState`, a lock-protected state with condition waits. Keys are
 validated by the server (the page's own check is only for the hint).
 """
 
@@ -19,149 +19,14 @@ from __future__ import annotations
 
 import hmac
 import json
-import math
 import secrets
 import threading
-import time
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import parse_qs, urlparse
 
-RATING_KEYS = ("1", "2", "3", "4", "5", "6", "7", "x")
-KEY_HINT = "Please use the keys 1 to 7 to rate, or x to reject this trial."
-FAM_HINT = "Keep tapping on the wood. Press Enter when you are done."
-
-
-class Aborted(RuntimeError):
-    """The operator aborted the session (data written so far is kept; resume with --resume)."""
-
-
-def _json_safe(obj):
-    """Replace NaN/inf (e.g. the mean velocity of an attempt without taps) by None: browsers reject NaN in JSON."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
-class UiState:
-    """State shared between the runner thread and the HTTP handler threads."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self.subject = {"message": "Please wait.", "prompt": "wait", "hint": "", "seq": 0}
-        self.operator = {"phase": "", "trial": None, "attempt": None, "place": "", "awaiting_confirm": False,
-                         "progress": {}, "last_attempt": None, "paused": False, "aborted": False,
-                         "message": "", "redraws": [], "seq": 0}
-        self._rating = None
-        self._end_familiarization = False
-        self._confirmed = False
-        self.keys_ignored = 0
-
-    # -- runner side ---------------------------------------------------------
-    def set_subject(self, message: str, prompt: str) -> None:
-        with self._cond:
-            self.subject.update(message=message, prompt=prompt, hint="")
-            self.subject["seq"] += 1
-            if prompt == "rate":
-                self._rating = None
-            self._cond.notify_all()
-
-    def set_operator(self, **fields) -> None:
-        with self._cond:
-            self.operator.update(_json_safe(fields))
-            self.operator["seq"] += 1
-            self._cond.notify_all()
-
-    def request_confirm(self, place: str) -> None:
-        with self._cond:
-            self._confirmed = False
-            self.operator.update(place=place, awaiting_confirm=True)
-            self.operator["seq"] += 1
-            self._cond.notify_all()
-
-    def confirmed(self) -> bool:
-        with self._cond:
-            self._check_abort()
-            return self._confirmed and not self.operator["paused"]
-
-    def rating(self):
-        """The key the subject gave ('1'..'7' or 'x'), or None yet."""
-        with self._cond:
-            self._check_abort()
-            return self._rating
-
-    def familiarization_ended(self) -> bool:
-        with self._cond:
-            return self._end_familiarization
-
-    def wait(self, predicate, timeout_s: float | None = None) -> bool:
-        """Block until ``predicate()`` (called under the lock) is true; raises :class:`Aborted`."""
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        with self._cond:
-            while True:
-                self._check_abort()
-                if predicate():
-                    return True
-                remaining = None if deadline is None else deadline - time.monotonic()
-                if remaining is not None and remaining <= 0:
-                    return False
-                self._cond.wait(0.1 if remaining is None else min(0.1, remaining))
-
-    def _check_abort(self) -> None:
-        if self.operator["aborted"]:
-            raise Aborted("the operator aborted the session")
-
-    # -- handler side --------------------------------------------------------
-    def subject_key(self, key: str) -> dict:
-        with self._cond:
-            prompt = self.subject["prompt"]
-            accepted = False
-            if prompt == "rate" and key in RATING_KEYS and self._rating is None:
-                self._rating = key
-                accepted = True
-                self.subject.update(message="Thank you.", prompt="wait", hint="")
-            elif prompt == "familiarization" and key == "Enter":
-                self._end_familiarization = True
-                accepted = True
-                self.subject.update(message="Familiarization ends after this round. Please wait.", prompt="wait",
-                                    hint="")
-            else:
-                self.keys_ignored += 1
-                self.subject["hint"] = KEY_HINT if prompt == "rate" else (
-                    FAM_HINT if prompt == "familiarization" else "No key is needed now; please wait.")
-            self.subject["seq"] += 1
-            self._cond.notify_all()
-            return {"accepted": accepted, **self.subject}
-
-    def operator_action(self, action: str) -> dict:
-        with self._cond:
-            if action == "confirm":
-                if not self.operator["awaiting_confirm"]:
-                    return {"ok": False, "error": "nothing to confirm"}
-                self._confirmed = True
-                self.operator["awaiting_confirm"] = False
-            elif action == "pause":
-                self.operator["paused"] = True
-            elif action == "resume":
-                self.operator["paused"] = False
-            elif action == "abort":
-                self.operator["aborted"] = True
-            elif action == "end_familiarization":
-                self._end_familiarization = True
-            else:
-                return {"ok": False, "error": f"unknown action {action!r}"}
-            self.operator["seq"] += 1
-            self._cond.notify_all()
-            return {"ok": True}
-
-    def snapshot(self, which: str) -> dict:
-        with self._cond:
-            return json.loads(json.dumps(self.subject if which == "subject" else self.operator))
+from .uistate import UiState
 
 
 def _asset(name: str) -> bytes:

@@ -2,8 +2,8 @@
  *
  * Speaks protocol 1.0 of docs/protocol.md over the UART at 1 Mbaud (U2X, exact at 16 MHz; the
  * host opens the port at any nominal baud the USB-serial bridge maps to 1 Mbaud, or use a
- * native-USB board). Same behaviour as the Python emulator (devices/emulator.py +
- * devices/firmware_logic.py): hello/INFO, streaming (one CURRENT in -> one STATE out),
+ * native-USB board). Same behaviour as the Python emulator (devices/firmware/emulator.py +
+ * devices/firmware/logic.py): hello/INFO, streaming (one CURRENT in -> one STATE out),
  * on-device rendering of wall + pulse / decaying sinusoid / host re-armed sampled transient
  * with a steady-state and a peak current limit (thesis Fig. 4.9), contact events, and a
  * watchdog that zeroes the motor while the host is quiet (reported; output resumes with the host).
@@ -53,7 +53,7 @@
 #define R_THERMAL_K_W 8.0f
 #define TAU_THERMAL_S 30.0f
 #define T_MAX_RISE_K 80.0f
-#define T_ATTENUATE_K (0.7f * T_MAX_RISE_K) /* same fade-out as devices/firmware_logic.py */
+#define T_ATTENUATE_K (0.7f * T_MAX_RISE_K) /* same fade-out as devices/firmware/logic.py */
 #define T_END_K (0.9f * T_MAX_RISE_K)
 #define WATCHDOG_MS_DEFAULT 100
 #define REARM_MAX 128                    /* sampled transient buffer (floats): 512 of the 2048 bytes of RAM */
@@ -174,7 +174,7 @@ static int8_t cal_sign = 1;
 static float cal_a_scale = ACCEL_SCALE_M_S2_PER_COUNT, cal_a_off = ACCEL_OFFSET_COUNTS;
 static float cal_g_scale = GRIP_SCALE_N_PER_COUNT, cal_g_off = GRIP_OFFSET_COUNTS;
 
-/* renderer (devices/firmware_logic.py) */
+/* renderer (devices/firmware/logic.py) */
 static float wall_h, wall_k, wall_b, wall_rearm = 0.001f, lim_cont, lim_peak;
 static uint8_t tr_kind; /* 0 none, 1 pulse, 2 sinusoid, 4 re-armed buffer */
 static float tr_amp, tr_dur, tr_freq;

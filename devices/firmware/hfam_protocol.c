@@ -1,4 +1,4 @@
-/* Framing and CRC of docs/protocol.md; mirrors devices/protocol.py (FrameParser, crc16_bitwise). */
+/* Framing and CRC of docs/protocol.md; mirrors devices/hardware/wire_protocol.py (FrameParser, crc16_bitwise). */
 #include "hfam_protocol.h"
 
 uint16_t hfam_crc16(uint16_t crc, const uint8_t *data, uint16_t n) {

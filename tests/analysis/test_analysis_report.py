@@ -122,7 +122,7 @@ def test_accelerations_picked_near_common_velocity(analysed):
 
 
 def test_analysis_imports_no_other_package():
-    code = ("import sys, analysis.report, analysis.pipeline, analysis.traces, analysis.figures, analysis.synthetic\n"
+    code = ("import sys, analysis.report, analysis.cli_report, analysis.pipeline, analysis.traces, analysis.figures, analysis.synthetic\n"
             "bad = [m for m in ('devices', 'renderer', 'stimuli', 'study') if m in sys.modules]\n"
             "assert not bad, bad\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)

@@ -14,7 +14,8 @@ import pytest
 from playwright.sync_api import Error as PlaywrightError
 from playwright.sync_api import sync_playwright
 
-from study.webui import KEY_HINT, UiState, WebUI
+from study.uistate import KEY_HINT, UiState
+from study.webui import WebUI
 
 from ..needs import chromium
 from .helpers import read_rows, write, QUICK_PROTOCOL

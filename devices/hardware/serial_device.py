@@ -1,0 +1,754 @@
+"""Hardware drivers speaking the binary protocol (docs/protocol.md): the shared :class:`ProtocolDevice`
+and :class:`SerialDevice` (pyserial). :class:`devices.hardware.hid_device.HidDevice` reuses ProtocolDevice.
+
+Two operating modes, chosen when the device is created (``mode=`` or the
+device string ``serial:/dev/ttyACM0?mode=on-device``):
+
+* ``streaming``: the host runs the servo loop; each ``command()`` sends a
+  CURRENT frame, the device applies it and answers with one STATE frame, which
+  the next ``read()`` returns (``read()`` then ``command()``, as for every device).
+* ``on-device``: the microcontroller renders wall + transient at its native
+  rate (the hook in docs/architecture.md): ``configure_rendering`` uploads the
+  wall, limits and transient, every ``read()`` returns the next telemetry
+  STATE frame, ``pop_events()`` returns the contact events the firmware reported.
+
+Faults: garbage and partial frames are skipped by the parser's resync, CRC
+failures and sequence gaps are counted (``link_stats()``), a missing reply
+is retried, and a device that stops answering or disappears raises
+:class:`DeviceError` naming the port, with the output zeroed (the device's
+watchdog zeroes the motor when commands stop; the host never leaves a
+non-zero ``last_command_A`` behind).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import math
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from . import wire_protocol as P
+from ..base import Device, DeviceError, DeviceInfo, DeviceState, Status
+from ..fileio import atomic_write_text
+from .calibration import Calibration
+from .transport import SerialTransport, Transport, TransportClosed
+
+MODES = ("streaming", "on-device")
+CALIBRATION_ENV = "HFAM_CALIBRATION"
+
+
+# -- calibration file ----------------------------------------------------------
+def load_calibration(path, device_id: str, defaults: Calibration) -> Calibration:
+    """Per-device calibration from a JSON file ``{"devices": {"<name>/<serial>": {...}}}``.
+
+    Missing file or missing device entry: ``defaults`` (the INFO reply's factory scales).
+    Raises ValueError naming the file and key for malformed content.
+    """
+    path = Path(path)
+    if not path.exists():
+        return defaults
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    entry = data.get("devices", {}).get(device_id) if isinstance(data, dict) else None
+    if entry is None:
+        return defaults
+    values = asdict(defaults)
+    for key, value in entry.items():
+        if key not in values:
+            raise ValueError(f"{path}: devices.{device_id}.{key} is not a calibration key ({', '.join(values)})")
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            raise ValueError(f"{path}: devices.{device_id}.{key} must be a finite number, got {value!r}")
+        values[key] = value
+    if values["encoder_sign"] not in (1, -1):
+        raise ValueError(f"{path}: devices.{device_id}.encoder_sign must be 1 or -1")
+    for key in ("accel_scale_m_s2_per_count", "grip_scale_N_per_count"):
+        if values[key] <= 0:
+            raise ValueError(f"{path}: devices.{device_id}.{key} must be > 0")
+    values["encoder_zero_counts"] = int(values["encoder_zero_counts"])
+    values["encoder_sign"] = int(values["encoder_sign"])
+    return Calibration(**values)
+
+
+def save_calibration(path, device_id: str, cal: Calibration) -> Path:
+    """Write/replace one device's entry, keeping the others; atomic (temp file + rename)."""
+    path = Path(path)
+    data = {"format": "hfam-calibration", "version": 1, "devices": {}}
+    if path.exists():
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}: not valid JSON, refusing to overwrite ({exc})") from None
+        data.setdefault("devices", {})
+    data["devices"][device_id] = asdict(cal)
+    return atomic_write_text(path, json.dumps(data, indent=2))
+
+
+def _transient_upload_kind(transient, caps: int) -> str:
+    """Which upload the firmware gets for a stimuli transient: 'none', 'param', 'table' or 'rearm'."""
+    name = getattr(transient, "name", "none") if transient is not None else "none"
+    if name == "none":
+        return "none"
+    if name in ("pulse", "sinusoid") and hasattr(transient, "amplitude_Ns_m") and caps & P.CAP_PARAM_TRANSIENT:
+        return "param"
+    if hasattr(transient, "currents_A") and hasattr(transient, "velocities_m_s") and caps & P.CAP_TABLE_TRANSIENT:
+        return "table"
+    if caps & P.CAP_REARM_TRANSIENT:
+        return "rearm"
+    raise ValueError(f"device cannot render transient {name!r} on board (capabilities {P.capability_names(caps)})")
+
+
+class ProtocolDevice(Device):
+    """A :class:`Device` over any byte :class:`Transport` speaking docs/protocol.md.
+
+    Parameters
+    ----------
+    mode : {"streaming", "on-device"}
+    timeout_s : float
+        How long ``read()`` first waits for a state frame before retrying (streaming:
+        re-sends the last command); each retry doubles the wait (20, 40, 80, 160 ms by
+        default: a lost frame costs 20 ms, a stalled link has 300 ms), then DeviceError.
+    hello_timeout_s : float
+        How long the hello handshake may take (the hello is repeated meanwhile).
+    calibration : path or None
+        JSON calibration file (default: ``$HFAM_CALIBRATION`` if set).
+    watchdog_ms : int or None
+        Device watchdog period to request (None: the firmware default from INFO).
+    telemetry_decimation : int
+        On-device mode: one telemetry STATE frame every this many firmware ticks.
+    """
+
+    spec_prefix = "protocol"
+
+    def __init__(self, *, mode: str = "streaming", timeout_s: float = 0.02, hello_timeout_s: float = 1.0,
+                 retries: int = 3, calibration=None, watchdog_ms: int | None = None,
+                 telemetry_decimation: int = 1, rearm_interval_s: float = 0.02) -> None:
+        super().__init__()
+        mode = str(mode).replace("_", "-")
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        for key, value in (("timeout_s", timeout_s), ("hello_timeout_s", hello_timeout_s)):
+            if not (isinstance(value, (int, float)) and math.isfinite(float(value)) and float(value) > 0):
+                raise ValueError(f"{key} must be a positive number of seconds, got {value!r}")
+        self.mode = mode
+        self.timeout_s = float(timeout_s)
+        self.hello_timeout_s = float(hello_timeout_s)
+        self.retries = int(retries)
+        self.calibration_path = calibration if calibration is not None else os.environ.get(CALIBRATION_ENV)
+        self.watchdog_ms = None if watchdog_ms is None else int(watchdog_ms)
+        self.telemetry_decimation = int(telemetry_decimation)
+        self.rearm_interval_s = float(rearm_interval_s)
+        self._info: DeviceInfo | None = None
+        self.wire_info: P.WireInfo | None = None
+        self.cal = Calibration()
+        self._t: Transport | None = None
+        self._parser = P.FrameParser()
+        self._seq = 0
+        self._rx_seq = None
+        self._state = DeviceState()
+        self._state.extra.update(t_us=0, encoder=0, current_A=0.0, accel_raw=0, grip_raw=0)
+        self._have_state = False
+        self._cmd_pending = False
+        self._last_cmd_seq = -1
+        self._last_current = 0.0
+        self._states: collections.deque = collections.deque()
+        self._replies: dict = {}
+        self._info_payload: bytes | None = None
+        self._pongs: collections.deque = collections.deque(maxlen=64)
+        self._events: list[dict] = []
+        self._rendering = False
+        self._disconnected = False
+        self._disconnect_reported = False
+        self.last_error = ""
+        self._last_tx = 0.0
+        self._t_wraps = 0
+        self._t_last_us = None
+        self._transient = None
+        self._transient_name = "none"
+        self._rearm = False
+        self._rearm_truncation_warned = False
+        self._last_rearm = 0.0
+        self._vel_ring = [(0.0, 0.0)] * 10
+        self._vel_i = 0
+        self._wall_height_m = 0.0
+        self.stats = {"crc_errors": 0, "garbage_bytes": 0, "seq_gaps": 0, "duplicates": 0, "timeouts": 0,
+                      "retransmits": 0, "stale_states": 0, "frames_rx": 0, "frames_tx": 0, "naks": 0,
+                      "watchdog_trips": 0}
+
+    # -- identity ------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.spec_prefix
+
+    @property
+    def info(self) -> DeviceInfo:
+        if self._info is None:
+            raise DeviceError(f"{self.name}: info comes from the hello handshake; open the device first")
+        return self._info
+
+    @info.setter
+    def info(self, value: DeviceInfo) -> None:
+        self._info = value
+
+    @property
+    def on_device_rendering(self) -> bool:
+        return self.mode == "on-device"
+
+    def _make_transport(self) -> Transport:
+        raise NotImplementedError
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def _reset_link(self) -> None:
+        """Forget everything about a previous connection (the object may be reopened after a disconnect)."""
+        self._parser = P.FrameParser()
+        self._rx_seq = None
+        self._states.clear()
+        self._replies.clear()
+        self._info_payload = None
+        self._have_state = False
+        self._cmd_pending = False
+        self._rendering = False
+        self._disconnected = False
+        self._disconnect_reported = False
+        self.last_error = ""
+        self._state.status = 0
+        self._state.extra.pop("error", None)
+        self._t_wraps = 0
+        self._t_last_us = None
+
+    def _open(self) -> None:
+        self._reset_link()
+        try:
+            self._t = self._make_transport()
+        except TransportClosed as exc:
+            raise DeviceError(str(exc)) from None
+        try:
+            self._handshake()
+        except BaseException:
+            self._t.close()
+            self._t = None
+            raise
+
+    def _handshake(self) -> None:
+        deadline = time.monotonic() + self.hello_timeout_s
+        next_hello = 0.0
+        while self._info_payload is None:
+            now = time.monotonic()
+            if now >= deadline:
+                raise DeviceError(
+                    f"{self.name}: no answer to the hello within {self.hello_timeout_s:g} s "
+                    f"({self._parser.garbage_bytes} garbage bytes, {self._parser.crc_errors} bad CRCs received); "
+                    "is it a hfam-protocol device on the right port?")
+            if now >= next_hello:
+                self._tx(P.HELLO, P.HELLO_STRUCT.pack(*P.PROTOCOL_VERSION))
+                next_hello = now + 0.2
+            self._poll(min(0.05, deadline - now))
+            for key, (ok, text) in list(self._replies.items()):
+                if key[0] == P.HELLO and not ok:
+                    raise DeviceError(f"{self.name}: {text}")
+        try:
+            wire = P.decode_info(self._info_payload)
+        except P.ProtocolError as exc:
+            raise DeviceError(f"{self.name}: bad INFO reply: {exc}") from None
+        if wire.protocol_version[0] != P.PROTOCOL_VERSION[0]:
+            raise DeviceError(
+                f"{self.name}: device speaks protocol {wire.protocol_version[0]}.{wire.protocol_version[1]}, this host "
+                f"speaks {P.PROTOCOL_VERSION[0]}.{P.PROTOCOL_VERSION[1]}; update the firmware or the host")
+        if self.on_device_rendering and not wire.capability_bits & P.CAP_ON_DEVICE:
+            raise DeviceError(f"{self.name}: mode on-device requested but the device only offers "
+                              f"{wire.info.capabilities}")
+        self.wire_info = wire
+        self._info = wire.info
+        defaults = Calibration(0, 1, wire.accel_scale_m_s2_per_count, wire.accel_offset_counts,
+                               wire.grip_scale_N_per_count, wire.grip_offset_counts)
+        self.cal = (load_calibration(self.calibration_path, wire.device_id, defaults)
+                    if self.calibration_path else defaults)
+        if self.watchdog_ms is not None:
+            self._request(P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(self.watchdog_ms))
+        self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_STREAMING, 1))
+        self._request(P.CLEAR_FAULTS)
+
+    def _close(self) -> None:
+        if self._t is not None:
+            self._t.close()
+            self._t = None
+        self._rendering = False
+
+    def close(self) -> None:
+        """Zero the output (confirmed by the device's reply when it answers), then release the port."""
+        if self._is_open and not self._disconnected:
+            try:
+                if self._rendering:
+                    self.stop_rendering()
+                self.zero()
+                self.read()  # the STATE reply confirms the zero reached the firmware
+            except (DeviceError, ValueError):
+                pass
+        super().close()
+
+    # -- low level I/O -------------------------------------------------------------
+    def _fail(self, why: str) -> DeviceError:
+        """Mark the link dead, zero what the host believes it commands, and build the error."""
+        self._disconnected = True
+        self.last_command_A = 0.0
+        self._state.status |= Status.DISCONNECTED
+        self.last_error = f"{self.name}: {why}"
+        self._state.extra["error"] = self.last_error
+        return DeviceError(self.last_error)
+
+    def _tx(self, msg_type: int, payload: bytes = b"") -> int:
+        if self._disconnected or self._t is None:
+            raise DeviceError(f"{self.name}: link is closed or disconnected")
+        seq = self._seq
+        self._seq = (seq + 1) & 0xFF
+        try:
+            self._t.write(P.encode_frame(msg_type, seq, payload))
+        except TransportClosed as exc:
+            raise self._fail(f"disconnected ({exc}); output zeroed by the device watchdog") from None
+        self._last_tx = time.monotonic()
+        self.stats["frames_tx"] += 1
+        return seq
+
+    def _poll(self, timeout_s: float) -> None:
+        try:
+            data = self._t.read(timeout_s)
+        except TransportClosed as exc:
+            raise self._fail(f"disconnected ({exc}); output zeroed by the device watchdog") from None
+        if data:
+            for frame in self._parser.feed(data):
+                self._dispatch(frame)
+            self.stats["crc_errors"] = self._parser.crc_errors
+            self.stats["garbage_bytes"] = self._parser.garbage_bytes
+
+    def _dispatch(self, frame: P.Frame) -> None:
+        last = self._rx_seq
+        if last is not None:
+            if frame.seq == last:
+                self.stats["duplicates"] += 1
+                return
+            gap = (frame.seq - last - 1) & 0xFF
+            if gap > 200:  # far "behind": a stale or duplicated older frame, not 200+ lost ones
+                self.stats["duplicates"] += 1
+                return
+            self.stats["seq_gaps"] += gap
+        self._rx_seq = frame.seq
+        self.stats["frames_rx"] += 1
+        t = frame.type
+        if t == P.STATE:
+            self._states.append(frame.payload)
+        elif t == P.EVENT:
+            self._on_event(frame.payload)
+        elif t == P.ACK:
+            if len(frame.payload) == 2:
+                self._replies[tuple(frame.payload)] = (True, "")
+        elif t == P.NAK:
+            self.stats["naks"] += 1
+            if len(frame.payload) >= 3:
+                self._replies[(frame.payload[0], frame.payload[1])] = (False, P.describe_nak(frame.payload))
+        elif t == P.INFO:
+            self._info_payload = frame.payload
+        elif t == P.PONG:
+            self._pongs.append(frame.payload)
+
+    def _request(self, msg_type: int, payload: bytes = b"", timeout_s: float | None = None) -> None:
+        """Send a configuration frame and wait for its ACK (retrying); NAK -> ValueError."""
+        timeout_s = max(self.timeout_s, 0.05) if timeout_s is None else timeout_s
+        for _ in range(self.retries + 1):
+            seq = self._tx(msg_type, payload)
+            key = (msg_type, seq)
+            deadline = time.monotonic() + timeout_s
+            while key not in self._replies:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._poll(left)
+            reply = self._replies.pop(key, None)
+            if reply is None:
+                self.stats["timeouts"] += 1
+                for frame in self._parser.skip_partial():
+                    self._dispatch(frame)
+                reply = self._replies.pop(key, None)
+            if reply is None:
+                continue
+            ok, text = reply
+            if not ok:
+                raise ValueError(f"{self.name}: {text}")
+            return
+        raise self._fail(f"no acknowledgement of {P.TYPE_NAMES.get(msg_type)} after {self.retries + 1} tries "
+                         f"of {timeout_s * 1000:.0f} ms; device not responding")
+
+    # -- servo cycle ----------------------------------------------------------------
+    def _send_current(self, current_A: float) -> None:
+        if self._disconnected or self._t is None:
+            return  # nothing to command; the device watchdog has zeroed the motor
+        if self._rendering:
+            if current_A != 0.0:
+                raise DeviceError(f"{self.name}: the device renders on board; call stop_rendering() "
+                                  "before commanding current")
+            return
+        self._last_current = current_A
+        try:
+            self._last_cmd_seq = self._tx(P.CURRENT, P.encode_current(current_A))
+        except DeviceError:
+            return  # marked disconnected; the next read() reports it (servo loops check status there)
+        self._cmd_pending = True
+
+    def read(self) -> DeviceState:
+        """Next state sample (see module doc).
+
+        When the link dies (disconnect, or no reply after ``retries`` timeouts) the first
+        ``read()`` returns the last state with ``Status.DISCONNECTED`` set and the error text in
+        ``state.extra["error"]`` (so a servo loop can stop and save its data), later calls raise
+        :class:`DeviceError`.
+        """
+        if self._disconnected:
+            if not self._disconnect_reported:
+                self._disconnect_reported = True
+                return self._state
+            raise DeviceError(self.last_error or f"{self.name}: disconnected; reopen the device")
+        if self._t is None:
+            raise DeviceError(f"{self.name}: device is not open")
+        try:
+            return self._read_telemetry() if self._rendering else self._read_streaming()
+        except DeviceError:
+            if self._disconnected and not self._disconnect_reported:
+                self._disconnect_reported = True
+                return self._state
+            raise
+
+    def _read_streaming(self) -> DeviceState:
+        if not self._cmd_pending and self._have_state:
+            return self._state  # host-paced: no new sample exists until the next command
+        if not self._cmd_pending:
+            self._send_current(0.0)
+        tries = 0
+        wait = self.timeout_s
+        deadline = time.monotonic() + wait
+        t_start = time.monotonic()
+        while True:
+            states = self._states
+            while states:
+                raw = P.decode_state(states.popleft())
+                if raw.cmd_seq == self._last_cmd_seq:
+                    states.clear()
+                    self._cmd_pending = False
+                    return self._apply(raw)
+                self.stats["stale_states"] += 1
+                self._apply_status_only(raw)
+            left = deadline - time.monotonic()
+            if left <= 0 and not self._final_poll():
+                self.stats["timeouts"] += 1
+                tries += 1
+                if tries > self.retries:
+                    raise self._fail(f"no state frame within {(time.monotonic() - t_start) * 1000:.0f} ms "
+                                     f"({tries} tries); device not responding (output zeroed by its watchdog)")
+                for frame in self._parser.skip_partial():
+                    self._dispatch(frame)
+                self.stats["retransmits"] += 1
+                self._last_cmd_seq = self._tx(P.CURRENT, P.encode_current(self._last_current))
+                wait *= 2  # back off: a lost frame is retried at once, a stalled link gets time
+                deadline = time.monotonic() + wait
+                continue
+            self._poll(left)
+
+    def _read_telemetry(self) -> DeviceState:
+        # the device free-runs: a late frame means a stalled link or device, never a lost command
+        wait = max(self.timeout_s, 0.05)
+        t_start = time.monotonic()
+        deadline = t_start + wait
+        tries = 0
+        states = self._states
+        while not states:
+            now = time.monotonic()
+            self._keepalive(now)
+            left = deadline - now
+            if left <= 0 and not self._final_poll():
+                self.stats["timeouts"] += 1
+                tries += 1
+                for frame in self._parser.skip_partial():
+                    self._dispatch(frame)
+                if tries > self.retries:
+                    raise self._fail(f"no telemetry for {(now - t_start) * 1000:.0f} ms; device not responding")
+                wait *= 2
+                deadline = now + wait
+                continue
+            self._poll(min(left, 0.005))
+        state = self._apply(P.decode_state(states.popleft()))
+        now = time.monotonic()
+        self._keepalive(now)
+        if self._rearm:
+            self._maybe_rearm(now, state)
+        return state
+
+    def _final_poll(self) -> bool:
+        """At a deadline: take what already arrived (non-blocking) before calling it a timeout.
+
+        A host thread that was descheduled (loaded machine, another thread holding the GIL)
+        may wake after its deadline with the reply already waiting in the tty buffer.
+        """
+        n = len(self._states)
+        self._poll(0.0)
+        return len(self._states) > n
+
+    def _keepalive(self, now: float) -> None:
+        wd = self.wire_info.watchdog_ms if self.watchdog_ms is None else self.watchdog_ms
+        if now - self._last_tx > wd * 0.25e-3:
+            self._tx(P.KEEPALIVE)
+
+    def _unwrap_us(self, t_us: int) -> float:
+        last = self._t_last_us
+        if last is not None and t_us < last and last - t_us > 0x80000000:
+            self._t_wraps += 1
+        self._t_last_us = t_us
+        return (self._t_wraps * 4294967296 + t_us) * 1e-6
+
+    def _apply(self, raw: P.RawState) -> DeviceState:
+        cal = self.cal
+        st = self._state
+        st.t_s = self._unwrap_us(raw.t_us)
+        st.position_m = cal.encoder_sign * (raw.encoder - cal.encoder_zero_counts) * self._info.position_resolution_m
+        st.accel_m_s2 = (raw.accel_raw - cal.accel_offset_counts) * cal.accel_scale_m_s2_per_count
+        st.grip_N = (raw.grip_raw - cal.grip_offset_counts) * cal.grip_scale_N_per_count
+        self._apply_status_only(raw)
+        ex = st.extra
+        ex["t_us"] = raw.t_us
+        ex["encoder"] = raw.encoder
+        ex["accel_raw"] = raw.accel_raw
+        ex["grip_raw"] = raw.grip_raw
+        ex["current_A"] = raw.current_mA * 1e-3
+        self._have_state = True
+        return st
+
+    def _apply_status_only(self, raw: P.RawState) -> None:
+        if raw.status & Status.WATCHDOG_TRIPPED and not self._state.status & Status.WATCHDOG_TRIPPED:
+            self.stats["watchdog_trips"] += 1
+        self._state.status = raw.status
+
+    def clear_faults(self) -> None:
+        """Clear the latched FAULT (a non-finite command keeps the output at zero until this)."""
+        self._request(P.CLEAR_FAULTS)
+        self._state.status &= ~int(Status.WATCHDOG_TRIPPED | Status.FAULT)
+
+    def ping(self, payload: bytes = b"") -> float:
+        """Round trip of a PING in seconds (no actuation, no physics step)."""
+        self._pongs.clear()
+        t0 = time.perf_counter()
+        self._tx(P.PING, payload)
+        deadline = time.monotonic() + max(self.timeout_s, 0.05)
+        while not self._pongs:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DeviceError(f"{self.name}: no PONG within {max(self.timeout_s, 0.05) * 1000:.0f} ms")
+            self._poll(left)
+        return time.perf_counter() - t0
+
+    def link_stats(self) -> dict:
+        """Counters: CRC errors, garbage bytes, sequence gaps, duplicates, timeouts, retransmits, NAKs, ..."""
+        return dict(self.stats)
+
+    # -- calibration -------------------------------------------------------------------
+    def _mean_raw(self, n: int) -> tuple[float, float, float]:
+        enc = acc = grip = 0.0
+        for _ in range(n):
+            self.read()
+            ex = self._state.extra
+            enc += ex["encoder"]
+            acc += ex["accel_raw"]
+            grip += ex["grip_raw"]
+            if not self._rendering:
+                self.command(0.0)
+        return enc / n, acc / n, grip / n
+
+    def calibrate_encoder_zero(self, known_position_m: float = 0.0, n: int = 20) -> int:
+        """Hold the handle at ``known_position_m`` and call this: sets the encoder zero (eq. 3.3)."""
+        enc, _, _ = self._mean_raw(n)
+        res = self.info.position_resolution_m
+        self.cal.encoder_zero_counts = int(round(enc - self.cal.encoder_sign * known_position_m / res))
+        return self.cal.encoder_zero_counts
+
+    def calibrate_sensor_offsets(self, n: int = 200, accel: bool = True, grip: bool = True) -> None:
+        """With the handle at rest (and, for grip, not held): zero offsets of accelerometer and grip sensor."""
+        _, acc, grp = self._mean_raw(n)
+        if accel:
+            self.cal.accel_offset_counts = acc
+        if grip:
+            self.cal.grip_offset_counts = grp
+
+    def save_calibration(self, path=None) -> Path:
+        path = path or self.calibration_path
+        if not path:
+            raise ValueError("no calibration file given (calibration= option or $HFAM_CALIBRATION)")
+        return save_calibration(path, self.wire_info.device_id, self.cal)
+
+    # -- on-device rendering hook (docs/architecture.md) ----------------------------
+    def configure_rendering(self, wall: dict, limits: dict, transient=None) -> None:
+        """Upload wall, limits and transient, then start on-board rendering (see module doc).
+
+        ``wall``: height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m;
+        ``limits``: continuous_A, peak_A, amplifier_A (clamped to the device's own);
+        ``transient``: a stimuli transient (pulse/sinusoid -> parameters, HfamLibrary -> table,
+        anything else -> a sampled transient the host re-arms from the approach velocity and grip).
+        """
+        if not self.on_device_rendering:
+            raise DeviceError(f"{self.name}: opened in streaming mode; use mode='on-device' to render on board")
+        if not self._is_open:
+            raise DeviceError(f"{self.name}: open the device before configure_rendering")
+        w = [_number(wall, key, "wall") for key in ("height_m", "stiffness_N_m", "damping_N_s_m", "rearm_margin_m")]
+        lim = [_number(limits, key, "limits") for key in ("continuous_A", "peak_A")]
+        info = self.info
+        cont = min(lim[0], info.current_continuous_A)
+        peak = min(lim[1], info.current_peak_A)
+        amp = min(float(limits.get("amplifier_A", info.current_amplifier_A)), info.current_amplifier_A)
+        caps = self.wire_info.capability_bits
+        kind = _transient_upload_kind(transient, caps)
+        if transient is not None:
+            transient.check_device(info, info.servo_rate_hz)
+        if self._rendering:
+            self.stop_rendering()
+        self._request(P.SET_CALIBRATION, self.cal.to_payload())
+        self._request(P.WALL, P.WALL_STRUCT.pack(*w))
+        self._request(P.LIMITS, P.LIMITS_STRUCT.pack(cont, peak, amp))
+        self._rearm = False
+        if kind == "none":
+            self._request(P.TRANSIENT_PARAM, P.TRANSIENT_PARAM_STRUCT.pack(P.TRANSIENT_NONE, 0, 0, 0, 0))
+        elif kind == "param":
+            amp_ns = transient.gain * transient.amplitude_Ns_m
+            if transient.name == "pulse":
+                body = P.TRANSIENT_PARAM_STRUCT.pack(P.TRANSIENT_PULSE, amp_ns, transient.duration_s, 0.0, 0.0)
+            else:
+                body = P.TRANSIENT_PARAM_STRUCT.pack(P.TRANSIENT_SINUSOID, amp_ns, transient.duration_s,
+                                                     transient.frequency_hz, 0.0)
+            self._request(P.TRANSIENT_PARAM, body)
+        elif kind == "table":
+            self._upload_table(transient)
+        else:
+            self._rearm = True
+            self._upload_rearm(transient, 0.1, 2.0, wait=True)
+        self._transient = transient
+        self._transient_name = getattr(transient, "name", "none") if transient is not None else "none"
+        self._wall_height_m = w[0]
+        self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_ON_DEVICE, self.telemetry_decimation))
+        self._request(P.CLEAR_FAULTS)
+        self._states.clear()
+        self._events.clear()
+        self._request(P.RENDER_START)
+        self._rendering = True
+
+    def _upload_table(self, lib) -> None:
+        import numpy as np
+
+        c = np.asarray(lib.currents_A, dtype=float)
+        n_v, n_g, n_s = c.shape
+        if c.size > self.wire_info.max_table_samples:
+            raise ValueError(f"{self.name}: HFAM library of {c.size} samples exceeds the device's table memory "
+                             f"({self.wire_info.max_table_samples} samples)")
+        self._request(P.TABLE_BEGIN, P.encode_table_begin(lib.velocities_m_s, lib.grips_N, n_s, lib.fs_hz,
+                                                          lib.gain, lib.max_extrapolation))
+        flat = c.reshape(-1).tolist()
+        step = P.TABLE_CHUNK_SAMPLES
+        for off in range(0, len(flat), step):
+            self._request(P.TABLE_DATA, P.encode_data_chunk(off, flat[off:off + step]))
+        self._request(P.TABLE_COMMIT, P.DATA_OFFSET_STRUCT.pack(len(flat)))
+
+    def _upload_rearm(self, transient, v_in_m_s: float, grip_N: float, wait: bool) -> None:
+        fs = self.info.servo_rate_hz
+        current = transient.waveform(v_in_m_s, grip_N, fs) / self.info.force_per_amp_N_A
+        limit = self.wire_info.max_table_samples
+        if len(current) > limit and not self._rearm_truncation_warned:
+            import warnings
+
+            self._rearm_truncation_warned = True
+            warnings.warn(f"{self.name}: transient of {len(current)} samples truncated to the device's "
+                          f"{limit}-sample buffer ({limit / fs * 1000:.1f} ms)", RuntimeWarning, stacklevel=3)
+        samples = [float(x) for x in current[:limit]]
+        send = self._request if wait else self._tx
+        step = P.TABLE_CHUNK_SAMPLES
+        for off in range(0, len(samples), step):
+            send(P.REARM_DATA, P.encode_data_chunk(off, samples[off:off + step]))
+        send(P.REARM_COMMIT, P.DATA_OFFSET_STRUCT.pack(len(samples)))
+
+    def _maybe_rearm(self, now: float, st: DeviceState) -> None:
+        """While the handle approaches the wall from above, keep the armed transient matched to its velocity."""
+        ring = self._vel_ring
+        i = self._vel_i
+        t_old, x_old = ring[i]
+        ring[i] = (st.t_s, st.position_m)
+        self._vel_i = (i + 1) % len(ring)
+        if now - self._last_rearm < self.rearm_interval_s or st.t_s <= t_old:
+            return
+        v = (st.position_m - x_old) / (st.t_s - t_old)
+        if v < -0.005 and st.position_m > self._wall_height_m:
+            self._last_rearm = now
+            self._upload_rearm(self._transient, -v, st.grip_N, wait=False)
+
+    def _on_event(self, payload: bytes) -> None:
+        try:
+            ev = P.decode_event(payload)
+        except P.ProtocolError:
+            self.stats["naks"] += 1
+            return
+        last = self._t_last_us if self._t_last_us is not None else ev["t_us"]
+        delta = ((ev["t_us"] - last + 0x80000000) & 0xFFFFFFFF) - 0x80000000
+        t_s = (self._t_wraps * 4294967296 + last + delta) * 1e-6
+        self._events.append({"t_s": t_s, "incoming_velocity_m_s": ev["incoming_velocity_m_s"], "grip_N": ev["grip_N"],
+                             "max_penetration_m": ev["max_penetration_m"], "peak_accel_m_s2": ev["peak_accel_m_s2"],
+                             "transient": self._transient_name, "clipped": ev["clipped"]})
+
+    def pop_events(self) -> list[dict]:
+        """Contact events reported by the firmware since the last call (keys as renderer.ContactEvent)."""
+        out = self._events
+        self._events = []
+        return out
+
+    def stop_rendering(self) -> None:
+        """Stop on-board rendering (the firmware zeroes its output and reports an unfinished contact)."""
+        if not self._rendering:
+            return
+        self._rendering = False
+        self._request(P.RENDER_STOP)
+        self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_STREAMING, 1))
+        self._states.clear()
+        self._have_state = False
+        self._cmd_pending = False
+
+
+def _number(mapping: dict, key: str, what: str) -> float:
+    if key not in mapping:
+        raise ValueError(f"{what} is missing key {key!r}")
+    try:
+        value = float(mapping[key])
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}.{key} must be a number, got {mapping[key]!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what}.{key} must be finite, got {value}")
+    return value
+
+
+def _check_options(options: dict, name: str) -> dict:
+    import inspect
+
+    valid = [p for p in inspect.signature(ProtocolDevice.__init__).parameters if p != "self"]
+    unknown = sorted(set(options) - set(valid))
+    if unknown:
+        raise ValueError(f"{name}: unknown option(s) {', '.join(unknown)}; valid: baudrate, {', '.join(valid)}")
+    return options
+
+
+class SerialDevice(ProtocolDevice):
+    """A device on a serial/CDC port (pyserial), e.g. ``SerialDevice("/dev/ttyACM0", mode="on-device")``."""
+
+    def __init__(self, port: str, baudrate: int = 921600, **options) -> None:
+        self.port = str(port)
+        self.baudrate = int(baudrate)
+        super().__init__(**_check_options(options, f"serial:{port}"))
+
+    @property
+    def name(self) -> str:
+        return f"serial:{self.port}"
+
+    def _make_transport(self) -> Transport:
+        return SerialTransport(self.port, self.baudrate)

@@ -1,0 +1,170 @@
+"""The demo's offline HFAM pipeline (thesis Figure 4.7), cached in a user cache folder.
+
+Three long steps, each through the owning package's Python API:
+
+1. identify the sim device at several grip levels (swept sine, ETFE, automatic
+   LTI fit: :func:`devices.identify.pipeline.identify_device`), giving a
+   grip-dependent model set of commanded current -> handle acceleration;
+2. record real taps on the simulated ``wood_on_foam`` sample over a range of
+   incoming velocities with the motor off (:func:`devices.recording.record_taps`,
+   written in the ``python -m devices record`` CSV format);
+3. build the HFAM current library from those recordings and the per-grip
+   models (:func:`stimuli.hfam.build_library`).
+
+The results live in ``<cache base>/demo-<key>/`` where ``key`` hashes every
+parameter of the three steps *and* the source code of the modules that
+compute them, so a changed parameter or a changed algorithm never reuses a
+stale library. ``<cache base>`` is ``--cache-dir`` or
+``$XDG_CACHE_HOME/hfam-haptics`` (``~/.cache/hfam-haptics``). A cache entry
+is written into a temporary folder and renamed when complete, so an
+interrupted run never leaves a half-built entry behind.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
+
+#: modules whose code determines the cached results (hashed into the cache key)
+_CODE_PATHS = ("devices/sim", "devices/identify", "devices/model.py", "devices/recording.py",
+               "stimuli/hfam", "stimuli/library.py", "stimuli/recordings.py", "renderer/demo/cache.py")
+CACHE_VERSION = 1
+
+
+@dataclass
+class Pipeline:
+    """The cached products of :func:`build_or_load`.
+
+    Attributes
+    ----------
+    directory : Path
+        The cache entry.
+    model_set : devices.identify.modelset.ModelSet
+        Identified current -> acceleration (and motor position) models per grip.
+    library : stimuli.HfamLibrary
+    fs_hz : float
+    taps : list of stimuli.recordings.Tap
+        The recorded real taps (t relative to impact).
+    from_cache : bool
+    timings_s : dict
+        Wall time of each step when it was built.
+    """
+
+    directory: Path
+    model_set: object
+    library: object
+    fs_hz: float
+    taps: list
+    from_cache: bool
+    timings_s: dict
+
+    @property
+    def etfe_npz(self) -> Path:
+        return self.directory / "identify" / "etfe.npz"
+
+    @property
+    def recordings_csv(self) -> Path:
+        return self.directory / "recordings.csv"
+
+    @property
+    def library_npz(self) -> Path:
+        return self.directory / "library.npz"
+
+
+def default_cache_base() -> Path:
+    """``$XDG_CACHE_HOME/hfam-haptics`` or ``~/.cache/hfam-haptics``."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "hfam-haptics"
+
+
+@functools.lru_cache(maxsize=4)
+def code_digest(root: Path | None = None) -> str:
+    """SHA-256 over the source files that compute the cached results (see ``_CODE_PATHS``).
+
+    Computed once per process: the code a process runs is the code it imported.
+    """
+    root = Path(__file__).resolve().parents[2] if root is None else root
+    h = hashlib.sha256()
+    for rel in _CODE_PATHS:
+        p = root / rel
+        files = sorted(p.rglob("*")) if p.is_dir() else [p]
+        for f in files:
+            if f.is_file() and f.suffix in (".py", ".toml", ".json"):
+                h.update(str(f.relative_to(root)).encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def cache_key(settings: PipelineSettings) -> str:
+    """16-hex-digit key of the settings, the sim parameters and the code (see module doc)."""
+    from devices.registry import make_device
+
+    dev = make_device(settings.device)
+    params = dev.params.to_dict() if hasattr(dev, "params") and hasattr(dev.params, "to_dict") else {}
+    blob = json.dumps({"version": CACHE_VERSION, "settings": settings.to_dict(), "sim_params": params,
+                       "code": code_digest()}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, rebuild: bool = False,
+                  progress: Progress | None = None) -> Pipeline:
+    """Return the pipeline products, from the cache when present, else built (and cached).
+
+    Parameters
+    ----------
+    settings : PipelineSettings
+    cache_base : Path or None
+        Cache folder (default :func:`default_cache_base`).
+    rebuild : bool
+        Ignore and replace an existing cache entry.
+    progress : Progress or None
+        Where the three steps report; None prints nothing.
+    """
+    progress = progress or Progress(3, quiet=True)
+    base = Path(cache_base) if cache_base is not None else default_cache_base()
+    key = cache_key(settings)
+    entry = base / f"demo-{key}"
+    if not rebuild and (entry / "manifest.json").is_file():
+        try:
+            return _load(entry, settings)
+        except (OSError, ValueError, KeyError) as exc:  # a damaged entry is rebuilt, not trusted
+            progress.say(f"cache entry {entry} unusable ({exc}); rebuilding", indent=False)
+    base.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".demo-{key}-", dir=base))
+    try:
+        timings = build_pipeline(tmp, settings, progress)
+        manifest = {"key": key, "settings": settings.to_dict(), "timings_s": timings,
+                    "created_unix": time.time(), "version": CACHE_VERSION}
+        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        if entry.exists():
+            shutil.rmtree(entry)
+        os.replace(tmp, entry)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    pipe = _load(entry, settings)
+    pipe.from_cache = False
+    return pipe
+
+
+def _load(entry: Path, settings: PipelineSettings) -> Pipeline:
+    from devices.identify.modelset import load_model_set
+    from stimuli import HfamLibrary
+    from stimuli.recordings import read_tap_csv
+
+    manifest = json.loads((entry / "manifest.json").read_text())
+    if manifest.get("settings") != settings.to_dict():
+        raise ValueError("settings in manifest.json differ from the requested ones")
+    mset = load_model_set(entry / "identify")
+    lib = HfamLibrary.load(entry / "library.npz")
+    _, taps = read_tap_csv(entry / "recordings.csv")
+    return Pipeline(entry, mset, lib, lib.fs_hz, taps, True, manifest.get("timings_s", {}))

@@ -1,0 +1,89 @@
+"""The sim demo's settings (:class:`DemoConfig`) and results (:class:`DemoResult`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from stimuli.hfam.pipeline import PipelineSettings
+
+from . import runs
+from .cache import Pipeline
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """What the sim demo taps.
+
+    Attributes
+    ----------
+    velocities_m_s : tuple of float
+        Tap speeds of the simulated user (m/s).
+    grips_N : tuple of float
+        Grips of the simulated user (N): light, medium, firm.
+    taps : int
+        Taps per rendering x velocity x grip (the sim is deterministic up
+        to sensor noise, so 1 is enough; metrics are averaged over taps).
+    medium_grip_N : float
+        Grip whose transient the no-grip-compensation rendering always plays.
+    figure_velocity_m_s : float
+        Velocity of the contact figure (thesis: 0.11 m/s).
+    grid_velocities_m_s : tuple of float
+        Three velocities of the Figure 4.13 grid.
+    pipeline : PipelineSettings
+    renderings : tuple of Rendering
+    """
+
+    velocities_m_s: tuple = (0.05, 0.08, 0.11, 0.2, 0.3)
+    grips_N: tuple = (1.0, 2.0, 3.0)
+    taps: int = 1
+    medium_grip_N: float = 2.0
+    figure_velocity_m_s: float = 0.11
+    grid_velocities_m_s: tuple = (0.05, 0.08, 0.11)
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)
+    renderings: tuple = runs.RENDERINGS
+
+    def __post_init__(self) -> None:
+        for key in ("velocities_m_s", "grips_N"):
+            vals = getattr(self, key)
+            if not vals or any(not (math.isfinite(x) and x > 0) for x in vals):
+                raise ValueError(f"demo {key} must be positive numbers, got {vals!r}")
+        if not (isinstance(self.taps, int) and self.taps >= 1):
+            raise ValueError(f"demo taps must be an integer >= 1, got {self.taps!r}")
+        if self.figure_velocity_m_s not in self.velocities_m_s:
+            raise ValueError(f"figure velocity {self.figure_velocity_m_s} must be one of the demo velocities")
+        if any(v not in self.velocities_m_s for v in self.grid_velocities_m_s):
+            raise ValueError(f"grid velocities {self.grid_velocities_m_s} must be demo velocities")
+
+
+@dataclass
+class DemoResult:
+    """Everything the sim demo computed.
+
+    Attributes
+    ----------
+    rows : list of dict
+        ``summary.csv`` rows (``SUMMARY_COLUMNS``) plus ``in_library_range``.
+    traces : dict (rendering, velocity, grip) -> list of TapTrace
+    references : dict velocity -> real-sample window at the recording grip
+    pipeline : Pipeline
+    figures : dict name -> Path
+    timings_s : dict
+    reactive : dict
+        :func:`reactive_hand_cuts` (empty if not applicable).
+    """
+
+    rows: list
+    traces: dict
+    references: dict
+    pipeline: Pipeline
+    figures: dict
+    timings_s: dict
+    fs_hz: float = 10_000.0
+    reactive: dict = field(default_factory=dict)
+
+    def row(self, rendering: str, velocity_m_s: float, grip_N: float) -> dict:
+        for r in self.rows:
+            if r["rendering"] == rendering and r["velocity_m_s"] == velocity_m_s and r["grip_N"] == grip_N:
+                return r
+        raise KeyError((rendering, velocity_m_s, grip_N))

@@ -1,0 +1,24 @@
+"""``python -m stimuli sim-library``: rebuild the shipped default library from the sim device."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "sim-library",
+        help="record simulated taps and build the shipped default library through the sim's LTI models",
+        description="Recording simulated real taps and building the shipped default library from the sim device "
+                    "(stimuli/libraries/wood_on_foam_sim.npz; see stimuli.hfam.pipeline).",
+    )
+    p.add_argument("--out", type=Path, required=True, help="library file to write (.npz)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .hfam.pipeline import build_sim_library
+
+    build_sim_library(args.out)
+    print(f"wrote {args.out}")
+    return 0

@@ -1,0 +1,53 @@
+"""The emulator as a command and a child process; fault-spec parsing; the latency command."""
+
+from pathlib import Path
+
+import pytest
+
+from devices.__main__ import main as devices_main
+from devices.firmware.emulator import FaultSpec, start_emulator
+from devices.hardware.serial_device import SerialDevice
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def test_fault_spec_parsing_and_errors():
+    f = FaultSpec.parse("drop=0.01, corrupt=0.2,delay=0.1,delay_s=0.003,disconnect_after_s=2,silent=1")
+    assert f.drop == 0.01 and f.corrupt == 0.2 and f.delay_s == 0.003 and f.disconnect_after_s == 2 and f.silent
+    assert FaultSpec.parse(f.to_text()) == f
+    assert FaultSpec.parse("") == FaultSpec()
+    with pytest.raises(ValueError, match="unknown fault 'dorp'"):
+        FaultSpec.parse("dorp=0.1")
+    with pytest.raises(ValueError, match="drop=2 is a probability"):
+        FaultSpec.parse("drop=2")
+    with pytest.raises(ValueError, match="'x' is not a number"):
+        FaultSpec.parse("corrupt=x")
+
+
+def test_child_process_emulator_starts_and_stops():
+    # the child is `python -m devices emulate --pty ...`: start_emulator reads the port it prints
+    port, handle = start_emulator(process=True, faults="drop=0.001")
+    try:
+        assert handle.alive and port.startswith("/dev/pts/")
+        with SerialDevice(port) as dev:
+            assert dev.info.name == "hfam-emulator(sim-joystick)"
+    finally:
+        handle.stop()
+    assert not handle.alive and handle.process.returncode == 0
+
+
+def test_latency_command(capsys):
+    port, handle = start_emulator()
+    try:
+        assert handle.alive
+        assert devices_main(["latency", "--device", f"serial:{port}", "--n", "300", "--warmup", "20"]) == 0
+    finally:
+        handle.stop()
+    assert not handle.alive
+    out = capsys.readouterr().out
+    assert "300 command->state round trips" in out and "achieved update rate" in out and "link: " in out
+
+
+def test_emulate_rejects_bad_fault_spec(capsys):
+    assert devices_main(["emulate", "--fault", "drop=7"]) == 2
+    assert "drop=7 is a probability" in capsys.readouterr().err

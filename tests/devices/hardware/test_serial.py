@@ -1,0 +1,282 @@
+"""SerialDevice against the firmware emulator over a real pseudo-terminal (streaming mode, faults)."""
+
+import json
+import math
+import time
+
+import pytest
+
+from devices import DeviceError, Status, make_device
+from devices.firmware.emulator import build_emulator, start_emulator
+from devices.hardware.serial_device import SerialDevice, load_calibration
+from devices.hardware.calibration import Calibration
+from devices.sim import SimDevice, TapTrajectory
+
+
+@pytest.fixture
+def emulator(request):
+    kwargs = getattr(request, "param", {})
+    port, handle = start_emulator(**kwargs)
+    yield port, handle
+    handle.stop()
+
+
+def test_handshake_reports_the_device(emulator):
+    port, handle = emulator
+    with SerialDevice(port) as dev:
+        sim = SimDevice().info
+        info = dev.info
+        assert info.servo_rate_hz == 1000.0  # streaming default; the sim itself runs 10 kHz
+        for key in ("encoder_lines", "gear_ratio", "handle_length_m", "torque_constant_Nm_A", "current_continuous_A",
+                    "current_peak_A", "current_amplifier_A", "accel_range_m_s2", "grip_range_N"):
+            assert getattr(info, key) == pytest.approx(getattr(sim, key)), key
+        assert info.force_per_amp_N_A == pytest.approx(sim.force_per_amp_N_A, rel=1e-6)
+        assert "streaming" in info.capabilities and "on_device" not in info.capabilities
+        assert not dev.on_device_rendering
+        assert dev.wire_info.protocol_version == (1, 0) and dev.wire_info.firmware_version == (1, 0, 0)
+        assert dev.wire_info.watchdog_ms == 100
+
+
+def test_streaming_over_the_pty_is_transparent_to_the_physics(emulator):
+    """Same commands through serial and directly on a sim with the same seed give the same samples."""
+    port, handle = emulator
+    ref = SimDevice(handle.emulator.phys.params, seed=0)  # streaming default: 1 kHz firmware rate
+    assert ref.info.servo_rate_hz == 1000.0
+    ref.open()
+    ref.command(0.0)  # the emulator's warm-up tick
+    ref.set_user(TapTrajectory([0.05, 0.1, 0.2], n_taps=3), grip_N=2.0)
+    # the zero command Device.open sends is answered with this state, then applied
+    res = ref.info.position_resolution_m
+    with SerialDevice(port) as dev:
+        n_contact = 0
+        for k in range(2000):  # within the hand's 3-tap trajectory (the emulator restarts it when done)
+            s = dev.read()
+            r = ref.read()
+            assert s.position_m == pytest.approx(r.position_m, abs=res / 2 + 1e-12)
+            assert s.accel_m_s2 == pytest.approx(r.accel_m_s2, abs=0.0075 + 1e-9)
+            assert s.grip_N == pytest.approx(r.grip_N, abs=0.005 + 1e-9)
+            assert s.t_s == pytest.approx(r.t_s, abs=1e-6)
+            i = 680.0 * max(0.0, -s.position_m) / dev.info.force_per_amp_N_A
+            n_contact += i > 0
+            dev.command(i)
+            ref.command(i)
+        assert n_contact > 50  # the hand did reach the wall
+        assert dev.read().extra["current_A"] == pytest.approx(dev.last_command_A, abs=1e-3)  # echoed, in mA
+        stats = dev.link_stats()
+    assert stats["crc_errors"] == stats["seq_gaps"] == stats["timeouts"] == 0
+
+
+def test_nan_and_oversize_commands_never_reach_the_wire(emulator):
+    port, handle = emulator
+    with SerialDevice(port) as dev:
+        dev.read()
+        dev.command(float("nan"))
+        assert dev.read().extra["current_A"] == 0.0
+        dev.command(1e6)
+        assert dev.read().extra["current_A"] == pytest.approx(dev.info.current_amplifier_A)
+        assert dev.rejected_commands == 1
+    assert handle.emulator.applied_A == 0.0  # close() zeroed the output
+
+
+@pytest.mark.parametrize("emulator", [{"faults": "garbage=0.2,corrupt=0.1"}], indirect=True)
+def test_resync_after_garbage_and_corrupted_frames(emulator):
+    port, handle = emulator
+    with SerialDevice(port) as dev:
+        for _ in range(800):
+            dev.read()
+            dev.command(0.1)
+        stats = dev.link_stats()
+    assert stats["garbage_bytes"] > 100 and stats["crc_errors"] > 10
+    assert handle.emulator.stats["corrupted"] > 10
+    assert stats["retransmits"] >= stats["crc_errors"] // 2  # a lost reply costs one retransmit
+
+
+@pytest.mark.parametrize("emulator", [{"faults": "drop=0.05,duplicate=0.05"}], indirect=True)
+def test_dropped_and_duplicated_frames_are_counted(emulator):
+    port, handle = emulator
+    with SerialDevice(port) as dev:
+        for _ in range(1000):
+            dev.read()
+            dev.command(0.0)
+        stats = dev.link_stats()
+    emu = handle.emulator.stats
+    assert emu["duplicated"] > 10 and emu["dropped"] > 10
+    # the frames sent after the last stats snapshot (close) may still be in flight
+    assert emu["duplicated"] - 2 <= stats["duplicates"] <= emu["duplicated"]
+    assert emu["dropped"] - 2 <= stats["seq_gaps"] <= emu["dropped"]
+    assert stats["retransmits"] >= emu["dropped"] - 2
+
+
+@pytest.mark.parametrize("emulator", [{"watchdog_ms": 30}], indirect=True)
+def test_watchdog_trips_when_the_host_stops_commanding(emulator):
+    port, handle = emulator
+    emu = handle.emulator
+    with SerialDevice(port) as dev:
+        dev.read()
+        dev.command(1.0)
+        assert dev.read().extra["current_A"] == pytest.approx(1.0)
+        assert emu.applied_A == pytest.approx(1.0)
+        t0 = time.monotonic()
+        while emu.stats["watchdog_trips"] == 0 and time.monotonic() - t0 < 1.0:
+            time.sleep(0.005)
+        waited = time.monotonic() - t0
+        assert 0.025 < waited < 0.2
+        assert emu.applied_A == 0.0 and emu.phys._held_A == 0.0  # zeroed at once, not at the next tick
+        dev.command(0.5)  # the host is back: output resumes, the gap is reported in this reply
+        s = dev.read()
+        assert s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(0.5)
+        assert dev.link_stats()["watchdog_trips"] == 1
+        dev.command(0.5)
+        s = dev.read()
+        assert not s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(0.5)
+        # a NaN command, in contrast, latches FAULT and zero output until cleared
+        dev._send_current(float("nan"))
+        assert dev.read().status & Status.FAULT
+        dev.command(0.5)
+        s = dev.read()
+        assert s.status & Status.FAULT and s.extra["current_A"] == 0.0
+        dev.clear_faults()
+        dev.command(0.5)
+        s = dev.read()
+        assert not s.status & Status.FAULT and s.extra["current_A"] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("emulator", [{"faults": "disconnect_after_s=0.4"}], indirect=True)
+def test_disconnect_gives_a_clear_error_and_zero_output_without_hanging(emulator):
+    port, handle = emulator
+    dev = SerialDevice(port).open()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 5.0:
+        s = dev.read()
+        if s.status & Status.DISCONNECTED:  # reported once as a state, so a servo loop can save and stop
+            break
+        dev.command(0.5)
+    assert time.monotonic() - t0 < 1.0
+    assert s.status & Status.DISCONNECTED and dev.last_command_A == 0.0
+    assert "disconnected" in s.extra["error"] and port in s.extra["error"]
+    with pytest.raises(DeviceError, match=r"serial:/dev/\S+: disconnected"):
+        dev.read()
+    dev.command(0.5)  # harmless: nothing is sent
+    dev.close()  # never raises after a disconnect
+    assert not dev.is_open
+
+
+@pytest.mark.parametrize("emulator", [{"faults": "silent=1"}], indirect=True)
+def test_device_that_never_answers_the_hello(emulator):
+    port, handle = emulator
+    t0 = time.monotonic()
+    with pytest.raises(DeviceError, match="no answer to the hello within 0.3 s"):
+        SerialDevice(port, hello_timeout_s=0.3).open()
+    assert time.monotonic() - t0 < 1.0
+
+
+@pytest.mark.parametrize("emulator", [{"faults": "protocol_major=2"}], indirect=True)
+def test_wrong_protocol_version_is_refused(emulator):
+    port, handle = emulator
+    with pytest.raises(DeviceError, match=r"device speaks protocol 2\.0, this host speaks 1\.0"):
+        SerialDevice(port).open()
+
+
+def test_missing_port_is_a_clear_error():
+    with pytest.raises(DeviceError, match="cannot open serial port /dev/nonexistent-hfam"):
+        SerialDevice("/dev/nonexistent-hfam").open()
+
+
+def test_on_device_mode_needs_the_capability(emulator):
+    port, handle = emulator
+    with pytest.raises(DeviceError, match="mode on-device requested"):
+        SerialDevice(port, mode="on-device").open()
+
+
+def test_device_string_options_and_unknown_options():
+    dev = make_device("serial:/dev/pts/77?mode=on-device&timeout_s=0.05")
+    assert dev.port == "/dev/pts/77" and dev.on_device_rendering and dev.timeout_s == 0.05
+    with pytest.raises(ValueError, match="unknown option"):
+        make_device("serial:/dev/pts/77?speed=9")
+    with pytest.raises(ValueError, match="mode must be one of"):
+        make_device("serial:/dev/pts/77?mode=turbo")
+
+
+def test_device_clock_wraps_at_2_32_us():
+    port, handle = start_emulator(t0_us=2**32 - 200_000)
+    try:
+        with SerialDevice(port) as dev:
+            times = []
+            for _ in range(600):
+                times.append(dev.read().t_s)
+                dev.command(0.0)
+        steps = [b - a for a, b in zip(times, times[1:])]
+        # monotonic across the wrap; a retransmitted command (busy machine) steps the physics twice
+        assert min(steps) == pytest.approx(1e-3, abs=2e-6)
+        assert all(abs(s / 1e-3 - round(s / 1e-3)) < 0.01 for s in steps)
+        assert sum(abs(s - 1e-3) < 2e-6 for s in steps) > 0.95 * len(steps)
+        assert times[-1] > 2**32 * 1e-6
+    finally:
+        handle.stop()
+
+
+def test_calibration_encoder_zero_and_offsets_stored_per_device(tmp_path):
+    emu = build_emulator(taps_m_s=(), grip_N=0.0)  # hand holds still at 1 cm
+    emu.encoder_offset = 1234
+    from devices.firmware.emulator import EmulatorHandle
+    import threading
+
+    port = emu.open_pty()
+    stop = threading.Event()
+    th = threading.Thread(target=emu.serve, args=(stop,), daemon=True)
+    th.start()
+    path = tmp_path / "cal.json"
+    try:
+        with SerialDevice(port, calibration=path) as dev:
+            assert dev.read().position_m == pytest.approx(0.01 + 1234 * dev.info.position_resolution_m, abs=2e-5)
+            zero = dev.calibrate_encoder_zero(known_position_m=0.01, n=10)
+            dev.calibrate_sensor_offsets(n=50)
+            dev.command(0.0)
+            assert dev.read().position_m == pytest.approx(0.01, abs=2e-5)
+            dev.save_calibration()
+        data = json.loads(path.read_text())
+        entry = data["devices"]["hfam-emulator(sim-joystick)/EMU0001"]
+        assert entry["encoder_zero_counts"] == zero
+        with SerialDevice(port, calibration=path) as dev:  # loaded on open
+            assert dev.cal.encoder_zero_counts == zero
+            assert dev.read().position_m == pytest.approx(0.01, abs=2e-5)
+    finally:
+        EmulatorHandle(port, emu, th, stop).stop()
+
+
+def test_bad_calibration_file_names_file_and_key(tmp_path):
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps({"devices": {"d/1": {"accel_scale_m_s2_per_count": "big"}}}))
+    with pytest.raises(ValueError, match=r"cal\.json: devices\.d/1\.accel_scale_m_s2_per_count must be a finite"):
+        load_calibration(path, "d/1", Calibration())
+    path.write_text(json.dumps({"devices": {"d/1": {"zero": 3}}}))
+    with pytest.raises(ValueError, match=r"devices\.d/1\.zero is not a calibration key"):
+        load_calibration(path, "d/1", Calibration())
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        load_calibration(path, "d/1", Calibration())
+    assert load_calibration(tmp_path / "missing.json", "d/1", Calibration(5)) == Calibration(5)
+
+
+def test_reopen_after_close_and_after_a_lost_link(emulator):
+    port, handle = emulator
+    dev = SerialDevice(port, timeout_s=0.005, retries=1)
+    for _ in range(2):
+        with dev:
+            for _ in range(20):
+                dev.read()
+                dev.command(0.1)
+    dev.open()
+    handle.emulator.faults = handle.emulator.faults.__class__(drop=1.0)  # the device goes mute
+    for _ in range(5):
+        s = dev.read()
+        if s.status & Status.DISCONNECTED:
+            break
+        dev.command(0.0)
+    assert s.status & Status.DISCONNECTED
+    dev.close()
+    handle.emulator.faults = handle.emulator.faults.__class__()  # back to normal: reopen works
+    dev.timeout_s, dev.retries = 0.02, 3
+    with dev:
+        assert not dev.read().status & Status.DISCONNECTED
+        assert dev.link_stats()["timeouts"] >= 2  # counters are cumulative over the object's life

@@ -1,0 +1,202 @@
+"""On-device rendering over the pty: the firmware emulator renders wall + transient, the host only listens."""
+
+import math
+
+import numpy as np
+import pytest
+
+from devices import DeviceError, Status
+from devices.firmware.emulator import start_emulator
+from devices.hardware.serial_device import SerialDevice
+from stimuli.library import HfamLibrary
+from stimuli.transients import DecayingSinusoid, Pulse
+
+WALL = {"height_m": 0.0, "stiffness_N_m": 680.0, "damping_N_s_m": 0.0, "rearm_margin_m": 0.002}
+LIMITS = {"continuous_A": 1.26, "peak_A": 4.0, "amplifier_A": 4.0}
+DT = 1e-4
+
+
+@pytest.fixture
+def on_device():
+    port, handle = start_emulator("on-device", pace="host", watchdog_ms=200)
+    dev = SerialDevice(port, mode="on-device", timeout_s=0.1).open()
+    yield dev, handle
+    dev.close()
+    handle.stop()
+
+
+def _run(dev, n):
+    """Telemetry (t_s, position_m, current_A, status) and events of n firmware ticks."""
+    rows = np.empty((n, 4))
+    events = []
+    for k in range(n):
+        s = dev.read()
+        rows[k] = (s.t_s, s.position_m, s.extra["current_A"], s.status)
+        if k % 100 == 0:
+            events += dev.pop_events()
+    events += dev.pop_events()
+    return rows, events
+
+
+def _contact_rows(rows, ev):
+    """Index of the telemetry frame that carries the current computed at the contact tick."""
+    j = int(np.argmin(np.abs(rows[:, 0] - (ev["t_s"] + DT))))
+    assert abs(rows[j, 0] - ev["t_s"] - DT) < 1e-6
+    return j
+
+
+def _wall_A(dev, pen_m):
+    force_N = WALL["stiffness_N_m"] * np.maximum(pen_m, 0.0)
+    return np.minimum(force_N / dev.info.force_per_amp_N_A, LIMITS["continuous_A"])
+
+
+def test_pulse_rendered_on_board_starts_at_the_contact_tick(on_device):
+    dev, handle = on_device
+    assert dev.on_device_rendering and "on_device" in dev.info.capabilities
+    pulse = Pulse(amplitude_Ns_m=8.0, duration_s=0.002)
+    dev.configure_rendering(WALL, LIMITS, pulse)
+    rows, events = _run(dev, 16000)
+    assert len(events) >= 2
+    fpa = dev.info.force_per_amp_N_A
+    for ev in events:
+        assert ev["transient"] == "pulse" and ev["incoming_velocity_m_s"] > 0.02 and ev["max_penetration_m"] > 0
+        assert set(ev) == {"t_s", "incoming_velocity_m_s", "grip_N", "max_penetration_m", "peak_accel_m_s2",
+                           "transient", "clipped"}
+        j = _contact_rows(rows, ev)
+        n = 20  # 2 ms at 10 kHz
+        pen = -rows[j - 1:j - 1 + n, 1]  # sensed position of each tick (the frame before carries it)
+        expected = _wall_A(dev, pen) + 8.0 * ev["incoming_velocity_m_s"] / fpa
+        assert np.allclose(rows[j:j + n, 2], expected, atol=1.5e-3)
+        assert abs(rows[j + n, 2] - _wall_A(dev, -rows[j + n - 1, 1])) < 1.5e-3  # pulse over after 2 ms
+        assert rows[j - 1, 2] == 0.0  # nothing before contact
+    assert np.all(np.abs(rows[:, 2]) <= LIMITS["peak_A"] + 1e-3)
+    assert dev.link_stats()["seq_gaps"] == 0
+
+
+def test_decaying_sinusoid_parameters_match_the_stimuli_waveform(on_device):
+    dev, handle = on_device
+    sin = DecayingSinusoid(amplitude_Ns_m=20.0, duration_s=0.02, frequency_hz=300.0)
+    dev.configure_rendering(WALL, LIMITS, sin)
+    rows, events = _run(dev, 12000)
+    assert events
+    fpa = dev.info.force_per_amp_N_A
+    for ev in events:
+        j = _contact_rows(rows, ev)
+        wave = sin.waveform(ev["incoming_velocity_m_s"], ev["grip_N"], 1e4) / fpa
+        n = len(wave)
+        wall = _wall_A(dev, -rows[j - 1:j - 1 + n, 1])
+        assert np.allclose(rows[j:j + n, 2] - wall, wave, atol=2e-3)
+
+
+def test_hfam_table_interpolated_on_board_like_the_library(on_device):
+    dev, handle = on_device
+    n_t = 300
+    t = np.arange(1, n_t + 1) * DT
+    base = np.exp(-t / 0.01) * np.sin(2 * np.pi * 200 * t)
+    currents = np.stack([np.stack([0.5 * base, 0.8 * base]), np.stack([1.5 * base, 2.0 * base])])  # (2 v, 2 g, n_t)
+    lib = HfamLibrary([0.04, 0.25], [0.0, 10.0], currents, 1e4, dev.info.force_per_amp_N_A, gain=0.9)
+    dev.configure_rendering(WALL, LIMITS, lib)
+    rows, events = _run(dev, 12000)
+    assert events and all(ev["transient"] == "hfam" for ev in events)
+    for ev in events:
+        j = _contact_rows(rows, ev)
+        want = lib.current(ev["incoming_velocity_m_s"], ev["grip_N"])
+        wall = _wall_A(dev, -rows[j - 1:j - 1 + n_t, 1])
+        got = rows[j:j + n_t, 2] - wall
+        assert np.allclose(got, np.clip(want, -4.0 - wall, 4.0 - wall), atol=2e-3)
+
+
+def test_host_rearmed_sampled_transient(on_device):
+    dev, handle = on_device
+
+    class Custom:  # any Transient: the host keeps re-arming it from the approach velocity
+        name = "custom"
+
+        def waveform(self, v, grip, fs):
+            return np.full(50, 10.0 * abs(v))
+
+        def max_samples(self, fs):
+            return 50
+
+        def check_device(self, info, fs):
+            pass
+
+    dev.configure_rendering(WALL, LIMITS, Custom())
+    rows, events = _run(dev, 16000)
+    assert len(events) >= 2 and dev.link_stats()["naks"] == 0
+    fpa = dev.info.force_per_amp_N_A
+    for ev in events[1:]:
+        j = _contact_rows(rows, ev)
+        trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
+        # re-armed from the velocity seen up to 20 ms before contact: close to, not exactly, v_in
+        assert trans == pytest.approx(10.0 * ev["incoming_velocity_m_s"] / fpa, rel=0.35)
+
+
+def test_saturation_limits_and_clipping_reported(on_device):
+    dev, handle = on_device
+    wall = dict(WALL, stiffness_N_m=3000.0)
+    dev.configure_rendering(wall, {"continuous_A": 0.5, "peak_A": 1.0, "amplifier_A": 4.0},
+                            Pulse(amplitude_Ns_m=60.0, duration_s=0.01))
+    rows, events = _run(dev, 12000)
+    assert np.max(np.abs(rows[:, 2])) == pytest.approx(1.0, abs=1e-3)
+    assert any(ev["clipped"] for ev in events)
+    assert np.any(rows[:, 3].astype(int) & Status.CLIPPING)
+
+
+def test_on_device_watchdog_zeroes_output_when_the_host_goes_quiet(on_device):
+    dev, handle = on_device
+    import time
+
+    dev.configure_rendering(WALL, dict(LIMITS, continuous_A=1.0), None)
+    emu = handle.emulator
+    _run(dev, 200)
+    time.sleep(0.4)  # no reads, no keepalives: the firmware's 200 ms watchdog trips
+    assert emu.tripped and emu.applied_A == 0.0 and emu.stats["watchdog_trips"] == 1
+    rows, _ = _run(dev, 3000)  # reading again sends keepalives: rendering resumes
+    assert not emu.tripped
+    bits = rows[:, 3].astype(int) & Status.WATCHDOG_TRIPPED
+    assert bits.any() and not bits[-2000:].any()
+    assert np.all(rows[bits != 0, 2] == 0.0)
+    assert dev.link_stats()["watchdog_trips"] == 1
+
+
+def test_configure_rendering_validates(on_device):
+    dev, handle = on_device
+    with pytest.raises(ValueError, match="wall is missing key 'stiffness_N_m'"):
+        dev.configure_rendering({"height_m": 0.0}, LIMITS, None)
+    with pytest.raises(ValueError, match="limits.peak_A must be finite"):
+        dev.configure_rendering(WALL, dict(LIMITS, peak_A=math.nan), None)
+    with pytest.raises(ValueError, match="sample rate"):
+        lib = HfamLibrary([0.1], [2.0], np.zeros((1, 1, 10)), 5e3, dev.info.force_per_amp_N_A)
+        dev.configure_rendering(WALL, LIMITS, lib)
+
+
+def test_streaming_device_refuses_on_board_rendering():
+    port, handle = start_emulator("on-device")
+    try:
+        with SerialDevice(port) as dev:  # the device offers on_device, the host chose streaming
+            with pytest.raises(DeviceError, match="opened in streaming mode"):
+                dev.configure_rendering(WALL, LIMITS, None)
+    finally:
+        handle.stop()
+
+
+def test_firmware_thermal_model_fades_out_a_sustained_push():
+    """A hand resting in the wall at high current heats the winding: the firmware attenuates, then stops."""
+    from devices.firmware.logic import THERMAL_ATTENUATE_FRAC, THERMAL_END_FRAC, FirmwareRenderer
+
+    fs = 1000.0
+    # fast thermal constants so the test takes seconds of device time, not minutes
+    fw = FirmwareRenderer(1e-5, 2.35, fs, 4.0, thermal=(2.0, 10.0, 0.5, 20.0))
+    fw.set_wall(0.0, 1e5, 0.0, 0.001)
+    fw.set_limits(1.26, 4.0)
+    fw.tick(0, 100, 0, 0)  # above the wall: arm
+    currents, temps = [], []
+    for k in range(5000):
+        currents.append(fw.tick(k, -300, 0, 0))  # 3 mm deep: the wall asks for the continuous limit
+        temps.append(fw.temp_rise_K)
+    assert currents[10] == pytest.approx(1.26)
+    assert max(temps) < THERMAL_END_FRAC * 20.0 + 0.05  # never beyond the end temperature
+    assert fw.over_temperature and currents[-1] < 1.26 * 0.9
+    # steady state: the current settles where heating balances at the fade
+    assert THERMAL_ATTENUATE_FRAC * 20.0 < temps[-1] < THERMAL_END_FRAC * 20.0

@@ -1,0 +1,48 @@
+"""The `renderer demo` command: help, argument errors (exit 2, message names the argument)."""
+
+import numpy as np
+import pytest
+
+from renderer.__main__ import main
+
+
+def test_help_lists_the_options(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for opt in ("--device", "--out", "--cache-dir", "--rebuild", "--library", "--scope", "--tap-stop-time",
+                "--record-velocities", "--sweep-amplitude"):
+        assert opt in out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--velocities", "0.1,abc"], "--velocities"),
+    (["--grips", "-1"], "--grips"),
+    (["--device", "bogus:thing"], "unknown device string"),
+    (["--tap-stop-time", "0"], "tap_stop_time_s"),
+    (["--record-velocities", "0.05"], "record_velocities_m_s"),
+    (["--record-velocities", "0.05,x"], "--record-velocities"),
+    (["--sweep-amplitude", "-0.1"], "sweep_amplitude_A"),
+])
+def test_bad_arguments_exit_2_naming_what(argv, message, tmp_path, capsys):
+    code = main(["demo", "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")] + argv)
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()  # nothing was built for a bad command line
+
+
+def test_window_scope_draws_headless():
+    """The live-scope window code path, drawn on the Agg canvas (no display here)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from renderer.demo.hw_demo import WindowScope, make_scope
+
+    scope = WindowScope()
+    t = np.arange(400) / 1000.0
+    scope.update(t, 1e-3 * np.cos(t * 20), 30 * np.sin(t * 700), 2, 5)
+    assert scope.ax_a.get_title() == "taps 2/5"
+    assert scope.la.get_xydata().shape == (400, 2)
+    scope.close()
+    assert make_scope("none") is None

@@ -1,0 +1,191 @@
+"""What the virtual-wall demo must show (issue 9), checked on the sim device with real numbers.
+
+One pipeline (identification, recordings, library) and one set of taps is built per module in a
+temporary cache and shared by all tests; velocities 0.04, 0.11 and 0.115 m/s are inside the library's
+velocity range (0.039-0.12 m/s: its edges included), 0.3 m/s is beyond it.
+"""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from renderer.demo import config as demo_config
+from renderer.demo import report, sim_demo
+from renderer.demo import runs
+from renderer.demo.cache import build_or_load, cache_key
+from stimuli.hfam.pipeline import PipelineSettings, Progress
+
+IN_RANGE = (0.04, 0.11, 0.115)
+GRIPS = (1.0, 2.0, 3.0)
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("cache")
+    out = tmp_path_factory.mktemp("out")
+    cfg = demo_config.DemoConfig(velocities_m_s=IN_RANGE + (0.3,), grips_N=GRIPS, grid_velocities_m_s=(0.04, 0.11, 0.3))
+    res = sim_demo.run_sim_demo(cfg, out, cache, figures=False, progress=Progress(5, quiet=True))
+    res.cfg, res.out, res.cache = cfg, out, cache
+    return res
+
+
+def rows(res, rendering, velocities=IN_RANGE, grips=GRIPS):
+    return [res.row(rendering, v, g) for v in velocities for g in grips]
+
+
+def mean(res, rendering, key, **kw):
+    return float(np.mean([r[key] for r in rows(res, rendering, **kw)]))
+
+
+def test_velocities_are_inside_the_library_range(result):
+    lib = result.pipeline.library
+    for v in IN_RANGE:
+        assert sim_demo.in_library_range(lib, v)
+    assert not sim_demo.in_library_range(lib, 0.3)
+    # the identified grip range covers the rendered grips
+    assert result.pipeline.model_set.grip_N[0] <= min(GRIPS) and result.pipeline.model_set.grip_N[-1] >= max(GRIPS)
+
+
+@pytest.mark.parametrize("rendering", ["hfam_firm", "hfam_soft"])
+def test_hfam_reproduces_real_wood_on_foam(result, rendering):
+    for r in rows(result, rendering):
+        assert r["correlation"] >= 0.9, r
+        assert r["nrmse"] <= 0.35, r
+        assert r["clipped"] == 0, r
+
+
+def test_proportional_feedback_is_far_from_the_real_sample(result):
+    for name in ("soft", "firm", "very_firm"):
+        for r in rows(result, name):
+            assert r["nrmse"] > 0.9 and abs(r["correlation"]) < 0.3, r
+    # HFAM is far better than the wall it rides on, at every in-range velocity and grip
+    for hf, wall in zip(rows(result, "hfam_firm"), rows(result, "firm")):
+        assert hf["nrmse"] < 0.4 * wall["nrmse"]
+
+
+def test_proportional_walls_give_smaller_lower_frequency_contact_accelerations(result):
+    real_peak = mean(result, "real_wood_on_foam", "peak_accel_m_s2")
+    real_f = mean(result, "real_wood_on_foam", "dominant_freq_hz")
+    assert 80.0 < real_f < 160.0  # the wood-block-on-foam contact mode
+    for name in ("soft", "firm", "very_firm"):
+        for wall, real in zip(rows(result, name), rows(result, "real_wood_on_foam")):
+            assert wall["peak_accel_m_s2"] < 0.3 * real["peak_accel_m_s2"], (wall, real)
+            assert wall["dominant_freq_hz"] < 0.6 * real["dominant_freq_hz"], (wall, real)
+        assert mean(result, name, "peak_accel_m_s2") < 0.25 * real_peak
+        # the walls' own content: their ~24 Hz mass-spring mode and the arm's braking (~30-50 Hz, docs/demo.md)
+        assert mean(result, name, "dominant_freq_hz") < 0.5 * real_f
+
+
+def test_grip_compensation_matters(result):
+    """Medium-grip transient at a light/firm grip: clearly larger error than the grip-interpolated one (Fig. 4.13)."""
+    for g in (1.0, 3.0):
+        fixed = mean(result, "hfam_fixed_grip_firm", "nrmse", grips=(g,))
+        interp = mean(result, "hfam_firm", "nrmse", grips=(g,))
+        assert fixed > 1.15 * interp and fixed - interp > 0.05, (g, fixed, interp)
+    # ... because the uncompensated acceleration is too large for the light grip and too weak for the firm one
+    for v in IN_RANGE:
+        assert result.row("hfam_fixed_grip_firm", v, 1.0)["peak_accel_m_s2"] > \
+            1.15 * result.row("hfam_firm", v, 1.0)["peak_accel_m_s2"]
+        assert result.row("hfam_fixed_grip_firm", v, 3.0)["peak_accel_m_s2"] < \
+            0.9 * result.row("hfam_firm", v, 3.0)["peak_accel_m_s2"]
+    # at the medium grip both play the same transient
+    for v in IN_RANGE:
+        assert result.row("hfam_fixed_grip_firm", v, 2.0)["nrmse"] == pytest.approx(
+            result.row("hfam_firm", v, 2.0)["nrmse"], abs=0.01)
+
+
+def test_transients_cut_penetration(result):
+    """Pulse and HFAM cut penetration at every velocity (section 4.5.5), by a clear margin, not by noise.
+
+    The simulated hand stops pushing 45 ms after contact (docs/demo.md, "The simulated tap"); its
+    damping, not the incoming momentum, sets most of the penetration, so the cut is 15-20 %, not the
+    thesis's factor of two.
+    """
+    all_v = result.cfg.velocities_m_s
+    for with_tr, wall in (("pulse_firm", "firm"), ("hfam_firm", "firm"), ("hfam_soft", "soft")):
+        for v in all_v:
+            pen_tr = mean(result, with_tr, "penetration_mean_m", velocities=(v,))
+            pen_wall = mean(result, wall, "penetration_mean_m", velocities=(v,))
+            assert pen_tr < 0.9 * pen_wall, (with_tr, v, pen_tr, pen_wall)
+        cut = 1 - mean(result, with_tr, "penetration_mean_m", velocities=all_v) / \
+            mean(result, wall, "penetration_mean_m", velocities=all_v)
+        assert cut >= 0.13, (with_tr, cut)
+    # stiffer walls penetrate less: the penetration numbers mean what they say
+    assert mean(result, "very_firm", "penetration_mean_m") < mean(result, "firm", "penetration_mean_m") < \
+        mean(result, "soft", "penetration_mean_m")
+
+
+def test_reactive_hand_transients_cut_penetration_more(result):
+    """With the reactive simulated hand (devices.sim.ReactiveHand: hand mass, muscle impedance, reflex),
+    a transient's impulse decelerates a real mass, so the cut grows (docs/demo.md, "The reactive hand").
+
+    Measured (0.11 and 0.115 m/s x 1-3 N): pulse 40 % (default hand 15 %), HFAM 23 % (default hand 18 %)."""
+    rx = result.reactive
+    assert rx["velocities_m_s"] == (0.11, 0.115) and rx["grips_N"] == GRIPS
+    pen = rx["penetration_m"]
+    assert 0.5e-3 < pen["firm"] < 2e-3                 # a real tap into the firm wall, not a miss
+    in_v = rx["velocities_m_s"]
+
+    def default_cut(name):
+        return 1 - mean(result, name, "penetration_mean_m", velocities=in_v) / \
+            mean(result, "firm", "penetration_mean_m", velocities=in_v)
+
+    assert rx["cuts"]["pulse_firm"] >= 0.30
+    assert rx["cuts"]["pulse_firm"] >= 2 * default_cut("pulse_firm")
+    assert rx["cuts"]["hfam_firm"] > default_cut("hfam_firm")
+    assert rx["cuts"]["hfam_firm"] >= 0.12
+    line = report.format_reactive(rx)
+    assert f"cut {rx['cuts']['pulse_firm'] * 100:.0f} % (pulse)" in line and "(HFAM)" in line
+
+
+def test_summary_csv_has_one_row_per_condition(result):
+    path = result.out / "summary.csv"
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader)
+        body = list(reader)
+    assert tuple(header) == report.SUMMARY_COLUMNS
+    cfg = result.cfg
+    assert len(body) == len(cfg.renderings) * len(cfg.velocities_m_s) * len(cfg.grips_N)
+    keys = {(r[0], float(r[1]), float(r[2])) for r in body}
+    assert len(keys) == len(body)
+    for r in body:
+        vals = [float(x) for x in r[3:8]]
+        assert all(math.isfinite(x) for x in vals[:3])
+        assert r[8] in ("0", "1")
+    traces = np.load(result.out / "traces.npz")
+    assert traces["accel_m_s2"].shape[0] == len(body)
+
+
+def test_table_and_figures(result, tmp_path):
+    text = sim_demo.format_table(result.cfg, result.rows, result.pipeline.library)
+    for r in result.cfg.renderings:
+        assert r.name in text
+    assert "beyond the library range" in text  # 0.3 m/s is reported as extrapolated
+    figs = sim_demo.make_figures(result.cfg, result, tmp_path)
+    assert set(figs) == {"contact", "hfam_grid", "library", "bode"}
+    for p in figs.values():
+        data = p.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+
+
+def test_cache_is_reused_and_keyed_by_parameters(result):
+    s = result.cfg.pipeline
+    again = build_or_load(s, result.cache)
+    assert again.from_cache and again.directory == result.pipeline.directory
+    np.testing.assert_array_equal(again.library.currents_A, result.pipeline.library.currents_A)
+    manifest = json.loads((again.directory / "manifest.json").read_text())
+    assert manifest["settings"] == s.to_dict()
+    assert cache_key(s) == cache_key(PipelineSettings())
+    assert cache_key(s) != cache_key(PipelineSettings(sweep_amplitude_A=0.2))
+    assert cache_key(s) != cache_key(PipelineSettings(record_grip_N=1.5))
+
+
+def test_fixed_grip_transient_ignores_grip(result):
+    lib = result.pipeline.library
+    fixed = runs.FixedGripTransient(lib, 2.0)
+    np.testing.assert_array_equal(fixed.waveform(0.1, 0.5, lib.fs_hz), lib.waveform(0.1, 2.0, lib.fs_hz))
+    assert not np.allclose(lib.waveform(0.1, 0.5, lib.fs_hz), lib.waveform(0.1, 2.0, lib.fs_hz))
