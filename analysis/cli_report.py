@@ -16,6 +16,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")
+    if out.is_file() or (out.is_dir() and any(out.iterdir()) and not args.force):
+        raise ValueError(f"{out} exists and is not empty; not overwriting an earlier report: choose another --out "
+                         "or pass --force to replace it")
     from analysis.load import AnalysisWarning
     from analysis.pipeline import analyse
     with warnings.catch_warnings(record=True) as caught:
@@ -38,7 +41,8 @@ def register(subparsers) -> None:
                                           "trials.csv) and write tables, figures, report.md and report.html "
                                           "into REPORT.")
     p.add_argument("data", metavar="DATA", help="study data folder (one subfolder per subject)")
-    p.add_argument("--out", required=True, metavar="REPORT", help="output folder (created)")
+    p.add_argument("--out", required=True, metavar="REPORT", help="output folder (created; new or empty)")
+    p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier report")
     p.add_argument("--reference", default=DEFAULT_REFERENCE,
                    help=f"reference sample of the equivalence tests (default {DEFAULT_REFERENCE})")
     p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,

@@ -7,6 +7,8 @@ import argparse
 from collections import OrderedDict
 from pathlib import Path
 
+from .fileio import clear_products, refuse_overwrite
+
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
@@ -85,6 +87,9 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
     _fit_options_args(p)
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--force", action="store_true",
+                   help="replace an earlier identification in --out (its models, recordings, plots and report are "
+                        "deleted first, so old and new models never mix)")
     p.set_defaults(func=run_identify)
 
     q = subparsers.add_parser(
@@ -108,6 +113,7 @@ def register(subparsers) -> None:
                         "output (e.g. recordings/transients_g2N.csv written by identify)")
     _fit_options_args(q)
     q.add_argument("--out", required=True, help="model JSON to write")
+    q.add_argument("--force", action="store_true", help="overwrite --out (and --plot) if they exist")
     q.set_defaults(func=run_fit)
 
 
@@ -119,12 +125,20 @@ def default_grip_levels(grip_range_N: tuple[float, float]) -> tuple[float, ...]:
     return tuple(sorted(levels))
 
 
+#: What identify writes into --out (deleted first with --force).
+IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model_set.json", "bode_*.png",
+                     "report.txt", "report.json")
+
+
 def run_identify(args) -> int:
     from .identify.pipeline import IdentifyConfig, identify_device
     from .identify.sweep import SweepConfig
     from .registry import make_device
 
+    refuse_overwrite(args.out, args.force)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
+    if args.force:
+        clear_products(args.out, IDENTIFY_PRODUCTS)
     with dev:
         sweep = SweepConfig(amplitude_A=args.amplitude, f_start_hz=args.f_start, f_end_hz=args.f_end,
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
@@ -163,6 +177,9 @@ def run_fit(args) -> int:
     from .identify.fit import fit_etfes
     from .identify.recording import read_recording
 
+    refuse_overwrite(args.out, args.force)
+    if args.plot:
+        refuse_overwrite(args.plot, args.force)
     recs = [read_recording(p) for p in args.recordings]
     groups = group_recordings(recs)
     curves = [etfe(rs, args.output, label=f"{key} ({len(rs)} trials)", detrend=args.detrend)

@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 
+from .fileio import refuse_overwrite
+
 
 def _velocities(text: str) -> list[float]:
     try:
@@ -37,6 +39,7 @@ def register(subparsers) -> None:
     p.add_argument("--pre-s", type=float, default=0.005, help="capture before impact in s (default 0.005)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the simulated device")
     p.add_argument("--out", required=True, help="output CSV file")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     p.set_defaults(func=run)
 
 
@@ -44,6 +47,7 @@ def run(args) -> int:
     from .recording import record_taps, write_tap_recording
     from .registry import make_device
 
+    refuse_overwrite(args.out, args.force)
     vels = _velocities(args.velocities)
     if not (math.isfinite(args.grip) and args.grip >= 0):
         raise ValueError(f"--grip: must be >= 0 N, got {args.grip}")

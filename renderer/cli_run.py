@@ -18,6 +18,8 @@ import argparse
 import math
 import sys
 
+from devices.fileio import refuse_overwrite
+
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
 
 
@@ -87,7 +89,8 @@ def register(subparsers) -> None:
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
     p.add_argument("--in-process", action="store_true",
                    help="hardware: run the servo loop in this process instead of its own")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, help="output directory (new or empty)")
+    p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier run")
     p.set_defaults(func=run_command)
 
 
@@ -114,6 +117,7 @@ def run_command(args) -> int:
 
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    refuse_overwrite(args.out, args.force)
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"
