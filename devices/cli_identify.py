@@ -7,6 +7,7 @@ import argparse
 from collections import OrderedDict
 from pathlib import Path
 
+from .cliargs import add_renamed, with_examples
 from .fileio import clear_products, refuse_overwrite
 
 
@@ -40,7 +41,7 @@ def _fit_options_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--order", type=_order, default="auto", help="number of poles, or 'auto' (default): "
                    "chosen from the error-versus-order table")
     p.add_argument("--max-order", type=int, default=14, help="largest order tried by --order auto (default 14)")
-    p.add_argument("--delay", type=_delay, default="auto", help="pure delay in s, or 'auto' (default)")
+    add_renamed(p, "--delay-s", "--delay", dest="delay", type=_delay, default="auto", help="pure delay in s, or 'auto' (default)")
     p.add_argument("--max-rms-db", type=float, default=3.0,
                    help="requested RMS magnitude error; a worse fit writes nothing (default 3 dB)")
     p.add_argument("--max-rms-phase-deg", type=float, default=20.0,
@@ -70,16 +71,16 @@ def register(subparsers) -> None:
                     "handle acceleration and position, validate on transients, and write recordings, one model "
                     "JSON per grip and output, model_set.json, Bode PNGs and a fit report into --out.")
     p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, hid:VID:PID)")
-    p.add_argument("--grip", type=_floats, default=None,
+    add_renamed(p, "--grips-N", "--grip", dest="grip", type=_floats, default=None,
                    help="comma-separated grip levels in N (default: spans the device's grip range, "
                         "0,1,2,3,5,10 on the sim, so an HFAM library built from the set covers every grip)")
     p.add_argument("--trials", type=int, default=4, help="good trials per grip, half reversed (default 4)")
-    p.add_argument("--amplitude", type=float, default=0.75, help="sweep amplitude in A (default 0.75)")
-    p.add_argument("--f-start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
-    p.add_argument("--f-end", type=float, default=1000.0, help="sweep end frequency f_f in Hz (default 1000)")
-    p.add_argument("--duration", type=float, default=2.0, help="one sweep's duration in s (default 2)")
+    add_renamed(p, "--amplitude-A", "--amplitude", dest="amplitude", type=float, default=0.75, help="sweep amplitude in A (default 0.75)")
+    add_renamed(p, "--f-start-hz", "--f-start", dest="f_start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
+    add_renamed(p, "--f-end-hz", "--f-end", dest="f_end", type=float, default=1000.0, help="sweep end frequency f_f in Hz (default 1000)")
+    add_renamed(p, "--duration-s", "--duration", dest="duration", type=float, default=2.0, help="one sweep's duration in s (default 2)")
     p.add_argument("--repetitions", type=int, default=2, help="sweep copies back to back (default 2)")
-    p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+    add_renamed(p, "--band-hz", "--band", dest="band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="fit band in Hz (default: 10 Hz to f_end, position limited by encoder resolution)")
     p.add_argument("--no-reverse", action="store_true",
                    help="do not reverse the sweep polarity for the second half of the trials")
@@ -90,6 +91,7 @@ def register(subparsers) -> None:
     p.add_argument("--force", action="store_true",
                    help="replace an earlier identification in --out (its models, recordings, plots and report are "
                         "deleted first, so old and new models never mix)")
+    with_examples(p, 'hfam-devices identify --device sim --out ident/                  # grips 0,1,2,3,5,10 N', 'hfam-devices identify --device serial:/dev/ttyACM0 --grips-N 1,2,4 --trials 4 --out ident_hw/')
     p.set_defaults(func=run_identify)
 
     q = subparsers.add_parser(
@@ -101,7 +103,7 @@ def register(subparsers) -> None:
     q.add_argument("recordings", nargs="+", help="recording CSV files")
     q.add_argument("--output", choices=("accel_m_s2", "position_m"), default="accel_m_s2",
                    help="which output to model (default accel_m_s2, H_ha)")
-    q.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+    add_renamed(q, "--band-hz", "--band", dest="band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="fit band in Hz (default: 10 Hz to the sweep's end, limited by quantization)")
     q.add_argument("--weight", choices=("high", "low", "mean"), default="mean",
                    help="combine several curves by their upper envelope (HFAM), lower envelope "
@@ -114,6 +116,7 @@ def register(subparsers) -> None:
     _fit_options_args(q)
     q.add_argument("--out", required=True, help="model JSON to write")
     q.add_argument("--force", action="store_true", help="overwrite --out (and --plot) if they exist")
+    with_examples(q, 'hfam-devices fit ident/recordings/g1N_t*.csv ident/recordings/g3N_t*.csv --weight high --out hfam_model.json')
     q.set_defaults(func=run_fit)
 
 

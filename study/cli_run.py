@@ -19,6 +19,8 @@ from __future__ import annotations
 import sys
 from dataclasses import asdict
 
+from devices.cliargs import add_renamed, with_examples
+
 from .config import GENDERS, HANDEDNESS
 from .data import EXPERIENCE, SessionStore
 from .protocol import Schedule
@@ -42,7 +44,7 @@ def register(subparsers) -> None:
     p.add_argument("--library-dir", default=None, help="directory for relative HFAM library paths")
     p.add_argument("--samples", default=None, help="comma-separated subset of catalog sample names")
     p.add_argument("--repetitions", type=int, default=None, help="testing presentations per sample (default 3)")
-    p.add_argument("--tap-window", type=float, default=None, dest="tap_window_s",
+    add_renamed(p, "--tap-window-s", "--tap-window", type=float, default=None, dest="tap_window_s",
                    help="tapping time from the first impact, s (default 5)")
     p.add_argument("--protocol", default=None, help="TOML/JSON file with protocol settings (docs/study.md)")
     p.add_argument("--participant-config", default=None, help="TOML/JSON simulated-participant settings")
@@ -56,9 +58,9 @@ def register(subparsers) -> None:
                         "device), off for sim; on = also in sim; off = also on hardware (bench tests without a "
                         "subject; recorded in session.json)")
     p.add_argument("--audio-device", default=None, help="PortAudio output device (name or index)")
-    p.add_argument("--masking-level", type=float, default=None, dest="masking_level_dbfs",
+    add_renamed(p, "--masking-level-dbfs", "--masking-level", type=float, default=None, dest="masking_level_dbfs",
                    help="white-noise RMS level in dBFS (default -20)")
-    p.add_argument("--cue-level", type=float, default=None, dest="cue_level_db",
+    add_renamed(p, "--cue-level-db", "--cue-level", type=float, default=None, dest="cue_level_db",
                    help="spoken cues' active RMS level in dB re the noise (default 0)")
     p.add_argument("--servo-process", choices=("auto", "on", "off"), default="auto",
                    help="run device, servo loop and homing in a child process so UI and audio threads never delay "
@@ -70,6 +72,7 @@ def register(subparsers) -> None:
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
     p.add_argument("--token", default=None, help="operator token (default: random, printed)")
     p.add_argument("--quiet", action="store_true", help="print only the summary")
+    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA')
     p.set_defaults(func=run_command)
 
 

@@ -23,8 +23,9 @@ BIN = Path(sys.executable).parent          # the venv's bin: console scripts liv
 
 #: (regex, replacement) applied to each command line before running it: sizes only.
 SMALLER = [
-    (r"(identify .*)--grip 0,1,2,3,5,10(.*--out ident/)$", r"\1--grip 0,5,10\2 --trials 2 --duration 1"),
-    (r"(identify .*)--grip 0,1,2,3,5,10 --trials 4(.*--out ident4/)$", r"\1--grip 1,3\2 --trials 2 --duration 1"),
+    (r"(identify .*)--grips-N 0,1,2,3,5,10(.*--out ident/)$", r"\1--grips-N 0,5,10\2 --trials 2 --duration-s 1"),
+    (r"(identify .*)--grips-N 0,1,2,3,5,10 --trials 4(.*--out ident4/)$",
+     r"\1--grips-N 1,3\2 --trials 2 --duration-s 1"),
     (r"(study run .*--catalog my_catalog.toml.*)$", r"\1 --samples wood,wood_on_foam,hfam_mine --repetitions 1"),
     (r"(study run .*--subject S02.*)$", r"\1 --samples wood,wood_on_foam,firm --repetitions 1"),
 ]
@@ -98,6 +99,7 @@ def test_readme_commands_run_as_printed(tmp_path):
             cmd = re.sub(pattern, repl, cmd)
         r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
         assert r.returncode == 0, f"README command failed: {cmd}\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+        assert "deprecated" not in r.stderr, f"README uses an old flag spelling: {cmd}\n{r.stderr}"
         ran.append(cmd)
     # the workflow's products exist
     for f in ("REC.csv", "ident/model_set.json", "LIB.npz", "LIB.png", "runs/hfam/run.json", "DATA/S01/session.json",
