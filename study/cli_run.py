@@ -17,9 +17,11 @@ Continue a killed or aborted session exactly where it stopped::
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import asdict
 
 from devices.cliargs import add_renamed, with_examples
+from devices.progress import Progress
 
 from .config import GENDERS, HANDEDNESS
 from .data import EXPERIENCE, SessionStore
@@ -165,10 +167,18 @@ def run_command(args) -> int:
             ref = apparatus.record_reference()
             store.log_event({"event": "rater_reference", "a": ref.a, "b": ref.b, "centroid_hz": ref.centroid_hz})
         audio.start()
+        stop_watch = threading.Event()
+        watch = threading.Thread(target=_watch_progress, args=(schedule, stop_watch, subject), daemon=True,
+                                 name="progress")
+        if not args.quiet:
+            watch.start()
         try:
             runner.run()
             audio.wait_cues(3.0)  # let the last "Stop. Please rate." finish
         finally:
+            stop_watch.set()
+            if watch.is_alive():
+                watch.join(2.0)
             audio.stop()
         store.session["order"] = schedule.summary()
         store.finish()
@@ -196,6 +206,35 @@ def run_command(args) -> int:
             web.stop()
     _summary(store, say)
     return 0
+
+
+def _trial_counts(schedule) -> tuple[int, int]:
+    """(attempts finished, attempts planned) over demonstration and testing; redrawn trials add attempts."""
+    phases = [schedule.phases["demonstration"], schedule.phases["testing"]]
+    left = sum(len(p.pool) + (p.current is not None) for p in phases)
+    total = sum(len(p.planned) + len(p.redraws) for p in phases)
+    return total - left, total
+
+
+def _watch_progress(schedule, stop, subject: str, period_s: float = 0.5) -> None:
+    """Report the session's progress on stderr until ``stop`` is set: phase, trial n of N, elapsed, time left.
+
+    A tqdm bar on a terminal, plain lines otherwise (devices.progress). Runs in its own thread and only reads
+    the schedule, so it never delays the session.
+    """
+    done, total = _trial_counts(schedule)
+    prog = Progress(total, f"study {subject}", unit="trial", initial=done)
+    last = None
+    while not stop.wait(period_s):
+        done, total = _trial_counts(schedule)
+        phase = schedule.phase or "done"
+        if (done, total, phase) != last:
+            last = (done, total, phase)
+            prog.update(done, status=phase, total=total)
+    done, total = _trial_counts(schedule)
+    if (done, total) != (last or (None, None))[:2]:
+        prog.update(done, status=schedule.phase or "done", total=total)
+    prog.close()
 
 
 def _audio_device(value):
