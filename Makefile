@@ -1,18 +1,26 @@
-# Set-up and entry points. Needs only Python 3.11 on the machine; the Debian
-# packages the study audio, browser tests and firmware build use are installed
-# by `make system-deps` (root; .ci/run calls it).
+# Set-up and entry points. Needs only Python 3.11 on the machine. The system parts
+# the tests use (PortAudio, espeak-ng, Chromium, the AVR toolchain, simavr) are
+# provisioned by `make test` without root into .deps/ (devices/provision.py: apt
+# download-only + dpkg-deb -x, else PyPI wheels; system copies are used where
+# present); `make system-deps` (root) installs them system-wide instead.
+# HFAM_DEPS=provision ignores system copies, HFAM_MISSING_DEPS=skip turns a
+# missing part's test failures into skips (see devices/sysdeps.py).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench venv system-deps clean gallery
+.PHONY: demo test bench venv deps system-deps clean gallery
 
 $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	@# pip >= 22 does all we need (PEP 660 editable installs): skip the self-upgrade (a download and a reinstall) when it is that new
+	$(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 0))" \
+	    || $(PY) -m pip install --quiet --upgrade pip
+	@# wheels only (no surprise source builds); no byte-compiling of every installed file (about half of
+	@# pip's CPU time here): Python compiles what is imported, once, on first use
+	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -20,9 +28,12 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m renderer demo --device sim
 
-test: $(STAMP)
-	@$(PY) -c "import sounddevice" 2>/dev/null || echo "note: PortAudio (libportaudio2) missing: masking-audio tests will fail; run 'make system-deps' as root"
+test: $(STAMP) deps
 	$(PY) -m pytest -q
+
+# once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
+deps: $(STAMP)
+	@$(PY) -m devices.provision
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
@@ -35,7 +46,8 @@ gallery: $(STAMP)
 # Chromium for the browser tests, the AVR toolchain to build the reference firmware.
 system-deps:
 	apt-get update -qq
-	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 espeak-ng chromium chromium-driver gcc-avr binutils-avr avr-libc
+	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libportaudio2 espeak-ng chromium gcc-avr binutils-avr avr-libc \
+	    simavr libsimavr2 libsimavr-dev libsimavrparts1 gcc libc6-dev make
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info .deps

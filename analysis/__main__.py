@@ -22,7 +22,7 @@ COMMAND_TABLE = (
 def main(argv=None) -> int:
     """Run ``python -m analysis`` with ``argv`` (default: the command line); returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="python -m analysis", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=_prog(), description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True,
                                 metavar="{" + ",".join(name for name, _, _ in COMMAND_TABLE) + "}")
     wanted = next((a for a in argv if not a.startswith("-")), None)
@@ -39,7 +39,8 @@ def main(argv=None) -> int:
         return 2
 
 
-if __name__ == "__main__":
+def run() -> None:
+    """Entry point of ``python -m analysis`` and of the ``hfam-analysis`` console script: exit with main()'s code."""
     try:
         code = main()
         sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print
@@ -49,3 +50,13 @@ if __name__ == "__main__":
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         sys.exit(1)
     sys.exit(code)
+
+
+def _prog() -> str:
+    """``hfam-analysis`` when run as the console script, else ``python -m analysis`` (for usage and error lines)."""
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    return name if name.startswith("hfam-") else "python -m analysis"
+
+
+if __name__ == "__main__":
+    run()

@@ -29,4 +29,5 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--traces", type=int, default=0, metavar="N",
                    help="write per-attempt traces for the first N subjects (default 0)")
+    p.epilog = "example: hfam-analysis synthetic SYNTH --subjects 16 --traces 2"
     p.set_defaults(func=run)

@@ -27,5 +27,10 @@ def main(argv=None) -> int:
     return dispatch("python -m devices", __doc__.splitlines()[0], COMMANDS, argv)
 
 
-if __name__ == "__main__":
+def run() -> None:
+    """Entry point of ``python -m devices`` and of the ``hfam-devices`` console script: exit with main()'s code."""
     run_as_script(main)
+
+
+if __name__ == "__main__":
+    run()

@@ -9,6 +9,8 @@ import sys
 import threading
 import time
 
+from .cliargs import with_examples
+
 
 def _float_list(text: str) -> list[float]:
     if text.strip().lower() == "none":
@@ -49,6 +51,7 @@ def register(subparsers) -> None:
     p.add_argument("--duration-s", type=float, default=None, help="exit after this long (default: run until killed)")
     p.add_argument("--rt-priority", type=int, default=None, metavar="N",
                    help="run under SCHED_FIFO priority N (1-99; needs root or CAP_SYS_NICE), as a firmware would")
+    with_examples(p, 'hfam-devices emulate --pty --mode on-device        # prints PORT /dev/pts/N')
     p.set_defaults(func=run_emulate)
 
     q = subparsers.add_parser(
@@ -60,6 +63,7 @@ def register(subparsers) -> None:
     q.add_argument("--warmup", type=int, default=100)
     q.add_argument("--rt-priority", type=int, default=None, metavar="N",
                    help="measure under SCHED_FIFO priority N (1-99; needs root or CAP_SYS_NICE)")
+    with_examples(q, 'hfam-devices latency --device serial:/dev/pts/3 --n 2000')
     q.set_defaults(func=run_latency)
 
 

@@ -7,6 +7,9 @@ import argparse
 from collections import OrderedDict
 from pathlib import Path
 
+from .cliargs import add_renamed, with_examples
+from .fileio import clear_products, refuse_overwrite
+
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
@@ -38,7 +41,7 @@ def _fit_options_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--order", type=_order, default="auto", help="number of poles, or 'auto' (default): "
                    "chosen from the error-versus-order table")
     p.add_argument("--max-order", type=int, default=14, help="largest order tried by --order auto (default 14)")
-    p.add_argument("--delay", type=_delay, default="auto", help="pure delay in s, or 'auto' (default)")
+    add_renamed(p, "--delay-s", "--delay", dest="delay", type=_delay, default="auto", help="pure delay in s, or 'auto' (default)")
     p.add_argument("--max-rms-db", type=float, default=3.0,
                    help="requested RMS magnitude error; a worse fit writes nothing (default 3 dB)")
     p.add_argument("--max-rms-phase-deg", type=float, default=20.0,
@@ -76,14 +79,13 @@ def register(subparsers) -> None:
     p.add_argument("--method", choices=("comprehensive", "successive"), default="comprehensive",
                    help="comprehensive evaluation (LTI, default) or successive isolation (nonlinear)")
     p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, hid:VID:PID)")
-    p.add_argument("--overwrite", action="store_true", help="replace the models in an existing --out folder")
-    p.add_argument("--grip", type=_floats, default=None,
+    add_renamed(p, "--grips-N", "--grip", dest="grip", type=_floats, default=None,
                    help="comma-separated grip levels in N (default: spans the device's grip range, "
                         "0,1,2,3,5,10 on the sim, so an HFAM library built from the set covers every grip)")
     p.add_argument("--trials", type=int, default=4, help="good trials per grip, half reversed (default 4)")
-    p.add_argument("--amplitude", type=_floats, default=(0.75,),
-                   help="sweep amplitude(s) in A, comma-separated (default 0.75); several give one ETFE curve each, "
-                        "combined by --purpose")
+    add_renamed(p, "--amplitudes-A", "--amplitude", dest="amplitude", type=_floats, default=(0.75,),
+                help="sweep amplitude(s) in A, comma-separated (default 0.75); several give one ETFE curve each, "
+                     "combined by --purpose")
     p.add_argument("--purpose", choices=("hfam", "cimm", "general"), default="general",
                    help="fit rule (sec. 3.4.4): hfam fits the highest-magnitude curves (inverted model never "
                         "over-stimulates a resonance), cimm the lowest (never over-cancels), general the average; "
@@ -96,11 +98,11 @@ def register(subparsers) -> None:
     p.add_argument("--resume", action="store_true",
                    help="successive: skip the stages already done in --out (after an interruption)")
     p.add_argument("--no-figures", action="store_true", help="successive: do not draw the per-stage figures")
-    p.add_argument("--f-start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
-    p.add_argument("--f-end", type=float, default=1000.0, help="sweep end frequency f_f in Hz (default 1000)")
-    p.add_argument("--duration", type=float, default=2.0, help="one sweep's duration in s (default 2)")
+    add_renamed(p, "--f-start-hz", "--f-start", dest="f_start", type=float, default=5.0, help="sweep start frequency f_i in Hz (default 5)")
+    add_renamed(p, "--f-end-hz", "--f-end", dest="f_end", type=float, default=1000.0, help="sweep end frequency f_f in Hz (default 1000)")
+    add_renamed(p, "--duration-s", "--duration", dest="duration", type=float, default=2.0, help="one sweep's duration in s (default 2)")
     p.add_argument("--repetitions", type=int, default=2, help="sweep copies back to back (default 2)")
-    p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+    add_renamed(p, "--band-hz", "--band", dest="band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="fit band in Hz (default: 10 Hz to f_end, position limited by encoder resolution)")
     p.add_argument("--no-reverse", action="store_true",
                    help="do not reverse the sweep polarity for the second half of the trials")
@@ -108,6 +110,10 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
     _fit_options_args(p)
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--force", action="store_true",
+                   help="replace an earlier identification in --out (its models, recordings, plots and report are "
+                        "deleted first, so old and new models never mix)")
+    with_examples(p, 'hfam-devices identify --device sim --out ident/                  # grips 0,1,2,3,5,10 N', 'hfam-devices identify --device serial:/dev/ttyACM0 --grips-N 1,2,4 --trials 4 --out ident_hw/')
     p.set_defaults(func=run_identify)
 
     q = subparsers.add_parser(
@@ -119,7 +125,7 @@ def register(subparsers) -> None:
     q.add_argument("recordings", nargs="+", help="recording CSV files")
     q.add_argument("--output", choices=("accel_m_s2", "position_m"), default="accel_m_s2",
                    help="which output to model (default accel_m_s2, H_ha)")
-    q.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+    add_renamed(q, "--band-hz", "--band", dest="band", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="fit band in Hz (default: 10 Hz to the sweep's end, limited by quantization)")
     q.add_argument("--weight", choices=("high", "low", "mean"), default="mean",
                    help="combine several curves by their upper envelope (HFAM), lower envelope "
@@ -131,6 +137,8 @@ def register(subparsers) -> None:
                         "output (e.g. recordings/transients_g2N.csv written by identify)")
     _fit_options_args(q)
     q.add_argument("--out", required=True, help="model JSON to write")
+    q.add_argument("--force", action="store_true", help="overwrite --out (and --plot) if they exist")
+    with_examples(q, 'hfam-devices fit ident/recordings/g1N_t*.csv ident/recordings/g3N_t*.csv --weight high --out hfam_model.json')
     q.set_defaults(func=run_fit)
 
 
@@ -151,7 +159,12 @@ def check_out_dir(out, overwrite: bool, marker_files=("model_set.json", "model.j
     found = [m for m in marker_files if (out / m).exists()]
     if found and not overwrite:
         raise ValueError(f"--out {out} already holds a model ({', '.join(found)}); choose another folder or pass "
-                         "--overwrite")
+                         "--force")
+
+
+#: What identify writes into --out (deleted first with --force).
+IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model_set.json", "bode_*.png",
+                     "report.txt", "report.json")
 
 
 def run_identify(args) -> int:
@@ -163,11 +176,13 @@ def run_identify(args) -> int:
 
     check_device_spec(args.device)
     if any(not a > 0 for a in args.amplitude):
-        raise ValueError(f"--amplitude must be > 0 A, got {args.amplitude}")
+        raise ValueError(f"--amplitudes-A must be > 0 A, got {args.amplitude}")
     if args.method == "successive":
         return run_successive(args)
-    check_out_dir(args.out, args.overwrite)
+    refuse_overwrite(args.out, args.force)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
+    if args.force:
+        clear_products(args.out, IDENTIFY_PRODUCTS)
     with dev:
         sweep = SweepConfig(amplitude_A=args.amplitude[0], f_start_hz=args.f_start, f_end_hz=args.f_end,
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
@@ -194,11 +209,11 @@ def run_successive(args) -> int:
 
     out = Path(args.out)
     if not args.resume:
-        check_out_dir(out, args.overwrite)
+        check_out_dir(out, args.force)
     stages = tuple(s.strip() for s in args.stages.split(",")) if args.stages else STAGE_NAMES
     result = identify_successive(args.device, stages=stages, state_dir=out, resume=args.resume, seed=args.seed,
                                  log=lambda m: print(m, flush=True))
-    path = save_result(result, out, overwrite=args.overwrite or args.resume, figures=not args.no_figures)
+    path = save_result(result, out, overwrite=args.force or args.resume, figures=not args.no_figures)
     print(format_result(result), end="")
     print(f"wrote {path} (use it as --device sim:{path}), report.txt, report.json"
           + ("" if args.no_figures else ", stage_*.png"))
@@ -226,6 +241,9 @@ def run_fit(args) -> int:
     from .identify.fit import fit_etfes
     from .identify.recording import read_recording
 
+    refuse_overwrite(args.out, args.force)
+    if args.plot:
+        refuse_overwrite(args.plot, args.force)
     recs = [read_recording(p) for p in args.recordings]
     groups = group_recordings(recs)
     curves = [etfe(rs, args.output, label=f"{key} ({len(rs)} trials)", detrend=args.detrend)

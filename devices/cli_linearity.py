@@ -34,7 +34,7 @@ def register(subparsers) -> None:
     p.add_argument("--trials", type=int, default=2, help="trials per condition (coherence needs >= 2)")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
     p.add_argument("--out", default=None, help="folder for linearity.txt, linearity.json and linearity.png")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing report in --out")
+    p.add_argument("--force", action="store_true", help="replace an existing report in --out")
     p.set_defaults(func=run_linearity)
 
 
@@ -48,8 +48,8 @@ def run_linearity(args) -> int:
     if args.trials < 2:
         raise ValueError("--trials must be >= 2 (coherence across trials)")
     out = Path(args.out) if args.out else None
-    if out is not None and (out / "linearity.json").exists() and not args.overwrite:
-        raise ValueError(f"--out {out} already holds a linearity report; choose another folder or pass --overwrite")
+    if out is not None and (out / "linearity.json").exists() and not args.force:
+        raise ValueError(f"--out {out} already holds a linearity report; choose another folder or pass --force")
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:
         conds = default_conditions(dev.info, args.amplitudes, args.grips, args.positions)

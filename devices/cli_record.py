@@ -7,6 +7,9 @@ import math
 
 import numpy as np
 
+from .cliargs import add_renamed, with_examples
+from .fileio import refuse_overwrite
+
 
 def _velocities(text: str) -> list[float]:
     try:
@@ -31,12 +34,14 @@ def register(subparsers) -> None:
                                                   "hid:<vid>:<pid> (default sim)")
     p.add_argument("--sample", default="wood_on_foam",
                    help="simulated sample under the stylus: wood, wood_on_foam, foam, placeholder (sim only)")
-    p.add_argument("--velocities", required=True, help="comma-separated tap speeds in m/s, e.g. 0.05,0.1,0.2")
-    p.add_argument("--grip", type=float, default=2.0, help="simulated grip force in N (default 2)")
+    add_renamed(p, "--velocities-m-s", "--velocities", dest="velocities", required=True, help="comma-separated tap speeds in m/s, e.g. 0.05,0.1,0.2")
+    add_renamed(p, "--grip-N", "--grip", dest="grip", type=float, default=2.0, help="simulated grip force in N (default 2)")
     p.add_argument("--window-s", type=float, default=0.1, help="capture length per tap in s (default 0.1)")
     p.add_argument("--pre-s", type=float, default=0.005, help="capture before impact in s (default 0.005)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the simulated device")
     p.add_argument("--out", required=True, help="output CSV file")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    with_examples(p, 'hfam-devices record --device sim --sample wood_on_foam --velocities-m-s 0.05,0.1,0.2 --grip-N 2 --out taps.csv')
     p.set_defaults(func=run)
 
 
@@ -44,6 +49,7 @@ def run(args) -> int:
     from .recording import record_taps, write_tap_recording
     from .registry import make_device
 
+    refuse_overwrite(args.out, args.force)
     vels = _velocities(args.velocities)
     if not (math.isfinite(args.grip) and args.grip >= 0):
         raise ValueError(f"--grip: must be >= 0 N, got {args.grip}")

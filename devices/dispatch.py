@@ -67,12 +67,29 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
         The command's exit code; 2 after an ``error:`` line for a user error.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(prog, description, commands, argv).parse_args(argv)
+    args = build_parser(console_prog(prog), description, commands, argv).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
         print(f"error: {exc}", file=sys.stderr)
         return 2
+
+
+def console_prog(prog: str) -> str:
+    """``hfam-<package>`` when run as that console script, else ``prog`` (``python -m <package>``).
+
+    Parameters
+    ----------
+    prog : str
+        The module form of the program name, used in usage and error lines.
+
+    Returns
+    -------
+    str
+        The name the user typed, so ``--help`` and errors show a command they can copy.
+    """
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    return name if name.startswith("hfam-") else prog
 
 
 def run_as_script(main_func) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 import zipfile
 from contextlib import contextmanager
@@ -169,3 +170,64 @@ def read_json_file(path, what: str):
         return json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+
+
+def refuse_overwrite(path, force: bool, flag: str = "--force") -> Path:
+    """Refuse to replace a user's results: an existing file, or an existing folder that is not empty.
+
+    Parameters
+    ----------
+    path : str or path
+        The output file or folder a command is about to write.
+    force : bool
+        The user asked to overwrite (``--force``): nothing is refused.
+    flag : str
+        The option that allows overwriting, named in the message.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        ``path`` exists (a file, or a non-empty folder) and ``force`` is false; the
+        message names the path and the flag.
+    """
+    p = Path(path)
+    if force or not p.exists():
+        return p
+    if p.is_dir():
+        if any(p.iterdir()):
+            raise ValueError(f"{p} exists and is not empty; not overwriting earlier results: choose another "
+                             f"--out or pass {flag} to replace them")
+        return p
+    raise ValueError(f"{p} exists; not overwriting it: choose another --out or pass {flag} to replace it")
+
+
+def clear_products(folder, patterns) -> list[Path]:
+    """Delete what an earlier run of a command wrote into ``folder`` (glob ``patterns``), so old and new never mix.
+
+    Parameters
+    ----------
+    folder : str or path
+        The output folder (left in place; other files in it are kept).
+    patterns : iterable of str
+        Glob patterns relative to ``folder`` (folders matched are removed whole).
+
+    Returns
+    -------
+    list of Path
+        What was deleted.
+    """
+    gone = []
+    folder = Path(folder)
+    for pattern in patterns:
+        for p in sorted(folder.glob(pattern)):
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+            gone.append(p)
+    return gone

@@ -20,5 +20,10 @@ def main(argv=None) -> int:
     return dispatch("python -m renderer", __doc__.splitlines()[0], COMMANDS, argv)
 
 
-if __name__ == "__main__":
+def run() -> None:
+    """Entry point of ``python -m renderer`` and of the ``hfam-renderer`` console script: exit with main()'s code."""
     run_as_script(main)
+
+
+if __name__ == "__main__":
+    run()

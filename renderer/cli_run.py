@@ -18,6 +18,9 @@ import argparse
 import math
 import sys
 
+from devices.cliargs import add_renamed, with_examples
+from devices.fileio import refuse_overwrite
+
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
 
 
@@ -72,22 +75,24 @@ def register(subparsers) -> None:
     p.add_argument("--library", help="HFAM library file (needed for --transient hfam)")
     p.add_argument("--transient-gain", type=float, default=None,
                    help="gain of the transient (stimuli gain; default: Table 4.1 / the library's own)")
-    p.add_argument("--stiffness", type=float, default=None,
+    add_renamed(p, "--stiffness-N-m", "--stiffness", dest="stiffness", type=float, default=None,
                    help="proportional stiffness k (N/m); default 680 or the config file's")
-    p.add_argument("--damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
+    add_renamed(p, "--damping-N-s-m", "--damping", dest="damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
     p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md); default: built-in settings")
     p.add_argument("--taps", type=int, default=10, help="sim: number of taps (default 10)")
-    p.add_argument("--velocity", type=_velocities, default=[0.1],
+    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=_velocities, default=[0.1],
                    help="sim: tap speed in m/s (comma list: one per tap, cycled; default 0.1)")
-    p.add_argument("--grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
+    add_renamed(p, "--grip-N", "--grip", dest="grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
     p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
     p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
-    p.add_argument("--duration", type=_positive("--duration"), default=None,
+    add_renamed(p, "--duration-s", "--duration", dest="duration", type=_positive("--duration"), default=None,
                    help="run length in s (hardware default: until Ctrl-C; sim: until the taps are done)")
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
     p.add_argument("--in-process", action="store_true",
                    help="hardware: run the servo loop in this process instead of its own")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, help="output directory (new or empty)")
+    p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier run")
+    with_examples(p, 'hfam-renderer run --device sim --transient pulse --stiffness-N-m 680 --taps 10 --velocities-m-s 0.1 --out runs/pulse', 'hfam-renderer run --device serial:/dev/ttyACM0 --transient hfam --library LIB.npz --duration-s 60 --out runs/hw')
     p.set_defaults(func=run_command)
 
 
@@ -114,6 +119,7 @@ def run_command(args) -> int:
 
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    refuse_overwrite(args.out, args.force)
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"

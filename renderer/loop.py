@@ -40,6 +40,8 @@ from typing import Callable
 
 import numpy as np
 
+from devices import provenance
+
 from .config import RendererConfig
 from .thermal import safe_continuous_current, step_coefficients
 from .velocity import ImpactVelocityEstimator, ls_constants
@@ -171,7 +173,8 @@ class RunResult:
         os.replace(tmp, out / "log.npz")
         run = dict(self.timing)
         run.update(stop_reason=self.stop_reason, error=self.error, events=len(self.events),
-                   transient=self.transient, device=self.device, config=self.config)
+                   transient=self.transient, device=self.device, config=self.config,
+                   software_version=provenance.software_versions())
         tmp = out / "run.json.tmp"
         tmp.write_text(json.dumps(run, indent=2, default=_json_default) + "\n", encoding="utf-8")
         os.replace(tmp, out / "run.json")

@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from devices.cliargs import add_renamed, with_examples
+
 from .hfam.settings import BuildSettings
 from .recordings import read_tap_csv
 
@@ -31,7 +33,7 @@ def register(subparsers) -> None:
     p.add_argument("--device", default="sim",
                    help="device string whose force constant, peak current and servo rate the library is for "
                         "(default sim; 'none' to give --force-per-amp and --peak-current-A instead)")
-    p.add_argument("--force-per-amp", type=float, default=None, help="force constant in N/A (overrides the device's)")
+    add_renamed(p, "--force-per-amp-N-A", "--force-per-amp", dest="force_per_amp", type=float, default=None, help="force constant in N/A (overrides the device's)")
     p.add_argument("--peak-current-A", type=float, default=None, help="peak current limit in A (overrides the device's)")
     p.add_argument("--scale-to-limit", action="store_true",
                    help="scale transients above the peak current down to it instead of stopping")
@@ -58,6 +60,7 @@ def register(subparsers) -> None:
                    help="wall stiffness the transients are refined over, N/m (default %(default)s)")
     p.add_argument("--max-extrapolation", type=float, default=d.max_extrapolation,
                    help="cap of v_in/v_max above the velocity range at run time (default %(default)s)")
+    with_examples(p, 'hfam-stimuli build-library --recordings REC.csv --model ident/ --scale-to-limit --out LIB.npz')
     p.set_defaults(func=run)
 
 

@@ -6,6 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from devices.cliargs import with_examples
+from devices.fileio import refuse_overwrite
+
 from .library import HfamLibrary
 
 
@@ -18,6 +21,8 @@ def register(subparsers) -> None:
     )
     p.add_argument("library", type=Path, help="library file (.npz)")
     p.add_argument("--out", type=Path, default=None, help="PNG to write (default: next to the library, .png)")
+    p.add_argument("--force", action="store_true", help="overwrite the PNG if it exists")
+    with_examples(p, 'hfam-stimuli show LIB.npz --out LIB.png')
     p.set_defaults(func=run)
 
 
@@ -99,6 +104,7 @@ def run(args) -> int:
     lib = HfamLibrary.load(args.library)
     print(summary(lib))
     out = args.out if args.out is not None else args.library.with_suffix(".png")
+    refuse_overwrite(out, args.force)
     plot_library(lib, out)
     print(f"wrote {out}")
     return 0

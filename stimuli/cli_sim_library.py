@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from devices.cliargs import with_examples
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -13,6 +15,7 @@ def register(subparsers) -> None:
                     "(stimuli/libraries/wood_on_foam_sim.npz; see stimuli.hfam.pipeline).",
     )
     p.add_argument("--out", type=Path, required=True, help="library file to write (.npz)")
+    with_examples(p, 'hfam-stimuli sim-library --out wood_on_foam_sim.npz')
     p.set_defaults(func=run)
 
 

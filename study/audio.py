@@ -17,7 +17,6 @@ says so and why.
 from __future__ import annotations
 
 import math
-import shutil
 import subprocess
 import tempfile
 import threading
@@ -28,19 +27,25 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import resample_poly
 
+from devices import sysdeps
+
 
 class AudioUnavailable(ValueError):
     """PortAudio or an output device is missing (a real session refuses to start)."""
 
 
 def load_sounddevice():
-    """Import sounddevice, turning a missing PortAudio into a clear :class:`AudioUnavailable`."""
+    """Import sounddevice with PortAudio from an explicit path (see :func:`devices.sysdeps.import_sounddevice`).
+
+    The library provisioned in ``<repo>/.deps`` (``make test``) is used first, else
+    the system's; a missing PortAudio becomes a clear :class:`AudioUnavailable`.
+    """
     try:
-        import sounddevice
+        return sysdeps.import_sounddevice()
     except OSError as exc:  # the wheel does not bundle PortAudio on Linux
-        raise AudioUnavailable(f"masking audio needs PortAudio ({exc}); install it with "
-                               "'apt-get install libportaudio2' (or 'make system-deps')") from None
-    return sounddevice
+        raise AudioUnavailable(f"masking audio needs PortAudio ({exc}); 'make test' provisions it into "
+                               f"{sysdeps.deps_root()}, or install it with 'apt-get install libportaudio2' "
+                               "(or 'make system-deps')") from None
 
 
 def check_output_device(device=None) -> str:
@@ -147,7 +152,8 @@ def speak(text: str, fs_hz: float, voice: str = "en", speed_wpm: int = 150, exe:
     voice, speed_wpm : str, int
         espeak-ng ``-v`` voice and ``-s`` words per minute.
     exe : str, optional
-        Path of the program; default: ``espeak-ng`` found on ``PATH``.
+        Path of the program; default: ``espeak-ng`` provisioned in ``<repo>/.deps/bin``, else on ``PATH``
+        (:func:`devices.sysdeps.tool`).
 
     Returns
     -------
@@ -157,11 +163,12 @@ def speak(text: str, fs_hz: float, voice: str = "en", speed_wpm: int = 150, exe:
     Raises
     ------
     SpeechUnavailable
-        espeak-ng is not on PATH, fails, or produces no sound (the message says which).
+        espeak-ng is not found, fails, or produces no sound (the message says which).
     """
-    exe = exe or shutil.which("espeak-ng")
+    exe = exe or sysdeps.tool("espeak-ng")
     if exe is None:
-        raise SpeechUnavailable("espeak-ng not found on PATH (Debian package espeak-ng, 'make system-deps')")
+        raise SpeechUnavailable("espeak-ng not found in .deps/bin or on PATH (Debian package espeak-ng: "
+                                "'make test' provisions it, or 'make system-deps')")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "cue.wav"
         try:

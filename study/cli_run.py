@@ -17,7 +17,11 @@ Continue a killed or aborted session exactly where it stopped::
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import asdict
+
+from devices.cliargs import add_renamed, with_examples
+from devices.progress import Progress
 
 from .config import GENDERS, HANDEDNESS
 from .data import EXPERIENCE, SessionStore, release_all_locks
@@ -42,7 +46,7 @@ def register(subparsers) -> None:
     p.add_argument("--library-dir", default=None, help="directory for relative HFAM library paths")
     p.add_argument("--samples", default=None, help="comma-separated subset of catalog sample names")
     p.add_argument("--repetitions", type=int, default=None, help="testing presentations per sample (default 3)")
-    p.add_argument("--tap-window", type=float, default=None, dest="tap_window_s",
+    add_renamed(p, "--tap-window-s", "--tap-window", type=float, default=None, dest="tap_window_s",
                    help="tapping time from the first impact, s (default 5)")
     p.add_argument("--protocol", default=None, help="TOML/JSON file with protocol settings (docs/study.md)")
     p.add_argument("--participant-config", default=None, help="TOML/JSON simulated-participant settings")
@@ -56,9 +60,9 @@ def register(subparsers) -> None:
                         "device), off for sim; on = also in sim; off = also on hardware (bench tests without a "
                         "subject; recorded in session.json)")
     p.add_argument("--audio-device", default=None, help="PortAudio output device (name or index)")
-    p.add_argument("--masking-level", type=float, default=None, dest="masking_level_dbfs",
+    add_renamed(p, "--masking-level-dbfs", "--masking-level", type=float, default=None, dest="masking_level_dbfs",
                    help="white-noise RMS level in dBFS (default -20)")
-    p.add_argument("--cue-level", type=float, default=None, dest="cue_level_db",
+    add_renamed(p, "--cue-level-db", "--cue-level", type=float, default=None, dest="cue_level_db",
                    help="spoken cues' active RMS level in dB re the noise (default 0)")
     p.add_argument("--servo-process", choices=("auto", "on", "off"), default="auto",
                    help="run device, servo loop and homing in a child process so UI and audio threads never delay "
@@ -70,6 +74,7 @@ def register(subparsers) -> None:
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
     p.add_argument("--token", default=None, help="operator token (default: random, printed)")
     p.add_argument("--quiet", action="store_true", help="print only the summary")
+    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA')
     p.set_defaults(func=run_command)
 
 
@@ -170,10 +175,18 @@ def _run_command(args) -> int:
             ref = apparatus.record_reference()
             store.log_event({"event": "rater_reference", "a": ref.a, "b": ref.b, "centroid_hz": ref.centroid_hz})
         audio.start()
+        stop_watch = threading.Event()
+        watch = threading.Thread(target=_watch_progress, args=(schedule, stop_watch, subject), daemon=True,
+                                 name="progress")
+        if not args.quiet:
+            watch.start()
         try:
             runner.run()
             audio.wait_cues(3.0)  # let the last "Stop. Please rate." finish
         finally:
+            stop_watch.set()
+            if watch.is_alive():
+                watch.join(2.0)
             audio.stop()
         store.session["order"] = schedule.summary()
         store.finish()
@@ -201,6 +214,35 @@ def _run_command(args) -> int:
             web.stop()
     _summary(store, say)
     return 0
+
+
+def _trial_counts(schedule) -> tuple[int, int]:
+    """(attempts finished, attempts planned) over demonstration and testing; redrawn trials add attempts."""
+    phases = [schedule.phases["demonstration"], schedule.phases["testing"]]
+    left = sum(len(p.pool) + (p.current is not None) for p in phases)
+    total = sum(len(p.planned) + len(p.redraws) for p in phases)
+    return total - left, total
+
+
+def _watch_progress(schedule, stop, subject: str, period_s: float = 0.5) -> None:
+    """Report the session's progress on stderr until ``stop`` is set: phase, trial n of N, elapsed, time left.
+
+    A tqdm bar on a terminal, plain lines otherwise (devices.progress). Runs in its own thread and only reads
+    the schedule, so it never delays the session.
+    """
+    done, total = _trial_counts(schedule)
+    prog = Progress(total, f"study {subject}", unit="trial", initial=done)
+    last = None
+    while not stop.wait(period_s):
+        done, total = _trial_counts(schedule)
+        phase = schedule.phase or "done"
+        if (done, total, phase) != last:
+            last = (done, total, phase)
+            prog.update(done, status=phase, total=total)
+    done, total = _trial_counts(schedule)
+    if (done, total) != (last or (None, None))[:2]:
+        prog.update(done, status=schedule.phase or "done", total=total)
+    prog.close()
 
 
 def _audio_device(value):

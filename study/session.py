@@ -9,12 +9,11 @@ logs the resumption. Used by ``python -m study run`` (:mod:`study.cli_run`).
 from __future__ import annotations
 
 import hashlib
-import importlib.metadata
-import platform
 import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
+from devices import provenance
 from devices.registry import check_device_spec
 
 from .config import ProtocolConfig, SubjectInfo, load_protocol
@@ -107,15 +106,8 @@ def _check_same_catalog(before: list[dict], now: list[dict], where) -> None:
 
 
 def software_versions() -> dict:
-    import numpy
-    import scipy
-
-    try:
-        version = importlib.metadata.version("hfam-haptics")
-    except importlib.metadata.PackageNotFoundError:
-        version = "unknown"
-    return {"hfam-haptics": version, "python": platform.python_version(), "numpy": numpy.__version__,
-            "scipy": scipy.__version__}
+    """Python, every result-affecting dependency, the project's version and git commit (devices.provenance)."""
+    return provenance.software_versions()
 
 
 def _jsonable(obj):

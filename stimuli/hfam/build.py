@@ -44,6 +44,8 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy import signal
 
+from devices import provenance
+
 from ..library import HfamLibrary
 from ..recordings import Tap
 from .inversion import band_sos, check_model, forward_simulate, highpass_target, invert, nrmse_corr
@@ -269,12 +271,7 @@ def _model_dict(name: str, model) -> dict:
 
 
 def _software_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return f"hfam-haptics {version('hfam-haptics')}"
-    except Exception:  # running from a source tree without metadata
-        return "hfam-haptics (unknown version)"
+    return provenance.version_line()
 
 
 def file_digest(path) -> str:

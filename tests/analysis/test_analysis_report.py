@@ -166,11 +166,11 @@ def test_synthetic_command_then_report(tmp_path, capsys):
 
 def test_report_html_renders_in_chromium(report):
     """The self-contained report opens in Debian's headless Chromium with every figure decoded."""
-    import shutil
     from playwright.sync_api import sync_playwright
+
+    from ..needs import chromium
     out, _ = report
-    exe = shutil.which("chromium")
-    assert exe, "Debian chromium is required (make system-deps)"
+    exe = chromium()
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=exe, args=[
             "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",

@@ -376,6 +376,15 @@ def test_save_and_load_round_trip(tmp_path):
                 "period_max_us", "overruns"):
         assert key in run
     assert run["ticks"] == len(res.log["t_s"]) == round(tr.duration_s * 1e4)
+    import importlib.metadata
+    import platform
+
+    versions = run["software_version"]   # what produced it: Python, the result-affecting packages, the code
+    assert versions["python"] == platform.python_version()
+    for dist in ("numpy", "scipy", "numba", "pandas", "statsmodels", "matplotlib"):
+        assert versions[dist] == importlib.metadata.version(dist)
+    assert versions["hfam-haptics"] == importlib.metadata.version("hfam-haptics")
+    assert versions["git_commit"] is None or len(versions["git_commit"]) == 40
     back = RunResult.load(tmp_path / "out")
     assert back.events == res.events
     assert set(back.log) == {c[0] for c in LOG_CHANNELS}

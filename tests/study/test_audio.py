@@ -2,7 +2,6 @@
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -14,11 +13,16 @@ import pytest
 from scipy import signal
 from scipy.io import wavfile
 
+from devices import sysdeps
+
+from ..needs import need
+
 ROOT = Path(__file__).resolve().parents[2]
 FS = 44100
 
 
 def play_through_alsa_file(tmp_path, level_dbfs, body, extra="", **env_extra):
+    need("portaudio")
     raw = tmp_path / "played.raw"
     conf = tmp_path / "asound.conf"
     conf.write_text(f'</usr/share/alsa/alsa.conf>\npcm.!default {{ type file slave.pcm "null" '
@@ -83,6 +87,7 @@ def test_cues_are_mixed_into_the_noise(tmp_path):
 
 
 def test_real_session_without_audio_output_refuses(tmp_path):
+    need("portaudio")
     # this machine has no sound card: with ALSA's default config PortAudio finds no output device
     env = {k: v for k, v in os.environ.items() if k != "ALSA_CONFIG_PATH"}
     out = subprocess.run([sys.executable, "-m", "study", "run", "--device", "sim", "--audio", "on", "--subject", "A1",
@@ -103,8 +108,8 @@ def test_real_session_without_audio_output_refuses(tmp_path):
 
 def espeak_reference(text, fs_hz=FS):
     """The phrase as espeak-ng speaks it (the runner's voice and speed), resampled here to the stream rate."""
-    exe = shutil.which("espeak-ng")
-    assert exe, "espeak-ng is not installed (Debian package espeak-ng: 'make system-deps')"
+    need("espeak-ng")
+    exe = sysdeps.tool("espeak-ng")
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([exe, "-v", "en", "-s", "150", "-w", f"{tmp}/ref.wav", text], check=True, timeout=30)
         rate, y = wavfile.read(f"{tmp}/ref.wav")
@@ -165,7 +170,8 @@ def test_spoken_cues_are_played_through_portaudio_at_the_set_level(tmp_path):
 
 
 def test_without_espeak_ng_the_cues_are_chimes_and_say_so(tmp_path):
-    # espeak-ng made unavailable: PATH holds only an empty folder (python is called by its full path)
+    # espeak-ng made unavailable: not provisioned (HFAM_DEPS_WITHOUT) and PATH holds only an empty folder
+    # (python is called by its full path)
     empty = tmp_path / "bin"
     empty.mkdir()
     body = ("print(a.cue_source, a.cue_spoken)\n"
@@ -174,8 +180,9 @@ def test_without_espeak_ng_the_cues_are_chimes_and_say_so(tmp_path):
             "while a.frames_played < 250_000: time.sleep(0.001)\n"
             "a.cue_rate()\n"
             "while a.frames_played < 400_000: time.sleep(0.001)").replace("\n", "\n        ")
-    x, out = play_through_alsa_file(tmp_path, -30.0, body, "cue_level_db=6.0", PATH=str(empty))
-    assert "synthesized chime (espeak-ng not found on PATH" in out and out.split("\n")[1].endswith("False")
+    x, out = play_through_alsa_file(tmp_path, -30.0, body, "cue_level_db=6.0", PATH=str(empty),
+                                  HFAM_DEPS_WITHOUT="espeak-ng")
+    assert "synthesized chime (espeak-ng not found in .deps/bin or on PATH" in out and out.split("\n")[1].endswith("False")
     x = x.astype(np.float64)
     noise_rms = np.sqrt(np.mean(x[:90_000] ** 2))
     # the notes in the played stream, in time order: C5 E5 G5 rising (tap), then G5 C5 falling (rate)
@@ -206,6 +213,7 @@ def test_espeak_ng_failing_or_a_clipping_level_is_reported(tmp_path, monkeypatch
     fake.write_text("#!/bin/sh\necho 'no voice data' >&2\nexit 1\n")
     fake.chmod(0o755)
     monkeypatch.setenv("PATH", str(fake.parent))
+    monkeypatch.setenv("HFAM_DEPS", "system")  # this fake, not a provisioned espeak-ng
     cues, source, spoken = make_cues(FS, 0.05)
     assert not spoken and "espeak-ng failed to speak 'Tap now.': no voice data" in source
     assert abs(active_rms(cues["tap"], FS) - 0.05) < 1e-4
@@ -219,6 +227,7 @@ def test_espeak_ng_failing_or_a_clipping_level_is_reported(tmp_path, monkeypatch
 
 
 def run_sim_session_with_audio(tmp_path, subject, *extra, **env_extra):
+    need("portaudio")
     raw = tmp_path / f"{subject}.raw"
     conf = tmp_path / f"{subject}.conf"
     conf.write_text(f'</usr/share/alsa/alsa.conf>\npcm.!default {{ type file slave.pcm "null" '
@@ -253,9 +262,9 @@ def test_session_records_the_cue_source_and_speaks(tmp_path):
     # without espeak-ng: chimes, a warning, and session.json says so
     empty = tmp_path / "bin"
     empty.mkdir()
-    out, _ = run_sim_session_with_audio(tmp_path, "V2", PATH=str(empty))
+    out, _ = run_sim_session_with_audio(tmp_path, "V2", PATH=str(empty), HFAM_DEPS_WITHOUT="espeak-ng")
     assert out.returncode == 0, out.stderr
-    assert "warning: the cues are chimes, not spoken: synthesized chime (espeak-ng not found on PATH" in out.stderr
+    assert "warning: the cues are chimes, not spoken: synthesized chime (espeak-ng not found in .deps/bin or on PATH" in out.stderr
     audio = json.loads((tmp_path / "DATA" / "V2" / "session.json").read_text())["audio"]
     assert audio["cue_spoken"] is False and audio["cue_source"].startswith("synthesized chime (espeak-ng not found")
     # a cue level that would clip is refused before the session starts

@@ -71,6 +71,10 @@ def test_session_json_and_traces(full_session):
                 "software_version", "started_at", "finished_at"):
         assert key in s
     assert s["finished_at"] is not None and s["seed"] == 4 and s["repetitions"] == 3
+    import importlib.metadata
+    for dist in ("numpy", "scipy", "numba", "pandas", "statsmodels", "hfam-haptics"):
+        assert s["software_version"][dist] == importlib.metadata.version(dist)
+    assert {"python", "git_commit", "git_dirty"} <= set(s["software_version"])
     assert [c["name"] for c in s["catalog"]] == ALL
     assert all(len(c["library_sha256"]) == 64 for c in s["catalog"] if c["transient"] == "hfam")
     assert s["audio"]["output"] is None and "silent" in s["audio"]["cue_source"]

@@ -3,7 +3,6 @@
 import itertools
 import json
 import re
-import shutil
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from playwright.sync_api import sync_playwright
 from study.uistate import KEY_HINT, UiState
 from study.webui import WebUI
 
+from ..needs import chromium
 from .helpers import read_rows, write, QUICK_PROTOCOL
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,8 +27,7 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networki
 
 @pytest.fixture(scope="module")
 def browser():
-    exe = shutil.which("chromium")
-    assert exe, "Debian chromium is required for the view tests (make system-deps)"
+    exe = chromium()
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
         yield b

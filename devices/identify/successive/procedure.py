@@ -193,7 +193,7 @@ def save_result(result: SuccessiveResult, out_dir, overwrite: bool = False, figu
     model = out / MODEL_FILE
     if model.exists() and not overwrite:
         raise FileExistsError(f"{out} already holds a model ({MODEL_FILE}); choose another folder or pass "
-                              f"--overwrite")
+                              f"--force")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(model, json.dumps(result.model_dict(), indent=2, default=float) + "\n")
     load_sim_params(model)  # the file must load as a sim device

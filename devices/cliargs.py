@@ -1,0 +1,70 @@
+"""The command-line grammar shared by every command (``hfam-<package> <command>``).
+
+Rules: one flag name per concept everywhere; singular for one value, plural for a
+list (``--grip-N 2``, ``--grips-N 0,1,2``); every flag with a unit ends in it
+(``-m-s``, ``-N``, ``-N-m``, ``-s``, ``-hz``, ``-A``, ``-db``, ``-deg``);
+``--out`` for what a command writes and ``--force`` to replace it; each
+``--help`` ends with an example. Old spellings are accepted for one release
+with a deprecation notice on stderr (:func:`add_renamed`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+class _RenamedStore(argparse._StoreAction):
+    """A store action that also answers to old spellings, saying so on stderr."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if option_string is not None and option_string not in self.option_strings:
+            print(f"warning: {option_string} is deprecated; use {self.option_strings[0]} (the old spelling is "
+                  "accepted until the next release)", file=sys.stderr)
+        super().__call__(parser, namespace, values, option_string)
+
+
+def add_renamed(parser: argparse.ArgumentParser, name: str, *old: str, **kwargs) -> argparse.Action:
+    """Add option ``name`` that also accepts the deprecated spellings ``old`` (hidden from ``--help``).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    name : str
+        The flag's name under the grammar (e.g. ``"--velocities-m-s"``).
+    *old : str
+        Earlier spellings (e.g. ``"--velocity"``): still parsed, with a notice on stderr.
+    **kwargs
+        As for :meth:`argparse.ArgumentParser.add_argument` (give ``dest`` to keep the attribute name).
+
+    Returns
+    -------
+    argparse.Action
+        The added action.
+    """
+    action = parser.add_argument(name, *old, action=_RenamedStore, **kwargs)
+    action.option_strings = [name]        # help and usage show the new name; parsing still knows the old ones
+    return action
+
+
+def examples(*lines: str) -> str:
+    """An ``--help`` epilog: ``examples:`` then one indented command per line (use with RawDescriptionHelpFormatter)."""
+    return "examples:\n" + "\n".join(f"  {ln}" for ln in lines)
+
+
+class Formatter(argparse.HelpFormatter):
+    """Wraps descriptions as usual but keeps an ``examples:`` epilog line by line."""
+
+    def _fill_text(self, text, width, indent):
+        if text.startswith("examples:"):
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def with_examples(parser: argparse.ArgumentParser, *lines: str) -> argparse.ArgumentParser:
+    """End ``parser``'s ``--help`` with ``examples:`` and the given command lines; returns the parser."""
+    parser.epilog = examples(*lines)
+    if parser.formatter_class is argparse.HelpFormatter:
+        parser.formatter_class = Formatter
+    return parser

@@ -1,0 +1,64 @@
+"""One command-line grammar: unit-suffixed flags, old spellings still accepted with a notice, an example in every help."""
+
+import argparse
+import importlib
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+#: (command module, sub-command) pairs that follow the grammar (devices/cliargs.py)
+COMMANDS = [("devices.cli_record", "record"), ("devices.cli_identify", "identify"), ("devices.cli_identify", "fit"),
+            ("devices.cli_hardware", "emulate"), ("devices.cli_hardware", "latency"), ("renderer.cli_run", "run"),
+            ("stimuli.cli_build", "build-library"), ("stimuli.cli_show", "show"), ("study.cli_run", "run"),
+            ("analysis.cli_report", "report"), ("analysis.cli_synthetic", "synthetic")]
+#: a help text saying "in <unit>" means the flag must end in the unit's suffix
+UNITS = [(r"\bin m/s\b", "-m-s"), (r"\bin N/m\b", "-N-m"), (r"\bin Hz\b", "-hz"), (r"\bin A\b", "-A"),
+         (r"\bin N\b(?!/)", "-N"), (r"\bin s\b", "-s")]
+
+
+def parser_of(module, command):
+    top = argparse.ArgumentParser(prog="x")
+    sub = top.add_subparsers(dest="command")
+    importlib.import_module(module).register(sub)
+    return sub.choices[command]
+
+
+@pytest.mark.parametrize("module,command", COMMANDS)
+def test_help_has_an_example_and_unit_suffixes(module, command):
+    p = parser_of(module, command)
+    text = p.format_help()
+    assert "example" in (p.epilog or ""), f"{command}: --help has no example"
+    assert re.search(r"(hfam-\w+|python -m \w+) " + re.escape(command), p.epilog), p.epilog
+    for action in p._actions:
+        name = action.option_strings[0] if action.option_strings else ""
+        for pattern, suffix in UNITS:
+            if name and re.search(pattern, action.help or "") and not name.endswith(suffix):
+                if not (suffix == "-s" and name.endswith(("-ms", "-us"))):
+                    pytest.fail(f"{command} {name}: its help says {pattern!r}, so it should end in {suffix}")
+    assert "usage" in text
+
+
+def test_old_spellings_still_work_with_a_notice(capsys):
+    p = parser_of("renderer.cli_run", "run")
+    new = p.parse_args(["--velocities-m-s", "0.1,0.2", "--grip-N", "3", "--out", "o"])
+    assert capsys.readouterr().err == ""
+    old = p.parse_args(["--velocity", "0.1,0.2", "--grip", "3", "--out", "o"])
+    err = capsys.readouterr().err
+    assert (old.velocity, old.grip) == (new.velocity, new.grip) == ([0.1, 0.2], 3.0)
+    assert "warning: --velocity is deprecated; use --velocities-m-s" in err and "--grip-N" in err
+    p = parser_of("devices.cli_identify", "identify")
+    assert p.parse_args(["--grip", "0,10", "--out", "o"]).grip == p.parse_args(["--grips-N", "0,10", "--out", "o"]).grip
+    assert "use --grips-N" in capsys.readouterr().err
+    assert "--grip " not in p.format_help() and "--grips-N" in p.format_help()   # old spellings are not advertised
+
+
+def test_benchmarks_help_lists_them():
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "--help"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0
+    for p in (ROOT / "benchmarks").glob("bench_*.py"):
+        assert f"  {p.stem.removeprefix('bench_')} " in out.stdout
