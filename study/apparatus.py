@@ -71,6 +71,32 @@ class TapResult:
         return out
 
 
+def link_summary(device) -> str:
+    """Format a device's link counters as one line (see :meth:`Apparatus.link_status`).
+
+    Parameters
+    ----------
+    device : devices.base.Device
+        An open device; ``link_stats()`` is used when it has one.
+
+    Returns
+    -------
+    str
+        The status line.
+    """
+    stats_fn = getattr(device, "link_stats", None)
+    if stats_fn is None:
+        return "sim (no link)" if device.info.simulated else f"{type(device).__name__} (no link counters)"
+    st = stats_fn()
+    faults = {"lost": st.get("losses", 0), "CRC": st.get("crc_errors", 0), "timeouts": st.get("timeouts", 0),
+              "watchdog": st.get("watchdog_trips", 0)}
+    p99 = st.get("rtt_p99_s")
+    rtt = "rtt p99 -" if p99 is None else f"rtt p99 {p99 * 1e3:.1f} ms"
+    if not any(faults.values()):
+        return f"ok · {rtt}"
+    return "FAULTS: " + ", ".join(f"{n} {k}" for k, n in faults.items()) + f" · {rtt}"
+
+
 class Apparatus:
     """Device + renderer loops + homing for a catalog.
 
@@ -123,6 +149,20 @@ class Apparatus:
         else:
             self.real_saturation_detection = ("device extra['contact_force_N']" if "contact_force_N" in
                                               getattr(device.read(), "extra", {}) else "none (no force sensor)")
+
+    def link_status(self) -> str:
+        """One line on the device link's health for the operator page.
+
+        Returns
+        -------
+        str
+            ``"sim (no link)"`` for a simulated device; for a device that counts its link (serial,
+            fw-sim) ``"ok · rtt p99 <ms> ms"`` while no fault has been counted, else
+            ``"FAULTS: <n> lost, <n> CRC, <n> timeouts, <n> watchdog · rtt p99 <ms> ms"`` (session
+            totals, so a fault stays visible after it happened); ``"<kind> (no link counters)"`` for
+            a device without them (HID).
+        """
+        return link_summary(self.device)
 
     def now_s(self) -> float:
         """Device time (s): simulated time in sim mode, the device clock on hardware."""

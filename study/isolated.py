@@ -137,6 +137,10 @@ class IsolatedApparatus:
         self._pending = False
         return result
 
+    def link_status(self) -> str:
+        """The device link's health line, from the servo process (see ``Apparatus.link_status``)."""
+        return self._call("link_status")
+
     def now_s(self) -> float:
         return self._call("now_s")
 

@@ -154,7 +154,7 @@ class StudyRunner:
                 "trial_n": min(total, valid + 1) if self.schedule.phase not in (None, "familiarization") else None,
                 "time_left_s": None if per_attempt is None else per_attempt * remaining,
                 "last_rating": last, "audio": getattr(self.audio, "cue_source", None) or type(self.audio).__name__,
-                "link": getattr(self.apparatus, "link_status", lambda: "ok")(),
+                "link": self.apparatus.link_status(),
                 "finished": self.schedule.phase is None}
 
     def restore(self, rows: list[dict], familiarization_ended: bool) -> None:
