@@ -14,7 +14,8 @@ Environment
 ``HFAM_DEPS``
     ``auto`` (default): ``.deps`` first, then the system; ``provision``: only
     ``.deps`` (system copies ignored; used to test the provisioning honestly on a
-    machine that has them); ``system``: only the system (``.deps`` ignored).
+    machine that has them; the machine's own ``cc`` and ``make`` still come from
+    the system, see ``BASE_TOOLS``); ``system``: only the system (``.deps`` ignored).
 ``HFAM_DEPS_DIR``
     The ``.deps`` folder (default: ``.deps`` next to the packages, i.e. in the
     repository of an editable install).
@@ -166,8 +167,14 @@ _TOOL_COMPONENT = {"espeak-ng": "espeak-ng", "chromium": "chromium", "chromium-b
                    "simavr": "simavr", "cc": "cc"}
 
 
+#: Programs of the machine itself (the developers' guide: Python, gcc and make on every machine), never
+#: provisioned: ``provision`` mode still takes them from the system.
+BASE_TOOLS = frozenset({"cc", "gcc", "make"})
+
+
 def _hidden(component: str) -> bool:
-    return component in {c.strip() for c in os.environ.get("HFAM_DEPS_WITHOUT", "").split(",")}
+    # an empty name is no component (an unset variable splits into [""])
+    return bool(component) and component in {c.strip() for c in os.environ.get("HFAM_DEPS_WITHOUT", "").split(",")}
 
 
 def tool(name: str) -> str | None:
@@ -189,7 +196,7 @@ def tool(name: str) -> str | None:
         p = bin_dir() / name
         if p.is_file() and os.access(p, os.X_OK):
             return str(p)
-    if _use_system():
+    if _use_system() or name in BASE_TOOLS:
         return shutil.which(name, path=_system_path())
     return None
 
