@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,6 +13,7 @@ import numpy as np
 
 from ..base import Device
 from ..fileio import atomic_write_text
+from ..progress import Progress
 from .etfe import Etfe, etfe
 from .figures import bode_plot
 from .fit import FitError, FitOptions, fit_etfes
@@ -97,7 +100,7 @@ def _fit_one(curves: list, options: FitOptions, source: str):
 
 
 def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device_spec: str = "",
-                    seed: int = 0) -> dict:
+                    seed: int = 0, progress: bool = True) -> dict:
     """Identify H_ha and G_i at every grip level of ``cfg`` and write the results to ``out_dir``.
 
     Writes ``recordings/g<g>N_t<k>.csv`` (+ ``.json``), the validation transients
@@ -107,6 +110,24 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     ``report.txt``. A grip level whose fit misses the requested error is
     reported and left out of the set; if no grip level fits, nothing but the
     recordings and the report is written and ValueError is raised.
+
+    Parameters
+    ----------
+    dev : devices.base.Device
+        The open device (simulated or hardware).
+    cfg : IdentifyConfig
+        Sweep, grip levels (N), trials, fit settings and ``workers``.
+    out_dir : path
+        Output folder (created).
+    log : callable
+        Receives one text line per message (default ``print``).
+    device_spec : str
+        The device string; simulated devices with ``cfg.workers > 1`` are identified grip by grip
+        in parallel processes, each with a fresh device made from it.
+    seed : int
+        Seed of the simulated devices' noise.
+    progress : bool
+        Show progress (grip n of N, elapsed, time left) on stderr: a bar on a terminal, plain lines otherwise.
 
     Returns
     -------
@@ -123,16 +144,26 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     rows = []
     label = device_spec or dev.info.name
     jobs = list(enumerate(cfg.grips_N))
+    bar = Progress(len(jobs), f"identifying {label}", unit="grip", min_interval_s=0.0) if progress else None
+    results = [None] * len(jobs)
     if cfg.workers > 1 and dev.simulated and device_spec.startswith("sim") and len(jobs) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         # fork: the workers inherit the imported (and numba-compiled) modules, so they start at once
         ctx = multiprocessing.get_context("fork")
         with ProcessPoolExecutor(max_workers=min(cfg.workers, len(jobs)), mp_context=ctx) as pool:
-            results = list(pool.map(_grip_worker, [(device_spec, seed, k, g, cfg, label, out) for k, g in jobs]))
+            futures = {pool.submit(_grip_worker, (device_spec, seed, k, g, cfg, label, out)): i
+                       for i, (k, g) in enumerate(jobs)}
+            for fut in as_completed(futures):
+                i = futures[fut]
+                results[i] = fut.result()
+                if bar is not None:
+                    bar.update(status=f"grip {jobs[i][1]:g} N")
     else:
-        results = [_identify_grip(dev, k, g, cfg, label, out) for k, g in jobs]
+        for i, (k, g) in enumerate(jobs):
+            results[i] = _identify_grip(dev, k, g, cfg, label, out)
+            if bar is not None:
+                bar.update(status=f"grip {g:g} N")
+    if bar is not None:
+        bar.close()
     for (k, g), (row, gcurves, gfits, msgs) in zip(jobs, results):
         for m in msgs:
             log(m)

@@ -242,3 +242,16 @@ def test_transient_recording_round_trip_and_cli_validate(tmp_path, capsys):
     text = capsys.readouterr().out
     nrmse_printed = float(text.split("NRMSE ")[1].split()[0])
     assert nrmse_printed < 0.1
+
+
+def test_identification_shows_progress_per_grip(tmp_path, capsys):
+    """Issue 14: grip n of N with elapsed and time left, as plain lines when stderr is not a terminal."""
+    dev = SimDevice.from_spec("lti", seed=3)
+    with dev:
+        cfg = IdentifyConfig(grips_N=(1.0, 3.0), trials=1, sweep=_sweep(dev, 0.5), validate=False, workers=1)
+        identify_device(dev, cfg, tmp_path, log=lambda *_: None, device_spec="sim:lti")
+    err = capsys.readouterr().err.splitlines()
+    lines = [ln for ln in err if ln.startswith("identifying sim:lti: ")]
+    assert [ln.split(": ", 1)[1].split(" (")[0] for ln in lines] == ["1 of 2 grips done", "2 of 2 grips done"], err
+    assert "(grip 1 N)" in lines[0] and "(grip 3 N)" in lines[1]
+    assert "about" in lines[0] and "left" in lines[0] and "elapsed" in lines[1]
