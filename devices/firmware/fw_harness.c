@@ -8,8 +8,8 @@
 #include "hfam_fw.c"
 
 uint8_t UDR0, UCSR0A, UCSR0B, UCSR0C, PIND, PORTB, DDRB, OCR2A, TCCR2A, TCCR2B, EICRA, EIMSK, ADMUX, ADCSRA,
-    TCCR1A, TCCR1B, TIMSK1, GPIOR0;
-uint16_t UBRR0, ADC, OCR1A;
+    TCCR1A, TCCR1B, TIMSK1, TIFR1, GPIOR0;
+uint16_t UBRR0, ADC, OCR1A, TCNT1;
 
 static void drain_tx(void) {
     while (tx_head != tx_tail) {
@@ -37,8 +37,8 @@ int main(int argc, char **argv) {
         if (pos_counts < -0.0015f / POS_RES_M) pos_counts = 0.0025f / POS_RES_M; /* lift (instantly) */
         pos_counts += step;
         encoder_count = (int32_t)lroundf(pos_counts);
-        TIMER1_COMPA_vect();
-        servo_tick();
+        TIMER1_COMPA_vect(); /* the servo tick runs in the timer interrupt */
+        flush_telemetry();   /* the main loop frames what it posted */
         drain_tx();
     }
     return 0;

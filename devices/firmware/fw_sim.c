@@ -282,6 +282,7 @@ static avr_cycle_count_t phys_cb(avr_t *a, avr_cycle_count_t when, void *param) 
 #define HIST 65536
 static uint32_t tick_hist[HIST], body_hist[HIST];
 static uint64_t ticks, tick_overruns, compare_matches;
+static avr_cycle_count_t overrun_at[8]; /* MCU cycle of the first overruns, for the report */
 static avr_cycle_count_t match_cycle, tick_start_cycle, frame_start_cycle;
 static int tick_open;
 static uint32_t frame_max, frames_handled;
@@ -298,7 +299,10 @@ static void isr_pending(avr_irq_t *irq, uint32_t value, void *param) {
     isr[k].pend = avr->cycle;
     if (isr[k].vec == V_TIMER1_COMPA) {
         compare_matches++;
-        if (tick_open) tick_overruns++; /* the previous tick had not finished */
+        if (tick_open) { /* the previous tick had not finished */
+            if (tick_overruns < 8) overrun_at[tick_overruns] = avr->cycle;
+            tick_overruns++;
+        }
         else match_cycle = avr->cycle;
         tick_open = 1;
     }
@@ -530,6 +534,9 @@ static void write_stats(int final) {
             (unsigned long long)avr->cycle, avr->cycle / (double)F_CPU_HZ, F_CPU_HZ);
     fprintf(f, " \"ticks\": %llu, \"compare_matches\": %llu, \"tick_overruns\": %llu,\n", (unsigned long long)ticks,
             (unsigned long long)compare_matches, (unsigned long long)tick_overruns);
+    fprintf(f, " \"overrun_at_cycles\": [");
+    for (unsigned k = 0; k < 8 && k < tick_overruns; k++) fprintf(f, "%s%llu", k ? ", " : "", (unsigned long long)overrun_at[k]);
+    fprintf(f, "],\n");
     fprintf(f, " \"tick_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", mn, med, p99, mx);
     fprintf(f, " \"tick_body_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", bmn, bmed, bp99, bmx);
     fprintf(f, " \"frame_handling_max_cycles\": %u, \"frames_handled\": %u,\n", frame_max, frames_handled);

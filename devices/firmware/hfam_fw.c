@@ -13,8 +13,10 @@
  *   motor driver PWM on OC2B (PD3 is taken, so OC2A = PB3 / D11), direction on PB0 (D8),
  *   current = duty * PWM_FULL_SCALE_A (open-loop current drive through a current-mode driver);
  *   accelerometer (analog, e.g. ADXL321) on ADC0, force-sensing resistor divider on ADC1.
- * Servo tick: Timer1 CTC at SERVO_HZ; the main loop runs one tick per interrupt flag and
- * services the UART between ticks. The AVR hardware watchdog (60 ms) resets a hung board.
+ * Servo tick: Timer1 CTC at SERVO_HZ, run inside the compare interrupt with interrupts re-enabled
+ * (encoder and UART interrupts nest in it), in fixed point (no soft-float in the tick); the main
+ * loop parses host frames and sends the telemetry the tick posts. The AVR hardware watchdog
+ * (60 ms) resets a hung board.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -56,7 +58,7 @@
 #define T_ATTENUATE_K (0.7f * T_MAX_RISE_K) /* same fade-out as devices/firmware/logic.py */
 #define T_END_K (0.9f * T_MAX_RISE_K)
 #define WATCHDOG_MS_DEFAULT 100
-#define REARM_MAX 128                    /* sampled transient buffer (floats): 512 of the 2048 bytes of RAM */
+#define REARM_MAX 128                    /* sampled transient buffer (Q24 A, int32): 512 of the 2048 bytes of RAM */
 #define VEL_WINDOW 4
 #define FORCE_PER_AMP (GEAR_RATIO * KT_NM_A / HANDLE_LENGTH_M)
 #define POS_RES_M (2.0f * 3.14159265f * HANDLE_LENGTH_M / (4.0f * ENCODER_LINES * GEAR_RATIO))
@@ -135,11 +137,30 @@ ISR(INT0_vect) { encoder_update(); }
 ISR(INT1_vect, ISR_ALIASOF(INT0_vect));
 
 /* ---- time, ADC, motor -------------------------------------------------------------- */
-static volatile uint8_t tick_flag;
+/* The servo tick runs inside the Timer1 compare interrupt, with interrupts re-enabled at its
+ * entry (ISR_NOBLOCK) so the encoder and UART interrupts nest in it: it starts within a few
+ * dozen cycles of the compare match whatever the main loop is doing (parsing a long frame,
+ * assembling telemetry). The main loop owns the UART: the tick leaves its STATE/EVENT payloads
+ * in small slots (below) that the main loop frames and sends. Main-loop code that writes what
+ * the tick reads does so with interrupts off (TICK_LOCK), a few stores at a time: each section is
+ * far shorter than the UART receive deadline (two characters, 320 cycles), and a compare match
+ * meanwhile is served as soon as it ends. */
 static volatile uint32_t tick_count;
-ISR(TIMER1_COMPA_vect) {
+static volatile uint8_t tick_busy;
+static volatile uint16_t tick_overruns; /* compare matches that found the previous tick still running */
+static void servo_tick(void);
+#define TICK_LOCK() cli()
+#define TICK_UNLOCK() sei()
+ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
     tick_count++;
-    tick_flag = 1;
+    if (tick_busy) { tick_overruns++; return; }
+    tick_busy = 1;
+    /* the transmitter waits for the tick (one interrupt per byte would take ~40 % of the CPU
+     * inside it); receive and encoder interrupts stay on: they have deadlines */
+    UCSR0B &= (uint8_t)~_BV(UDRIE0);
+    servo_tick();
+    if (tx_head != tx_tail) UCSR0B |= _BV(UDRIE0);
+    tick_busy = 0;
 }
 
 static void adc_start(uint8_t channel) {
@@ -156,17 +177,24 @@ static uint16_t adc_read(uint8_t channel) {
     return adc_result();
 }
 
-static float applied_A;
-static void motor_set(float amps) {
-    if (!(amps == amps)) amps = 0.0f; /* NaN never reaches the motor */
-    if (amps > I_AMP_A) amps = I_AMP_A;
-    if (amps < -I_AMP_A) amps = -I_AMP_A;
-    applied_A = amps;
-    if (amps >= 0) PORTB &= (uint8_t)~_BV(PB0); else PORTB |= _BV(PB0);
-    float duty = fabsf(amps) * (1.0f / PWM_FULL_SCALE_A);
-    OCR2A = (uint8_t)(duty >= 1.0f ? 255 : duty * 255.0f);
+/* Currents in fixed point: Q24 amperes (int32, 1 LSB = 60 nA, range +/-128 A), so the servo tick
+ * needs no soft-float (~100-150 cycles per operation on the AVR); 32x32->64-bit products keep the
+ * precision far below the 1 mA the host test allows against devices/firmware/logic.py. */
+#define Q24 16777216.0f
+static volatile int32_t applied_q24;
+static void motor_set_q24(int32_t q) {
+    const int32_t amp = (int32_t)(I_AMP_A * Q24);
+    if (q > amp) q = amp;
+    if (q < -amp) q = -amp;
+    applied_q24 = q;
+    if (q >= 0) PORTB &= (uint8_t)~_BV(PB0); else PORTB |= _BV(PB0);
+    /* duty = |i| / PWM_FULL_SCALE_A -> 0..255: |i| <= 2 A = 2^25 in Q24, so |i| >> 16 (bytes 2-3, no
+     * shift loop) is 0..512 and that * 255 / 512 is the 8-bit duty */
+    uint32_t a = (uint32_t)(q >= 0 ? q : -q);
+    uint16_t hi = (uint16_t)(a >> 16);
+    uint16_t d = (uint16_t)((hi >> 1) - (hi >> 9)); /* hi * 255 / 512 within one count, no multiply */
+    OCR2A = (uint8_t)(d > 255 ? 255 : d);
 }
-
 static void hw_init(void) {
     DDRB |= _BV(PB0) | _BV(PB3);
     TCCR2A = _BV(COM2A1) | _BV(WGM21) | _BV(WGM20); /* fast PWM, 62.5 kHz */
@@ -176,9 +204,13 @@ static void hw_init(void) {
     EIMSK = _BV(INT0) | _BV(INT1);
     enc_prev = (uint8_t)((PIND >> 2) & 0x03);
     ADCSRA = _BV(ADEN) | _BV(ADPS2); /* /16: 1 MHz ADC clock, ~13 us per conversion */
+    /* the period before the clock starts: with OCR1A still 0, CTC mode matches at once (a spurious
+     * first tick, and a compare flagged while interrupts are off) */
+    OCR1A = (uint16_t)(F_CPU / SERVO_HZ - 1);
+    TCNT1 = 0;
     TCCR1A = 0;
     TCCR1B = _BV(WGM12) | _BV(CS10);
-    OCR1A = (uint16_t)(F_CPU / SERVO_HZ - 1);
+    TIFR1 = _BV(OCF1A); /* nothing flagged while the timer was set up: the first tick is a full period away */
     TIMSK1 = _BV(OCIE1A);
 }
 
@@ -188,6 +220,7 @@ static uint8_t tx_seq, cmd_seq;
 static uint8_t mode_on_device, rendering, decimation = 1;
 static uint8_t tripped, trip_report, ev_tripped, fault_latched, watchdog_armed;
 static uint16_t watchdog_ms = WATCHDOG_MS_DEFAULT;
+static uint32_t watchdog_ticks = (uint32_t)WATCHDOG_MS_DEFAULT * (SERVO_HZ / 1000UL);
 static uint32_t last_cmd_tick;
 
 /* calibration uploaded by the host */
@@ -195,31 +228,71 @@ static int32_t cal_zero;
 static int8_t cal_sign = 1;
 static float cal_a_scale = ACCEL_SCALE_M_S2_PER_COUNT, cal_a_off = ACCEL_OFFSET_COUNTS;
 static float cal_g_scale = GRIP_SCALE_N_PER_COUNT, cal_g_off = GRIP_OFFSET_COUNTS;
+static int32_t cal_a_off_q8 = (int32_t)ACCEL_OFFSET_COUNTS * 256; /* accel offset in 1/256 ADC counts */
 
-/* renderer (devices/firmware/logic.py) */
-static float wall_h, wall_k, wall_b, wall_rearm = 0.001f, lim_cont, lim_peak;
+/* renderer (devices/firmware/logic.py), in fixed point: positions in 1/256 encoder count (Q8
+ * counts), currents in Q24 A. The host's SI parameters are converted once, when they arrive. */
+static int32_t wall_h_q8, wall_rearm_q8 = (int32_t)(0.001f / POS_RES_M * 256.0f);
+static int32_t k_wall;              /* wall current per count of penetration, Q24 A (times pen in Q8, >> 8) */
+static int32_t pen_c_max;           /* whole counts of penetration below which k_wall * counts fits 2^30 */
+static int32_t b_wall[2 * VEL_WINDOW]; /* damping current per count moved over t ticks, Q24 A (t = 1..7) */
+static int32_t b_wall_1;            /* the same for t = 1, divided by t for longer gaps */
+static int32_t lim_cont_q24, lim_peak_q24;
 static uint8_t tr_kind; /* 0 none, 1 pulse, 2 sinusoid, 4 re-armed buffer */
-static float tr_amp, tr_dur, tr_freq;
+static int32_t tr_gain[2 * VEL_WINDOW]; /* transient amplitude per count moved over t ticks, Q24 A */
+static int32_t tr_gain_1;
 /* decaying sinusoid e^{-a t} sin(w t) at t = (k+1)/fs as the recurrence y_k = c1 y_{k-1} - c2 y_{k-2}
- * (c1 = 2 r cos(w/fs), c2 = r^2, r = e^{-a/fs}): two multiplies per tick instead of expf + sinf
- * (~5,000 cycles, over the whole 4 kHz budget on a 16 MHz AVR); coefficients set with TRANSIENT_PARAM */
-static float sin_c1, sin_c2, sin_y1, sin_y2, sin_s1, sin_s2;
+ * (c1 = 2 r cos(w/fs), c2 = r^2, r = e^{-a/fs}); y in Q31, c1/c2 in Q30: two 32x32->64 products per
+ * tick instead of expf + sinf (~5,000 cycles); coefficients set with TRANSIENT_PARAM */
+static int32_t sin_c1, sin_c2, sin_s1, sin_s2, sin_y1, sin_y2;
 static uint16_t tr_param_n;
-static float rearm_buf[REARM_MAX];
+static int32_t rearm_buf[REARM_MAX]; /* Q24 A */
 static uint16_t rearm_n, rearm_pending_n;
 static uint8_t rearm_pending;
-static float vel_ring[VEL_WINDOW];
+static int32_t vel_ring[VEL_WINDOW];  /* positions in counts */
 static uint16_t vel_tick[VEL_WINDOW]; /* servo period number of each sample (low 16 bits) */
-/* SERVO_HZ / k for a window of k ticks, without a division in the tick */
-static const float VEL_RATE[2 * VEL_WINDOW] = {0.0f, SERVO_HZ / 1.0f, SERVO_HZ / 2.0f, SERVO_HZ / 3.0f, SERVO_HZ / 4.0f,
-                                               SERVO_HZ / 5.0f, SERVO_HZ / 6.0f, SERVO_HZ / 7.0f};
-static uint16_t render_tick_n; /* servo period number of the current tick (low 16 bits) */
+static uint16_t render_tick_n;        /* servo period number of the current tick (low 16 bits) */
 static uint8_t vel_i, vel_filled;
 static uint8_t armed, in_event, ev_clipped, ev_kind, clipping, over_temp;
-static float temp_rise_K; /* first-order winding model: dT = (i^2 R_w R_th - T) dt / tau */
+/* first-order winding model dT = (i^2 R_w R_th - T) dt / tau, T in Q20 K */
+#define T_Q20(k) ((int32_t)((k) * 1048576.0f))
+static int32_t temp_q20;
+#define HEAT_Q12 ((int32_t)(R_WINDING_OHM * R_THERMAL_K_W * 4096.0f + 0.5f)) /* K/A^2, Q12 */
+/* The model is stepped every THERMAL_EVERY ticks with the mean i^2 over them (tau = 30 s is 120,000
+ * ticks: the difference from a per-tick step is far below the model's own accuracy, and a Q20
+ * temperature step of dt/tau per tick would round away differences below 0.11 K) */
+#define THERMAL_EVERY 16
+#define ALPHA_Q32 ((int32_t)(4294967296.0 * THERMAL_EVERY / (TAU_THERMAL_S * SERVO_HZ) + 0.5)) /* Q32 */
+#define T_RANGE_INV_Q32 ((int32_t)(4294967296.0 / (T_END_K - T_ATTENUATE_K) + 0.5)) /* 1/K, Q32 */
+static int32_t heat_acc; /* sum of i^2 (Q24 A^2) since the last thermal step */
+static uint8_t heat_n;
 static uint16_t tr_k, tr_n, ev_index;
-static float tr_scale, ev_v, ev_grip, ev_pen, ev_peak;
+static int32_t tr_scale_q24;
+/* the current event, in raw units (the main loop converts them to SI for the EVENT frame) */
 static uint32_t ev_t_us;
+static int32_t ev_dcounts, ev_pen_q8, ev_peak_q8;
+static uint8_t ev_ticks;
+static uint16_t ev_grip_raw;
+
+/* ---- telemetry slots (tick -> main loop) ---------------------------------------------- */
+typedef struct {
+    uint32_t t_us;
+    int32_t enc;
+    uint16_t accel_raw, grip_raw;
+    int32_t current_q24;
+    uint8_t status, cmd_seq;
+} state_slot_t;
+typedef struct {
+    uint32_t t_us;
+    int32_t dcounts, pen_q8, peak_q8;
+    uint16_t grip_raw, index;
+    uint8_t ticks, flags, kind;
+} event_slot_t;
+static state_slot_t st_slot[2];
+static volatile uint8_t st_ready, st_latest, st_reading = 0xFF;
+#define EV_QUEUE 2 /* power of two; events are 10s of ms apart, the main loop sends one within a tick */
+static event_slot_t ev_queue[EV_QUEUE];
+static volatile uint8_t evq_head, evq_tail;
 
 #define MAX_TX_PAYLOAD 120 /* INFO is the longest frame the firmware sends; PONG echoes are truncated */
 static void send(uint8_t type, const uint8_t *payload, uint8_t n) {
@@ -245,146 +318,281 @@ static void nak(uint8_t type, uint8_t seq, uint8_t code) {
     send(MSG_NAK, p, 3);
 }
 
-static uint32_t now_us(void) { return tick_count * (1000000UL / SERVO_HZ); }
-
+/* INFO is written straight into the TX ring, field by field: no 100-byte frame buffer on the stack
+ * that the tick interrupt (and the UART and encoder interrupts in it) nest on */
+static void info_bytes(const uint8_t *b, uint8_t n) { for (uint8_t i = 0; i < n; i++) tx_put(b[i], 1); }
+static void info_f32(float f) { uint8_t b[4]; put_f32(b, f); info_bytes(b, 4); }
+static void info_u16(uint16_t v) { uint8_t b[2]; put_u16(b, v); info_bytes(b, 2); }
+static void info_u32(uint32_t v) { uint8_t b[4]; put_u32(b, v); info_bytes(b, 4); }
+#define INFO_LEN (5 + 4 + 9 * 4 + 2 + 4 + 2 + 6 * 4 + 2 + 2 + 4 + 2 + 1 + sizeof(DEVICE_NAME) - 1 + 1 + sizeof(SERIAL_NUMBER) - 1)
 static void send_info(void) {
-    uint8_t p[120];
-    uint8_t *q = p;
-    *q++ = HFAM_PROTO_MAJOR; *q++ = HFAM_PROTO_MINOR; *q++ = FW_MAJOR; *q++ = FW_MINOR; *q++ = FW_PATCH;
-    put_u32(q, ENCODER_LINES); q += 4;
-    const float f1[9] = {GEAR_RATIO, HANDLE_LENGTH_M, KT_NM_A, I_CONT_A, I_PEAK_A, I_AMP_A, (float)SERVO_HZ,
-                         ACCEL_RANGE_M_S2, ACCEL_SCALE_M_S2_PER_COUNT};
-    for (uint8_t i = 0; i < 9; i++, q += 4) put_f32(q, f1[i]);
-    put_u16(q, (uint16_t)ACCEL_OFFSET_COUNTS); q += 2;
-    put_f32(q, GRIP_SCALE_N_PER_COUNT); q += 4;
-    put_u16(q, (uint16_t)GRIP_OFFSET_COUNTS); q += 2;
-    const float f2[6] = {0.0f, GRIP_MAX_N, R_WINDING_OHM, R_THERMAL_K_W, TAU_THERMAL_S, T_MAX_RISE_K};
-    for (uint8_t i = 0; i < 6; i++, q += 4) put_f32(q, f2[i]);
-    put_u16(q, watchdog_ms); q += 2;
-    put_u16(q, CAP_STREAMING | CAP_ON_DEVICE | CAP_PARAM_TRANSIENT | CAP_REARM_TRANSIENT); q += 2;
-    put_u32(q, REARM_MAX); q += 4;
-    put_u16(q, 0); q += 2; /* flags: not simulated */
-    *q++ = sizeof(DEVICE_NAME) - 1; memcpy(q, DEVICE_NAME, sizeof(DEVICE_NAME) - 1); q += sizeof(DEVICE_NAME) - 1;
-    *q++ = sizeof(SERIAL_NUMBER) - 1; memcpy(q, SERIAL_NUMBER, sizeof(SERIAL_NUMBER) - 1);
-    q += sizeof(SERIAL_NUMBER) - 1;
-    send(MSG_INFO, p, (uint8_t)(q - p));
+    static const float f1[9] = {GEAR_RATIO, HANDLE_LENGTH_M, KT_NM_A, I_CONT_A, I_PEAK_A, I_AMP_A, (float)SERVO_HZ,
+                                ACCEL_RANGE_M_S2, ACCEL_SCALE_M_S2_PER_COUNT};
+    static const float f2[6] = {0.0f, GRIP_MAX_N, R_WINDING_OHM, R_THERMAL_K_W, TAU_THERMAL_S, T_MAX_RISE_K};
+    static const uint8_t version[5] = {HFAM_PROTO_MAJOR, HFAM_PROTO_MINOR, FW_MAJOR, FW_MINOR, FW_PATCH};
+    uint8_t seq = tx_seq++;
+    if (!tx_begin((uint16_t)INFO_LEN + HFAM_OVERHEAD)) return;
+    tx_put(HFAM_SYNC0, 0);
+    tx_put(HFAM_SYNC1, 0);
+    tx_put((uint8_t)INFO_LEN, 1);
+    tx_put(MSG_INFO, 1);
+    tx_put(seq, 1);
+    info_bytes(version, 5);
+    info_u32(ENCODER_LINES);
+    for (uint8_t i = 0; i < 9; i++) info_f32(f1[i]);
+    info_u16((uint16_t)ACCEL_OFFSET_COUNTS);
+    info_f32(GRIP_SCALE_N_PER_COUNT);
+    info_u16((uint16_t)GRIP_OFFSET_COUNTS);
+    for (uint8_t i = 0; i < 6; i++) info_f32(f2[i]);
+    info_u16(watchdog_ms);
+    info_u16(CAP_STREAMING | CAP_ON_DEVICE | CAP_PARAM_TRANSIENT | CAP_REARM_TRANSIENT);
+    info_u32(REARM_MAX);
+    info_u16(0); /* flags: not simulated */
+    tx_put(sizeof(DEVICE_NAME) - 1, 1);
+    info_bytes((const uint8_t *)DEVICE_NAME, sizeof(DEVICE_NAME) - 1);
+    tx_put(sizeof(SERIAL_NUMBER) - 1, 1);
+    info_bytes((const uint8_t *)SERIAL_NUMBER, sizeof(SERIAL_NUMBER) - 1);
+    tx_commit();
 }
 
-static void send_state(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_t grip_raw) {
-    uint8_t p[16];
-    put_u32(p, t_us);
-    put_u32(p + 4, (uint32_t)enc);
-    put_u16(p + 8, accel_raw); /* raw ADC counts; the host subtracts the INFO/calibration offset */
-    put_u16(p + 10, grip_raw);
-    p[12] = (uint8_t)(((tripped || trip_report) ? ST_WATCHDOG_TRIPPED : 0) | (fault_latched ? ST_FAULT : 0) |
-                      (clipping ? ST_CLIPPING : 0) | (over_temp ? ST_OVER_TEMPERATURE : 0));
-    p[13] = cmd_seq;
+static uint8_t status_bits(void) {
+    uint8_t b = (uint8_t)(((tripped || trip_report) ? ST_WATCHDOG_TRIPPED : 0) | (fault_latched ? ST_FAULT : 0) |
+                          (clipping ? ST_CLIPPING : 0) | (over_temp ? ST_OVER_TEMPERATURE : 0));
     trip_report = 0;
-    float mA = applied_A * 1000.0f;
-    put_u16(p + 14, (uint16_t)(int16_t)(mA >= 0.0f ? mA + 0.5f : mA - 0.5f)); /* lroundf, without the libm call */
+    return b;
+}
+
+static void send_state_slot(const state_slot_t *s) {
+    uint8_t p[16];
+    put_u32(p, s->t_us);
+    put_u32(p + 4, (uint32_t)s->enc);
+    put_u16(p + 8, s->accel_raw); /* raw ADC counts; the host subtracts the INFO/calibration offset */
+    put_u16(p + 10, s->grip_raw);
+    p[12] = s->status;
+    p[13] = s->cmd_seq;
+    /* mA, rounded half away from zero (as lroundf): Q24 A -> 2^-16 A -> mA */
+    int32_t q = s->current_q24;
+    uint32_t a = (uint32_t)(q >= 0 ? q : -q) >> 8;
+    int16_t mA = (int16_t)((a * 1000UL + 32768UL) >> 16);
+    put_u16(p + 14, (uint16_t)(q >= 0 ? mA : -mA));
     send(MSG_STATE, p, 16);
 }
 
+/* the tick's telemetry: fill the slot the main loop is not reading, publish it */
+static void post_state(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_t grip_raw) {
+    uint8_t w = st_latest ^ 1;
+    if (w == st_reading) w ^= 1; /* never the slot being copied (then the newest unsent one is replaced) */
+    state_slot_t *s = &st_slot[w];
+    s->t_us = t_us; s->enc = enc; s->accel_raw = accel_raw; s->grip_raw = grip_raw;
+    s->current_q24 = applied_q24; s->status = status_bits(); s->cmd_seq = cmd_seq;
+    st_latest = w;
+    st_ready = 1;
+}
+
 static void finish_event(void) {
-    uint8_t p[24];
     in_event = 0;
     ev_index++;
-    put_u32(p, ev_t_us);
-    put_f32(p + 4, ev_v);
-    put_f32(p + 8, ev_grip);
-    put_f32(p + 12, ev_pen);
-    put_f32(p + 16, ev_peak);
-    p[20] = (uint8_t)((ev_clipped ? 1 : 0) | (ev_tripped ? 2 : 0));
+    uint8_t next = (uint8_t)((evq_head + 1) & (EV_QUEUE - 1));
+    if (next != evq_tail) { /* full (the main loop far behind): the event is dropped, its index shows it */
+        event_slot_t *e = &ev_queue[evq_head];
+        e->t_us = ev_t_us; e->dcounts = ev_dcounts; e->ticks = ev_ticks; e->grip_raw = ev_grip_raw;
+        e->pen_q8 = ev_pen_q8; e->peak_q8 = ev_peak_q8; e->index = ev_index; e->kind = ev_kind;
+        e->flags = (uint8_t)((ev_clipped ? 1 : 0) | (ev_tripped ? 2 : 0));
+        evq_head = next;
+    }
     ev_tripped = 0;
-    p[21] = ev_kind;
-    put_u16(p + 22, ev_index);
+}
+
+static void send_event_slot(const event_slot_t *e) {
+    uint8_t p[24];
+    put_u32(p, e->t_us);
+    /* incoming speed = -v at contact, v = counts moved * resolution * fs / ticks (as logic.py) */
+    float v = e->dcounts < 0 ? (float)(-e->dcounts) * POS_RES_M * (float)SERVO_HZ / (float)e->ticks : 0.0f;
+    put_f32(p + 4, v);
+    put_f32(p + 8, ((float)e->grip_raw - cal_g_off) * cal_g_scale);
+    put_f32(p + 12, (float)e->pen_q8 * (POS_RES_M / 256.0f));
+    put_f32(p + 16, (float)e->peak_q8 * (1.0f / 256.0f) * cal_a_scale);
+    p[20] = e->flags;
+    p[21] = e->kind;
+    put_u16(p + 22, e->index);
     send(MSG_EVENT, p, 24);
 }
 
-/* One on-device servo tick: same algorithm as FirmwareRenderer.tick. */
-static float render_tick(uint32_t t_us, int32_t enc, uint16_t accel_raw, uint16_t grip_raw) {
+/* main loop: frame and send what the tick posted */
+static void flush_telemetry(void) {
+    while (evq_tail != evq_head) {
+        send_event_slot(&ev_queue[evq_tail]);
+        evq_tail = (uint8_t)((evq_tail + 1) & (EV_QUEUE - 1));
+    }
+    if (st_ready) {
+        state_slot_t s;
+        TICK_LOCK(); /* a few cycles: the tick must not publish between these two stores */
+        uint8_t r = st_latest;
+        st_reading = r;
+        st_ready = 0;
+        TICK_UNLOCK();
+        s = st_slot[r];
+        st_reading = 0xFF;
+        send_state_slot(&s);
+    }
+}
+
+/* 32x32 -> 64-bit products (libgcc's __mulsidi3) with the result taken by bytes: avr-gcc shifts an
+ * int64 with a bit-by-bit library loop (__ashrdi3, ~10 cycles per bit), a byte offset costs nothing.
+ * Results are saturated to +/-(2^30 - 1) (64 A in Q24): far beyond any current limit. */
+typedef union { int64_t q; struct { uint32_t lo; int32_t hi; } w; uint8_t b[8]; } prod_t;
+#define SAT 0x3FFFFFFFL
+static inline int32_t mulhi(int32_t a, int32_t b) { /* (a * b) >> 32 */
+    prod_t u;
+    u.q = (int64_t)a * b;
+    return u.w.hi;
+}
+static inline int32_t mul_sat(int32_t a, int32_t b) { /* a * b, saturated */
+    prod_t u;
+    u.q = (int64_t)a * b;
+    if (u.w.hi >= 0) return (u.w.hi != 0 || u.w.lo > (uint32_t)SAT) ? SAT : (int32_t)u.w.lo;
+    return (u.w.hi != -1 || (int32_t)u.w.lo < -SAT) ? -SAT : (int32_t)u.w.lo;
+}
+static inline int32_t mul_sh8_sat(int32_t a, int32_t b) { /* (a * b) >> 8, saturated */
+    prod_t u;
+    int32_t r;
+    u.q = (int64_t)a * b;
+    int32_t top = u.w.hi >> 6; /* bits 38..63: all equal <=> |result| < 2^30 */
+    if (top != 0 && top != -1) return u.w.hi < 0 ? -SAT : SAT;
+    memcpy(&r, &u.b[1], 4);
+    return r;
+}
+static inline int32_t mul_sh16(int32_t a, int32_t b) { /* (a * b) >> 16, callers keep it in range */
+    prod_t u;
+    int32_t r;
+    u.q = (int64_t)a * b;
+    memcpy(&r, &u.b[2], 4);
+    return r;
+}
+
+/* One on-device servo tick: same algorithm as FirmwareRenderer.tick, in fixed point. The two ADC
+ * conversions (13 us each) run while the position and wall current are computed. */
+static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint16_t *grip_out) {
+    adc_start(0);
     int32_t counts = enc - cal_zero;
-    float x = (float)(cal_sign < 0 ? -counts : counts) * POS_RES_M; /* one int->float, one multiply */
-    float old = vel_ring[vel_i];
+    int32_t x = cal_sign < 0 ? -counts : counts; /* handle position in counts */
+    int32_t old = vel_ring[vel_i];
     uint16_t tick_now = render_tick_n, ticks = (uint16_t)(tick_now - vel_tick[vel_i]);
     vel_ring[vel_i] = x;
     vel_tick[vel_i] = tick_now;
-    vel_i = (uint8_t)((vel_i + 1) % VEL_WINDOW);
-    float v = 0.0f;
+    vel_i = (uint8_t)(vel_i + 1 < VEL_WINDOW ? vel_i + 1 : 0);
+    int32_t dc = 0;      /* counts moved over the window (velocity = dc * res * fs / ticks) */
+    uint8_t dt = VEL_WINDOW;
     if (vel_filled < VEL_WINDOW) vel_filled++;
-    else if (ticks == VEL_WINDOW) v = (x - old) * ((float)SERVO_HZ / VEL_WINDOW);
-    else if (ticks < 2 * VEL_WINDOW) v = (x - old) * VEL_RATE[ticks]; /* late ticks: the time that passed */
-    else v = (x - old) * ((float)SERVO_HZ / (float)ticks);
-    float pen = wall_h - x;
+    else {
+        dc = x - old;
+        if (ticks != 0 && ticks != VEL_WINDOW) dt = (uint8_t)(ticks > 255 ? 255 : ticks); /* late ticks */
+    }
+    int32_t pen = wall_h_q8 - (x << 8); /* penetration, Q8 counts */
     if (rearm_pending && !in_event && tr_k >= tr_n) {
         rearm_n = rearm_pending_n;
         rearm_pending = 0;
     }
-    if (pen > 0.0f && armed) {
+    uint8_t start = 0;
+    if (pen > 0 && armed) {
         armed = 0;
         if (in_event) finish_event();
-        in_event = 1;
-        ev_t_us = t_us;
-        ev_v = v < 0.0f ? -v : 0.0f;
-        ev_grip = ((float)grip_raw - cal_g_off) * cal_g_scale;
-        ev_pen = 0.0f; ev_peak = 0.0f; ev_clipped = 0; ev_kind = tr_kind;
-        tr_k = 0;
-        if (tr_kind == 1 || tr_kind == 2) {
-            tr_n = tr_param_n;
-            tr_scale = tr_amp * ev_v * (1.0f / FORCE_PER_AMP);
-            sin_y2 = 0.0f;
-            sin_y1 = 0.0f;
-        }
-        else if (tr_kind == 4) tr_n = rearm_n;
-        else tr_n = 0;
-    } else if (!armed && pen < -wall_rearm) {
+        start = 1;
+    } else if (!armed && pen < -wall_rearm_q8) {
         armed = 1;
         if (in_event) finish_event();
     }
-    float i_cmd = 0.0f;
+    /* wall: proportional + damping, pushes only, steady-state limit */
+    int32_t i_cmd = 0;
     uint8_t clipped = 0;
-    if (pen > 0.0f) {
-        float f = wall_k * pen - wall_b * v;
-        if (f > 0.0f) {
-            i_cmd = f * (1.0f / FORCE_PER_AMP);
-            if (i_cmd > lim_cont) { i_cmd = lim_cont; clipped = 1; }
+    if (pen > 0) {
+        int32_t bd = dt < 2 * VEL_WINDOW ? b_wall[dt] : b_wall_1 / dt;
+        /* k * pen: whole counts times k, plus the 1/256-count fraction times k / 256 (error < 16 uA);
+         * two 32-bit products instead of a 64-bit one while pen stays below pen_c_max counts */
+        int32_t pc = pen >> 8, ip;
+        if (pc < pen_c_max) ip = k_wall * pc + (k_wall >> 8) * (pen & 255);
+        else ip = mul_sh8_sat(k_wall, pen);
+        int32_t id = (dc > -64 && dc < 64 && bd < (1L << 24)) ? bd * dc : mul_sat(bd, dc); /* |.| < 2^30 */
+        int32_t f = ip - id;
+        if (f > 0) {
+            i_cmd = f;
+            if (i_cmd > lim_cont_q24) { i_cmd = lim_cont_q24; clipped = 1; }
         }
     }
+    uint16_t accel_raw = adc_result();
+    adc_start(1);
+    if (start) {
+        in_event = 1;
+        ev_t_us = t_us;
+        ev_dcounts = dc; ev_ticks = dt;
+        ev_pen_q8 = 0; ev_peak_q8 = 0; ev_clipped = 0; ev_kind = tr_kind;
+        tr_k = 0;
+        if (tr_kind == 1 || tr_kind == 2) {
+            tr_n = tr_param_n;
+            int32_t g = dt < 2 * VEL_WINDOW ? tr_gain[dt] : tr_gain_1 / dt;
+            tr_scale_q24 = dc < 0 ? mul_sat(g, -dc) : 0; /* amplitude * incoming speed / (N/A) */
+            sin_y2 = 0;
+            sin_y1 = 0;
+        }
+        else if (tr_kind == 4) tr_n = rearm_n;
+        else tr_n = 0;
+    }
+    /* transient overlay */
     if (tr_k < tr_n) {
-        if (ev_kind == 1) i_cmd += tr_scale;
+        if (ev_kind == 1) i_cmd += tr_scale_q24;
         else if (ev_kind == 2) {
-            float y = tr_k == 0 ? sin_s1 : (tr_k == 1 ? sin_s2 : sin_c1 * sin_y1 - sin_c2 * sin_y2);
+            int32_t y = tr_k == 0 ? sin_s1 : (tr_k == 1 ? sin_s2 : (mulhi(sin_c1, sin_y1) - mulhi(sin_c2, sin_y2)) << 2);
             sin_y2 = sin_y1;
             sin_y1 = y;
-            i_cmd += tr_scale * y;
+            /* amplitude (Q15 A) * y (Q15) in 32 bits (< 2^31, Q30 -> Q24; error < 0.1 mA) up to 2 A,
+             * the 64-bit product above */
+            int32_t ts = tr_scale_q24 >> 9;
+            if (ts <= 65535) i_cmd += (ts * (int32_t)(int16_t)(y >> 16)) >> 6;
+            else i_cmd += mulhi(tr_scale_q24, y) << 1;
         } else if (ev_kind == 4) i_cmd += rearm_buf[tr_k];
         tr_k++;
     }
-    if (i_cmd > lim_peak) { i_cmd = lim_peak; clipped = 1; }
-    else if (i_cmd < -lim_peak) { i_cmd = -lim_peak; clipped = 1; }
-    if (temp_rise_K > T_ATTENUATE_K) {
+    if (i_cmd > lim_peak_q24) { i_cmd = lim_peak_q24; clipped = 1; }
+    else if (i_cmd < -lim_peak_q24) { i_cmd = -lim_peak_q24; clipped = 1; }
+    int32_t temp = temp_q20;
+    if (temp > T_Q20(T_ATTENUATE_K)) { /* protect the winding: fade out between 70 % and 90 % of the rise */
         over_temp = 1;
-        float k = (T_END_K - temp_rise_K) / (T_END_K - T_ATTENUATE_K);
-        i_cmd *= k > 0.0f ? k : 0.0f;
+        int32_t k = T_Q20(T_END_K) - temp;
+        if (k < 0) k = 0;
+        int32_t factor = mulhi(k, T_RANGE_INV_Q32); /* (T_end - T) / (T_end - T_att), Q20 */
+        i_cmd = mul_sh16(i_cmd, factor) >> 4;
     } else {
         over_temp = 0;
     }
-    temp_rise_K += (R_WINDING_OHM * R_THERMAL_K_W * i_cmd * i_cmd - temp_rise_K) * (1.0f / (TAU_THERMAL_S * SERVO_HZ));
+    int32_t i8 = i_cmd >> 8;   /* byte moves; a 12-bit shift of an int32 is a 72-cycle loop on the AVR */
+    int32_t i12 = i8 >> 4;     /* Q12 A; i12^2 <= 2^26 for |i| <= 2 A, 16 of them fit */
+    heat_acc += i12 * i12;
+    if (++heat_n >= THERMAL_EVERY) {
+        int32_t heat = mul_sh16(heat_acc >> 4, HEAT_Q12); /* mean i^2 (Q24) * Q12 >> 16 = Q20 K; 16 = 2^4 ticks */
+        temp_q20 = temp + mulhi(heat - temp, ALPHA_Q32);
+        heat_acc = 0;
+        heat_n = 0;
+    }
     clipping = clipped;
+    uint16_t grip_raw = adc_result();
+    if (start) ev_grip_raw = grip_raw;
     if (in_event) {
-        if (pen > ev_pen) ev_pen = pen;
-        float a = fabsf(((float)accel_raw - cal_a_off) * cal_a_scale);
-        if (a > ev_peak) ev_peak = a;
+        if (pen > ev_pen_q8) ev_pen_q8 = pen;
+        int32_t a = ((int32_t)accel_raw << 8) - cal_a_off_q8;
+        if (a < 0) a = -a;
+        if (a > ev_peak_q8) ev_peak_q8 = a;
         if (clipped) ev_clipped = 1;
     }
+    *accel_out = accel_raw;
+    *grip_out = grip_raw;
     return i_cmd;
 }
 
-static void stop_render(void) {
+static void stop_render(void) { /* main loop, tick locked */
     if (!rendering) return;
     rendering = 0;
     if (in_event) finish_event();
-    motor_set(0.0f);
+    motor_set_q24(0);
     watchdog_armed = 0;
 }
 
@@ -396,12 +604,29 @@ static uint8_t finite4(const uint8_t *p, uint8_t n) {
     return 1;
 }
 
+/* float -> int32 without overflow (the host's values are finite but may be huge) */
+static int32_t sat_round(float f) {
+    if (f > 1.0e9f) return 1000000000L;
+    if (f < -1.0e9f) return -1000000000L;
+    return (int32_t)lroundf(f);
+}
+static int32_t q24_of(float amps) { return sat_round(amps * Q24); }
+
+/* per-window-length gains: value per count moved over t ticks = per_count_per_s * fs / t */
+static void window_gains(int32_t *table, int32_t *one, float q24_per_count_at_1_tick) {
+    for (uint8_t t = 1; t < 2 * VEL_WINDOW; t++) table[t] = sat_round(q24_per_count_at_1_tick / (float)t);
+    table[0] = 0;
+    *one = sat_round(q24_per_count_at_1_tick);
+}
+
 static void handle_frame(void) {
     uint8_t type = parser.buf[3], seq = parser.buf[4], n = parser.buf[2];
     const uint8_t *p = parser.buf + 5;
     if ((!mode_on_device && type == MSG_CURRENT) || rendering) {
+        TICK_LOCK();
         last_cmd_tick = tick_count;
         if (tripped) { tripped = 0; trip_report = 1; } /* host back: resume, report the trip once */
+        TICK_UNLOCK();
     }
     switch (type) {
     case MSG_HELLO:
@@ -414,13 +639,21 @@ static void handle_frame(void) {
         if (rendering) break;
         if (n != 4) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
         float amps = get_f32(p);
+        state_slot_t s;
         if (!(amps == amps)) { fault_latched = 1; amps = 0.0f; }
         if (fault_latched) amps = 0.0f;
-        motor_set(amps);
-        uint16_t acc = adc_read(0), grip = adc_read(1);
-        int32_t enc;
-        cli(); enc = encoder_count; sei();
-        send_state(now_us(), enc, acc, grip);
+        /* the command just reset the watchdog, so the tick leaves the motor and the ADC alone meanwhile */
+        int32_t q = (int32_t)((amps > I_AMP_A ? I_AMP_A : (amps < -I_AMP_A ? -I_AMP_A : amps)) * Q24);
+        TICK_LOCK();
+        motor_set_q24(q);
+        TICK_UNLOCK();
+        s.accel_raw = adc_read(0);
+        s.grip_raw = adc_read(1);
+        TICK_LOCK();
+        s.enc = encoder_count; s.t_us = tick_count * (1000000UL / SERVO_HZ);
+        s.current_q24 = applied_q24; s.status = status_bits(); s.cmd_seq = cmd_seq;
+        TICK_UNLOCK();
+        send_state_slot(&s);
         break;
     }
     case MSG_KEEPALIVE:
@@ -430,76 +663,130 @@ static void handle_frame(void) {
         break;
     case MSG_SET_MODE:
         if (n != 3 || p[0] > 1 || get_u16(p + 1) < 1) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
+        TICK_LOCK();
         if (p[0] == 0) stop_render();
         mode_on_device = p[0];
         decimation = (uint8_t)(get_u16(p + 1) > 255 ? 255 : get_u16(p + 1));
+        TICK_UNLOCK();
         ack(type, seq);
         break;
     case MSG_SET_WATCHDOG:
         if (n != 2 || get_u16(p) < 1) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
+        TICK_LOCK();
         watchdog_ms = get_u16(p);
+        watchdog_ticks = (uint32_t)watchdog_ms * (SERVO_HZ / 1000UL);
+        TICK_UNLOCK();
         ack(type, seq);
         break;
     case MSG_CLEAR_FAULTS:
+        TICK_LOCK();
         tripped = 0; fault_latched = 0; last_cmd_tick = tick_count;
+        TICK_UNLOCK();
         ack(type, seq);
         break;
-    case MSG_SET_CALIBRATION:
+    case MSG_SET_CALIBRATION: {
         if (n != 21 || !finite4(p + 5, 4) || get_f32(p + 5) <= 0 || get_f32(p + 13) <= 0 ||
             ((int8_t)p[4] != 1 && (int8_t)p[4] != -1)) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
+        float a_off = get_f32(p + 9);
+        int32_t a_off_q8 = sat_round(a_off * 256.0f);
+        TICK_LOCK();
         cal_zero = (int32_t)get_u32(p); cal_sign = (int8_t)p[4];
-        cal_a_scale = get_f32(p + 5); cal_a_off = get_f32(p + 9);
+        cal_a_scale = get_f32(p + 5); cal_a_off = a_off; cal_a_off_q8 = a_off_q8;
         cal_g_scale = get_f32(p + 13); cal_g_off = get_f32(p + 17);
+        TICK_UNLOCK();
         ack(type, seq);
         break;
-    case MSG_WALL:
+    }
+    case MSG_WALL: {
         if (n != 16 || !finite4(p, 4) || get_f32(p + 4) < 0 || get_f32(p + 8) < 0 || get_f32(p + 12) < 0) {
             nak(type, seq, NAK_BAD_PAYLOAD); break;
         }
-        wall_h = get_f32(p); wall_k = get_f32(p + 4); wall_b = get_f32(p + 8); wall_rearm = get_f32(p + 12);
+        /* SI -> fixed point, once (soft-float here, never in the tick) */
+        int32_t h = sat_round(get_f32(p) * (256.0f / POS_RES_M));
+        int32_t k = sat_round(get_f32(p + 4) * (POS_RES_M / FORCE_PER_AMP) * Q24); /* Q24 A per count */
+        int32_t rearm = sat_round(get_f32(p + 12) * (256.0f / POS_RES_M));
+        int32_t bw[2 * VEL_WINDOW], b1;
+        window_gains(bw, &b1, get_f32(p + 8) * (POS_RES_M * SERVO_HZ / FORCE_PER_AMP) * Q24);
+        int32_t pcm = k > 0 ? SAT / k - 1 : 0x7FFFFFFFL;
+        TICK_LOCK();
+        wall_h_q8 = h; k_wall = k; pen_c_max = pcm; wall_rearm_q8 = rearm; b_wall_1 = b1;
+        TICK_UNLOCK();
+        for (uint8_t t = 0; t < 2 * VEL_WINDOW; t++) { /* one entry at a time: each stays whole */
+            TICK_LOCK();
+            b_wall[t] = bw[t];
+            TICK_UNLOCK();
+        }
         ack(type, seq);
         break;
-    case MSG_LIMITS:
+    }
+    case MSG_LIMITS: {
         if (n != 12 || !finite4(p, 3) || get_f32(p) < 0 || get_f32(p + 4) < get_f32(p)) {
             nak(type, seq, NAK_BAD_PAYLOAD); break;
         }
-        lim_cont = fminf(get_f32(p), I_CONT_A);
-        lim_peak = fminf(fminf(get_f32(p + 4), get_f32(p + 8)), I_PEAK_A);
+        int32_t c = q24_of(fminf(get_f32(p), I_CONT_A));
+        int32_t pk = q24_of(fminf(fminf(get_f32(p + 4), get_f32(p + 8)), I_PEAK_A));
+        TICK_LOCK();
+        lim_cont_q24 = c; lim_peak_q24 = pk;
+        TICK_UNLOCK();
         ack(type, seq);
         break;
-    case MSG_TRANSIENT_PARAM:
+    }
+    case MSG_TRANSIENT_PARAM: {
         if (n != 17 || p[0] > 2 || !finite4(p + 1, 4) ||
             (p[0] && (get_f32(p + 1) < 0 || get_f32(p + 5) <= 0)) ||
             (p[0] == 2 && !(get_f32(p + 9) > 0 && get_f32(p + 9) < SERVO_HZ / 2))) {
             nak(type, seq, NAK_BAD_PAYLOAD); break;
         }
+        float amp = get_f32(p + 1), dur = get_f32(p + 5), freq = get_f32(p + 9);
+        uint16_t nn = (uint16_t)floorf(dur * SERVO_HZ + 1e-3f);
+        int32_t g[2 * VEL_WINDOW], g1, c1 = 0, c2 = 0, s1 = 0, s2 = 0;
+        window_gains(g, &g1, amp * (POS_RES_M * SERVO_HZ / FORCE_PER_AMP) * Q24);
+        if (p[0] == 2) { /* once per upload, never in the servo tick */
+            float r = expf(-4.6051702f / (dur * SERVO_HZ)), w = 6.2831853f * freq / SERVO_HZ;
+            c1 = (int32_t)lroundf(2.0f * r * cosf(w) * 1073741824.0f);  /* Q30 */
+            c2 = (int32_t)lroundf(r * r * 1073741824.0f);
+            s1 = (int32_t)lroundf(r * sinf(w) * 2147483520.0f);          /* Q31 (largest float below 2^31) */
+            s2 = (int32_t)lroundf(r * r * sinf(2.0f * w) * 2147483520.0f);
+        }
+        TICK_LOCK();
         tr_kind = p[0];
-        tr_amp = get_f32(p + 1); tr_dur = get_f32(p + 5); tr_freq = get_f32(p + 9);
-        tr_param_n = (uint16_t)floorf(tr_dur * SERVO_HZ + 1e-3f);
-        if (tr_kind == 2) { /* once per upload, never in the servo tick */
-            float r = expf(-4.6051702f / (tr_dur * SERVO_HZ)), w = 6.2831853f * tr_freq / SERVO_HZ;
-            sin_c1 = 2.0f * r * cosf(w);
-            sin_c2 = r * r;
-            sin_s1 = r * sinf(w);
-            sin_s2 = r * r * sinf(2.0f * w);
+        tr_param_n = nn;
+        tr_gain_1 = g1;
+        sin_c1 = c1; sin_c2 = c2; sin_s1 = s1; sin_s2 = s2;
+        TICK_UNLOCK();
+        for (uint8_t t = 0; t < 2 * VEL_WINDOW; t++) {
+            TICK_LOCK();
+            tr_gain[t] = g[t];
+            TICK_UNLOCK();
         }
         ack(type, seq);
         break;
+    }
     case MSG_REARM_DATA: {
         uint32_t off = get_u32(p);
         uint8_t k = (uint8_t)((n - 4) / 4);
         if (n < 4 || (n - 4) % 4 || !finite4(p + 4, k)) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
         if (off + k > REARM_MAX) { nak(type, seq, NAK_TOO_LARGE); break; }
-        if (in_event && tr_k < tr_n && ev_kind == 4) { nak(type, seq, NAK_BAD_STATE); break; } /* playing */
-        memcpy(&rearm_buf[off], p + 4, 4u * k); /* little endian f32, as the AVR stores floats */
+        TICK_LOCK();
+        uint8_t playing = in_event && tr_k < tr_n && ev_kind == 4;
+        TICK_UNLOCK();
+        if (playing) { nak(type, seq, NAK_BAD_STATE); break; }
+        for (uint8_t i = 0; i < k; i++) { /* A -> Q24 A here, so the tick adds integers */
+            int32_t q = q24_of(get_f32(p + 4 + 4 * i));
+            TICK_LOCK();
+            rearm_buf[off + i] = q;
+            TICK_UNLOCK();
+        }
         ack(type, seq);
         break;
     }
     case MSG_REARM_COMMIT:
         if (n != 4 || get_u32(p) > REARM_MAX) { nak(type, seq, NAK_TOO_LARGE); break; }
+        TICK_LOCK();
         rearm_pending_n = (uint16_t)get_u32(p);
         rearm_pending = 1;
         tr_kind = 4;
+        TICK_UNLOCK();
         ack(type, seq);
         break;
     case MSG_TABLE_BEGIN:
@@ -510,11 +797,15 @@ static void handle_frame(void) {
     case MSG_RENDER_START:
         if (!mode_on_device) { nak(type, seq, NAK_BAD_STATE); break; }
         ack(type, seq);
+        TICK_LOCK();
         rendering = 1; watchdog_armed = 1; last_cmd_tick = tick_count;
         armed = 0; in_event = 0; tr_k = tr_n = 0; vel_filled = 0;
+        TICK_UNLOCK();
         break;
     case MSG_RENDER_STOP:
+        TICK_LOCK();
         stop_render();
+        TICK_UNLOCK();
         ack(type, seq);
         break;
     default:
@@ -530,7 +821,7 @@ static void handle_frame(void) {
 #define MARK_FRAME_START 3
 #define MARK_FRAME_END 4
 
-/* One servo period (Timer1 flag): watchdog, then on-board rendering and telemetry. */
+/* One servo period (in the Timer1 interrupt): watchdog, then on-board rendering and telemetry. */
 static uint8_t dec_count;
 static void servo_tick_body(void) {
     uint32_t tk;
@@ -538,25 +829,26 @@ static void servo_tick_body(void) {
     uint32_t t_us = tk * (1000000UL / SERVO_HZ);
     render_tick_n = (uint16_t)tk;
     /* device-side watchdog: no command within watchdog_ms -> zero current, latched, reported */
-    if (watchdog_armed && !tripped && (tick_count - last_cmd_tick) * 1000UL > (uint32_t)watchdog_ms * SERVO_HZ) {
+    if (watchdog_armed && !tripped && tk - last_cmd_tick > watchdog_ticks) {
         tripped = 1;
         if (in_event) ev_tripped = 1;
-        motor_set(0.0f);
+        motor_set_q24(0);
         if (!rendering) {
             int32_t enc;
+            uint16_t acc = adc_read(0), grip = adc_read(1);
             cli(); enc = encoder_count; sei();
-            send_state(t_us, enc, adc_read(0), adc_read(1));
+            post_state(t_us, enc, acc, grip);
         }
     }
     if (!rendering) return;
-    uint16_t acc = adc_read(0), grip = adc_read(1);
     int32_t enc;
     cli(); enc = encoder_count; sei();
-    float amps = render_tick(t_us, enc, acc, grip);
-    motor_set(tripped || fault_latched ? 0.0f : amps);
+    uint16_t acc, grip;
+    int32_t q = render_tick(t_us, enc, &acc, &grip);
+    motor_set_q24(tripped || fault_latched ? 0 : q);
     if (++dec_count >= decimation) {
         dec_count = 0;
-        send_state(t_us, enc, acc, grip);
+        post_state(t_us, enc, acc, grip);
     }
 }
 
@@ -566,12 +858,11 @@ static void servo_tick(void) {
     TRACE_MARK(MARK_TICK_END);
 }
 
-/* Parse received bytes; stop when a servo tick is due (the tick goes first), but take at least
- * RX_MIN_PER_LOOP bytes per pass: when ticks overrun, the host's frames (keepalives!) still get in. */
-#define RX_MIN_PER_LOOP 24
+/* Parse received bytes, a bounded number per pass so the telemetry goes out between them. */
+#define RX_MAX_PER_LOOP 32
 static void service_uart(void) {
     uint8_t n = 0;
-    while (rx_tail != rx_head && (!tick_flag || n < RX_MIN_PER_LOOP)) {
+    while (rx_tail != rx_head && n < RX_MAX_PER_LOOP) {
         n++;
         uint8_t c = rx_buf[rx_tail];
         rx_tail = (uint8_t)((rx_tail + 1) & (RX_SIZE - 1));
@@ -580,6 +871,7 @@ static void service_uart(void) {
             handle_frame();
             TRACE_MARK(MARK_FRAME_END);
         }
+        flush_telemetry();
     }
 }
 
@@ -588,14 +880,12 @@ int main(void) {
     wdt_enable(WDTO_60MS);
     hw_init();
     uart_init();
-    motor_set(0.0f);
+    motor_set_q24(0);
     sei();
     for (;;) {
         wdt_reset();
         service_uart();
-        if (!tick_flag) continue;
-        tick_flag = 0;
-        servo_tick();
+        flush_telemetry();
     }
 }
 #endif
