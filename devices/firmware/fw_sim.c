@@ -86,7 +86,8 @@ static void on_signal(int s) { (void)s; quit = 1; }
 static const char *elf_path, *stats_path;
 static int pace_realtime = 1, selfhost;
 static double speed = 1.0, max_sim_s = 0.0;
-static uint16_t sym_encoder, sym_bss_end, sym_parser;
+static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe;
+static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current) */
 static double f_drop, f_corrupt, f_garbage, f_duplicate, f_disconnect_s = -1.0;
 static unsigned rng_state = 12345;
 static double rnd(void) { rng_state = rng_state * 1103515245u + 12345u; return ((rng_state >> 8) & 0xFFFFFF) / 16777216.0; }
@@ -328,6 +329,13 @@ static void gpior0_write(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param) {
     avr_cycle_count_t c = a->cycle;
     if (v == 1) tick_start_cycle = c;
     else if (v == 2) {
+        if (tick_log && sym_probe) {
+            /* state_slot_t: t_us u32, enc i32, accel u16, grip u16, current_q24 i32 (avr-gcc packs it) */
+            const uint8_t *d = a->data + sym_probe;
+            static uint32_t last_t = 0; /* the probe starts zeroed: tick 0 never renders (no host yet) */
+            uint32_t t = (uint32_t)d[0] | (uint32_t)d[1] << 8 | (uint32_t)d[2] << 16 | (uint32_t)d[3] << 24;
+            if (t != last_t) { fwrite(d, 1, 16, tick_log); last_t = t; } /* only ticks that rendered */
+        }
         uint64_t total = tick_open ? c - match_cycle : c - tick_start_cycle, body = c - tick_start_cycle;
         tick_hist[total < HIST ? total : HIST - 1]++;
         body_hist[body < HIST ? body : HIST - 1]++;
@@ -620,6 +628,8 @@ int main(int argc, char **argv) {
         else if (OPT("--sym-encoder")) sym_encoder = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-bss-end")) sym_bss_end = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-parser")) sym_parser = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-probe")) sym_probe = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--tick-log")) { tick_log = fopen(val, "wb"); if (!tick_log) { perror(val); return 2; } }
         else if (OPT("--taps")) { n_taps = parse_list(val, taps, 32); hand_mode = n_taps ? HAND_TAP : HAND_HOLD; }
         else if (OPT("--hold-m")) { hand_mode = HAND_HOLD; hold_m = atof(val); }
         else if (OPT("--sweep")) { hand_mode = HAND_SWEEP; n_sweep = parse_list(val, sweep_v, 32); }
@@ -744,11 +754,13 @@ int main(int argc, char **argv) {
         }
         if (now - last_stats > 0.05) {
             write_stats(0);
+            if (tick_log) fflush(tick_log);
             last_stats = now;
             if (getppid() != parent) break; /* the host program is gone: do not run on as an orphan */
         }
     }
     write_stats(1);
+    if (tick_log) fclose(tick_log);
     if (profile)
         for (unsigned k = 0; k < 0x4000; k++)
             if (prof[k]) fprintf(stderr, "PROF %x %u\n", k * 2, prof[k]);

@@ -14,7 +14,7 @@ and measures the firmware's timing (servo tick cycles, interrupt latencies and d
 high-water by stack painting, encoder counts) into a JSON stats file.
 
 :func:`timing_report` runs the scripted worst case (on-device rendering of a decaying sinusoid,
-telemetry every tick, a host re-arming 128-sample transients, the paddle swept at given speeds)
+telemetry every 2nd tick, a host re-arming 128-sample transients, the paddle swept at given speeds)
 with no pty and returns the numbers ``python -m devices firmware-report`` prints.
 """
 
@@ -32,6 +32,8 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from ..hardware.serial_device import SerialDevice
 
@@ -142,6 +144,7 @@ class Build:
     encoder_count_addr: int
     bss_end_addr: int
     parser_addr: int
+    probe_addr: int
     data_bytes: int
     bss_bytes: int
     text_bytes: int
@@ -213,7 +216,8 @@ def build(force: bool = False) -> Build:
         _run([tool("cc"), "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", *cflags, f"-I{FIRMWARE_DIR}", "-o",
               str(harness), str(FIRMWARE_DIR / "fw_sim.c"), str(FIRMWARE_DIR / "hfam_protocol.c"), *ldflags],
              "simavr harness build (cc + libsimavr)")
-        b = Build(folder, elf, harness, syms["encoder_count"], syms["__bss_end"], syms["parser"], data, bss, text)
+        b = Build(folder, elf, harness, syms["encoder_count"], syms["__bss_end"], syms["parser"], syms["tick_probe"],
+                  data, bss, text)
         d = {k: (str(v) if isinstance(v, Path) else v) for k, v in b.__dict__.items()}
         info.write_text(json.dumps(d, indent=1))
         return b
@@ -222,14 +226,17 @@ def build(force: bool = False) -> Build:
 # -- running -----------------------------------------------------------------------------------------
 def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=(0.05, 0.1, 0.2), hold_m=None,
                  sweep_m_s=(), grip_N=2.0, faults: str | None = None, seed=0, selfhost=False, decimation=1,
-                 max_sim_s=None) -> list[str]:
+                 max_sim_s=None, tick_log: Path | None = None) -> list[str]:
     if pace not in ("realtime", "fast"):
         raise ValueError(f"pace must be 'realtime' or 'fast', got {pace!r}")
     if not speed > 0:
         raise ValueError(f"speed must be > 0 (times real time), got {speed!r}")
     cmd = [str(b.harness), "--elf", str(b.elf), "--stats", str(stats), "--pace", pace, "--speed", str(speed),
            "--sym-encoder", str(b.encoder_count_addr), "--sym-bss-end", str(b.bss_end_addr),
-           "--sym-parser", str(b.parser_addr), "--grip-N", str(grip_N), "--seed", str(int(seed))]
+           "--sym-parser", str(b.parser_addr), "--sym-probe", str(b.probe_addr), "--grip-N", str(grip_N),
+           "--seed", str(int(seed))]
+    if tick_log is not None:
+        cmd += ["--tick-log", str(tick_log)]
     if sweep_m_s:
         cmd += ["--sweep", ",".join(f"{v:g}" for v in sweep_m_s)]
     elif hold_m is not None:
@@ -250,12 +257,15 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
 class FwSimHandle:
     """A running harness: ``port`` (the pty), ``stats()`` (latest JSON), ``stop()``; a context manager."""
 
-    def __init__(self, port: str, process: subprocess.Popen, stats_path: Path, tmp: tempfile.TemporaryDirectory):
+    def __init__(self, port: str, process: subprocess.Popen, stats_path: Path, tmp: tempfile.TemporaryDirectory,
+                 tick_log_path: Path | None = None):
         self.port = port
         self.process = process
         self.stats_path = stats_path
         self._tmp = tmp
+        self.tick_log_path = tick_log_path
         self.final_stats: dict | None = None
+        self.final_tick_log: dict | None = None
 
     @property
     def alive(self) -> bool:
@@ -302,6 +312,8 @@ class FwSimHandle:
                 self.final_stats = json.loads(self.stats_path.read_text())
             except (OSError, ValueError):
                 self.final_stats = {}
+            if self.tick_log_path is not None:
+                self.final_tick_log = read_tick_log(self.tick_log_path)
             self._tmp.cleanup()
         return self.final_stats
 
@@ -312,9 +324,32 @@ class FwSimHandle:
         self.stop()
 
 
+TICK_LOG_DTYPE = np.dtype([("t_us", "<u4"), ("encoder", "<i4"), ("accel_raw", "<u2"), ("grip_raw", "<u2"),
+                           ("current_q24", "<i4")])
+
+
+def read_tick_log(path: Path) -> dict:
+    """The harness's per-tick log (``--tick-log``): what the firmware read and commanded in every rendered tick.
+
+    The link carries a STATE frame every ``telemetry_decimation`` ticks only; this log, read from the
+    simulated MCU's RAM (the firmware's ``tick_probe``) at the end of each tick, has them all, as a
+    logic analyser on a real board would.
+
+    Returns
+    -------
+    dict
+        ``t_us``, ``encoder``, ``accel_raw``, ``grip_raw`` (int arrays, shape (n_ticks,)) and
+        ``current_A`` (float array: the commanded current, Q24 -> A).
+    """
+    raw = np.fromfile(path, dtype=TICK_LOG_DTYPE) if Path(path).exists() else np.zeros(0, TICK_LOG_DTYPE)
+    out = {k: raw[k].astype(np.int64) for k in ("t_us", "encoder", "accel_raw", "grip_raw")}
+    out["current_A"] = raw["current_q24"].astype(np.float64) / 2.0 ** 24
+    return out
+
+
 def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1, 0.2), hold_m: float | None = None,
                  grip_N: float = 2.0, faults: str | None = None, seed: int = 0,
-                 startup_timeout_s: float = 10.0) -> tuple[str, FwSimHandle]:
+                 startup_timeout_s: float = 10.0, tick_log: bool = False) -> tuple[str, FwSimHandle]:
     """Build if needed and start the real firmware on simavr behind a new pty; return ``(port, handle)``.
 
     Parameters
@@ -334,6 +369,9 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
         Grip force the FSR channel (ADC1) reads, N.
     seed : int
         Seed of the fault injection.
+    tick_log : bool
+        Log every rendered tick's inputs and command (see :func:`read_tick_log`); after ``stop()`` it is
+        in ``handle.final_tick_log``.
 
     Returns
     -------
@@ -343,8 +381,9 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
     b = build()
     tmp = tempfile.TemporaryDirectory(prefix="fw-sim-")
     stats = Path(tmp.name) / "stats.json"
+    log = Path(tmp.name) / "ticks.bin" if tick_log else None
     cmd = _harness_cmd(b, stats, pace=pace, speed=speed, taps_m_s=taps_m_s, hold_m=hold_m, grip_N=grip_N,
-                       faults=faults, seed=seed)
+                       faults=faults, seed=seed, tick_log=log)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + startup_timeout_s
     fd = proc.stdout.fileno()
@@ -365,19 +404,22 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
     proc.stderr.close()  # the harness prints to stderr only on a crash; don't let the pipe fill up
     proc.stderr = None
     port = line.split(None, 1)[1].strip()
-    return port, FwSimHandle(port, proc, stats, tmp)
+    return port, FwSimHandle(port, proc, stats, tmp, log)
 
 
 class FwSimDevice(SerialDevice):
     """Device string ``fw-sim``: the real firmware on simavr, started on ``open()`` and stopped on ``close()``.
 
     Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (realtime | fast), ``speed`` (times real time),
-    ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``grip_N``, ``faults``, plus every
+    ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``grip_N``, ``faults``, ``tick_log``
+    (1: keep every rendered tick's inputs and command, in ``last_tick_log`` after ``close()``), plus every
     :class:`~devices.hardware.serial_device.SerialDevice` option (``mode``, ``timeout_s``, ...).
+    ``telemetry_decimation`` defaults to 2 here: a STATE frame (23 bytes) every 250 us tick would need
+    92 % of the 1 Mbaud link, more than it carries beside the servo tick (docs/firmware.md).
     """
 
     def __init__(self, pace: str = "realtime", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
-                 faults: str | None = None, **options) -> None:
+                 faults: str | None = None, tick_log=0, **options) -> None:
         if isinstance(taps, (int, float)):
             taps = str(taps)
         try:
@@ -387,7 +429,10 @@ class FwSimDevice(SerialDevice):
         if pace not in ("realtime", "fast"):
             raise ValueError(f"fw-sim: pace must be 'realtime' or 'fast', got {pace!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
+        self.tick_log = bool(int(tick_log))
+        self.last_tick_log: dict | None = None
         self.handle: FwSimHandle | None = None
+        options.setdefault("telemetry_decimation", 2)
         if pace == "fast" and options.get("watchdog_ms") is None:
             # simulated time outruns the host's clock (keepalives every watchdog_ms/4 of wall time):
             # give the firmware watchdog room, or it trips between two keepalives
@@ -405,7 +450,7 @@ class FwSimDevice(SerialDevice):
         if self.handle is None or not self.handle.alive:
             try:
                 self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, grip_N=self.grip_N,
-                                                      faults=self.faults)
+                                                      faults=self.faults, tick_log=self.tick_log)
             except FwSimError as exc:
                 from ..base import DeviceError
 
@@ -419,6 +464,7 @@ class FwSimDevice(SerialDevice):
         finally:
             if self.handle is not None:
                 self.handle.stop()
+                self.last_tick_log = self.handle.final_tick_log
                 self.handle = None
 
 
@@ -452,7 +498,7 @@ def run_selfhosted(sweep_m_s, decimation: int = 1, timeout_s: float = 120.0) -> 
     return out
 
 
-def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), decimation: int = 1) -> dict:
+def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), decimation: int = 2) -> dict:
     """Servo tick cycles, ISR worst cases, RAM high-water and encoder counts missed per paddle speed.
 
     Two runs: the timing run sweeps the paddle only up to :data:`MAX_RATED_SPEED_M_S` (the rated

@@ -121,13 +121,18 @@ static void tx_commit(void) {
 }
 
 /* ---- encoder (x4 quadrature on INT0/INT1) ---------------------------------------- */
+/* The interrupts add to a 16-bit delta (a 16-bit read-modify-write: ~half the cycles of a 32-bit
+ * one, and fewer registers to save); encoder_read() folds it into the 32-bit count, every tick.
+ * 68 counts per 250 us tick at 6 m/s: 480 ticks could pass before the delta overflowed (an 8-bit
+ * one wrapped when interrupt storms at 3 m/s delayed a few ticks). */
 static volatile int32_t encoder_count;
+static volatile int16_t enc_delta;
 static volatile uint8_t enc_prev;
 static const int8_t QDEC[16] = {0, -1, 1, 0, 1, 0, 0, -1, -1, 0, 0, 1, 0, 1, -1, 0};
 
 static inline void encoder_update(void) {
     uint8_t ab = (uint8_t)((PIND >> 2) & 0x03);
-    encoder_count += QDEC[(enc_prev << 2) | ab];
+    enc_delta += QDEC[(enc_prev << 2) | ab];
     enc_prev = ab;
 }
 ISR(INT0_vect) { encoder_update(); }
@@ -135,6 +140,17 @@ ISR(INT0_vect) { encoder_update(); }
  * INT1's, whose `reti` then re-enabled interrupts inside INT0's frame: nested encoder interrupts,
  * the stack ran into .bss under simavr within 2 ms of a steady low pin. */
 ISR(INT1_vect, ISR_ALIASOF(INT0_vect));
+
+/* the 32-bit count (main loop or tick; interrupts must be on when called) */
+static int32_t encoder_read(void) {
+    cli();
+    int16_t d = enc_delta;
+    enc_delta = 0;
+    int32_t e = encoder_count + d;
+    encoder_count = e;
+    sei();
+    return e;
+}
 
 /* ---- time, ADC, motor -------------------------------------------------------------- */
 /* The servo tick runs inside the Timer1 compare interrupt, with interrupts re-enabled at its
@@ -289,6 +305,9 @@ typedef struct {
     uint8_t ticks, flags, kind;
 } event_slot_t;
 static state_slot_t st_slot[2];
+/* What the last tick read and commanded, for a debugger or the simavr harness's per-tick log (the
+ * link carries a STATE every `decimation` ticks only); ~20 cycles per tick. */
+volatile state_slot_t tick_probe;
 static volatile uint8_t st_ready, st_latest, st_reading = 0xFF;
 #define EV_QUEUE 2 /* power of two; events are 10s of ms apart, the main loop sends one within a tick */
 static event_slot_t ev_queue[EV_QUEUE];
@@ -650,9 +669,10 @@ static void handle_frame(void) {
         s.accel_raw = adc_read(0);
         s.grip_raw = adc_read(1);
         TICK_LOCK();
-        s.enc = encoder_count; s.t_us = tick_count * (1000000UL / SERVO_HZ);
+        s.t_us = tick_count * (1000000UL / SERVO_HZ);
         s.current_q24 = applied_q24; s.status = status_bits(); s.cmd_seq = cmd_seq;
         TICK_UNLOCK();
+        s.enc = encoder_read();
         send_state_slot(&s);
         break;
     }
@@ -828,24 +848,23 @@ static void servo_tick_body(void) {
     cli(); tk = tick_count; sei(); /* 32-bit counter written by the timer interrupt: read it whole */
     uint32_t t_us = tk * (1000000UL / SERVO_HZ);
     render_tick_n = (uint16_t)tk;
+    int32_t enc = encoder_read(); /* every tick, so the delta stays small */
     /* device-side watchdog: no command within watchdog_ms -> zero current, latched, reported */
     if (watchdog_armed && !tripped && tk - last_cmd_tick > watchdog_ticks) {
         tripped = 1;
         if (in_event) ev_tripped = 1;
         motor_set_q24(0);
         if (!rendering) {
-            int32_t enc;
             uint16_t acc = adc_read(0), grip = adc_read(1);
-            cli(); enc = encoder_count; sei();
             post_state(t_us, enc, acc, grip);
         }
     }
     if (!rendering) return;
-    int32_t enc;
-    cli(); enc = encoder_count; sei();
     uint16_t acc, grip;
     int32_t q = render_tick(t_us, enc, &acc, &grip);
     motor_set_q24(tripped || fault_latched ? 0 : q);
+    tick_probe.t_us = t_us; tick_probe.enc = enc; tick_probe.accel_raw = acc; tick_probe.grip_raw = grip;
+    tick_probe.current_q24 = applied_q24;
     if (++dec_count >= decimation) {
         dec_count = 0;
         post_state(t_us, enc, acc, grip);

@@ -71,34 +71,52 @@ def _python_mirror(dev, transient):
 
 @pytest.mark.parametrize("kind", ["pulse", "sinusoid"])
 def test_on_device_wall_and_transient_match_the_python_firmware_logic(kind):
+    """Every rendered tick (the harness's log of the firmware's tick_probe, read from MCU RAM) through the
+    Python firmware logic: the same currents within 1 mA; the STATE frames the link carried (every 2nd
+    tick, fw-sim's default) are exactly those ticks."""
     from stimuli.transients import DecayingSinusoid, Pulse
 
     transient = Pulse(amplitude_Ns_m=6.0, duration_s=0.004) if kind == "pulse" else \
         DecayingSinusoid(amplitude_Ns_m=15.0, duration_s=0.02, frequency_hz=250.0)
-    with make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&taps=0.05,0.15") as dev:
+    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&taps=0.05,0.15&tick_log=1")
+    with dev:
         dev.configure_rendering(WALL, LIMITS, transient)
         fw = _python_mirror(dev, transient)
         rows, events = [], []
-        for k in range(5200):  # the hand's two taps
+        for k in range(2600):  # the hand's two taps (telemetry every 2nd 250 us tick)
             s = dev.read()
             ex = s.extra
             rows.append((ex["t_us"], ex["encoder"], ex["accel_raw"], ex["grip_raw"], round(ex["current_A"] * 1000)))
-            if k % 500 == 0:
+            if k % 250 == 0:
                 events += dev.pop_events()
         events += dev.pop_events()
         stats = dev.link_stats()
-    assert stats["seq_gaps"] == 0 and stats["crc_errors"] == 0  # every tick's telemetry arrived
+    log = dev.last_tick_log
+    assert stats["seq_gaps"] == 0 and stats["crc_errors"] == 0  # every frame the firmware sent arrived
     assert stats["watchdog_trips"] == 0  # the host's keepalives reached the firmware between the ticks
-    py_mA = [round(fw.tick(t, e, a, g) * 1000.0) for t, e, a, g, _ in rows]
-    c_mA = np.array([r[4] for r in rows])
+    t = log["t_us"]
+    assert len(t) > 2 * len(rows) and np.all(np.diff(t) == 250)  # every tick rendered, none lost
+    # telemetry = the logged ticks, every 2nd one, field for field
+    pos = np.searchsorted(t, [r[0] for r in rows])
+    assert np.all(t[pos] == [r[0] for r in rows]) and np.all(np.diff(pos) == 2)
+    assert np.array_equal(log["encoder"][pos], [r[1] for r in rows])
+    assert np.array_equal(log["accel_raw"][pos], [r[2] for r in rows])
+    q = np.round(log["current_A"][pos] * 2.0 ** 24).astype(np.int64)  # the firmware's Q24 current
+    state_mA = np.sign(q) * (((np.abs(q) >> 8) * 1000 + 32768) >> 16)  # its STATE rounding to mA
+    assert np.array_equal(state_mA, [r[4] for r in rows])
+    py_mA = np.array([round(fw.tick(int(a), int(b), int(c), int(d)) * 1000.0) for a, b, c, d in
+                      zip(t, log["encoder"], log["accel_raw"], log["grip_raw"])])
+    c_mA = np.round(log["current_A"] * 1000.0)
     assert c_mA.max() > 300 and len(events) >= 2 and len(fw.events) >= 2
-    assert np.max(np.abs(c_mA - np.array(py_mA))) <= 1  # the same currents within 1 mA, tick by tick
+    assert np.max(np.abs(c_mA - py_mA)) <= 1  # the same currents within 1 mA, tick by tick
     assert [e["incoming_velocity_m_s"] for e in events] == pytest.approx(
         [e["incoming_velocity_m_s"] for e in fw.events[:len(events)]], rel=1e-5)
     v = [e["incoming_velocity_m_s"] for e in events]
-    # the hand's taps at 0.05 and 0.15 m/s, sensed by the firmware; the faster one reads high because
-    # ticks are lost (see test_servo_tick_fits_its_budget): the 4-tick velocity window then spans more time
-    assert 0.03 < v[0] < 0.1 and 0.1 < v[1] < 0.35 and v[1] > 2 * v[0]
+    # the hand's taps at 0.05 and 0.15 m/s, sensed by the firmware over its 4-tick (1 ms) window: one
+    # encoder count in 1 ms is 22 mm/s, so the readings are whole multiples of it
+    q = fw_sim_resolution = dev.info.position_resolution_m / 0.001
+    assert all(abs(x / q - round(x / q)) < 1e-3 for x in v), (v, fw_sim_resolution)
+    assert 0.03 < v[0] < 0.09 and 0.1 < v[1] < 0.2 and v[1] >= 1.5 * v[0]
 
 
 def test_timing_budget_ram_and_uart(report):
@@ -112,10 +130,12 @@ def test_timing_budget_ram_and_uart(report):
     assert report["telemetry_seq_gaps"] == 0
 
 
-@pytest.mark.xfail(strict=True, reason="measured on simavr: the soft-float tick plus 1 Mbaud telemetry every tick "
-                   "exceeds 4,000 cycles (see the report); strict: passes -> update this test")
 def test_servo_tick_fits_its_budget(report):
-    assert report["tick"]["max"] < report["budget_cycles"] and report["lost_ticks"] == 0
+    """Compare match to the end of the tick, worst case over the run (re-arm uploads, sinusoid, sweeps):
+    under the 4,000-cycle period with at least 10 % to spare, and no tick lost."""
+    assert report["tick"]["max"] < 0.9 * report["budget_cycles"], report["tick"]
+    assert report["margin_cycles"] == report["budget_cycles"] - report["tick"]["max"]
+    assert report["lost_ticks"] == 0 and report["compare_matches"] >= 1400
     assert report["fw_parser"]["crc_errors"] == 0  # no received byte lost to a full RX ring meanwhile
 
 
