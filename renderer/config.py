@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import pathlib
 import tomllib
 from dataclasses import dataclass
 from typing import Any, Mapping
+
+from devices.validation import require_int, require_number
 
 from .scene import Scene, Wall, parse_scene
 
@@ -132,14 +133,8 @@ class RendererConfig:
     until_every: int = 16
 
     def __post_init__(self) -> None:
-        def num(key: str, *, minimum: float | None = None, strict: bool = False, optional: bool = False):
-            value = getattr(self, key)
-            if value is None and optional:
-                return
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{key} must be a finite number, got {value!r}")
-            if minimum is not None and (value <= minimum if strict else value < minimum):
-                raise ValueError(f"{key} must be {'>' if strict else '>='} {minimum}, got {value!r}")
+        def num(key: str, **rule):
+            require_number(key, getattr(self, key), **rule)
 
         num("stiffness_N_m", minimum=0.0)
         num("wall_height_m")
@@ -160,9 +155,7 @@ class RendererConfig:
                              f"{self.thermal_attenuate_frac}, {self.thermal_end_frac}")
         num("initial_temp_rise_K", minimum=0.0)
         for key in ("max_bad_samples", "until_every"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{key} must be an integer >= 1, got {value!r}")
+            require_int(key, getattr(self, key), minimum=1)
         if self.impact_min_window_s > self.impact_window_s:
             raise ValueError(f"impact_min_window_s={self.impact_min_window_s} exceeds impact_window_s="
                              f"{self.impact_window_s}")

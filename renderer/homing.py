@@ -25,6 +25,8 @@ import math
 import time
 from dataclasses import dataclass
 
+from devices.validation import require_number, require_positive
+
 
 @dataclass(frozen=True)
 class HomingConfig:
@@ -63,15 +65,10 @@ class HomingConfig:
     contact_tolerance_m: float = 0.002
 
     def __post_init__(self) -> None:
-        for key in ("home_height_m", "kp_N_m", "velocity_cutoff_hz", "settle_tolerance_m", "settle_speed_m_s",
-                    "rearm_margin_m", "contact_tolerance_m"):
-            value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"homing.{key} must be a positive finite number, got {value!r}")
-        if not (math.isfinite(self.kd_N_s_m) and self.kd_N_s_m >= 0):
-            raise ValueError(f"homing.kd_N_s_m must be >= 0, got {self.kd_N_s_m!r}")
-        if self.max_current_A is not None and not (math.isfinite(self.max_current_A) and self.max_current_A > 0):
-            raise ValueError(f"homing.max_current_A must be positive, got {self.max_current_A!r}")
+        require_positive(self, "home_height_m", "kp_N_m", "velocity_cutoff_hz", "settle_tolerance_m",
+                         "settle_speed_m_s", "rearm_margin_m", "contact_tolerance_m", prefix="homing.")
+        require_number("kd_N_s_m", self.kd_N_s_m, minimum=0.0, prefix="homing.")
+        require_number("max_current_A", self.max_current_A, minimum=0.0, strict=True, optional=True, prefix="homing.")
 
 
 @dataclass

@@ -15,6 +15,8 @@ import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from devices.validation import require_int, require_positive
+
 from .data import EXPERIENCE, check_subject_id
 
 GENDERS = ("female", "male", "other", "unspecified")
@@ -72,16 +74,10 @@ class ProtocolConfig:
     servo_watchdog_s: float = 0.02
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.repetitions, int) and not isinstance(self.repetitions, bool) and self.repetitions >= 1):
-            raise ValueError(f"repetitions must be an integer >= 1, got {self.repetitions!r}")
-        for key in ("tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s", "homing_before_max_s",
-                    "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s"):
-            value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{key} must be a positive finite number, got {value!r}")
-        if not (isinstance(self.familiarization_max_windows, int) and self.familiarization_max_windows >= 1):
-            raise ValueError(f"familiarization_max_windows must be an integer >= 1, got "
-                             f"{self.familiarization_max_windows!r}")
+        require_int("repetitions", self.repetitions, minimum=1)
+        require_positive(self, "tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s",
+                         "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s")
+        require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1)
         if not (math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
             raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")
         if not (isinstance(self.cue_level_db, (int, float)) and math.isfinite(self.cue_level_db)

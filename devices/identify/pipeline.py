@@ -14,6 +14,7 @@ import numpy as np
 from ..base import Device
 from ..fileio import atomic_write_text
 from ..progress import Progress
+from ..validation import require_int
 from .etfe import Etfe, etfe
 from .figures import bode_plot
 from .fit import FitError, FitOptions, fit_etfes
@@ -83,8 +84,7 @@ class IdentifyConfig:
         g = list(self.grips_N)
         if not g or any(not np.isfinite(x) or x < 0 for x in g) or any(b <= a for a, b in zip(g, g[1:])):
             raise ValueError(f"grip levels must be finite, >= 0 and strictly increasing, got {self.grips_N!r}")
-        if not (isinstance(self.trials, int) and 1 <= self.trials <= 50):
-            raise ValueError(f"trials must be an integer 1..50, got {self.trials!r}")
+        require_int("trials", self.trials, minimum=1, maximum=50)
 
 
 def _fit_one(curves: list, options: FitOptions, source: str):

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..validation import require_int, require_number, require_positive
 
 
 @dataclass(frozen=True)
@@ -36,21 +37,15 @@ class SweepConfig:
     repetitions: int = 2
 
     def __post_init__(self) -> None:
-        for key in ("amplitude_A", "duration_s", "fs_hz"):
-            value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"sweep {key} must be a positive finite number, got {value!r}")
+        require_positive(self, "amplitude_A", "duration_s", "fs_hz", prefix="sweep ")
         for key in ("f_start_hz", "f_end_hz"):
-            value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"sweep {key} must be a finite number >= 0, got {value!r}")
+            value = require_number(key, getattr(self, key), minimum=0.0, prefix="sweep ")
             if value >= self.fs_hz / 2:
                 raise ValueError(f"sweep {key} = {value} Hz is not below the Nyquist frequency "
                                  f"{self.fs_hz / 2} Hz (fs_hz = {self.fs_hz})")
         if self.f_start_hz == self.f_end_hz:
             raise ValueError("sweep f_start_hz and f_end_hz must differ")
-        if not (isinstance(self.repetitions, int) and self.repetitions >= 1):
-            raise ValueError(f"sweep repetitions must be an integer >= 1, got {self.repetitions!r}")
+        require_int("repetitions", self.repetitions, minimum=1, prefix="sweep ")
         if self.n_samples < 64:
             raise ValueError(f"sweep too short: {self.n_samples} samples (duration_s * fs_hz must be >= 64)")
 

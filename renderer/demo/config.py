@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 from stimuli.hfam.pipeline import PipelineSettings
+from devices.validation import require_int
 
 from . import runs
 from .cache import Pipeline
@@ -48,8 +49,7 @@ class DemoConfig:
             vals = getattr(self, key)
             if not vals or any(not (math.isfinite(x) and x > 0) for x in vals):
                 raise ValueError(f"demo {key} must be positive numbers, got {vals!r}")
-        if not (isinstance(self.taps, int) and self.taps >= 1):
-            raise ValueError(f"demo taps must be an integer >= 1, got {self.taps!r}")
+        require_int("taps", self.taps, minimum=1, prefix="demo ")
         if self.figure_velocity_m_s not in self.velocities_m_s:
             raise ValueError(f"figure velocity {self.figure_velocity_m_s} must be one of the demo velocities")
         if any(v not in self.velocities_m_s for v in self.grid_velocities_m_s):

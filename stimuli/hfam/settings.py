@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+
+from devices.validation import require_int, require_number, require_positive
 
 
 MAX_SMOOTH_HZ = 1000.0  # bandwidth of human vibrotactile perception (section 4.4.1)
@@ -86,33 +87,24 @@ class BuildSettings:
     max_extrapolation: float = 1.5
 
     def __post_init__(self) -> None:
-        def positive(key):
-            value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"BuildSettings.{key} must be a positive finite number, got {value!r}")
-
-        for key in ("duration_s", "pre_pad_s", "post_pad_s", "smooth_hz", "added_zero_hz",
-                    "added_zero_zeta", "highpass_hz", "max_pre_impact_ratio"):
-            positive(key)
-        if not (isinstance(self.n_velocities, int) and self.n_velocities >= 2):
-            raise ValueError(f"BuildSettings.n_velocities must be an integer >= 2, got {self.n_velocities!r}")
+        require_positive(self, "duration_s", "pre_pad_s", "post_pad_s", "smooth_hz", "added_zero_hz",
+                         "added_zero_zeta", "highpass_hz", "max_pre_impact_ratio", prefix="BuildSettings.")
+        require_int("n_velocities", self.n_velocities, minimum=2, prefix="BuildSettings.")
         if self.smooth_hz > MAX_SMOOTH_HZ:
             raise ValueError(f"BuildSettings.smooth_hz={self.smooth_hz} exceeds {MAX_SMOOTH_HZ} Hz "
                              "(the bandwidth of human perception, section 4.4.1)")
-        if not (isinstance(self.smooth_order, int) and 1 <= self.smooth_order <= 8):
-            raise ValueError(f"BuildSettings.smooth_order must be an integer 1..8, got {self.smooth_order!r}")
+        require_int("smooth_order", self.smooth_order, minimum=1, maximum=8, prefix="BuildSettings.")
         if not (0 <= self.onset_delay_s <= 0.01):
             raise ValueError(f"BuildSettings.onset_delay_s must be in [0, 0.01] s, got {self.onset_delay_s!r}")
         if not (0 <= self.taper_s < self.duration_s):
             raise ValueError(f"BuildSettings.taper_s must be in [0, duration_s), got {self.taper_s!r}")
-        if not (math.isfinite(self.gain) and self.gain > 0):
-            raise ValueError(f"BuildSettings.gain must be > 0, got {self.gain!r}")
+        require_number("gain", self.gain, minimum=0.0, strict=True, prefix="BuildSettings.")
         if not (-1 <= self.min_neighbour_corr <= 1):
             raise ValueError(f"BuildSettings.min_neighbour_corr must be in [-1, 1], got {self.min_neighbour_corr!r}")
         lo, hi = self.verify_band_hz
         if not 0 < lo < hi:
             raise ValueError(f"BuildSettings.verify_band_hz must be (lo, hi) with 0 < lo < hi, got {self.verify_band_hz!r}")
-        if self.peak_current_A is not None and not (math.isfinite(self.peak_current_A) and self.peak_current_A > 0):
-            raise ValueError(f"BuildSettings.peak_current_A must be > 0, got {self.peak_current_A!r}")
+        require_number("peak_current_A", self.peak_current_A, minimum=0.0, strict=True, optional=True,
+                       prefix="BuildSettings.")
         if self.max_extrapolation < 1:
             raise ValueError(f"BuildSettings.max_extrapolation must be >= 1, got {self.max_extrapolation!r}")

@@ -1,0 +1,105 @@
+"""Checks for the numbers in parameter dataclasses, shared by every package's config classes.
+
+The config dataclasses (sweep, renderer, homing, HFAM build, study protocol, ...) are loaded
+from TOML/JSON and validated at the boundary, in ``__post_init__``. These helpers give every
+one of them the same rule and the same message: the field, what it must be, and the value
+found, with a prefix naming the config (``"homing."``, ``"sweep "``, ``"BuildSettings."``) so
+the user can find it in the file. ``bool`` is never accepted as a number (``True`` as a
+duration is a typo, not a value). ``analysis`` may not import ``devices`` and keeps its own
+two checks.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def require_number(name: str, value, *, minimum: float | None = None, strict: bool = False,
+                   maximum: float | None = None, optional: bool = False, prefix: str = ""):
+    """Check one finite number, optionally bounded; return it.
+
+    Parameters
+    ----------
+    name : str
+        Field name, as in the config file (``"stiffness_N_m"``).
+    value : object
+        The value found.
+    minimum, maximum : float or None
+        Inclusive bounds (``minimum`` exclusive when ``strict``).
+    strict : bool
+        Require ``value > minimum`` instead of ``>=``.
+    optional : bool
+        Accept ``None`` (returned as is).
+    prefix : str
+        Put before the name in the message (``"homing."``).
+
+    Returns
+    -------
+    int, float or None
+        ``value``, unchanged.
+
+    Raises
+    ------
+    ValueError
+        ``"<prefix><name> must be a finite number, got <value>"``, or ``"... must be > 0, got ..."``.
+    """
+    if value is None and optional:
+        return None
+    if not _is_number(value):
+        raise ValueError(f"{prefix}{name} must be a finite number, got {value!r}")
+    if minimum is not None and (value <= minimum if strict else value < minimum):
+        raise ValueError(f"{prefix}{name} must be {'>' if strict else '>='} {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{prefix}{name} must be <= {maximum}, got {value!r}")
+    return value
+
+
+def require_positive(obj, *names: str, prefix: str = "") -> None:
+    """Check that each named field of ``obj`` is a positive finite number.
+
+    Parameters
+    ----------
+    obj : object
+        The config instance (fields read with ``getattr``).
+    *names : str
+        Field names.
+    prefix : str
+        Put before each name in the message (``"sweep "``, ``"homing."``).
+
+    Raises
+    ------
+    ValueError
+        ``"<prefix><name> must be a positive finite number, got <value>"`` for the first that is not.
+    """
+    for name in names:
+        value = getattr(obj, name)
+        if not (_is_number(value) and value > 0):
+            raise ValueError(f"{prefix}{name} must be a positive finite number, got {value!r}")
+
+
+def require_int(name: str, value, *, minimum: int | None = None, maximum: int | None = None,
+                prefix: str = "") -> int:
+    """Check an integer (not a bool) within inclusive bounds; return it.
+
+    Raises
+    ------
+    ValueError
+        ``"<prefix><name> must be an integer >= <minimum>, got <value>"`` (or ``<minimum>..<maximum>``).
+    """
+    ok = isinstance(value, int) and not isinstance(value, bool)
+    ok = ok and (minimum is None or value >= minimum) and (maximum is None or value <= maximum)
+    if not ok:
+        if minimum is not None and maximum is not None:
+            rule = f"an integer {minimum}..{maximum}"
+        elif minimum is not None:
+            rule = f"an integer >= {minimum}"
+        elif maximum is not None:
+            rule = f"an integer <= {maximum}"
+        else:
+            rule = "an integer"
+        raise ValueError(f"{prefix}{name} must be {rule}, got {value!r}")
+    return value

@@ -1,0 +1,60 @@
+"""The shared checks of the config dataclasses (devices/validation.py) and their messages in use."""
+
+import pytest
+
+from devices.identify.sweep import SweepConfig
+from devices.validation import require_int, require_number, require_positive
+from renderer.config import RendererConfig
+from renderer.homing import HomingConfig
+from stimuli.hfam.settings import BuildSettings
+from study.config import ProtocolConfig
+
+
+class _Cfg:
+    a_s = 1.5
+    b_hz = 0.0
+
+
+@pytest.mark.parametrize("value, ok", [(1, True), (0.5, True), (0, False), (-1.0, False), (float("nan"), False),
+                                       (float("inf"), False), (True, False), ("2", False), (None, False)])
+def test_require_positive(value, ok):
+    cfg = _Cfg()
+    cfg.b_hz = value
+    if ok:
+        require_positive(cfg, "a_s", "b_hz")
+    else:
+        with pytest.raises(ValueError, match=r"^x\.b_hz must be a positive finite number, got "):
+            require_positive(cfg, "a_s", "b_hz", prefix="x.")
+
+
+def test_require_number_bounds_and_optional():
+    assert require_number("k", 0.0, minimum=0.0) == 0.0
+    with pytest.raises(ValueError, match=r"^k must be > 0.0, got 0.0$"):
+        require_number("k", 0.0, minimum=0.0, strict=True)
+    with pytest.raises(ValueError, match=r"^k must be <= 1, got 2$"):
+        require_number("k", 2, maximum=1)
+    assert require_number("k", None, optional=True) is None
+    with pytest.raises(ValueError, match=r"^k must be a finite number, got None$"):
+        require_number("k", None)
+
+
+def test_require_int_rejects_bools_and_floats():
+    assert require_int("n", 3, minimum=1, maximum=5) == 3
+    for bad in (True, 3.0, 0, 6):
+        with pytest.raises(ValueError, match=r"^n must be an integer 1\.\.5, got "):
+            require_int("n", bad, minimum=1, maximum=5)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: SweepConfig(duration_s=-1.0), r"^sweep duration_s must be a positive finite number, got -1\.0"),
+    (lambda: SweepConfig(repetitions=0), r"^sweep repetitions must be an integer >= 1, got 0"),
+    (lambda: HomingConfig(kp_N_m=float("nan")), r"^homing\.kp_N_m must be a positive finite number, got nan"),
+    (lambda: HomingConfig(kd_N_s_m=-1.0), r"^homing\.kd_N_s_m must be >= 0\.0, got -1\.0"),
+    (lambda: BuildSettings(smooth_order=9), r"^BuildSettings\.smooth_order must be an integer 1\.\.8, got 9"),
+    (lambda: ProtocolConfig(tap_window_s=True), r"^tap_window_s must be a positive finite number, got True"),
+    (lambda: RendererConfig(stiffness_N_m=-5.0), r"^stiffness_N_m must be >= 0\.0, got -5\.0"),
+    (lambda: RendererConfig(until_every=0), r"^until_every must be an integer >= 1, got 0"),
+])
+def test_config_classes_use_the_shared_checks(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
