@@ -17,7 +17,8 @@ from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import ENVIRONMENTS, CimmModel, Testbed
 from renderer.__main__ import main
-from renderer.teleop.cli_teleop import SWEEP_CONDITIONS, largest_stable, sweep
+from renderer.teleop.cli_teleop import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS
+from renderer.teleop.commands import largest_stable, sweep
 from renderer.teleop.models import STAND_IN_SOURCE, cimm_params, underestimation_check
 from renderer.teleop.session import TeleopConfig, default_path, run_session, session_metrics
 
@@ -158,10 +159,30 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
 
 
 def test_cimm_robust_to_30_percent_model_errors(testbed, cimm_model, sweep_rows):
-    from renderer.teleop.cli_teleop import robustness
+    from renderer.teleop.commands import robustness
     lmax_pf = largest_stable(sweep_rows, "pf")
     table = robustness(testbed, cimm_model, (1.0, 2.0, 3.0), taps=1, seed=4)
     print("robustness (largest stable lambda):", table)
     assert len(table) == 5
     for name, lam in table.items():
         assert lam >= 3 * lmax_pf, name
+
+
+def test_cli_choice_lists_match_the_testbed_and_the_controllers():
+    """The light parser module keeps plain name tuples (fast --help); they must be the real ones."""
+    from devices.sim.teleop import ENVIRONMENTS
+    from renderer.teleop.session import CONTROLLERS
+
+    assert ENVIRONMENT_NAMES == tuple(sorted(ENVIRONMENTS))
+    assert CONTROLLER_NAMES == tuple(CONTROLLERS)
+
+
+def test_teleop_help_does_not_import_the_numba_testbed():
+    import subprocess
+    import sys
+
+    code = ("import sys; from renderer.__main__ import main\n"
+            "try:\n    main(['teleop', '--help'])\nexcept SystemExit:\n    pass\n"
+            "print('numba' in sys.modules, 'devices.sim' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60).stdout
+    assert out.strip().splitlines()[-1] == "False False", out

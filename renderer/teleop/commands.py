@@ -1,0 +1,345 @@
+"""``python -m renderer teleop`` and ``teleop-sweep``: the commands (parsers in :mod:`renderer.teleop.cli_teleop`).
+
+``teleop`` runs one session (default: the simulated operator taps ten times) and writes a run folder
+(traces.csv, run.json, a Figure 5.10-style figure). ``teleop-sweep`` runs blind-randomised taps over
+lambda for position-force with and without cancellation and with each stabiliser of section 5.4,
+and writes Figure 5.11 (settling time vs lambda with fits), the table of the largest stable lambda per
+controller and the energy of F_f above 50 Hz. Definitions: docs/teleop.md.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import platform
+import random
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from devices.fileio import atomic_write_text
+from devices.sim import teleop_kernel as K
+from devices.sim.params import default_params
+from devices.sim.teleop import ENVIRONMENTS, CimmModel, Testbed, get_environment
+
+from .cli_teleop import SWEEP_CONDITIONS, parse_lambdas
+from .models import cimm_params, underestimation_check
+from .session import CONTROLLERS, TeleopConfig, default_path, run_session, session_metrics
+
+TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
+                 "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
+
+HFAM_K_MU_HZ = 40.0   # pd+hfam: low-pass on x_c so the HFAM-induced master motion does not close a loop
+
+
+
+def software_versions() -> dict:
+    """Versions written into run.json."""
+    import scipy  # deferred: only the run metadata needs it
+
+    try:
+        version = importlib.metadata.version("hfam-haptics")
+    except importlib.metadata.PackageNotFoundError:
+        version = "unknown"
+    return {"hfam-haptics": version, "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__}
+
+
+def _new_dir(path: Path) -> Path:
+    """Create an output folder; refuse to touch an existing non-empty one."""
+    path = Path(path)
+    if path.exists() and any(path.iterdir()):
+        raise ValueError(f"output folder {path} exists and is not empty (choose another --out)")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def build_testbed(args) -> Testbed:
+    """Testbed from command-line arguments."""
+    P = default_params()
+    return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz)
+
+
+def build_hfam(args, tb: Testbed, out: Path):
+    """HFAM filter from H_ha: ``--hha-model FILE`` or the comprehensive identification of the master."""
+    from devices.model import load_model
+
+    from .hfam import design_hfam, identify_master_hha  # deferred: scipy / identification only for pd+hfam
+
+    if args.hha_model:
+        model = load_model(args.hha_model)
+        print(f"H_ha: {args.hha_model}")
+    else:
+        print("identifying H_ha of the master (swept sine, ETFE, fit; about 30 s)...", flush=True)
+        model = identify_master_hha(tb.master, tb.servo_rate_hz)
+        model.save(out / "H_ha_model.json")
+    hf = design_hfam(model, tb.servo_rate_hz, max_current_A=args.hfam_max_current)
+    c = hf.check
+    print(f"HFAM inverse: Tustin vs continuous over {c['band_hz'][0]:.0f}-{c['band_hz'][1]:.0f} Hz: "
+          f"max {c['max_mag_error_db']:.2f} dB, {c['max_phase_error_deg']:.1f} deg; "
+          f"{c['reflected_rhp_zeros']} right-half-plane zero(s) reflected")
+    return hf
+
+
+def build_cimm(args) -> CimmModel:
+    """CIMM model from the configured source (``--cimm-model``), never the simulator's parameters."""
+    params, source = cimm_params(args.cimm_model)
+    return CimmModel(params, washout_hz=args.washout_hz, source=source)
+
+
+def run_teleop(args) -> int:
+    """The ``teleop`` command."""
+    if args.taps < 1:
+        raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if args.controller == "pd+hfam" else 0.0)
+    cfg = TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b,
+                       k_mu_hz=k_mu, k_lambda_hz=args.k_lambda_hz)
+    tb = build_testbed(args)
+    out = _new_dir(Path(args.out))
+    hfam = None
+    if args.controller == "pd+hfam":
+        hfam = build_hfam(args, tb, out)
+    cimm = build_cimm(args) if args.controller == "pf+cimm" else None
+    check = None
+    if cimm is not None:
+        check = underestimation_check(cimm, tb.master)
+        print(f"CIMM model: {cimm.source}")
+        print(check["warning"] or f"CIMM model underestimates induced motion below 8 Hz "
+              f"(max ratio {check['max_ratio']:.2f}): no positive feedback (eq. 5.14)")
+    path, crossings = default_path(tb.servo_rate_hz, args.mu, n_taps=args.taps, speed_m_s=args.speed)
+    t0 = time.perf_counter()
+    stroke = None
+    if args.environment == "texture":
+        stroke = np.cumsum(np.where(path < 0.5e-3 / args.mu, 0.02, 0.0)) / tb.servo_rate_hz  # 20 mm/s in contact
+    res = run_session(tb, cfg, path, cimm=cimm, hfam=hfam, impact_ticks=crossings, stroke_m=stroke)
+    wall = time.perf_counter() - t0
+    metrics = session_metrics(res)
+    n = len(res.traces) if not res.fault else res.fault_tick + 1
+    header = ",".join(TRACE_COLUMNS)
+    np.savetxt(out / "traces.csv", res.traces[:n], delimiter=",", header=header, comments="", fmt="%.9g")
+    taps = [None if m is None else {"impact_s": m.impact_s, "settling_s": m.settling_s if math.isfinite(m.settling_s)
+                                    else None, "quasi_static_N": m.quasi_static_N, "contact_breaks": m.breaks,
+                                    "stable": m.stable, "F_f_energy_above_50Hz": m.hf_energy_fraction}
+            for m in metrics]
+    unstable = sum(1 for m in metrics if m is not None and not m.stable)
+    run = {"command": "teleop", "argv": sys.argv[1:], "controller": cfg.__dict__,
+           "testbed": {"environment": tb.environment.__dict__, "operator": tb.operator.__dict__,
+                       "sensors": tb.sensors.__dict__, "servo_rate_hz": tb.servo_rate_hz,
+                       "substep_s": tb.substep_s, "master": tb.master.name, "slave": tb.slave.name},
+           "cimm_model": None if cimm is None else {"source": cimm.source, "step_s": cimm.step_s,
+                                                   "washout_hz": cimm.washout_hz, "k_u_N_m": cimm.k_u_N_m,
+                                                   "q_u_N_m5": cimm.q_u_N_m5, "b_u_Ns_m": cimm.b_u_Ns_m,
+                                                   "underestimation_check": check},
+           "versions": software_versions(), "duration_s": len(path) / tb.servo_rate_hz,
+           "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
+           "unstable_taps": unstable, "taps": taps}
+    if cfg.controller.startswith("pd"):
+        from .hfam import accel_match, figure_45  # deferred: scipy-based analysis, PD controllers only
+        match = accel_match(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
+        run["accel_match_22_1000Hz"] = match
+        if hfam is not None:
+            run["hfam"] = {"check": hfam.check, "max_current_A": hfam.max_current_A, "gain": hfam.gain}
+        print(f"master handle vs slave tip (22-1000 Hz, delay {match['delay_s'] * 1e3:.1f} ms removed): "
+              f"correlation {match['correlation']:.2f}, NRMSE {match['nrmse']:.2f}, RMS ratio {match['rms_ratio']:.2f}")
+        if not args.no_figures:
+            figure_45(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz, match["delay_samples"],
+                      out / "figure_4_5.png", f"{cfg.controller}, {args.environment}")
+    atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
+    if not args.no_figures:
+        figure_510(res, out / "figure_5_10.png", f"{cfg.controller}, lambda = {cfg.lam:g}, mu = {cfg.mu:g}")
+    settle = [t["settling_s"] for t in taps if t and t["settling_s"] is not None]
+    print(f"{args.taps} taps, {len(path) / tb.servo_rate_hz:.1f} s simulated in {wall:.2f} s; unstable taps: "
+          f"{unstable}; median settling {np.median(settle) * 1e3 if settle else float('nan'):.0f} ms; "
+          f"master clip ticks {res.counts['master_clip_ticks']}; fault {res.fault}")
+    print(f"wrote {out}")
+    return 0
+
+
+def figure_510(res, path: Path, title: str) -> None:
+    """Figure 5.10-style plot of the first tap: F_f and x_c (and x_m, x_hat_mi,hf with cancellation)."""
+    import matplotlib  # deferred: plotting only
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tr = res.traces if not res.fault else res.traces[:res.fault_tick + 1]
+    fe = tr[:, K.O_FE]
+    hit = np.flatnonzero(fe > 0.05)
+    i0 = int(hit[0]) if len(hit) else 0
+    a, b = max(0, i0 - int(0.02 * res.fs_hz)), min(len(tr), i0 + int(0.2 * res.fs_hz))
+    t = (tr[a:b, K.O_T] - tr[i0, K.O_T]) * 1e3
+    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(6, 5))
+    ax1.plot(t, tr[a:b, K.O_FF], label="F_f")
+    ax1.set_ylabel("F_f (N)")
+    ax2.plot(t, tr[a:b, K.O_XC] * 1e3, label="x_c")
+    if np.any(tr[a:b, K.O_XHAT] != 0):
+        ax2.plot(t, tr[a:b, K.O_XM] * 1e3, label="x_m", alpha=0.7)
+        ax2.plot(t, tr[a:b, K.O_XHAT] * 1e3, label="x_hat_mi,hf", alpha=0.7)
+    ax2.set_ylabel("position (mm)")
+    ax2.set_xlabel("time after contact (ms)")
+    ax2.legend(fontsize=8)
+    ax1.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, mu: float = 1.0,
+          seed: int = 1, progress=None) -> list[dict]:
+    """Blind-randomised lambda sweep: one single-tap session per (condition, lambda, tap), random order.
+
+    The analysis (:func:`session_metrics`) sees only force traces; the condition is attached after.
+
+    Returns
+    -------
+    list of dict (condition, lambda, speed_m_s, settling_s, stable, breaks, hf_energy_fraction)
+    """
+    speeds = np.linspace(0.08, 0.12, taps) if taps > 1 else np.array([0.1])
+    trials = [(c, lam, float(v)) for c in conditions for lam in lambdas for v in speeds]
+    random.Random(seed).shuffle(trials)
+    rows = []
+    for j, (cond, lam, v) in enumerate(trials):
+        controller, extra = SWEEP_CONDITIONS[cond]
+        cfg = TeleopConfig(controller=controller, mu=mu, lam=lam, **extra)
+        path, cr = default_path(tb.servo_rate_hz, mu, n_taps=1, speed_m_s=v)
+        res = run_session(tb, cfg, path, cimm=cimm, impact_ticks=cr, seed=j + 1)
+        m = session_metrics(res)[0]
+        rows.append({"condition": cond, "lambda": lam, "speed_m_s": v,
+                     "settling_s": (m.settling_s if m else math.inf),
+                     "stable": bool(m.stable) if m else False, "breaks": m.breaks if m else -1,
+                     "hf_energy_fraction": m.hf_energy_fraction if m else float("nan")})
+        if progress is not None:
+            progress(j + 1, len(trials))
+    return rows
+
+
+def largest_stable(rows: list[dict], cond: str) -> float:
+    """Largest lambda of ``cond`` with every tap stable at it and at every smaller lambda (0 if none)."""
+    lams = sorted({r["lambda"] for r in rows if r["condition"] == cond})
+    best = 0.0
+    for lam in lams:
+        if all(r["stable"] for r in rows if r["condition"] == cond and r["lambda"] == lam):
+            best = lam
+        else:
+            break
+    return best
+
+
+def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
+    """The CIMM model with +/- ``error`` in the user stiffness (k_u and q_u together) and the hand mass
+    (the model's handle mass, which carries the hand's effective mass).
+
+    Returns
+    -------
+    dict name -> CimmModel (including ``"nominal"``)
+    """
+    from dataclasses import replace  # local: only this helper copies models
+
+    mh = cimm.params.mechanics["m_h_kg"]
+    out = {"nominal": cimm}
+    for sign, f in (("-", 1 - error), ("+", 1 + error)):
+        out[f"user stiffness {sign}{error:.0%}"] = replace(cimm, k_u_N_m=cimm.k_u_N_m * f,
+                                                          q_u_N_m5=cimm.q_u_N_m5 * f)
+        out[f"hand mass {sign}{error:.0%}"] = replace(cimm, params=cimm.params.replace(
+            mechanics={"m_h_kg": mh * f}))
+    return out
+
+
+def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: float = 1.0, seed: int = 1,
+               error: float = 0.3, progress=None) -> dict:
+    """Largest stable lambda of ``pf+cimm`` for each of :func:`model_variants` (the +/-30 % table)."""
+    out = {}
+    for name, model in model_variants(cimm, error).items():
+        rows = sweep(tb, model, lambdas, ["pf+cimm"], taps=taps, mu=mu, seed=seed, progress=progress)
+        out[name] = largest_stable(rows, "pf+cimm")
+    return out
+
+
+def run_sweep(args) -> int:
+    """The ``teleop-sweep`` command."""
+    lambdas = parse_lambdas(args.lam)
+    conds = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    for c in conds:
+        if c not in SWEEP_CONDITIONS:
+            raise ValueError(f"--conditions: unknown {c!r} (valid: {', '.join(SWEEP_CONDITIONS)})")
+    if args.taps < 1:
+        raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    tb = build_testbed(args)
+    cimm = build_cimm(args)
+    check = underestimation_check(cimm, tb.master)
+    if check["warning"]:
+        print(check["warning"])
+    out = _new_dir(Path(args.out))
+    try:
+        from tqdm import tqdm  # deferred: progress display only
+        bar = tqdm(total=len(conds) * len(lambdas) * args.taps, unit="tap", file=sys.stderr)
+
+        def progress(i, n):
+            bar.update(1)
+    except ImportError:
+        bar = None
+
+        def progress(i, n):
+            print(f"\r{i}/{n} taps", end="", file=sys.stderr, flush=True)
+    rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed, progress=progress)
+    if bar is not None:
+        bar.close()
+    else:
+        print(file=sys.stderr)
+    lines = ["condition,lambda,speed_m_s,settling_s,stable,breaks,hf_energy_fraction"]
+    for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
+        lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['settling_s']:.4f},"
+                     f"{int(r['stable'])},{r['breaks']},{r['hf_energy_fraction']:.3f}")
+    atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
+    table = ["| controller | largest stable lambda | F_f energy above 50 Hz at that lambda |", "|---|---|---|"]
+    summary = {}
+    for c in conds:
+        lm = largest_stable(rows, c)
+        hf = [r["hf_energy_fraction"] for r in rows if r["condition"] == c and r["lambda"] == lm]
+        summary[c] = {"largest_stable_lambda": lm, "hf_energy_fraction": float(np.nanmean(hf)) if hf else None}
+        table.append(f"| {c} | {lm:g} | {summary[c]['hf_energy_fraction'] if hf else float('nan'):.2f} |")
+    atomic_write_text(out / "table.md", "\n".join(table) + "\n")
+    atomic_write_text(out / "run.json", json.dumps({
+        "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
+        "taps": args.taps, "seed": args.seed, "mu": args.mu, "environment": args.environment,
+        "cimm_model": {"source": cimm.source, "underestimation_check": check}, "summary": summary,
+        "versions": software_versions()}, indent=1, default=str))
+    figure_511(rows, conds, out / "figure_5_11.png")
+    print("\n".join(table))
+    if args.robustness:
+        rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed)
+        lines = ["| CIMM model | largest stable lambda |", "|---|---|"]
+        lines += [f"| {k} | {v:g} |" for k, v in rob.items()]
+        atomic_write_text(out / "robustness.md", "\n".join(lines) + "\n")
+        print("\n".join(lines))
+    print(f"wrote {out}")
+    return 0
+
+
+def figure_511(rows, conds, path: Path) -> None:
+    """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps."""
+    import matplotlib  # deferred: plotting only
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for c in conds:
+        rs = [r for r in rows if r["condition"] == c]
+        lam = np.array([r["lambda"] for r in rs])
+        st = np.array([r["settling_s"] * 1e3 for r in rs])
+        ok = np.array([r["stable"] for r in rs])
+        line = ax.plot(lam[ok], st[ok], "o", ms=4, label=f"{c}")[0]
+        ax.plot(lam[~ok], np.full((~ok).sum(), 320.0), "x", color=line.get_color(), ms=5)
+        if ok.sum() >= 3 and len(set(lam[ok])) >= 3:
+            co = np.polyfit(lam[ok], st[ok], 2)
+            xx = np.linspace(lam[ok].min(), lam[ok].max(), 50)
+            ax.plot(xx, np.polyval(co, xx), "-", color=line.get_color(), alpha=0.6)
+    ax.set_xlabel("force-feedback gain lambda (mu = 1)")
+    ax.set_ylabel("settling time of the contact force (ms)")
+    ax.set_title("Settling time vs lambda (x at 320 ms: unstable tap)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
