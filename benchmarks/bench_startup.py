@@ -101,7 +101,7 @@ def main(argv=None) -> dict:
                     worst = max(worst, (med, args))
             print(f"   slowest --help: python {' '.join(worst[1])} ({worst[0]:.3f} s)")
             _show_top(worst[1], cwd)
-            run = ["-m", "renderer", "run", "--device", "sim", "--duration", "2", "--out", str(cwd / "run")]
+            run = ["-m", "renderer", "run", "--device", "sim", "--duration-s", "2", "--force", "--out", str(cwd / "run")]
             times = wall_times(run, repeats, cwd)
             med = statistics.median(times)
             results["renderer run --device sim --duration 2"] = med
