@@ -61,6 +61,10 @@ class IdentifyConfig:
         ETFE detrending (see :func:`devices.identify.etfe.etfe`).
     reverse_half : bool
         Reverse the sweep's polarity for the second half of the trials (sec. 3.4.1).
+    outputs : tuple of str
+        Which outputs to fit: ``"accel_m_s2"`` (H_ha, what HFAM needs) and/or ``"position_m"`` (G_i).
+    figures : bool
+        Draw ``bode_<output>.png`` (the ETFEs are always written to ``etfe_<output>.npz``).
     """
 
     grips_N: tuple = (0.0, 1.0, 2.0, 3.0, 4.0)
@@ -75,6 +79,8 @@ class IdentifyConfig:
     amplitudes_A: tuple = ()
     purpose: str = "general"
     workers: int = 1
+    outputs: tuple = ("accel_m_s2", "position_m")
+    figures: bool = True
 
     def __post_init__(self) -> None:
         if self.purpose not in PURPOSE_WEIGHT:
@@ -85,6 +91,8 @@ class IdentifyConfig:
         if not g or any(not np.isfinite(x) or x < 0 for x in g) or any(b <= a for a, b in zip(g, g[1:])):
             raise ValueError(f"grip levels must be finite, >= 0 and strictly increasing, got {self.grips_N!r}")
         require_int("trials", self.trials, minimum=1, maximum=50)
+        if not self.outputs or any(o not in OUTPUT_SHORT for o in self.outputs):
+            raise ValueError(f"outputs must be some of {list(OUTPUT_SHORT)}, got {self.outputs!r}")
 
 
 def _fit_one(curves: list, options: FitOptions, source: str):
@@ -138,9 +146,10 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     out.mkdir(parents=True, exist_ok=True)
     sweep = cfg.sweep
     t_start = time.perf_counter()
-    curves = {o: [] for o in OUTPUT_SHORT}
-    models_plot = {o: [] for o in OUTPUT_SHORT}
-    fits = {o: [] for o in OUTPUT_SHORT}
+    outputs = [o for o in OUTPUT_SHORT if o in cfg.outputs]
+    curves = {o: [] for o in outputs}
+    models_plot = {o: [] for o in outputs}
+    fits = {o: [] for o in outputs}
     rows = []
     label = device_spec or dev.info.name
     jobs = list(enumerate(cfg.grips_N))
@@ -167,7 +176,7 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     for (k, g), (row, gcurves, gfits, msgs) in zip(jobs, results):
         for m in msgs:
             log(m)
-        for output in OUTPUT_SHORT:
+        for output in outputs:
             curves[output].extend(gcurves[output])
             fits[output].append(gfits[output])
             models_plot[output].extend([gfits[output].model if gfits[output] is not None else None]
@@ -178,14 +187,18 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
         "fs_hz": sweep.fs_hz, "f_start_hz": sweep.f_start_hz, "f_end_hz": sweep.f_end_hz,
         "duration_s": sweep.duration_s, "amplitude_A": sweep.amplitude_A, "repetitions": sweep.repetitions},
         "trials": cfg.trials, "amplitudes_A": list(cfg.amplitudes_A or (sweep.amplitude_A,)), "grips": rows}
-    ok = [i for i, g in enumerate(cfg.grips_N) if any(fits[o][i] is not None for o in OUTPUT_SHORT)]
+    ok = [i for i, g in enumerate(cfg.grips_N) if any(fits[o][i] is not None for o in outputs)]
     written = []
     if ok:
-        models = {o: [fits[o][i].model if fits[o][i] is not None else None for i in ok] for o in OUTPUT_SHORT}
+        models = {o: [fits[o][i].model if fits[o][i] is not None else None for i in ok] for o in outputs}
         models = {o: ms for o, ms in models.items() if any(m is not None for m in ms)}
         mset = ModelSet(np.array([cfg.grips_N[i] for i in ok], dtype=float), models)
         written.append(str(mset.save(out)))
-    for output, short in OUTPUT_SHORT.items():
+    for output in outputs:
+        short = OUTPUT_SHORT[output]
+        written.append(str(write_etfe_npz(curves[output], out / f"etfe_{short}.npz")))
+        if not cfg.figures:
+            continue
         written.append(str(bode_plot(curves[output], models_plot[output], out / f"bode_{short}.png",
                                      title=f"{report['device']}: {short} ETFE per grip (solid), fitted models "
                                            "(dashed)")))
@@ -198,6 +211,32 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
         raise ValueError(f"no grip level could be fitted to the requested error; see {out / 'report.txt'}; "
                          "no model set written")
     return report
+
+
+def write_etfe_npz(curves: list, path) -> Path:
+    """Write ETFE curves (one per grip level or condition) on one frequency grid.
+
+    Parameters
+    ----------
+    curves : list of Etfe
+        Curves of one output; interpolated onto the first curve's frequencies.
+    path : path
+        The ``.npz`` file (written atomically).
+
+    Returns
+    -------
+    Path
+        ``path``, holding ``f_hz`` (shape (n_f,), Hz), ``H`` (complex, shape (n_curves, n_f), output per A),
+        ``coherence`` (shape (n_curves, n_f)) and ``grip_N`` (shape (n_curves,), N).
+    """
+    path = Path(path)
+    f = curves[0].f_hz if curves else np.zeros(0)
+    H = np.array([np.interp(f, c.f_hz, c.H.real) + 1j * np.interp(f, c.f_hz, c.H.imag) for c in curves])
+    coh = np.array([np.interp(f, c.f_hz, c.coherence) for c in curves])
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, f_hz=f, grip_N=np.array([c.grip_N for c in curves]), H=H, coherence=coh)
+    tmp.replace(path)
+    return path
 
 
 def _grip_worker(job):
@@ -217,7 +256,7 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
 
     msgs = []
     amps = tuple(cfg.amplitudes_A) or (cfg.sweep.amplitude_A,)
-    recs_all, gcurves, gfits = [], {o: [] for o in OUTPUT_SHORT}, {}
+    recs_all, gcurves, gfits = [], {o: [] for o in cfg.outputs}, {}
     by_amp = []
     for amp in amps:
         sweep = replace(cfg.sweep, amplitude_A=float(amp))
@@ -233,6 +272,8 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
     row = {"grip_N": float(g), "grip_measured_N": float(np.mean([r.meta["grip_mean_N"] for r in recs_all])),
            "trials": len(recs_all), "purpose": cfg.purpose}
     for output, opts in (("accel_m_s2", cfg.accel_options), ("position_m", cfg.position_options)):
+        if output not in cfg.outputs:
+            continue
         opts = replace(opts, weight=PURPOSE_WEIGHT[cfg.purpose])
         cs = [etfe(recs, output, label=cond, detrend=cfg.detrend) for cond, recs in by_amp]
         gcurves[output] = cs
@@ -255,7 +296,7 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
         msgs.append(f"grip {g:g} N {short}: order {m['order']}, delay {m['delay_s'] * 1e3:.3f} ms, "
                     f"RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, worst band {m['worst_band_db']:.2f} dB "
                     f"over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz")
-    if cfg.validate and gfits["accel_m_s2"] is not None:
+    if cfg.validate and gfits.get("accel_m_s2") is not None:
         u, a, x, windows = record_transients(dev, cfg.validation_amplitude_A, float(g))
         write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", cfg.sweep.fs_hz, u, a, x, g)
         v = validate_model(gfits["accel_m_s2"].model, u, a, cfg.sweep.fs_hz, windows)
@@ -289,7 +330,9 @@ def format_report(report: dict) -> str:
              f"{'worst dB':>8} {'band Hz':>11} {'peak Hz':>7} {'peak dB':>7} {'NRMSE':>6}"]
     for row in report["grips"]:
         for short in ("accel", "position"):
-            r = row.get(short, {})
+            if short not in row:  # an output not asked for (IdentifyConfig.outputs)
+                continue
+            r = row[short]
             if "error" in r:
                 lines.append(f"{row['grip_N']:7.2f} {short:>9}  FIT FAILED: {r['error']}")
                 continue

@@ -69,7 +69,7 @@ class Pipeline:
 
     @property
     def etfe_npz(self) -> Path:
-        return self.directory / "identify" / "etfe.npz"
+        return self.directory / "identify" / "etfe_accel.npz"
 
     @property
     def recordings_csv(self) -> Path:

@@ -234,7 +234,7 @@ class Progress:
 def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
     """Identify the device at every grip, record real taps, build the library into ``out`` (Figure 4.7).
 
-    Writes ``identify/`` (model set, ``etfe.npz``), ``recordings.csv``, ``library.npz`` and
+    Writes ``identify/`` (model set, ``etfe_accel.npz``), ``recordings.csv``, ``library.npz`` and
     ``library_verification.txt``.
 
     Returns
@@ -309,41 +309,35 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
 def identify_grips(dev, s: PipelineSettings, out: Path, say) -> str:
     """Identify current -> handle acceleration at each grip level and save the model set (section 3.4.6).
 
-    Uses the identification package step by step (swept-sine trials per grip,
-    ETFE, automatic fit) instead of ``identify_device``, because the demo
-    needs only the acceleration models (H_ha; HFAM does not use G_i) and
-    draws one Bode figure of its own: this halves the cold-cache time.
-    Writes ``model_set.json`` + one model JSON per grip and ``etfe.npz``
-    (``f_hz``, ``H`` [grip, f], ``coherence`` [grip, f], ``grip_N``).
+    Runs :func:`devices.identify.pipeline.identify_device` with what HFAM needs: the acceleration
+    models H_ha only (HFAM does not use G_i), no time-domain validation and no Bode figures of its
+    own (the demo draws one). Writes what identification writes: ``model_set.json``, one model JSON
+    per grip, ``recordings/``, ``report.json``/``.txt`` and ``etfe_accel.npz`` (``f_hz``, ``H`` [grip, f],
+    ``coherence`` [grip, f], ``grip_N``).
+
+    Parameters
+    ----------
+    dev : devices.base.Device
+        The open device.
+    s : PipelineSettings
+        Sweep amplitude (A), band (Hz) and duration (s), grip levels (N) and trials per grip.
+    out : Path
+        Output folder (created).
+    say : callable
+        Receives one line per message.
 
     Returns
     -------
     str
         A one-line summary of the fits.
     """
-    from devices.identify.etfe import etfe
-    from devices.identify.fit import FitOptions, fit_etfes
-    from devices.identify.modelset import ModelSet
-    from devices.identify.record import record_condition
+    from devices.identify.pipeline import IdentifyConfig, identify_device
     from devices.identify.sweep import SweepConfig
 
     sweep = SweepConfig(amplitude_A=s.sweep_amplitude_A, f_start_hz=s.sweep_band_hz[0],
                         f_end_hz=s.sweep_band_hz[1], duration_s=s.sweep_duration_s, fs_hz=dev.info.servo_rate_hz)
-    curves, models = [], []
-    for g in s.identify_grips_N:
-        recs = record_condition(dev, sweep, float(g), s.identify_trials)
-        curve = etfe(recs, "accel_m_s2", label=f"grip {g:g} N")
-        res = fit_etfes([curve], FitOptions(), source=f"python -m renderer demo: {s.device}, grip {g:g} N, "
-                                                        f"{len(recs)} swept-sine trials", grip_N=float(g))
-        m = res.metrics
-        say(f"grip {g:g} N: order {m['order']}, delay {m['delay_s'] * 1e3:.2f} ms, RMS {m['rms_db']:.2f} dB / "
-            f"{m['rms_phase_deg']:.1f} deg over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz, "
-            f"peak {20 * np.log10(np.max(np.abs(curve.H))):.1f} dB at {curve.f_hz[np.argmax(np.abs(curve.H))]:.0f} Hz")
-        curves.append(curve)
-        models.append(res.model)
-    ModelSet(np.array([float(g) for g in s.identify_grips_N]), {"accel_m_s2": models}).save(out)
-    f = curves[0].f_hz
-    np.savez(out / "etfe.npz", f_hz=f, grip_N=np.array([c.grip_N for c in curves]),
-             H=np.array([np.interp(f, c.f_hz, c.H.real) + 1j * np.interp(f, c.f_hz, c.H.imag) for c in curves]),
-             coherence=np.array([np.interp(f, c.f_hz, c.coherence) for c in curves]))
-    return f"{len(models)} acceleration models, orders {[m.order for m in models]}"
+    cfg = IdentifyConfig(grips_N=tuple(float(g) for g in s.identify_grips_N), trials=s.identify_trials,
+                         sweep=sweep, validate=False, outputs=("accel_m_s2",), figures=False)
+    report = identify_device(dev, cfg, out, log=say, device_spec=s.device, progress=False)
+    orders = [row["accel"]["order"] for row in report["grips"] if "order" in row.get("accel", {})]
+    return f"{len(orders)} acceleration models, orders {orders}"

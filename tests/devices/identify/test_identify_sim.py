@@ -255,3 +255,20 @@ def test_identification_shows_progress_per_grip(tmp_path, capsys):
     assert [ln.split(": ", 1)[1].split(" (")[0] for ln in lines] == ["1 of 2 grips done", "2 of 2 grips done"], err
     assert "(grip 1 N)" in lines[0] and "(grip 3 N)" in lines[1]
     assert "about" in lines[0] and "left" in lines[0] and "elapsed" in lines[1]
+
+
+def test_identify_only_the_acceleration_output_without_figures(tmp_path):
+    """What the HFAM pipeline asks for (stimuli.hfam.pipeline.identify_grips): H_ha only, no Bode figures."""
+    dev = SimDevice.from_spec("lti", seed=4)
+    with dev:
+        cfg = IdentifyConfig(grips_N=(1.0, 3.0), trials=1, sweep=_sweep(dev, 0.5), validate=False, workers=1,
+                             outputs=("accel_m_s2",), figures=False)
+        report = identify_device(dev, cfg, tmp_path, log=lambda *_: None, device_spec="sim:lti", progress=False)
+    assert all("accel" in row and "position" not in row for row in report["grips"])
+    assert not list(tmp_path.glob("bode_*.png")) and not (tmp_path / "etfe_position.npz").exists()
+    data = np.load(tmp_path / "etfe_accel.npz")
+    assert data["H"].shape == (2, data["f_hz"].size) and list(data["grip_N"]) == pytest.approx([1.0, 3.0], abs=0.3)
+    mset = load_model_set(tmp_path)
+    assert set(mset.models) == {"accel_m_s2"} and list(mset.grip_N) == [1.0, 3.0]
+    with pytest.raises(ValueError, match="outputs must be some of"):
+        IdentifyConfig(outputs=("force",))
