@@ -199,7 +199,8 @@ def run_identify(args) -> int:
     from .identify.pipeline import format_report
 
     print(format_report(report), end="")
-    print(f"wrote {Path(args.out) / 'model_set.json'}, models, bode_accel.png, bode_position.png, report.txt")
+    print(f"wrote {Path(args.out) / 'model_set.json'}, models, etfe_accel.npz, etfe_position.npz, bode_accel.png, "
+          "bode_position.png, report.txt")
     return 0
 
 
