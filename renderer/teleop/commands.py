@@ -25,7 +25,7 @@ from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import ENVIRONMENTS, CimmModel, Testbed, get_environment
 
-from .cli_teleop import SWEEP_CONDITIONS, parse_lambdas
+from .options import SWEEP_CONDITIONS, parse_lambdas
 from .models import cimm_params, underestimation_check
 from .session import CONTROLLERS, TeleopConfig, default_path, run_session, session_metrics
 
