@@ -44,7 +44,8 @@ import numpy as np
 from devices import provenance
 
 from .config import RendererConfig
-from .thermal import safe_continuous_current, step_coefficients
+from .safety import safety_bounds
+from .thermal import safe_continuous_current
 from .velocity import ImpactVelocityEstimator, ls_constants
 
 # name, array typecode, numpy dtype, description (documented in docs/renderer.md)
@@ -459,17 +460,14 @@ class ServoLoop:
         c.ic = self.continuous_safe_A
         c.ipk = self.limits["peak_A"]
         c.iamp = self.limits["amplifier_A"]
-        c.heat, c.alpha = step_coefficients(info, dt)
-        tmax = info.winding_max_temp_rise_K
-        c.t_att = cfg.thermal_attenuate_frac * tmax
-        c.t_end = cfg.thermal_end_frac * tmax
+        # the safety path shared with every servo law (renderer.safety): thermal model, sensor bounds
+        b = safety_bounds(info, fs, cfg)
+        c.heat, c.alpha = b.heat_K_A2, b.alpha
+        c.t_att, c.t_end = b.t_attenuate_K, b.t_end_K
         c.inv_span = 1.0 / (c.t_end - c.t_att)
-        # sensor plausibility bounds
-        c.plim = float(cfg.position_limit_m)
-        c.alim = 2.0 * info.accel_range_m_s2
-        c.gmax = 2.0 * max(abs(info.grip_range_N[0]), abs(info.grip_range_N[1]), 1.0)
-        c.gmin = -c.gmax
-        c.max_bad = int(cfg.max_bad_samples)
+        c.plim, c.alim = b.position_limit_m, b.accel_limit_m_s2
+        c.gmin, c.gmax = b.grip_min_N, b.grip_max_N
+        c.max_bad = b.max_bad_samples
         # the scene
         c.wall = self.scene.single_wall
         c.wall_h = c.wall.height_m if c.wall is not None else 0.0

@@ -218,9 +218,18 @@ class Apparatus:
         self.device.set_user(traj, grip, hand=hand)
 
     # -- homing -------------------------------------------------------------
+    def _home(self, duration_s: float, **kw) -> int:
+        """Run homing with the apparatus' winding temperature; a safety stop ends the session."""
+        self.homing.temp_rise_K = self.temp_rise_K
+        res = self.homing.run(duration_s, **kw)
+        self.temp_rise_K = self.homing.temp_rise_K
+        if res.stop_reason in ("sensor", "disconnected", "watchdog"):
+            raise ServoStopped(f"homing stopped ({res.stop_reason}) after {res.duration_s:.2f} s, output zeroed")
+        return res.contacts
+
     def home(self, max_s: float) -> None:
         """Pre-trial homing: until settled at the home height (at most ``max_s``)."""
-        self.homing.run(max_s, until_settled=True, min_duration_s=min(0.05, max_s), realtime=bool(self.realtime))
+        self._home(max_s, until_settled=True, min_duration_s=min(0.05, max_s), realtime=bool(self.realtime))
 
     def after_window(self, duration_s: float) -> int:
         """Post-window homing; returns the number of taps on the surface (overpowering).
@@ -232,13 +241,13 @@ class Apparatus:
         """
         if self.simulated_hand and self.is_sim:
             dev = self.device
-            return self.homing.run(duration_s, until=lambda: dev.trajectory_done, check_every=100,
-                                   realtime=bool(self.realtime)).contacts
-        return self.homing.run(duration_s, realtime=bool(self.realtime)).contacts
+            return self._home(duration_s, until=lambda: dev.trajectory_done, check_every=100,
+                              realtime=bool(self.realtime))
+        return self._home(duration_s, realtime=bool(self.realtime))
 
     def hold(self, until, max_s: float = 24 * 3600.0) -> int:
         """Hold home until ``until()`` (keyboard sessions); returns surface contacts meanwhile."""
-        return self.homing.run(max_s, until=until, realtime=True).contacts
+        return self._home(max_s, until=until, realtime=True)
 
     # -- the tapping window ---------------------------------------------------
     def tap_window(self, window_s: float, first_tap_timeout_s: float, on_clip=None) -> TapResult:

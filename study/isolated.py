@@ -56,7 +56,7 @@ def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
                 # a streaming device must be commanded every tick (its watchdog zeroes it otherwise): keep homing
                 # while the parent writes data, updates the views or waits for the next request
                 while not conn.poll(0):
-                    app.homing.run(0.02, zero_at_end=False)
+                    app._home(0.02, zero_at_end=False)
             try:
                 method, args = conn.recv()
             except EOFError:
