@@ -16,15 +16,19 @@ def test_sim_device_has_no_link():
         assert link_summary(dev) == "sim (no link)"
 
 
-def test_clean_serial_link_reads_ok_with_its_round_trip():
-    port, handle = start_emulator("streaming", None, process=False, taps_m_s=(0.05,))
+def _link_after(faults, n: int):
+    """``(link_stats, link_summary)`` after ``n`` read/command cycles over the emulator with ``faults``."""
+    port, handle = start_emulator("streaming", faults, process=False, taps_m_s=(0.05,))
     try:
         with make_device(f"serial:{port}?loss_timeout_s=0.05").open() as dev:
-            _exercise(dev, 300)
-            stats = dev.link_stats()
-            line = link_summary(dev)
+            _exercise(dev, n)
+            return dev.link_stats(), link_summary(dev)
     finally:
         handle.stop()
+
+
+def test_clean_serial_link_reads_ok_with_its_round_trip():
+    stats, line = _link_after(None, 300)
     assert stats["crc_errors"] == 0 and stats["losses"] == 0, stats
     assert line.startswith("ok · rtt p99 ") and line.endswith(" ms"), line
     p99_ms = float(line.split("rtt p99 ")[1].split(" ms")[0])
@@ -32,14 +36,7 @@ def test_clean_serial_link_reads_ok_with_its_round_trip():
 
 
 def test_corrupted_frames_show_as_faults_with_their_counts():
-    port, handle = start_emulator("streaming", "corrupt_every=50", process=False, taps_m_s=(0.05,))
-    try:
-        with make_device(f"serial:{port}?loss_timeout_s=0.05").open() as dev:
-            _exercise(dev, 400)
-            stats = dev.link_stats()
-            line = link_summary(dev)
-    finally:
-        handle.stop()
+    stats, line = _link_after("corrupt_every=50", 400)
     assert stats["crc_errors"] >= 5, stats
     assert line.startswith("FAULTS: "), line
     assert f"{stats['crc_errors']} CRC" in line and f"{stats['losses']} lost" in line, (line, stats)
