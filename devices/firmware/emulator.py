@@ -112,6 +112,7 @@ class FaultSpec:
 
     @property
     def any_frame_faults(self) -> bool:
+        """True when any fault acts on whole device -> host frames (drop, corrupt, duplicate, garbage, delay)."""
         return bool(self.drop or self.corrupt or self.duplicate or self.garbage or self.delay or self.drop_every
                     or self.corrupt_every or self.drop_burst)
 
@@ -213,6 +214,7 @@ class Emulator:
         return os.ttyname(slave)
 
     def close(self) -> None:
+        """Close both ends of the emulator's pseudo-terminal (idempotent)."""
         for name in ("fd", "slave_fd"):
             fd = getattr(self, name)
             if fd is not None:
@@ -224,6 +226,18 @@ class Emulator:
 
     # -- output ---------------------------------------------------------------------
     def send(self, msg_type: int, payload: bytes = b"") -> None:
+        """Frame ``payload`` as message ``msg_type`` with the next sequence number and write it to the host.
+
+        Parameters
+        ----------
+        msg_type : int
+            Protocol message type (``devices.hardware.wire_protocol``).
+        payload : bytes
+            Message payload.
+
+        The configured :class:`FaultSpec` applies here: the frame may be dropped, corrupted, duplicated,
+        delayed or preceded by garbage bytes (counted in ``stats``).
+        """
         seq = self.seq
         self.seq = (seq + 1) & 0xFF
         frame = P.encode_frame(msg_type, seq, payload)
@@ -605,11 +619,13 @@ class EmulatorHandle:
 
     @property
     def alive(self) -> bool:
+        """True while the emulator (child process or thread) runs."""
         if self.process is not None:
             return self.process.poll() is None
         return self._thread is not None and self._thread.is_alive()
 
     def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the emulator: SIGTERM to a child process (killed after ``timeout_s`` s), or end the thread."""
         if self.process is not None:
             if self.process.poll() is None:
                 self.process.send_signal(signal.SIGTERM)

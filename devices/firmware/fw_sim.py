@@ -269,6 +269,7 @@ class FwSimHandle:
 
     @property
     def alive(self) -> bool:
+        """True while the simavr harness runs."""
         return self.process.poll() is None
 
     def stats(self, wait_s: float = 0.5) -> dict:
@@ -444,6 +445,7 @@ class FwSimDevice(SerialDevice):
 
     @property
     def name(self) -> str:
+        """``fw-sim:<pty>``: the device string's kind and the harness's pseudo-terminal."""
         return f"fw-sim:{self.port}"
 
     def _open(self) -> None:

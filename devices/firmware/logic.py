@@ -109,12 +109,32 @@ class FirmwareRenderer:
 
     # -- configuration (from host frames) -----------------------------------
     def set_wall(self, height_m: float, stiffness_N_m: float, damping_N_s_m: float, rearm_margin_m: float) -> None:
+        """WALL frame: the horizontal wall and its proportional + damping law (thesis Fig. 2.5).
+
+        Parameters
+        ----------
+        height_m : float
+            Wall height (m); contact when the handle is below it.
+        stiffness_N_m, damping_N_s_m : float
+            Wall stiffness (N/m) and damping (N s/m), both >= 0.
+        rearm_margin_m : float
+            The handle must rise this far above the wall (m) before the next contact counts.
+
+        Raises
+        ------
+        ProtocolError
+            A value is not finite, or stiffness, damping or margin is negative (the firmware NAKs).
+        """
         if not _finite(height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m) or stiffness_N_m < 0 \
                 or damping_N_s_m < 0 or rearm_margin_m < 0:
             raise P.ProtocolError("WALL needs finite height and non-negative stiffness, damping and re-arm margin")
         self.height_m, self.k, self.b, self.rearm_m = height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m
 
     def set_limits(self, continuous_A: float, peak_A: float) -> None:
+        """LIMITS frame: the wall alone at ``continuous_A``, wall + transient at ``peak_A`` (A; Fig. 4.9).
+
+        Both are clamped to the amplifier limit. Raises ProtocolError unless ``0 <= continuous <= peak``.
+        """
         if not _finite(continuous_A, peak_A) or continuous_A < 0 or peak_A < continuous_A:
             raise P.ProtocolError("LIMITS need 0 <= continuous <= peak")
         self.cont_A = min(continuous_A, self.amplifier_A)
@@ -135,6 +155,28 @@ class FirmwareRenderer:
         self.param_n = int(math.floor(p1 * self.fs + 1e-9))
 
     def table_begin(self, vels, grips, n_s: int, fs: float, gain: float, max_extrapolation: float) -> None:
+        """TABLE_BEGIN frame: announce an HFAM table (velocity x grip levels, ``n_s`` samples each, section 4.4.2).
+
+        Parameters
+        ----------
+        vels, grips : sequence of float
+            Increasing incoming-velocity (m/s, > 0) and grip (N) levels.
+        n_s : int
+            Samples per transient.
+        fs : float
+            Sample rate of the table (Hz); must equal the firmware rate.
+        gain : float
+            Output gain applied to every transient.
+        max_extrapolation : float
+            Largest factor by which a transient is scaled beyond the highest velocity level (>= 1).
+
+        Raises
+        ------
+        MemoryError
+            The table exceeds ``max_table_samples``.
+        ProtocolError
+            Wrong rate, or levels not increasing.
+        """
         if n_s * len(vels) * len(grips) > self.max_table_samples:
             raise MemoryError(f"table of {n_s * len(vels) * len(grips)} samples exceeds {self.max_table_samples}")
         if abs(fs - self.fs) > 1e-3 * self.fs:
@@ -146,6 +188,7 @@ class FirmwareRenderer:
                                max(1.0, max_extrapolation), [False])
 
     def table_data(self, offset: int, samples) -> None:
+        """TABLE_DATA frame: ``samples`` (A) at ``offset`` of the announced table; ProtocolError if outside or NaN/inf."""
         t = self._pending_table
         if t is None or offset + len(samples) > len(t[3]):
             raise P.ProtocolError(f"TABLE_DATA at offset {offset} outside the announced table")
@@ -156,6 +199,7 @@ class FirmwareRenderer:
             t[6][0] = True
 
     def table_commit(self) -> None:
+        """TABLE_COMMIT frame: switch to the uploaded table; ProtocolError before the whole table arrived."""
         t = self._pending_table
         if t is None or not t[6][0]:
             raise P.ProtocolError("TABLE_COMMIT before the whole table arrived")
@@ -164,6 +208,10 @@ class FirmwareRenderer:
         self.kind = P.TRANSIENT_TABLE
 
     def rearm_data(self, offset: int, samples) -> None:
+        """REARM_DATA frame: ``samples`` (A) at ``offset`` of the back buffer of the re-armed transient.
+
+        Raises MemoryError beyond ``max_table_samples`` and ProtocolError for NaN/inf samples.
+        """
         if offset + len(samples) > self.max_table_samples:
             raise MemoryError("re-arm buffer too large")
         if not _finite(*samples):
@@ -182,6 +230,7 @@ class FirmwareRenderer:
         self.kind = P.TRANSIENT_REARM
 
     def reset_contact(self) -> None:
+        """Forget any contact in progress: not armed until the handle is seen above the re-arm height."""
         self.armed = False  # becomes True once the handle is seen above the re-arm height
         self.in_event = False
         self.trans_k = 0
