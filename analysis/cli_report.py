@@ -12,6 +12,7 @@ from analysis.report import write_report
 
 
 def run(args: argparse.Namespace) -> int:
+    """The ``report`` command: analyse the study folder and write tables, figures and report.md/.html; returns the exit code."""
     cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha)
     out = Path(args.out)
     if out.resolve() == Path(args.data).resolve():
@@ -47,6 +48,13 @@ class _Renamed(argparse._StoreAction):
 
 
 def register(subparsers) -> None:
+    """Add the ``report`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m analysis`` sub-command parsers.
+    """
     p = subparsers.add_parser("report", help="analyse a study folder: tables, figures, report.md/.html",
                               description="Analyse DATA (folder of subject folders with session.json and "
                                           "trials.csv) and write tables, figures, report.md and report.html "

@@ -7,6 +7,7 @@ from pathlib import Path
 
 
 def run(args: argparse.Namespace) -> int:
+    """The ``synthetic`` command: write synthetic subject folders in the study's data format; returns the exit code."""
     from analysis.synthetic import write_synthetic_study
 
     out = Path(args.out)
@@ -21,6 +22,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def register(subparsers) -> None:
+    """Add the ``synthetic`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m analysis`` sub-command parsers.
+    """
     p = subparsers.add_parser("synthetic", help="write a synthetic study folder in the study's data format",
                               description="Write synthetic subject folders (session.json, trials.csv and, for "
                                           "the first --traces subjects, per-attempt traces) into OUT.")

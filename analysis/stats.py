@@ -55,6 +55,7 @@ class RatingMatrix:
     experience: np.ndarray
 
     def select(self, mask: np.ndarray) -> "RatingMatrix":
+        """The subjects where ``mask`` (bool, shape (n_subjects,)) is True, with their means, counts and experience."""
         return RatingMatrix(self.subjects[mask], self.samples, self.means[mask], self.counts[mask],
                             self.experience[mask])
 

@@ -139,6 +139,7 @@ class DeviceState:
     extra: dict = field(default_factory=dict)
 
     def copy(self) -> "DeviceState":
+        """A copy that later reads do not change (``read()`` updates its state object in place)."""
         return DeviceState(self.t_s, self.position_m, self.accel_m_s2, self.grip_N, self.status, dict(self.extra))
 
 
@@ -166,6 +167,7 @@ class Device(ABC):
 
     # -- lifecycle -------------------------------------------------------
     def open(self) -> "Device":
+        """Open the device and command 0 A; returns the device (idempotent; use as a context manager)."""
         if not self._is_open:
             self._open()
             self._is_open = True
@@ -173,6 +175,7 @@ class Device(ABC):
         return self
 
     def close(self) -> None:
+        """Command 0 A, then release the device (idempotent; the zero is sent even if closing fails)."""
         if self._is_open:
             try:
                 self._send_current(0.0)
@@ -195,6 +198,7 @@ class Device(ABC):
 
     @property
     def is_open(self) -> bool:
+        """True between ``open()`` and ``close()``."""
         return self._is_open
 
     # -- servo cycle -----------------------------------------------------
@@ -233,4 +237,5 @@ class Device(ABC):
 
     @property
     def simulated(self) -> bool:
+        """True for a simulated device (``info.simulated``)."""
         return self.info.simulated

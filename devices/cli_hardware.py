@@ -25,6 +25,13 @@ def _float_list(text: str) -> list[float]:
 
 
 def register(subparsers) -> None:
+    """Add the ``emulate`` and ``latency`` commands.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m devices`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "emulate", help="firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)",
         description="Open a pty pair, print 'PORT <slave path>', and emulate the reference firmware on it, "
@@ -164,6 +171,7 @@ def run_emulate(args) -> int:
 
 
 def percentiles_us(samples_s) -> dict:
+    """Median, p90, p99 and maximum of ``samples_s`` (s), in microseconds, as a dict."""
     import numpy as np
 
     a = np.asarray(samples_s) * 1e6
@@ -198,6 +206,7 @@ def measure_latency(dev, n: int = 2000, warmup: int = 100) -> dict:
 
 
 def run_latency(args) -> int:
+    """The ``latency`` command: round trips over the link; a device error becomes a clear error line (exit 2)."""
     from .base import DeviceError
 
     try:

@@ -64,6 +64,13 @@ def _fit_options(args, band=None, weight="mean"):
 
 
 def register(subparsers) -> None:
+    """Add the ``identify``, ``fit`` and ``validate``-family commands.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m devices`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "identify", help="identify a device: comprehensive evaluation (LTI model set) or successive isolation "
                          "(nonlinear physical model)",
@@ -168,6 +175,7 @@ IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model
 
 
 def run_identify(args) -> int:
+    """The ``identify`` command (comprehensive or successive, see ``--method``); returns the exit code."""
     import os
 
     from .identify.pipeline import IdentifyConfig, identify_device
@@ -237,6 +245,7 @@ def group_recordings(recs) -> "OrderedDict[str, list]":
 
 
 def run_fit(args) -> int:
+    """The ``fit`` command: refit models from earlier recordings (ETFE + automatic order); returns the exit code."""
     from .identify.etfe import etfe
     from .identify.figures import bode_plot
     from .identify.fit import fit_etfes

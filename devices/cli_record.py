@@ -22,6 +22,13 @@ def _velocities(text: str) -> list[float]:
 
 
 def register(subparsers) -> None:
+    """Add the ``record`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m devices`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "record", help="tap a sample and record 100 ms of handle acceleration per tap (CSV)",
         description="Tap a sample once per velocity with the motor unpowered and save the handle acceleration "
@@ -46,6 +53,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    """The ``record`` command: tap the sample once per velocity (motor off) and write the tap CSV; returns the exit code."""
     from .recording import record_taps, write_tap_recording
     from .registry import make_device
 

@@ -68,6 +68,13 @@ def _velocities(text: str) -> list[float]:
 
 
 def register(subparsers) -> None:
+    """Add the ``run`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m renderer`` sub-command parsers.
+    """
     p = subparsers.add_parser("run", help="render a virtual wall under a simulated or real user tapping",
                               description=__doc__.split("\n\n")[0] + " Outputs: events.csv, run.json, log.npz.")
     p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
@@ -113,6 +120,7 @@ def _build_config(args):
 
 
 def run_command(args) -> int:
+    """The ``run`` command: render the wall (and transient) under the tapping hand and write events.csv, run.json, log.npz; returns the exit code."""
     from devices.registry import make_device
 
     from .loop import ServoLoop

@@ -180,6 +180,7 @@ class RendererConfig:
         return out
 
     def replace(self, **changes) -> "RendererConfig":
+        """A copy with ``changes`` applied (validated like a new config)."""
         return dataclasses.replace(self, **changes)
 
 

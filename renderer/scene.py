@@ -123,6 +123,7 @@ class Box:
     shape = "box"
 
     def penetration(self, p: Vec3) -> tuple[float, Vec3]:
+        """Depth (m, > 0 inside) of point ``p`` below the nearest face of the box, and that face's outward normal."""
         d = [p[i] - self.center_m[i] for i in range(3)]
         q = [abs(d[i]) - self.half_extents_m[i] for i in range(3)]
         if q[0] <= 0.0 and q[1] <= 0.0 and q[2] <= 0.0:
@@ -207,6 +208,7 @@ class Scene:
         return best_d, best_nz
 
     def to_dict(self) -> dict:
+        """The scene as plain data (``{"objects": [...]}``), as :func:`parse_scene` reads it."""
         out = []
         for obj in self.objects:
             entry = {"shape": obj.shape}

@@ -13,6 +13,13 @@ from .recordings import read_tap_csv
 
 
 def register(subparsers) -> None:
+    """Add the ``build-library`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m stimuli`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "build-library",
         help="build an HFAM transient library (section 4.4.1)",
@@ -110,6 +117,7 @@ def expand_model_paths(paths) -> list[Path]:
 
 
 def run(args) -> int:
+    """The ``build-library`` command: taps + models -> HFAM library, verified through the forward models; returns the exit code."""
     from .hfam.build import build_library, format_verification, source_entry  # deferred: scipy.signal (~1 s)
 
     from devices.model import load_model

@@ -13,6 +13,13 @@ from .library import HfamLibrary
 
 
 def register(subparsers) -> None:
+    """Add the ``show`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m stimuli`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "show",
         help="plot an HFAM library (accelerations and currents per velocity/grip) to a PNG",
@@ -101,6 +108,7 @@ def plot_library(lib: HfamLibrary, out: Path) -> Path:
 
 
 def run(args) -> int:
+    """The ``show`` command: print a library's summary and plot it (like Figure 4.8) to a PNG; returns the exit code."""
     lib = HfamLibrary.load(args.library)
     print(summary(lib))
     out = args.out if args.out is not None else args.library.with_suffix(".png")

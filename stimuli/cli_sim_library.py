@@ -8,6 +8,13 @@ from devices.cliargs import with_examples
 
 
 def register(subparsers) -> None:
+    """Add the ``sim-library`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m stimuli`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "sim-library",
         help="record simulated taps and build the shipped default library through the sim's LTI models",
@@ -20,6 +27,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    """The ``sim-library`` command: build the shipped default library from the sim device; returns the exit code."""
     from .hfam.pipeline import build_sim_library
 
     build_sim_library(args.out)

@@ -142,6 +142,7 @@ class HfamLibrary:
 
     @property
     def duration_s(self) -> float:
+        """Length of every transient, s."""
         return self._n_t / self.fs_hz
 
     def __repr__(self) -> str:

@@ -33,11 +33,17 @@ class Transient(Protocol):
 
     name: str
 
-    def waveform(self, v_in_m_s: float, grip_N: float, fs_hz: float) -> np.ndarray: ...
+    def waveform(self, v_in_m_s: float, grip_N: float, fs_hz: float) -> np.ndarray:
+        """Force (N) for an impact at ``v_in_m_s`` (m/s) and grip ``grip_N`` (N): sample k at t = (k+1)/fs_hz."""
+        ...
 
-    def max_samples(self, fs_hz: float) -> int: ...
+    def max_samples(self, fs_hz: float) -> int:
+        """The longest waveform at ``fs_hz`` (samples): the size of the renderer's transient buffer."""
+        ...
 
-    def check_device(self, info, fs_hz: float) -> None: ...
+    def check_device(self, info, fs_hz: float) -> None:
+        """ValueError if the transient cannot play on the device ``info`` at ``fs_hz`` (rate, limits)."""
+        ...
 
 
 def _check_positive(owner: str, key: str, value: float) -> float:
@@ -186,10 +192,13 @@ class NoTransient:
     gain: float = 1.0
 
     def max_samples(self, fs_hz: float) -> int:
+        """0: no transient plays."""
         return 0
 
     def waveform(self, v_in_m_s: float, grip_N: float, fs_hz: float) -> np.ndarray:
+        """An empty waveform (N), shape (0,)."""
         return np.zeros(0)
 
     def check_device(self, info, fs_hz: float) -> None:
+        """Nothing to check: plays on any device."""
         return None

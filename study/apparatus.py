@@ -331,6 +331,7 @@ class Apparatus:
 
     # -- synthetic rater support (sim) ------------------------------------------
     def features(self, tap: TapResult) -> np.ndarray:
+        """The rater's features of a tap window (acceleration spectrum around the impacts; :func:`study.rater.tap_features`)."""
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], self.fs_hz)
 
     def record_reference(self, reference_sample: str = "wood_on_foam") -> Reference:

@@ -327,6 +327,7 @@ class MaskingAudio:
 
     # -- control -----------------------------------------------------------
     def start(self) -> "MaskingAudio":
+        """Open the PortAudio output stream and start the masking noise; returns self. AudioError if no output device."""
         sd = load_sounddevice()
         check_output_device(self.device)
         self._stream = sd.OutputStream(samplerate=self.fs_hz, blocksize=self.blocksize, device=self.device,
@@ -352,6 +353,7 @@ class MaskingAudio:
         self.play(self.cues["rate"])
 
     def cue_low_tone(self) -> None:
+        """Play the low tone (a clipped tap, section 4.5.3) over the noise."""
         self.play(self.low_tone)
 
     def wait_cues(self, timeout_s: float) -> bool:
@@ -398,19 +400,25 @@ class SilentAudio:
         self.low_tones = 0
 
     def start(self) -> "SilentAudio":
+        """Nothing to start (no audio); returns self."""
         return self
 
     def cue_tap(self) -> None:
+        """Count a "tap" cue (no sound)."""
         self.tap_cues += 1
 
     def cue_rate(self) -> None:
+        """Count a "rate" cue (no sound)."""
         self.rate_cues += 1
 
     def cue_low_tone(self) -> None:
+        """Count a low tone (no sound)."""
         self.low_tones += 1
 
     def wait_cues(self, timeout_s: float) -> bool:
+        """True at once: nothing is ever pending."""
         return True
 
     def stop(self) -> None:
+        """Nothing to stop."""
         pass

@@ -30,6 +30,13 @@ from .session import plan_session, start_session
 
 
 def register(subparsers) -> None:
+    """Add the ``run`` command (the blind realism session).
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m study`` sub-command parsers.
+    """
     p = subparsers.add_parser("run", help="run a blind realism session (sim rehearsal or real subjects)",
                               description=__doc__, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "

@@ -85,6 +85,7 @@ class ProtocolConfig:
             raise ValueError(f"cue_level_db must be between -30 and +30 dB re the noise, got {self.cue_level_db!r}")
 
     def to_dict(self) -> dict:
+        """The protocol as plain data (recorded in session.json)."""
         return asdict(self)
 
 

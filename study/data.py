@@ -387,10 +387,12 @@ class SessionStore:
         crash_point("startup: subject folder in place")
 
     def write_session(self) -> None:
+        """Rewrite session.json atomically (a crash leaves the old or the new file, never half)."""
         atomic_write_bytes(self.session_path, (json.dumps(self.session, indent=2) + "\n").encode())
         crash_point("session.json rewritten")
 
     def finish(self) -> None:
+        """Record the end time in session.json."""
         self.session["finished_at"] = utc_now()
         self.write_session()
 
@@ -430,6 +432,7 @@ class SessionStore:
 
     # -- schedule.jsonl ----------------------------------------------------
     def log_event(self, event: dict) -> None:
+        """Append one event (with its UTC time) to the schedule log and fsync it."""
         with open(self.schedule_path, "a") as fh:
             fh.write(json.dumps({"at": utc_now(), **event}) + "\n")
             fh.flush()
@@ -437,6 +440,7 @@ class SessionStore:
         crash_point(f"event logged: {event.get('event')}")
 
     def read_events(self) -> list[dict]:
+        """The schedule log's events, in order; a torn last line (a crash mid-write) is skipped."""
         events = []
         if not self.schedule_path.exists():
             return events
@@ -449,9 +453,11 @@ class SessionStore:
 
     # -- traces ----------------------------------------------------------
     def trace_path(self, phase: str, trial: int, attempt: int) -> Path:
+        """Path of the trace file of one attempt (``<phase>_t<trial>_a<attempt>.npz``)."""
         return self.traces_dir / f"{phase}_t{trial:03d}_a{attempt:02d}.npz"
 
     def write_trace(self, phase: str, trial: int, attempt: int, arrays: dict) -> Path:
+        """Write one attempt's arrays (``np.savez``) atomically; returns the path."""
         path = self.trace_path(phase, trial, attempt)
         buf = io.BytesIO()
         np.savez(buf, **arrays)

@@ -142,21 +142,27 @@ class IsolatedApparatus:
         return self._call("link_status")
 
     def now_s(self) -> float:
+        """Device time (s), from the servo process."""
         return self._call("now_s")
 
     def set_sample(self, name: str) -> None:
+        """Select the sample in the servo process (see ``Apparatus.set_sample``)."""
         self._call("set_sample", name)
 
     def start_hand(self, plan, window_s: float) -> None:
+        """Start the simulated hand's plan for a window of ``window_s`` s (servo process)."""
         self._call("start_hand", plan, window_s)
 
     def home(self, max_s: float) -> None:
+        """Pre-trial homing in the servo process (at most ``max_s`` s)."""
         self._call("home", max_s)
 
     def after_window(self, duration_s: float) -> int:
+        """Post-window homing for ``duration_s`` s; returns the surface contacts (overpowering)."""
         return self._call("after_window", duration_s)
 
     def hold(self, until, max_s: float = 24 * 3600.0) -> int:
+        """Hold home until ``until()`` (polled here, signalled to the servo process); returns contacts."""
         self._hold.clear()
 
         def check():
@@ -166,6 +172,7 @@ class IsolatedApparatus:
         return self._call("hold", max_s, on_wait=check)
 
     def tap_window(self, window_s: float, first_tap_timeout_s: float, on_clip=None):
+        """The tapping window in the servo process; clip notices reach ``on_clip`` here as they happen."""
         def drain():
             while True:
                 try:
@@ -180,11 +187,13 @@ class IsolatedApparatus:
         return result
 
     def features(self, tap):
+        """The rater's features of a tap window, computed here from the returned log."""
         from .rater import tap_features
 
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], self.fs_hz)
 
     def record_reference(self, reference_sample: str = "wood_on_foam"):
+        """Record the rater's reference taps in the servo process; returns and keeps the reference."""
         self.reference = self._call("record_reference", reference_sample)
         return self.reference
 

@@ -159,6 +159,7 @@ class SimulatedParticipant:
         return rate(score, self.profile, rng), False, score
 
     def describe(self) -> dict:
+        """The participant as plain data for session.json (grip, rater bias and noise, config)."""
         return {"kind": self.kind, "grip_N": self.grip_N, "rater_bias": self.profile.bias,
                 "rater_noise_sd": self.profile.noise_sd, "familiarization_taps": self.familiarization_taps,
                 "config": asdict(self.config)}

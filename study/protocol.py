@@ -109,6 +109,7 @@ class PhaseSchedule:
 
     @property
     def done(self) -> bool:
+        """True when every trial of the phase has a valid attempt."""
         return self.current is None and not self.pool
 
     def next(self) -> tuple[Trial, int]:
@@ -146,6 +147,7 @@ class PhaseSchedule:
         return record
 
     def summary(self) -> dict:
+        """The phase's plan and what ran: planned samples, run order (trial, attempt, sample), redraws."""
         return {"planned": [self.slots[n].trial.sample for n in self.planned],
                 "planned_trials": list(self.planned),
                 "run": [{"trial": t, "attempt": a, "sample": self.slots[t].trial.sample} for t, a in self.run_order],
@@ -177,6 +179,7 @@ class Schedule:
 
     @property
     def phase(self) -> str | None:
+        """The current phase (familiarization, demonstration, testing), or None when the session is over."""
         if not self.familiarization_done:
             return "familiarization"
         for name in ("demonstration", "testing"):
@@ -185,6 +188,7 @@ class Schedule:
         return None
 
     def next(self) -> tuple[Trial, int] | None:
+        """The next ``(trial, attempt)`` (attempt 1-based) of the current phase, or None when the session is over."""
         phase = self.phase
         if phase is None:
             return None
@@ -208,6 +212,7 @@ class Schedule:
         return self.phases[phase].record(valid, reason)
 
     def end_familiarization(self) -> None:
+        """End familiarization after the current window (the subject pressed Enter)."""
         self.familiarization_done = True
 
     def replay(self, rows, familiarization_ended: bool = False) -> None:
@@ -247,6 +252,7 @@ class Schedule:
             self.end_familiarization()
 
     def summary(self) -> dict:
+        """The plan and what ran, per phase (recorded in session.json)."""
         out = {"familiarization": {"windows": self.familiarization_windows, "sample": self.familiarization_sample}}
         for name, sched in self.phases.items():
             out[name] = sched.summary()

@@ -89,6 +89,20 @@ class Reference:
 
     @classmethod
     def fit(cls, velocities_m_s, features: np.ndarray) -> "Reference":
+        """Fit the reference from real-sample taps: log RMS linear in log velocity, centroid their median.
+
+        Parameters
+        ----------
+        velocities_m_s : array, shape (n,)
+            Incoming velocities of the taps (m/s).
+        features : ndarray, shape (n, 2)
+            Per tap: high-pass acceleration RMS (m/s^2) and spectral centroid (Hz) (:func:`tap_features`).
+
+        Raises
+        ------
+        ValueError
+            Fewer than 2 usable taps.
+        """
         v = np.asarray(velocities_m_s, float)
         ok = np.isfinite(features).all(axis=1) & (v > 0) & (features[:, 0] > 0)
         if ok.sum() < 2:
@@ -98,6 +112,7 @@ class Reference:
                    n_taps=int(ok.sum()))
 
     def rms(self, v_m_s: float) -> float:
+        """The reference's acceleration RMS (m/s^2) at incoming velocity ``v_m_s`` (m/s; at least 1 mm/s)."""
         return self.a * max(v_m_s, 1e-3) ** self.b
 
 
@@ -110,6 +125,7 @@ class RaterProfile:
 
     @classmethod
     def for_subject(cls, experience: str, rng: np.random.Generator) -> "RaterProfile":
+        """A subject's profile: bias drawn from N(0, 0.4) rating points, noise SD by ``experience``."""
         if experience not in NOISE_SD:
             raise ValueError(f"experience must be one of {list(NOISE_SD)}, got {experience!r}")
         return cls(bias=float(rng.normal(0.0, 0.4)), noise_sd=NOISE_SD[experience])

@@ -60,16 +60,19 @@ class AttemptRecord:
 
     @property
     def valid(self) -> bool:
+        """True when the attempt counts (section 4.5.3): rated, not rejected, not saturated or overpowered, tapped."""
         if self.trial.phase == "familiarization":
             return not (self.saturated or self.overpowered)
         return not (self.rejected or self.saturated or self.overpowered or self.no_tap) and self.rating is not None
 
     @property
     def reason(self) -> str:
+        """Why the attempt does not count ("" when valid)."""
         return reason_of({"valid": self.valid, "rejected": self.rejected, "saturated": self.saturated,
                           "overpowered": self.overpowered, "n_taps": len(self.velocities)})
 
     def row(self, subject: str) -> dict:
+        """The attempt as one trials.csv row for ``subject`` (lists ';'-joined)."""
         v = [float(x) for x in self.velocities]
         p = [float(x) for x in self.penetrations]
         return {
@@ -96,6 +99,7 @@ class Placement:
         self.on_stand: str | None = None
 
     def next(self, sample: str, kind: str) -> str:
+        """What the operator places on the stand for this sample (real sample, or the other placeholder); returns the text to show."""
         if kind == "real":
             item = sample
             text = f"real sample '{sample}'" + (" (lift it and place it again)" if self.on_stand == sample else "")
@@ -186,6 +190,7 @@ class StudyRunner:
 
     # -- one attempt ---------------------------------------------------------
     def run_attempt(self, trial: Trial, attempt: int) -> AttemptRecord:
+        """Run one attempt: place the sample, cue, tap window, homing, rating; returns the record (written by the caller)."""
         kind = self.kinds[trial.sample]
         fam = trial.phase == "familiarization"
         plan = None
@@ -238,12 +243,14 @@ class StudyRunner:
         return record
 
     def sim_plan(self, trial: Trial, attempt: int):
+        """The simulated participant's tapping plan for this attempt."""
         sim = self.apparatus.sim_participant
         return sim.plan(trial.phase, trial.trial, attempt,
                         self.protocol.familiarization_window_s if trial.phase == "familiarization"
                         else self.protocol.tap_window_s, self.fam_taps)
 
     def get_rating(self, trial: Trial, attempt: int, plan, tap) -> tuple[int | None, bool, int]:
+        """``(rating, rejected, contacts)``: from the simulated rater, or the subject's key while homing holds."""
         if self.participant.kind == "simulated":
             features = self.apparatus.features(tap)
             rating, rejected, _ = self.participant.rate(trial.phase, trial.trial, attempt, plan, features,
@@ -257,6 +264,7 @@ class StudyRunner:
 
     # -- the session ---------------------------------------------------------
     def run(self) -> None:
+        """Run attempts until the schedule is done; Aborted when the operator aborts."""
         while True:
             if self.ui is not None and self.ui.snapshot("operator")["aborted"]:
                 raise Aborted("the operator aborted the session")

@@ -47,6 +47,7 @@ class UiState:
 
     # -- runner side ---------------------------------------------------------
     def set_subject(self, message: str, prompt: str) -> None:
+        """Show ``message`` on the subject view with ``prompt`` (``rate`` clears the last rating)."""
         with self._cond:
             self.subject.update(message=message, prompt=prompt, hint="")
             self.subject["seq"] += 1
@@ -55,12 +56,14 @@ class UiState:
             self._cond.notify_all()
 
     def set_operator(self, **fields) -> None:
+        """Update fields of the operator view (subject, phase, trial n of N, time left, status...)."""
         with self._cond:
             self.operator.update(_json_safe(fields))
             self.operator["seq"] += 1
             self._cond.notify_all()
 
     def request_confirm(self, place: str) -> None:
+        """Ask the operator to confirm that ``place`` is on the stand."""
         with self._cond:
             self._confirmed = False
             self.operator.update(place=place, awaiting_confirm=True)
@@ -68,6 +71,7 @@ class UiState:
             self._cond.notify_all()
 
     def confirmed(self) -> bool:
+        """True once the operator confirmed and is not paused; Aborted after an abort."""
         with self._cond:
             self._check_abort()
             return self._confirmed and not self.operator["paused"]
@@ -79,6 +83,7 @@ class UiState:
             return self._rating
 
     def familiarization_ended(self) -> bool:
+        """True once the subject asked to end familiarization."""
         with self._cond:
             return self._end_familiarization
 
@@ -101,6 +106,7 @@ class UiState:
 
     # -- handler side --------------------------------------------------------
     def subject_key(self, key: str) -> dict:
+        """Handle a key from the subject view (a rating 1-7/x, or Enter in familiarization); returns the view state with ``accepted``."""
         with self._cond:
             prompt = self.subject["prompt"]
             accepted = False
@@ -122,6 +128,7 @@ class UiState:
             return {"accepted": accepted, **self.subject}
 
     def operator_action(self, action: str) -> dict:
+        """Handle an operator button (confirm, pause, resume, abort, end_familiarization); ``{"ok": ...}``."""
         with self._cond:
             if action == "confirm":
                 if not self.operator["awaiting_confirm"]:
@@ -143,5 +150,6 @@ class UiState:
             return {"ok": True}
 
     def snapshot(self, which: str) -> dict:
+        """A copy of the ``subject`` or ``operator`` view state."""
         with self._cond:
             return json.loads(json.dumps(self.subject if which == "subject" else self.operator))

@@ -318,24 +318,30 @@ class WebUI:
 
     @property
     def port(self) -> int:
+        """The TCP port the server listens on."""
         return self.httpd.server_address[1]
 
     @property
     def host(self) -> str:
+        """The address the server listens on."""
         return self.httpd.server_address[0]
 
     @property
     def subject_url(self) -> str:
+        """URL of the subject view."""
         return f"http://{self.host}:{self.port}/"
 
     @property
     def operator_url(self) -> str:
+        """URL of the operator view, with its access token."""
         return f"http://{self.host}:{self.port}/operator?token={self.token}"
 
     def start(self) -> "WebUI":
+        """Serve in a background thread; returns self."""
         self._thread.start()
         return self
 
     def stop(self) -> None:
+        """Stop serving and close the socket (the pages then show the runner stopped)."""
         self.httpd.shutdown()
         self.httpd.server_close()

@@ -29,12 +29,14 @@ class Calibration:
     grip_offset_counts: float = 0.0
 
     def to_payload(self) -> bytes:
+        """SET_CALIBRATION payload: encoder zero and sign, accelerometer and grip scale and offset."""
         return P.CALIBRATION_STRUCT.pack(int(self.encoder_zero_counts), int(self.encoder_sign),
                                          self.accel_scale_m_s2_per_count, self.accel_offset_counts,
                                          self.grip_scale_N_per_count, self.grip_offset_counts)
 
     @classmethod
     def from_payload(cls, payload: bytes) -> "Calibration":
+        """Calibration from a SET_CALIBRATION payload; ProtocolError for a bad sign or a non-positive scale."""
         zero, sign, a_s, a_o, g_s, g_o = P._unpack(P.CALIBRATION_STRUCT, payload, "SET_CALIBRATION")
         if sign not in (-1, 1):
             raise P.ProtocolError(f"SET_CALIBRATION encoder_sign must be +1 or -1, got {sign}")

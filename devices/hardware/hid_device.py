@@ -30,6 +30,7 @@ class HidDevice(ProtocolDevice):
 
     @property
     def name(self) -> str:
+        """``hid:<vid>:<pid>`` (hex)."""
         return f"hid:{self.vid:04x}:{self.pid:04x}"
 
     def _make_transport(self) -> Transport:

@@ -216,20 +216,24 @@ class ProtocolDevice(Device):
     # -- identity ------------------------------------------------------------------
     @property
     def name(self) -> str:
+        """The device string prefix this driver was opened with."""
         return self.spec_prefix
 
     @property
     def info(self) -> DeviceInfo:
+        """DeviceInfo from the hello handshake; DeviceError before ``open()``."""
         if self._info is None:
             raise DeviceError(f"{self.name}: info comes from the hello handshake; open the device first")
         return self._info
 
     @info.setter
     def info(self, value: DeviceInfo) -> None:
+        """DeviceInfo from the hello handshake; DeviceError before ``open()``."""
         self._info = value
 
     @property
     def on_device_rendering(self) -> bool:
+        """True when the firmware renders the wall and transient itself (``mode=on-device``)."""
         return self.mode == "on-device"
 
     def _make_transport(self) -> Transport:
@@ -690,6 +694,9 @@ class ProtocolDevice(Device):
             self.cal.grip_offset_counts = grp
 
     def save_calibration(self, path=None) -> Path:
+        """Write the current calibration for this device's id to ``path`` (default: the ``calibration`` option
+        or ``$HFAM_CALIBRATION``); returns the path. ValueError when no file is given.
+        """
         path = path or self.calibration_path
         if not path:
             raise ValueError("no calibration file given (calibration= option or $HFAM_CALIBRATION)")
@@ -859,6 +866,7 @@ class SerialDevice(ProtocolDevice):
 
     @property
     def name(self) -> str:
+        """``serial:<port>``."""
         return f"serial:{self.port}"
 
     def _make_transport(self) -> Transport:

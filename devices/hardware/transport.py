@@ -30,12 +30,15 @@ class Transport:
     name = "transport"
 
     def write(self, data: bytes) -> None:
+        """Send all of ``data``; TransportClosed if the link is gone."""
         raise NotImplementedError
 
     def read(self, timeout_s: float) -> bytes:
+        """Bytes received within ``timeout_s`` seconds (possibly none); TransportClosed if the link is gone."""
         raise NotImplementedError
 
     def close(self) -> None:
+        """Release the link (idempotent)."""
         raise NotImplementedError
 
 
@@ -61,6 +64,7 @@ class SerialTransport(Transport):
             pass
 
     def write(self, data: bytes) -> None:
+        """Send all of ``data`` on the port; TransportClosed if the port is gone (unplugged)."""
         try:
             if self._fd is not None:
                 view = memoryview(data)
@@ -73,6 +77,7 @@ class SerialTransport(Transport):
             raise TransportClosed(f"write to {self.name} failed: {exc}") from None
 
     def read(self, timeout_s: float) -> bytes:
+        """Whatever arrived within ``timeout_s`` s (``select`` on the descriptor); TransportClosed if the port is gone."""
         fd = self._fd
         if fd is None:  # pragma: no cover
             self._ser.timeout = timeout_s
@@ -89,6 +94,7 @@ class SerialTransport(Transport):
         return data
 
     def close(self) -> None:
+        """Close the port (errors ignored: it may already be gone)."""
         try:
             self._ser.close()
         except Exception:
@@ -129,6 +135,13 @@ class HidTransport(Transport):
 
     @classmethod
     def open(cls, vid: int, pid: int, serial_number: str | None = None) -> "HidTransport":
+        """Open the USB HID device ``vid:pid`` (first match, or the given ``serial_number``).
+
+        Raises
+        ------
+        TransportClosed
+            hidapi is missing, or no such device can be opened (the message names the device).
+        """
         try:
             import hid
         except ImportError as exc:  # pragma: no cover - hidapi is a dependency
@@ -148,6 +161,7 @@ class HidTransport(Transport):
         return cls(handle, name)
 
     def write(self, data: bytes) -> None:
+        """Send ``data`` as 64-byte HID output reports (:func:`pack_reports`); TransportClosed on failure."""
         for report in pack_reports(data):
             try:
                 n = self._h.write(b"\x00" + report)
@@ -157,6 +171,7 @@ class HidTransport(Transport):
                 raise TransportClosed(f"write to {self.name} failed (hidapi returned {n})")
 
     def read(self, timeout_s: float) -> bytes:
+        """Protocol bytes from the input reports that arrive within ``timeout_s`` s; TransportClosed on failure."""
         deadline = time.monotonic() + timeout_s
         out = b""
         while True:
@@ -175,6 +190,7 @@ class HidTransport(Transport):
                 return out
 
     def close(self) -> None:
+        """Close the HID handle (errors ignored)."""
         try:
             self._h.close()
         except Exception:

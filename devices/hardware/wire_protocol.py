@@ -154,12 +154,14 @@ def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
 
 @dataclass(frozen=True)
 class Frame:
+    """One decoded, CRC-checked frame: message ``type``, sequence number ``seq`` (0-255) and ``payload`` bytes."""
     type: int
     seq: int
     payload: bytes
 
     @property
     def type_name(self) -> str:
+        """The message type's name (``"STATE"``), or its hex code if unknown."""
         return TYPE_NAMES.get(self.type, f"0x{self.type:02x}")
 
 
@@ -180,10 +182,12 @@ class FrameParser:
         self.garbage_bytes = 0
 
     def reset(self) -> None:
+        """Drop every byte not yet parsed (after a reconnect)."""
         self._buf.clear()
 
     @property
     def pending_bytes(self) -> int:
+        """Bytes received but not yet part of a complete frame."""
         return len(self._buf)
 
     def skip_partial(self) -> list[Frame]:
@@ -199,6 +203,19 @@ class FrameParser:
         return self.feed(b"")
 
     def feed(self, chunk: bytes) -> list[Frame]:
+        """Add received bytes; return the complete, CRC-valid frames found, in order.
+
+        Parameters
+        ----------
+        chunk : bytes
+            Bytes as read from the link (any split).
+
+        Returns
+        -------
+        list of Frame
+            Garbage before a sync and frames with a bad CRC are skipped (counted in ``garbage_bytes`` and
+            ``crc_errors``); an incomplete frame stays pending for the next call.
+        """
         buf = self._buf
         buf += chunk
         out: list[Frame] = []
@@ -246,10 +263,12 @@ def _unpack(st: struct.Struct, payload: bytes, what: str) -> tuple:
 
 
 def encode_current(current_A: float) -> bytes:
+    """CURRENT payload: the motor current command in A (float32)."""
     return CURRENT_STRUCT.pack(current_A)
 
 
 def decode_current(payload: bytes) -> float:
+    """The current (A) of a CURRENT payload; ProtocolError if the payload has the wrong size."""
     (value,) = _unpack(CURRENT_STRUCT, payload, "CURRENT")
     return value
 
@@ -269,15 +288,38 @@ class RawState:
 
 def encode_state(t_us: int, encoder: int, accel_raw: int, grip_raw: int, status: int, cmd_seq: int,
                  current_mA: int) -> bytes:
+    """STATE payload: the raw sensor values of one firmware tick.
+
+    Parameters
+    ----------
+    t_us : int
+        Device clock (us, wraps at 2^32).
+    encoder : int
+        Encoder count.
+    accel_raw, grip_raw : int
+        Raw ADC counts of the accelerometer and the grip sensor.
+    status : int
+        Status bits (``Status``).
+    cmd_seq : int
+        Sequence number of the last command applied.
+    current_mA : int
+        The current applied (mA).
+    """
     return STATE_STRUCT.pack(t_us & 0xFFFFFFFF, encoder, accel_raw, grip_raw, status & 0xFF, cmd_seq & 0xFF,
                              current_mA)
 
 
 def decode_state(payload: bytes) -> RawState:
+    """A :class:`RawState` from a STATE payload; ProtocolError if the payload has the wrong size."""
     return RawState(*_unpack(STATE_STRUCT, payload, "STATE"))
 
 
 def encode_event(event: dict) -> bytes:
+    """EVENT payload from an event dict (keys as :func:`decode_event` returns them).
+
+    A contact event: time (us), incoming velocity (m/s), grip (N), maximum penetration (m), peak
+    acceleration (m/s^2), clipped and watchdog flags, transient kind and event index.
+    """
     flags = (EVENT_FLAG_CLIPPED if event.get("clipped") else 0) | (EVENT_FLAG_WATCHDOG if event.get("watchdog") else 0)
     return EVENT_STRUCT.pack(int(event["t_us"]) & 0xFFFFFFFF, event["incoming_velocity_m_s"], event["grip_N"],
                              event["max_penetration_m"], event["peak_accel_m_s2"], flags, event.get("kind", 0),
@@ -285,6 +327,14 @@ def encode_event(event: dict) -> bytes:
 
 
 def decode_event(payload: bytes) -> dict:
+    """An EVENT payload as a dict.
+
+    Returns
+    -------
+    dict
+        ``t_us``, ``incoming_velocity_m_s``, ``grip_N``, ``max_penetration_m``, ``peak_accel_m_s2``,
+        ``clipped``, ``watchdog``, ``kind``, ``transient`` (the kind's name) and ``index``.
+    """
     t_us, v_in, grip, pen, peak, flags, kind, index = _unpack(EVENT_STRUCT, payload, "EVENT")
     return {"t_us": t_us, "incoming_velocity_m_s": v_in, "grip_N": grip, "max_penetration_m": pen,
             "peak_accel_m_s2": peak, "clipped": bool(flags & EVENT_FLAG_CLIPPED),
@@ -316,6 +366,7 @@ class WireInfo:
 
 
 def capability_names(bits: int) -> tuple[str, ...]:
+    """Names of the capability bits set in ``bits`` (``("streaming", "on_device", ...)``)."""
     return tuple(name for bit, name in sorted(CAPABILITY_NAMES.items()) if bits & bit)
 
 
@@ -327,6 +378,7 @@ def _short_str(text: str, limit: int, what: str) -> bytes:
 
 
 def encode_info(w: WireInfo) -> bytes:
+    """INFO payload: protocol and firmware versions, device constants and calibration of ``w``."""
     i = w.info
     fixed = INFO_STRUCT.pack(
         w.protocol_version[0], w.protocol_version[1], *w.firmware_version,
@@ -379,6 +431,26 @@ def decode_info(payload: bytes) -> WireInfo:
 
 def encode_table_begin(velocities_m_s, grips_N, n_samples: int, fs_hz: float, gain: float = 1.0,
                        max_extrapolation: float = 1.0) -> bytes:
+    """TABLE_BEGIN payload announcing an HFAM table (section 4.4.2).
+
+    Parameters
+    ----------
+    velocities_m_s, grips_N : sequence of float
+        The table's velocity (m/s) and grip (N) levels.
+    n_samples : int
+        Samples per transient.
+    fs_hz : float
+        Sample rate of the table (Hz).
+    gain : float
+        Output gain.
+    max_extrapolation : float
+        Largest scaling beyond the highest velocity level.
+
+    Raises
+    ------
+    ValueError
+        Too many levels for one frame.
+    """
     v = [float(x) for x in velocities_m_s]
     g = [float(x) for x in grips_N]
     body = (TABLE_BEGIN_STRUCT.pack(len(v), len(g), n_samples, fs_hz, gain, max_extrapolation)
@@ -401,6 +473,7 @@ def decode_table_begin(payload: bytes) -> tuple[list[float], list[float], int, f
 
 
 def encode_data_chunk(offset: int, samples) -> bytes:
+    """TABLE_DATA / REARM_DATA payload: ``offset`` (samples) and up to ``TABLE_CHUNK_SAMPLES`` float32 samples (A)."""
     samples = list(samples)
     if len(samples) > TABLE_CHUNK_SAMPLES:
         raise ValueError(f"at most {TABLE_CHUNK_SAMPLES} samples per data frame")
@@ -408,6 +481,7 @@ def encode_data_chunk(offset: int, samples) -> bytes:
 
 
 def decode_data_chunk(payload: bytes) -> tuple[int, tuple[float, ...]]:
+    """``(offset, samples)`` of a TABLE_DATA / REARM_DATA payload; ProtocolError if malformed."""
     if len(payload) < 4 or (len(payload) - 4) % 4:
         raise ProtocolError(f"data chunk payload of {len(payload)} bytes is not offset + float32 samples")
     (offset,) = DATA_OFFSET_STRUCT.unpack_from(payload)
@@ -416,6 +490,7 @@ def decode_data_chunk(payload: bytes) -> tuple[int, tuple[float, ...]]:
 
 
 def describe_nak(payload: bytes) -> str:
+    """A NAK payload as one line for people: which request was refused, why, and the device's text."""
     if len(payload) < NAK_STRUCT.size:
         return "NAK (malformed)"
     t, s, code = NAK_STRUCT.unpack_from(payload)

@@ -57,6 +57,7 @@ class Etfe:
 
     @property
     def band_hz(self) -> tuple[float, float]:
+        """``(lowest, highest)`` frequency of the estimate, Hz."""
         return float(self.f_hz[0]), float(self.f_hz[-1])
 
 

@@ -59,6 +59,7 @@ class Recording:
 
     @property
     def label(self) -> str:
+        """The file the recording came from, or ``recording(<trial>)`` for one in memory."""
         return str(self.path) if self.path is not None else f"recording({self.meta.get('trial', '?')})"
 
     def grip_variation_N(self) -> float:
@@ -88,6 +89,7 @@ def analysed_slice(rec: Recording) -> tuple[int, int]:
 
 
 def sidecar_path(csv_path) -> Path:
+    """The ``.json`` metadata file that goes with a recording CSV."""
     return Path(csv_path).with_suffix(".json")
 
 

@@ -203,6 +203,7 @@ class SimDevice(Device):
 
     @motor_enabled.setter
     def motor_enabled(self, on: bool) -> None:
+        """False: commands are ignored (zero motor current), e.g. for real-sample taps."""
         self._p[K.P_MOTOR_ON] = 1.0 if on else 0.0
 
     @property

@@ -174,9 +174,11 @@ class ScriptedTrajectory:
         self.duration_s = float(t[-1])
 
     def position(self, t_s) -> np.ndarray:
+        """Hand target position (m) at ``t_s`` (s, scalar or array), linearly interpolated; shape of ``t_s`` (1-D)."""
         return np.interp(np.atleast_1d(np.asarray(t_s, dtype=float)), self.t_s, self.x_m)
 
     def sample(self, fs_hz: float) -> np.ndarray:
+        """The target position (m) at ``fs_hz`` from 0 to the end of the script, shape (n,)."""
         n = int(math.ceil(self.duration_s * fs_hz)) + 1
         return self.position(np.arange(n) / fs_hz)
 
@@ -189,9 +191,11 @@ class HoldTrajectory:
         self.duration_s = 0.0
 
     def position(self, t_s) -> np.ndarray:
+        """The hold position (m) at every time in ``t_s``; shape of ``t_s`` (1-D)."""
         return np.full(np.shape(np.atleast_1d(t_s)), self.x_m)
 
     def sample(self, fs_hz: float) -> np.ndarray:
+        """One sample: the hold position (m), shape (1,)."""
         return np.array([self.x_m])
 
 

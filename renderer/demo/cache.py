@@ -69,14 +69,17 @@ class Pipeline:
 
     @property
     def etfe_npz(self) -> Path:
+        """The identification's acceleration ETFEs (``identify/etfe_accel.npz``)."""
         return self.directory / "identify" / "etfe_accel.npz"
 
     @property
     def recordings_csv(self) -> Path:
+        """The real-sample tap recordings the library was built from."""
         return self.directory / "recordings.csv"
 
     @property
     def library_npz(self) -> Path:
+        """The HFAM library file."""
         return self.directory / "library.npz"
 
 

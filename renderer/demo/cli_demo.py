@@ -18,6 +18,13 @@ from .sim_demo import format_table, run_sim_demo
 
 # ---------------------------------------------------------------------------------------------- CLI
 def register(subparsers) -> None:
+    """Add the ``demo`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``python -m renderer`` sub-command parsers.
+    """
     p = subparsers.add_parser(
         "demo", help="virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample",
         description="Reproduce the HFAM pipeline end to end (thesis 4.4.3, 4.5.5): identify the device at several "
@@ -69,6 +76,7 @@ def _floats(text: str | None, what: str) -> tuple | None:
 
 
 def run(args) -> int:
+    """The ``demo`` command: the sim demo (or, with a hardware device, the person-tapping demo); returns the exit code."""
     if not args.device.startswith("sim"):
         from .hw_demo import run_hardware_demo
 

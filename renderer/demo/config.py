@@ -83,6 +83,7 @@ class DemoResult:
     reactive: dict = field(default_factory=dict)
 
     def row(self, rendering: str, velocity_m_s: float, grip_N: float) -> dict:
+        """The summary row of one rendering at one velocity (m/s) and grip (N); KeyError if there is none."""
         for r in self.rows:
             if r["rendering"] == rendering and r["velocity_m_s"] == velocity_m_s and r["grip_N"] == grip_N:
                 return r

@@ -84,6 +84,7 @@ class TextScope:
         self.lines = 0
 
     def update(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, n_events: int, n_taps: int) -> None:
+        """Redraw the one-line scope: taps so far, time (s), position (mm) and a sparkline of |a| (m/s^2)."""
         if a.size == 0:
             return
         tail = np.abs(a[-min(a.size, 60):])
@@ -95,6 +96,7 @@ class TextScope:
         self.lines += 1
 
     def close(self) -> None:
+        """End the scope's line."""
         self.stream.write("\n")
         self.stream.flush()
 
@@ -116,6 +118,7 @@ class WindowScope:
         self.fig.show()
 
     def update(self, t, x, a, n_events, n_taps) -> None:
+        """Redraw the window with the last samples: time ``t`` (s), position ``x`` (m), acceleration ``a`` (m/s^2)."""
         if a.size < 2:
             return
         self.la.set_data(t, a)
@@ -129,6 +132,7 @@ class WindowScope:
         self.fig.canvas.flush_events()
 
     def close(self) -> None:
+        """Close the scope window."""
         self.plt.close(self.fig)
 
 

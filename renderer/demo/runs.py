@@ -62,6 +62,7 @@ class Rendering:
 
     @property
     def is_real(self) -> bool:
+        """True for a real sample under the stylus (motor off), not a virtual rendering."""
         return self.sample != "placeholder"
 
 
@@ -95,15 +96,19 @@ class FixedGripTransient:
         self.grip_N = float(grip_N)
 
     def waveform(self, v_in_m_s: float, grip_N: float, fs_hz: float) -> np.ndarray:
+        """The library's transient for ``v_in_m_s`` at the fixed grip (``grip_N`` is ignored), N, shape (n,)."""
         return self.library.waveform(v_in_m_s, self.grip_N, fs_hz)
 
     def max_samples(self, fs_hz: float) -> int:
+        """The library's transient length at ``fs_hz``."""
         return self.library.max_samples(fs_hz)
 
     def check_device(self, info, fs_hz: float) -> None:
+        """The library's device check (ValueError if it cannot play on ``info`` at ``fs_hz``)."""
         self.library.check_device(info, fs_hz)
 
     def current_into(self, v_in_m_s: float, grip_N: float, out) -> int:
+        """Write the fixed-grip transient's current (A) for ``v_in_m_s`` into ``out``; returns its length."""
         return self.library.current_into(v_in_m_s, self.grip_N, out)
 
 

@@ -284,5 +284,6 @@ def file_digest(path) -> str:
 
 
 def source_entry(path) -> dict:
+    """``{"path", "sha256"}`` of an input file, for the library's provenance."""
     p = Path(path)
     return {"path": str(p), "sha256": file_digest(p)}

@@ -203,6 +203,7 @@ class PipelineSettings:
             raise ValueError(f"record_grip_N must be >= 0 N, got {self.record_grip_N!r}")
 
     def to_dict(self) -> dict:
+        """The settings as plain JSON-able data (tuples as lists)."""
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
 
 
@@ -217,16 +218,19 @@ class Progress:
         self._t0 = 0.0
 
     def start(self, what: str) -> None:
+        """Begin step ``i`` of ``n``: print ``[i/n] what ...`` and start its clock."""
         self.i += 1
         self._t0 = time.perf_counter()
         self.say(f"[{self.i}/{self.n}] {what} ...", indent=False)
 
     def done(self, note: str = "") -> float:
+        """End the step: print its wall time (and ``note``); returns the time in s."""
         dt = time.perf_counter() - self._t0
         self.say(f"done in {dt:.1f} s{(': ' + note) if note else ''}")
         return dt
 
     def say(self, msg: str, indent: bool = True) -> None:
+        """Print one line (indented under the step unless ``indent`` is False), unless quiet."""
         if not self.quiet:
             print(("      " if indent else "") + msg, file=self.stream, flush=True)
 
