@@ -20,8 +20,8 @@ def run(args: argparse.Namespace) -> int:
     if out.is_file() or (out.is_dir() and any(out.iterdir()) and not args.force):
         raise ValueError(f"{out} exists and is not empty; not overwriting an earlier report: choose another --out "
                          "or pass --force to replace it")
-    from analysis.load import AnalysisWarning
-    from analysis.pipeline import analyse
+    from analysis.load import AnalysisWarning  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads only what it runs)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", AnalysisWarning)
         res = analyse(args.data, cfg)

@@ -8,7 +8,9 @@ from pathlib import Path
 
 def run(args: argparse.Namespace) -> int:
     """The ``synthetic`` command: write synthetic subject folders in the study's data format; returns the exit code."""
-    from analysis.synthetic import write_synthetic_study
+    from analysis.synthetic import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        write_synthetic_study,
+    )
 
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):

@@ -115,7 +115,7 @@ def _matrices(pairwise: pd.DataFrame, samples) -> tuple[np.ndarray, np.ndarray]:
 
 def p_norm(alpha: float = 0.05):
     """Colour normalisation of Figure 4.18: log10 of the Holm p, diverging at log10(alpha)."""
-    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.colors import TwoSlopeNorm  # deferred: matplotlib costs ~0.3 s; figures only
 
     return TwoSlopeNorm(vcenter=float(np.log10(alpha)), vmin=LOG_P_FLOOR, vmax=0.0)
 
@@ -134,7 +134,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
         One row per plotted cell: ``group, row, col, sample_row, sample_col, p_holm, log10_p_holm,
         stars, cohen_dz`` (row minus column).
     """
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Rectangle  # deferred: matplotlib costs ~0.3 s; figures only
 
     groups = list(dict.fromkeys(pairwise["group"]))
     k = len(samples)

@@ -14,6 +14,7 @@ import io
 import json
 import os
 import warnings
+import warnings as _w
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -261,8 +262,6 @@ def _fast_trials(folders: list[Path]) -> tuple[pd.DataFrame, list] | None:
     line and column. Returns the typed table (columns of :data:`TRIAL_COLUMNS`, ``file``,
     ``line``) and ``[(trials path, rows)]``.
     """
-    import warnings as _w
-
     buf = bytearray()
     header, file_of_row, lines = None, [], []
     for folder in folders:
@@ -483,8 +482,6 @@ def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarr
 def _fast_lists(cells: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`parse_lists` in one C parse for clean cells; None when a cell has an empty token, a '|',
     or a token that is not a number (then the exact parser runs and names the cell)."""
-    import warnings as _w
-
     if not all(isinstance(c, str) for c in cells):
         return None
     counts = np.fromiter((c.count(";") + 1 if c else 0 for c in cells), dtype=np.int64, count=len(cells))

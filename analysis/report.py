@@ -4,8 +4,17 @@ from __future__ import annotations
 
 import base64
 import html
+import platform
+from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
+
+from analysis import figures
+from analysis.pipeline import write_tables
+from analysis.stats import valid_testing
+from analysis.traces import typical_taps
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
     import pandas as pd
@@ -35,7 +44,6 @@ FIGURES = {
 
 
 def _fmt(v) -> str:
-    import numpy as np
     if isinstance(v, (bool, np.bool_)):
         return "yes" if v else "no"
     if isinstance(v, (float, np.floating)):
@@ -64,7 +72,6 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
     Returns the summary lines (markdown emphasis with ``**``) and, per group, one line per
     significantly different pair.
     """
-    import numpy as np
     cfg, out, pairs = res.config, [], {}
     subj = res.study.subjects
     exp_counts = subj["experience"].value_counts()
@@ -136,12 +143,6 @@ def _strong(text: str) -> str:
 
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
     """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures)."""
-    import numpy as np
-
-    from analysis import figures
-    from analysis.stats import valid_testing
-    from analysis.traces import typical_taps
-
     alpha = res.config.alpha
     written = [figures.fig_ratings(res.summary, out / "fig_4_17_ratings.png"),
                figures.fig_pvalues(res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha),
@@ -172,9 +173,6 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) ->
 
 def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
     """(label, value) rows of the report's provenance: versions, seeds, folders, settings."""
-    import platform
-    from importlib import metadata
-
     subj = res.study.subjects
     versions = []
     for dist in ("hfam-haptics", "numpy", "scipy", "pandas", "statsmodels", "matplotlib"):
@@ -305,7 +303,6 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
 
     Returns a dict with ``tables``, ``figures`` (paths), ``notes`` and ``md``/``html`` paths.
     """
-    from analysis.pipeline import write_tables
     out = Path(out_dir)
     tables = write_tables(res, out)
     fig_paths, notes = make_figures(res, out, target_v_m_s) if figures else ([], ["Figures not requested."])

@@ -13,11 +13,14 @@ renamed array degrades Figure 4.20 to a note in the report instead of an error:
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from analysis.load import parse_lists
 
 TIME_KEYS = ("t_s", "time_s", "t")
 ACCEL_KEYS = ("accel_m_s2", "acceleration_m_s2", "handle_accel_m_s2", "a_m_s2", "accel")
@@ -140,8 +143,6 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
     notes : list of str
         Why samples have no tap (no trace files, unreadable keys).
     """
-    from analysis.load import parse_lists
-
     notes = []
     n_rows = len(trials)
     # all velocities in one vectorised parse (linear in rows; a Python loop per row was not)
@@ -162,8 +163,6 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
 
     def parsed(r):
         return allv[starts[r]:starts[r + 1]]
-
-    import os
 
     # only subjects that saved any trace can give a tap (one directory listing per subject, not a stat
     # per attempt): with thousands of subjects the nearest velocities are otherwise all trace-less

@@ -7,12 +7,18 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
+
+from analysis.stats import RatingMatrix, pairwise_ttests
+from analysis.synthetic import write_synthetic_study
 
 SIZES = (100, 1000, 10000)
 TARGET_S = 5.0            # full report of 10,000 subjects, whole process
@@ -45,9 +51,6 @@ def _report(data: Path, out: Path) -> dict:
 
 
 def _ttest_ms(n: int, repeats: int = 5) -> float:
-    import numpy as np
-
-    from analysis.stats import RatingMatrix, pairwise_ttests
     rng = np.random.default_rng(0)
     m = rng.integers(1, 8, (n, 12)).astype(float)
     m[3, 2] = np.nan                       # one subject missing one sample: two subject sets
@@ -63,8 +66,6 @@ def _ttest_ms(n: int, repeats: int = 5) -> float:
 
 
 def main(repeats: int = 3, sizes=SIZES) -> dict:
-    from analysis.synthetic import write_synthetic_study
-
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
@@ -82,7 +83,6 @@ def main(repeats: int = 3, sizes=SIZES) -> dict:
                   f"{wall:.2f} s of {repeats} (CPU {cpu:.2f} s), target {TARGET_S:.0f} s -> ratio "
                   f"{wall / TARGET_S:.2f}; peak memory {peak:.0f} MB, target {TARGET_MB:.0f} MB -> ratio "
                   f"{peak / TARGET_MB:.2f}; t-test matrix {ttest:.1f} ms", flush=True)
-            import shutil
             shutil.rmtree(data, ignore_errors=True)
     if len(results) > 1:
         ns = sorted(results)

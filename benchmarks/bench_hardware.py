@@ -7,18 +7,17 @@ microcontroller); the host is SerialDevice. Targets (issue 8): streaming
 
 from __future__ import annotations
 
+import os
 import time
+
+from devices.cli_hardware import measure_latency, percentiles_us, set_realtime_priority
+from devices.firmware.emulator import start_emulator
+from devices.hardware import wire_protocol as P
+from devices.hardware.serial_device import SerialDevice
+from stimuli.transients import Pulse
 
 
 def _streaming(n: int = 5000, process: bool = True, rt_priority: int | None = None) -> dict:
-    from devices.cli_hardware import measure_latency
-    from devices.firmware.emulator import start_emulator
-    from devices.hardware.serial_device import SerialDevice
-
-    import os
-
-    from devices.cli_hardware import set_realtime_priority
-
     port, handle = start_emulator("streaming", process=process, rt_priority=rt_priority)
     try:
         with SerialDevice(port) as dev:
@@ -37,12 +36,6 @@ def _streaming(n: int = 5000, process: bool = True, rt_priority: int | None = No
 
 def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict:
     """A host loop paced at 1 kHz (sleep then spin): achieved rate and round trips."""
-    import os
-
-    from devices.cli_hardware import percentiles_us, set_realtime_priority
-    from devices.firmware.emulator import start_emulator
-    from devices.hardware.serial_device import SerialDevice
-
     port, handle = start_emulator("streaming", process=True, rt_priority=rt_priority)
     try:
         with SerialDevice(port) as dev:
@@ -76,10 +69,6 @@ def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict
 
 
 def _on_device(duration_s: float = 2.0) -> dict:
-    from devices.firmware.emulator import start_emulator
-    from devices.hardware.serial_device import SerialDevice
-    from stimuli.transients import Pulse
-
     port, handle = start_emulator("on-device", process=True, pace="realtime")
     try:
         with SerialDevice(port, mode="on-device") as dev:
@@ -103,8 +92,6 @@ def _on_device(duration_s: float = 2.0) -> dict:
 
 def _codec(n: int = 50_000) -> tuple[float, float]:
     """Host cost per frame (us): parse + CRC + decode of a STATE frame, encode of a CURRENT frame."""
-    from devices.hardware import wire_protocol as P
-
     frame = P.encode_frame(P.STATE, 1, P.encode_state(1, 2, 3, 4, 0, 5, 6))
     parser = P.FrameParser()
     t0 = time.perf_counter()
@@ -118,8 +105,6 @@ def _codec(n: int = 50_000) -> tuple[float, float]:
 
 
 def main() -> None:
-    import os
-
     parse_us, encode_us = _codec()
     print(f"host codec: parse + CRC + decode STATE {parse_us:.2f} us/frame, encode CURRENT {encode_us:.2f} us/frame")
 

@@ -3,17 +3,24 @@ and the time to record one such trial on the simulated device."""
 
 from __future__ import annotations
 
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import numpy as np
 
+from devices.identify.etfe import etfe
+from devices.identify.fit import FitOptions, fit_etfes
+from devices.identify.record import record_trial
+from devices.identify.sweep import SweepConfig
+from devices.identify.synthetic import synthetic_recording
+from devices.sim import SimDevice
+
 
 def _synthetic_trials():
-    from devices.identify.sweep import SweepConfig
-    from devices.identify.synthetic import synthetic_recording
-    from devices.sim import SimDevice
-
     dev = SimDevice.from_spec("lti")
     model = dev.linear_model(2.0, "accel_m_s2")
     pos = dev.linear_model(2.0, "position_m")
@@ -26,12 +33,6 @@ def _synthetic_trials():
 
 
 def main() -> None:
-    from devices.identify.etfe import etfe
-    from devices.identify.fit import FitOptions, fit_etfes
-    from devices.identify.record import record_trial
-    from devices.identify.sweep import SweepConfig
-    from devices.sim import SimDevice
-
     recs = _synthetic_trials()
     fit_etfes([etfe(recs)], FitOptions())  # warm-up (imports, caches)
     times, etfe_times, orders = [], [], []
@@ -69,11 +70,6 @@ def main() -> None:
 def whole_process_grips() -> None:
     """``python -m devices identify`` with the default six grips, whole process (target < 5 s, issue 21):
     grips in parallel processes (``--workers`` = cores) against one process."""
-    import os
-    import subprocess
-    import sys
-    import tempfile
-
     for workers in (os.cpu_count() or 1, 1):
         times = []
         for _ in range(3):

@@ -25,10 +25,15 @@ import threading
 
 import numpy as np
 
+import stimuli
+from devices.base import Device, DeviceState
+from devices.sim import SimDevice, TapTrajectory
+from renderer import RendererConfig, ServoLoop
+from renderer.process import run_in_process
+from renderer.scene import Box, Scene, Sphere, Wall
+
 
 def _sim(n_taps=10, velocity=0.15, grip=2.0):
-    from devices.sim import SimDevice, TapTrajectory
-
     dev = SimDevice()
     traj = TapTrajectory(velocity, n_taps=n_taps)
     dev.set_user(traj, grip_N=grip)
@@ -37,12 +42,9 @@ def _sim(n_taps=10, velocity=0.15, grip=2.0):
 
 def make_replay_device(position_m, accel_m_s2, grip_N):
     """A Device replaying recorded sensor arrays; read/command cost only an index step (no physics)."""
-    from devices.base import Device, DeviceState
-
     class ReplayDevice(Device):
         def __init__(self):
             super().__init__()
-            from devices.sim import SimDevice
 
             self.info = SimDevice().info
             self.x = [float(v) for v in position_m]
@@ -80,10 +82,6 @@ def make_replay_device(position_m, accel_m_s2, grip_N):
 
 
 def bench_compute(repeats=5):
-    import stimuli
-
-    from renderer import RendererConfig, ServoLoop
-
     dev, traj = _sim(n_taps=6)
     rec = ServoLoop(dev, RendererConfig(), stimuli.Pulse()).run(until=lambda lp: dev.trajectory_done)
     log = rec.log
@@ -106,7 +104,6 @@ def bench_compute(repeats=5):
     print(f"   event work at a crossing (velocity fit, transient lookup; after command(), a cold code path): median "
           f"{statistics.median(event):.0f} us, max {max(event):.0f} us over {len(event)} events")
     # a composed 3-D scene (generic collision path instead of the inlined wall)
-    from renderer.scene import Box, Scene, Sphere, Wall
 
     scene = Scene((Wall(0.0), Sphere((0.0, 0.0, -0.1), 0.09), Box((0.0, 0.0, -0.05), (0.02, 0.02, 0.045))))
     rdev = make_replay_device(log["position_m"], log["accel_m_s2"], log["grip_N"])
@@ -117,8 +114,6 @@ def bench_compute(repeats=5):
 
 
 def bench_closed_loop(repeats=3, seconds=5.0):
-    from renderer import RendererConfig, ServoLoop
-
     dev, _ = _sim()
     ServoLoop(dev, RendererConfig()).run(max_ticks=100)  # numba JIT warm-up
     factors, cpu_factors, cpu = [], [], []
@@ -135,8 +130,6 @@ def bench_closed_loop(repeats=3, seconds=5.0):
 
 
 def bench_pacing(seconds=10.0, modes=("sleep_spin", "spin")):
-    from renderer import RendererConfig, ServoLoop
-
     out = {}
     for mode in modes:
         dev, _ = _sim(n_taps=30)
@@ -168,9 +161,6 @@ def _busy_ui_thread(stop: threading.Event):
 
 
 def bench_gil(seconds=3.0):
-    from renderer import RendererConfig, ServoLoop
-    from renderer.process import run_in_process
-
     rows = {}
     for label in ("same process", "own process"):
         stop = threading.Event()

@@ -13,6 +13,9 @@ from __future__ import annotations
 import statistics
 import time
 
+from devices.sim import SimDevice, TapTrajectory
+from devices.sim import kernel as K
+
 N_TICKS = 20000
 REPEATS = 7
 
@@ -30,9 +33,6 @@ def _median_rate(fn) -> tuple[float, float]:
 
 
 def main() -> dict:
-    from devices.sim import SimDevice, TapTrajectory
-    from devices.sim import kernel as K
-
     results = {}
     for spec, label in ((None, "nonlinear"), ("lti", "lti")):
         dev = SimDevice.from_spec(spec)
@@ -78,8 +78,6 @@ def tap_setup() -> dict:
     ``renderer run --taps 10`` and ``--taps 400``), medians of 5, and prints
     the per-tap cost ratio (target <= 1, with 20 % allowance for timing noise).
     """
-    from devices.sim import SimDevice, TapTrajectory
-
     dev = SimDevice()
     out = {}
     for n in (10, 400):

@@ -34,7 +34,7 @@ PACKAGES = ("devices", "renderer", "stimuli", "study", "analysis")
 
 def _commands(package: str) -> list[str]:
     """The subcommands a package's ``__main__`` lists (from its table, without importing them)."""
-    import importlib
+    import importlib  # deferred: the import is what this benchmark times
 
     main = importlib.import_module(f"{package}.__main__")
     table = getattr(main, "COMMANDS", None)

@@ -12,6 +12,10 @@ import time
 
 import numpy as np
 
+from devices.model import ZpkModel
+from stimuli.hfam import BuildSettings, build_library
+from stimuli.recordings import Tap
+
 FS_HZ = 10000.0
 
 
@@ -22,9 +26,6 @@ def _pair(f_hz, zeta):
 
 
 def _inputs():
-    from devices.model import ZpkModel
-    from stimuli.recordings import Tap
-
     t = np.arange(-50, 1001) / FS_HZ
     taps = []
     for i, v in enumerate(np.linspace(0.03, 0.35, 16)):
@@ -48,8 +49,6 @@ def _median_time(fn, repeat):
 
 
 def main() -> None:
-    from stimuli.hfam import BuildSettings, build_library
-
     taps, models = _inputs()
     settings = BuildSettings(n_velocities=8)
     lib, _ = build_library(taps, FS_HZ, models, settings, force_per_amp_N_A=2.35)  # warm-up

@@ -15,17 +15,30 @@ import csv
 import io
 import statistics
 import tempfile
+import threading
 import time
+import urllib.request
 from pathlib import Path
+
+import numpy as np
+
+from devices.sim import SimDevice
+from stimuli import load_catalog
+from study.__main__ import main as study_main
+from study.apparatus import Apparatus
+from study.audio import MaskingAudio
+from study.config import ProtocolConfig
+from study.isolated import IsolatedApparatus
+from study.participants import SimulatedParticipant
+from study.uistate import UiState
+from study.webui import WebUI
 
 
 def one_session(seed: int) -> dict:
-    from study.__main__ import main
-
     with tempfile.TemporaryDirectory() as tmp:
         wall0, cpu0 = time.perf_counter(), time.process_time()
         with contextlib.redirect_stdout(io.StringIO()):
-            code = main(["run", "--device", "sim", "--participant", "simulated", "--subject", f"B{seed}",
+            code = study_main(["run", "--device", "sim", "--participant", "simulated", "--subject", f"B{seed}",
                          "--seed", str(seed), "--out", tmp, "--quiet"])
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
         if code != 0:
@@ -60,19 +73,6 @@ def servo_timing(isolated: bool, load: bool, window_s: float = 2.0) -> dict:
     driven by a thread at its real cadence (1024 frames at 44.1 kHz); the
     views are polled by an HTTP client at 10 Hz per page, like the browsers do.
     """
-    import threading
-    import urllib.request
-
-    import numpy as np
-
-    from stimuli import load_catalog
-    from study.apparatus import Apparatus
-    from study.audio import MaskingAudio
-    from study.config import ProtocolConfig
-    from study.participants import SimulatedParticipant
-    from study.uistate import UiState
-    from study.webui import WebUI
-
     catalog = [s for s in load_catalog() if s.name == "pulse_firm"]
     protocol = ProtocolConfig()
     sp = SimulatedParticipant("T", "few", 1)
@@ -105,12 +105,8 @@ def servo_timing(isolated: bool, load: bool, window_s: float = 2.0) -> dict:
             t.start()
     try:
         if isolated:
-            from study.isolated import IsolatedApparatus
-
             app = IsolatedApparatus("sim", {"seed": 1}, catalog, protocol, None, sp, realtime=True)
         else:
-            from devices.sim import SimDevice
-
             app = Apparatus(SimDevice(seed=1).open(), catalog, protocol, sim_participant=sp, realtime=True)
         app.set_sample("pulse_firm")
         app.start_hand(plan, window_s)

@@ -21,7 +21,11 @@ import signal
 import sys
 import tempfile
 import time
+import traceback
 from pathlib import Path
+
+import study.data as data
+from study.__main__ import main as study_main
 
 PROTOCOL = """
 tap_window_s = 0.4
@@ -53,21 +57,16 @@ def _forked(argv: list[str], env: dict) -> int:
     if pid == 0:  # child
         code = 70
         try:
-            import study.data as data
-            from study.__main__ import main
-
             data._CRASH_COUNT = 0
             os.environ.pop("STUDY_CRASH_AT", None)
             os.environ.pop("STUDY_CRASH_LOG", None)
             os.environ.update(env)
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, 1)
-            code = main(argv)
+            code = study_main(argv)
         except SystemExit as exc:
             code = exc.code if isinstance(exc.code, int) else 1
         except BaseException:
-            import traceback
-
             traceback.print_exc()
         finally:
             os._exit(code)
@@ -88,15 +87,13 @@ class KillHarness:
         self.work = Path(work)
         (self.work / "protocol.toml").write_text(PROTOCOL)
         log = self.work / "steps.log"
-        import study.data as data
-        from study.__main__ import main
 
         # the reference runs in this process: imports and numba compilation are then inherited by every fork
         t0 = time.perf_counter()
         data._CRASH_COUNT = 0
         os.environ["STUDY_CRASH_LOG"] = str(log)
         try:
-            code = main(_args(self.work, self.work / "ref", False))
+            code = study_main(_args(self.work, self.work / "ref", False))
         finally:
             os.environ.pop("STUDY_CRASH_LOG", None)
         self.reference_s = time.perf_counter() - t0

@@ -6,11 +6,11 @@ from __future__ import annotations
 import statistics
 import time
 
+from devices.identify.successive import identify_successive
+from devices.sim import default_params
+
 
 def main() -> None:
-    from devices.identify.successive import identify_successive
-    from devices.sim import default_params
-
     true = default_params().to_dict()
     times, worst = [], None
     for k in range(3):

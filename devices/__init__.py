@@ -9,6 +9,6 @@ __all__ = ["Device", "DeviceError", "DeviceInfo", "DeviceState", "Status", "DEVI
 
 def load_model(path):
     """Load a device model JSON file (see docs/models.md); lazy so ``import devices`` stays light."""
-    from .model import load_model as _load
+    from .model import load_model as _load  # deferred: keeps `import devices` light
 
     return _load(path)

@@ -57,7 +57,7 @@ def register(subparsers) -> None:
 
 def run_report(args) -> int:
     """Build, run and print the timing report (see :func:`devices.firmware.fw_sim.timing_report`)."""
-    from devices.firmware import fw_sim
+    from devices.firmware import fw_sim  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     if args.decimation < 1:
         raise ValueError(f"--decimation must be >= 1, got {args.decimation}")
@@ -71,7 +71,7 @@ def run_report(args) -> int:
 
 def run_fw_sim(args) -> int:
     """Start the harness, print its port, wait for Ctrl-C / SIGTERM, print the final timing numbers."""
-    from devices.firmware import fw_sim
+    from devices.firmware import fw_sim  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     taps = tuple(float(v) for v in args.taps.split(",") if v.strip()) if args.taps else ()
     try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import signal
 import sys
@@ -81,9 +82,6 @@ def set_realtime_priority(priority: int | None) -> str:
     A full garbage collection walks every object numba/numpy created at import (milliseconds):
     ``gc.freeze()`` keeps them out of later collections, which removes those pauses.
     """
-    import gc
-    import os
-
     gc.collect()
     gc.freeze()
     if priority is None:
@@ -104,7 +102,10 @@ def run_emulate(args) -> int:
     ends the process: within the serve loop's next pass (<= 20 ms), or, if that loop does not get there
     within 2 s, by a forced exit after the report.
     """
-    from .firmware.emulator import FaultSpec, build_emulator
+    from .firmware.emulator import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        FaultSpec,
+        build_emulator,
+    )
 
     stop = threading.Event()
     started = time.monotonic()
@@ -172,7 +173,7 @@ def run_emulate(args) -> int:
 
 def percentiles_us(samples_s) -> dict:
     """Median, p90, p99 and maximum of ``samples_s`` (s), in microseconds, as a dict."""
-    import numpy as np
+    import numpy as np  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     a = np.asarray(samples_s) * 1e6
     return {"median_us": float(np.median(a)), "p90_us": float(np.percentile(a, 90)),
@@ -207,7 +208,7 @@ def measure_latency(dev, n: int = 2000, warmup: int = 100) -> dict:
 
 def run_latency(args) -> int:
     """The ``latency`` command: round trips over the link; a device error becomes a clear error line (exit 2)."""
-    from .base import DeviceError
+    from .base import DeviceError  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     try:
         return _run_latency(args)
@@ -216,7 +217,7 @@ def run_latency(args) -> int:
 
 
 def _run_latency(args) -> int:
-    from .registry import open_device
+    from .registry import open_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     with open_device(args.device) as dev:
         if getattr(dev, "on_device_rendering", False):
@@ -226,8 +227,6 @@ def _run_latency(args) -> int:
             res = measure_latency(dev, args.n, args.warmup)
         finally:
             if args.rt_priority is not None:
-                import os
-
                 try:
                     os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
                 except OSError:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from collections import OrderedDict
 from pathlib import Path
 
@@ -56,7 +57,7 @@ def _fit_options_args(p: argparse.ArgumentParser) -> None:
 
 
 def _fit_options(args, band=None, weight="mean"):
-    from .identify.fit import FitOptions
+    from .identify.fit import FitOptions  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     return FitOptions(band_hz=band, order=args.order, max_order=max(args.max_order, 1), delay_s=args.delay,
                       weight=weight, use_coherence=not args.no_coherence_weight, max_rms_db=args.max_rms_db,
@@ -176,11 +177,15 @@ IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model
 
 def run_identify(args) -> int:
     """The ``identify`` command (comprehensive or successive, see ``--method``); returns the exit code."""
-    import os
-
-    from .identify.pipeline import IdentifyConfig, identify_device
-    from .identify.sweep import SweepConfig
-    from .registry import check_device_spec, make_device
+    from .identify.pipeline import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        IdentifyConfig,
+        identify_device,
+    )
+    from .identify.sweep import SweepConfig  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .registry import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        check_device_spec,
+        make_device,
+    )
 
     check_device_spec(args.device)
     if any(not a > 0 for a in args.amplitude):
@@ -204,7 +209,7 @@ def run_identify(args) -> int:
                              amplitudes_A=tuple(args.amplitude) if len(args.amplitude) > 1 else (),
                              purpose=args.purpose, workers=max(1, workers))
         report = identify_device(dev, cfg, args.out, device_spec=args.device, seed=args.seed)
-    from .identify.pipeline import format_report
+    from .identify.pipeline import format_report  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     print(format_report(report), end="")
     print(f"wrote {Path(args.out) / 'model_set.json'}, models, etfe_accel.npz, etfe_position.npz, bode_accel.png, "
@@ -214,7 +219,12 @@ def run_identify(args) -> int:
 
 def run_successive(args) -> int:
     """``identify --method successive``: stage by stage, progress per stage, model.json + report + figures."""
-    from .identify.successive import STAGE_NAMES, format_result, identify_successive, save_result
+    from .identify.successive import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        STAGE_NAMES,
+        format_result,
+        identify_successive,
+        save_result,
+    )
 
     out = Path(args.out)
     if not args.resume:
@@ -246,10 +256,10 @@ def group_recordings(recs) -> "OrderedDict[str, list]":
 
 def run_fit(args) -> int:
     """The ``fit`` command: refit models from earlier recordings (ETFE + automatic order); returns the exit code."""
-    from .identify.etfe import etfe
-    from .identify.figures import bode_plot
-    from .identify.fit import fit_etfes
-    from .identify.recording import read_recording
+    from .identify.etfe import etfe  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .identify.figures import bode_plot  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .identify.fit import fit_etfes  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .identify.recording import read_recording  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     refuse_overwrite(args.out, args.force)
     if args.plot:
@@ -278,7 +288,10 @@ def run_fit(args) -> int:
         bode_plot(curves, [result.model], args.plot, title=f"{args.output}: ETFE (solid) and fitted model (dashed)")
         print(f"wrote {args.plot}")
     for path in args.validate:
-        from .identify.validate import read_transient_recording, validate_model
+        from .identify.validate import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+            read_transient_recording,
+            validate_model,
+        )
 
         fs, u, y = read_transient_recording(path, args.output)
         v = validate_model(result.model, u, y, fs)

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 
 def _floats(text: str) -> tuple[float, ...]:
-    import argparse
-
     try:
         return tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
@@ -40,9 +39,17 @@ def register(subparsers) -> None:
 
 def run_linearity(args) -> int:
     """Run ``linearity`` (see the parser's description); returns the exit code."""
-    from .fileio import atomic_write_text
-    from .identify.linearity import default_conditions, format_linearity, linearity_figure, linearity_report
-    from .registry import check_device_spec, make_device
+    from .fileio import atomic_write_text  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .identify.linearity import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        default_conditions,
+        format_linearity,
+        linearity_figure,
+        linearity_report,
+    )
+    from .registry import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        check_device_spec,
+        make_device,
+    )
 
     check_device_spec(args.device)
     if args.trials < 2:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 
 import numpy as np
@@ -54,8 +53,11 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """The ``record`` command: tap the sample once per velocity (motor off) and write the tap CSV; returns the exit code."""
-    from .recording import record_taps, write_tap_recording
-    from .registry import make_device
+    from .recording import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        record_taps,
+        write_tap_recording,
+    )
+    from .registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     refuse_overwrite(args.out, args.force)
     vels = _velocities(args.velocities)

@@ -3,13 +3,12 @@ ETFE agreement at several current magnitudes and the held-handle response to con
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 
 def _floats(text: str) -> tuple[float, ...]:
-    import argparse
-
     try:
         return tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
@@ -39,14 +38,16 @@ def register(subparsers) -> None:
 
 def _load(path: Path, grip: float):
     """('nonlinear', SimParams) or ('zpk', ZpkModel) from a file or folder."""
-    from .model import load_model
-    from .sim.params import load_sim_params
+    from .model import load_model  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .sim.params import load_sim_params  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     if path.is_dir():
         if (path / "model.json").is_file():
             path = path / "model.json"
         elif (path / "model_set.json").is_file():
-            from .identify.modelset import load_model_set
+            from .identify.modelset import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+                load_model_set,
+            )
 
             return "zpk", load_model_set(path).model_at(grip, "accel_m_s2"), str(path)
         else:
@@ -64,15 +65,22 @@ def _load(path: Path, grip: float):
 
 def run_validate(args) -> int:
     """Run ``validate`` (see the parser's description); returns the exit code."""
-    from .identify.validate_td import etfe_agreement, time_domain_figure, time_domain_validation
-    from .registry import check_device_spec, make_device
+    from .identify.validate_td import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        etfe_agreement,
+        time_domain_figure,
+        time_domain_validation,
+    )
+    from .registry import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        check_device_spec,
+        make_device,
+    )
 
     check_device_spec(args.device)
     kind, model, src = _load(Path(args.model), args.grip)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:
         if kind == "nonlinear":
-            from .sim.device import SimDevice
+            from .sim.device import SimDevice  # deferred: keeps `--help` fast (a command loads only what it runs)
 
             model_dev = SimDevice(model.replace(sensors={"accel_noise_m_s2": 0.0}), seed=args.seed + 1)
             for row in etfe_agreement(dev, model_dev, args.amplitudes, args.grip):

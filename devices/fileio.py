@@ -118,7 +118,7 @@ def load_npz(path, what: str = ".npz file"):
     FileNotFoundError, ValueError
         One line: ``"<path>: <what> ... (reason)"``.
     """
-    import numpy as np  # numpy only where archives are read
+    import numpy as np  # deferred: numpy only where archives are read
 
     path = Path(path)
     if not path.is_file():

@@ -61,18 +61,20 @@ def make_device(spec: str, **options) -> Device:
     kind, rest, spec_options = _split(spec)
     options = {**spec_options, **options}
     if kind == "sim":
-        from .sim import SimDevice
+        from .sim import SimDevice  # deferred: load only the driver asked for (devices.sim: ~0.3 s of numba)
 
         return SimDevice.from_spec(rest or None, **options)
     if kind == "fw-sim":
-        from .firmware.fw_sim import FwSimDevice
+        from .firmware.fw_sim import FwSimDevice  # deferred: load only the driver asked for (devices.sim: ~0.3 s of numba)
 
         return FwSimDevice(**options)
     if kind == "serial":
-        from .hardware.serial_device import SerialDevice
+        from .hardware.serial_device import (  # deferred: load only the driver asked for (devices.sim: ~0.3 s of numba)
+            SerialDevice,
+        )
 
         return SerialDevice(rest, **options)
-    from .hardware.hid_device import HidDevice
+    from .hardware.hid_device import HidDevice  # deferred: load only the driver asked for (devices.sim: ~0.3 s of numba)
 
     vid, pid = rest.split(":")
     return HidDevice(int(vid, 16), int(pid, 16), **options)

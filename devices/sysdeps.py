@@ -32,9 +32,11 @@ Only the standard library is imported here, so every command can afford it.
 from __future__ import annotations
 
 import ctypes
+import ctypes.util
 import os
 import shutil
 import struct
+import sys
 import sysconfig
 from dataclasses import dataclass
 from pathlib import Path
@@ -339,18 +341,15 @@ def import_sounddevice():
     OSError
         PortAudio cannot be found or loaded (sounddevice's own error when it searched).
     """
-    import sys
-
     if "sounddevice" in sys.modules:
         return sys.modules["sounddevice"]
-    import ctypes.util
 
     path = portaudio_library()
     if path is None:
         if mode() == "provision":
             raise OSError(f"PortAudio library not found in {root_dir()} (HFAM_DEPS=provision; run 'make test' "
                           "or 'python -m devices.provision' to provision it)")
-        import sounddevice  # its own search, its own error
+        import sounddevice  # deferred: its own search, its own error
 
         return sounddevice
     load_library(path)
@@ -361,7 +360,7 @@ def import_sounddevice():
 
     ctypes.util.find_library = find_library
     try:
-        import sounddevice
+        import sounddevice  # deferred: PortAudio is a system library that may be missing; only audio output needs it
     finally:
         ctypes.util.find_library = original
     return sounddevice

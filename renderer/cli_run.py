@@ -36,7 +36,7 @@ def make_transient(kind: str, library: str | None = None, gain: float | None = N
         raise ValueError(f"--transient must be one of {', '.join(TRANSIENTS)}, got {kind!r}")
     if kind == "none":
         return None
-    import stimuli
+    import stimuli  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     kwargs = {} if gain is None else {"gain": float(gain)}
     if kind == "pulse":
@@ -104,7 +104,7 @@ def register(subparsers) -> None:
 
 
 def _build_config(args):
-    from .config import RendererConfig, load_config
+    from .config import RendererConfig, load_config  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     overrides = {}
     if args.stiffness is not None:
@@ -121,9 +121,9 @@ def _build_config(args):
 
 def run_command(args) -> int:
     """The ``run`` command: render the wall (and transient) under the tapping hand and write events.csv, run.json, log.npz; returns the exit code."""
-    from devices.registry import make_device
+    from devices.registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
-    from .loop import ServoLoop
+    from .loop import ServoLoop  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
@@ -132,7 +132,7 @@ def run_command(args) -> int:
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"
     if simulated:
-        from devices.sim import TapTrajectory
+        from devices.sim import TapTrajectory  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         dev = make_device(args.device, seed=args.seed)
         with dev:
@@ -160,7 +160,7 @@ def run_command(args) -> int:
             except KeyboardInterrupt:
                 result = loop.result
     else:
-        from .process import run_in_process
+        from .process import run_in_process  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         try:
             result = run_in_process(args.device, cfg, transient, duration_s=args.duration)

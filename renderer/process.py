@@ -19,9 +19,14 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
+import time
 from typing import Callable
 
+from devices.base import DeviceError
+from devices.registry import make_device
+
 from .config import RendererConfig
+from .loop import ServoLoop
 
 
 def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, realtime, stop_event,
@@ -32,13 +37,10 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
             os.nice(nice)
         except OSError:
             pass
-    from .loop import ServoLoop
 
     loop = None
     try:
         if isinstance(device, str):
-            from devices.registry import make_device
-
             dev = make_device(device, **(device_options or {}))
         else:
             dev = device()
@@ -97,7 +99,6 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
                              duration_s, max_ticks, realtime, stop, nice), daemon=True)
     proc.start()
     child_conn.close()
-    import time
 
     t_end = None if timeout_s is None else time.monotonic() + timeout_s
     message = None
@@ -135,7 +136,6 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
     if exc_type in ("ValueError", "FileNotFoundError"):
         raise ValueError(text)
     if exc_type == "DeviceError":  # e.g. a missing port: a user error, reported as such by __main__
-        from devices.base import DeviceError
 
         err = DeviceError(text)
     else:

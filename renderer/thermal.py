@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 def step_coefficients(info, dt_s: float) -> tuple[float, float]:
     """``(heat, alpha)``: steady-state rise per A^2 (K/A^2) and the per-tick blend ``1 - exp(-dt/tau)``."""
@@ -39,8 +41,6 @@ def safe_continuous_current(info, limit_A: float, margin: float = 0.95) -> float
 
 def simulate_temperature(current_A, info, fs_hz: float, initial_K: float = 0.0):
     """Temperature rise (K) after each sample of a current record (numpy, offline/tests)."""
-    import numpy as np
-
     heat, alpha = step_coefficients(info, 1.0 / fs_hz)
     out = np.empty(len(current_A))
     t = initial_K

@@ -75,7 +75,7 @@ def _device_limits(args) -> tuple[float, float | None, float | None, tuple | Non
     """(force_per_amp_N_A, peak_current_A, servo_rate_hz, grip_range_N) from --device and the overrides."""
     fpa, peak, rate, grips = args.force_per_amp, args.peak_current_A, None, None
     if args.device.lower() != "none":
-        from devices.registry import make_device
+        from devices.registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         # a hardware device learns its info in the hello handshake, so open it (zero current) to read it
         with make_device(args.device) as dev:
@@ -118,9 +118,9 @@ def expand_model_paths(paths) -> list[Path]:
 
 def run(args) -> int:
     """The ``build-library`` command: taps + models -> HFAM library, verified through the forward models; returns the exit code."""
-    from .hfam.build import build_library, format_verification, source_entry  # deferred: scipy.signal (~1 s)
+    from devices.model import load_model  # deferred: keeps `--help` fast (a command loads only what it runs)
 
-    from devices.model import load_model
+    from .hfam.build import build_library, format_verification, source_entry  # deferred: scipy.signal (~1 s)
 
     if args.out.exists() and not args.force:
         raise ValueError(f"{args.out} exists; use --force to overwrite it")
@@ -165,8 +165,12 @@ def run(args) -> int:
         if not str(args.device).startswith("sim"):
             raise ValueError(f"--refine plays the transients on a simulated device; --device {args.device!r} is not "
                              f"one (on hardware refinement needs repeated taps by a person, see docs/hfam_library.md)")
-        from devices.registry import make_device
-        from .hfam.refine import RefineSettings, refine_library
+        from devices.registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+        from .hfam.refine import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+            RefineSettings,
+            refine_library,
+        )
 
         library, _ = refine_library(library, models, lambda: make_device(args.device, seed=0),
                                     RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall), settings,

@@ -71,13 +71,13 @@ def plot_library(lib: HfamLibrary, out: Path) -> Path:
     Path
         The PNG.
     """
-    import figstyle  # with matplotlib behind it: only this command draws
+    import figstyle  # deferred: with matplotlib behind it: only this command draws
 
     n_g = len(lib.grips_N)
     t_ms = (np.arange(lib.n_samples) + 1) / lib.fs_hz * 1e3
     data = {"t_ms": t_ms}
     with figstyle.style() as plt:
-        from matplotlib import colormaps
+        from matplotlib import colormaps  # deferred: matplotlib costs ~0.3 s; figures only
 
         fig, axes = plt.subplots(2, n_g, figsize=figstyle.figsize("page", height_in=4.6), sharex=True,
                                  squeeze=False, layout="constrained")

@@ -28,7 +28,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """The ``sim-library`` command: build the shipped default library from the sim device; returns the exit code."""
-    from .hfam.pipeline import build_sim_library
+    from .hfam.pipeline import build_sim_library  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     build_sim_library(args.out)
     print(f"wrote {args.out}")

@@ -18,10 +18,12 @@ with neither cannot detect real-sample saturation, which session.json records
 
 from __future__ import annotations
 
-
 import numpy as np
 
+from devices.sim import ScriptedTrajectory, TapTrajectory
+from renderer import RendererConfig, ServoLoop
 from renderer.homing import HomingConfig, HomingController
+
 from .rater import Reference, tap_features
 
 # full-rate channels kept in the per-attempt trace files (float32 except t_s)
@@ -115,8 +117,6 @@ class Apparatus:
     """
 
     def __init__(self, device, catalog, protocol, library_dir=None, sim_participant=None, realtime=None) -> None:
-        from renderer import RendererConfig, ServoLoop
-
         self.device = device
         self.realtime = realtime   # None: the renderer's default (paced on hardware, as fast as possible in sim)
         self.info = device.info
@@ -179,8 +179,6 @@ class Apparatus:
 
     def start_hand(self, plan, window_s: float) -> None:
         """Give the simulated hand the attempt's taps (sim only); an overpowering tap comes after ``window_s``."""
-        from devices.sim import ScriptedTrajectory, TapTrajectory
-
         h = self.protocol.home_height_m
         window = window_s
         cfg = self.sim_participant.config
@@ -336,9 +334,6 @@ class Apparatus:
 
     def record_reference(self, reference_sample: str = "wood_on_foam") -> Reference:
         """Tap the real wood-on-foam (sim) at several velocities with the motor off; fit the rater's reference."""
-        from devices.sim import TapTrajectory
-        from renderer import RendererConfig, ServoLoop
-
         dev = self.device
         dev.set_sample(reference_sample)
         dev.motor_enabled = False

@@ -100,7 +100,11 @@ def _run_command(args) -> int:
     protocol, seed, info, catalog, library_dir = plan.protocol, plan.seed, plan.info, plan.catalog, plan.library_dir
 
     # masking audio: required on hardware, silent in sim unless asked
-    from .audio import MaskingAudio, SilentAudio, check_output_device
+    from .audio import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        MaskingAudio,
+        SilentAudio,
+        check_output_device,
+    )
 
     want_audio = args.audio == "on" or (args.audio == "auto" and not is_sim)
     if want_audio:
@@ -123,10 +127,13 @@ def _run_command(args) -> int:
         audio_info = {"output": None, "level_dbfs": None, "cue_source": audio.cue_source, "cue_spoken": False,
                       "cue_level_db": None}
 
-    from devices import make_device
+    from devices import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
-    from .apparatus import Apparatus
-    from .participants import SimulatedParticipant, load_participant_config
+    from .apparatus import Apparatus  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .participants import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        SimulatedParticipant,
+        load_participant_config,
+    )
 
     sim_participant = None
     if is_sim:
@@ -138,13 +145,13 @@ def _run_command(args) -> int:
     device = apparatus = None
     ui = web = None
     if isolate:
-        from .isolated import IsolatedApparatus
+        from .isolated import IsolatedApparatus  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         apparatus = IsolatedApparatus(args.device, device_options, catalog, protocol, library_dir,
                                       sim_participant, realtime=True if args.realtime else None)
         device_info = apparatus.device_info
     else:
-        from devices import DeviceError
+        from devices import DeviceError  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         try:
             device = make_device(args.device, **device_options)
@@ -162,9 +169,9 @@ def _run_command(args) -> int:
         rows, fam_ended = start_session(plan, args, schedule, device_info, isolate, sim_participant, audio_info,
                                         apparatus.real_saturation_detection)
 
-        from .runner import StudyRunner
-        from .uistate import UiState
-        from .webui import WebUI
+        from .runner import StudyRunner  # deferred: keeps `--help` fast (a command loads only what it runs)
+        from .uistate import UiState  # deferred: keeps `--help` fast (a command loads only what it runs)
+        from .webui import WebUI  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         if args.participant == "keyboard" or args.serve:
             ui = UiState()
@@ -201,8 +208,8 @@ def _run_command(args) -> int:
         print(f"interrupted: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
         return 130
     except Exception as exc:
-        from .apparatus import ServoStopped
-        from .uistate import Aborted
+        from .apparatus import ServoStopped  # deferred: keeps `--help` fast (a command loads only what it runs)
+        from .uistate import Aborted  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         if isinstance(exc, Aborted):
             print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)

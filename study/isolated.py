@@ -27,6 +27,12 @@ import multiprocessing as mp
 import os
 import queue
 import signal
+from dataclasses import asdict
+
+from devices import make_device
+
+from .apparatus import Apparatus, ServoStopped
+from .rater import tap_features
 
 
 def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
@@ -37,9 +43,6 @@ def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
             os.nice(-10)
         except OSError:
             pass  # not permitted for this user: run at normal priority
-    from devices import make_device
-
-    from .apparatus import Apparatus
 
     device = None
     try:
@@ -47,7 +50,6 @@ def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
         device.open()
         app = Apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
                         realtime=realtime)
-        from dataclasses import asdict
 
         conn.send(("ok", {"real_saturation_detection": app.real_saturation_detection, "device_info": asdict(device.info),
                           "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz}))
@@ -124,8 +126,6 @@ class IsolatedApparatus:
             if kind == "DeviceError":
                 raise ValueError(f"device: {message}")
             if kind == "ServoStopped":
-                from .apparatus import ServoStopped
-
                 raise ServoStopped(message)
             raise RuntimeError(f"servo process: {kind}: {message}")
         return payload
@@ -188,8 +188,6 @@ class IsolatedApparatus:
 
     def features(self, tap):
         """The rater's features of a tap window, computed here from the returned log."""
-        from .rater import tap_features
-
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], self.fs_hz)
 
     def record_reference(self, reference_sample: str = "wood_on_foam"):

@@ -15,6 +15,8 @@ from pathlib import Path
 
 from devices import provenance
 from devices.registry import check_device_spec
+from devices.sim import SAMPLES
+from stimuli import load_catalog
 
 from .config import ProtocolConfig, SubjectInfo, load_protocol
 from .data import SessionStore, check_subject_id, utc_now
@@ -58,8 +60,6 @@ def _catalog_entries(catalog) -> list[dict]:
 
 def load_study_catalog(catalog_path, library_dir, samples_arg, is_sim: bool, familiarization_sample: str):
     """Load the catalog, pick ``--samples`` and check everything a session needs (before it starts)."""
-    from stimuli import load_catalog
-
     catalog = load_catalog(catalog_path, library_dir=library_dir)
     names = [s.name for s in catalog]
     if samples_arg:
@@ -69,8 +69,6 @@ def load_study_catalog(catalog_path, library_dir, samples_arg, is_sim: bool, fam
             raise ValueError(f"--samples: unknown sample(s) {unknown}; the catalog has {names}")
         catalog = [s for s in catalog if s.name in wanted]
     if is_sim:
-        from devices.sim import SAMPLES
-
         for s in catalog:
             if s.kind == "real" and s.real_sample not in SAMPLES:
                 raise ValueError(f"catalog sample {s.name!r}: unknown sim sample real_sample={s.real_sample!r}; "

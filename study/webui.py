@@ -43,7 +43,6 @@ import io
 import ipaddress
 import json
 import secrets
-import socket
 import threading
 import time
 from http import HTTPStatus

@@ -143,3 +143,37 @@ def _cycles(graph):
 @pytest.mark.parametrize("level", ["subpackage", "module"])
 def test_no_import_cycles(level):
     assert _cycles(_graph(level)) == []
+
+
+def _unmarked_function_imports(path: Path, root: Path = ROOT) -> list[str]:
+    """Imports inside functions of ``path`` without a ``# deferred: <why>`` comment on their first or last line."""
+    src = path.read_text(encoding="utf-8")
+    lines = src.splitlines()
+    out = []
+
+    def visit(node, in_function):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.Import, ast.ImportFrom)) and in_function:
+                ends = {lines[child.lineno - 1].partition("#")[2].strip(), lines[child.end_lineno - 1].partition("#")[2].strip()}
+                if not any(c.startswith("deferred:") and len(c) > len("deferred:") + 3 for c in ends):
+                    out.append(f"{path.relative_to(root)}:{child.lineno}: {lines[child.lineno - 1].strip()}")
+            visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
+
+    visit(ast.parse(src), False)
+    return out
+
+
+def test_imports_sit_at_the_top_unless_deferred_with_a_reason():
+    """A file's header says what it depends on: an import inside a function is allowed only to keep
+    start-up fast or to reach an optional system library, and says so (``# deferred: <why>``)."""
+    bad = [hit for path in all_modules() + sorted((ROOT / "benchmarks").rglob("*.py"))
+           for hit in _unmarked_function_imports(path)]
+    assert not bad, f"{len(bad)} function-level imports without '# deferred: <why>':\n" + "\n".join(bad)
+
+
+def test_the_deferred_import_check_finds_an_unmarked_import(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import os\n\ndef f():\n    import json\n    from x import (a,\n        b)  # deferred: x is heavy\n"
+                 "    import y  # just a note\n    return os, json\n")
+    hits = _unmarked_function_imports(f, tmp_path)
+    assert [h.split(":")[1] for h in hits] == ["4", "7"]

@@ -33,8 +33,10 @@ import time
 import tty
 from dataclasses import dataclass, fields
 
-from ..hardware import wire_protocol as P
 from ..base import DeviceInfo, Status
+from ..hardware import wire_protocol as P
+from ..hardware.calibration import Calibration
+from ..sim import SimDevice, TapTrajectory
 from .logic import FirmwareRenderer
 
 FIRMWARE_VERSION = (1, 0, 0)
@@ -417,8 +419,6 @@ class Emulator:
         self._ack(frame)
 
     def _on_calibration(self, frame: P.Frame) -> None:
-        from ..hardware.calibration import Calibration
-
         self.fw.cal = Calibration.from_payload(frame.payload)
         self._ack(frame)
 
@@ -660,8 +660,6 @@ def build_emulator(mode: str = "streaming", faults: FaultSpec | str | None = Non
     ``rate_hz``: the firmware servo rate (the sim advances 1/rate_hz per tick); default: the sim's
     own rate (10 kHz, Table 3.1) for ``on-device``, 1 kHz for ``streaming`` (what a USB link carries).
     """
-    from ..sim import SimDevice, TapTrajectory
-
     if isinstance(faults, str) or faults is None:
         faults = FaultSpec.parse(faults)
     phys = SimDevice.from_spec(sim, seed=seed)

@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import sysdeps
+from ..base import DeviceError
 from ..hardware.serial_device import SerialDevice
 
 FIRMWARE_DIR = Path(__file__).resolve().parent
@@ -56,10 +58,7 @@ class FwSimError(RuntimeError):
 
 # -- tools (provisioned .deps first, then the system) -------------------------------------------
 def _sysdeps():
-    try:
-        from devices import sysdeps  # the provisioning helper (`make test`), when this checkout has it
-    except ImportError:
-        return None
+    """The provisioning helper (``make test``) that knows where ``.deps/`` keeps the AVR tools."""
     return sysdeps
 
 
@@ -454,8 +453,6 @@ class FwSimDevice(SerialDevice):
                 self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, grip_N=self.grip_N,
                                                       faults=self.faults, tick_log=self.tick_log)
             except FwSimError as exc:
-                from ..base import DeviceError
-
                 raise DeviceError(f"fw-sim: {exc}") from None
         super()._open()
 

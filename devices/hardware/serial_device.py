@@ -24,16 +24,20 @@ from __future__ import annotations
 
 import array
 import collections
+import inspect
 import json
 import math
 import os
 import time
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 
-from . import wire_protocol as P
+import numpy as np
+
 from ..base import Device, DeviceError, DeviceInfo, DeviceState, Status
 from ..fileio import atomic_write_text
+from . import wire_protocol as P
 from .calibration import Calibration
 from .transport import SerialTransport, Transport, TransportClosed
 
@@ -757,8 +761,6 @@ class ProtocolDevice(Device):
         self._rendering = True
 
     def _upload_table(self, lib) -> None:
-        import numpy as np
-
         c = np.asarray(lib.currents_A, dtype=float)
         n_v, n_g, n_s = c.shape
         if c.size > self.wire_info.max_table_samples:
@@ -777,8 +779,6 @@ class ProtocolDevice(Device):
         current = transient.waveform(v_in_m_s, grip_N, fs) / self.info.force_per_amp_N_A
         limit = self.wire_info.max_table_samples
         if len(current) > limit and not self._rearm_truncation_warned:
-            import warnings
-
             self._rearm_truncation_warned = True
             warnings.warn(f"{self.name}: transient of {len(current)} samples truncated to the device's "
                           f"{limit}-sample buffer ({limit / fs * 1000:.1f} ms)", RuntimeWarning, stacklevel=3)
@@ -847,8 +847,6 @@ def _number(mapping: dict, key: str, what: str) -> float:
 
 
 def _check_options(options: dict, name: str) -> dict:
-    import inspect
-
     valid = [p for p in inspect.signature(ProtocolDevice.__init__).parameters if p != "self"]
     unknown = sorted(set(options) - set(valid))
     if unknown:

@@ -47,7 +47,7 @@ class SerialTransport(Transport):
     (pyserial's per-call timeout setter reconfigures the tty, which costs more than a servo tick)."""
 
     def __init__(self, port: str, baudrate: int = 921600) -> None:
-        import serial  # pyserial
+        import serial  # deferred: pyserial
 
         self.name = port
         try:
@@ -143,7 +143,7 @@ class HidTransport(Transport):
             hidapi is missing, or no such device can be opened (the message names the device).
         """
         try:
-            import hid
+            import hid  # deferred: optional: its absence is handled here
         except ImportError as exc:  # pragma: no cover - hidapi is a dependency
             raise TransportClosed(f"hidapi is not installed: {exc}") from None
         name = f"hid:{vid:04x}:{pid:04x}"

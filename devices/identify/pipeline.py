@@ -6,7 +6,7 @@ import json
 import multiprocessing
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +14,7 @@ import numpy as np
 from ..base import Device
 from ..fileio import atomic_write_text
 from ..progress import Progress
+from ..registry import make_device
 from ..validation import require_int
 from .etfe import Etfe, etfe
 from .figures import bode_plot
@@ -241,8 +242,6 @@ def write_etfe_npz(curves: list, path) -> Path:
 
 def _grip_worker(job):
     """Process-pool entry: a fresh simulated device for one grip (see ``IdentifyConfig.workers``)."""
-    from ..registry import make_device
-
     spec, seed, k, g, cfg, label, out = job
     dev = make_device(spec, seed=seed + 1000 * k)
     with dev:
@@ -252,8 +251,6 @@ def _grip_worker(job):
 def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: str, out: Path):
     """Record, fit and validate one grip level; write its recordings (``out/recordings``). Returns (report
     row, curves per output, fit per output (FitResult or None), log messages)."""
-    from dataclasses import replace
-
     msgs = []
     amps = tuple(cfg.amplitudes_A) or (cfg.sweep.amplitude_A,)
     recs_all, gcurves, gfits = [], {o: [] for o in cfg.outputs}, {}
@@ -312,7 +309,7 @@ def main_resonance(curve: Etfe, band_hz) -> tuple[float, float]:
     A peak is a local maximum standing at least 1 dB above its surroundings;
     without one, the band's maximum.
     """
-    from scipy.signal import find_peaks
+    from scipy.signal import find_peaks  # deferred: scipy costs up to ~1 s; only this step needs it
 
     sel = (curve.f_hz >= band_hz[0]) & (curve.f_hz <= band_hz[1])
     f, db = curve.f_hz[sel], 20 * np.log10(np.abs(curve.H[sel]))

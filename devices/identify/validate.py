@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..base import Device
 from ..model import ZpkModel
 from .record import hold_user, play
+from .recording import read_csv_columns, write_csv_columns
 
 # (kind, frequency Hz, decay time constant s): contact-like transients (decaying sinusoids, a short pulse)
 DEFAULT_TRANSIENTS = (("sinusoid", 80.0, 0.02), ("sinusoid", 150.0, 0.015), ("sinusoid", 300.0, 0.01),
@@ -90,8 +93,6 @@ def record_transients(dev: Device, amplitude_A: float, grip_N: float | None = No
 
 def write_transient_recording(path, fs_hz: float, current_A, accel_m_s2, position_m, grip_N=None):
     """Write a transient recording CSV (``t_s,current_A,accel_m_s2,position_m,grip_N``), atomically."""
-    from .recording import write_csv_columns
-
     n = len(current_A)
     g = np.zeros(n) if grip_N is None else np.broadcast_to(np.asarray(grip_N, dtype=float), (n,))
     return write_csv_columns(path, ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N"),
@@ -112,10 +113,6 @@ def read_transient_recording(path, output: str = "accel_m_s2") -> tuple[float, n
     FileNotFoundError, ValueError
         Missing file/column, NaN (naming line and column), non-uniform time steps.
     """
-    from pathlib import Path
-
-    from .recording import read_csv_columns
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"transient recording not found: {path}")

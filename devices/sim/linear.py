@@ -19,6 +19,8 @@ import math
 import numpy as np
 from scipy import signal
 
+from ..model import ZpkModel
+
 OUTPUTS = ("accel_m_s2", "position_m")
 
 
@@ -202,8 +204,6 @@ def linear_zpk(params, grip_N: float, output: str = "accel_m_s2", linkage: str =
 
 def linear_model(params, grip_N: float = 2.0, output: str = "accel_m_s2", linkage: str = "small_signal"):
     """:class:`devices.model.ZpkModel` of current -> ``output`` (see :func:`linear_zpk`)."""
-    from ..model import ZpkModel
-
     z, p, k, delay_s = linear_zpk(params, grip_N, output, linkage)
     return ZpkModel(z, p, k, delay_s=delay_s, input="current_A", output=output, band_hz=(20.0, 1000.0),
                     grip_N=float(grip_N), source=f"analytic linearization of {params.name} ({params.source})")

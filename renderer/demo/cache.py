@@ -32,7 +32,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from devices.identify.modelset import load_model_set
+from devices.registry import make_device
+from stimuli import HfamLibrary
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
+from stimuli.recordings import read_tap_csv
 
 #: modules whose code determines the cached results (hashed into the cache key)
 _CODE_PATHS = ("devices/sim", "devices/identify", "devices/model.py", "devices/recording.py",
@@ -109,8 +113,6 @@ def code_digest(root: Path | None = None) -> str:
 
 def cache_key(settings: PipelineSettings) -> str:
     """16-hex-digit key of the settings, the sim parameters and the code (see module doc)."""
-    from devices.registry import make_device
-
     dev = make_device(settings.device)
     params = dev.params.to_dict() if hasattr(dev, "params") and hasattr(dev.params, "to_dict") else {}
     blob = json.dumps({"version": CACHE_VERSION, "settings": settings.to_dict(), "sim_params": params,
@@ -160,10 +162,6 @@ def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, re
 
 
 def _load(entry: Path, settings: PipelineSettings) -> Pipeline:
-    from devices.identify.modelset import load_model_set
-    from stimuli import HfamLibrary
-    from stimuli.recordings import read_tap_csv
-
     manifest = json.loads((entry / "manifest.json").read_text())
     if manifest.get("settings") != settings.to_dict():
         raise ValueError("settings in manifest.json differ from the requested ones")

@@ -78,7 +78,7 @@ def _floats(text: str | None, what: str) -> tuple | None:
 def run(args) -> int:
     """The ``demo`` command: the sim demo (or, with a hardware device, the person-tapping demo); returns the exit code."""
     if not args.device.startswith("sim"):
-        from .hw_demo import run_hardware_demo
+        from .hw_demo import run_hardware_demo  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         return run_hardware_demo(args)
     t0 = time.perf_counter()

@@ -19,6 +19,9 @@ from pathlib import Path
 import numpy as np
 
 import figstyle
+from devices.identify.etfe import Etfe
+from devices.identify.figures import bode_plot
+from stimuli.cli_show import plot_library
 
 # demo panel titles -> the rendering's entry in the project palette (one colour per rendering everywhere)
 RENDERING_KEYS = {"firm wall 680 N/m": "firm", "pulse over firm": "pulse_firm",
@@ -101,7 +104,7 @@ def hfam_grid_figure(cells: dict, references: dict, currents: dict, fixed: dict,
                              squeeze=False, layout="constrained")
     n = len(next(iter(references.values())))
     t = _t_ms(n, fs_hz, pre_s)
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # deferred: matplotlib costs ~0.3 s; figures only
 
     colors = colormaps[figstyle.palette()["sequential"]](np.linspace(0.0, 0.8, ng))
     hfam_color, fixed_color = figstyle.color("hfam_firm"), figstyle.color("hfam_fixed_grip_firm")
@@ -144,17 +147,12 @@ def hfam_grid_figure(cells: dict, references: dict, currents: dict, fixed: dict,
 def library_figure(library, grip_N: float, path: Path) -> Path:
     """Figure 4.8: the HFAM library's target accelerations and current transients, drawn by
     ``stimuli show`` (:func:`stimuli.cli_show.plot_library`; one implementation of Figure 4.8)."""
-    from stimuli.cli_show import plot_library
-
     return plot_library(library, Path(path))
 
 
 def bode_figure(etfe_npz: Path, model_set, path: Path) -> Path:
     """ETFE per grip with the fitted zpk models, drawn by the identification's Bode plot
     (:func:`devices.identify.figures.bode_plot`: wrapped phase, low coherence faint, resonance and -3 dB)."""
-    from devices.identify.etfe import Etfe
-    from devices.identify.figures import bode_plot
-
     data = np.load(etfe_npz)
     f, H, grips = data["f_hz"], data["H"], data["grip_N"]
     coh = data["coherence"] if "coherence" in data.files else np.ones(H.shape)

@@ -24,8 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
+from devices.registry import make_device
+from stimuli import HfamLibrary
+
+from ..config import RendererConfig
+from ..loop import ServoLoop
+from . import figures as figs
 from . import metrics as dm
 from . import runs
+from .report import write_summary
 
 RING = 4096          # ticks kept in the shared scope ring
 MAX_EVENTS = 256
@@ -36,9 +43,6 @@ SPARK = " ▁▂▃▄▅▆▇█"
 def _child(conn, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop) -> None:
     """Servo process: run the loop until ``n_taps`` contacts are over, ``timeout_s`` or ``stop``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from devices.registry import make_device
-
-    from ..loop import ServoLoop
 
     loop = None
     try:
@@ -105,7 +109,7 @@ class WindowScope:
     """A matplotlib window with the last ~0.4 s of handle acceleration and position."""
 
     def __init__(self):
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
         plt.ion()
         self.plt = plt
@@ -143,7 +147,7 @@ def make_scope(kind: str):
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     if kind in ("window", "auto") and has_display:
         try:
-            import matplotlib
+            import matplotlib  # deferred: matplotlib costs ~0.3 s; figures only
 
             if matplotlib.get_backend().lower() == "agg":
                 matplotlib.use("TkAgg")
@@ -246,12 +250,6 @@ def nearest_reference(v_in: float, real: list):
 
 def run_hardware_demo(args, prompt=input, say=print) -> int:
     """The hardware demo (see module doc); ``prompt``/``say`` are injectable for scripted tests."""
-    from devices.registry import make_device
-    from stimuli import HfamLibrary
-
-    from ..config import RendererConfig
-    from .report import write_summary
-
     spec = args.device
     n_taps = args.taps or 5
     timeout_s = float(getattr(args, "timeout", None) or 120.0)
@@ -337,8 +335,6 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
         f"{MATCH_TOLERANCE:.0%}), 20-1000 Hz (limited by Nyquist at {fs:g} Hz).")
     say(f"detail (one row per tap): {out / 'summary.csv'}")
     if real and len(traces) > 1:
-        from . import figures as figs
-
         v_target = 0.11
         panels = []
         for name, taps in traces.items():

@@ -16,8 +16,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import metrics as dm
+from devices.sim import TapTrajectory
+from stimuli import DecayingSinusoid, Pulse
 from stimuli.hfam.pipeline import TAP_STOP_TIME_S, tap_approach_height_m, tap_trajectory_options
+
+from ..config import RendererConfig
+from ..loop import ServoLoop
+from . import metrics as dm
 
 PRE_S = 0.01    # contact window before impact (s)
 POST_S = 0.1    # ... and after it: the HFAM transient's 100 ms (section 4.4.2)
@@ -114,8 +119,6 @@ class FixedGripTransient:
 
 def make_transient(r: Rendering, library=None, fixed_grip_N: float = 2.0):
     """The stimuli transient object of a rendering (None for plain walls and the real sample)."""
-    from stimuli import DecayingSinusoid, Pulse
-
     if r.transient == "none":
         return None
     if r.transient == "pulse":
@@ -192,11 +195,6 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
         None: the default simulated hand (tied to its trajectory); a
         ``ReactiveHand``: hand mass, muscle impedance and contact reflex.
     """
-    from devices.sim import TapTrajectory
-
-    from ..config import RendererConfig
-    from ..loop import ServoLoop
-
     device.set_sample(rendering.sample)
     traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=approach_height_m(velocity_m_s),
                          **tap_trajectory_options(velocity_m_s, stop_time_s))

@@ -21,13 +21,17 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
+from devices.registry import make_device
+from devices.sim import ReactiveHand
 from stimuli.hfam.pipeline import Progress
 
+from . import figures as figs
 from . import runs
 from .cache import Pipeline, build_or_load
 from .config import DemoConfig, DemoResult
@@ -44,8 +48,6 @@ _JOB: tuple | None = None  # (cfg, pipe, refs) shared with forked tap workers
 
 def _can_fork() -> bool:
     """Fork workers only from a single-threaded process (a fork copies locks other threads may hold)."""
-    import threading
-
     return "fork" in mp.get_all_start_methods() and threading.active_count() == 1
 
 
@@ -56,8 +58,6 @@ def _hand(cfg: DemoConfig) -> dict:
 
 def _tap_rendering(index: int) -> tuple[str, dict, float]:
     """Tap one rendering at every velocity x grip on a device of its own (seeded by the rendering's index)."""
-    from devices.registry import make_device
-
     cfg, pipe, refs = _JOB
     r = cfg.renderings[index]
     t0 = time.perf_counter()
@@ -81,7 +81,6 @@ def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int |
     by its index, so the results do not depend on the number of workers.
     """
     global _JOB
-    from devices.registry import make_device
 
     fs = pipe.fs_hz
     refs: dict = {}
@@ -228,9 +227,6 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
         penetration, m) and ``cuts`` (``pulse_firm``/``hfam_firm`` -> 1 -
         pen/pen_firm).
     """
-    from devices.registry import make_device
-    from devices.sim import ReactiveHand
-
     lo, hi = REACTIVE_VELOCITY_RANGE_M_S
     vels = tuple(v for v in cfg.velocities_m_s if lo <= v <= hi)
     by_name = {r.name: r for r in cfg.renderings}
@@ -259,8 +255,6 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
 
 def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figures: bool = True) -> dict:
     """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``)."""
-    from . import figures as figs
-
     fs, pre = result.fs_hz, runs.PRE_S
     g_mid = cfg.medium_grip_N if cfg.medium_grip_N in cfg.grips_N else cfg.grips_N[len(cfg.grips_N) // 2]
     v_fig = cfg.figure_velocity_m_s
@@ -296,8 +290,6 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
 
 def _pipeline_figures(pipe: Pipeline, cfg: DemoConfig, out: Path) -> dict:
     """The figures that depend only on the cached pipeline: the library (Fig. 4.8) and the Bode plot."""
-    from . import figures as figs
-
     g_mid = cfg.medium_grip_N
     return {"library": figs.library_figure(pipe.library, g_mid, Path(out) / "fig_library.png"),
             "bode": figs.bode_figure(pipe.etfe_npz, pipe.model_set, Path(out) / "fig_bode.png")}

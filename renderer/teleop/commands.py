@@ -16,6 +16,7 @@ import platform
 import random
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,11 +24,11 @@ import numpy as np
 from devices.fileio import atomic_write_text
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
-from devices.sim.teleop import ENVIRONMENTS, CimmModel, Testbed, get_environment
+from devices.sim.teleop import CimmModel, Testbed, get_environment
 
-from .options import SWEEP_CONDITIONS, parse_lambdas
 from .models import cimm_params, underestimation_check
-from .session import CONTROLLERS, TeleopConfig, default_path, run_session, session_metrics
+from .options import SWEEP_CONDITIONS, parse_lambdas
+from .session import TeleopConfig, default_path, run_session, session_metrics
 
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
                  "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
@@ -65,7 +66,7 @@ def build_testbed(args) -> Testbed:
 
 def build_hfam(args, tb: Testbed, out: Path):
     """HFAM filter from H_ha: ``--hha-model FILE`` or the comprehensive identification of the master."""
-    from devices.model import load_model
+    from devices.model import load_model  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     from .hfam import design_hfam, identify_master_hha  # deferred: scipy / identification only for pd+hfam
 
@@ -162,7 +163,7 @@ def figure_510(res, path: Path, title: str) -> None:
     """Figure 5.10-style plot of the first tap: F_f and x_c (and x_m, x_hat_mi,hf with cancellation)."""
     import matplotlib  # deferred: plotting only
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     tr = res.traces if not res.fault else res.traces[:res.fault_tick + 1]
     fe = tr[:, K.O_FE]
@@ -235,8 +236,6 @@ def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
     -------
     dict name -> CimmModel (including ``"nominal"``)
     """
-    from dataclasses import replace  # local: only this helper copies models
-
     mh = cimm.params.mechanics["m_h_kg"]
     out = {"nominal": cimm}
     for sign, f in (("-", 1 - error), ("+", 1 + error)):
@@ -322,7 +321,7 @@ def figure_511(rows, conds, path: Path) -> None:
     """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps."""
     import matplotlib  # deferred: plotting only
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for c in conds:

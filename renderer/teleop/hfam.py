@@ -14,7 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from devices.identify.etfe import etfe
+from devices.identify.fit import FitOptions, fit_etfes
+from devices.identify.record import record_condition
+from devices.identify.sweep import SweepConfig
 from devices.model import ZpkModel
+from devices.sim.device import SimDevice
+from stimuli.hfam.inversion import make_proper
 
 FIR_TAPS = 15
 HIGHPASS_HZ = 22.0
@@ -75,8 +81,6 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
     """
     from scipy import signal  # deferred: scipy.signal is heavy
 
-    from stimuli.hfam.inversion import make_proper
-
     z = np.asarray(model.zeros_rad_s, complex)
     p = np.asarray(model.poles_rad_s, complex)
     n_rhp = int(np.sum(z.real > 0))
@@ -126,12 +130,6 @@ def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials
     fs_hz : float
         Servo rate of the teleoperator (the sweep runs at it).
     """
-    from devices.identify.etfe import etfe
-    from devices.identify.fit import FitOptions, fit_etfes
-    from devices.identify.record import record_condition
-    from devices.identify.sweep import SweepConfig
-    from devices.sim.device import SimDevice
-
     params = master_params.replace(device={"servo_rate_hz": float(fs_hz)},
                                    simulation={"max_step_s": 1.0 / fs_hz / round(1.0 / fs_hz / 1e-5)})
     dev = SimDevice(params, seed=7)
@@ -178,7 +176,7 @@ def figure_45(slave_tip_m_s2, master_handle_m_s2, fs_hz: float, delay_samples: i
     """Figure 4.5-style plot: slave tip vs master handle acceleration (22-1000 Hz, delay removed), first impact."""
     import matplotlib  # deferred: plotting only
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
     from scipy import signal  # deferred: scipy.signal is heavy
 
     sos = signal.butter(4, [HIGHPASS_HZ, min(1000.0, 0.45 * fs_hz)], btype="bandpass", fs=fs_hz, output="sos")

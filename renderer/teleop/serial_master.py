@@ -62,6 +62,7 @@ def run_serial_session(dev, tb: Testbed, cfg: TeleopConfig, duration_s: float, *
     fault, fault_tick = 0, -1
     k = 0
     t_first = time.perf_counter()
+    t_sent = t_first  # set after every command; read on the next tick
     while k < n or (lost is not None and k < lost + int(hold_after_loss_s * fs)):
         if k >= len(path):
             break

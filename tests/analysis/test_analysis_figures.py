@@ -4,7 +4,6 @@ HTML report never overflows the page in headless Chromium."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,8 @@ from analysis import figures as F
 from analysis.report import write_report
 from analysis.stats import valid_testing
 from analysis.traces import typical_taps
+
+from ..needs import chromium
 
 
 @pytest.fixture(scope="module")
@@ -176,8 +177,7 @@ def test_report_has_no_horizontal_overflow_in_chromium(written):
     html = res["html"].read_text()
     assert "@media print" in html and "class='table-wrap'" in html and "Provenance" in html
     assert "session seeds" in html and "numpy " in html
-    exe = shutil.which("chromium")
-    assert exe, "Debian chromium is required (make system-deps)"
+    exe = chromium()
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=exe, args=[
             "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",

@@ -1,11 +1,11 @@
 """The operator page in headless Chromium under its CSP: status, buttons enabled only when valid, runner stopped."""
 
-import shutil
-
 from playwright.sync_api import expect, sync_playwright
 
 from study.uistate import UiState
 from study.webui import WebUI
+
+from ..needs import chromium
 
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
                  "--disable-sync", "--no-first-run"]
@@ -23,7 +23,7 @@ def test_operator_page_status_buttons_and_runner_stopped():
         ui.set_operator(subject="P07", phase="familiarization", trial=2, trials_total=24, trials_valid=0,
                         trial_n=None, time_left_s=None, last_rating=None, audio="espeak-ng", link="ok")
         with sync_playwright() as p:
-            b = p.chromium.launch(executable_path=shutil.which("chromium"), args=CHROMIUM_ARGS)
+            b = p.chromium.launch(executable_path=chromium(), args=CHROMIUM_ARGS)
             page = b.new_page()  # CSP enforced: scripts are files
             page.goto(web.operator_url)
             expect(page.locator("#subject")).to_have_text("P07", timeout=5000)

@@ -8,7 +8,6 @@ byte-for-byte unchanged. Cross-site posts are made by a real page on another ori
 import http.server
 import json
 import re
-import shutil
 import socket
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from playwright.sync_api import expect, sync_playwright
 
 from study.webui import MAX_CONNECTIONS, REQUEST_DEADLINE_S
 
+from ..needs import chromium
 from .helpers import QUICK_PROTOCOL, write
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -208,7 +208,7 @@ def test_a_page_on_another_origin_cannot_post_keys_or_frame_the_views(session):
     threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True).start()
     try:
         with sync_playwright() as p:
-            b = p.chromium.launch(executable_path=shutil.which("chromium"), args=CHROMIUM_ARGS)
+            b = p.chromium.launch(executable_path=chromium(), args=CHROMIUM_ARGS)
             page = b.new_page()
             answers = []
             page.on("response", lambda r: answers.append((r.url, r.status)))

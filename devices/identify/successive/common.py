@@ -4,11 +4,14 @@ a stage's outermost parameters on it (scipy.optimize), stage results and errors 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ...sim import kernel as K
+from ...sim.device import SimDevice
 from ...sim.params import SimParams, default_params, params_from_dict
+from ...sim.person import DEFAULT_PERSON
 from .experiment import Experiment, Trace, run_on_sim_fast
 
 # units of every identified parameter (model-file keys "section.key")
@@ -29,10 +32,6 @@ PERSON_PREFIX = "person."
 def default_person():
     """The sim's default simulated person if it has a hand mass (``devices.sim.person.DEFAULT_PERSON``),
     else None (the prescribed hand of eq. 3.34: spring-damper to a position source)."""
-    try:
-        from ...sim.person import DEFAULT_PERSON
-    except ImportError:
-        return None
     return DEFAULT_PERSON if hasattr(DEFAULT_PERSON, "arm_mass_kg") else None
 
 
@@ -42,7 +41,6 @@ def person_with(values: dict):
     base = default_person()
     if not fields or base is None:
         return None
-    from dataclasses import replace
 
     return replace(base, **fields)
 
@@ -160,9 +158,6 @@ class ModelBuilder:
         """A model :class:`SimDevice` in mechanical configuration ``config``; ``quantized=False`` reads the
         encoder without quantization (open-loop fits: the measured counts then scatter around a smooth
         prediction instead of making the fit error piecewise constant in the parameters)."""
-        from ...sim import kernel as K
-        from ...sim.device import SimDevice
-
         dev = SimDevice(self.params(extra))
         dev.set_mechanical_config(config)
         if not quantized:
@@ -213,7 +208,7 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
     -------
     values, nrmse, model_traces
     """
-    from scipy.optimize import least_squares  # heavy: only the fitting stages need it
+    from scipy.optimize import least_squares  # deferred: heavy: only the fitting stages need it
 
     fixed = dict(fixed or {})
     if quantized is None:

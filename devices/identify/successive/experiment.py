@@ -155,7 +155,7 @@ def run_on_sim_fast(dev, exp: Experiment, hand=None) -> Trace:
     """
     global _RUN
     if _RUN is None:
-        from ._fastrun import run_pd  # numba-compiled: imported on first use
+        from ._fastrun import run_pd  # deferred: numba-compiled: imported on first use
 
         _RUN = run_pd
     if hand is None:

@@ -11,11 +11,12 @@ from pathlib import Path
 
 from ...base import Device
 from ...fileio import atomic_write_text
+from ...registry import make_device
 from ...sim.params import SimParams, load_sim_params
-from .bench import Bench
-from .common import UNITS, ModelBuilder, StageResult, base_params_dict
 from .amplifier import identify_amplifier
+from .bench import Bench
 from .cables import identify_cables
+from .common import UNITS, ModelBuilder, StageResult, base_params_dict
 from .drum import identify_drum
 from .handle import identify_handle
 from .linkage import identify_linkage
@@ -78,7 +79,6 @@ def _open_device(device_spec_or_factory, seed: int):
     if callable(device_spec_or_factory):
         dev = device_spec_or_factory()
         return dev, dev.info.name, True
-    from ...registry import make_device
 
     spec = str(device_spec_or_factory)
     dev = make_device(spec, seed=seed) if spec.startswith("sim") else make_device(spec)
@@ -202,7 +202,7 @@ def save_result(result: SuccessiveResult, out_dir, overwrite: bool = False, figu
     atomic_write_text(out / "report.json", json.dumps(report, indent=2, default=float) + "\n")
     atomic_write_text(out / "report.txt", format_result(result))
     if figures:
-        from .figures import stage_figures  # matplotlib: only when figures are written
+        from .figures import stage_figures  # deferred: matplotlib: only when figures are written
 
         stage_figures(result, out)
     return model

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from .bench import Bench
-from .common import ModelBuilder, StageError, StageResult, default_person, fit_on_model
+from .common import ModelBuilder, StageError, StageResult, default_person, fit_on_model, nrmse
 from .experiment import Experiment, chirp
 
 CONFIG = "assembled"
@@ -17,7 +17,7 @@ NOMINAL_GRIP_N = 2.0
 
 def _regression_init(tr, kf: float, mass: float, c: float, b_dev: float) -> tuple[float, float]:
     """Rigid-body estimate: kf i = M a + (b_dev + b_u) v + c sgn(v) + k_u x, solved for k_u, b_u."""
-    from scipy.signal import savgol_filter  # heavy: only this estimate needs it
+    from scipy.signal import savgol_filter  # deferred: heavy: only this estimate needs it
 
     fs = tr.fs_hz
     x = savgol_filter(tr.x_m, 101, 3)
@@ -31,8 +31,6 @@ def _regression_init(tr, kf: float, mass: float, c: float, b_dev: float) -> tupl
 
 def _grid_init(builder: ModelBuilder, exps, trs) -> tuple[float, float]:
     """Best (k_u, b_u) at the nominal grip on a coarse log grid (1-3000 N/m, 0.3-300 N s/m)."""
-    from .common import nrmse
-
     best, best_e = (100.0, 10.0), np.inf
     for k in np.geomspace(1.0, 3000.0, 8):
         for b in np.geomspace(0.3, 300.0, 7):
