@@ -80,12 +80,14 @@ def run_fw_sim(args) -> int:
         raise ValueError(str(exc)) from None
     print(f"PORT {port}", flush=True)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         while not stop.wait(0.2) and handle.alive:
             pass
     except KeyboardInterrupt:
         pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)  # a caller in this process keeps its own SIGTERM handling
     stats = handle.stop()
     print(f"simulated {stats.get('sim_time_s', 0):.2f} s; servo tick cycles {stats.get('tick_cycles')}",
           file=sys.stderr)

@@ -100,8 +100,23 @@ def run_emulate(args) -> int:
 
     The signal handlers are installed first (before the physics kernel loads), so a SIGTERM at any moment
     ends the process: within the serve loop's next pass (<= 20 ms), or, if that loop does not get there
-    within 2 s, by a forced exit after the report.
+    within 2 s, by a forced exit after the report. On return the previous handlers are back and a pending
+    forced exit is cancelled, so a caller in the same process (a test, a script) keeps its own signal
+    handling, and processes it forks later do not inherit a handler that ignores SIGTERM.
     """
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    timers: list = []
+    try:
+        return _serve_emulator(args, timers)
+    finally:
+        for t in timers:
+            t.cancel()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _serve_emulator(args, timers: list) -> int:
+    """The body of :func:`run_emulate`; forced-exit timers it starts are appended to ``timers``."""
     from .firmware.emulator import (  # deferred: keeps `--help` fast (a command loads only what it runs)
         FaultSpec,
         build_emulator,
@@ -136,6 +151,7 @@ def run_emulate(args) -> int:
         stop.set()
         t = threading.Timer(2.0, _force_exit)
         t.daemon = True
+        timers.append(t)
         t.start()
 
     signal.signal(signal.SIGTERM, _stop)

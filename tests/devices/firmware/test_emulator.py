@@ -1,5 +1,6 @@
 """The emulator as a command and a child process; fault-spec parsing; the latency command."""
 
+import signal
 from pathlib import Path
 
 import pytest
@@ -49,5 +50,9 @@ def test_latency_command(capsys):
 
 
 def test_emulate_rejects_bad_fault_spec(capsys):
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
     assert devices_main(["emulate", "--fault", "drop=7"]) == 2
     assert "drop=7 is a probability" in capsys.readouterr().err
+    # its SIGTERM/SIGINT handlers are gone again: a pool forked later by this process (the demo's tap
+    # workers) must still die on SIGTERM (a leaked handler once hung Pool.terminate for 600 s)
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before

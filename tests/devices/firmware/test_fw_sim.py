@@ -116,7 +116,10 @@ def test_on_device_wall_and_transient_match_the_python_firmware_logic(kind):
     # encoder count in 1 ms is 22 mm/s, so the readings are whole multiples of it
     q = fw_sim_resolution = dev.info.position_resolution_m / 0.001
     assert all(abs(x / q - round(x / q)) < 1e-3 for x in v), (v, fw_sim_resolution)
-    assert 0.03 < v[0] < 0.09 and 0.1 < v[1] < 0.2 and v[1] >= 1.5 * v[0]
+    # the hand cycles through its taps from the harness's start; which one the rendering meets first depends
+    # on how long the host took to connect and configure (fast pace runs free meanwhile): one of each
+    lo, hi = min(v[:2]), max(v[:2])
+    assert 0.03 < lo < 0.09 and 0.1 < hi < 0.2 and hi >= 1.5 * lo, v
 
 
 def test_timing_budget_ram_and_uart(report):
