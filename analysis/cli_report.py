@@ -8,7 +8,6 @@ import warnings
 from pathlib import Path
 
 from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig
-from analysis.report import write_report
 
 
 def run(args: argparse.Namespace) -> int:
@@ -22,6 +21,7 @@ def run(args: argparse.Namespace) -> int:
                          "or pass --force to replace it")
     from analysis.load import AnalysisWarning  # deferred: keeps `--help` fast (a command loads only what it runs)
     from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from analysis.report import write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", AnalysisWarning)
         res = analyse(args.data, cfg)

@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 from .fileio import atomic_write_text
-from .sim import TapTrajectory
 
 COLUMNS = ("tap", "incoming_velocity_m_s", "t_s", "accel_m_s2")
 # t_s steps may wobble by 1 % (timestamp rounding, e.g. 7 decimals at 10 kHz) before they count as
@@ -278,6 +277,10 @@ def record_taps(device, velocities_m_s, grip_N: float = 2.0, window_s: float = 0
     try:
         for i, v in enumerate(vels):
             if is_sim:
+                from .sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
+                    TapTrajectory,
+                )
+
                 traj = TapTrajectory(v, 1, approach_height_m=approach_height_m, **(trajectory_options or {}))
                 device.set_user(traj, grip_N=grip_N)
                 n_max = int(math.ceil(traj.duration_s * fs))

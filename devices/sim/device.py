@@ -17,7 +17,6 @@ import numpy as np
 from ..base import Device, DeviceState, Status
 from . import kernel as K
 from .hand import HoldTrajectory, ReactiveHand, sample_grip
-from .linear import linear_model, lti_transmission_ss
 from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, get_config
 from .params import SimParams, default_params, load_sim_params
 from .person import DEFAULT_PERSON, PRESCRIBED, Person
@@ -124,6 +123,10 @@ class SimDevice(Device):
                 p[idx] = m[key]
             p[K.P_HYST] = 1.0 if m["hysteresis"] else 0.0
         else:
+            from .linear import (  # deferred: scipy.signal behind it costs ~1 s; only sim:lti and linear models need it
+                lti_transmission_ss,
+            )
+
             p[K.P_MH] = pr.lti["handle_mass_kg"]
             a, b, c, d = lti_transmission_ss(pr.lti)
             from scipy.signal import cont2discrete  # deferred: ~1 s import, only the sim:lti branch needs it
@@ -403,4 +406,8 @@ class SimDevice(Device):
         (one servo period plus half a period for the zero-order hold) as
         ``delay_s``. Returns a :class:`devices.model.ZpkModel`.
         """
+        from .linear import (  # deferred: scipy.signal behind it costs ~1 s; only sim:lti and linear models need it
+            linear_model,
+        )
+
         return linear_model(self.params, grip_N, output, linkage)

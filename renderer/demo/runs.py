@@ -16,12 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from devices.sim import TapTrajectory
 from stimuli import DecayingSinusoid, Pulse
 from stimuli.hfam.pipeline import TAP_STOP_TIME_S, tap_approach_height_m, tap_trajectory_options
 
-from ..config import RendererConfig
-from ..loop import ServoLoop
 from . import metrics as dm
 
 PRE_S = 0.01    # contact window before impact (s)
@@ -195,6 +192,17 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
         None: the default simulated hand (tied to its trajectory); a
         ``ReactiveHand``: hand mass, muscle impedance and contact reflex.
     """
+    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
+        TapTrajectory,
+    )
+
+    from ..config import (  # deferred: with the servo loop (numba, ~0.3 s), which `renderer demo --help` must not load
+        RendererConfig,
+    )
+    from ..loop import (  # deferred: the servo loop loads numba (~0.3 s); `renderer demo --help` imports this module
+        ServoLoop,
+    )
+
     device.set_sample(rendering.sample)
     traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=approach_height_m(velocity_m_s),
                          **tap_trajectory_options(velocity_m_s, stop_time_s))

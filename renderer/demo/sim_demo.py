@@ -28,10 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from devices.registry import make_device
-from devices.sim import ReactiveHand
 from stimuli.hfam.pipeline import Progress
 
-from . import figures as figs
 from . import runs
 from .cache import Pipeline, build_or_load
 from .config import DemoConfig, DemoResult
@@ -227,6 +225,10 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
         penetration, m) and ``cuts`` (``pulse_firm``/``hfam_firm`` -> 1 -
         pen/pen_firm).
     """
+    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
+        ReactiveHand,
+    )
+
     lo, hi = REACTIVE_VELOCITY_RANGE_M_S
     vels = tuple(v for v in cfg.velocities_m_s if lo <= v <= hi)
     by_name = {r.name: r for r in cfg.renderings}
@@ -255,6 +257,10 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
 
 def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figures: bool = True) -> dict:
     """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``)."""
+    from . import (  # deferred: the figures load matplotlib (~0.3 s); `renderer demo --help` imports this module
+        figures as figs,
+    )
+
     fs, pre = result.fs_hz, runs.PRE_S
     g_mid = cfg.medium_grip_N if cfg.medium_grip_N in cfg.grips_N else cfg.grips_N[len(cfg.grips_N) // 2]
     v_fig = cfg.figure_velocity_m_s
@@ -290,6 +296,10 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
 
 def _pipeline_figures(pipe: Pipeline, cfg: DemoConfig, out: Path) -> dict:
     """The figures that depend only on the cached pipeline: the library (Fig. 4.8) and the Bode plot."""
+    from . import (  # deferred: the figures load matplotlib (~0.3 s); `renderer demo --help` imports this module
+        figures as figs,
+    )
+
     g_mid = cfg.medium_grip_N
     return {"library": figs.library_figure(pipe.library, g_mid, Path(out) / "fig_library.png"),
             "bode": figs.bode_figure(pipe.etfe_npz, pipe.model_set, Path(out) / "fig_bode.png")}

@@ -28,16 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.identify.modelset import load_model_set
-from devices.identify.pipeline import IdentifyConfig, identify_device
-from devices.identify.sweep import SweepConfig
 from devices.recording import record_taps, write_tap_recording
 from devices.registry import make_device
-from devices.sim import SimDevice, TapTrajectory
 from stimuli.recordings import read_tap_csv
 
 from ..recordings import Tap
-from .refine import RefineSettings, refine_library
 from .settings import BuildSettings
 
 DEFAULT_VELOCITIES_M_S = (0.03, 0.05, 0.07, 0.09, 0.11, 0.14, 0.17, 0.2, 0.25, 0.3)
@@ -56,6 +51,11 @@ def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_o
         the first in-contact sample (t = 0 there), tagged with the true
         incoming handle speed.
     """
+    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
+        SimDevice,
+        TapTrajectory,
+    )
+
     dev = device if device is not None else SimDevice(seed=seed)
     dev.set_sample(sample)
     dev.motor_enabled = False
@@ -85,6 +85,10 @@ def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_o
 def build_sim_library(out=None, velocities_m_s=DEFAULT_VELOCITIES_M_S, grips_N=DEFAULT_GRIPS_N,
                       settings: BuildSettings | None = None, log=print):
     """Record sim taps and build (and optionally save) a library through the sim's LTI models."""
+    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
+        SimDevice,
+    )
+
     from .build import build_library, format_verification  # deferred: scipy.signal costs ~1 s at start-up
 
     dev = SimDevice()
@@ -276,6 +280,9 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                           f"{max(np.max(np.abs(a)) for _, _, a in taps):.0f} m/s^2")
 
     progress.start("building the HFAM library (select, smooth, invert per grip, high-pass, taper, verify)")
+    from devices.identify.modelset import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
+        load_model_set,
+    )
 
     mset = load_model_set(out / "identify")
     models = [(f"identify/accel_g{g:g}N.json", m) for g, m in zip(mset.grip_N, mset.models["accel_m_s2"])]
@@ -290,6 +297,11 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                                    "device": s.device, "built_by": "python -m renderer demo"})
     refine_note = ""
     if s.refine_iterations > 0:
+        from .refine import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
+            RefineSettings,
+            refine_library,
+        )
+
         lines = []
         lib, hist = refine_library(lib, models, lambda: make_device(s.device, seed=s.seed),
                                    RefineSettings(iterations=s.refine_iterations, stop_time_s=s.tap_stop_time_s),
@@ -333,6 +345,14 @@ def identify_grips(dev, s: PipelineSettings, out: Path, say) -> str:
     str
         A one-line summary of the fits.
     """
+    from devices.identify.pipeline import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
+        IdentifyConfig,
+        identify_device,
+    )
+    from devices.identify.sweep import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
+        SweepConfig,
+    )
+
     sweep = SweepConfig(amplitude_A=s.sweep_amplitude_A, f_start_hz=s.sweep_band_hz[0],
                         f_end_hz=s.sweep_band_hz[1], duration_s=s.sweep_duration_s, fs_hz=dev.info.servo_rate_hz)
     cfg = IdentifyConfig(grips_N=tuple(float(g) for g in s.identify_grips_N), trials=s.identify_trials,

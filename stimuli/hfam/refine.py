@@ -28,8 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from devices.sim import TapTrajectory
-
 from ..library import HfamLibrary
 from .inversion import invert, nrmse_corr
 from .settings import BuildSettings
@@ -105,6 +103,10 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     v_in_m_s : float
         Incoming speed (least-squares slope of the encoder over the 5 ms before the crossing, m/s).
     """
+    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
+        TapTrajectory,
+    )
+
     fs = device.info.servo_rate_hz
     kf = device.info.force_per_amp_N_A
     n = int(current_A.size)

@@ -41,3 +41,23 @@ def test_help_imports_no_command_module(package):
     assert not commands & loaded
     heavy = {"scipy.signal", "matplotlib", "pandas", "numba"}
     assert not heavy & loaded
+
+
+COMMAND_HELPS = [(package, name) for package in PACKAGES for name, _, _ in _table(package)]
+
+
+@pytest.mark.parametrize(("package", "command"), COMMAND_HELPS)
+def test_command_help_loads_no_heavy_library(package, command):
+    """``python -m <package> <command> --help`` builds its parser without numba, scipy, pandas, statsmodels or
+    matplotlib (each costs 0.3-1 s of start-up): a module the parser needs that imports one of them at its top
+    shows up here, not only as a slower benchmark."""
+    code = (f"import sys\nfrom {package}.__main__ import main\n"
+            f"try:\n    main([{command!r}, '--help'])\nexcept SystemExit:\n    pass\n"
+            "print('MODULES', ' '.join(sorted(sys.modules)))\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "usage:" in proc.stdout
+    loaded = set(proc.stdout.rpartition("MODULES ")[2].split())
+    assert "argparse" in loaded and len(loaded) > 50  # the module list was read
+    heavy = sorted(m for m in loaded if m.split(".")[0] in {"numba", "scipy", "pandas", "statsmodels", "matplotlib"})
+    assert not heavy, f"{package} {command} --help imports {heavy[:5]}"
