@@ -13,7 +13,7 @@ import numpy as np
 
 from analysis import figures
 from analysis.pipeline import write_tables
-from analysis.stats import valid_testing
+from analysis.stats import valid_testing_mask
 from analysis.traces import typical_taps
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
@@ -150,13 +150,14 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) ->
     notes = []
     dirs = dict(zip(res.study.subjects["subject"], map(Path, res.study.subjects["folder"])))
     t = res.study.trials
-    sel = ((t["phase"] == "testing") & t["valid"]).to_numpy()
+    sel = valid_testing_mask(t)
     values, row = res.study.taps["incoming_velocities_m_s"]
     keep = sel[row]
-    # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse)
+    # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse), and of
+    # those rows only the columns that locate a trace (not the lists as text)
     velocities = (values[keep], (np.cumsum(sel) - 1)[row[keep]])
-    taps, v, why = typical_taps(valid_testing(res.study), dirs, res.study.catalog, target_v_m_s,
-                                velocities=velocities)
+    rows = t.loc[sel, ["subject", "phase", "trial", "attempt", "sample"]]
+    taps, v, why = typical_taps(rows, dirs, res.study.catalog, target_v_m_s, velocities=velocities)
     if taps:
         written.append(figures.fig_accelerations(taps, res.study.catalog, v, out / "fig_4_20_accelerations.png"))
         if why:
