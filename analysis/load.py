@@ -55,7 +55,7 @@ class Study:
         One row per attempt, columns of :data:`TRIAL_COLUMNS` with parsed types (booleans, ints,
         floats in SI units, ``rating`` float with NaN when none; ``subject, phase, sample, kind``
         categorical with sorted categories; ``started_at`` and the lists kept as strings) plus
-        ``file`` (path of the trials.csv) and ``line`` (1-based line number in it).
+        ``file`` (path of the trials.csv, categorical) and ``line`` (1-based line number in it).
     subjects : pandas.DataFrame
         One row per subject: ``subject, experience, age, gender, handedness, finished, seed,
         software_version, device, folder`` (seed/version/device as session.json gives them, else None).
@@ -253,9 +253,13 @@ _ARROW_TYPES = {**{c: pa.dictionary(pa.int32(), pa.string()) for c in NAME_COLUM
                 **{c: pa.bool_() for c in BOOL_COLUMNS}, **{c: pa.int64() for c in INT_COLUMNS},
                 **{c: pa.float64() for c in FLOAT_COLUMNS + ("rating",)}, **{c: pa.string() for c in TEXT_COLUMNS}}
 _BOM = b"\xef\xbb\xbf"
-# the large Arrow allocations (CSV table, split lists) come from the system allocator: pyarrow's default
-# pool (mimalloc) made the first CSV read of a process up to twice as slow (fresh pages for every block)
-_POOL = pa.system_memory_pool()
+# the large Arrow allocations (CSV table, split lists) come from jemalloc, which hands freed blocks back:
+# with pyarrow's default pool (mimalloc) the first CSV read of a process was up to twice as slow, with the
+# system allocator the peak memory ~100 MB higher at 10,000 subjects
+try:
+    _POOL = pa.jemalloc_memory_pool()
+except NotImplementedError:          # a pyarrow built without jemalloc
+    _POOL = pa.system_memory_pool()
 
 
 def _arrow_options(names: list[str]) -> tuple:
@@ -274,17 +278,35 @@ def _arrow_options(names: list[str]) -> tuple:
     return read, parse, convert
 
 
+# the files are parsed in batches of about this many bytes (one table each, concatenated without copying):
+# the raw text of ten thousand files (200 MB) is never held whole next to its parsed table
+_BATCH_BYTES = 32 << 20
+
+
 def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
-    """All trials.csv files parsed in one typed pyarrow CSV read, or None if any file is not plain.
+    """All trials.csv files parsed by pyarrow's typed CSV reader, or None if any file is not plain.
 
     Plain: UTF-8 without BOM, no quotes or carriage returns, ending in a newline, the same header
     in every file, and exactly header-width fields on every line (checked by the parser). Anything
     else (and any value the typed parse cannot read) returns None, and the caller uses the exact
-    per-file reader, whose errors name file, line and column. Returns the typed table (columns of
-    :data:`TRIAL_COLUMNS`, ``file``, ``line``) and ``[(trials path, rows)]``.
+    per-file reader, whose errors name file, line and column. The files are read in order and
+    parsed a batch of files at a time (header lines left out). Returns the typed table (columns
+    of :data:`TRIAL_COLUMNS`, ``file``, ``line``) and ``[(trials path, rows)]``.
     """
     buf = bytearray()
-    header, names, file_of_row, counts = None, None, [], []
+    header, options, file_of_row, counts, tables = None, None, [], [], []
+
+    def parse() -> bool:
+        nonlocal buf
+        if b'"' in buf or b"\r" in buf:
+            return False
+        try:
+            tables.append(pa_csv.read_csv(pa.py_buffer(buf), *options, memory_pool=_POOL))
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
+            return False
+        buf = bytearray()       # a new one: the table may still refer to the old one's memory
+        return True
+
     for folder in folders:
         path = os.path.join(folder, "trials.csv")
         try:
@@ -303,6 +325,7 @@ def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
                 return None
             if not set(TRIAL_COLUMNS) <= set(names) or len(set(names)) != len(names):
                 return None
+            options = _arrow_options(names)
         elif first != len(header) or not data.startswith(header):
             return None
         n = data.count(b"\n") - 1
@@ -310,15 +333,14 @@ def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
         file_of_row.append((path, n))
         counts.append(n)
         del data
-    if header is None or b'"' in buf or b"\r" in buf:
-        return None
-    total = sum(counts)
-    try:
-        table = pa_csv.read_csv(pa.py_buffer(buf), *_arrow_options(names), memory_pool=_POOL)
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
+        if len(buf) >= _BATCH_BYTES and not parse():
+            return None
+    if header is None or (buf and not parse()):
         return None
     del buf
-    if table.num_rows != total or any(table.column(c).null_count for c in BOOL_COLUMNS + INT_COLUMNS):
+    table = pa.concat_tables(tables) if len(tables) != 1 else tables[0]
+    del tables
+    if table.num_rows != sum(counts) or any(table.column(c).null_count for c in BOOL_COLUMNS + INT_COLUMNS):
         return None
     columns = {}
     for col in TRIAL_COLUMNS:
@@ -329,9 +351,9 @@ def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
             columns[col] = values.to_pandas(types_mapper={pa.string(): STR_DTYPE}.get)
         else:
             columns[col] = values.to_numpy(zero_copy_only=False)       # float nulls (empty, nan, x) become NaN
-    del table
+    del table, values
     t = pd.DataFrame(columns)
-    t["file"] = np.repeat(np.array([f for f, _ in file_of_row], dtype=object), counts)
+    t["file"] = _file_column(file_of_row)
     t["line"] = _line_numbers(counts)
     return t, file_of_row
 
@@ -352,6 +374,13 @@ def names_categorical(values) -> pd.Categorical:
     cat = values.array if isinstance(values, pd.Series) else values
     cat = cat if isinstance(cat, pd.Categorical) else pd.Categorical(cat)
     return pd.Categorical(cat, categories=pd.Index(sorted(cat.categories), dtype=STR_DTYPE))
+
+
+def _file_column(file_of_row: list) -> pd.Categorical:
+    """The ``file`` column: each row's trials.csv path, a categorical with one category per file (in file order)."""
+    paths = [f for f, _ in file_of_row]
+    code = np.repeat(np.arange(len(paths), dtype=np.int32), [n for _, n in file_of_row])
+    return pd.Categorical.from_codes(code, categories=pd.Index(paths, dtype=STR_DTYPE))
 
 
 def _line_numbers(counts: list) -> np.ndarray:
@@ -454,11 +483,17 @@ def _check_consistency(t: pd.DataFrame, kinds: dict) -> None:
     if bad.any():
         _fail(t, bad, "valid", "is true on an attempt marked rejected, saturated or overpowered")
     if kinds:
-        expected = t["sample"].map(kinds).to_numpy(dtype=object)
-        bad = pd.notna(expected) & (t["kind"].to_numpy(dtype=object) != expected)
+        # compared as codes: the catalog's kind of each sample category, as a code of the kind column
+        # (-1: the catalog gives none; -2: a kind no row has)
+        sample, kind = pd.Categorical(t["sample"]), pd.Categorical(t["kind"])
+        kind_code = {k: c for c, k in enumerate(kind.categories)}
+        lut = np.array([kind_code.get(kinds[s], -2) if s in kinds else -1 for s in sample.categories] + [-1])
+        expected = lut[sample.codes]                  # a missing sample (code -1) takes the last entry, -1
+        bad = (expected != -1) & (kind.codes != expected)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            _fail(t, bad, "kind", f"differs from the catalog's kind {expected[i]!r} of sample {t['sample'].iat[i]!r}")
+            name = t["sample"].iat[i]
+            _fail(t, bad, "kind", f"differs from the catalog's kind {kinds[name]!r} of sample {name!r}")
 
 
 def _check_duplicates(t: pd.DataFrame) -> None:
@@ -534,29 +569,34 @@ def _arrow_strings(cells) -> pa.ChunkedArray | pa.Array | None:
 def _fast_lists(cells) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`parse_lists` in C (pyarrow: split at ';', cast to float64) for clean cells; None when a cell
     has an empty token, a token that is not a finite number, or is not a str (then the exact parser
-    runs and names the cell). The casts are correctly rounded, like ``float()``."""
+    runs and names the cell). The casts are correctly rounded, like ``float()``. Chunk by chunk, so
+    the split strings of a chunk are all that is held besides the numbers."""
     arr = _arrow_strings(cells)
     if arr is None:
         return None
-    n = len(arr)
-    split = pc.split_pattern(arr, ";", memory_pool=_POOL)
-    tokens = pc.list_flatten(split)
-    counts = np.array(pc.list_value_length(split).to_numpy(zero_copy_only=False), dtype=np.int64)
-    empty_cell = np.asarray(pc.equal(arr, "").to_numpy(zero_copy_only=False), dtype=bool)
-    n_empty_tokens = pc.sum(pc.equal(tokens, "")).as_py() or 0
-    if n_empty_tokens != int(empty_cell.sum()):       # an empty token inside a list (';;', a leading ';')
-        return None
-    if n_empty_tokens:
-        counts[empty_cell] = 0
-        tokens = pc.filter(tokens, pc.not_equal(tokens, ""))
-    try:
-        numbers = np.asarray(pc.cast(tokens, pa.float64(), memory_pool=_POOL).to_numpy(zero_copy_only=False),
-                             dtype=np.float64)
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-        return None
-    if numbers.size != int(counts.sum()) or not np.isfinite(numbers).all():
-        return None
-    return numbers, np.repeat(np.arange(n, dtype=np.int64), counts), counts
+    numbers, counts = [], []
+    for chunk in (arr.chunks if isinstance(arr, pa.ChunkedArray) else [arr]):
+        split = pc.split_pattern(chunk, ";", memory_pool=_POOL)
+        tokens = split.flatten()
+        count = np.array(pc.list_value_length(split).to_numpy(zero_copy_only=False), dtype=np.int64)
+        empty_cell = np.asarray(pc.equal(chunk, "").to_numpy(zero_copy_only=False), dtype=bool)
+        n_empty_tokens = pc.sum(pc.equal(tokens, "")).as_py() or 0
+        if n_empty_tokens != int(empty_cell.sum()):       # an empty token inside a list (';;', a leading ';')
+            return None
+        if n_empty_tokens:
+            count[empty_cell] = 0
+            tokens = pc.filter(tokens, pc.not_equal(tokens, ""))
+        try:
+            values = pc.cast(tokens, pa.float64(), memory_pool=_POOL).to_numpy(zero_copy_only=False)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            return None
+        if values.size != int(count.sum()) or not np.isfinite(values).all():
+            return None
+        numbers.append(values)
+        counts.append(count)
+    numbers = np.concatenate(numbers) if numbers else np.zeros(0)
+    counts = np.concatenate(counts) if counts else np.zeros(0, dtype=np.int64)
+    return numbers, np.repeat(np.arange(len(arr), dtype=np.int64), counts), counts
 
 
 def _bad_list_cell(cells, files, lines, column) -> None:
@@ -586,7 +626,7 @@ def _exact_trials(folders: list, messages: list) -> tuple[pd.DataFrame, list]:
     trials = pd.DataFrame({c: np.array(columns[i], dtype=object) for i, c in enumerate(TRIAL_COLUMNS)},
                           dtype=object)
     del columns
-    trials["file"] = np.repeat([f for f, _ in file_of_row], [n for _, n in file_of_row]).astype(object)
+    trials["file"] = _file_column(file_of_row)
     trials["line"] = np.array(all_lines, dtype=np.int64)
     return trials, file_of_row
 
@@ -597,11 +637,15 @@ def _validate(trials: pd.DataFrame, raw_rating, subjects: pd.DataFrame, file_of_
 
     ``raw_rating``: the rating column as written (for the message), or None on the fast path.
     """
-    expected_subject = np.repeat(subjects["subject"].to_numpy(dtype=object), [n for _, n in file_of_row])
-    bad = (trials["subject"].to_numpy(dtype=object) != expected_subject)
+    names = subjects["subject"].to_numpy(dtype=object)
+    counts = [n for _, n in file_of_row]
+    subject = pd.Categorical(trials["subject"])
+    # compared as codes: each file's session subject as a code of the subject column (-1: no row has it)
+    expected = np.repeat(pd.Index(subject.categories).get_indexer(names), counts)
+    bad = (subject.codes != expected) | (subject.codes < 0)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        _fail(trials, bad, "subject", f"differs from session.json's subject {expected_subject[i]!r}")
+        _fail(trials, bad, "subject", f"differs from session.json's subject {np.repeat(names, counts)[i]!r}")
     bad = ~trials["phase"].isin(PHASES).to_numpy()
     if bad.any():
         _fail(trials, bad, "phase", f"is not one of {'|'.join(PHASES)}")
@@ -671,11 +715,11 @@ def load_study(data_dir) -> Study:
         trials, file_of_row = _exact_trials(folders, messages)
         raw_rating = trials["rating"].to_numpy(dtype=object)
         trials = _parse_columns(trials)
-        _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
         for col in NAME_COLUMNS:                     # the fast reader's dtypes
             trials[col] = names_categorical(trials[col].to_numpy(dtype=object))
         for col in TEXT_COLUMNS:
             trials[col] = trials[col].astype(STR_DTYPE)
+        _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
     sample = pd.Categorical(trials["sample"])
     _, first = np.unique(sample.codes, return_index=True)     # first row of each sample, in row order
     for i in np.sort(first):
