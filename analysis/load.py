@@ -15,6 +15,7 @@ import io
 import json
 import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,9 +79,9 @@ class Study:
     taps: dict
 
 
-def _warn(messages: list, text: str) -> None:
+def _warn(messages: list, text: str, stacklevel: int = 3) -> None:
     messages.append(text)
-    warnings.warn(text, AnalysisWarning, stacklevel=3)
+    warnings.warn(text, AnalysisWarning, stacklevel=stacklevel)
 
 
 def _subject_folders(data_dir: Path) -> list[str]:
@@ -294,50 +295,54 @@ def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
     of :data:`TRIAL_COLUMNS`, ``file``, ``line``) and ``[(trials path, rows)]``.
     """
     buf = bytearray()
-    header, options, file_of_row, counts, tables = None, None, [], [], []
+    header, options, file_of_row, counts, parsed = None, None, [], [], []
+    # a batch is parsed in a second thread (pyarrow releases the GIL) while this one reads the next files
+    with ThreadPoolExecutor(max_workers=1) as parser:
 
-    def parse() -> bool:
-        nonlocal buf
-        if b'"' in buf or b"\r" in buf:
-            return False
-        try:
-            tables.append(pa_csv.read_csv(pa.py_buffer(buf), *options, memory_pool=_POOL))
-        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
-            return False
-        buf = bytearray()       # a new one: the table may still refer to the old one's memory
-        return True
+        def parse() -> bool:
+            nonlocal buf
+            if b'"' in buf or b"\r" in buf:
+                return False
+            parsed.append(parser.submit(pa_csv.read_csv, pa.py_buffer(buf), *options, memory_pool=_POOL))
+            buf = bytearray()       # a new one: the parser holds the old one
+            return True
 
-    for folder in folders:
-        path = os.path.join(folder, "trials.csv")
-        try:
-            with open(path, "rb") as fh:
-                data = fh.read()
-        except OSError:
-            return None
-        first = data.find(b"\n")
-        if first < 0 or data[-1:] != b"\n" or data.startswith(_BOM):
-            return None
-        if header is None:
-            header = data[:first]
+        for folder in folders:
+            path = os.path.join(folder, "trials.csv")
             try:
-                names = [h.strip() for h in header.decode("utf-8").split(",")]
-            except UnicodeDecodeError:
+                with open(path, "rb") as fh:
+                    data = fh.read()
+            except OSError:
                 return None
-            if not set(TRIAL_COLUMNS) <= set(names) or len(set(names)) != len(names):
+            first = data.find(b"\n")
+            if first < 0 or data[-1:] != b"\n" or data.startswith(_BOM):
                 return None
-            options = _arrow_options(names)
-        elif first != len(header) or not data.startswith(header):
+            if header is None:
+                header = data[:first]
+                try:
+                    names = [h.strip() for h in header.decode("utf-8").split(",")]
+                except UnicodeDecodeError:
+                    return None
+                if not set(TRIAL_COLUMNS) <= set(names) or len(set(names)) != len(names):
+                    return None
+                options = _arrow_options(names)
+            elif first != len(header) or not data.startswith(header):
+                return None
+            n = data.count(b"\n") - 1
+            buf += memoryview(data)[first + 1:]
+            file_of_row.append((path, n))
+            counts.append(n)
+            del data
+            if len(buf) >= _BATCH_BYTES and not parse():
+                return None
+        if header is None or (buf and not parse()):
             return None
-        n = data.count(b"\n") - 1
-        buf += memoryview(data)[first + 1:]
-        file_of_row.append((path, n))
-        counts.append(n)
-        del data
-        if len(buf) >= _BATCH_BYTES and not parse():
+        del buf
+        try:
+            tables = [f.result() for f in parsed]
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
             return None
-    if header is None or (buf and not parse()):
-        return None
-    del buf
+        del parsed
     table = pa.concat_tables(tables) if len(tables) != 1 else tables[0]
     del tables
     if table.num_rows != sum(counts) or any(table.column(c).null_count for c in BOOL_COLUMNS + INT_COLUMNS):
@@ -660,6 +665,37 @@ def _validate(trials: pd.DataFrame, raw_rating, subjects: pd.DataFrame, file_of_
     _check_duplicates(trials)
 
 
+def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, dict]:
+    """Every subject's session.json: (subjects table, catalog, kinds); warnings appended to ``messages``."""
+    catalog: list[str] = []
+    kinds: dict = {}
+    subj_rows = []
+    seen_subjects: dict = {}
+    for folder in folders:
+        sess_path = os.path.join(folder, "session.json")
+        sess = read_session(sess_path)
+        if sess["subject"] in seen_subjects:
+            raise ValueError(f"{sess_path}: subject {sess['subject']!r} also in {seen_subjects[sess['subject']]}")
+        seen_subjects[sess["subject"]] = sess_path
+        if not catalog:
+            catalog = list(sess["catalog"])
+        elif sess["catalog"] != catalog:
+            added = [s for s in sess["catalog"] if s not in catalog]
+            _warn(messages, f"{sess_path}: catalog differs from the first session's"
+                            + (f" (adds {', '.join(added)})" if added else " (order or subset)"), stacklevel=4)
+            catalog.extend(added)
+        for name, kind in sess["kinds"].items():
+            kinds.setdefault(name, kind)
+        if not sess["finished"]:
+            _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
+                            "its attempts are used as far as they go", stacklevel=4)
+        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
+                                               "seed", "software_version", "device")}
+                         | {"folder": folder, "session_file": sess_path,
+                            "trials_file": os.path.join(folder, "trials.csv")})
+    return pd.DataFrame(subj_rows), catalog, kinds
+
+
 def load_study(data_dir) -> Study:
     """Load and validate every subject folder under ``data_dir``.
 
@@ -676,67 +712,47 @@ def load_study(data_dir) -> Study:
     data_dir = Path(data_dir)
     messages: list[str] = []
     folders = _subject_folders(data_dir)
-    catalog: list[str] = []
-    kinds: dict = {}
-    subj_rows = []
-    seen_subjects: dict = {}
-    for folder in folders:
-        sess_path = os.path.join(folder, "session.json")
-        sess = read_session(sess_path)
-        if sess["subject"] in seen_subjects:
-            raise ValueError(f"{sess_path}: subject {sess['subject']!r} also in {seen_subjects[sess['subject']]}")
-        seen_subjects[sess["subject"]] = sess_path
-        if not catalog:
-            catalog = list(sess["catalog"])
-        elif sess["catalog"] != catalog:
-            added = [s for s in sess["catalog"] if s not in catalog]
-            _warn(messages, f"{sess_path}: catalog differs from the first session's"
-                            + (f" (adds {', '.join(added)})" if added else " (order or subset)"))
-            catalog.extend(added)
-        for name, kind in sess["kinds"].items():
-            kinds.setdefault(name, kind)
-        if not sess["finished"]:
-            _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
-                            "its attempts are used as far as they go")
-        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
-                                               "seed", "software_version", "device")}
-                         | {"folder": folder, "session_file": sess_path,
-                            "trials_file": os.path.join(folder, "trials.csv")})
-    subjects = pd.DataFrame(subj_rows)
-    # fast path: every file plain -> one typed pyarrow read; validated below. Any problem: the exact reader
+    # fast path: every trials.csv plain -> typed pyarrow reads, validated below; any problem: the exact
+    # reader. The fast reading never raises, so it goes first: its ;-lists are split in a second thread
+    # (pyarrow releases the GIL) while this one reads the session files, and every error still comes in
+    # the order of the exact reading (session files, then trials files)
     fast = _fast_trials(folders)
-    if fast is not None:
-        trials, file_of_row = fast
-        try:
-            _validate(trials, None, subjects, file_of_row, catalog, kinds)
-        except ValueError:
-            fast = None             # read again exactly, so the error names the raw value as written
-    if fast is None:
-        trials, file_of_row = _exact_trials(folders, messages)
-        raw_rating = trials["rating"].to_numpy(dtype=object)
-        trials = _parse_columns(trials)
-        for col in NAME_COLUMNS:                     # the fast reader's dtypes
-            trials[col] = names_categorical(trials[col].to_numpy(dtype=object))
-        for col in TEXT_COLUMNS:
-            trials[col] = trials[col].astype(STR_DTYPE)
-        _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
-    sample = pd.Categorical(trials["sample"])
-    _, first = np.unique(sample.codes, return_index=True)     # first row of each sample, in row order
-    for i in np.sort(first):
-        kinds.setdefault(trials["sample"].iat[i], trials["kind"].iat[i])
+    with ThreadPoolExecutor(max_workers=1) as splitter:
+        split = {col: splitter.submit(_fast_lists, fast[0][col]) for col in LIST_COLUMNS} if fast else {}
+        subjects, catalog, kinds = _read_sessions(folders, messages)
+        if fast is not None:
+            trials, file_of_row = fast
+            try:
+                _validate(trials, None, subjects, file_of_row, catalog, kinds)
+            except ValueError:
+                fast, split = None, {}    # read again exactly, so the error names the raw value as written
+        if fast is None:
+            trials, file_of_row = _exact_trials(folders, messages)
+            raw_rating = trials["rating"].to_numpy(dtype=object)
+            trials = _parse_columns(trials)
+            for col in NAME_COLUMNS:                     # the fast reader's dtypes
+                trials[col] = names_categorical(trials[col].to_numpy(dtype=object))
+            for col in TEXT_COLUMNS:
+                trials[col] = trials[col].astype(STR_DTYPE)
+            _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
+        sample = pd.Categorical(trials["sample"])
+        _, first = np.unique(sample.codes, return_index=True)     # first row of each sample, in row order
+        for i in np.sort(first):
+            kinds.setdefault(trials["sample"].iat[i], trials["kind"].iat[i])
 
-    files, lines = trials["file"].to_numpy(dtype=object), trials["line"].to_numpy()
-    n_taps = trials["n_taps"].to_numpy()
-    testing_valid = (trials["phase"] == "testing").to_numpy() & trials["valid"].to_numpy()
-    taps = {}
-    for col in LIST_COLUMNS:
-        numbers, row, counts = parse_lists(trials[col], files, lines, col)
-        taps[col] = (numbers, row)
-        mism = testing_valid & (counts != n_taps)
-        if mism.any():
-            i = int(np.flatnonzero(mism)[0])
-            _warn(messages, f"{int(mism.sum())} valid testing attempt(s) list a number of {col} different from "
-                            f"n_taps (first at {files[i]}:{lines[i]}); the listed values are used")
+        files, lines = trials["file"].to_numpy(dtype=object), trials["line"].to_numpy()
+        n_taps = trials["n_taps"].to_numpy()
+        testing_valid = (trials["phase"] == "testing").to_numpy() & trials["valid"].to_numpy()
+        taps = {}
+        for col in LIST_COLUMNS:
+            parsed = split[col].result() if col in split else None
+            numbers, row, counts = parsed if parsed is not None else parse_lists(trials[col], files, lines, col)
+            taps[col] = (numbers, row)
+            mism = testing_valid & (counts != n_taps)
+            if mism.any():
+                i = int(np.flatnonzero(mism)[0])
+                _warn(messages, f"{int(mism.sum())} valid testing attempt(s) list a number of {col} different "
+                                f"from n_taps (first at {files[i]}:{lines[i]}); the listed values are used")
     if trials.empty:
         raise ValueError(f"{data_dir}: the trials.csv files hold no attempts")
     return Study(trials=trials, subjects=subjects, catalog=tuple(catalog), kinds=kinds, warnings=tuple(messages),
