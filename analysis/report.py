@@ -168,6 +168,7 @@ def _draw_aside(jobs: list) -> tuple[Future | None, ProcessPoolExecutor | None]:
     """
     if _cpus() < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return None, None
+    figures.load_matplotlib()        # once, here: the child inherits it
     pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
     gc.freeze()         # the child's garbage collector leaves the parent's objects (and their pages) alone
     try:
