@@ -207,7 +207,7 @@ def _figures_here(res: Analysis, out: Path, target_v_m_s: float | None) -> tuple
     """Figures 4.19 and 4.20 (the typical taps read from the traces); (paths written, notes)."""
     written = [figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
     notes = []
-    dirs = dict(zip(res.study.subjects["subject"], map(Path, res.study.subjects["folder"])))
+    dirs = dict(zip(res.study.subjects["subject"], res.study.subjects["folder"]))     # folder paths as str
     t = res.study.trials
     sel = valid_testing_mask(t)
     values, row = res.study.taps["incoming_velocities_m_s"]

@@ -124,7 +124,7 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
     trials : DataFrame
         Valid testing attempts (``subject, phase, trial, attempt, sample, incoming_velocities_m_s``).
     subject_dirs : dict
-        subject -> folder.
+        subject -> folder (str or Path).
     samples : sequence of str
         Catalog order.
     target_v_m_s : float or None
