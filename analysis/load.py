@@ -343,6 +343,8 @@ def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
         except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
             return None
         del parsed
+    if not tables:                  # header lines only: the exact reader says so
+        return None
     table = pa.concat_tables(tables) if len(tables) != 1 else tables[0]
     del tables
     if table.num_rows != sum(counts) or any(table.column(c).null_count for c in BOOL_COLUMNS + INT_COLUMNS):
