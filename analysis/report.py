@@ -173,6 +173,9 @@ def _draw_aside(jobs: list) -> tuple[Future | None, ProcessPoolExecutor | None]:
     gc.freeze()         # the child's garbage collector leaves the parent's objects (and their pages) alone
     try:
         return pool.submit(_draw, jobs), pool
+    except OSError:     # no process could be started (memory, process limit): the caller draws them
+        pool.shutdown(cancel_futures=True)
+        return None, None
     finally:
         gc.unfreeze()
 
