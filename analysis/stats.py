@@ -390,7 +390,7 @@ def velocity_rating(study: Study) -> pd.DataFrame:
     y = t["rating"].to_numpy()[sel]
     keep = np.isfinite(v) & np.isfinite(y)
     v, y = v[keep], y[keep]
-    # subjects and samples as integer labels (only which rows share one matters)
+    # subjects and samples as integer labels (only which rows share one matters: groups are bincounts)
     subj = codes(t["subject"], study.subjects["subject"])[sel][keep]
     samp = codes(t["sample"], study.catalog)[sel][keep]
     rows = []
@@ -398,8 +398,8 @@ def velocity_rating(study: Study) -> pd.DataFrame:
         sel = samp == j
         n = int(sel.sum())
         r, p = _pearson(v[sel] - v[sel].mean(), y[sel] - y[sel].mean(), n - 2) if n > 2 else (np.nan, np.nan)
-        s_codes = np.unique(subj[sel], return_inverse=True)[1].reshape(-1)
-        n_s = int(s_codes.max() + 1) if n else 0
+        s_codes = subj[sel]
+        n_s = int(np.count_nonzero(np.bincount(s_codes)))
         dof = n - n_s - 1
         if n and dof >= 1:
             r_rm, p_rm = _pearson(_center(v[sel], s_codes), _center(y[sel], s_codes), dof)
@@ -407,13 +407,13 @@ def velocity_rating(study: Study) -> pd.DataFrame:
             r_rm, p_rm = np.nan, np.nan
         rows.append({"sample": name, "n_attempts": n, "n_subjects": n_s, "r": r, "p": p,
                      "r_rm": r_rm, "df_rm": dof, "p_rm": p_rm})
-    cell = subj * len(study.catalog) + samp
-    cells = np.unique(cell, return_inverse=True)[1].reshape(-1)
-    n, g = len(v), int(cells.max() + 1) if len(v) else 0
+    cells = subj * len(study.catalog) + samp
+    n, g = len(v), int(np.count_nonzero(np.bincount(cells)))
     dof = n - g - 1
     r_rm, p_rm = _pearson(_center(v, cells), _center(y, cells), dof) if dof >= 1 else (np.nan, np.nan)
     r, p = _pearson(v - v.mean(), y - y.mean(), n - 2) if n > 2 else (np.nan, np.nan)
-    rows.append({"sample": "(all)", "n_attempts": n, "n_subjects": int(np.unique(subj).size), "r": r, "p": p,
+    rows.append({"sample": "(all)", "n_attempts": n, "n_subjects": int(np.count_nonzero(np.bincount(subj))),
+                 "r": r, "p": p,
                  "r_rm": r_rm, "df_rm": dof, "p_rm": p_rm})
     return pd.DataFrame(rows)
 
