@@ -22,6 +22,7 @@ COMMAND_TABLE = (
 def main(argv=None) -> int:
     """Run ``python -m analysis`` with ``argv`` (default: the command line); returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    _one_blas_thread()
     parser = argparse.ArgumentParser(prog=_prog(), description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True,
                                 metavar="{" + ",".join(name for name, _, _ in COMMAND_TABLE) + "}")
@@ -37,6 +38,18 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+
+
+def _one_blas_thread() -> None:
+    """One BLAS thread for this process, unless the environment chose, and only before numpy is loaded.
+
+    The analysis' matrix products are small (vectors of attempts, 12 x 12 covariances); a second
+    BLAS thread waiting for a busy core cost up to a scheduler slice (~8 ms) per call, 0.6 s per
+    report on a loaded two-core machine. Once numpy is imported (a caller's process) the setting
+    could not take effect, and the environment is left alone.
+    """
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def run() -> None:

@@ -1,9 +1,10 @@
 """Load and validate a folder of study sessions (schema of issue 6, docs/study.md).
 
 ``DATA/<subject>/session.json`` + ``DATA/<subject>/trials.csv`` per subject.
-Reading is done with the ``csv`` module into one combined table and then
-validated column by column with numpy, so a thousand subject folders load in a
-fraction of a second. Every error names the file and line (and the column).
+Plain files (the study runner's format) are read as one buffer by pyarrow's typed CSV
+reader and validated column by column with numpy, so ten thousand subject folders
+load in about a second; anything else goes through the exact per-file reader (the
+``csv`` module), whose errors name the file and line (and the column).
 """
 
 from __future__ import annotations
@@ -14,12 +15,15 @@ import io
 import json
 import os
 import warnings
-import warnings as _w
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pa_csv
 
 TRIAL_COLUMNS = (
     "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
@@ -50,8 +54,9 @@ class Study:
     ----------
     trials : pandas.DataFrame
         One row per attempt, columns of :data:`TRIAL_COLUMNS` with parsed types (booleans, ints,
-        floats in SI units, ``rating`` float with NaN when none, lists kept as strings) plus
-        ``file`` (path of the trials.csv) and ``line`` (1-based line number in it).
+        floats in SI units, ``rating`` float with NaN when none; ``subject, phase, sample, kind``
+        categorical with sorted categories; ``started_at`` and the lists kept as strings) plus
+        ``file`` (path of the trials.csv, categorical) and ``line`` (1-based line number in it).
     subjects : pandas.DataFrame
         One row per subject: ``subject, experience, age, gender, handedness, finished, seed,
         software_version, device, folder`` (seed/version/device as session.json gives them, else None).
@@ -74,23 +79,25 @@ class Study:
     taps: dict
 
 
-def _warn(messages: list, text: str) -> None:
+def _warn(messages: list, text: str, stacklevel: int = 3) -> None:
     messages.append(text)
-    warnings.warn(text, AnalysisWarning, stacklevel=3)
+    warnings.warn(text, AnalysisWarning, stacklevel=stacklevel)
 
 
-def _subject_folders(data_dir: Path) -> list[Path]:
+def _subject_folders(data_dir: Path) -> list[str]:
+    """Subject folders (paths as str: no Path object per folder) under ``data_dir``, sorted by name."""
     if not data_dir.exists():
         raise FileNotFoundError(f"data folder {data_dir} does not exist")
     if not data_dir.is_dir():
         raise ValueError(f"{data_dir} is not a folder of subject folders")
     if (data_dir / "session.json").is_file():   # a single subject folder given directly
-        return [data_dir]
+        return [str(data_dir)]
     with os.scandir(data_dir) as it:     # scandir: no stat per entry for the type, unlike Path.is_dir
         names = sorted(e.name for e in it if e.is_dir() and not e.name.startswith("."))
-    sessions = [data_dir / n for n in names
-                if os.path.exists(os.path.join(data_dir, n, "session.json"))
-                or os.path.exists(os.path.join(data_dir, n, "trials.csv"))]
+    root = str(data_dir)
+    sessions = [folder for folder in (os.path.join(root, n) for n in names)
+                if os.path.exists(os.path.join(folder, "session.json"))
+                or os.path.exists(os.path.join(folder, "trials.csv"))]
     if not sessions:
         raise ValueError(f"{data_dir}: no subject folders with session.json and trials.csv found "
                          "(an empty data folder gives no report)")
@@ -132,14 +139,15 @@ def _catalog_cached(raw, path: Path) -> tuple[list[str], dict]:
     return result
 
 
-def read_session(path: Path) -> dict:
-    """Read and check one ``session.json``; errors name the file, line or key.
+def read_session(path) -> dict:
+    """Read and check one ``session.json`` (``path``: str or Path); errors name the file, line or key.
 
     Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
     finished, seed, software_version, device``.
     """
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
     except FileNotFoundError:
         raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
     try:
@@ -233,99 +241,161 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
     return [cols[header.index(c)] for c in TRIAL_COLUMNS], lines, torn
 
 
-class _ChunkReader:
-    """File-like view of a bytearray for pandas' C parser (reads chunks; no second copy of the buffer)."""
-
-    def __init__(self, buf: bytearray):
-        self._view, self._pos = memoryview(buf), 0
-
-    def read(self, n: int = -1) -> bytes:
-        end = len(self._view) if n is None or n < 0 else min(self._pos + n, len(self._view))
-        chunk = bytes(self._view[self._pos:end])
-        self._pos = end
-        return chunk
-
-
-_FAST_DTYPES = {**{c: "category" for c in ("subject", "phase", "sample", "kind", "started_at") + BOOL_COLUMNS},
-                **{c: np.float64 for c in INT_COLUMNS + FLOAT_COLUMNS + ("rating",)},
-                **{c: object for c in LIST_COLUMNS}}
+# names repeated on every row: pandas categoricals (sorted categories, the same from both readers), so
+# comparisons, grouping and the codes of the tests cost an integer array, not half a million strings
+NAME_COLUMNS = ("subject", "phase", "sample", "kind")
+# the other text columns: pandas' string dtype with pyarrow storage, so the ;-lists of half a million
+# rows stay in Arrow buffers instead of becoming a million Python strings
+TEXT_COLUMNS = ("started_at",) + LIST_COLUMNS
+STR_DTYPE = pd.StringDtype("pyarrow", na_value=np.nan)
+# cells read as NaN in the number columns (the exact reader: empty, nan in any case, x)
 _NA_FLOAT = ["", "nan", "NaN", "NAN", "Nan", "x", "X"]
+_ARROW_TYPES = {**{c: pa.dictionary(pa.int32(), pa.string()) for c in NAME_COLUMNS},
+                **{c: pa.bool_() for c in BOOL_COLUMNS}, **{c: pa.int64() for c in INT_COLUMNS},
+                **{c: pa.float64() for c in FLOAT_COLUMNS + ("rating",)}, **{c: pa.string() for c in TEXT_COLUMNS}}
+_BOM = b"\xef\xbb\xbf"
+# the large Arrow allocations (CSV table, split lists) come from jemalloc, which hands freed blocks back:
+# with pyarrow's default pool (mimalloc) the first CSV read of a process was up to twice as slow, with the
+# system allocator the peak memory ~100 MB higher at 10,000 subjects
+try:
+    _POOL = pa.jemalloc_memory_pool()
+except NotImplementedError:          # a pyarrow built without jemalloc
+    _POOL = pa.system_memory_pool()
 
 
-def _fast_trials(folders: list[Path]) -> tuple[pd.DataFrame, list] | None:
-    """All trials.csv files parsed in one typed ``pandas.read_csv`` call, or None if any file is not plain.
+def _arrow_options(names: list[str]) -> tuple:
+    """pyarrow CSV options for one headerless buffer of plain rows: no quoting, no blank lines, typed columns.
+
+    A value the types do not take (an empty or misspelt boolean, a non-integer count, text in a
+    number column, a wrong field count, invalid UTF-8) makes the reader raise; the caller then
+    uses the exact reader. Booleans take true/false in three spellings (the exact reader takes any).
+    """
+    read = pa_csv.ReadOptions(column_names=names, use_threads=True, block_size=4 << 20)
+    parse = pa_csv.ParseOptions(delimiter=",", quote_char=False, escape_char=False, newlines_in_values=False,
+                                ignore_empty_lines=False)
+    convert = pa_csv.ConvertOptions(column_types=_ARROW_TYPES, include_columns=list(TRIAL_COLUMNS),
+                                    null_values=_NA_FLOAT, strings_can_be_null=False,
+                                    true_values=["true", "True", "TRUE"], false_values=["false", "False", "FALSE"])
+    return read, parse, convert
+
+
+# the files are parsed in batches of about this many bytes (one table each, concatenated without copying):
+# the raw text of ten thousand files (200 MB) is never held whole next to its parsed table
+_BATCH_BYTES = 32 << 20
+
+
+def _fast_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
+    """All trials.csv files parsed by pyarrow's typed CSV reader, or None if any file is not plain.
 
     Plain: UTF-8 without BOM, no quotes or carriage returns, ending in a newline, the same header
-    in every file, and exactly header-width fields on every line (checked by the comma count per
-    file here and by the parser per line). Anything else (and any value the typed parse cannot
-    read) returns None, and the caller uses the exact per-file reader, whose errors name file,
-    line and column. Returns the typed table (columns of :data:`TRIAL_COLUMNS`, ``file``,
-    ``line``) and ``[(trials path, rows)]``.
+    in every file, and exactly header-width fields on every line (checked by the parser). Anything
+    else (and any value the typed parse cannot read) returns None, and the caller uses the exact
+    per-file reader, whose errors name file, line and column. The files are read in order and
+    parsed a batch of files at a time (header lines left out). Returns the typed table (columns
+    of :data:`TRIAL_COLUMNS`, ``file``, ``line``) and ``[(trials path, rows)]``.
     """
     buf = bytearray()
-    header, file_of_row, lines = None, [], []
-    for folder in folders:
-        path = folder / "trials.csv"
-        try:
-            with open(path, "rb") as fh:
-                data = fh.read()
-        except OSError:
-            return None
-        first = data.find(b"\n")
-        if first < 0 or not data.endswith(b"\n") or b'"' in data or b"\r" in data or data.startswith(b"\xef\xbb\xbf"):
-            return None
-        head = data[:first]
-        if header is None:
-            header = head
-            cols = [h.strip() for h in head.decode("utf-8", "replace").split(",")]
-            if not set(TRIAL_COLUMNS) <= set(cols) or len(set(cols)) != len(cols):
+    header, options, file_of_row, counts, parsed = None, None, [], [], []
+    # a batch is parsed in a second thread (pyarrow releases the GIL) while this one reads the next files
+    with ThreadPoolExecutor(max_workers=1) as parser:
+
+        def parse() -> bool:
+            nonlocal buf
+            if b'"' in buf or b"\r" in buf:
+                return False
+            parsed.append(parser.submit(pa_csv.read_csv, pa.py_buffer(buf), *options, memory_pool=_POOL))
+            buf = bytearray()       # a new one: the parser holds the old one
+            return True
+
+        for folder in folders:
+            path = os.path.join(folder, "trials.csv")
+            try:
+                with open(path, "rb") as fh:
+                    data = fh.read()
+            except OSError:
                 return None
-            width = len(cols)
-        elif head != header:
+            first = data.find(b"\n")
+            if first < 0 or data[-1:] != b"\n" or data.startswith(_BOM):
+                return None
+            if header is None:
+                header = data[:first]
+                try:
+                    names = [h.strip() for h in header.decode("utf-8").split(",")]
+                except UnicodeDecodeError:
+                    return None
+                if not set(TRIAL_COLUMNS) <= set(names) or len(set(names)) != len(names):
+                    return None
+                options = _arrow_options(names)
+            elif first != len(header) or not data.startswith(header):
+                return None
+            n = data.count(b"\n") - 1
+            buf += memoryview(data)[first + 1:]
+            file_of_row.append((path, n))
+            counts.append(n)
+            del data
+            if len(buf) >= _BATCH_BYTES and not parse():
+                return None
+        if header is None or (buf and not parse()):
             return None
-        n = data.count(b"\n") - 1
-        if data.count(b",") != (n + 1) * (width - 1):
+        del buf
+        try:
+            tables = [f.result() for f in parsed]
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
             return None
-        buf += memoryview(data)[first + 1:]
-        file_of_row.append((str(path), n))
-        lines.append(np.arange(2, n + 2, dtype=np.int64))
-        del data
-    if header is None:
+        del parsed
+    if not tables:                  # header lines only: the exact reader says so
         return None
-    usecols = list(TRIAL_COLUMNS)
-    try:
-        with _w.catch_warnings():
-            _w.simplefilter("error")        # a mixed-type column warns: treat as not plain
-            t = pd.read_csv(_ChunkReader(buf), header=None, names=cols, usecols=usecols, engine="c",
-                            dtype={c: _FAST_DTYPES[c] for c in usecols}, keep_default_na=False,
-                            na_values={c: _NA_FLOAT for c in INT_COLUMNS + FLOAT_COLUMNS + ("rating",)},
-                            encoding="utf-8", low_memory=False)
-    except (ValueError, UnicodeDecodeError, pd.errors.ParserError, Warning):
+    table = pa.concat_tables(tables) if len(tables) != 1 else tables[0]
+    del tables
+    if table.num_rows != sum(counts) or any(table.column(c).null_count for c in BOOL_COLUMNS + INT_COLUMNS):
         return None
-    del buf
-    if len(t) != sum(n for _, n in file_of_row):
-        return None
-    for col in BOOL_COLUMNS:
-        # pandas may already turn the categories true/false into booleans; any other spelling, or an
-        # empty cell (code -1): the exact reader decides
-        cats = [str(c).lower() for c in t[col].cat.categories]
-        codes = t[col].cat.codes.to_numpy()
-        if not set(cats) <= {"true", "false"} or (codes < 0).any():
-            return None
-        t[col] = np.array([c == "true" for c in cats] or [False], dtype=bool)[codes]
-    for col in INT_COLUMNS:
-        v = t[col].to_numpy()
-        if not (np.isfinite(v).all() and (v == np.round(v)).all()):
-            return None
-        t[col] = v.astype(np.int64)
-    for col in ("subject", "phase", "sample", "kind", "started_at"):
-        t[col] = t[col].astype(object)       # plain str objects, like the exact reader's table
-    for col in LIST_COLUMNS:
-        t[col] = t[col].fillna("")
-    t = t[list(TRIAL_COLUMNS)]
-    t["file"] = np.repeat(np.array([f for f, _ in file_of_row], dtype=object), [n for _, n in file_of_row])
-    t["line"] = np.concatenate(lines) if lines else np.zeros(0, dtype=np.int64)
+    columns = {}
+    for col in TRIAL_COLUMNS:
+        values = table.column(col)
+        if col in NAME_COLUMNS:
+            columns[col] = names_categorical(values.to_pandas())
+        elif col in TEXT_COLUMNS:
+            columns[col] = values.to_pandas(types_mapper={pa.string(): STR_DTYPE}.get)
+        else:
+            columns[col] = values.to_numpy(zero_copy_only=False)       # float nulls (empty, nan, x) become NaN
+    del table, values
+    t = pd.DataFrame(columns)
+    t["file"] = _file_column(file_of_row)
+    t["line"] = _line_numbers(counts)
     return t, file_of_row
+
+
+def names_categorical(values) -> pd.Categorical:
+    """Names (subject, phase, sample, kind) as a categorical whose categories are sorted.
+
+    Parameters
+    ----------
+    values : array-like of str or pandas Categorical/Series
+
+    Returns
+    -------
+    pandas.Categorical
+        The same values; categories in sorted order with pandas' string dtype, whatever the
+        reader (so both readers give equal tables).
+    """
+    cat = values.array if isinstance(values, pd.Series) else values
+    cat = cat if isinstance(cat, pd.Categorical) else pd.Categorical(cat)
+    return pd.Categorical(cat, categories=pd.Index(sorted(cat.categories), dtype=STR_DTYPE))
+
+
+def _file_column(file_of_row: list) -> pd.Categorical:
+    """The ``file`` column: each row's trials.csv path, a categorical with one category per file (in file order)."""
+    paths = [f for f, _ in file_of_row]
+    code = np.repeat(np.arange(len(paths), dtype=np.int32), [n for _, n in file_of_row])
+    return pd.Categorical.from_codes(code, categories=pd.Index(paths, dtype=STR_DTYPE))
+
+
+def _line_numbers(counts: list) -> np.ndarray:
+    """1-based line numbers 2, 3, ... of the rows of files with ``counts`` rows each (one header line)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    total = int(counts.sum())
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]) if counts.size else counts
+    return np.arange(total, dtype=np.int64) - np.repeat(starts, counts) + 2
 
 
 def _fail(trials: pd.DataFrame, bad: np.ndarray, column: str, what: str, shown=None) -> None:
@@ -420,11 +490,17 @@ def _check_consistency(t: pd.DataFrame, kinds: dict) -> None:
     if bad.any():
         _fail(t, bad, "valid", "is true on an attempt marked rejected, saturated or overpowered")
     if kinds:
-        expected = t["sample"].map(kinds).to_numpy(dtype=object)
-        bad = pd.notna(expected) & (t["kind"].to_numpy(dtype=object) != expected)
+        # compared as codes: the catalog's kind of each sample category, as a code of the kind column
+        # (-1: the catalog gives none; -2: a kind no row has)
+        sample, kind = pd.Categorical(t["sample"]), pd.Categorical(t["kind"])
+        kind_code = {k: c for c, k in enumerate(kind.categories)}
+        lut = np.array([kind_code.get(kinds[s], -2) if s in kinds else -1 for s in sample.categories] + [-1])
+        expected = lut[sample.codes]                  # a missing sample (code -1) takes the last entry, -1
+        bad = (expected != -1) & (kind.codes != expected)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            _fail(t, bad, "kind", f"differs from the catalog's kind {expected[i]!r} of sample {t['sample'].iat[i]!r}")
+            name = t["sample"].iat[i]
+            _fail(t, bad, "kind", f"differs from the catalog's kind {kinds[name]!r} of sample {name!r}")
 
 
 def _check_duplicates(t: pd.DataFrame) -> None:
@@ -447,7 +523,8 @@ def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarr
     Parameters
     ----------
     values : sequence of str, shape (n_rows,)
-        Cells such as ``"0.11;0.09"`` (empty cell = empty list).
+        Cells such as ``"0.11;0.09"`` (empty cell = empty list): a list, an array or a pandas
+        column (a pyarrow-backed one is parsed without converting its cells to Python strings).
     files, lines : sequences, shape (n_rows,)
         File and line of each row, for the error message.
     column : str
@@ -460,10 +537,10 @@ def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarr
     counts : ndarray of int, shape (n_rows,)
         List length per row.
     """
-    cells = list(values)
-    fast = _fast_lists(cells)
+    fast = _fast_lists(values)
     if fast is not None:
         return fast
+    cells = list(values)
     text = "|".join(cells)
     b = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
     seps = b[(b == ord(";")) | (b == ord("|"))]
@@ -479,29 +556,54 @@ def parse_lists(values, files, lines, column: str) -> tuple[np.ndarray, np.ndarr
     return numbers, row, np.bincount(row, minlength=len(cells))
 
 
-def _fast_lists(cells: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """:func:`parse_lists` in one C parse for clean cells; None when a cell has an empty token, a '|',
-    or a token that is not a number (then the exact parser runs and names the cell)."""
+def _arrow_strings(cells) -> pa.ChunkedArray | pa.Array | None:
+    """The cells as an Arrow string array (no copy for a pyarrow-backed pandas column), or None if one is not a str."""
+    if isinstance(cells, pd.Series):
+        cells = cells.array
+    if isinstance(cells, pd.api.extensions.ExtensionArray):
+        try:
+            arr = pa.array(cells)
+        except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError):
+            return None
+        return arr if (pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type)) and not arr.null_count \
+            else None
+    cells = cells if isinstance(cells, list) else list(cells)
     if not all(isinstance(c, str) for c in cells):
         return None
-    counts = np.fromiter((c.count(";") + 1 if c else 0 for c in cells), dtype=np.int64, count=len(cells))
-    text = ";".join(c for c in cells if c)
-    if ";;" in text or "|" in text or text.startswith(";") or text.endswith(";") or "\n" in text:
+    return pa.array(cells, type=pa.string())
+
+
+def _fast_lists(cells) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`parse_lists` in C (pyarrow: split at ';', cast to float64) for clean cells; None when a cell
+    has an empty token, a token that is not a finite number, or is not a str (then the exact parser
+    runs and names the cell). The casts are correctly rounded, like ``float()``. Chunk by chunk, so
+    the split strings of a chunk are all that is held besides the numbers."""
+    arr = _arrow_strings(cells)
+    if arr is None:
         return None
-    try:
-        with _w.catch_warnings():
-            _w.simplefilter("error")
-            # pandas' C parser: one pass over all numbers (a token it cannot read raises); the
-            # values equal to_numeric's bit for bit (tested against the exact reader)
-            numbers = pd.read_csv(io.StringIO(text.replace(";", "\n")), header=None, names=["v"], dtype=np.float64,
-                                  engine="c", keep_default_na=False,
-                                  na_values=["nan", "NaN", "NAN", "Nan"], skip_blank_lines=False)["v"].to_numpy() \
-                if text else np.zeros(0)
-    except (Warning, ValueError, pd.errors.ParserError):
-        return None
-    if numbers.size != int(counts.sum()):
-        return None
-    return numbers, np.repeat(np.arange(len(cells), dtype=np.int64), counts), counts
+    numbers, counts = [], []
+    for chunk in (arr.chunks if isinstance(arr, pa.ChunkedArray) else [arr]):
+        split = pc.split_pattern(chunk, ";", memory_pool=_POOL)
+        tokens = split.flatten()
+        count = np.array(pc.list_value_length(split).to_numpy(zero_copy_only=False), dtype=np.int64)
+        empty_cell = np.asarray(pc.equal(chunk, "").to_numpy(zero_copy_only=False), dtype=bool)
+        n_empty_tokens = pc.sum(pc.equal(tokens, "")).as_py() or 0
+        if n_empty_tokens != int(empty_cell.sum()):       # an empty token inside a list (';;', a leading ';')
+            return None
+        if n_empty_tokens:
+            count[empty_cell] = 0
+            tokens = pc.filter(tokens, pc.not_equal(tokens, ""))
+        try:
+            values = pc.cast(tokens, pa.float64(), memory_pool=_POOL).to_numpy(zero_copy_only=False)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            return None
+        if values.size != int(count.sum()) or not np.isfinite(values).all():
+            return None
+        numbers.append(values)
+        counts.append(count)
+    numbers = np.concatenate(numbers) if numbers else np.zeros(0)
+    counts = np.concatenate(counts) if counts else np.zeros(0, dtype=np.int64)
+    return numbers, np.repeat(np.arange(len(arr), dtype=np.int64), counts), counts
 
 
 def _bad_list_cell(cells, files, lines, column) -> None:
@@ -514,12 +616,12 @@ def _bad_list_cell(cells, files, lines, column) -> None:
     raise ValueError(f"column {column!r}: a cell is not a semicolon-separated list of numbers")
 
 
-def _exact_trials(folders: list[Path], messages: list) -> tuple[pd.DataFrame, list]:
+def _exact_trials(folders: list, messages: list) -> tuple[pd.DataFrame, list]:
     """Every trials.csv read with the exact per-file reader (quotes, blank lines, torn last lines...)."""
     columns: list[list[str]] = [[] for _ in TRIAL_COLUMNS]
     all_lines, file_of_row = [], []
     for folder in folders:
-        trials_path = folder / "trials.csv"
+        trials_path = Path(folder) / "trials.csv"
         cols, lines, torn = _read_trials_columns(trials_path)
         if torn:
             _warn(messages, f"{trials_path}: torn last line (a crash while writing?) left out")
@@ -531,7 +633,7 @@ def _exact_trials(folders: list[Path], messages: list) -> tuple[pd.DataFrame, li
     trials = pd.DataFrame({c: np.array(columns[i], dtype=object) for i, c in enumerate(TRIAL_COLUMNS)},
                           dtype=object)
     del columns
-    trials["file"] = np.repeat([f for f, _ in file_of_row], [n for _, n in file_of_row]).astype(object)
+    trials["file"] = _file_column(file_of_row)
     trials["line"] = np.array(all_lines, dtype=np.int64)
     return trials, file_of_row
 
@@ -542,11 +644,15 @@ def _validate(trials: pd.DataFrame, raw_rating, subjects: pd.DataFrame, file_of_
 
     ``raw_rating``: the rating column as written (for the message), or None on the fast path.
     """
-    expected_subject = np.repeat(subjects["subject"].to_numpy(dtype=object), [n for _, n in file_of_row])
-    bad = (trials["subject"].to_numpy(dtype=object) != expected_subject)
+    names = subjects["subject"].to_numpy(dtype=object)
+    counts = [n for _, n in file_of_row]
+    subject = pd.Categorical(trials["subject"])
+    # compared as codes: each file's session subject as a code of the subject column (-1: no row has it)
+    expected = np.repeat(pd.Index(subject.categories).get_indexer(names), counts)
+    bad = (subject.codes != expected) | (subject.codes < 0)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        _fail(trials, bad, "subject", f"differs from session.json's subject {expected_subject[i]!r}")
+        _fail(trials, bad, "subject", f"differs from session.json's subject {np.repeat(names, counts)[i]!r}")
     bad = ~trials["phase"].isin(PHASES).to_numpy()
     if bad.any():
         _fail(trials, bad, "phase", f"is not one of {'|'.join(PHASES)}")
@@ -559,6 +665,37 @@ def _validate(trials: pd.DataFrame, raw_rating, subjects: pd.DataFrame, file_of_
     _check_consistency(trials, kinds)
     _check_ratings(trials, raw_rating if raw_rating is not None else trials["rating"].to_numpy())
     _check_duplicates(trials)
+
+
+def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, dict]:
+    """Every subject's session.json: (subjects table, catalog, kinds); warnings appended to ``messages``."""
+    catalog: list[str] = []
+    kinds: dict = {}
+    subj_rows = []
+    seen_subjects: dict = {}
+    for folder in folders:
+        sess_path = os.path.join(folder, "session.json")
+        sess = read_session(sess_path)
+        if sess["subject"] in seen_subjects:
+            raise ValueError(f"{sess_path}: subject {sess['subject']!r} also in {seen_subjects[sess['subject']]}")
+        seen_subjects[sess["subject"]] = sess_path
+        if not catalog:
+            catalog = list(sess["catalog"])
+        elif sess["catalog"] != catalog:
+            added = [s for s in sess["catalog"] if s not in catalog]
+            _warn(messages, f"{sess_path}: catalog differs from the first session's"
+                            + (f" (adds {', '.join(added)})" if added else " (order or subset)"), stacklevel=4)
+            catalog.extend(added)
+        for name, kind in sess["kinds"].items():
+            kinds.setdefault(name, kind)
+        if not sess["finished"]:
+            _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
+                            "its attempts are used as far as they go", stacklevel=4)
+        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
+                                               "seed", "software_version", "device")}
+                         | {"folder": folder, "session_file": sess_path,
+                            "trials_file": os.path.join(folder, "trials.csv")})
+    return pd.DataFrame(subj_rows), catalog, kinds
 
 
 def load_study(data_dir) -> Study:
@@ -577,61 +714,47 @@ def load_study(data_dir) -> Study:
     data_dir = Path(data_dir)
     messages: list[str] = []
     folders = _subject_folders(data_dir)
-    catalog: list[str] = []
-    kinds: dict = {}
-    subj_rows = []
-    seen_subjects: dict = {}
-    for folder in folders:
-        sess_path = folder / "session.json"
-        sess = read_session(sess_path)
-        if sess["subject"] in seen_subjects:
-            raise ValueError(f"{sess_path}: subject {sess['subject']!r} also in {seen_subjects[sess['subject']]}")
-        seen_subjects[sess["subject"]] = sess_path
-        if not catalog:
-            catalog = list(sess["catalog"])
-        elif sess["catalog"] != catalog:
-            added = [s for s in sess["catalog"] if s not in catalog]
-            _warn(messages, f"{sess_path}: catalog differs from the first session's"
-                            + (f" (adds {', '.join(added)})" if added else " (order or subset)"))
-            catalog.extend(added)
-        for name, kind in sess["kinds"].items():
-            kinds.setdefault(name, kind)
-        if not sess["finished"]:
-            _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
-                            "its attempts are used as far as they go")
-        subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
-                                               "seed", "software_version", "device")}
-                         | {"folder": str(folder), "session_file": str(sess_path),
-                            "trials_file": str(folder / "trials.csv")})
-    subjects = pd.DataFrame(subj_rows)
-    # fast path: every file plain -> one typed read_csv; validated below. Any problem: the exact reader
+    # fast path: every trials.csv plain -> typed pyarrow reads, validated below; any problem: the exact
+    # reader. The fast reading never raises, so it goes first: its ;-lists are split in a second thread
+    # (pyarrow releases the GIL) while this one reads the session files, and every error still comes in
+    # the order of the exact reading (session files, then trials files)
     fast = _fast_trials(folders)
-    if fast is not None:
-        trials, file_of_row = fast
-        try:
-            _validate(trials, None, subjects, file_of_row, catalog, kinds)
-        except ValueError:
-            fast = None             # read again exactly, so the error names the raw value as written
-    if fast is None:
-        trials, file_of_row = _exact_trials(folders, messages)
-        raw_rating = trials["rating"].to_numpy(dtype=object)
-        trials = _parse_columns(trials)
-        _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
-    for name, kind in trials.groupby("sample", sort=False)["kind"].first().items():
-        kinds.setdefault(name, kind)
+    with ThreadPoolExecutor(max_workers=1) as splitter:
+        split = {col: splitter.submit(_fast_lists, fast[0][col]) for col in LIST_COLUMNS} if fast else {}
+        subjects, catalog, kinds = _read_sessions(folders, messages)
+        if fast is not None:
+            trials, file_of_row = fast
+            try:
+                _validate(trials, None, subjects, file_of_row, catalog, kinds)
+            except ValueError:
+                fast, split = None, {}    # read again exactly, so the error names the raw value as written
+        if fast is None:
+            trials, file_of_row = _exact_trials(folders, messages)
+            raw_rating = trials["rating"].to_numpy(dtype=object)
+            trials = _parse_columns(trials)
+            for col in NAME_COLUMNS:                     # the fast reader's dtypes
+                trials[col] = names_categorical(trials[col].to_numpy(dtype=object))
+            for col in TEXT_COLUMNS:
+                trials[col] = trials[col].astype(STR_DTYPE)
+            _validate(trials, raw_rating, subjects, file_of_row, catalog, kinds)
+        sample = pd.Categorical(trials["sample"])
+        _, first = np.unique(sample.codes, return_index=True)     # first row of each sample, in row order
+        for i in np.sort(first):
+            kinds.setdefault(trials["sample"].iat[i], trials["kind"].iat[i])
 
-    files, lines = trials["file"].to_numpy(dtype=object), trials["line"].to_numpy()
-    n_taps = trials["n_taps"].to_numpy()
-    testing_valid = (trials["phase"] == "testing").to_numpy() & trials["valid"].to_numpy()
-    taps = {}
-    for col in LIST_COLUMNS:
-        numbers, row, counts = parse_lists(trials[col].to_numpy(dtype=object), files, lines, col)
-        taps[col] = (numbers, row)
-        mism = testing_valid & (counts != n_taps)
-        if mism.any():
-            i = int(np.flatnonzero(mism)[0])
-            _warn(messages, f"{int(mism.sum())} valid testing attempt(s) list a number of {col} different from "
-                            f"n_taps (first at {files[i]}:{lines[i]}); the listed values are used")
+        files, lines = trials["file"].to_numpy(dtype=object), trials["line"].to_numpy()
+        n_taps = trials["n_taps"].to_numpy()
+        testing_valid = (trials["phase"] == "testing").to_numpy() & trials["valid"].to_numpy()
+        taps = {}
+        for col in LIST_COLUMNS:
+            parsed = split[col].result() if col in split else None
+            numbers, row, counts = parsed if parsed is not None else parse_lists(trials[col], files, lines, col)
+            taps[col] = (numbers, row)
+            mism = testing_valid & (counts != n_taps)
+            if mism.any():
+                i = int(np.flatnonzero(mism)[0])
+                _warn(messages, f"{int(mism.sum())} valid testing attempt(s) list a number of {col} different "
+                                f"from n_taps (first at {files[i]}:{lines[i]}); the listed values are used")
     if trials.empty:
         raise ValueError(f"{data_dir}: the trials.csv files hold no attempts")
     return Study(trials=trials, subjects=subjects, catalog=tuple(catalog), kinds=kinds, warnings=tuple(messages),

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import base64
+import gc
 import html
+import multiprocessing
+import os
 import platform
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -13,7 +18,7 @@ import numpy as np
 
 from analysis import figures
 from analysis.pipeline import write_tables
-from analysis.stats import valid_testing
+from analysis.stats import valid_testing_mask
 from analysis.traces import typical_taps
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
@@ -141,22 +146,80 @@ def _strong(text: str) -> str:
     return "".join(f"<strong>{p}</strong>" if i % 2 else p for i, p in enumerate(parts))
 
 
+def _draw(jobs: list) -> list[dict]:
+    """Run figure jobs ``[(fig_function, args), ...]`` in order; returns what each returned (paths written)."""
+    return [function(*args) for function, args in jobs]
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:          # not on Linux
+        return os.cpu_count() or 1
+
+
+def _draw_aside(jobs: list) -> tuple[Future | None, ProcessPoolExecutor | None]:
+    """Start :func:`_draw` of ``jobs`` in a forked process, or (None, None) where that cannot help.
+
+    matplotlib draws on one core; a report's figures take seconds whatever the number of subjects,
+    so with a second core two figures are drawn there while this process draws the others. The
+    child is a fork: it has the tables already and imports nothing again (no fork, e.g. on Windows,
+    or a single core: the caller draws everything itself).
+    """
+    if _cpus() < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        return None, None
+    figures.load_matplotlib()        # once, here: the child inherits it
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+    gc.freeze()         # the child's garbage collector leaves the parent's objects (and their pages) alone
+    try:
+        return pool.submit(_draw, jobs), pool
+    except OSError:     # no process could be started (memory, process limit): the caller draws them
+        pool.shutdown(cancel_futures=True)
+        return None, None
+    finally:
+        gc.unfreeze()
+
+
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
-    """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures)."""
+    """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures).
+
+    Figures 4.17 and 4.18 (drawn from the summary and pairwise tables) are drawn in a second
+    process when there is a second core (:func:`_draw_aside`), 4.19 and 4.20 (which reads the
+    traces) in this one; the files are the same either way.
+    """
     alpha = res.config.alpha
-    written = [figures.fig_ratings(res.summary, out / "fig_4_17_ratings.png"),
-               figures.fig_pvalues(res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha),
-               figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
+    aside = [(figures.fig_ratings, (res.summary, out / "fig_4_17_ratings.png")),
+             (figures.fig_pvalues, (res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha))]
+    pending, pool = _draw_aside(aside)
+    try:
+        written = [] if pending else _draw(aside)
+        here = _figures_here(res, out, target_v_m_s)
+        if pending:
+            try:
+                written = pending.result()
+            except BrokenProcessPool:        # the child died (killed, out of memory): draw them here
+                written = _draw(aside)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    written += here[0]
+    return [w["png"] for w in written], here[1]
+
+
+def _figures_here(res: Analysis, out: Path, target_v_m_s: float | None) -> tuple[list[dict], list[str]]:
+    """Figures 4.19 and 4.20 (the typical taps read from the traces); (paths written, notes)."""
+    written = [figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
     notes = []
-    dirs = dict(zip(res.study.subjects["subject"], map(Path, res.study.subjects["folder"])))
+    dirs = dict(zip(res.study.subjects["subject"], res.study.subjects["folder"]))     # folder paths as str
     t = res.study.trials
-    sel = ((t["phase"] == "testing") & t["valid"]).to_numpy()
+    sel = valid_testing_mask(t)
     values, row = res.study.taps["incoming_velocities_m_s"]
     keep = sel[row]
-    # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse)
+    # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse), and of
+    # those rows only the columns that locate a trace (not the lists as text)
     velocities = (values[keep], (np.cumsum(sel) - 1)[row[keep]])
-    taps, v, why = typical_taps(valid_testing(res.study), dirs, res.study.catalog, target_v_m_s,
-                                velocities=velocities)
+    rows = t.loc[sel, ["subject", "phase", "trial", "attempt", "sample"]]
+    taps, v, why = typical_taps(rows, dirs, res.study.catalog, target_v_m_s, velocities=velocities)
     if taps:
         written.append(figures.fig_accelerations(taps, res.study.catalog, v, out / "fig_4_20_accelerations.png"))
         if why:
@@ -168,7 +231,7 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) ->
                 stale.unlink()
         notes.append("Figure 4.20 skipped: no usable per-attempt traces (" + "; ".join(why[:3])
                      + ("; ..." if len(why) > 3 else "") + ").")
-    return [w["png"] for w in written], notes
+    return written, notes
 
 
 def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:

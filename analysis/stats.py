@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from scipy import stats
-from statsmodels.stats.anova import AnovaRM
 from statsmodels.stats.multitest import multipletests
 from statsmodels.stats.weightstats import ttost_paired
 
@@ -60,21 +59,44 @@ class RatingMatrix:
                             self.experience[mask])
 
 
+def valid_testing_mask(trials: pd.DataFrame) -> np.ndarray:
+    """Boolean mask (shape (n_rows,)) of the valid testing-phase attempts among ``trials``."""
+    return (trials["phase"] == "testing").to_numpy() & trials["valid"].to_numpy()
+
+
 def valid_testing(study: Study) -> pd.DataFrame:
     """Valid testing-phase attempts (rows of ``study.trials``)."""
     t = study.trials
-    return t[(t["phase"] == "testing").to_numpy() & t["valid"].to_numpy()]
+    return t[valid_testing_mask(t)]
+
+
+def codes(values, categories) -> np.ndarray:
+    """Position of each value in ``categories`` (int64, -1 where absent): one integer per row.
+
+    Parameters
+    ----------
+    values : pandas Series or array-like
+        Names (subject, sample...); a categorical column costs only its categories.
+    categories : sequence
+        The order of the codes (subjects of ``study.subjects``, catalog order).
+
+    Returns
+    -------
+    ndarray of int64, shape (len(values),)
+    """
+    return pd.Categorical(values, categories=list(categories)).codes.astype(np.int64)
 
 
 def rating_matrix(study: Study) -> RatingMatrix:
     """Per-subject mean rating per sample (section 4.5.4: "average user ratings for each sample")."""
-    vt = valid_testing(study)
+    t = study.trials
+    sel = valid_testing_mask(t)
     subjects = study.subjects["subject"].to_numpy(dtype=object)
-    s_code = pd.Categorical(vt["subject"], categories=subjects).codes
-    k_code = pd.Categorical(vt["sample"], categories=list(study.catalog)).codes
+    s_code = codes(t["subject"], subjects)[sel]
+    k_code = codes(t["sample"], study.catalog)[sel]
     n, k = len(subjects), len(study.catalog)
-    flat = s_code.astype(np.int64) * k + k_code
-    sums = np.bincount(flat, weights=vt["rating"].to_numpy(), minlength=n * k).reshape(n, k)
+    flat = s_code * k + k_code
+    sums = np.bincount(flat, weights=t["rating"].to_numpy()[sel], minlength=n * k).reshape(n, k)
     counts = np.bincount(flat, minlength=n * k).reshape(n, k)
     with np.errstate(invalid="ignore", divide="ignore"):
         means = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
@@ -111,10 +133,9 @@ def sample_summary(study: Study, matrix: RatingMatrix) -> pd.DataFrame:
     penetration and velocity are pooled over the individual taps (lists of the valid testing attempts), in m and m/s.
     """
     t = study.trials
-    sel = ((t["phase"] == "testing") & t["valid"]).to_numpy()
-    vt = t[sel]
+    sel = valid_testing_mask(t)
     k = len(matrix.samples)
-    all_codes = pd.Categorical(t["sample"], categories=list(matrix.samples)).codes.astype(np.int64)
+    all_codes = codes(t["sample"], matrix.samples)
     code = all_codes[sel]
 
     def taps_of(column):
@@ -138,7 +159,7 @@ def sample_summary(study: Study, matrix: RatingMatrix) -> pd.DataFrame:
     n_vel, vel_mean, vel_sd = pooled(vel, vel_code)
     m = matrix.means
     n_sub = np.sum(~np.isnan(m), axis=0)
-    ratings = vt["rating"].to_numpy()
+    ratings = t["rating"].to_numpy()[sel]
     n_att, r_mean, r_sd = pooled(ratings, code)
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -278,6 +299,7 @@ def omnibus(matrix: RatingMatrix, group: str) -> pd.DataFrame:
                                 "df2_gg": nan, "p_gg": nan})
         return pd.DataFrame(rows, columns=list(ANOVA_COLUMNS))
     if n <= ANOVARM_MAX_SUBJECTS:
+        from statsmodels.stats.anova import AnovaRM  # deferred: ~0.15 s to import; used up to 150 subjects only
         long = pd.DataFrame({"subject": np.repeat(np.arange(n), k), "sample": np.tile(np.arange(k), n),
                              "rating": y.reshape(-1)})
         table = AnovaRM(long, "rating", "subject", within=["sample"]).fit().anova_table
@@ -362,20 +384,22 @@ def velocity_rating(study: Study) -> pd.DataFrame:
     df = N - n_subjects - 1). The row ``sample = (all)`` is the rm correlation with each
     subject x sample cell centred (so sample effects do not count).
     """
-    vt = valid_testing(study)
-    v = vt["incoming_velocity_mean_m_s"].to_numpy()
-    y = vt["rating"].to_numpy()
+    t = study.trials
+    sel = valid_testing_mask(t)
+    v = t["incoming_velocity_mean_m_s"].to_numpy()[sel]
+    y = t["rating"].to_numpy()[sel]
     keep = np.isfinite(v) & np.isfinite(y)
-    vt, v, y = vt[keep], v[keep], y[keep]
-    subj = pd.Categorical(vt["subject"]).codes.astype(np.int64)
-    samp = pd.Categorical(vt["sample"], categories=list(study.catalog)).codes.astype(np.int64)
+    v, y = v[keep], y[keep]
+    # subjects and samples as integer labels (only which rows share one matters: groups are bincounts)
+    subj = codes(t["subject"], study.subjects["subject"])[sel][keep]
+    samp = codes(t["sample"], study.catalog)[sel][keep]
     rows = []
     for j, name in enumerate(study.catalog):
         sel = samp == j
         n = int(sel.sum())
         r, p = _pearson(v[sel] - v[sel].mean(), y[sel] - y[sel].mean(), n - 2) if n > 2 else (np.nan, np.nan)
-        s_codes = np.unique(subj[sel], return_inverse=True)[1].reshape(-1)
-        n_s = int(s_codes.max() + 1) if n else 0
+        s_codes = subj[sel]
+        n_s = int(np.count_nonzero(np.bincount(s_codes)))
         dof = n - n_s - 1
         if n and dof >= 1:
             r_rm, p_rm = _pearson(_center(v[sel], s_codes), _center(y[sel], s_codes), dof)
@@ -383,28 +407,35 @@ def velocity_rating(study: Study) -> pd.DataFrame:
             r_rm, p_rm = np.nan, np.nan
         rows.append({"sample": name, "n_attempts": n, "n_subjects": n_s, "r": r, "p": p,
                      "r_rm": r_rm, "df_rm": dof, "p_rm": p_rm})
-    cell = subj * len(study.catalog) + samp
-    cells = np.unique(cell, return_inverse=True)[1].reshape(-1)
-    n, g = len(v), int(cells.max() + 1) if len(v) else 0
+    cells = subj * len(study.catalog) + samp
+    n, g = len(v), int(np.count_nonzero(np.bincount(cells)))
     dof = n - g - 1
     r_rm, p_rm = _pearson(_center(v, cells), _center(y, cells), dof) if dof >= 1 else (np.nan, np.nan)
     r, p = _pearson(v - v.mean(), y - y.mean(), n - 2) if n > 2 else (np.nan, np.nan)
-    rows.append({"sample": "(all)", "n_attempts": n, "n_subjects": int(np.unique(subj).size), "r": r, "p": p,
+    rows.append({"sample": "(all)", "n_attempts": n, "n_subjects": int(np.count_nonzero(np.bincount(subj))),
+                 "r": r, "p": p,
                  "r_rm": r_rm, "df_rm": dof, "p_rm": p_rm})
     return pd.DataFrame(rows)
 
 
 def attempt_counts(study: Study) -> pd.DataFrame:
-    """Testing-phase attempts per subject: valid, saturated, rejected, overpowered (what was excluded and why)."""
-    t = study.trials[study.trials["phase"] == "testing"]
-    g = t.groupby("subject", sort=False)
-    out = pd.DataFrame({
-        "attempts": g.size(),
-        "valid": g["valid"].sum(),
-        "saturated": g["saturated"].sum(),
-        "rejected": g["rejected"].sum(),
-        "overpowered": g["overpowered"].sum(),
-    })
-    out["invalid_other"] = (t[~t["valid"] & ~t["saturated"] & ~t["rejected"] & ~t["overpowered"]]
-                            .groupby("subject").size().reindex(out.index, fill_value=0))
-    return out.reset_index().rename(columns={"index": "subject"})
+    """Testing-phase attempts per subject: valid, saturated, rejected, overpowered (what was excluded and why).
+
+    One row per subject with testing attempts, in the order of their first testing attempt.
+    """
+    t = study.trials
+    testing = (t["phase"] == "testing").to_numpy()
+    subjects = study.subjects["subject"].to_numpy(dtype=object)
+    code = codes(t["subject"], subjects)[testing]
+    flags = {c: t[c].to_numpy()[testing] for c in ("valid", "saturated", "rejected", "overpowered")}
+    present, first = np.unique(code, return_index=True)
+    order = present[np.argsort(first, kind="stable")]        # subjects by their first testing attempt
+    n = len(subjects)
+
+    def count(mask=None):
+        return np.bincount(code if mask is None else code[mask], minlength=n)[order].astype(np.int64)
+
+    other = ~(flags["valid"] | flags["saturated"] | flags["rejected"] | flags["overpowered"])
+    return pd.DataFrame({"subject": subjects[order], "attempts": count(),
+                         **{c: count(flags[c]) for c in ("valid", "saturated", "rejected", "overpowered")},
+                         "invalid_other": count(other)})

@@ -124,7 +124,7 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
     trials : DataFrame
         Valid testing attempts (``subject, phase, trial, attempt, sample, incoming_velocities_m_s``).
     subject_dirs : dict
-        subject -> folder.
+        subject -> folder (str or Path).
     samples : sequence of str
         Catalog order.
     target_v_m_s : float or None
@@ -166,17 +166,15 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
 
     # only subjects that saved any trace can give a tap (one directory listing per subject, not a stat
     # per attempt): with thousands of subjects the nearest velocities are otherwise all trace-less
-    subjects = trials["subject"].to_numpy(dtype=object)
-    with_traces = set()
-    for subj in pd.unique(subjects):
-        folder = Path(subject_dirs[subj]) / "traces"
+    with_traces = []
+    for subj in pd.unique(trials["subject"]):
         try:
-            with os.scandir(folder) as it:
+            with os.scandir(os.path.join(subject_dirs[subj], "traces")) as it:
                 if any(e.name.endswith(".npz") for e in it):
-                    with_traces.add(subj)
+                    with_traces.append(subj)
         except OSError:
             continue
-    has_trace = np.fromiter((s in with_traces for s in subjects), dtype=bool, count=len(subjects))
+    has_trace = trials["subject"].isin(with_traces).to_numpy(dtype=bool)
     out = {}
     codes = pd.Categorical(trials["sample"], categories=list(samples)).codes
     for k, sample in enumerate(samples):

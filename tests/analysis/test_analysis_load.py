@@ -243,3 +243,10 @@ def test_fast_reader_gives_the_exact_readers_table(tmp_path):
     for col in L.LIST_COLUMNS:
         np.testing.assert_array_equal(fast.taps[col][0], exact.taps[col][0])
         np.testing.assert_array_equal(fast.taps[col][1], exact.taps[col][1])
+
+
+def test_header_lines_only_is_an_error(small):
+    for path in small.glob("*/trials.csv"):
+        _write(path, _lines(path)[:1])
+    with pytest.raises(ValueError, match="the trials.csv files hold no attempts"):
+        load_study(small)
