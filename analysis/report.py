@@ -3,13 +3,8 @@
 from __future__ import annotations
 
 import base64
-import gc
 import html
-import multiprocessing
-import os
 import platform
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -151,57 +146,17 @@ def _draw(jobs: list) -> list[dict]:
     return [function(*args) for function, args in jobs]
 
 
-def _cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:          # not on Linux
-        return os.cpu_count() or 1
-
-
-def _draw_aside(jobs: list) -> tuple[Future | None, ProcessPoolExecutor | None]:
-    """Start :func:`_draw` of ``jobs`` in a forked process, or (None, None) where that cannot help.
-
-    matplotlib draws on one core; a report's figures take seconds whatever the number of subjects,
-    so with a second core two figures are drawn there while this process draws the others. The
-    child is a fork: it has the tables already and imports nothing again (no fork, e.g. on Windows,
-    or a single core: the caller draws everything itself).
-    """
-    if _cpus() < 2 or "fork" not in multiprocessing.get_all_start_methods():
-        return None, None
-    figures.load_matplotlib()        # once, here: the child inherits it
-    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
-    gc.freeze()         # the child's garbage collector leaves the parent's objects (and their pages) alone
-    try:
-        return pool.submit(_draw, jobs), pool
-    except OSError:     # no process could be started (memory, process limit): the caller draws them
-        pool.shutdown(cancel_futures=True)
-        return None, None
-    finally:
-        gc.unfreeze()
-
-
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
     """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures).
 
-    Figures 4.17 and 4.18 (drawn from the summary and pairwise tables) are drawn in a second
-    process when there is a second core (:func:`_draw_aside`), 4.19 and 4.20 (which reads the
-    traces) in this one; the files are the same either way.
+    Drawn in turn in this process. (Drawing two of them in a forked child saved about 1.8 s when a
+    second core was free, but a fork of a process that has pyarrow's reader threads can deadlock on a
+    lock one of them held, and a report that may hang is worse than a slower one.)
     """
     alpha = res.config.alpha
-    aside = [(figures.fig_ratings, (res.summary, out / "fig_4_17_ratings.png")),
-             (figures.fig_pvalues, (res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha))]
-    pending, pool = _draw_aside(aside)
-    try:
-        written = [] if pending else _draw(aside)
-        here = _figures_here(res, out, target_v_m_s)
-        if pending:
-            try:
-                written = pending.result()
-            except BrokenProcessPool:        # the child died (killed, out of memory): draw them here
-                written = _draw(aside)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+    written = _draw([(figures.fig_ratings, (res.summary, out / "fig_4_17_ratings.png")),
+                     (figures.fig_pvalues, (res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha))])
+    here = _figures_here(res, out, target_v_m_s)
     written += here[0]
     return [w["png"] for w in written], here[1]
 

@@ -224,17 +224,3 @@ def test_figstyle_is_a_leaf_package():
     assert figstyle.figsize("column")[0] == 3.5 and figstyle.figsize("slide")[0] == 10.0
     with figstyle.style("slide") as plt:
         assert plt.rcParams["font.size"] == pytest.approx(8 * figstyle.SLIDE_FONT_SCALE)
-
-
-def test_figures_drawn_aside_equal_those_drawn_in_turn(written, analysed, tmp_path, monkeypatch):
-    """Figures 4.17/4.18 drawn in a forked process (two cores) give the same files as drawn in this one."""
-    import analysis.report as R
-
-    out, res = written
-    monkeypatch.setattr(R, "_cpus", lambda: 1)          # one core: everything drawn here, in turn
-    assert R._draw_aside([]) == (None, None)
-    pngs, _ = R.make_figures(analysed, tmp_path)
-    assert [p.name for p in pngs] == [p.name for p in res["figures"]]
-    for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration", "fig_4_20_accelerations"):
-        for ext in ("png", "svg", "csv"):
-            assert (tmp_path / f"{stem}.{ext}").read_bytes() == (out / f"{stem}.{ext}").read_bytes(), (stem, ext)
