@@ -14,6 +14,7 @@ without it the children inherit the environment as it is.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -122,5 +123,9 @@ def main(repeats: int = 3, sizes=SIZES, warm_bytecode: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    main(sizes=tuple(int(a) for a in args if a != "--warm-bytecode") or SIZES, warm_bytecode="--warm-bytecode" in args)
+    cli = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_argument("sizes", nargs="*", type=int, help=f"numbers of subjects (default: {' '.join(map(str, SIZES))})")
+    cli.add_argument("--warm-bytecode", action="store_true",
+                     help="compile the libraries' bytecode once first, as a normal install has it")
+    a = cli.parse_args()
+    main(sizes=tuple(a.sizes) or SIZES, warm_bytecode=a.warm_bytecode)
