@@ -107,9 +107,9 @@ def main(repeats: int = 3, sizes=SIZES, warm_bytecode: bool = False) -> dict:
             results[n] = {"wall_s": wall, "cpu_s": cpu, "worker_cpu_s": worker_cpu, "peak_mb": peak,
                           "worker_peak_mb": worker_peak, "ttest_ms": ttest}
             print(f"   {n:6d} subjects (data generated in {gen_s:.1f} s): full report whole-process median "
-                  f"{wall:.2f} s of {repeats} (CPU {cpu:.2f} s + figure worker {worker_cpu:.2f} s), target "
-                  f"{TARGET_S:.0f} s -> ratio {wall / TARGET_S:.2f}; peak memory {peak:.0f} MB (figure worker "
-                  f"{worker_peak:.0f} MB, mostly pages shared with it), target {TARGET_MB:.0f} MB -> ratio "
+                  f"{wall:.2f} s of {repeats} (CPU {cpu:.2f} s + child processes {worker_cpu:.2f} s), target "
+                  f"{TARGET_S:.0f} s -> ratio {wall / TARGET_S:.2f}; peak memory {peak:.0f} MB (child processes "
+                  f"{worker_peak:.0f} MB), target {TARGET_MB:.0f} MB -> ratio "
                   f"{peak / TARGET_MB:.2f}; t-test matrix {ttest:.1f} ms", flush=True)
             shutil.rmtree(data, ignore_errors=True)
             for old in Path(tmp).glob(f"report{n}_*"):
