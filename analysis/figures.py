@@ -22,15 +22,6 @@ LOG_P_FLOOR = -4.0
 DZ_LIMIT = 2.0   # |d_z| at the ends of the effect-size colour scale
 
 
-def load_matplotlib() -> None:
-    """Import matplotlib and pyplot as the first figure would (Agg unless ``MPLBACKEND`` names another backend).
-
-    For a caller that forks processes to draw figures: imported once before the fork, not in each.
-    """
-    with figstyle.style():
-        pass
-
-
 def _label(sample: str) -> str:
     return figstyle.sample_style(sample)["label"]
 

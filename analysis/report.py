@@ -141,11 +141,6 @@ def _strong(text: str) -> str:
     return "".join(f"<strong>{p}</strong>" if i % 2 else p for i, p in enumerate(parts))
 
 
-def _draw(jobs: list) -> list[dict]:
-    """Run figure jobs ``[(fig_function, args), ...]`` in order; returns what each returned (paths written)."""
-    return [function(*args) for function, args in jobs]
-
-
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
     """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures).
 
@@ -154,8 +149,8 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) ->
     lock one of them held, and a report that may hang is worse than a slower one.)
     """
     alpha = res.config.alpha
-    written = _draw([(figures.fig_ratings, (res.summary, out / "fig_4_17_ratings.png")),
-                     (figures.fig_pvalues, (res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha))])
+    written = [figures.fig_ratings(res.summary, out / "fig_4_17_ratings.png"),
+               figures.fig_pvalues(res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha)]
     here = _figures_here(res, out, target_v_m_s)
     written += here[0]
     return [w["png"] for w in written], here[1]

@@ -35,8 +35,7 @@ TARGET_S = 5.0            # full report of 10,000 subjects, whole process
 TARGET_MB = 1024.0        # peak resident memory of that process
 ROOT = Path(__file__).resolve().parents[1]
 
-# the child reports its own wall time, CPU time and peak RSS (ru_maxrss is in KiB on Linux), and those of
-# the process it forks to draw two of the figures (its RSS counts the pages it shares with the parent)
+# the child reports its own wall time, CPU time and peak RSS (ru_maxrss is in KiB on Linux)
 CHILD = """
 import json, resource, sys, time, warnings
 t0 = time.perf_counter()
@@ -44,10 +43,8 @@ warnings.simplefilter("ignore")
 from analysis.__main__ import main
 rc = main(["report", sys.argv[1], "--out", sys.argv[2]])
 ru = resource.getrusage(resource.RUSAGE_SELF)
-rc_ = resource.getrusage(resource.RUSAGE_CHILDREN)
 print(json.dumps({"rc": rc, "in_process_s": time.perf_counter() - t0, "cpu_s": ru.ru_utime + ru.ru_stime,
-                  "peak_mb": ru.ru_maxrss / 1024, "worker_cpu_s": rc_.ru_utime + rc_.ru_stime,
-                  "worker_peak_mb": rc_.ru_maxrss / 1024}))
+                  "peak_mb": ru.ru_maxrss / 1024}))
 """
 
 
@@ -100,16 +97,13 @@ def main(repeats: int = 3, sizes=SIZES, warm_bytecode: bool = False) -> dict:
             runs = [_report(data, Path(tmp) / f"report{n}_{i}", pycache) for i in range(repeats)]
             wall = statistics.median(r["wall_s"] for r in runs)
             cpu = statistics.median(r["cpu_s"] for r in runs)
-            worker_cpu = statistics.median(r["worker_cpu_s"] for r in runs)
             peak = max(r["peak_mb"] for r in runs)
-            worker_peak = max(r["worker_peak_mb"] for r in runs)
             ttest = _ttest_ms(n)
-            results[n] = {"wall_s": wall, "cpu_s": cpu, "worker_cpu_s": worker_cpu, "peak_mb": peak,
-                          "worker_peak_mb": worker_peak, "ttest_ms": ttest}
+            results[n] = {"wall_s": wall, "cpu_s": cpu, "peak_mb": peak, "ttest_ms": ttest}
             print(f"   {n:6d} subjects (data generated in {gen_s:.1f} s): full report whole-process median "
-                  f"{wall:.2f} s of {repeats} (CPU {cpu:.2f} s + child processes {worker_cpu:.2f} s), target "
-                  f"{TARGET_S:.0f} s -> ratio {wall / TARGET_S:.2f}; peak memory {peak:.0f} MB (child processes "
-                  f"{worker_peak:.0f} MB), target {TARGET_MB:.0f} MB -> ratio "
+                  f"{wall:.2f} s of {repeats} (CPU {cpu:.2f} s), target "
+                  f"{TARGET_S:.0f} s -> ratio {wall / TARGET_S:.2f}; peak memory {peak:.0f} MB, target "
+                  f"{TARGET_MB:.0f} MB -> ratio "
                   f"{peak / TARGET_MB:.2f}; t-test matrix {ttest:.1f} ms", flush=True)
             shutil.rmtree(data, ignore_errors=True)
             for old in Path(tmp).glob(f"report{n}_*"):
