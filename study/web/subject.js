@@ -16,13 +16,21 @@ async function poll() {
   } catch (e) { /* runner gone: keep the last message */ }
   setTimeout(poll, 150);
 }
-document.addEventListener("keydown", async (ev) => {
+// Keys go to the runner one at a time, in the order pressed: concurrent requests may arrive out of
+// order, and the first rating key pressed (not the first to arrive) must be the one recorded.
+let sending = Promise.resolve();
+async function sendKey(key) {
+  try {
+    const r = await fetch("/api/key", {method: "POST", headers: {"Content-Type": "application/json"},
+                                        body: JSON.stringify({key})});
+    if (r.ok) show(await r.json());
+  } catch (e) { /* runner gone: keep the last message */ }
+}
+document.addEventListener("keydown", (ev) => {
   if (ev.repeat || ev.ctrlKey || ev.altKey || ev.metaKey) return;
   if (["Shift", "Control", "Alt", "Meta", "CapsLock", "Tab"].includes(ev.key)) return;
   ev.preventDefault();
   const key = ev.key.length === 1 ? ev.key.toLowerCase() : ev.key;
-  const r = await fetch("/api/key", {method: "POST", headers: {"Content-Type": "application/json"},
-                                      body: JSON.stringify({key})});
-  if (r.ok) show(await r.json());
+  sending = sending.then(() => sendKey(key));
 });
 poll();

@@ -84,7 +84,19 @@ def test_subject_keys_in_chromium(browser, served):
     page.keyboard.press("5")
     page.wait_for_function("document.getElementById('message').textContent === 'Thank you.'")
     assert ui.rating() == "5"
+    # keys are sent in order, so every ignored key was handled before the rating's answer came back
     assert ui.keys_ignored == 4
+    # keys pressed faster than the runner answers still count in the order pressed: the first one wins
+    ui.set_subject("rate quickly", "rate")
+    page.wait_for_function("document.getElementById('message').textContent === 'rate quickly'")
+    for key in ("3", "6", "q"):
+        page.keyboard.press(key)
+    page.wait_for_function("document.getElementById('message').textContent === 'Thank you.'")
+    deadline = time.monotonic() + 5
+    while ui.keys_ignored < 6 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert ui.rating() == "3"
+    assert ui.keys_ignored == 6
     # x rejects
     ui.set_subject("rate again", "rate")
     page.wait_for_function("document.getElementById('message').textContent === 'rate again'")
