@@ -125,7 +125,7 @@ def simavr_flags() -> tuple[list[str], list[str]]:
         if (lib / "libsimavr.so").exists() or (lib / "libsimavr.so.2").exists():
             ldflags += [f"-L{lib}", f"-Wl,-rpath,{lib}"]
             if not (lib / "libsimavr.so").exists():
-                ldflags += [f"-l:libsimavr.so.2"]
+                ldflags += ["-l:libsimavr.so.2"]
             break
     if not any(f.startswith("-l:") for f in ldflags):
         ldflags.append("-lsimavr")

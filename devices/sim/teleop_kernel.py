@@ -207,8 +207,6 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
     T = p[P_TICK]
     mdt_n = int(p[P_MDT_N])
     kfm, kfs = p[P_KF_M], p[P_KF_S]
-    fmax_m = p[P_IMAX_M] * kfm
-    fmax_s = p[P_IMAX_S] * kfs
     mu, lam = p[P_MU], p[P_LAM]
     mode = p[P_MODE]
     for k in range(k0, k1):

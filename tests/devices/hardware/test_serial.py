@@ -1,7 +1,6 @@
 """SerialDevice against the firmware emulator over a real pseudo-terminal (streaming mode, faults)."""
 
 import json
-import math
 import time
 
 import pytest

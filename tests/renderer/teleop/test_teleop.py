@@ -20,7 +20,7 @@ from renderer.__main__ import main
 from renderer.teleop.cli_teleop import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS
 from renderer.teleop.commands import largest_stable, sweep
 from renderer.teleop.models import STAND_IN_SOURCE, cimm_params, underestimation_check
-from renderer.teleop.session import TeleopConfig, default_path, run_session, session_metrics
+from renderer.teleop.session import TeleopConfig, default_path, run_session
 
 LAMBDAS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 
