@@ -18,9 +18,14 @@ $(STAMP): pyproject.toml
 	@# pip >= 22 does all we need (PEP 660 editable installs): skip the self-upgrade (a download and a reinstall) when it is that new
 	$(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 0))" \
 	    || $(PY) -m pip install --quiet --upgrade pip
-	@# wheels only (no surprise source builds); no byte-compiling of every installed file (about half of
-	@# pip's CPU time here): Python compiles what is imported, once, on first use
+	@# wheels only (no surprise source builds); pip's own byte-compiling is serial (about half of its CPU
+	@# time here), so it is skipped and compileall does it on every core instead (~12 s on 2 cores). It
+	@# cannot be left to first use: where PYTHONDONTWRITEBYTECODE is set (as on this project's CI
+	@# machines) nothing is ever written, and every process would recompile scipy, pandas and matplotlib
+	@# (~3 s per `devices identify`, per demo worker, per study report)
 	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
+	$(PY) -m compileall -q -j 0 $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
+	    analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
 
 venv: $(STAMP)
