@@ -141,9 +141,16 @@ class TapTrajectory:
         return x
 
     def sample(self, fs_hz: float) -> np.ndarray:
-        """Desired position at ticks ``k/fs_hz`` for k = 0..ceil(duration*fs) (m)."""
+        """Desired position at ticks ``k/fs_hz`` for k = 0..ceil(duration*fs) (m), shape (n,).
+
+        The tick times are made chunk by chunk (no full-length time array): a long plan costs the
+        same per tap as a short one (issue 21 item 2).
+        """
         n = int(math.ceil(self.duration_s * fs_hz)) + 1
-        return self.position(np.arange(n) / fs_hz)
+        out = np.empty(n)
+        for i in range(0, n, self._CHUNK):
+            out[i:i + self._CHUNK] = self._position(np.arange(i, min(i + self._CHUNK, n)) / fs_hz)
+        return out
 
 
 class ScriptedTrajectory:
@@ -213,7 +220,10 @@ def sample_grip(grip_N: float | Callable, t_s: np.ndarray) -> np.ndarray:
         except Exception:
             g = np.array([float(grip_N(float(t))) for t in t_s])
     else:
-        g = np.full(t_s.shape, float(grip_N))
+        g0 = float(grip_N)
+        if not (math.isfinite(g0) and g0 >= 0):
+            raise ValueError("grip_N must be finite and >= 0 N")
+        return np.full(t_s.shape, g0)
     if not np.all(np.isfinite(g)) or np.any(g < 0):
         raise ValueError("grip_N must be finite and >= 0 N")
     return g
