@@ -41,6 +41,13 @@ def register(sub) -> None:
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--hha-model", default=None, help="H_ha model file for pd+hfam (default: identify the master)")
     p.add_argument("--hfam-max-current", type=float, default=4.0, help="saturation of the HFAM channel, A")
+    p.add_argument("--master", default="sim",
+                   help="the master: sim (simulated master and operator, default) or a device string such as "
+                        "serial:/dev/ttyACM0 (a real master streaming over the serial link; the slave and the "
+                        "environment stay simulated, the servo rate is the master's; pf and pf+cimm only)")
+    p.add_argument("--duration-s", type=float, default=10.0,
+                   help="with --master DEVICE: session length in s (default 10); the simulated operator's "
+                        "session lasts as long as its --taps")
     _add_common(p)
     p.set_defaults(func=run_teleop)
     q = sub.add_parser("teleop-sweep", help="lambda sweep with/without cancellation and stabilisers (Fig. 5.11)")

@@ -40,3 +40,40 @@ def test_serial_master_at_1khz_and_link_loss_stops_slave():
     xs = res2.traces[:, K.O_XS]
     assert np.all(res2.traces[lost:, K.O_IM] == 0)
     assert np.ptp(xs[lost + 100:]) < 5e-5                # slave held still after the loss
+
+
+def test_teleop_command_with_a_serial_master(tmp_path):
+    """``renderer teleop --master serial:PTY``: the command drives the simulated slave from the emulated
+    master for --duration-s, writes traces, run.json (link timing) and Figure 5.10, and refuses PD."""
+    import json
+    import subprocess
+    import sys
+
+    port, handle = start_emulator(taps_m_s=(0.1,), grip_N=2.0)
+    try:
+        out = tmp_path / "run"
+        proc = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
+                               "--controller", "pf", "--lambda", "0.5", "--duration-s", "2", "--out", str(out)],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        bad = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
+                              "--controller", "pd", "--out", str(tmp_path / "pd")],
+                             capture_output=True, text=True, timeout=120)
+        no_model = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
+                                   "--controller", "pf+cimm", "--out", str(tmp_path / "cimm")],
+                                  capture_output=True, text=True, timeout=120)
+    finally:
+        handle.stop()
+    assert no_model.returncode != 0 and "--cimm-model FILE" in no_model.stderr
+    run = json.loads((out / "run.json").read_text())
+    link = run["link"]
+    assert link["ticks"] == 2000 and link["link_lost_tick"] is None and run["fault"] == 0
+    assert link["rate_hz"] > 900.0 and link["round_trip_p99_ms"] is not None
+    assert run["testbed"]["servo_rate_hz"] == 1000.0
+    traces = np.loadtxt(out / "traces.csv", delimiter=",", skiprows=1)
+    assert traces.shape == (2000, 17)
+    assert traces[:, K.O_FE].max() > 0.5                 # the emulated hand's tap reached the slave's surface
+    assert (out / "figure_5_10.png").stat().st_size > 10_000
+    assert "achieved" in proc.stdout
+    assert bad.returncode != 0 and "position-force" in bad.stderr
+    assert not (tmp_path / "pd").exists() or not any((tmp_path / "pd").iterdir())
