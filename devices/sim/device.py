@@ -264,13 +264,10 @@ class SimDevice(Device):
         traj = np.ascontiguousarray(trajectory.sample(fs), dtype=float)
         if traj.size < 1 or not np.all(np.isfinite(traj)):
             raise ValueError("set_user: trajectory must give finite positions")
-        # a constant grip needs no time grid (one full-length array less: set-up stays linear per tap)
-        grip = sample_grip(grip_N, np.arange(traj.size) / fs if callable(grip_N) else np.empty(traj.size))
         if traj.size == 1 and callable(grip_N):
             # a held position with time-varying grip: sample the grip for a while and hold
-            n = int(60 * fs)
-            grip = sample_grip(grip_N, np.arange(n) / fs)
-            traj = np.full(n, traj[0])
+            traj = np.full(int(60 * fs), traj[0])
+        grip = sample_grip(grip_N, traj.size, fs)
         self.trajectory = trajectory
         self._traj = traj
         self._grip = np.ascontiguousarray(grip)

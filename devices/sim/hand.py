@@ -106,16 +106,19 @@ class TapTrajectory:
         gathered per sample (no per-tap pass over the whole array).
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        if t.size > self._CHUNK:
-            # in cache-sized chunks: the per-sample cost stays flat however long the run
-            flat = t.ravel()
-            out = np.empty(flat.shape)
-            for i in range(0, flat.size, self._CHUNK):
-                out[i:i + self._CHUNK] = self._position(flat[i:i + self._CHUNK])
-            return out.reshape(t.shape)
-        return self._position(t)
+        flat = t.ravel()
+        return self._chunked(flat.size, lambda i, j: flat[i:j]).reshape(t.shape)
 
     _CHUNK = 1 << 14
+
+    def _chunked(self, n: int, times) -> np.ndarray:
+        """Positions (m) of ``n`` samples, evaluated in cache-sized chunks (the per-sample cost stays flat
+        however long the run); ``times(i, j)`` gives the times (s) of samples i..j-1."""
+        out = np.empty(n)
+        for i in range(0, n, self._CHUNK):
+            j = min(i + self._CHUNK, n)
+            out[i:j] = self._position(times(i, j))
+        return out
 
     def _position(self, t: np.ndarray) -> np.ndarray:
         h, d = self.approach_height_m, self.press_depth_m
@@ -147,10 +150,7 @@ class TapTrajectory:
         same per tap as a short one (issue 21 item 2).
         """
         n = int(math.ceil(self.duration_s * fs_hz)) + 1
-        out = np.empty(n)
-        for i in range(0, n, self._CHUNK):
-            out[i:i + self._CHUNK] = self._position(np.arange(i, min(i + self._CHUNK, n)) / fs_hz)
-        return out
+        return self._chunked(n, lambda i, j: np.arange(i, j) / fs_hz)
 
 
 class ScriptedTrajectory:
@@ -206,13 +206,15 @@ class HoldTrajectory:
         return np.array([self.x_m])
 
 
-def sample_grip(grip_N: float | Callable, t_s: np.ndarray) -> np.ndarray:
-    """Grip force (N) at times ``t_s``; ``grip_N`` is a constant or a callable t_s -> N.
+def sample_grip(grip_N: float | Callable, n: int, fs_hz: float) -> np.ndarray:
+    """Grip force (N) at the ``n`` ticks ``k / fs_hz``; ``grip_N`` is a constant or a callable t_s -> N.
 
     A callable is first tried vectorized (array in, array out), else called
-    per sample. Raises ValueError for negative or non-finite grip.
+    per sample; a constant needs no time grid. Returns shape (n,). Raises
+    ValueError for negative or non-finite grip.
     """
     if callable(grip_N):
+        t_s = np.arange(n) / fs_hz
         try:
             g = np.asarray(grip_N(t_s), dtype=float)
             if g.shape != t_s.shape:
@@ -220,13 +222,10 @@ def sample_grip(grip_N: float | Callable, t_s: np.ndarray) -> np.ndarray:
         except Exception:
             g = np.array([float(grip_N(float(t))) for t in t_s])
     else:
-        g0 = float(grip_N)
-        if not (math.isfinite(g0) and g0 >= 0):
-            raise ValueError("grip_N must be finite and >= 0 N")
-        return np.full(t_s.shape, g0)
+        g = np.array([float(grip_N)])   # checked once, then spread
     if not np.all(np.isfinite(g)) or np.any(g < 0):
         raise ValueError("grip_N must be finite and >= 0 N")
-    return g
+    return g if callable(grip_N) else np.full(n, g[0])
 
 
 @dataclass(frozen=True)

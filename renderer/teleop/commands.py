@@ -91,15 +91,35 @@ def build_cimm(args) -> CimmModel:
     return CimmModel(params, washout_hz=args.washout_hz, source=source)
 
 
+def _teleop_config(args) -> TeleopConfig:
+    """Controller settings from the ``teleop`` arguments (K_mu defaults to 40 Hz for pd+hfam, else off)."""
+    k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if args.controller == "pd+hfam" else 0.0)
+    return TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b, k_mu_hz=k_mu,
+                        k_lambda_hz=args.k_lambda_hz)
+
+
+def _write_traces(out: Path, res) -> None:
+    """``traces.csv``: the session's trace columns (``TRACE_COLUMNS``), cut at a fault."""
+    n = len(res.traces) if not res.fault else res.fault_tick + 1
+    np.savetxt(out / "traces.csv", res.traces[:n], delimiter=",", header=",".join(TRACE_COLUMNS), comments="",
+               fmt="%.9g")
+
+
+def _cimm_record(cimm: CimmModel | None, check: dict | None) -> dict | None:
+    """The CIMM model's entry of run.json (None without cancellation)."""
+    if cimm is None:
+        return None
+    return {"source": cimm.source, "step_s": cimm.step_s, "washout_hz": cimm.washout_hz, "k_u_N_m": cimm.k_u_N_m,
+            "q_u_N_m5": cimm.q_u_N_m5, "b_u_Ns_m": cimm.b_u_Ns_m, "underestimation_check": check}
+
+
 def run_teleop(args) -> int:
     """The ``teleop`` command."""
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
-    if getattr(args, "master", "sim") != "sim":
+    if args.master != "sim":
         return run_teleop_master(args)
-    k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if args.controller == "pd+hfam" else 0.0)
-    cfg = TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b,
-                       k_mu_hz=k_mu, k_lambda_hz=args.k_lambda_hz)
+    cfg = _teleop_config(args)
     tb = build_testbed(args)
     out = _new_dir(Path(args.out))
     hfam = None
@@ -120,9 +140,7 @@ def run_teleop(args) -> int:
     res = run_session(tb, cfg, path, cimm=cimm, hfam=hfam, impact_ticks=crossings, stroke_m=stroke)
     wall = time.perf_counter() - t0
     metrics = session_metrics(res)
-    n = len(res.traces) if not res.fault else res.fault_tick + 1
-    header = ",".join(TRACE_COLUMNS)
-    np.savetxt(out / "traces.csv", res.traces[:n], delimiter=",", header=header, comments="", fmt="%.9g")
+    _write_traces(out, res)
     taps = [None if m is None else {"impact_s": m.impact_s, "settling_s": m.settling_s if math.isfinite(m.settling_s)
                                     else None, "quasi_static_N": m.quasi_static_N, "contact_breaks": m.breaks,
                                     "stable": m.stable, "F_f_energy_above_50Hz": m.hf_energy_fraction}
@@ -132,10 +150,7 @@ def run_teleop(args) -> int:
            "testbed": {"environment": tb.environment.__dict__, "operator": tb.operator.__dict__,
                        "sensors": tb.sensors.__dict__, "servo_rate_hz": tb.servo_rate_hz,
                        "substep_s": tb.substep_s, "master": tb.master.name, "slave": tb.slave.name},
-           "cimm_model": None if cimm is None else {"source": cimm.source, "step_s": cimm.step_s,
-                                                   "washout_hz": cimm.washout_hz, "k_u_N_m": cimm.k_u_N_m,
-                                                   "q_u_N_m5": cimm.q_u_N_m5, "b_u_Ns_m": cimm.b_u_Ns_m,
-                                                   "underestimation_check": check},
+           "cimm_model": _cimm_record(cimm, check),
            "versions": software_versions(), "duration_s": len(path) / tb.servo_rate_hz,
            "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
            "unstable_taps": unstable, "taps": taps}
@@ -189,8 +204,7 @@ def run_teleop_master(args) -> int:
         # (eq. 5.14; the emulated master with the stand-in diverged at lambda 0.5 where pf ran at 1)
         raise ValueError(f"--master {args.master} with pf+cimm needs --cimm-model FILE: the model of this "
                          "master as you hold it (e.g. the model.json of `devices successive` on it)")
-    cfg = TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b,
-                       k_mu_hz=args.k_mu_hz or 0.0, k_lambda_hz=args.k_lambda_hz)
+    cfg = _teleop_config(args)
     cimm = build_cimm(args) if args.controller == "pf+cimm" else None
     out = _new_dir(Path(args.out))
     dev = make_device(args.master)
@@ -208,13 +222,11 @@ def run_teleop_master(args) -> int:
         print(f"master {dev.info.name} at {tb.servo_rate_hz:g} Hz; slave and {args.environment} simulated; "
               f"{args.duration_s:g} s ...", flush=True)
         res, timing = run_serial_session(dev, tb, cfg, args.duration_s, cimm=cimm)
-    n = len(res.traces) if not res.fault else res.fault_tick + 1
-    np.savetxt(out / "traces.csv", res.traces[:n], delimiter=",", header=",".join(TRACE_COLUMNS), comments="",
-               fmt="%.9g")
+    _write_traces(out, res)
     run = {"command": "teleop", "argv": sys.argv[1:], "master": args.master, "controller": cfg.__dict__,
            "testbed": {"environment": tb.environment.__dict__, "sensors": tb.sensors.__dict__,
                        "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name},
-           "cimm_model": None if cimm is None else {"source": cimm.source, "underestimation_check": check},
+           "cimm_model": _cimm_record(cimm, check),
            "versions": software_versions(), "duration_s": args.duration_s, "link": timing,
            "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick}
     atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
