@@ -88,6 +88,10 @@ class Operator:
     compensation_hz : float
         Bandwidth of the integral compensation of low-frequency handle deflection (section 5.6.2,
         "from steady state to about eight hertz").
+    push_N : float
+        Constant force the operator adds on the handle (N, positive up; e.g. -1 pushes towards the
+        surface). With the grip stiffness at zero the operator is a pure force source, the free master
+        of section 5.3.1.
     """
 
     k_u_N_m: float = 40.0
@@ -97,8 +101,11 @@ class Operator:
     muscle_k_N_m: float = 400.0
     muscle_b_Ns_m: float = 20.0
     compensation_hz: float = 1.0
+    push_N: float = 0.0
 
     def __post_init__(self) -> None:
+        if not math.isfinite(self.push_N):
+            raise ValueError(f"operator: push_N must be finite, got {self.push_N!r}")
         for name in ("k_u_N_m", "b_u_Ns_m", "q_u_N_m5", "hand_mass_kg", "muscle_k_N_m", "muscle_b_Ns_m",
                      "compensation_hz"):
             v = getattr(self, name)
@@ -294,6 +301,7 @@ class Testbed:
         o = self.operator
         p[K.P_KU], p[K.P_QU], p[K.P_BU], p[K.P_MA] = o.k_u_N_m, o.q_u_N_m5, o.b_u_Ns_m, o.hand_mass_kg
         p[K.P_KMUS], p[K.P_BMUS], p[K.P_COMP_W] = o.muscle_k_N_m, o.muscle_b_Ns_m, 2 * math.pi * o.compensation_hz
+        p[K.P_PUSH] = o.push_N
         e = self.environment
         p[K.P_EKIND], p[K.P_EK], p[K.P_EALPHA] = e.kind, e.k_N_m, e.alpha_s_m
         p[K.P_EMB], p[K.P_EKF], p[K.P_EBF] = e.block_mass_kg, e.foam_k_N_m, e.foam_b_Ns_m
@@ -319,11 +327,19 @@ class Testbed:
                 p[K.P_WASH_A] = 1.0 / (1.0 + w)
         return p
 
-    def initial_state(self, x_master_m: float, mu: float) -> np.ndarray:
-        """State at rest: master, hand at ``x_master_m``; slave at ``mu * x_master_m``; model at 0."""
+    def initial_state(self, x_master_m: float, mu: float, v_master_m_s: float = 0.0) -> np.ndarray:
+        """Initial state: master and hand at ``x_master_m`` moving at ``v_master_m_s`` (m/s, up), the slave
+        tracking at ``mu`` times both (section 5.3.1: "tracking perfectly"), the CIMM model at rest at 0."""
         s = np.zeros(K.N_STATE)
         for j in (K.CS_XM, K.CS_XD, K.CS_XH):
             s[K.SB_MASTER + j] = x_master_m
             s[K.SB_SLAVE + j] = mu * x_master_m
+        for j in (K.CS_VM, K.CS_VD, K.CS_VH):
+            s[K.SB_MASTER + j] = v_master_m_s
+            s[K.SB_SLAVE + j] = mu * v_master_m_s
         s[K.S_HA_X] = x_master_m
+        s[K.S_HA_V] = v_master_m_s
+        s[K.S_VM_EST] = v_master_m_s
+        s[K.S_VS_EST] = mu * v_master_m_s
+        s[K.S_XC] = mu * x_master_m
         return s

@@ -51,6 +51,7 @@ P_BDAMP, P_KMU_A, P_KLAM_A, P_CIMM = 102, 103, 104, 105
 P_HF_ON, P_HF_GAIN, P_HF_IMAX, P_HF_NSOS = 106, 107, 108, 109
 P_DIV_POS, P_DIV_VEL = 110, 111
 P_LINK_LOST_TICK = 112
+P_PUSH, P_PUSH_TICK = 113, 114   # constant operator force on the master handle (N, up) from this tick on
 P_FIR = 120          # 15 FIR taps (modified Bartlett-Hanning)
 N_FIR = 15
 P_SOS = 140          # up to 12 second-order sections (b0 b1 b2 a1 a2), HP first then inverse
@@ -358,6 +359,7 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
         if p[P_TEX_A] > 0.0:
             y = stroke[k]
             surf = p[P_TEX_A] * (0.5 - 0.5 * math.cos(2.0 * math.pi * y / p[P_TEX_L]))
+        push = p[P_PUSH] if k >= p[P_PUSH_TICK] else 0.0
         contact = 0.0
         fc_sum = 0.0
         ah_sum = 0.0
@@ -376,7 +378,7 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
                     s[S_COMP] += p[P_COMP_W] * (xu - xh) * dt
                 else:
                     fu = _grip_force(p, P_KU, P_QU, P_BU, xh - xu, vh - vu)
-                _chain_substep(s, SB_MASTER, p, PB_MASTER, fm_applied, fu, dt)
+                _chain_substep(s, SB_MASTER, p, PB_MASTER, fm_applied, fu + push, dt)
             # slave + environment
             fe_true, ab = _contact(p, s, s[SB_SLAVE + CS_XH], s[SB_SLAVE + CS_VH], surf)
             if fe_true > 0.0:

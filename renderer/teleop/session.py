@@ -140,7 +140,8 @@ def controller_params(p: np.ndarray, tb: Testbed, cfg: TeleopConfig, hfam=None) 
 
 def run_session(tb: Testbed, cfg: TeleopConfig, path_m: np.ndarray, *, cimm: CimmModel | None = None,
                 hfam=None, stroke_m: np.ndarray | None = None, seed: int = 1,
-                link_lost_tick: int | None = None, impact_ticks=None) -> SessionResult:
+                link_lost_tick: int | None = None, impact_ticks=None,
+                initial_velocity_m_s: float = 0.0, push_from_tick: int = 0) -> SessionResult:
     """Run one session on the simulated testbed (all in one compiled call).
 
     Parameters
@@ -157,6 +158,12 @@ def run_session(tb: Testbed, cfg: TeleopConfig, path_m: np.ndarray, *, cimm: Cim
         Tangential coordinate along the texture (m) per tick.
     link_lost_tick : int or None
         Simulate loss of the master link from this tick: master output zero, slave holds.
+    impact_ticks : array of int or None
+        Ticks of the nominal impacts (the taps :func:`session_metrics` splits at).
+    initial_velocity_m_s : float
+        Master (and operator) velocity at the start (m/s, up); the slave starts tracking it.
+    push_from_tick : int
+        Tick from which the operator's constant push (``Operator.push_N``) acts.
 
     Returns
     -------
@@ -169,10 +176,11 @@ def run_session(tb: Testbed, cfg: TeleopConfig, path_m: np.ndarray, *, cimm: Cim
     controller_params(p, tb, cfg, hfam)
     if link_lost_tick is not None:
         p[K.P_LINK_LOST_TICK] = float(link_lost_tick)
+    p[K.P_PUSH_TICK] = float(push_from_tick)
     path = np.ascontiguousarray(path_m, dtype=np.float64)
     n = len(path)
     stroke = np.zeros(n) if stroke_m is None else np.ascontiguousarray(stroke_m, dtype=np.float64)
-    s = tb.initial_state(float(path[0]), cfg.mu)
+    s = tb.initial_state(float(path[0]), cfg.mu, initial_velocity_m_s)
     rs = np.array([np.uint64(0x9E3779B97F4A7C15 ^ (seed * 0x2545F4914F6CDD1D % (1 << 64)) or 1)], dtype=np.uint64)
     out = np.zeros((n, K.N_OUT))
     fault, fault_tick = K.run_session(p, s, rs, path, stroke, out, 0, n, 0)
