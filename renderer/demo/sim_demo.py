@@ -255,8 +255,10 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
             "penetration_m": pen, "cuts": cuts}
 
 
-def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figures: bool = True) -> dict:
-    """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``)."""
+def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figures: bool = True,
+                 parallel: bool = True) -> dict:
+    """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``); with
+    ``parallel`` the HFAM grid is drawn in a forked process beside the others (two cores or more)."""
     from . import (  # deferred: the figures load matplotlib (~0.3 s); `renderer demo --help` imports this module
         figures as figs,
     )
@@ -271,16 +273,23 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
               if (name, v_fig, g_mid) in tr]
     ref = tr[(runs.REAL.name, v_fig, g_mid)][0].accel if (runs.REAL.name, v_fig, g_mid) in tr else result.references[v_fig]
     panels = [(lab, ref if lab == "real wood on foam" else w) for lab, w in panels]
-    out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}
     vs = cfg.grid_velocities_m_s
     grips = cfg.grips_N[:3] if len(cfg.grips_N) >= 3 else cfg.grips_N
     cells = {(v, g): tr[("hfam_firm", v, g)][0].accel for v in vs for g in grips if ("hfam_firm", v, g) in tr}
+    grid = None
     if len(cells) == len(vs) * len(grips):
         cur = {(v, g): tr[("hfam_firm", v, g)][0].transient_current for v in vs for g in grips}
         fixed = {(v, g): tr[("hfam_fixed_grip_firm", v, g)][0].accel for v in vs for g in grips
                  if ("hfam_fixed_grip_firm", v, g) in tr and g != cfg.medium_grip_N}
-        out_figs["hfam_grid"] = figs.hfam_grid_figure(cells, result.references, cur, fixed, vs, grips, fs, pre,
-                                                      out / "fig_hfam_grid.png")
+        grid = (cells, result.references, cur, fixed, vs, grips, fs, pre, out / "fig_hfam_grid.png")
+    side = None
+    if grid is not None and parallel and _can_fork() and (os.cpu_count() or 1) > 1:
+        # the grid and the contact figure take about as long each: draw the grid in a second process,
+        # forked after pyplot is imported (deferred with the figures) so the child does not import it again
+        import matplotlib.pyplot  # noqa: F401
+        side = mp.get_context("fork").Process(target=figs.hfam_grid_figure, args=grid, daemon=True)
+        side.start()
+    out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}
     pen = {}
     for (name, _v, _g), taps in tr.items():
         pen.setdefault(name, []).extend(t.penetration_m for t in taps if t.found)
@@ -289,6 +298,13 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
               "hfam_soft": "HFAM over soft", "hfam_fixed_grip_firm": "HFAM, no grip compensation",
               runs.REAL.name: "real wood on foam"}
     out_figs["penetration"] = figs.penetration_figure(pen, labels, out / "fig_penetration.png")
+    if grid is not None:
+        if side is not None:
+            side.join()
+        if side is not None and side.exitcode == 0:
+            out_figs["hfam_grid"] = grid[-1]
+        else:  # drawn here (no fork, one core, or the second process failed: then its traceback shows here)
+            out_figs["hfam_grid"] = figs.hfam_grid_figure(*grid)
     if pipeline_figures:
         out_figs.update(_pipeline_figures(result.pipeline, cfg, out))
     return out_figs
