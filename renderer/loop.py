@@ -18,10 +18,12 @@ One tick (rate ``fs``, period ``dt``):
    saturation (section 4.4.2): proportional to the continuous limit, transient
    to the peak limit, the sum to the amplifier limit; clip bits 1/2/4.
 8. Winding thermal model (renderer.thermal) attenuates, then ends, transients.
-9. ``device.command(i)``; then the tick is logged into preallocated buffers.
+9. ``device.command(i)``; then, on an impact, the event's work (velocity fit, transient lookup).
 
-The tick is plain scalar Python on local variables; nothing is allocated
-per tick except Python floats. The output is zeroed on every exit path.
+Steps 1-8 and the tick's log row are one compiled function, ``renderer.law.law_tick``, over
+preallocated arrays: the per-tick loop calls it between ``read()`` and ``command()`` (hardware,
+paced simulations), and ``renderer.law.run_sim`` runs it together with a simulated device's physics
+(as fast as possible). The output is zeroed on every exit path.
 """
 
 from __future__ import annotations
@@ -36,16 +38,17 @@ import os
 import pathlib
 import time
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
 
 from devices import provenance
 
+from . import law as LAW
 from .config import RendererConfig
 from .safety import safety_bounds
 from .thermal import safe_continuous_current
+from .scene import SHAPE_CODES
 from .velocity import ImpactVelocityEstimator, ls_constants
 
 # name, array typecode, numpy dtype, description (documented in docs/renderer.md)
@@ -67,7 +70,6 @@ LOG_CHANNELS: tuple[tuple[str, str, str, str], ...] = (
 )
 
 CLIP_PROPORTIONAL, CLIP_TRANSIENT, CLIP_AMPLIFIER = 1, 2, 4
-_STATUS_SENSOR_INVALID, _STATUS_DISCONNECTED = 16, 32
 
 EVENT_COLUMNS = ("t_s", "incoming_velocity_m_s", "grip_N", "max_penetration_m", "peak_accel_m_s2",
                  "transient", "clipped", "tick", "transient_samples", "thermal_gain")
@@ -253,8 +255,11 @@ class ServoLoop:
     RunResult (also a partial one after an exception or Ctrl-C).
     """
 
-    def __init__(self, device, cfg: RendererConfig | None = None, transient=None):
+    def __init__(self, device, cfg: RendererConfig | None = None, transient=None, compiled_sim: bool = True):
         self.device = device
+        # as fast as possible on a simulated device that offers its physics to the compiled loop
+        # (devices.sim.SimDevice.fused_arrays): law and physics run together in renderer.law.run_sim
+        self.compiled_sim = bool(compiled_sim)
         self.cfg = cfg if cfg is not None else RendererConfig()
         if not isinstance(self.cfg, RendererConfig):
             raise ValueError(f"cfg must be a RendererConfig, got {type(self.cfg).__name__}")
@@ -312,12 +317,16 @@ class ServoLoop:
                                  f"(max_transient_s={cfg.max_transient_s}); raise max_transient_s")
         if self.on_device and self.scene.single_wall is None:
             raise ValueError("on-device rendering supports only a single horizontal wall scene")
-        self.tbuf = array.array("d", bytes(8 * self.nbuf))
-        self.tview = np.frombuffer(self.tbuf, dtype=np.float64)
         self.w_vel = max(2, int(round(cfg.velocity_window_s * fs)))
         self.impact_velocity = ImpactVelocityEstimator(self.dt_s, info.position_resolution_m,
                                                        cfg.impact_min_window_s, cfg.impact_window_s,
                                                        cfg.impact_counts)
+        # the law's state (renderer.law): scalars, the double-written position ring, the transient buffer
+        self.nring = max(self.w_vel, self.impact_velocity.history)
+        self.tbuf_at = LAW.W_RING + 2 * self.nring
+        self.law_state = np.zeros(self.tbuf_at + self.nbuf)
+        self.tview = self.law_state[self.tbuf_at:]
+        self.impact_velocity.bind(self.law_state[LAW.W_RING:self.tbuf_at])
         self._prepared = True
 
     def request_stop(self) -> None:
@@ -333,9 +342,12 @@ class ServoLoop:
             return "until"
         return ""
 
-    def _alloc_log(self, capacity: int) -> dict:
-        # repetition writes every page now, so the loop never takes a first-touch page fault
-        return {name: array.array(code, [0.0 if code == "d" else 0]) * capacity for name, code, _, _ in LOG_CHANNELS}
+    def _alloc_log(self, capacity: int) -> None:
+        # the law's rows (renderer.law.LOG_COLUMNS) and the loop's own clock columns; filled now, so
+        # the loop never takes a first-touch page fault
+        self._logf = np.empty((capacity, LAW.N_LOG))
+        self._logf.fill(0.0)
+        self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
 
     def _fill_transient(self, v_in: float, grip: float, gain: float) -> int:
         """Write the event's transient current (A) into the buffer; returns its length (event time, not per tick)."""
@@ -400,7 +412,7 @@ class ServoLoop:
         self.events = []
         self.bad_transients = 0
         self.stop_requested = False
-        self._log = self._alloc_log(cap_ticks)
+        self._alloc_log(cap_ticks)
         self._cap = cap_ticks
         self._stats = {"stop_reason": "exception", "n_logged": 0, "wrapped": False, "ticks": 0,
                        "overruns": 0, "bad_samples": 0, "error": ""}
@@ -436,134 +448,150 @@ class ServoLoop:
             self.result = self._build_result(wall, cpu, bool(realtime))
         return self.result
 
-    def _tick_constants(self, realtime: bool) -> SimpleNamespace:
-        """Everything the tick reads but never changes: gains, limits, thermal and sensor bounds, buffers, timing.
-
-        Returns
-        -------
-        SimpleNamespace
-            Unpacked into locals by :meth:`_loop` (a local is the cheapest lookup in CPython).
-        """
-        cfg, info = self.cfg, self.info
-        fs, dt = self.fs_hz, self.dt_s
-        c = SimpleNamespace()
-        # the wall law (proportional + damping, re-arm hysteresis) and the transient channel
-        c.k = float(cfg.stiffness_N_m)
-        c.damp = float(cfg.damping_N_s_m)
-        c.margin = float(cfg.rearm_margin_m)
-        c.hold_n = max(1, int(round(cfg.rearm_hold_s * fs)))
-        c.kf = self.force_per_amp
-        c.inv_kf = 1.0 / c.kf
-        c.motor = bool(cfg.motor_enabled)
-        c.tgain = float(cfg.transient_gain)
-        # saturation (section 4.4.2) and the winding thermal model
-        c.ic = self.continuous_safe_A
-        c.ipk = self.limits["peak_A"]
-        c.iamp = self.limits["amplifier_A"]
-        # the safety path shared with every servo law (renderer.safety): thermal model, sensor bounds
-        b = safety_bounds(info, fs, cfg)
-        c.heat, c.alpha = b.heat_K_A2, b.alpha
-        c.t_att, c.t_end = b.t_attenuate_K, b.t_end_K
-        c.inv_span = 1.0 / (c.t_end - c.t_att)
-        c.plim, c.alim = b.position_limit_m, b.accel_limit_m_s2
-        c.gmin, c.gmax = b.grip_min_N, b.grip_max_N
-        c.max_bad = b.max_bad_samples
-        # the scene
-        c.wall = self.scene.single_wall
-        c.wall_h = c.wall.height_m if c.wall is not None else 0.0
-        c.pen1d = self.scene.penetration_1d
-        # velocity estimators (renderer.velocity): a double-written ring (sample i at i and i + nring)
-        # so the impact fit reads a contiguous slice
-        c.wv = self.w_vel
-        c.nring = max(c.wv, self.impact_velocity.history)
-        c.pring = array.array("d", bytes(16 * c.nring))
-        self.impact_velocity.bind(c.pring)
-        c.c_shift, c.c_scale = ls_constants(c.wv, dt)
-        # timing: pacing, overrun and watchdog bounds
-        c.period_ns = int(round(1e9 / fs))
-        c.paced = realtime or not info.simulated
-        tol = cfg.overrun_tolerance_s if cfg.overrun_tolerance_s is not None else 0.5 * dt
-        c.over_ns = c.period_ns + int(tol * 1e9)
-        c.wd_ns = c.period_ns + int(cfg.watchdog_overrun_s * 1e9)
-        c.watchdog = not info.simulated  # a stalled simulation endangers nothing: the watchdog guards real motors
-        c.spin_ns = int(cfg.spin_margin_s * 1e9)
-        c.sleep_spin = cfg.pacing == "sleep_spin"
-        c.catchup_ns = int(cfg.max_catchup_s * 1e9)
-        c.until_every = int(cfg.until_every)
+    def _law_constants(self) -> np.ndarray:
+        """The law's constants (``renderer.law.C_*``): gains, limits, thermal and sensor bounds, the scene."""
+        cfg, info, fs = self.cfg, self.info, self.fs_hz
+        b = safety_bounds(info, fs, cfg)  # the safety path shared with every servo law (renderer.safety)
+        objs = self.scene.objects
+        c = np.zeros(LAW.C_OBJ + LAW.OBJ_STRIDE * len(objs))
+        c[LAW.C_K], c[LAW.C_DAMP] = float(cfg.stiffness_N_m), float(cfg.damping_N_s_m)
+        c[LAW.C_MARGIN], c[LAW.C_HOLD_N] = float(cfg.rearm_margin_m), max(1, int(round(cfg.rearm_hold_s * fs)))
+        c[LAW.C_KF], c[LAW.C_INV_KF] = self.force_per_amp, 1.0 / self.force_per_amp
+        c[LAW.C_MOTOR], c[LAW.C_TGAIN] = 1.0 if cfg.motor_enabled else 0.0, float(cfg.transient_gain)
+        c[LAW.C_IC], c[LAW.C_IPK], c[LAW.C_IAMP] = self.continuous_safe_A, self.limits["peak_A"], self.limits["amplifier_A"]
+        c[LAW.C_HEAT], c[LAW.C_ALPHA] = b.heat_K_A2, b.alpha
+        c[LAW.C_T_ATT], c[LAW.C_T_END] = b.t_attenuate_K, b.t_end_K
+        c[LAW.C_INV_SPAN] = 1.0 / (b.t_end_K - b.t_attenuate_K)
+        c[LAW.C_PLIM], c[LAW.C_ALIM] = b.position_limit_m, b.accel_limit_m_s2
+        c[LAW.C_GMIN], c[LAW.C_GMAX], c[LAW.C_MAX_BAD] = b.grip_min_N, b.grip_max_N, b.max_bad_samples
+        c[LAW.C_WV], c[LAW.C_NRING] = self.w_vel, self.nring
+        c[LAW.C_C_SHIFT], c[LAW.C_C_SCALE] = ls_constants(self.w_vel, self.dt_s)
+        c[LAW.C_CAP], c[LAW.C_NOBJ], c[LAW.C_TBUF] = self._cap, len(objs), self.tbuf_at
+        for j, obj in enumerate(objs):
+            nums = obj.numbers()
+            o = LAW.C_OBJ + LAW.OBJ_STRIDE * j
+            c[o] = SHAPE_CODES[obj.shape]
+            c[o + 1:o + 1 + len(nums)] = nums
         return c
 
-    def _loop(self, limit, until, realtime: bool) -> None:
-        """The servo loop proper: everything in locals, no attribute lookups or allocation per tick.
-
-        Each tick, in order: pace; (1) read and validate the sensors; (2) estimate the velocity and
-        compute the forces (transient sample, collision, contact events, wall law); (3) saturate per
-        channel and in sum, step the thermal model; (4) command the motor, then the impact work
-        (velocity fit, transient lookup) that must not delay the output; (5) log into the ring and,
-        every ``until_every`` ticks, publish progress and honour stop requests.
-        """
-        st = self._stats
+    def _prime(self) -> None:
+        """Zero-current priming cycle, then the law's initial state: the position ring and its sums, the
+        last good samples, the contact latch, temperature. One-time costs (a sim's JIT compile, a
+        driver's first transfer) land here, not in the first paced tick."""
         read, command = self.device.read, self.device.command
-        clock, sleep = time.perf_counter_ns, time.sleep
-        c = self._tick_constants(realtime)
-        # locals for speed: a local costs one lookup per tick, an attribute two
-        k, damp, margin, hold_n, kf, inv_kf, motor, tgain = (c.k, c.damp, c.margin, c.hold_n, c.kf, c.inv_kf,
-                                                              c.motor, c.tgain)
-        ic, ipk, iamp, heat, alpha, t_att, t_end, inv_span = (c.ic, c.ipk, c.iamp, c.heat, c.alpha, c.t_att,
-                                                              c.t_end, c.inv_span)
-        plim, alim, gmax, gmin, max_bad = c.plim, c.alim, c.gmax, c.gmin, c.max_bad
-        wall, wall_h, pen1d = c.wall, c.wall_h, c.pen1d
-        wv, nring, pring, c_shift, c_scale = c.wv, c.nring, c.pring, c.c_shift, c.c_scale
-        impact_velocity = self.impact_velocity
-        period_ns, paced, over_ns, wd_ns, watchdog = c.period_ns, c.paced, c.over_ns, c.wd_ns, c.watchdog
-        spin_ns, sleep_spin, catchup_ns, until_every = c.spin_ns, c.sleep_spin, c.catchup_ns, c.until_every
-        # transient playback and events
-        tbuf, fill, tname, events = self.tbuf, self._fill_transient, self.transient_name, self.events
-        tlen = tj = 0
-        # log buffers (preallocated ring)
-        log, cap = self._log, self._cap
-        L_t, L_x, L_v, L_d = log["t_s"], log["position_m"], log["velocity_m_s"], log["penetration_m"]
-        L_fp, L_ft, L_i, L_c = log["force_prop_N"], log["force_transient_N"], log["current_A"], log["clipped"]
-        L_a, L_g, L_T, L_f = log["accel_m_s2"], log["grip_N"], log["temp_rise_K"], log["sensor_flags"]
-        L_w, L_cn = log["wall_ns"], log["compute_ns"]
-        # priming cycle (zero current) so one-time costs (a sim's JIT compile, a driver's first transfer)
-        # do not land in the first paced tick; then the estimators' history and the contact latch. It stays
-        # inline: done in a helper method returning these values, the tick measured 50 % slower (bench_renderer)
+        c, w = self._law_c, self.law_state
+        w[:LAW.W_RING] = 0.0
         read()
         command(0.0)
-        s0_state = read()
-        p0 = s0_state.position_m
+        s0 = read()
+        plim, wall = c[LAW.C_PLIM], self.scene.single_wall
+        p0 = s0.position_m
         if not (-plim <= p0 <= plim):
-            p0 = 0.0 if wall is None else wall_h + 2.0 * margin + 1e-3
-        for j in range(2 * nring):
-            pring[j] = p0
-        s0 = wv * p0
-        s1 = p0 * wv * (wv - 1) / 2.0
-        pi = 0
-        po = (pi - wv) % nring
-        last_pos = p0
-        last_acc = 0.0
-        last_grip = 0.0
-        g0 = s0_state.grip_N
-        if gmin <= g0 <= gmax:
-            last_grip = g0
-        d0 = wall_h - p0 if wall is not None else pen1d(p0)[0]
-        armed = d0 <= 0.0
-        # state carried from tick to tick
-        out_n = 0
-        ev = None
-        crossing = False
-        ev_pen = ev_acc = 0.0
-        ev_clip = False
-        temp = float(self.temp_rise_K)
-        g_th = 1.0
-        nbad = bad_total = overruns = n = li = 0
-        uc = until_every
+            p0 = 0.0 if wall is None else wall.height_m + 2.0 * self.cfg.rearm_margin_m + 1e-3
+        nring, wv = self.nring, self.w_vel
+        w[LAW.W_RING:LAW.W_RING + 2 * nring] = p0
+        w[LAW.W_S0] = wv * p0
+        w[LAW.W_S1] = p0 * wv * (wv - 1) / 2.0
+        w[LAW.W_PI] = 0
+        w[LAW.W_PO] = (0 - wv) % nring
+        w[LAW.W_LAST_POS] = p0
+        if c[LAW.C_GMIN] <= s0.grip_N <= c[LAW.C_GMAX]:
+            w[LAW.W_LAST_GRIP] = s0.grip_N
+        w[LAW.W_ARMED] = 1.0 if self.scene.penetration_1d(p0)[0] <= 0.0 else 0.0
+        w[LAW.W_TEMP] = float(self.temp_rise_K)
+        w[LAW.W_GTH] = 1.0
+        # one tick of the law on scratch copies: its first call's one-time cost lands here, not in tick 0
+        LAW.law_tick(c, w.copy(), np.zeros((1, LAW.N_LOG)), 0.0, p0, 0.0, 0.0, 0)
+
+    def _loop(self, limit, until, realtime: bool) -> None:
+        """The servo loop proper; one tick of it: pace; read; the law (``renderer.law.law_tick``:
+        validate, velocity, transient sample, collision, events, wall law, saturation, thermal, log
+        row); command; then the impact's work that must not delay the output; every ``until_every``
+        ticks publish progress and honour stop requests. On a simulated device run as fast as possible,
+        law and physics run together in ``renderer.law.run_sim`` (:meth:`_run_compiled`).
+        """
+        st = self._stats
+        dev = self.device
+        self._law_c = self._law_constants()
+        self._prime()
+        self._ev = None
+        self._tlen = 0
+        compiled = (self.compiled_sim and not realtime and self.info.simulated
+                    and callable(getattr(dev, "fused_arrays", None)))
+        st["compiled"] = compiled
         st["cpu0"] = time.process_time()
-        t0 = clock()
+        t0 = time.perf_counter_ns()
         st["t0_ns"] = t0
+        self._n = 0
+        reason = "duration"
+        try:
+            if compiled:
+                reason = self._run_compiled(limit, until, t0)
+            else:
+                reason = self._run_ticks(limit, until, realtime, t0)
+        finally:
+            w = self.law_state
+            ev = self._ev
+            if ev is not None:
+                ev.max_penetration_m, ev.peak_accel_m_s2 = float(w[LAW.W_EV_PEN]), float(w[LAW.W_EV_ACC])
+                ev.clipped = bool(w[LAW.W_EV_CLIP])
+            n = self._n
+            self.ticks = n
+            self.time_s = float(w[LAW.W_T])
+            self.temp_rise_K = float(w[LAW.W_TEMP])
+            st.update(stop_reason=reason, ticks=n, n_logged=min(n, self._cap), wrapped=n > self._cap,
+                      li=int(w[LAW.W_LI]), overruns=st.get("overruns", 0),
+                      bad_samples=int(w[LAW.W_BAD_TOTAL]), paced=st.get("paced", False))
+
+    def _after_command(self, code: int, n: int) -> None:
+        """An event's work after the tick's command: close the open event, and on an impact fit the
+        incoming velocity, write the transient for the next ticks and record the event."""
+        w = self.law_state
+        if code & LAW.CODE_CLOSED and self._ev is not None:
+            ev = self._ev
+            ev.max_penetration_m, ev.peak_accel_m_s2 = float(w[LAW.W_CLOSED_PEN]), float(w[LAW.W_CLOSED_ACC])
+            ev.clipped = bool(w[LAW.W_CLOSED_CLIP])
+            self._ev = None
+        if code & LAW.CODE_IMPACT:
+            nz = float(w[LAW.W_NZ])
+            v_in = -self.impact_velocity.at(int(w[LAW.W_PNEW]), float(w[LAW.W_VEL])) * nz
+            if v_in < 0.0:
+                v_in = 0.0
+            g_th, grip = float(w[LAW.W_GTH]), float(w[LAW.W_GRIP])
+            tlen = self._fill_transient(v_in, grip, self._law_c[LAW.C_TGAIN] * g_th) if g_th > 0.0 else 0
+            w[LAW.W_TLEN] = tlen
+            w[LAW.W_TJ] = 0.0
+            self._ev = ContactEvent(t_s=float(w[LAW.W_T]), incoming_velocity_m_s=v_in, grip_N=grip,
+                                    transient=self.transient_name, tick=n, transient_samples=tlen,
+                                    thermal_gain=g_th)
+            self.events.append(self._ev)
+
+    def _run_ticks(self, limit, until, realtime: bool, t0: int) -> str:
+        """One ``law_tick`` per tick between ``read()`` and ``command()`` (hardware, paced simulation)."""
+        st, cfg, info = self._stats, self.cfg, self.info
+        read, command = self.device.read, self.device.command
+        clock, sleep = time.perf_counter_ns, time.sleep
+        law_tick, c, w, log = LAW.law_tick, self._law_c, self.law_state, self._logf
+        wm = memoryview(w)  # reading a Python float from a memoryview is cheaper than from numpy
+        W_CODE, W_FLAGS, W_NBAD = LAW.W_CODE, LAW.W_FLAGS, LAW.W_NBAD
+        L_w, L_cn = self._log_ns["wall_ns"], self._log_ns["compute_ns"]
+        cap = self._cap
+        fs = self.fs_hz
+        period_ns = int(round(1e9 / fs))
+        paced = realtime or not info.simulated
+        tol = cfg.overrun_tolerance_s if cfg.overrun_tolerance_s is not None else 0.5 / fs
+        over_ns = period_ns + int(tol * 1e9)
+        wd_ns = period_ns + int(cfg.watchdog_overrun_s * 1e9)
+        watchdog = not info.simulated  # a stalled simulation endangers nothing: the watchdog guards real motors
+        spin_ns = int(cfg.spin_margin_s * 1e9)
+        sleep_spin = cfg.pacing == "sleep_spin"
+        catchup_ns = int(cfg.max_catchup_s * 1e9)
+        until_every = int(cfg.until_every)
+        uc = until_every
+        overruns = n = li = 0
         prev = deadline = t0
         reason = "duration"
-        t = 0.0
+        st["paced"] = paced
         try:
             while n < limit:
                 # ---- pace (real time: sleep, then spin to the deadline)
@@ -578,7 +606,7 @@ class ServoLoop:
                             pass
                     elif rem < -catchup_ns:
                         deadline = now  # hopelessly behind (e.g. suspended): resynchronise, ticks are lost
-                # ---- (1) read and validate: overrun/watchdog, disconnect, implausible samples held
+                # ---- read; overrun and watchdog
                 s = read()
                 tr = clock()
                 if paced:
@@ -591,174 +619,24 @@ class ServoLoop:
                             st["error"] = f"tick {n} period {per / 1000:.0f} us exceeds the watchdog bound"
                             break
                 prev = tr
-                t = s.t_s
-                pos = s.position_m
-                acc = s.accel_m_s2
-                grip = s.grip_N
-                flags = 0
-                if s.status:
-                    sts = s.status
-                    if sts & _STATUS_DISCONNECTED:
-                        command(0.0)
+                # ---- the law
+                i = law_tick(c, w, log, s.t_s, s.position_m, s.accel_m_s2, s.grip_N, s.status)
+                code = int(wm[W_CODE])
+                if code >= 4:  # a stop: LAW.CODE_SENSOR or LAW.CODE_DISCONNECTED
+                    command(0.0)
+                    if code & LAW.CODE_DISCONNECTED:
                         reason = "disconnected"
                         st["error"] = str(s.extra.get("error", "device reported a disconnect"))
-                        break
-                    if sts & _STATUS_SENSOR_INVALID:
-                        flags = 8
-                        pos = last_pos
-                        acc = last_acc
-                        grip = last_grip
-                if not (-plim <= pos <= plim):  # also False for NaN
-                    pos = last_pos
-                    flags |= 1
-                else:
-                    last_pos = pos
-                if not (-alim <= acc <= alim):
-                    acc = last_acc
-                    flags |= 2
-                else:
-                    last_acc = acc
-                if not (gmin <= grip <= gmax):
-                    grip = last_grip
-                    flags |= 4
-                else:
-                    last_grip = grip
-                if flags:
-                    nbad += 1
-                    bad_total += 1
-                    if nbad >= max_bad:
-                        command(0.0)
-                        reason = "sensor"
-                        st["error"] = f"{nbad} invalid sensor samples in a row (flags {flags}) at tick {n}"
-                        break
-                else:
-                    nbad = 0
-                # ---- (2) forces: velocity, transient sample, collision, contact events, wall law
-                # sliding least-squares velocity, O(1)
-                old = pring[po]
-                po += 1
-                if po == nring:
-                    po = 0
-                pring[pi] = pos
-                pring[pi + nring] = pos
-                pnew = pi
-                pi += 1
-                if pi == nring:
-                    pi = 0
-                s1 += (wv - 1) * pos - s0 + old
-                s0 += pos - old
-                vel = (s1 - c_shift * s0) * c_scale
-                # transient playback: the sample for this tick was fixed before this tick's event check
-                if tj < tlen:
-                    i_t = tbuf[tj] * g_th
-                    tj += 1
-                else:
-                    i_t = 0.0
-                # collision detection
-                if wall is not None:
-                    d = wall_h - pos
-                    nz = 1.0
-                else:
-                    d, nz = pen1d(pos)
-                # contact events
-                if d > 0.0:
-                    if armed:  # impact: the event work is done right after command() (below)
-                        armed = False
-                        crossing = True
-                        if ev is not None:
-                            ev.max_penetration_m, ev.peak_accel_m_s2, ev.clipped = ev_pen, ev_acc, ev_clip
-                            ev = None
                     else:
-                        out_n = 0
-                    f_p = k * d * nz
-                    if damp > 0.0 and vel * nz < 0.0:
-                        f_p -= damp * vel
-                else:
-                    f_p = 0.0
-                    if not armed:
-                        if d < -margin and tj >= tlen:
-                            out_n += 1
-                            if out_n >= hold_n:
-                                armed = True
-                                if ev is not None:
-                                    ev.max_penetration_m, ev.peak_accel_m_s2, ev.clipped = ev_pen, ev_acc, ev_clip
-                                    ev = None
-                        else:
-                            out_n = 0
-                # ---- (3) saturate per channel, then the sum (section 4.4.2); thermal model
-                clip = 0
-                i_p = f_p * inv_kf
-                if i_p > ic:
-                    i_p = ic
-                    clip = 1
-                elif i_p < -ic:
-                    i_p = -ic
-                    clip = 1
-                i_t_req = i_t
-                if i_t > ipk:
-                    i_t = ipk
-                    clip |= 2
-                elif i_t < -ipk:
-                    i_t = -ipk
-                    clip |= 2
-                i = i_p + i_t
-                if i > iamp:
-                    i = iamp
-                    clip |= 4
-                elif i < -iamp:
-                    i = -iamp
-                    clip |= 4
-                if not motor or i != i:
-                    i = 0.0
-                # winding thermal model: attenuate, then end, transients before the limit
-                temp += (heat * i * i - temp) * alpha
-                if temp > t_att:
-                    g_th = (t_end - temp) * inv_span
-                    if g_th <= 0.0:
-                        g_th = 0.0
-                        tj = tlen
-                else:
-                    g_th = 1.0
-                # ---- (4) command, then the impact work that must not delay the output
+                        reason = "sensor"
+                        st["error"] = (f"{int(wm[W_NBAD])} invalid sensor samples in a row "
+                                       f"(flags {int(wm[W_FLAGS])}) at tick {n}")
+                    break
+                # ---- command, then the impact work that must not delay the output
                 tc = clock()
                 command(i)
-                if crossing:
-                    # after the command, so the crossing tick's output is not delayed: the fit and the
-                    # transient lookup use the rest of the period; sample 0 plays on the next tick
-                    crossing = False
-                    v_in = -impact_velocity.at(pnew, vel) * nz
-                    if v_in < 0.0:
-                        v_in = 0.0
-                    tlen = fill(v_in, grip, tgain * g_th) if g_th > 0.0 else 0
-                    tj = 0
-                    ev = ContactEvent(t_s=t, incoming_velocity_m_s=v_in, grip_N=grip, transient=tname,
-                                      tick=n, transient_samples=tlen, thermal_gain=g_th)
-                    events.append(ev)
-                    ev_pen = d
-                    ev_acc = 0.0
-                    ev_clip = False
-                if ev is not None:
-                    if d > ev_pen:
-                        ev_pen = d
-                    if acc > ev_acc:
-                        ev_acc = acc
-                    elif -acc > ev_acc:
-                        ev_acc = -acc
-                    if clip & 4:
-                        ev_clip = True
-                # ---- (5) log into the preallocated ring; every until_every ticks publish and check stop
-                L_t[li] = t
-                L_x[li] = pos
-                L_v[li] = vel
-                L_d[li] = d
-                L_fp[li] = f_p
-                L_ft[li] = i_t_req * kf
-                L_i[li] = i
-                L_c[li] = clip
-                L_a[li] = acc
-                L_g[li] = grip
-                L_T[li] = temp
-                L_f[li] = flags
+                if code:
+                    self._after_command(code, n)
                 L_w[li] = tr - t0
                 L_cn[li] = tc - tr
                 li += 1
@@ -769,22 +647,76 @@ class ServoLoop:
                 if uc == 0:  # every until_every ticks: publish progress, honour stop requests
                     uc = until_every
                     self.ticks = n
-                    self.time_s = t
-                    self.temp_rise_K = temp
+                    self.time_s = wm[LAW.W_T]
+                    self.temp_rise_K = wm[LAW.W_TEMP]
                     stop = self._stop_check(until)
                     if stop:
                         reason = stop
                         break
-            else:
-                reason = "duration"
         finally:
-            if ev is not None:
-                ev.max_penetration_m, ev.peak_accel_m_s2, ev.clipped = ev_pen, ev_acc, ev_clip
-            self.ticks = n
-            self.time_s = t
-            self.temp_rise_K = temp
-            st.update(stop_reason=reason, ticks=n, n_logged=min(n, cap), wrapped=n > cap, li=li,
-                      overruns=overruns, bad_samples=bad_total, paced=paced)
+            self._n = n
+            st["overruns"] = overruns
+        return reason
+
+    def _run_compiled(self, limit, until, t0: int) -> str:
+        """Law and simulated physics in ``renderer.law.run_sim``, in chunks of ``until_every`` ticks; an
+        impact or a stop returns to Python for the event work or the stop. The per-tick clock columns
+        hold the chunk's end (no per-tick timing inside a compiled chunk)."""
+        st, dev = self._stats, self.device
+        c, w, log, cap = self._law_c, self.law_state, self._logf, self._cap
+        wall_col = np.frombuffer(self._log_ns["wall_ns"], dtype=np.int64)
+        until_every = int(self.cfg.until_every)
+        uc = until_every
+        n = li = 0
+        st["paced"] = False
+        arrays = dev.fused_arrays()
+        dv = dev.fused_state()
+        reason = "duration"
+        try:
+            while n < limit:
+                k = LAW.run_sim(c, w, log, dv, *arrays, min(uc, limit - n))
+                now = time.perf_counter_ns() - t0
+                end = li + k
+                if end <= cap:
+                    wall_col[li:end] = now
+                else:
+                    wall_col[li:] = now
+                    wall_col[:end - cap] = now
+                li = end % cap
+                n += k
+                self._n = n
+                uc -= k
+                code = int(w[LAW.W_CODE])
+                if code >= 4:  # a stop before the tick's command: zero it through the device
+                    dev.fused_sync(dv)
+                    dev.command(0.0)
+                    if code & LAW.CODE_DISCONNECTED:
+                        reason = "disconnected"
+                        st["error"] = str(dev.read().extra.get("error", "device reported a disconnect"))
+                    else:
+                        reason = "sensor"
+                        st["error"] = (f"{int(w[LAW.W_NBAD])} invalid sensor samples in a row "
+                                       f"(flags {int(w[LAW.W_FLAGS])}) at tick {n}")
+                    break
+                if code:
+                    self._after_command(code, n - 1)
+                if uc == 0:
+                    uc = until_every
+                    dev.fused_sync(dv)
+                    self.ticks = n
+                    self.time_s = float(w[LAW.W_T])
+                    self.temp_rise_K = float(w[LAW.W_TEMP])
+                    stop = self._stop_check(until)
+                    if stop:
+                        reason = stop
+                        break
+                    # the callback may have changed the device (a new user, sample, trajectory)
+                    arrays = dev.fused_arrays()
+                    dv = dev.fused_state()
+        finally:
+            dev.fused_sync(dv)
+            self._n = n
+        return reason
 
     def _loop_on_device(self, limit, until) -> None:
         """On-device rendering (docs/architecture.md): configure once, then only read, log and collect events."""
@@ -796,9 +728,11 @@ class ServoLoop:
             dict(self.limits), self.transient)
         read, pop = dev.read, dev.pop_events
         clock = time.perf_counter_ns
-        log, cap = self._log, self._cap
-        L_t, L_x, L_d, L_a, L_g = log["t_s"], log["position_m"], log["penetration_m"], log["accel_m_s2"], log["grip_N"]
-        L_f, L_w, L_cn = log["sensor_flags"], log["wall_ns"], log["compute_ns"]
+        log, cap = self._logf, self._cap
+        L_w, L_cn = self._log_ns["wall_ns"], self._log_ns["compute_ns"]
+        col = {name: j for j, name in enumerate(LAW.LOG_COLUMNS)}
+        C_T, C_X, C_D, C_A, C_G, C_F = (col[k] for k in ("t_s", "position_m", "penetration_m", "accel_m_s2",
+                                                          "grip_N", "sensor_flags"))
         wall_h = wall.height_m
         n = li = 0
         reason = "duration"
@@ -815,19 +749,20 @@ class ServoLoop:
                 flags = 0 if pos == pos else 1
                 for raw in pop() or ():
                     self.events.append(ContactEvent.from_dict(raw))
-                L_t[li] = t
-                L_x[li] = pos
-                L_d[li] = wall_h - pos
-                L_a[li] = s.accel_m_s2
-                L_g[li] = s.grip_N
-                L_f[li] = flags
+                row = log[li]
+                row[C_T] = t
+                row[C_X] = pos
+                row[C_D] = wall_h - pos
+                row[C_A] = s.accel_m_s2
+                row[C_G] = s.grip_N
+                row[C_F] = flags
                 L_w[li] = tr - t0
                 L_cn[li] = clock() - tr
                 li += 1
                 if li == cap:
                     li = 0
                 n += 1
-                if s.status & _STATUS_DISCONNECTED:
+                if s.status & LAW.STATUS_DISCONNECTED:
                     reason = "disconnected"
                     st["error"] = str(s.extra.get("error", "device reported a disconnect"))
                     break
@@ -851,12 +786,15 @@ class ServoLoop:
         li = st.get("li", n_logged)
         log = {}
         for name, _, dtype, _ in LOG_CHANNELS:
-            arr = np.frombuffer(self._log[name], dtype=dtype)
+            if name in self._log_ns:
+                arr = np.frombuffer(self._log_ns[name], dtype=np.int64)
+            else:
+                arr = self._logf[:, LAW.LOG_COLUMNS.index(name)]
             if st.get("wrapped"):
                 arr = np.concatenate([arr[li:], arr[:li]])
             else:
-                arr = arr[:n_logged].copy()
-            log[name] = arr
+                arr = arr[:n_logged]
+            log[name] = arr.astype(dtype)
         ticks = st.get("ticks", 0)
         periods = np.diff(log["wall_ns"]) / 1000.0 if n_logged > 1 else np.zeros(0)
         compute = log["compute_ns"] / 1000.0

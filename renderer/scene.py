@@ -7,10 +7,9 @@ outside: minus the distance to the surface) and the outward surface normal
 ``d > 0`` (eq. 2.1, ``x = -d n``). With several objects the deepest
 penetration wins (largest ``d``).
 
-The 1-DOF device maps its handle position to the proxy ``(0, 0, z)``; the
-horizontal :class:`Wall` is the common case and has a fast path in the servo
-loop. All queries are plain scalar Python (no numpy) because they run every
-servo tick.
+The 1-DOF device maps its handle position to the proxy ``(0, 0, z)``. The 1-D
+queries are plain scalar functions (``wall_1d`` ... ``box_1d``) that the shapes
+call and that ``renderer.law`` compiles into the servo law.
 """
 
 from __future__ import annotations
@@ -41,6 +40,52 @@ def _finite(value: Any, where: str, positive: bool = False) -> float:
     return float(value)
 
 
+# ---- 1-DOF penetration of each shape: plain scalar functions of the shape's numbers and the proxy
+# height z. The shapes' penetration_1d methods call them, and renderer.law compiles the same functions
+# into the servo law (one source for the collision of the Python loop and the compiled loop).
+SHAPE_CODES = {"wall": 1, "plane": 2, "sphere": 3, "box": 4}
+
+
+def wall_1d(height_m, z):
+    """Signed depth (m) and normal z component of the proxy (0, 0, z) under a horizontal wall."""
+    return height_m - z, 1.0
+
+
+def plane_1d(qx, qy, qz, nx, ny, nz, z):
+    """Signed depth and normal z component behind the plane through q with unit normal n."""
+    return qx * nx + qy * ny + (qz - z) * nz, nz
+
+
+def sphere_1d(cx, cy, cz, r, z):
+    """Signed depth and normal z component for a sphere of centre c and radius r (+z at the centre)."""
+    dz = z - cz
+    dist = math.sqrt(cx * cx + cy * cy + dz * dz)
+    if dist == 0.0:
+        return r, 1.0
+    return r - dist, dz / dist
+
+
+def box_1d(cx, cy, cz, hx, hy, hz, z):
+    """Signed depth and normal z component for an axis-aligned box (centre c, half extents h)."""
+    qx = abs(cx) - hx
+    qy = abs(cy) - hy
+    dz = z - cz
+    qz = abs(dz) - hz
+    sz = 1.0 if dz >= 0.0 else -1.0
+    if qx <= 0.0 and qy <= 0.0 and qz <= 0.0:
+        # nearest face; ties go to x, then y (as in Box.penetration())
+        if qx >= qy and qx >= qz:
+            return -qx, 0.0
+        if qy >= qz:
+            return -qy, 0.0
+        return -qz, sz
+    ox = qx if qx > 0.0 else 0.0
+    oy = qy if qy > 0.0 else 0.0
+    oz = qz if qz > 0.0 else 0.0
+    dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+    return -dist, sz * oz / dist
+
+
 @dataclass(frozen=True)
 class Wall:
     """Horizontal 1-DOF wall: solid below ``height_m``, normal +z (a tap comes from above)."""
@@ -54,7 +99,11 @@ class Wall:
 
     def penetration_1d(self, z: float) -> tuple[float, float]:
         """Signed depth and normal z component for the proxy (0, 0, z)."""
-        return self.height_m - z, 1.0
+        return wall_1d(self.height_m, z)
+
+    def numbers(self) -> tuple[float, ...]:
+        """The shape's numbers in the order of :func:`wall_1d`."""
+        return (self.height_m,)
 
 
 @dataclass(frozen=True)
@@ -79,7 +128,11 @@ class Plane:
     def penetration_1d(self, z: float) -> tuple[float, float]:
         """Signed depth and normal z component for the proxy (0, 0, z)."""
         q, n = self.point_m, self.normal
-        return q[0] * n[0] + q[1] * n[1] + (q[2] - z) * n[2], n[2]
+        return plane_1d(q[0], q[1], q[2], n[0], n[1], n[2], z)
+
+    def numbers(self) -> tuple[float, ...]:
+        """The shape's numbers in the order of :func:`plane_1d`."""
+        return (*self.point_m, *self.normal)
 
 
 @dataclass(frozen=True)
@@ -101,11 +154,11 @@ class Sphere:
     def penetration_1d(self, z: float) -> tuple[float, float]:
         """Signed depth and normal z component for the proxy (0, 0, z) (same as :meth:`penetration`)."""
         c = self.center_m
-        dz = z - c[2]
-        dist = math.sqrt(c[0] * c[0] + c[1] * c[1] + dz * dz)
-        if dist == 0.0:
-            return self.radius_m, 1.0
-        return self.radius_m - dist, dz / dist
+        return sphere_1d(c[0], c[1], c[2], self.radius_m, z)
+
+    def numbers(self) -> tuple[float, ...]:
+        """The shape's numbers in the order of :func:`sphere_1d`."""
+        return (*self.center_m, self.radius_m)
 
 
 @dataclass(frozen=True)
@@ -138,23 +191,11 @@ class Box:
     def penetration_1d(self, z: float) -> tuple[float, float]:
         """Signed depth and normal z component for the proxy (0, 0, z) (same as :meth:`penetration`)."""
         c, h = self.center_m, self.half_extents_m
-        qx = abs(c[0]) - h[0]
-        qy = abs(c[1]) - h[1]
-        dz = z - c[2]
-        qz = abs(dz) - h[2]
-        sz = 1.0 if dz >= 0.0 else -1.0
-        if qx <= 0.0 and qy <= 0.0 and qz <= 0.0:
-            # nearest face; ties go to x, then y (as in penetration())
-            if qx >= qy and qx >= qz:
-                return -qx, 0.0
-            if qy >= qz:
-                return -qy, 0.0
-            return -qz, sz
-        ox = qx if qx > 0.0 else 0.0
-        oy = qy if qy > 0.0 else 0.0
-        oz = qz if qz > 0.0 else 0.0
-        dist = math.sqrt(ox * ox + oy * oy + oz * oz)
-        return -dist, sz * oz / dist
+        return box_1d(c[0], c[1], c[2], h[0], h[1], h[2], z)
+
+    def numbers(self) -> tuple[float, ...]:
+        """The shape's numbers in the order of :func:`box_1d`."""
+        return (*self.center_m, *self.half_extents_m)
 
 
 SHAPES: dict[str, tuple[type, dict[str, str]]] = {

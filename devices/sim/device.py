@@ -192,6 +192,29 @@ class SimDevice(Device):
         st.grip_N = grip
         st.status = status | _HOT if hot else status
 
+    # -- the compiled servo loop (renderer.law.run_sim) ------------------------
+    def fused_arrays(self) -> tuple:
+        """The physics arrays of ``devices.sim.kernel.tick`` (params, state, noise state, trajectory,
+        grip), advanced in place by a compiled loop that stands in for :meth:`command` calls."""
+        return self._p, self._s, self._rs, self._traj, self._grip
+
+    def fused_state(self) -> np.ndarray:
+        """The Python-side state that :meth:`command` keeps, as ``renderer.law``'s ``D_*`` vector."""
+        st = self._state
+        return np.array([self._tick, self._user_tick, self._held_A, self._limit_A, self._period_s,
+                         self.rejected_commands, self.last_command_A, st.status, st.position_m, st.accel_m_s2,
+                         st.grip_N, st.t_s], dtype=np.float64)
+
+    def fused_sync(self, d: np.ndarray) -> None:
+        """Take back the state a compiled loop advanced (the inverse of :meth:`fused_state`)."""
+        self._tick = int(d[0])
+        self._held_A = float(d[2])
+        self.rejected_commands = int(d[5])
+        self.last_command_A = float(d[6])
+        st = self._state
+        st.status = int(d[7])
+        st.position_m, st.accel_m_s2, st.grip_N, st.t_s = float(d[8]), float(d[9]), float(d[10]), float(d[11])
+
     # -- simulation controls -------------------------------------------------
     @property
     def time_s(self) -> float:

@@ -1,0 +1,358 @@
+"""The servo law of the haptic loop, compiled once and used by every loop (thesis Fig. 4.9).
+
+:func:`law_tick` is one tick of the law between a sensor sample and the motor current: sensor
+validation, the sliding least-squares velocity, the playing transient's sample, collision of the
+proxy with the scene, contact events (impact, re-arm), the proportional wall with entry damping
+(eq. 2.1, section 2.2.2), per-channel and summed saturation (section 4.4.2) and the winding thermal
+model, and the tick's log row. ``renderer.loop.ServoLoop`` calls it once per tick between a device's
+``read()`` and ``command()`` (hardware, paced simulations); :func:`run_sim` runs it together with the
+simulated device's physics (``devices.sim.kernel.tick``) for many ticks in one compiled call, so an
+as-fast-as-possible simulation costs the physics and the law and nothing else. One source of the law
+for both; the work of an impact (the velocity fit, the transient lookup, the event record) stays in
+Python, after the tick's command, in both.
+
+Arrays (all float64):
+
+* ``c`` -- constants (``C_*``), then the scene's objects, ``OBJ_STRIDE`` numbers each: shape code
+  (``renderer.scene.SHAPE_CODES``) and the numbers of ``Shape.numbers()``;
+* ``w`` -- state (``W_*``), then the double-written position ring (``2 nring`` samples from
+  ``W_RING``) and the transient buffer (``nbuf`` samples of current, A, from ``c[C_TBUF]``);
+* ``log`` -- (capacity, ``N_LOG``) rows ``LOG_COLUMNS``, a ring written at ``w[W_LI]``.
+
+``w[W_CODE]`` after a tick holds bits: ``CODE_IMPACT`` (an impact fired: do the event work after the
+command), ``CODE_CLOSED`` (the open event closed, at a re-arm or a new impact: its maximum
+penetration, peak |acceleration| and amplifier-clip flag are in ``W_CLOSED_*``), ``CODE_SENSOR`` (too
+many invalid samples in a row) or ``CODE_DISCONNECTED`` (both: stop with zero current).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from devices.sim import kernel as SK
+
+from .scene import SHAPE_CODES, box_1d, plane_1d, sphere_1d, wall_1d
+
+# ---- constants
+(C_K, C_DAMP, C_MARGIN, C_HOLD_N, C_KF, C_INV_KF, C_MOTOR, C_TGAIN, C_IC, C_IPK, C_IAMP, C_HEAT, C_ALPHA,
+ C_T_ATT, C_T_END, C_INV_SPAN, C_PLIM, C_ALIM, C_GMIN, C_GMAX, C_MAX_BAD, C_WV, C_NRING, C_C_SHIFT,
+ C_C_SCALE, C_CAP, C_NOBJ, C_TBUF) = range(28)
+C_OBJ = 32
+OBJ_STRIDE = 8
+
+# ---- state
+(W_TEMP, W_GTH, W_ARMED, W_OUT_N, W_TJ, W_TLEN, W_EV_ON, W_EV_PEN, W_EV_ACC, W_EV_CLIP, W_LAST_POS,
+ W_LAST_ACC, W_LAST_GRIP, W_NBAD, W_BAD_TOTAL, W_S0, W_S1, W_PI, W_PO, W_PNEW, W_N, W_LI, W_CODE, W_VEL,
+ W_D, W_NZ, W_FLAGS, W_SPARE, W_CLOSED_PEN, W_CLOSED_ACC, W_CLOSED_CLIP, W_T, W_GRIP, W_I) = range(34)
+W_RING = 40
+
+# tick outcome bits: an impact fired, an open event closed, or a stop (sensors, disconnect)
+CODE_OK, CODE_IMPACT, CODE_CLOSED, CODE_SENSOR, CODE_DISCONNECTED = 0, 1, 2, 4, 8
+STATUS_SENSOR_INVALID, STATUS_DISCONNECTED = 16, 32
+
+LOG_COLUMNS = ("t_s", "position_m", "velocity_m_s", "penetration_m", "force_prop_N", "force_transient_N",
+               "current_A", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags")
+N_LOG = len(LOG_COLUMNS)
+
+# the scene's shapes, compiled from renderer.scene's own functions
+_wall_1d = njit(cache=True, inline="always")(wall_1d)
+_plane_1d = njit(cache=True, inline="always")(plane_1d)
+_sphere_1d = njit(cache=True, inline="always")(sphere_1d)
+_box_1d = njit(cache=True, inline="always")(box_1d)
+_WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "sphere", "box"))
+
+# simulated-device vector of run_sim (the Python side is devices.sim.SimDevice's fused_state/fused_sync)
+(D_TICK, D_USER_TICK, D_HELD, D_LIMIT, D_PERIOD, D_REJECTED, D_LAST, D_STATUS, D_POS, D_ACC, D_GRIP,
+ D_T) = range(12)
+N_DEV = 12
+_CLIP_STATUS, _HOT_STATUS = 8, 2     # devices.base.Status.CLIPPING, OVER_TEMPERATURE
+
+
+@njit(cache=True, inline="always")
+def penetration(c, z):
+    """Deepest signed penetration (m) of the proxy (0, 0, z) over the scene's objects and the normal's
+    z component (``renderer.scene.Scene.penetration_1d``)."""
+    best_d = -math.inf
+    best_nz = 1.0
+    for j in range(int(c[C_NOBJ])):
+        o = C_OBJ + OBJ_STRIDE * j
+        kind = c[o]
+        if kind == _WALL:
+            d, nz = _wall_1d(c[o + 1], z)
+        elif kind == _PLANE:
+            d, nz = _plane_1d(c[o + 1], c[o + 2], c[o + 3], c[o + 4], c[o + 5], c[o + 6], z)
+        elif kind == _SPHERE:
+            d, nz = _sphere_1d(c[o + 1], c[o + 2], c[o + 3], c[o + 4], z)
+        else:
+            d, nz = _box_1d(c[o + 1], c[o + 2], c[o + 3], c[o + 4], c[o + 5], c[o + 6], z)
+        if d > best_d:
+            best_d = d
+            best_nz = nz
+    return best_d, best_nz
+
+
+# an explicit signature: compiled (or loaded from the cache) at import, and a device that reports an
+# int or a numpy scalar never triggers a new compilation in the middle of a paced loop
+@njit("float64(float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, float64, int64)", cache=True)
+def law_tick(c, w, log, t, pos, acc, grip, status):
+    """One tick of the servo law (module doc): returns the motor current (A) to command now.
+
+    Parameters
+    ----------
+    c, w : float64 arrays
+        Constants and state (module doc).
+    log : float64 array (capacity, N_LOG)
+        Log ring; row ``w[W_LI]`` is written.
+    t, pos, acc, grip : float
+        The device's sample: time (s), position (m, + up), acceleration (m/s^2), grip (N).
+    status : int
+        The sample's status bits (``devices.base.Status``).
+
+    Returns
+    -------
+    current_A : float
+        After saturation and the thermal model; 0 when the tick stops the loop (``w[W_CODE]`` >= 2).
+    """
+    code = CODE_OK
+    flags = 0
+    if status != 0:
+        if status & STATUS_DISCONNECTED:
+            w[W_CODE] = CODE_DISCONNECTED
+            return 0.0
+        if status & STATUS_SENSOR_INVALID:
+            flags = 8
+            pos = w[W_LAST_POS]
+            acc = w[W_LAST_ACC]
+            grip = w[W_LAST_GRIP]
+    # (1) validate: out of range or NaN -> hold the last good value and flag it
+    plim = c[C_PLIM]
+    if not (-plim <= pos <= plim):
+        pos = w[W_LAST_POS]
+        flags |= 1
+    else:
+        w[W_LAST_POS] = pos
+    alim = c[C_ALIM]
+    if not (-alim <= acc <= alim):
+        acc = w[W_LAST_ACC]
+        flags |= 2
+    else:
+        w[W_LAST_ACC] = acc
+    if not (c[C_GMIN] <= grip <= c[C_GMAX]):
+        grip = w[W_LAST_GRIP]
+        flags |= 4
+    else:
+        w[W_LAST_GRIP] = grip
+    w[W_FLAGS] = flags
+    if flags:
+        w[W_NBAD] += 1.0
+        w[W_BAD_TOTAL] += 1.0
+        if w[W_NBAD] >= c[C_MAX_BAD]:
+            w[W_CODE] = CODE_SENSOR
+            return 0.0
+    else:
+        w[W_NBAD] = 0.0
+    # (2) sliding least-squares velocity, O(1) (renderer.velocity.ls_constants)
+    nring = int(c[C_NRING])
+    wv = c[C_WV]
+    po = int(w[W_PO])
+    pi = int(w[W_PI])
+    old = w[W_RING + po]
+    po += 1
+    if po == nring:
+        po = 0
+    w[W_RING + pi] = pos
+    w[W_RING + pi + nring] = pos
+    w[W_PNEW] = pi
+    pi += 1
+    if pi == nring:
+        pi = 0
+    w[W_PO] = po
+    w[W_PI] = pi
+    s0 = w[W_S0]
+    s1 = w[W_S1] + (wv - 1.0) * pos - s0 + old
+    s0 += pos - old
+    w[W_S0] = s0
+    w[W_S1] = s1
+    vel = (s1 - c[C_C_SHIFT] * s0) * c[C_C_SCALE]
+    # transient playback: the sample for this tick was fixed before this tick's event check
+    tj = w[W_TJ]
+    tlen = w[W_TLEN]
+    g_th = w[W_GTH]
+    if tj < tlen:
+        i_t = w[int(c[C_TBUF]) + int(tj)] * g_th
+        tj += 1.0
+    else:
+        i_t = 0.0
+    # collision and contact events
+    d, nz = penetration(c, pos)
+    armed = w[W_ARMED] != 0.0
+    if d > 0.0:
+        if armed:  # impact: the event's work is done after command() (the caller)
+            w[W_ARMED] = 0.0
+            code = CODE_IMPACT
+            if w[W_EV_ON] != 0.0:
+                code |= CODE_CLOSED
+                w[W_CLOSED_PEN], w[W_CLOSED_ACC], w[W_CLOSED_CLIP] = w[W_EV_PEN], w[W_EV_ACC], w[W_EV_CLIP]
+            w[W_EV_ON] = 1.0
+            w[W_EV_PEN] = d
+            w[W_EV_ACC] = 0.0
+            w[W_EV_CLIP] = 0.0
+        else:
+            w[W_OUT_N] = 0.0
+        f_p = c[C_K] * d * nz
+        damp = c[C_DAMP]
+        if damp > 0.0 and vel * nz < 0.0:
+            f_p -= damp * vel
+    else:
+        f_p = 0.0
+        if not armed:
+            if d < -c[C_MARGIN] and tj >= tlen:
+                w[W_OUT_N] += 1.0
+                if w[W_OUT_N] >= c[C_HOLD_N]:
+                    w[W_ARMED] = 1.0
+                    if w[W_EV_ON] != 0.0:
+                        code |= CODE_CLOSED
+                        w[W_CLOSED_PEN], w[W_CLOSED_ACC], w[W_CLOSED_CLIP] = w[W_EV_PEN], w[W_EV_ACC], w[W_EV_CLIP]
+                        w[W_EV_ON] = 0.0
+            else:
+                w[W_OUT_N] = 0.0
+    # (3) saturate per channel, then the sum (section 4.4.2); thermal model
+    clip = 0
+    i_p = f_p * c[C_INV_KF]
+    ic = c[C_IC]
+    if i_p > ic:
+        i_p = ic
+        clip = 1
+    elif i_p < -ic:
+        i_p = -ic
+        clip = 1
+    i_t_req = i_t
+    ipk = c[C_IPK]
+    if i_t > ipk:
+        i_t = ipk
+        clip |= 2
+    elif i_t < -ipk:
+        i_t = -ipk
+        clip |= 2
+    i = i_p + i_t
+    iamp = c[C_IAMP]
+    if i > iamp:
+        i = iamp
+        clip |= 4
+    elif i < -iamp:
+        i = -iamp
+        clip |= 4
+    if c[C_MOTOR] == 0.0 or i != i:
+        i = 0.0
+    # winding thermal model: attenuate, then end, transients before the limit
+    temp = w[W_TEMP]
+    temp += (c[C_HEAT] * i * i - temp) * c[C_ALPHA]
+    if temp > c[C_T_ATT]:
+        g_th = (c[C_T_END] - temp) * c[C_INV_SPAN]
+        if g_th <= 0.0:
+            g_th = 0.0
+            tj = tlen
+    else:
+        g_th = 1.0
+    w[W_TEMP] = temp
+    w[W_GTH] = g_th
+    w[W_TJ] = tj
+    # the open event's extremes (an impact this tick opened it with this tick's depth)
+    if w[W_EV_ON] != 0.0:
+        if d > w[W_EV_PEN]:
+            w[W_EV_PEN] = d
+        if acc > w[W_EV_ACC]:
+            w[W_EV_ACC] = acc
+        elif -acc > w[W_EV_ACC]:
+            w[W_EV_ACC] = -acc
+        if clip & 4:
+            w[W_EV_CLIP] = 1.0
+    # what the caller's event work needs
+    w[W_VEL] = vel
+    w[W_D] = d
+    w[W_NZ] = nz
+    w[W_T] = t
+    w[W_GRIP] = grip
+    w[W_I] = i
+    # (5) log row
+    li = int(w[W_LI])
+    row = log[li]
+    row[0] = t
+    row[1] = pos
+    row[2] = vel
+    row[3] = d
+    row[4] = f_p
+    row[5] = i_t_req * c[C_KF]
+    row[6] = i
+    row[7] = clip
+    row[8] = acc
+    row[9] = grip
+    row[10] = temp
+    row[11] = flags
+    li += 1
+    if li == int(c[C_CAP]):
+        li = 0
+    w[W_LI] = li
+    w[W_N] += 1.0
+    w[W_CODE] = code
+    return i
+
+
+@njit(cache=True)
+def run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max):
+    """Up to ``n_max`` ticks of the law on the simulated device (``devices.sim.kernel.tick``) in one call.
+
+    Each tick: the law on the device's current sample, then the device's ``command()`` (NaN -> 0 and
+    counted, clamp to the amplifier, the current applied during the *next* period, as
+    ``SimDevice.command``), which advances the physics one servo period. Returns early after a tick
+    whose ``w[W_CODE]`` is not ``CODE_OK``: after the command for an impact, before it for a stop.
+
+    Parameters
+    ----------
+    c, w, log : arrays of :func:`law_tick`.
+    dev : float64 array (N_DEV,)
+        The device's Python-side state (``D_*``), read and written.
+    sp, ss, srs, traj, grip : arrays of ``devices.sim.kernel.tick``.
+    n_max : int
+
+    Returns
+    -------
+    ticks : int
+        Ticks run.
+    """
+    for j in range(n_max):
+        i = law_tick(c, w, log, dev[D_T], dev[D_POS], dev[D_ACC], dev[D_GRIP], int(dev[D_STATUS]))
+        code = w[W_CODE]
+        if code >= CODE_SENSOR:
+            return j
+        # SimDevice.command(i)
+        limit = dev[D_LIMIT]
+        status = 0
+        if i != i or i == math.inf or i == -math.inf:
+            dev[D_REJECTED] += 1.0
+            i = 0.0
+            status = 1
+        elif i >= limit:
+            if i > limit:
+                i = limit
+            status = _CLIP_STATUS
+        elif i <= -limit:
+            if i < -limit:
+                i = -limit
+            status = _CLIP_STATUS
+        dev[D_LAST] = i
+        applied = dev[D_HELD]
+        dev[D_HELD] = i
+        tick = dev[D_TICK] + 1.0
+        dev[D_TICK] = tick
+        p, a, g, hot = SK.tick(ss, sp, srs, traj, grip, int(tick - 1.0 - dev[D_USER_TICK]), applied)
+        dev[D_T] = tick * dev[D_PERIOD]
+        dev[D_POS] = p
+        dev[D_ACC] = a
+        dev[D_GRIP] = g
+        dev[D_STATUS] = status | _HOT_STATUS if hot != 0.0 else status
+        if code != CODE_OK:
+            return j + 1
+    return n_max
