@@ -67,7 +67,7 @@ _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "spher
 (D_TICK, D_USER_TICK, D_HELD, D_LIMIT, D_PERIOD, D_REJECTED, D_LAST, D_STATUS, D_POS, D_ACC, D_GRIP,
  D_T) = range(12)
 N_DEV = 12
-_CLIP_STATUS, _HOT_STATUS = 8, 2     # devices.base.Status.CLIPPING, OVER_TEMPERATURE
+_HOT_STATUS = 2     # devices.base.Status.OVER_TEMPERATURE
 
 
 @njit(cache=True, inline="always")
@@ -327,21 +327,9 @@ def run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max):
         code = w[W_CODE]
         if code >= CODE_SENSOR:
             return j
-        # SimDevice.command(i)
-        limit = dev[D_LIMIT]
-        status = 0
-        if i != i or i == math.inf or i == -math.inf:
-            dev[D_REJECTED] += 1.0
-            i = 0.0
-            status = 1
-        elif i >= limit:
-            if i > limit:
-                i = limit
-            status = _CLIP_STATUS
-        elif i <= -limit:
-            if i < -limit:
-                i = -limit
-            status = _CLIP_STATUS
+        # SimDevice.command(i): the device's own input rule, then one servo period of its physics
+        i, status, rejected = SK.command_rule_nb(i, dev[D_LIMIT])
+        dev[D_REJECTED] += rejected
         dev[D_LAST] = i
         applied = dev[D_HELD]
         dev[D_HELD] = i

@@ -22,7 +22,6 @@ from .params import SimParams, default_params, load_sim_params
 from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
-_CLIP = int(Status.CLIPPING)
 _HOT = int(Status.OVER_TEMPERATURE)
 
 
@@ -162,22 +161,12 @@ class SimDevice(Device):
         """Command motor current (A) and advance the simulation by one servo period.
 
         Same safety as :meth:`Device.command` (NaN/inf -> 0 and counted,
-        clamp to the amplifier limit), inlined to keep the servo path short.
+        clamp to the amplifier limit): ``devices.sim.kernel.command_rule``, which the compiled servo
+        loop (``renderer.law.run_sim``) also applies.
         """
-        limit = self._limit_A
-        status = 0
-        if current_A != current_A or current_A == math.inf or current_A == -math.inf:
+        current_A, status, rejected = K.command_rule(current_A, self._limit_A)
+        if rejected:
             self.rejected_commands += 1
-            current_A = 0.0
-            status = 1
-        elif current_A >= limit:
-            if current_A > limit:
-                current_A = limit
-            status = _CLIP
-        elif current_A <= -limit:
-            if current_A < -limit:
-                current_A = -limit
-            status = _CLIP
         self.last_command_A = current_A
         applied = self._held_A
         self._held_A = current_A

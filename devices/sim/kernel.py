@@ -383,6 +383,35 @@ def _substeps_lti(s, p, xu0, xu1, g, i_cmd):
     return contact_any
 
 
+STATUS_FAULT, STATUS_CLIPPING = 1, 8      # devices.base.Status.FAULT, CLIPPING
+
+
+def command_rule(current_A, limit_A):
+    """The simulated amplifier's input rule (the safety of ``Device.command``): a NaN or infinite
+    command becomes 0 (FAULT, counted as rejected), the rest is clamped to +/- ``limit_A`` (CLIPPING
+    when at or beyond it). Plain Python for ``SimDevice.command``, compiled (:data:`command_rule_nb`)
+    for the compiled servo loop: one rule for both.
+
+    Returns
+    -------
+    current_A : float
+    status : int
+        Status bits.
+    rejected : int
+        1 if the command was rejected.
+    """
+    if current_A != current_A or current_A == math.inf or current_A == -math.inf:
+        return 0.0, STATUS_FAULT, 1
+    if current_A >= limit_A:
+        return (limit_A if current_A > limit_A else current_A), STATUS_CLIPPING, 0
+    if current_A <= -limit_A:
+        return (-limit_A if current_A < -limit_A else current_A), STATUS_CLIPPING, 0
+    return current_A, 0, 0
+
+
+command_rule_nb = njit(cache=True, inline="always")(command_rule)
+
+
 @njit(cache=True)
 def tick(s, p, rs, traj, grip, k, i_cmd):
     """Advance the device by one servo period (all substeps) and return its sensor readings.

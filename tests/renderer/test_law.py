@@ -16,7 +16,9 @@ import pytest
 from numba import njit
 
 import stimuli
+from devices.base import Status
 from devices.sim import ScriptedTrajectory, SimDevice, TapTrajectory
+from devices.sim import kernel as SK
 from renderer import RendererConfig, ServoLoop
 from renderer import law as LAW
 from renderer.scene import SHAPE_CODES, Box, Plane, Scene, Sphere, Wall
@@ -123,3 +125,23 @@ def test_law_collision_matches_the_scene_shapes():
 def _penetration(c, z):
     """The law's compiled collision (inlined into law_tick), called through a compiled wrapper."""
     return LAW.penetration(c, z)
+
+
+def test_the_sim_command_rule_is_the_devices_and_matches_status_bits():
+    assert (SK.STATUS_FAULT, SK.STATUS_CLIPPING) == (int(Status.FAULT), int(Status.CLIPPING))
+    assert (LAW._HOT_STATUS, LAW.STATUS_SENSOR_INVALID, LAW.STATUS_DISCONNECTED) == (
+        int(Status.OVER_TEMPERATURE), int(Status.SENSOR_INVALID), int(Status.DISCONNECTED))
+    for cmd in (0.3, -0.3, 4.0, 7.5, -9.0, float("nan"), float("inf"), -float("inf")):
+        py = SK.command_rule(cmd, 4.0)
+        nb = _command_rule(cmd, 4.0)
+        assert py == nb or (py[1:] == nb[1:] and py[0] == nb[0] == 0.0), cmd
+    dev = SimDevice()
+    dev.command(float("nan"))
+    assert dev.rejected_commands == 1 and dev.last_command_A == 0.0 and dev.read().status & Status.FAULT
+    dev.command(99.0)
+    assert dev.last_command_A == dev.info.current_amplifier_A and dev.read().status & Status.CLIPPING
+
+
+@njit(cache=True)
+def _command_rule(i, limit):
+    return SK.command_rule_nb(i, limit)
