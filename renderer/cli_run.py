@@ -186,10 +186,14 @@ def format_table(result) -> str:
     tm = result.timing
     lines.append(f"transient {result.transient}; {len(result.events)} events; stop: {result.stop_reason}"
                  + (f" ({result.error})" if result.error else ""))
-    lines.append(f"{tm['ticks']} ticks at {tm['rate_hz']:g} Hz, {tm['sim_time_s']:.3f} s in {tm['wall_time_s']:.3f} s wall "
-                 f"({tm['realtime_factor']:.1f}x real time); period p50/p99/max "
-                 f"{tm['period_p50_us']:.1f}/{tm['period_p99_us']:.1f}/{tm['period_max_us']:.1f} us; "
-                 f"overruns {tm['overruns']}; compute p50/p99 {tm['compute_p50_us']:.2f}/{tm['compute_p99_us']:.2f} us")
+    head = (f"{tm['ticks']} ticks at {tm['rate_hz']:g} Hz, {tm['sim_time_s']:.3f} s in {tm['wall_time_s']:.3f} s wall "
+            f"({tm['realtime_factor']:.1f}x real time)")
+    if tm.get("compiled_sim"):
+        lines.append(head + "; law and simulated physics compiled together (no per-tick timing)")
+    else:
+        lines.append(head + f"; period p50/p99/max {tm['period_p50_us']:.1f}/{tm['period_p99_us']:.1f}/"
+                     f"{tm['period_max_us']:.1f} us; overruns {tm['overruns']}; compute p50/p99 "
+                     f"{tm['compute_p50_us']:.2f}/{tm['compute_p99_us']:.2f} us")
     link = tm.get("link")
     if link:
         ms = (lambda v: "-" if v is None else f"{1000 * v:.2f}")

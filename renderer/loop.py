@@ -840,6 +840,8 @@ class ServoLoop:
             "max_temp_rise_K": float(log["temp_rise_K"].max()) if n_logged else self.temp_rise_K,
             "final_temp_rise_K": float(self.temp_rise_K),
             "on_device": bool(self.on_device),
+            # law and physics in one compiled call (renderer.law.run_sim): no per-tick period or compute time
+            "compiled_sim": bool(st.get("compiled", False)),
         }
         link_stats = getattr(self.device, "link_stats", None)
         if callable(link_stats):  # hardware links: frames, CRC errors, losses, longest gap, round trip
