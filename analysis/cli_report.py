@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import gc
+import os
 import sys
 import warnings
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig
@@ -19,13 +22,25 @@ def run(args: argparse.Namespace) -> int:
     if out.is_file() or (out.is_dir() and any(out.iterdir()) and not args.force):
         raise ValueError(f"{out} exists and is not empty; not overwriting an earlier report: choose another --out "
                          "or pass --force to replace it")
-    from analysis.load import AnalysisWarning  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from analysis.report import write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", AnalysisWarning)
-        res = analyse(args.data, cfg)
-        written = write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity)
+    # the drawing process starts first, so that its imports overlap the ones below
+    with (nullcontext() if args.no_figures else figure_process()) as pool:
+        # the cyclic garbage collector pauses for the command: the modules and tables it creates live until
+        # it ends, and the ~600 automatic collections of a report walked them again and again (~0.3 s); the
+        # report makes little cyclic garbage (the peak memory at 10,000 subjects stays within its spread)
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            from analysis.load import AnalysisWarning  # deferred: keeps `--help` fast (a command loads what it runs)
+            from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads what it runs)
+            from analysis.report import write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", AnalysisWarning)
+                res = analyse(args.data, cfg)
+                written = write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
+                                       pool=pool)
+        finally:
+            if collecting:
+                gc.enable()
     for w in caught:
         if issubclass(w.category, AnalysisWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -34,6 +49,74 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {len(written['tables'])} tables, {len(written['figures'])} figures, "
           f"{written['md']} and {written['html']}")
     return 0
+
+
+@contextmanager
+def figure_process():
+    """An executor with a second process for :func:`analysis.report.make_figures`, or None.
+
+    The figures cost the same at any number of subjects (~2.5 s of matplotlib in all): that process
+    draws three of them while this one reads the traces and draws Figure 4.20. It is forked first,
+    once matplotlib is imported, while this process runs a single thread (a fork of a process running
+    other threads, such as pyarrow's readers, can copy a lock one of them holds and deadlock), and
+    imports the figure module (pandas) while this one imports the statistics and loads the study.
+    A fork, not a new interpreter: a spawned process would run the calling script's top level again.
+    None where no fork is safe or possible (not Linux; other threads running, e.g. in a caller's
+    process, or BLAS threads where the environment asks for more than one; a daemonic process): the
+    figures are then drawn here.
+    """
+    # imported before the fork, so that both processes have it for the cost of one import (it starts no
+    # thread; pandas would: pyarrow's allocator runs one)
+    import matplotlib.pyplot  # deferred: only a report with figures needs matplotlib (~0.35 s)  # noqa: F401
+
+    pool = None
+    if _single_threaded():
+        import multiprocessing  # deferred: only the report with figures starts a process
+        from concurrent.futures import ProcessPoolExecutor  # deferred: only the report with figures starts a process
+
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                   initializer=_start_drawing)
+        try:
+            pool.submit(int)       # forks now (an executor forks at its first task), before any thread starts
+        except (OSError, AssertionError):      # no process slot left; daemonic processes have no children
+            pool.shutdown(wait=False)
+            pool = None
+    try:
+        yield pool
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _single_threaded() -> bool:
+    """True on Linux when this process runs one thread, native ones (BLAS, allocators) included."""
+    try:
+        return len(os.listdir("/proc/self/task")) == 1
+    except OSError:                # no /proc (not Linux): no fork
+        return False
+
+
+def _start_drawing() -> None:
+    """Initializer of the drawing process: it leaves Ctrl-C to the main process (which stops it after the
+    figure at hand), ends when the main process is gone (killed: a pool process would otherwise wait for
+    its next task for ever), and does the figures' imports while the main process reads the study."""
+    import multiprocessing  # deferred: the drawing process's own start-up
+    import signal  # deferred: the drawing process's own start-up
+    import threading  # deferred: the drawing process's own start-up
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sentinel = multiprocessing.parent_process().sentinel       # readable once the main process has ended
+    threading.Thread(target=_end_with_parent, args=(sentinel,), daemon=True).start()
+
+    import analysis.figures  # deferred: the drawing process's imports (pandas, figstyle), while the study is read  # noqa: F401
+
+
+def _end_with_parent(sentinel) -> None:
+    """Thread of the drawing process: ends the process once ``sentinel`` (the main process's) is readable."""
+    from multiprocessing.connection import wait  # deferred: the drawing process only
+
+    wait([sentinel])
+    os._exit(1)
 
 
 class _Renamed(argparse._StoreAction):

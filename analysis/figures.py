@@ -49,6 +49,18 @@ def stars(p: np.ndarray, alpha: float = 0.05) -> np.ndarray:
     return out
 
 
+def _fix_layout(fig) -> None:
+    """Compute ``fig``'s constrained layout now and keep it (the layout engine is set to none).
+
+    :func:`figstyle.save` draws a figure twice per format (a measuring pass for the layout and the
+    tight box, then the rendering), and an active layout engine redoes the whole layout, measuring
+    every tick label again, in each measuring pass: once is enough for a figure that is not resized.
+    Called inside :func:`figstyle.style`, so the layout sees the fonts the figure is saved with.
+    """
+    fig.get_layout_engine().execute(fig)
+    fig.set_layout_engine("none")
+
+
 # ------------------------------------------------------------------------------------ Figure 4.17
 def build_ratings(summary: pd.DataFrame):
     """Figure 4.17: mean realism per sample with 95 % CIs, sorted by mean (highest on top).
@@ -120,12 +132,42 @@ def p_norm(alpha: float = 0.05):
     return TwoSlopeNorm(vcenter=float(np.log10(alpha)), vmin=LOG_P_FLOOR, vmax=0.0)
 
 
+def _star_marks(ax, st: np.ndarray, white: np.ndarray, group: str, fontsize: float = 5.5) -> None:
+    """Draw the significance stars ``st`` (k x k strings) centred in their cells of ``ax``: one
+    collection per star count (gid ``stars_<group>_<count>``), white where ``white`` else black.
+
+    The stars are the glyphs of the figure font as paths (``TextPath``), a few hundred marks in three
+    collections: as Text artists each mark was laid out and measured in every draw (four per saved
+    figure), the figure's largest cost.
+    """
+    from matplotlib.collections import PathCollection  # deferred: matplotlib costs ~0.3 s; figures only
+    from matplotlib.textpath import TextPath  # deferred: matplotlib costs ~0.3 s; figures only
+    from matplotlib.transforms import Affine2D, IdentityTransform  # deferred: matplotlib costs ~0.3 s; figures only
+
+    for n in (1, 2, 3):
+        i, j = np.nonzero(st == "*" * n)
+        if not i.size:
+            continue
+        glyphs = TextPath((0, 0), "*" * n, size=fontsize)        # vertices in points
+        box = glyphs.get_extents()
+        glyphs = glyphs.transformed(Affine2D().translate(-(box.x0 + box.x1) / 2, -(box.y0 + box.y1) / 2))
+        # as a scatter plot's markers: placed in data coordinates, drawn in points (sizes=[1]: one point
+        # per path unit, so the glyphs keep their size in points)
+        ax.add_collection(PathCollection([glyphs], sizes=[1.0], offsets=np.column_stack([j, i]),
+                                         offset_transform=ax.transData, transform=IdentityTransform(),
+                                         linewidths=0.0,
+                                         facecolors=np.where(white[i, j], "white", "black"),
+                                         gid=f"stars_{group}_{n}", in_layout=False), autolim=False)
+
+
 def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
     """Figure 4.18: Holm-adjusted p of the paired t-tests (colour and stars) and Cohen's d_z.
 
     One row of panels per group: left the Holm-adjusted p-values on a log scale that diverges at
     ``alpha`` (purple = significant, orange = not) with stars from the same values, right the
-    effect size d_z of row minus column (blue = row rated lower, red = higher).
+    effect size d_z of row minus column (blue = row rated lower, red = higher). Cells without a
+    test are hatched. The stars are drawn as glyph paths (:func:`_star_marks`), and the
+    constrained layout is computed once here and kept (:func:`_fix_layout`).
 
     Returns
     -------
@@ -161,12 +203,9 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
                 ax.set_xticks(range(k), labels, rotation=60, ha="right", rotation_mode="anchor", fontsize=6)
                 ax.set_yticks(range(k), labels if ax is ax_p else [], fontsize=6)
                 ax.grid(False)
-            # the stars sit inside their cells, so inside the axes: leaving them out of the layout and
-            # tight-box passes changes no position and spares measuring up to k(k-1) texts per pass
-            for i, j in zip(*np.nonzero(st != "")):
-                dark = norm(logp[i, j]) < 0.25
-                ax_p.text(j, i, st[i, j], ha="center", va="center", fontsize=5.5,
-                          color="white" if dark else "black", in_layout=False)
+            # the stars sit inside their cells, so inside the axes: out of the layout and tight-box passes
+            with np.errstate(invalid="ignore"):
+                _star_marks(ax_p, st, norm(logp) < 0.25, g)
             n = int(sub["n"].max()) if len(sub) else 0
             # y=1.0: where matplotlib's automatic placement puts them here (ticks below, fixed labels: no
             # offset text), without its measuring every tick label again in each layout pass
@@ -187,6 +226,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
             cb2.set_label("Cohen's d_z of row − column (1)")
             fig.legend(handles=[Rectangle((0, 0), 1, 1, label="no test (same sample, or pair excluded)",
                                           **NO_P_STYLE)], loc="outside upper right", fontsize=6.5)
+        _fix_layout(fig)
     return fig, pd.DataFrame(rows)
 
 
@@ -291,6 +331,7 @@ def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3
                      "(each panel on its own scale)", fontsize=8.5)
         if n:
             fig.legend(handles=[axes.flat[0].lines[-1]], loc="outside lower right")
+        _fix_layout(fig)
     data = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
         columns=["sample", "panel", "v_in_m_s", "t_ms", "accel_m_s2"])
     return fig, data

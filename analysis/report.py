@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import os
 import platform
 from importlib import metadata
 from pathlib import Path
@@ -141,24 +142,39 @@ def _strong(text: str) -> str:
     return "".join(f"<strong>{p}</strong>" if i % 2 else p for i, p in enumerate(parts))
 
 
-def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None) -> tuple[list[Path], list[str]]:
+def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None,
+                 pool=None) -> tuple[list[Path], list[str]]:
     """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures).
 
-    Drawn in turn in this process. (Drawing two of them in a forked child saved about 1.8 s when a
-    second core was free, but a fork of a process that has pyarrow's reader threads can deadlock on a
-    lock one of them held, and a report that may hang is worse than a slower one.)
+    ``pool``: an executor with a second process (:func:`analysis.cli_report.figure_process`) that draws
+    Figures 4.17-4.19 while this process reads the traces and draws Figure 4.20; None draws all four here,
+    in turn. Each figure costs the same at any number of subjects (~0.2-1 s of matplotlib).
     """
     alpha = res.config.alpha
-    written = [figures.fig_ratings(res.summary, out / "fig_4_17_ratings.png"),
-               figures.fig_pvalues(res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha)]
-    here = _figures_here(res, out, target_v_m_s)
-    written += here[0]
-    return [w["png"] for w in written], here[1]
+    jobs = [(figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png"),
+            (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha),
+            (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png")]
+    drawing = []
+    if pool is not None:
+        from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
+
+        try:
+            drawing = [pool.submit(*job) for job in jobs]
+        except BrokenProcessPool:          # the drawing process died (killed?): draw them here
+            pass
+    written = [] if drawing else [fn(*args) for fn, *args in jobs]
+    acc, notes = _accelerations(res, out, target_v_m_s)
+    if drawing:
+        try:
+            written = [f.result() for f in drawing]
+        except BrokenProcessPool:
+            written = [fn(*args) for fn, *args in jobs]
+    return [w["png"] for w in written + acc], notes
 
 
-def _figures_here(res: Analysis, out: Path, target_v_m_s: float | None) -> tuple[list[dict], list[str]]:
-    """Figures 4.19 and 4.20 (the typical taps read from the traces); (paths written, notes)."""
-    written = [figures.fig_penetration(res.summary, out / "fig_4_19_penetration.png")]
+def _accelerations(res: Analysis, out: Path, target_v_m_s: float | None) -> tuple[list[dict], list[str]]:
+    """Figure 4.20 (the typical taps read from the traces); (paths written, notes)."""
+    written = []
     notes = []
     dirs = dict(zip(res.study.subjects["subject"], res.study.subjects["folder"]))     # folder paths as str
     t = res.study.trials
@@ -193,7 +209,8 @@ def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
             versions.append(f"{dist} {metadata.version(dist)}")
         except metadata.PackageNotFoundError:
             versions.append(f"{dist} (not installed)")
-    folders = sorted({str(Path(f).parent) for f in subj["folder"]}) if len(subj) else []
+    # the parents as strings first (one Path per distinct parent, not per subject)
+    folders = sorted({str(Path(d)) for d in {os.path.dirname(f) for f in subj["folder"]}}) if len(subj) else []
     seeds = [str(s) for s in subj.get("seed", []) if s is not None]
     seed_text = (", ".join(seeds) if len(seeds) <= 12 else f"{', '.join(seeds[:6])}, … {', '.join(seeds[-3:])}"
                  f" ({len(seeds)} sessions)") if seeds else "none recorded"
@@ -311,14 +328,16 @@ TABLE_TITLES = (
 )
 
 
-def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: float | None = None) -> dict:
+def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: float | None = None,
+                 pool=None) -> dict:
     """Write tables, figures, ``report.md`` and a self-contained ``report.html`` into ``out_dir``.
 
-    Returns a dict with ``tables``, ``figures`` (paths), ``notes`` and ``md``/``html`` paths.
+    ``pool``: see :func:`make_figures`. Returns a dict with ``tables``, ``figures`` (paths), ``notes``
+    and ``md``/``html`` paths.
     """
     out = Path(out_dir)
     tables = write_tables(res, out)
-    fig_paths, notes = make_figures(res, out, target_v_m_s) if figures else ([], ["Figures not requested."])
+    fig_paths, notes = make_figures(res, out, target_v_m_s, pool) if figures else ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
     cfg = res.config
     md = ["# Realism study analysis", "",

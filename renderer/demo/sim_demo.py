@@ -286,7 +286,7 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
     if grid is not None and parallel and _can_fork() and (os.cpu_count() or 1) > 1:
         # the grid and the contact figure take about as long each: draw the grid in a second process,
         # forked after pyplot is imported so the child does not import it again
-        import matplotlib.pyplot  # noqa: F401  # deferred: ~0.3 s, figures only (`renderer demo --help`)
+        import matplotlib.pyplot  # deferred: ~0.3 s, figures only (`renderer demo --help`)  # noqa: F401
         side = mp.get_context("fork").Process(target=figs.hfam_grid_figure, args=grid, daemon=True)
         side.start()
     out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}

@@ -81,6 +81,60 @@ def test_html_is_self_contained(report):
     assert "href=" not in html and "<table" in html and "S005" in html
 
 
+def test_figures_of_the_drawing_process_equal_those_drawn_here(report, analysed, tmp_path):
+    """The command draws Figures 4.17-4.19 in its second process: byte for byte what write_report draws in one."""
+    from analysis.report import write_report
+    out, _ = report
+    write_report(analysed, tmp_path)
+    for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration", "fig_4_20_accelerations"):
+        for ext in ("png", "svg", "csv"):
+            assert (out / f"{stem}.{ext}").read_bytes() == (tmp_path / f"{stem}.{ext}").read_bytes(), (stem, ext)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the drawing process is forked on Linux only")
+def test_figure_process_is_a_second_process_only_when_forking_is_safe():
+    import threading
+
+    from analysis.cli_report import figure_process
+    # a new interpreter runs one thread when it starts the command (one BLAS thread, as main() sets it): the
+    # pool's process is another process
+    code = ("import os\nfrom analysis.__main__ import _one_blas_thread\n"
+            "from analysis.cli_report import figure_process\n_one_blas_thread()\n"
+            "with figure_process() as pool:\n"
+            "    print(pool is not None and pool.submit(os.getpid).result() != os.getpid())\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.strip() == "True", proc.stderr
+    # with another thread running (a caller's process) nothing is forked: the figures are drawn here
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        with figure_process() as pool:
+            assert pool is None
+    finally:
+        stop.set()
+        other.join()
+
+
+def test_figures_drawn_here_when_the_drawing_process_died(analysed, tmp_path):
+    import multiprocessing
+    import os
+    import signal
+    from concurrent.futures import ProcessPoolExecutor
+
+    from analysis.report import make_figures
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        os.kill(pool.submit(os.getpid).result(), signal.SIGKILL)
+        pngs, _ = make_figures(analysed, tmp_path, pool=pool)
+    finally:
+        pool.shutdown()
+    assert [p.name for p in pngs] == ["fig_4_17_ratings.png", "fig_4_18_pvalues.png", "fig_4_19_penetration.png",
+                                      "fig_4_20_accelerations.png"]
+    for png in pngs:
+        assert _pixels_vary(png) > 0.05, png.name
+
+
 def test_figure_4_20_skipped_with_note_without_traces(complete_dir, tmp_path, capsys):
     assert main(["report", str(complete_dir), "--out", str(tmp_path), "--group", "all"]) == 0
     err = capsys.readouterr().err
