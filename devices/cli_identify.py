@@ -99,7 +99,8 @@ def register(subparsers) -> None:
                         "over-stimulates a resonance), cimm the lowest (never over-cancels), general the average; "
                         "stored in every model's fit.purpose")
     p.add_argument("--workers", type=int, default=None,
-                   help="simulated devices: grips in this many processes at once (default: the number of cores)")
+                   help="simulated devices: grips fitted in this many processes at once, beside one recording process "
+                        "(default: the number of cores)")
     p.add_argument("--stages", default=None,
                    help="successive: comma-separated stages to run (default all: timing,amplifier,motor,cables,"
                         "drum,linkage,handle,user)")

@@ -10,13 +10,15 @@ style (figstyle) as PNG, SVG and a CSV of the plotted values.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 import figstyle
 
-from ..model import ZpkModel
-from .etfe import Etfe
+if TYPE_CHECKING:  # annotations only: devices.model loads scipy.signal (~1 s)
+    from ..model import ZpkModel
+    from .etfe import Etfe
 
 YLABEL = {"accel_m_s2": "|A_h / I_m| (dB re 1 m/s²/A)", "position_m": "|X_m / I_m| (dB re 1 m/A)"}
 # bins whose magnitude-squared coherence is below this are drawn faint and get no phase
@@ -97,10 +99,11 @@ def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: st
     Path
         The PNG.
     """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lines = bode_lines(curves, models)
     with figstyle.style() as plt:
         fig, (ax_m, ax_p) = plt.subplots(2, 1, figsize=figstyle.figsize("page", height_in=5.2), sharex=True)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rows, marks = _draw(ax_m, ax_p, curves, models, plt)
+        _draw(ax_m, ax_p, lines, _grip_colors(len(curves)))
         ax_m.set_ylabel(YLABEL.get(curves[0].output, "magnitude (dB)") if curves else "magnitude (dB)")
         ax_p.set_ylabel("phase (deg)")
         ax_p.set_xlabel("frequency (Hz)")
@@ -117,13 +120,15 @@ def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: st
         ax_m.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
         if title:
             ax_m.set_title(title, loc="left")
-        import pandas as pd  # deferred: only the figure's CSV needs it
-
-        data = pd.DataFrame(rows)
-        if marks:
-            data = pd.concat([data, pd.DataFrame(marks)], ignore_index=True)
-        paths = figstyle.save(fig, path, data)
+        paths = figstyle.save(fig, path, bode_table(lines))
     return paths["png"]
+
+
+def preload_figures() -> None:
+    """Import matplotlib (with the project style's backend) now, e.g. while other processes work, or
+    before forking processes that draw figures."""
+    with figstyle.style():
+        pass
 
 
 def _grip_colors(n: int) -> list:
@@ -132,22 +137,26 @@ def _grip_colors(n: int) -> list:
     return [colormaps[figstyle.palette()["sequential"]](x) for x in np.linspace(0.0, 0.85, max(n, 1))]
 
 
-def _draw(ax_m, ax_p, curves, models, plt) -> tuple[list, list]:
-    colors = _grip_colors(len(curves))
+def bode_lines(curves: list[Etfe], models: list[ZpkModel | None]) -> dict:
+    """What :func:`bode_plot` draws, computed (no matplotlib).
+
+    Returns
+    -------
+    dict
+        ``etfe``: one dict per curve (``label``, ``f_hz``, ``magnitude_db``, ``phase_deg`` (NaN where not
+        trusted), ``coherence``, ``trusted``); ``models``: one dict per drawn model (``index``: its curve's
+        index or None for a shared model, ``label``, ``f_hz``, ``magnitude_db``, ``phase_deg`` on the curve's
+        360-degree branch, ``resonance``: (f_hz, dB) or None, ``minus_3db``: (f_hz, dB) or None).
+    """
     shared = len(models) == 1 and len(curves) > 1
-    rows, marks = [], []
-    for c, color in zip(curves, colors):
+    etfes, drawn = [], []
+    for c in curves:
         coh = np.asarray(c.coherence) if c.coherence is not None else np.ones(c.f_hz.shape)
         trusted = (c.f_hz <= c.resolvable_hi_hz) & (coh >= COHERENCE_MIN)
-        mag = 20 * np.log10(np.abs(c.H))
-        ph = wrap_phase_deg(c.H, trusted)
-        ax_m.semilogx(c.f_hz, np.where(trusted, np.nan, mag), color=color, lw=0.6, alpha=0.35)
-        ax_m.semilogx(c.f_hz, np.where(trusted, mag, np.nan), color=color, lw=1.2, label=c.label or None)
-        ax_p.semilogx(c.f_hz, ph, color=color, lw=1.2)
-        rows += [{"curve": c.label, "kind": "etfe", "f_hz": f, "magnitude_db": m, "phase_deg": p, "coherence": h,
-                  "trusted": bool(t)} for f, m, p, h, t in zip(c.f_hz, mag, ph, coh, trusted)]
-    pairs = [(models[0], "black", None)] if shared else [(m, col, c) for m, col, c in zip(models, colors, curves)]
-    for m, color, c in pairs:
+        etfes.append({"label": c.label, "f_hz": c.f_hz, "magnitude_db": 20 * np.log10(np.abs(c.H)),
+                      "phase_deg": wrap_phase_deg(c.H, trusted), "coherence": coh, "trusted": trusted})
+    pairs = [(models[0], None, None)] if shared else [(m, i, c) for i, (m, c) in enumerate(zip(models, curves))]
+    for m, i, c in pairs:
         if m is None:
             continue
         f = c.f_hz if c is not None else curves[0].f_hz
@@ -167,16 +176,57 @@ def _draw(ax_m, ax_p, curves, models, plt) -> tuple[list, list]:
             if near.size:
                 ref = data_ph[near[np.argmin(np.abs(near - k))]]
         ph -= 360.0 * (np.round((ph[0] - ref) / 360.0) if ref is not None else np.ceil((ph[0] - 180.0) / 360.0))
-        ax_m.semilogx(f, mag, "--", color=color, lw=1.4)
-        ax_p.semilogx(f, ph, "--", color=color, lw=1.4)
-        label = c.label if c is not None else "shared model"
-        rows += [{"curve": label, "kind": "model", "f_hz": fi, "magnitude_db": mi, "phase_deg": pi}
-                 for fi, mi, pi in zip(f, mag, ph)]
         f_pk, pk, f3 = resonance_and_3db(f, h)
-        if np.isfinite(f_pk):
-            ax_m.plot(f_pk, pk, "^", color=color, ms=6, mec="black", mew=0.5)
-            marks.append({"curve": label, "kind": "resonance", "f_hz": f_pk, "magnitude_db": pk})
-        if np.isfinite(f3):
-            ax_m.plot(f3, pk - 3.0, "v", color=color, mfc="white", ms=6, mew=1.0)
-            marks.append({"curve": label, "kind": "minus_3db", "f_hz": f3, "magnitude_db": pk - 3.0})
-    return rows, marks
+        drawn.append({"index": i, "label": c.label if c is not None else "shared model", "f_hz": f,
+                      "magnitude_db": mag, "phase_deg": ph,
+                      "resonance": (f_pk, pk) if np.isfinite(f_pk) else None,
+                      "minus_3db": (f3, pk - 3.0) if np.isfinite(f3) else None})
+    return {"etfe": etfes, "models": drawn}
+
+
+def _draw(ax_m, ax_p, lines: dict, colors: list) -> None:
+    """Plot :func:`bode_lines` (curve ``i`` in ``colors[i]``, a shared model in black)."""
+    for e, color in zip(lines["etfe"], colors):
+        mag, trusted = e["magnitude_db"], e["trusted"]
+        ax_m.semilogx(e["f_hz"], np.where(trusted, np.nan, mag), color=color, lw=0.6, alpha=0.35)
+        ax_m.semilogx(e["f_hz"], np.where(trusted, mag, np.nan), color=color, lw=1.2, label=e["label"] or None)
+        ax_p.semilogx(e["f_hz"], e["phase_deg"], color=color, lw=1.2)
+    for d in lines["models"]:
+        color = "black" if d["index"] is None else colors[d["index"]]
+        ax_m.semilogx(d["f_hz"], d["magnitude_db"], "--", color=color, lw=1.4)
+        ax_p.semilogx(d["f_hz"], d["phase_deg"], "--", color=color, lw=1.4)
+        if d["resonance"] is not None:
+            ax_m.plot(*d["resonance"], "^", color=color, ms=6, mec="black", mew=0.5)
+        if d["minus_3db"] is not None:
+            ax_m.plot(*d["minus_3db"], "v", color=color, mfc="white", ms=6, mew=1.0)
+
+
+def _g9(values) -> list:
+    """``%.9g`` text of each value, empty for NaN (what ``DataFrame.to_csv(float_format="%.9g")`` writes)."""
+    return ["" if v != v else "%.9g" % v for v in np.asarray(values, dtype=float).tolist()]
+
+
+def bode_table(lines: dict) -> tuple[list, list]:
+    """The figure's CSV as (header, rows of text): one row per plotted bin of every curve (``kind`` etfe)
+    and model (``kind`` model), then the resonance and -3 dB marks; empty cells where a column does not
+    apply. Columns curve, kind, f_hz, magnitude_db, phase_deg, coherence, trusted."""
+    cols = []
+    for e in lines["etfe"]:
+        n = e["f_hz"].size
+        cols.append(([e["label"] or ""] * n, ["etfe"] * n, _g9(e["f_hz"]), _g9(e["magnitude_db"]),
+                     _g9(e["phase_deg"]), _g9(e["coherence"]), [str(bool(t)) for t in e["trusted"]]))
+    for d in lines["models"]:
+        n = d["f_hz"].size
+        cols.append(([d["label"] or ""] * n, ["model"] * n, _g9(d["f_hz"]), _g9(d["magnitude_db"]),
+                     _g9(d["phase_deg"]), [""] * n, [""] * n))
+    for d in lines["models"]:
+        for kind in ("resonance", "minus_3db"):
+            if d[kind] is not None:
+                cols.append(([d["label"] or ""], [kind], *([x] for x in _g9(d[kind])), [""], [""], [""]))
+    header = ["curve", "kind", "f_hz", "magnitude_db", "phase_deg"]
+    if lines["etfe"]:
+        header += ["coherence", "trusted"]
+    rows = [list(r[: len(header)]) for c in cols for r in zip(*c)]
+    if not rows:  # nothing drawn: an empty table (a blank line)
+        return [], []
+    return header, rows

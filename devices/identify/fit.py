@@ -14,16 +14,33 @@ phase.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
-from ..model import ZpkModel
-from .etfe import Etfe
-from .vfit import PoleResidue, fit_residues, to_zpk, vector_fit
+if TYPE_CHECKING:  # annotations only: at run time they load on first use (see load_solvers)
+    from ..model import ZpkModel
+    from .etfe import Etfe
+    from .vfit import PoleResidue
 
 WEIGHTS = ("high", "low", "mean")
 ORDER_COST_TOL = 0.005
+
+
+def load_solvers():
+    """The fitting machinery: ``(scipy.optimize.minimize_scalar, devices.model.ZpkModel, devices.identify.vfit)``.
+
+    Loaded on first use rather than with this module: scipy and :mod:`devices.model` take about a second
+    to import, and :class:`FitOptions` is read by every ``identify`` command before it starts recording
+    (the recording process that :func:`devices.identify.pipeline.identify_device` forks must not spend
+    that second). Call it to load them ahead, e.g. before forking processes that fit.
+    """
+    from scipy.optimize import minimize_scalar  # deferred: see the docstring
+
+    from ..model import ZpkModel  # deferred: see the docstring (scipy.signal)
+    from . import vfit  # deferred: see the docstring (scipy.linalg)
+
+    return minimize_scalar, ZpkModel, vfit
 
 
 class FitError(ValueError):
@@ -213,6 +230,8 @@ class _Problem:
         self.w_c = coh[idx]
         self.w = self.w_c / np.abs(self.H)
         self._warm: dict[int, np.ndarray] = {}
+        self._minimize_scalar, _, vfit = load_solvers()
+        self._vector_fit_both = vfit.vector_fit_both
 
     def fit(self, order: int, delay_s: float, n_iter: int = 15, warm: bool = False) -> tuple[PoleResidue, float]:
         """VF at ``order`` on the data with ``delay_s`` removed; returns (model, cost).
@@ -221,9 +240,9 @@ class _Problem:
         """
         Hd = self.H * np.exp(self.s * delay_s)  # remove the delay, fit the rational part
         poles0 = self._warm.get(order) if warm else None
-        pr = vector_fit(self.s, Hd, self.w, order, n_iter=n_iter, direct=False, poles0=poles0, tol=1e-7)
+        # strictly proper fit, and the residues with a direct term on its poles
+        pr, prd = self._vector_fit_both(self.s, Hd, self.w, order, n_iter=n_iter, poles0=poles0, tol=1e-7)
         best = (pr, _cost(pr(self.s), Hd, self.w_c))
-        prd = fit_residues(self.s, Hd, self.w, pr.poles, direct=True)
         cost_d = _cost(prd(self.s), Hd, self.w_c)
         if cost_d < 0.98 * best[1]:  # prefer the strictly proper model unless the direct term clearly helps
             best = (prd, cost_d)
@@ -238,8 +257,8 @@ class _Problem:
         step = grid[1] - grid[0] if n_grid > 1 else d_hi - d_lo
         a, b = max(d_lo, grid[i] - step), min(d_hi, grid[i] + step)
         self.fit(order, grid[i], n_iter=8)
-        res = minimize_scalar(lambda d: self.fit(order, d, n_iter=8, warm=True)[1], bounds=(a, b),
-                              method="bounded", options={"xatol": xatol})
+        res = self._minimize_scalar(lambda d: self.fit(order, d, n_iter=8, warm=True)[1], bounds=(a, b),
+                                    method="bounded", options={"xatol": xatol})
         cands = [(costs[i], grid[i]), (float(res.fun), float(res.x))]
         return min(cands)[1]
 
@@ -270,6 +289,7 @@ def fit_frequency_response(f_hz, H, coherence=None, options: FitOptions | None =
     ValueError
         For bad data (NaN, zero, too few bins, band outside the data).
     """
+    _, ZpkModel, vfit = load_solvers()
     opt = options or FitOptions()
     f_hz = np.asarray(f_hz, dtype=float)
     H = np.asarray(H, dtype=complex)
@@ -321,7 +341,7 @@ def fit_frequency_response(f_hz, H, coherence=None, options: FitOptions | None =
         delay = float(opt.delay_s)
         fits, table, chosen = order_table(delay)
     pr = fits[chosen]
-    zeros, poles, k = to_zpk(pr, prob.s)
+    zeros, poles, k = vfit.to_zpk(pr, prob.s)
     for row in table:  # report the table in dB/degrees on all bins
         m = _model(fits[row["order"]], prob.s, delay, output)
         row.update({k2: round(v, 4) for k2, v in fit_errors(f, Hb, m.frequency_response(f)).items()
@@ -360,6 +380,7 @@ def _reflect_zeros(zeros, poles, k, f, H, coh, max_delay_s):
     reflection adds is partly a delay, which is re-estimated on the band.
     Returns (zeros, delay_s).
     """
+    minimize_scalar = load_solvers()[0]
     z = np.where(zeros.real > 0, -zeros.real + 1j * zeros.imag, zeros)
     s_ = 2j * np.pi * f
     base = k * np.prod(s_[:, None] - z, axis=1) / np.prod(s_[:, None] - poles, axis=1)
@@ -369,7 +390,8 @@ def _reflect_zeros(zeros, poles, k, f, H, coh, max_delay_s):
 
 
 def _model(pr: PoleResidue, s_ref, delay, output) -> ZpkModel:
-    z, p, k = to_zpk(pr, s_ref)
+    _, ZpkModel, vfit = load_solvers()
+    z, p, k = vfit.to_zpk(pr, s_ref)
     return ZpkModel(z, p, k, delay, output=output)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -17,9 +17,8 @@ from ..progress import Progress
 from ..registry import make_device
 from ..validation import require_int
 from .etfe import Etfe, etfe
-from .figures import bode_plot
-from .fit import FitError, FitOptions, fit_etfes
-from .modelset import ModelSet
+from .figures import bode_plot, preload_figures
+from .fit import FitError, FitOptions, fit_etfes, load_solvers
 from .record import record_condition
 from .recording import write_recording
 from .sweep import SweepConfig
@@ -56,8 +55,9 @@ class IdentifyConfig:
         Fit the highest, lowest or average magnitude curves (``PURPOSE_WEIGHT``); stored in every model's
         ``fit.purpose``.
     workers : int
-        Simulated devices only: grips are recorded and fitted in this many processes at once (each with
-        its own device made from ``device_spec``, noise seed ``seed + 1000 * grip index``).
+        Simulated devices only: grips are fitted in this many processes at once, as one more process
+        records them (each on its own device made from ``device_spec``, noise seed
+        ``seed + 1000 * grip index``); with more than one, the Bode plots are also drawn in parallel.
     detrend : {"ramp", "periodic"}
         ETFE detrending (see :func:`devices.identify.etfe.etfe`).
     reverse_half : bool
@@ -132,7 +132,8 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
         Receives one text line per message (default ``print``).
     device_spec : str
         The device string; simulated devices with ``cfg.workers > 1`` are identified grip by grip
-        in parallel processes, each with a fresh device made from it.
+        in parallel processes, each grip on a fresh device made from it (recorded by one process,
+        fitted in ``cfg.workers`` others as its recordings arrive).
     seed : int
         Seed of the simulated devices' noise.
     progress : bool
@@ -155,19 +156,10 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     label = device_spec or dev.info.name
     jobs = list(enumerate(cfg.grips_N))
     bar = Progress(len(jobs), f"identifying {label}", unit="grip", min_interval_s=0.0) if progress else None
-    results = [None] * len(jobs)
     if cfg.workers > 1 and dev.simulated and device_spec.startswith("sim") and len(jobs) > 1:
-        # fork: the workers inherit the imported (and numba-compiled) modules, so they start at once
-        ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=min(cfg.workers, len(jobs)), mp_context=ctx) as pool:
-            futures = {pool.submit(_grip_worker, (device_spec, seed, k, g, cfg, label, out)): i
-                       for i, (k, g) in enumerate(jobs)}
-            for fut in as_completed(futures):
-                i = futures[fut]
-                results[i] = fut.result()
-                if bar is not None:
-                    bar.update(status=f"grip {jobs[i][1]:g} N")
+        results = _grips_in_processes(jobs, cfg, device_spec, seed, label, out, bar)
     else:
+        results = [None] * len(jobs)
         for i, (k, g) in enumerate(jobs):
             results[i] = _identify_grip(dev, k, g, cfg, label, out)
             if bar is not None:
@@ -191,18 +183,24 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     ok = [i for i, g in enumerate(cfg.grips_N) if any(fits[o][i] is not None for o in outputs)]
     written = []
     if ok:
+        # deferred: devices.model loads scipy.signal (~1 s), which importing this module must not (the
+        # recording process is forked before it is loaded, see above)
+        from .modelset import ModelSet  # deferred: scipy.signal behind it, not before the fork (above)
+
         models = {o: [fits[o][i].model if fits[o][i] is not None else None for i in ok] for o in outputs}
         models = {o: ms for o, ms in models.items() if any(m is not None for m in ms)}
         mset = ModelSet(np.array([cfg.grips_N[i] for i in ok], dtype=float), models)
         written.append(str(mset.save(out)))
+    figures = {}
+    if cfg.figures:
+        figures = dict(zip(outputs, draw_bode_plots(
+            [(curves[o], models_plot[o], out / f"bode_{OUTPUT_SHORT[o]}.png",
+              f"{report['device']}: {OUTPUT_SHORT[o]} ETFE per grip (solid), fitted models (dashed)")
+             for o in outputs], parallel=cfg.workers > 1)))
     for output in outputs:
-        short = OUTPUT_SHORT[output]
-        written.append(str(write_etfe_npz(curves[output], out / f"etfe_{short}.npz")))
-        if not cfg.figures:
-            continue
-        written.append(str(bode_plot(curves[output], models_plot[output], out / f"bode_{short}.png",
-                                     title=f"{report['device']}: {short} ETFE per grip (solid), fitted models "
-                                           "(dashed)")))
+        written.append(str(write_etfe_npz(curves[output], out / f"etfe_{OUTPUT_SHORT[output]}.npz")))
+        if output in figures:
+            written.append(str(figures[output]))
     report["written"] = written
     report["model_set_grips_N"] = [float(cfg.grips_N[i]) for i in ok]
     report["elapsed_s"] = time.perf_counter() - t_start
@@ -240,21 +238,136 @@ def write_etfe_npz(curves: list, path) -> Path:
     return path
 
 
-def _grip_worker(job):
-    """Process-pool entry: a fresh simulated device for one grip (see ``IdentifyConfig.workers``)."""
-    spec, seed, k, g, cfg, label, out = job
+def draw_bode_plots(jobs: list, parallel: bool = False) -> list[Path]:
+    """:func:`devices.identify.figures.bode_plot` for each ``(curves, models, path, title)`` of ``jobs``;
+    with ``parallel``, the first here and the others at the same time in one forked process (matplotlib
+    draws in one thread; what a process imported before, its fork need not import again).
+
+    Returns
+    -------
+    list of Path
+        The PNGs, in the order of ``jobs``.
+    """
+    if not parallel or len(jobs) < 2:
+        return [bode_plot(*job) for job in jobs]
+    preload_figures()
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork")) as pool:
+        futures = [pool.submit(bode_plot, *job) for job in jobs[1:]]
+        first = bode_plot(*jobs[0])
+        return [first] + [f.result() for f in futures]
+
+
+def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, label: str, out: Path, bar) -> list:
+    """:func:`_identify_grip` of each ``(k, grip)`` of ``jobs`` on a fresh simulated device made from ``spec``
+    (noise seed ``seed + 1000 k``), in processes: one records every grip in turn and is forked first, before
+    the fitting code (scipy.signal, ~1 s) is loaded here; ``cfg.workers`` others, forked once it is, fit and
+    validate the grips as their recordings arrive (fork: the processes inherit the imported and
+    numba-compiled modules, so they start at once). Returns the results in the order of ``jobs``."""
+    # before the fork: the recorder's first numba call loads scipy.linalg, and so does fitting here
+    import scipy.linalg  # deferred: loaded once for both processes, see above  # noqa: F401
+
+    ctx = multiprocessing.get_context("fork")
+    results = [None] * len(jobs)
+    inbox, outbox = ctx.Pipe(duplex=False)
+    recorder = ctx.Process(target=_recorder, args=(outbox, jobs, spec, seed, cfg, out), daemon=True)
+    recorder.start()
+    outbox.close()
+    n_recorded = 0
+    try:
+        load_solvers()
+        with ProcessPoolExecutor(max_workers=min(cfg.workers, len(jobs)), mp_context=ctx) as pool:
+            fitting = {}
+            while n_recorded < len(jobs) or fitting:
+                if n_recorded < len(jobs):  # recordings arrive in grip order
+                    if inbox.poll(0.05):
+                        recorded = _received(inbox, recorder)
+                        g = jobs[n_recorded][1]
+                        fitting[pool.submit(_analyse_worker, (g, cfg, label, out, recorded))] = n_recorded
+                        n_recorded += 1
+                        if n_recorded == len(jobs) and cfg.figures:
+                            # while the workers fit: the figure process forked later inherits matplotlib
+                            preload_figures()
+                    done = [f for f in fitting if f.done()]
+                else:
+                    done = wait(fitting, return_when=FIRST_COMPLETED)[0]
+                for fut in sorted(done, key=fitting.get):
+                    i = fitting.pop(fut)
+                    results[i] = fut.result()
+                    if bar is not None:
+                        bar.update(status=f"grip {jobs[i][1]:g} N")
+    finally:
+        if recorder.is_alive() and n_recorded < len(jobs):  # stopped by an error
+            recorder.terminate()
+        recorder.join()
+        inbox.close()
+    return results
+
+
+def _recorder(outbox, jobs, spec, seed, cfg, out) -> None:
+    """Recording process of :func:`identify_device`: :func:`_record_worker` for each ``(k, grip)`` of ``jobs``
+    in turn, each result sent as ``("ok", result)``; an error is sent as ``("error", exception)`` and ends
+    it."""
+    try:
+        for k, g in jobs:
+            outbox.send(("ok", _record_worker((spec, seed, k, g, cfg, out))))
+    except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
+        try:
+            outbox.send(("error", exc))
+        except Exception:  # noqa: BLE001  (an exception that cannot be pickled)
+            outbox.send(("error", RuntimeError(f"recording failed: {exc!r}")))
+    finally:
+        outbox.close()
+
+
+def _received(inbox, recorder):
+    """The next result of :func:`_recorder` (its error raised here)."""
+    try:
+        status, value = inbox.recv()
+    except EOFError:
+        recorder.join()
+        raise RuntimeError(f"the recording process ended unexpectedly (exit code {recorder.exitcode})") from None
+    if status == "error":
+        raise value
+    return value
+
+
+def _record_worker(job):
+    """One grip of :func:`_recorder`, on a fresh simulated device (see ``IdentifyConfig.workers``): its
+    sweeps (written to ``out/recordings``), then, if validating, its transients, as :func:`_identify_grip`
+    would record them on that device. Needs nothing beyond the simulator: it runs while the parent process
+    loads the fitting code. Returns (recordings per condition, log messages, transients or None)."""
+    spec, seed, k, g, cfg, out = job
+    msgs = []
     dev = make_device(spec, seed=seed + 1000 * k)
     with dev:
-        return _identify_grip(dev, k, g, cfg, label, out)
+        by_amp = _record_grip(dev, g, cfg, out, msgs)
+        transients = None
+        if cfg.validate and "accel_m_s2" in cfg.outputs:  # discarded if the accel fit fails
+            transients = record_transients(dev, cfg.validation_amplitude_A, float(g))
+    return by_amp, msgs, transients
+
+
+def _analyse_worker(job):
+    """Process-pool entry: fit and validate one grip recorded by :func:`_record_worker`."""
+    g, cfg, label, out, (by_amp, msgs, transients) = job
+    return _analyse_grip(g, cfg, label, out, by_amp, msgs, lambda: transients)
 
 
 def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: str, out: Path):
     """Record, fit and validate one grip level; write its recordings (``out/recordings``). Returns (report
     row, curves per output, fit per output (FitResult or None), log messages)."""
     msgs = []
+    by_amp = _record_grip(dev, g, cfg, out, msgs)
+    return _analyse_grip(g, cfg, label, out, by_amp, msgs,
+                         lambda: record_transients(dev, cfg.validation_amplitude_A, float(g)))
+
+
+def _record_grip(dev: Device, g: float, cfg: IdentifyConfig, out: Path, msgs: list) -> list:
+    """The sweeps of one grip level (every amplitude, ``cfg.trials`` each), written to ``out/recordings``.
+    Returns [(condition label, recordings)] per amplitude."""
     amps = tuple(cfg.amplitudes_A) or (cfg.sweep.amplitude_A,)
-    recs_all, gcurves, gfits = [], {o: [] for o in cfg.outputs}, {}
     by_amp = []
+    n_written = 0
     for amp in amps:
         sweep = replace(cfg.sweep, amplitude_A=float(amp))
         recs = record_condition(dev, sweep, float(g), cfg.trials, reverse_half=cfg.reverse_half,
@@ -263,9 +376,20 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
         for rec in recs:
             rec.meta["condition"] = cond
         for rec in recs:
-            write_recording(out / "recordings" / f"g{g:g}N_t{len(recs_all)}.csv", rec)
-            recs_all.append(rec)
+            write_recording(out / "recordings" / f"g{g:g}N_t{n_written}.csv", rec)
+            n_written += 1
         by_amp.append((cond, recs))
+    return by_amp
+
+
+def _analyse_grip(g: float, cfg: IdentifyConfig, label: str, out: Path, by_amp: list, msgs: list,
+                  transients):
+    """ETFEs, fits and (if ``cfg.validate`` and the accel fit succeeded) the time-domain validation of one
+    grip level recorded by :func:`_record_grip`; ``transients()`` gives the recorded validation transients
+    ``(current, accel, position, windows)``, written to ``out/recordings``. Returns (report row, curves per
+    output, fit per output (FitResult or None), log messages)."""
+    recs_all = [rec for _, recs in by_amp for rec in recs]
+    gcurves, gfits = {o: [] for o in cfg.outputs}, {}
     row = {"grip_N": float(g), "grip_measured_N": float(np.mean([r.meta["grip_mean_N"] for r in recs_all])),
            "trials": len(recs_all), "purpose": cfg.purpose}
     for output, opts in (("accel_m_s2", cfg.accel_options), ("position_m", cfg.position_options)):
@@ -294,7 +418,7 @@ def _identify_grip(dev: Device, k: int, g: float, cfg: IdentifyConfig, label: st
                     f"RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, worst band {m['worst_band_db']:.2f} dB "
                     f"over {res.model.band_hz[0]:.0f}-{res.model.band_hz[1]:.0f} Hz")
     if cfg.validate and gfits.get("accel_m_s2") is not None:
-        u, a, x, windows = record_transients(dev, cfg.validation_amplitude_A, float(g))
+        u, a, x, windows = transients()
         write_transient_recording(out / "recordings" / f"transients_g{g:g}N.csv", cfg.sweep.fs_hz, u, a, x, g)
         v = validate_model(gfits["accel_m_s2"].model, u, a, cfg.sweep.fs_hz, windows)
         row["validation"] = {"nrmse": v["nrmse"], "nrmse_per_transient": v["nrmse_per_transient"]}

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import json
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from ..fileio import atomic_open, atomic_write_text, read_json_file
 from .sweep import SweepConfig
@@ -112,15 +112,41 @@ def write_csv_columns(path, columns, arrays) -> Path:
     Atomic (see :func:`devices.fileio.atomic_open`); values as ``%.10g``.
     The counterpart of :func:`read_csv_columns`.
     """
-    data = np.column_stack(arrays).astype(float, copy=False)
-    row = ",".join(["%.10g"] * data.shape[1]) + "\n"
+    data = [np.ascontiguousarray(a, dtype=float) for a in arrays]
+    if not data or any(a.ndim != 1 or a.shape != data[0].shape for a in data):
+        np.column_stack(arrays)  # no arrays or mismatched lengths: numpy's error
+        raise ValueError(f"need 1-D arrays of one length, got shapes {[a.shape for a in data]}")
+    # same text as np.savetxt(fmt="%.10g", delimiter=","): each distinct value formatted once, column by column
+    text = [_column_text(a) for a in data]
     with atomic_open(path) as fh:
         fh.write(",".join(columns) + "\n")
-        # same text as np.savetxt(fmt="%.10g", delimiter=","), formatted a block of rows per % operation
-        for i in range(0, data.shape[0], 8192):
-            block = data[i:i + 8192]
-            fh.write((row * block.shape[0]) % tuple(block.ravel().tolist()))
+        for i in range(0, data[0].size, 8192):
+            fh.write("".join([",".join(row) + "\n" for row in zip(*(t[i:i + 8192] for t in text))]))
     return Path(path)
+
+
+# text of recent columns with many distinct values (fingerprint -> (values, text)), at most _TEXT_CACHE_SIZE:
+# the sweep's current repeats trial after trial (two polarities), and with a fresh simulated device per grip
+# (identify's parallel mode) so does the time column of each trial number
+_TEXT_CACHE: OrderedDict = OrderedDict()
+_TEXT_CACHE_SIZE = 8
+
+
+def _column_text(a: np.ndarray) -> list[str]:
+    """``"%.10g" % v`` of each value of ``a`` (float64, contiguous), formatting each distinct value once."""
+    bits = a.view(np.int64)  # exact identity: 0.0 and -0.0 format differently
+    key = (a.size, bits[:: max(1, a.size // 64)].tobytes())
+    hit = _TEXT_CACHE.get(key)
+    if hit is not None and np.array_equal(hit[0], bits):
+        _TEXT_CACHE.move_to_end(key)
+        return hit[1]
+    u, inv = np.unique(bits, return_inverse=True)
+    text = np.array(["%.10g" % v for v in u.view(np.float64).tolist()], dtype=object)[inv].tolist()
+    if u.size * 4 > a.size:
+        _TEXT_CACHE[key] = (bits.copy(), text)
+        while len(_TEXT_CACHE) > _TEXT_CACHE_SIZE:
+            _TEXT_CACHE.popitem(last=False)
+    return text
 
 
 def _sweep_from_sidecar(data: dict, where: str) -> SweepConfig:
@@ -155,6 +181,8 @@ def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
         Naming the file for an unparsable CSV or missing column(s), and file,
         line and column of the first non-numeric or NaN/inf value.
     """
+    import pandas as pd  # deferred: pandas costs ~0.3 s to import and only reading needs it (identify only writes)
+
     try:
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:

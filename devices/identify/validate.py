@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..base import Device
-from ..model import ZpkModel
 from .record import hold_user, play
 from .recording import read_csv_columns, write_csv_columns
+
+if TYPE_CHECKING:  # annotations only: devices.model loads scipy.signal (~1 s), which recording does not need
+    from ..model import ZpkModel
 
 # (kind, frequency Hz, decay time constant s): contact-like transients (decaying sinusoids, a short pulse)
 DEFAULT_TRANSIENTS = (("sinusoid", 80.0, 0.02), ("sinusoid", 150.0, 0.015), ("sinusoid", 300.0, 0.01),

@@ -18,6 +18,8 @@ import scipy.linalg
 
 # relative size of the imaginary part below which an eigenvalue is taken as real
 _REAL_TOL = 1e-9
+# the LAPACK routines scipy.linalg.cho_factor / cho_solve use for float64 (see _lstsq_scaled)
+_POTRF, _POTRS = scipy.linalg.get_lapack_funcs(("potrf", "potrs"), (np.zeros((1, 1)),))
 
 
 @dataclass(frozen=True)
@@ -49,7 +51,7 @@ def split_poles(poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     real_mask = np.abs(poles.imag) <= _REAL_TOL * scale
     reals = np.sort(poles[real_mask].real)
     upper = poles[~real_mask & (poles.imag > 0)]
-    n_lower = int(np.sum(~real_mask & (poles.imag < 0)))
+    n_lower = int(np.count_nonzero(~real_mask & (poles.imag < 0)))
     if n_lower != upper.size:  # unpaired complex values: take both as real parts (cannot happen for eig of real A)
         reals = np.sort(np.concatenate([reals, poles[~real_mask].real]))
         upper = np.zeros(0, dtype=complex)
@@ -58,8 +60,12 @@ def split_poles(poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def join_poles(reals: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """Inverse of :func:`split_poles`: reals, then (p, conj p) pairs."""
-    pairs = np.column_stack([upper, np.conj(upper)]).ravel() if upper.size else np.zeros(0, complex)
-    return np.concatenate([reals.astype(complex), pairs])
+    nr = reals.size
+    out = np.empty(nr + 2 * upper.size, dtype=complex)
+    out[:nr] = reals
+    out[nr::2] = upper
+    out[nr + 1 :: 2] = np.conj(upper)
+    return out
 
 
 def _basis(s: np.ndarray, reals: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -81,16 +87,21 @@ def _basis(s: np.ndarray, reals: np.ndarray, upper: np.ndarray) -> np.ndarray:
 
 def _realization(reals: np.ndarray, upper: np.ndarray, coef: np.ndarray):
     """State-space (A, b, c) of sum of basis columns times real ``coef`` (see _basis)."""
-    n = reals.size + 2 * upper.size
+    nr, nc = reals.size, upper.size
+    n = nr + 2 * nc
     A = np.zeros((n, n))
     b = np.zeros(n)
     c = np.asarray(coef, dtype=float).copy()
-    for i, a in enumerate(reals):
-        A[i, i] = a
-        b[i] = 1.0
-    for j, p in enumerate(upper):
-        i = reals.size + 2 * j
-        A[i : i + 2, i : i + 2] = [[p.real, p.imag], [-p.imag, p.real]]
+    if nr:
+        i = np.arange(nr)
+        A[i, i] = reals
+        b[:nr] = 1.0
+    if nc:  # one 2x2 block [[re, im], [-im, re]] per pair
+        i = nr + 2 * np.arange(nc)
+        A[i, i] = upper.real
+        A[i, i + 1] = upper.imag
+        A[i + 1, i] = -upper.imag
+        A[i + 1, i + 1] = upper.real
         b[i] = 2.0
     return A, b, c
 
@@ -104,17 +115,26 @@ def _lstsq_scaled(M: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     BLAS thread contention, while these small Gram matrices cost little. The
     ridge only matters for columns that are linearly dependent (over-high
     orders on noise-free data), where it picks the small-norm solution.
+
+    Called a few thousand times per identification on small matrices, so it
+    calls the ufuncs and LAPACK routines behind ``np.linalg.norm`` and
+    ``scipy.linalg.cho_factor``/``cho_solve`` directly (same operations, same
+    results, without their argument checking).
     """
-    norms = np.linalg.norm(M, axis=0)
+    norms = np.sqrt(np.add.reduce(M * M, axis=0))  # np.linalg.norm(M, axis=0) of a real M
     norms[norms == 0] = 1.0
     Ms = M / norms
     G = Ms.T @ Ms
-    G[np.diag_indices_from(G)] += 1e-13
-    try:
-        c, low = scipy.linalg.cho_factor(G, check_finite=False)
-        x = scipy.linalg.cho_solve((c, low), Ms.T @ rhs, check_finite=False)
-    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+    G.ravel()[:: G.shape[0] + 1] += 1e-13  # G is a fresh C-contiguous array: ravel() is a view
+    c, info = _POTRF(G, lower=False, overwrite_a=False, clean=False)
+    if info == 0:
+        x, info = _POTRS(c, Ms.T @ rhs, lower=False, overwrite_b=False)
+        if info != 0:
+            raise ValueError(f"illegal value in {-info}th argument of internal potrs")
+    elif info > 0:  # not positive definite (what cho_factor raises LinAlgError for)
         x, *_ = np.linalg.lstsq(Ms, rhs, rcond=None)
+    else:
+        raise ValueError(f'LAPACK reported an illegal value in {-info}-th argument on entry to "POTRF".')
     return x / norms
 
 
@@ -123,9 +143,11 @@ def _stabilize(poles: np.ndarray) -> np.ndarray:
     poles = np.asarray(poles, dtype=complex).copy()
     re = poles.real
     flip = re > 0
-    poles[flip] = -re[flip] + 1j * poles.imag[flip]
+    if flip.any():
+        poles[flip] = -re[flip] + 1j * poles.imag[flip]
     tiny = np.abs(poles.real) < 1e-9 * np.maximum(np.abs(poles), 1.0)
-    poles[tiny] = -1e-9 * np.maximum(np.abs(poles[tiny]), 1.0) + 1j * poles.imag[tiny]
+    if tiny.any():
+        poles[tiny] = -1e-9 * np.maximum(np.abs(poles[tiny]), 1.0) + 1j * poles.imag[tiny]
     return poles
 
 
@@ -138,6 +160,68 @@ def initial_poles(order: int, w_lo: float, w_hi: float) -> np.ndarray:
     return join_poles(reals, upper)
 
 
+class _Data:
+    """The least-squares pieces of one VF problem that do not change with the poles: ``w``, ``w H``, the
+    relaxation row's scale and the right-hand sides (built once per :func:`vector_fit`, not per iteration)."""
+
+    def __init__(self, s, H, w):
+        self.s = s
+        self.m = m = s.size
+        self.w = w
+        self.wH = wH = w * H
+        self.neg_wH = -wH
+        self.scale = np.linalg.norm(wH) / m
+        self.rhs_fit = np.concatenate([wH.real, wH.imag])
+        self.rhs_relax = np.concatenate([np.zeros(2 * m), [self.scale * m]])
+
+    def relax_matrix(self, n: int, direct: bool) -> np.ndarray:
+        """The relocation system's real matrix for ``n`` poles with its pole-independent columns filled:
+        rows (Re, Im, relaxation row), columns (w phi_i, [w], -w H phi_i, -w H)."""
+        m = self.m
+        R = np.empty((2 * m + 1, 2 * n + 2 if direct else 2 * n + 1))
+        if direct:
+            R[:m, n] = self.w
+            R[m : 2 * m, n] = 0.0
+        R[:m, -1] = self.neg_wH.real
+        R[m : 2 * m, -1] = self.neg_wH.imag
+        return R
+
+
+def _relocate(d: _Data, reals: np.ndarray, upper: np.ndarray, direct: bool, R: np.ndarray):
+    """:func:`relocate_poles` on split poles, reusing ``R`` (from ``d.relax_matrix``); returns the new poles
+    split (:func:`split_poles`)."""
+    Phi = _basis(d.s, reals, upper)
+    m, n = Phi.shape
+    off = n + 1 if direct else n
+    P = d.w[:, None] * Phi
+    R[:m, :n] = P.real
+    R[m : 2 * m, :n] = P.imag
+    Q = -d.wH[:, None] * Phi
+    R[:m, off : off + n] = Q.real
+    R[m : 2 * m, off : off + n] = Q.imag
+    # relaxation (non-triviality) row, weighted like the data
+    extra = np.zeros(R.shape[1])
+    extra[-(n + 1) : -1] = np.add.reduce(Phi.real, axis=0)
+    extra[-1] = m
+    R[2 * m] = d.scale * extra
+    x = _lstsq_scaled(R, d.rhs_relax)
+    ct, dt = x[-(n + 1) : -1], x[-1]
+    if abs(dt) < 1e-8:  # relaxation degenerated: fall back to sigma's constant fixed at 1
+        dt = 1.0
+        ct = _lstsq_scaled(np.ascontiguousarray(R[: 2 * m, :-1]), d.rhs_fit)[-n:]
+    A, b, c = _realization(reals, upper, ct)
+    new = np.linalg.eigvals(A - np.outer(b, c) / dt)
+    return split_poles(_stabilize(new))
+
+
+def _resplit(reals: np.ndarray, upper: np.ndarray, joined: np.ndarray):
+    """``split_poles(joined)`` for ``joined = join_poles(reals, upper)`` with ``(reals, upper)`` from
+    :func:`split_poles`: that is ``(reals, upper)`` itself unless two pairs have equal imaginary parts."""
+    if upper.size < 2 or np.all(upper.imag[1:] > upper.imag[:-1]):
+        return reals, upper
+    return split_poles(joined)
+
+
 def relocate_poles(s, H, w, poles, direct: bool = True) -> np.ndarray:
     """One relaxed pole-relocation step; returns the new (stable) poles.
 
@@ -145,51 +229,61 @@ def relocate_poles(s, H, w, poles, direct: bool = True) -> np.ndarray:
     squares with the relaxation row ``Re sum_k (sum ct_i phi_i(s_k) + dt) = m``,
     then takes the zeros of sigma = sum ct_i phi_i + dt as the new poles.
     """
+    d = _Data(s, H, w)
     reals, upper = split_poles(poles)
-    Phi = _basis(s, reals, upper)
-    m, n = Phi.shape
-    wH = w * H
-    blocks = [w[:, None] * Phi]
-    if direct:
-        blocks.append(w[:, None].astype(complex))
-    blocks += [-wH[:, None] * Phi, -wH[:, None]]
-    M = np.hstack(blocks)
-    rows = np.vstack([M.real, M.imag])
-    rhs = np.zeros(2 * m)
-    # relaxation (non-triviality) row, weighted like the data
-    scale = np.linalg.norm(wH) / m
-    extra = np.zeros(M.shape[1])
-    extra[-(n + 1) : -1] = np.sum(Phi.real, axis=0)
-    extra[-1] = m
-    rows = np.vstack([rows, scale * extra])
-    rhs = np.concatenate([rhs, [scale * m]])
-    x = _lstsq_scaled(rows, rhs)
-    ct, dt = x[-(n + 1) : -1], x[-1]
-    if abs(dt) < 1e-8:  # relaxation degenerated: fall back to sigma's constant fixed at 1
-        dt = 1.0
-        M2 = np.hstack(blocks[:-1])
-        ct = _lstsq_scaled(np.vstack([M2.real, M2.imag]), np.concatenate([wH.real, wH.imag]))[-n:]
-    A, b, c = _realization(reals, upper, ct)
-    new = np.linalg.eigvals(A - np.outer(b, c) / dt)
-    r2, u2 = split_poles(_stabilize(new))
+    r2, u2 = _relocate(d, reals, upper, direct, d.relax_matrix(reals.size + 2 * upper.size, direct))
     return join_poles(r2, u2)
+
+
+def _fit_residues(d: _Data, reals: np.ndarray, upper: np.ndarray, direct: bool,
+                  Phi: np.ndarray | None = None) -> PoleResidue:
+    """:func:`fit_residues` on split poles (``Phi``: their :func:`_basis`, if already made)."""
+    if Phi is None:
+        Phi = _basis(d.s, reals, upper)
+    m, n = Phi.shape
+    P = d.w[:, None] * Phi
+    M = np.empty((2 * m, n + 1 if direct else n))
+    M[:m, :n] = P.real
+    M[m:, :n] = P.imag
+    if direct:
+        M[:m, n] = d.w
+        M[m:, n] = 0.0
+    x = _lstsq_scaled(M, d.rhs_fit)
+    coef = x[:n]
+    dd = float(x[-1]) if direct else 0.0
+    res = np.concatenate([coef[: reals.size].astype(complex),
+                          np.column_stack([coef[reals.size :: 2] + 1j * coef[reals.size + 1 :: 2],
+                                           coef[reals.size :: 2] - 1j * coef[reals.size + 1 :: 2]]).ravel()])
+    return PoleResidue(join_poles(reals, upper), res, dd)
 
 
 def fit_residues(s, H, w, poles, direct: bool = True) -> PoleResidue:
     """Residues (and direct term) for fixed poles by weighted linear least squares."""
     reals, upper = split_poles(poles)
-    Phi = _basis(s, reals, upper)
-    M = w[:, None] * Phi
-    if direct:
-        M = np.hstack([M, w[:, None].astype(complex)])
-    wH = w * H
-    x = _lstsq_scaled(np.vstack([M.real, M.imag]), np.concatenate([wH.real, wH.imag]))
-    coef = x[: Phi.shape[1]]
-    d = float(x[-1]) if direct else 0.0
-    res = np.concatenate([coef[: reals.size].astype(complex),
-                          np.column_stack([coef[reals.size :: 2] + 1j * coef[reals.size + 1 :: 2],
-                                           coef[reals.size :: 2] - 1j * coef[reals.size + 1 :: 2]]).ravel()])
-    return PoleResidue(join_poles(reals, upper), res, d)
+    return _fit_residues(_Data(s, H, w), reals, upper, direct)
+
+
+def _iterate(s, H, w, order: int, n_iter: int, direct: bool, poles0, tol: float):
+    """The pole relocation of :func:`vector_fit`; returns (data, reals, upper) of the final poles."""
+    s = np.asarray(s, dtype=complex)
+    if poles0 is None:
+        w_abs = np.abs(s.imag)
+        poles = initial_poles(order, w_abs.min(), w_abs.max())
+    else:
+        poles = np.asarray(poles0, complex)
+    d = _Data(s, H, w)
+    reals, upper = split_poles(poles)
+    R = d.relax_matrix(reals.size + 2 * upper.size, direct)
+    for _ in range(n_iter):
+        r2, u2 = _relocate(d, reals, upper, direct, R)
+        new = join_poles(r2, u2)
+        moved = np.max(np.abs(np.sort_complex(new) - np.sort_complex(poles)) / np.maximum(np.abs(new), 1.0)) \
+            if new.size == poles.size else np.inf
+        poles = new
+        reals, upper = _resplit(r2, u2, new)
+        if moved < tol:
+            break
+    return d, reals, upper
 
 
 def vector_fit(s, H, w, order: int, n_iter: int = 20, direct: bool = True, poles0=None,
@@ -218,17 +312,22 @@ def vector_fit(s, H, w, order: int, n_iter: int = 20, direct: bool = True, poles
     -------
     PoleResidue
     """
-    s = np.asarray(s, dtype=complex)
-    w_abs = np.abs(s.imag)
-    poles = initial_poles(order, w_abs.min(), w_abs.max()) if poles0 is None else np.asarray(poles0, complex)
-    for _ in range(n_iter):
-        new = relocate_poles(s, H, w, poles, direct)
-        moved = np.max(np.abs(np.sort_complex(new) - np.sort_complex(poles)) / np.maximum(np.abs(new), 1.0)) \
-            if new.size == poles.size else np.inf
-        poles = new
-        if moved < tol:
-            break
-    return fit_residues(s, H, w, poles, direct)
+    d, reals, upper = _iterate(s, H, w, order, n_iter, direct, poles0, tol)
+    return _fit_residues(d, reals, upper, direct)
+
+
+def vector_fit_both(s, H, w, order: int, n_iter: int = 20, poles0=None,
+                    tol: float = 1e-10) -> tuple[PoleResidue, PoleResidue]:
+    """``vector_fit(..., direct=False)`` and the residues with a direct term on its poles: the same as
+    ``pr = vector_fit(s, H, w, order, n_iter, False, poles0, tol)`` and
+    ``fit_residues(s, H, w, pr.poles, direct=True)``, with the basis made once."""
+    d, reals, upper = _iterate(s, H, w, order, n_iter, False, poles0, tol)
+    Phi = _basis(d.s, reals, upper)
+    pr = _fit_residues(d, reals, upper, False, Phi)
+    r, u = _resplit(reals, upper, pr.poles)
+    if r is not reals:  # (equal imaginary parts of two pairs) fit_residues re-splits the joined poles
+        return pr, _fit_residues(d, r, u, True)
+    return pr, _fit_residues(d, reals, upper, True, Phi)
 
 
 def to_zpk(pr: PoleResidue, s_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
