@@ -275,6 +275,7 @@ class SessionStore:
         if self.dir.is_dir() and self.resume:
             self.lock = SubjectLock(self.dir)
             self.lock.acquire(self.subject)  # SubjectBusy names the holder
+            self._remove_partial_writes()
         if self.resume:
             if not self.session_path.is_file():
                 raise FileNotFoundError(f"--resume: no session to resume at {self.session_path} (a start-up "
@@ -289,6 +290,17 @@ class SessionStore:
             busy = f" (in use right now by {SubjectLock.holder(lock_path)})" if SubjectLock.busy(lock_path) else ""
             raise ValueError(f"subject {self.subject!r} already has data in {self.dir}{busy}; "
                              "use --resume to continue it or choose another subject id (nothing was overwritten)")
+
+    def _remove_partial_writes(self) -> None:
+        """Remove the temporary files of atomic writes that a killed runner left half written
+        (``devices.fileio.atomic_open``: ``<name>.<random>.tmp``, never renamed into place, so never
+        data). Called with the subject's lock held: no other runner is writing them."""
+        stale = [p for p in self.dir.rglob("*.tmp") if p.is_file() and p.name.count(".") >= 2]
+        for p in stale:
+            p.unlink()
+        if stale:
+            print(f"note: removed {len(stale)} half-written temporary file(s) of the interrupted run "
+                  f"({', '.join(p.name for p in stale[:3])}{', ...' if len(stale) > 3 else ''})")
 
     def _startup_dirs(self) -> list[Path]:
         return sorted(self.root.glob(f".{self.subject}.starting-*"))
