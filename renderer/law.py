@@ -45,7 +45,7 @@ OBJ_STRIDE = 8
 # ---- state
 (W_TEMP, W_GTH, W_ARMED, W_OUT_N, W_TJ, W_TLEN, W_EV_ON, W_EV_PEN, W_EV_ACC, W_EV_CLIP, W_LAST_POS,
  W_LAST_ACC, W_LAST_GRIP, W_NBAD, W_BAD_TOTAL, W_S0, W_S1, W_PI, W_PO, W_PNEW, W_N, W_LI, W_CODE, W_VEL,
- W_D, W_NZ, W_FLAGS, W_SPARE, W_CLOSED_PEN, W_CLOSED_ACC, W_CLOSED_CLIP, W_T, W_GRIP, W_I) = range(34)
+ W_D, W_NZ, W_FLAGS, W_CLOSED_PEN, W_CLOSED_ACC, W_CLOSED_CLIP, W_T, W_GRIP) = range(32)
 W_RING = 40
 
 # tick outcome bits: an impact fired, an open event closed, or a stop (sensors, disconnect)
@@ -68,6 +68,16 @@ _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "spher
  D_T) = range(12)
 N_DEV = 12
 _HOT_STATUS = 2     # devices.base.Status.OVER_TEMPERATURE
+
+
+@njit(cache=True, inline="always")
+def _clamp(x, limit):
+    """``x`` limited to +/- ``limit`` and whether it was beyond (a NaN passes unclipped)."""
+    if x > limit:
+        return limit, True
+    if x < -limit:
+        return -limit, True
+    return x, False
 
 
 @njit(cache=True, inline="always")
@@ -219,30 +229,14 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
             else:
                 w[W_OUT_N] = 0.0
     # (3) saturate per channel, then the sum (section 4.4.2); thermal model
-    clip = 0
-    i_p = f_p * c[C_INV_KF]
-    ic = c[C_IC]
-    if i_p > ic:
-        i_p = ic
-        clip = 1
-    elif i_p < -ic:
-        i_p = -ic
-        clip = 1
+    i_p, hit = _clamp(f_p * c[C_INV_KF], c[C_IC])
+    clip = 1 if hit else 0
     i_t_req = i_t
-    ipk = c[C_IPK]
-    if i_t > ipk:
-        i_t = ipk
+    i_t, hit = _clamp(i_t, c[C_IPK])
+    if hit:
         clip |= 2
-    elif i_t < -ipk:
-        i_t = -ipk
-        clip |= 2
-    i = i_p + i_t
-    iamp = c[C_IAMP]
-    if i > iamp:
-        i = iamp
-        clip |= 4
-    elif i < -iamp:
-        i = -iamp
+    i, hit = _clamp(i_p + i_t, c[C_IAMP])
+    if hit:
         clip |= 4
     if c[C_MOTOR] == 0.0 or i != i:
         i = 0.0
@@ -275,7 +269,6 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     w[W_NZ] = nz
     w[W_T] = t
     w[W_GRIP] = grip
-    w[W_I] = i
     # (5) log row
     li = int(w[W_LI])
     row = log[li]

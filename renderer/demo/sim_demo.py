@@ -49,6 +49,25 @@ def _can_fork() -> bool:
     return "fork" in mp.get_all_start_methods() and threading.active_count() == 1
 
 
+def _draw_aside(target, args: tuple):
+    """Start ``target(*args)`` (figures) in a forked process beside this one; None where no fork is safe
+    or the machine has one core (the caller then draws them itself). :func:`_drawn_aside` joins it."""
+    if not (_can_fork() and (os.cpu_count() or 1) > 1):
+        return None
+    proc = mp.get_context("fork").Process(target=target, args=args, daemon=True)
+    proc.start()
+    return proc
+
+
+def _drawn_aside(proc) -> bool:
+    """Join a process of :func:`_draw_aside`: True if it drew its figures, False if the caller must (no
+    process, or it failed: drawn again here, its traceback shows)."""
+    if proc is None:
+        return False
+    proc.join()
+    return proc.exitcode == 0
+
+
 def _hand(cfg: DemoConfig) -> dict:
     """The simulated hand of the recordings, used for every rendering too (same tap, apples to apples)."""
     return {"stop_time_s": cfg.pipeline.tap_stop_time_s}
@@ -283,12 +302,11 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
                  if ("hfam_fixed_grip_firm", v, g) in tr and g != cfg.medium_grip_N}
         grid = (cells, result.references, cur, fixed, vs, grips, fs, pre, out / "fig_hfam_grid.png")
     side = None
-    if grid is not None and parallel and _can_fork() and (os.cpu_count() or 1) > 1:
+    if grid is not None and parallel:
         # the grid and the contact figure take about as long each: draw the grid in a second process,
         # forked after pyplot is imported so the child does not import it again
         import matplotlib.pyplot  # deferred: ~0.3 s, figures only (`renderer demo --help`)  # noqa: F401
-        side = mp.get_context("fork").Process(target=figs.hfam_grid_figure, args=grid, daemon=True)
-        side.start()
+        side = _draw_aside(figs.hfam_grid_figure, grid)
     out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}
     pen = {}
     for (name, _v, _g), taps in tr.items():
@@ -299,12 +317,7 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
               runs.REAL.name: "real wood on foam"}
     out_figs["penetration"] = figs.penetration_figure(pen, labels, out / "fig_penetration.png")
     if grid is not None:
-        if side is not None:
-            side.join()
-        if side is not None and side.exitcode == 0:
-            out_figs["hfam_grid"] = grid[-1]
-        else:  # drawn here (no fork, one core, or the second process failed: then its traceback shows here)
-            out_figs["hfam_grid"] = figs.hfam_grid_figure(*grid)
+        out_figs["hfam_grid"] = grid[-1] if _drawn_aside(side) else figs.hfam_grid_figure(*grid)
     if pipeline_figures:
         out_figs.update(_pipeline_figures(result.pipeline, cfg, out))
     return out_figs
@@ -334,11 +347,8 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.say(f"[1-3/5] identification, recordings and HFAM library from the cache: {pipe.directory}",
                      indent=False)
     t_pipe = time.perf_counter() - t0
-    side = None
-    if figures and _can_fork() and (os.cpu_count() or 1) > 1:
-        # the library and Bode figures need only the pipeline: draw them while the user taps
-        side = mp.get_context("fork").Process(target=_pipeline_figures, args=(pipe, cfg, out), daemon=True)
-        side.start()
+    # the library and Bode figures need only the pipeline: draw them while the user taps
+    side = _draw_aside(_pipeline_figures, (pipe, cfg, out)) if figures else None
     progress.start(f"simulated user tapping {len(cfg.renderings)} renderings")
     traces, refs = simulate(cfg, pipe, progress)
     reactive = reactive_hand_cuts(cfg, pipe)
@@ -354,11 +364,10 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.start("drawing figures")
         result.figures = make_figures(cfg, result, out, pipeline_figures=side is None)
         if side is not None:
-            side.join()
-            if side.exitcode != 0:  # draw them here after all, so a failure shows its traceback
-                result.figures.update(_pipeline_figures(pipe, cfg, out))
-            else:
+            if _drawn_aside(side):
                 result.figures.update({"library": out / "fig_library.png", "bode": out / "fig_bode.png"})
+            else:
+                result.figures.update(_pipeline_figures(pipe, cfg, out))
         t_fig = progress.done()
     result.timings_s = {"pipeline": t_pipe, "taps": t_sim, "figures": t_fig, "total": time.perf_counter() - t0,
                         "pipeline_cached": pipe.from_cache}

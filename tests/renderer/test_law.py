@@ -52,7 +52,8 @@ def test_compiled_loop_equals_per_tick_loop(transient):
     assert b.timing.get("realtime_factor", 0) > 0 and len(a.events) == 5
     assert np.max(np.abs(a.log["current_A"])) > 0.1          # the taps did push back
     _same(a, b)
-    # the device ends in the same state: tick, pending current, sample
+    # the device ends in the same state: tick, pending current, sample; its vector has the law's layout
+    assert len(db.fused_state()) == LAW.N_DEV and db.fused_state()[LAW.D_TICK] == db._tick
     assert da._tick == db._tick and da.last_command_A == db.last_command_A
     assert da.read().position_m == db.read().position_m and da.true_state() == db.true_state()
 
