@@ -15,6 +15,14 @@ The conditions of section 5.3.1, and what this file chose where the thesis is si
   ~15 servo ticks and the slave hardly rebounds: the momentum argument of eq. 5.5-5.8 counts the
   contact impulse once.
 
+For cancellation by an exact model (section 5.5.1, eq. 5.12-5.13) the operator holds an intended
+position instead of pushing: a grip spring-damper (20 Hz on the master mass, damping ratio 0.7 --
+soft against the ~3 ms impact, so the momentum argument still holds) ties the master to a voluntary
+path that descends at the same speed and eases into a 0.25 mm press (velocity continuous). A pure
+force source cannot be cancelled exactly: its induced-motion model (mass + damper) has no restoring
+term, so the command would become the open-loop integral of the push (docs/teleop.md). The exact
+model is the master's pure mass with that same grip, stepped at the physics substep.
+
 Stability is the project's one definition (``renderer.teleop.session.tap_metrics``, docs/teleop.md).
 """
 
@@ -24,7 +32,7 @@ import numpy as np
 import pytest
 
 from devices.sim import teleop_kernel as K
-from devices.sim.teleop import Environment, Operator, Testbed, pure_mass_params
+from devices.sim.teleop import CimmModel, Environment, Operator, Testbed, pure_mass_params
 from renderer.teleop.session import TeleopConfig, run_session, session_metrics
 
 SLAVE_KG = 0.1
@@ -37,6 +45,8 @@ HEIGHT_M = 0.002
 DURATION_S = 0.6
 SURFACE = Environment("stiff-damped", 1, 1.0e5, 20.0)
 LAMBDAS = np.geomspace(0.1, 30.0, 30)      # grid step 22 %
+GRIP_HZ, GRIP_ZETA = 20.0, 0.7             # the holding operator's grip on the master (exact-model test)
+PRESS_M = 0.25e-3                          # its intended press below the surface
 
 
 def _ideal_mass(mass_kg: float):
@@ -56,6 +66,27 @@ def _tap(master_kg: float, lam: float, mu: float = 1.0):
     impact = int(HEIGHT_M / SPEED_M_S * tb.servo_rate_hz)
     res = run_session(tb, cfg, path, impact_ticks=[impact], initial_velocity_m_s=-v_master,
                       push_from_tick=impact)
+    (m,) = session_metrics(res)
+    return res, m
+
+
+def _held_tap(master_kg: float, lam: float, cancel: bool):
+    """One tap by the holding operator (grip spring-damper to a path easing into a press), with or
+    without cancellation by the exact induced-motion model (pure mass + the same grip)."""
+    w = 2 * np.pi * GRIP_HZ
+    k, b = master_kg * w ** 2, 2 * GRIP_ZETA * master_kg * w
+    op = Operator(k_u_N_m=k, q_u_N_m5=0.0, b_u_Ns_m=b, hand_mass_kg=0.0)
+    tb = Testbed(_ideal_mass(master_kg), _ideal_mass(SLAVE_KG), operator=op, environment=SURFACE, rigid=True)
+    cfg = TeleopConfig(controller="pf+cimm" if cancel else "pf", lam=lam, kp_s_N_m=SLAVE_KG * SLAVE_W_RAD_S ** 2,
+                       kd_s_Ns_m=2 * SLAVE_ZETA * SLAVE_KG * SLAVE_W_RAD_S, divergence_m=0.1)
+    t = np.arange(int(DURATION_S * tb.servo_rate_hz)) / tb.servo_rate_hz
+    t_surface = HEIGHT_M / SPEED_M_S
+    tau = PRESS_M / SPEED_M_S                  # the exponential ease keeps the velocity continuous
+    path = np.where(t < t_surface, HEIGHT_M - SPEED_M_S * t, -PRESS_M * (1 - np.exp(-(t - t_surface) / tau)))
+    model = CimmModel(_ideal_mass(master_kg), k_u_N_m=k, q_u_N_m5=0.0, b_u_Ns_m=b, step_s=tb.substep_s,
+                      source="exact (test)") if cancel else None
+    res = run_session(tb, cfg, path, cimm=model, impact_ticks=[int(t_surface * tb.servo_rate_hz)],
+                      initial_velocity_m_s=-SPEED_M_S)
     (m,) = session_metrics(res)
     return res, m
 
@@ -116,3 +147,27 @@ def test_devices_start_tracking_at_constant_velocity():
     assert abs(xs[k] - xm[k]) < 20e-6    # tracking within 20 um
     with pytest.raises(ValueError, match="push_N"):
         Operator(push_N=float("nan"))
+
+
+def test_exact_cancellation_keeps_contact_at_five_times_the_limit(limits):
+    # eq. 5.12-5.13: with the induced master motion removed exactly the post-impact command is the
+    # voluntary one, and contact holds at 5x the measured eq. 5.8 limit at every mass ratio
+    for r in MASS_RATIOS:
+        lam = 5.0 * limits[r]
+        res, m = _held_tap(r * SLAVE_KG, lam, cancel=True)
+        assert res.fault == 0 and m is not None and m.stable and m.breaks == 0, (r, lam, m)
+        assert m.settling_s < 0.08, (r, m.settling_s)
+        # the same operator without cancellation loses contact repeatedly at that gain
+        res0, m0 = _held_tap(r * SLAVE_KG, lam, cancel=False)
+        assert m0 is not None and not m0.stable and m0.breaks >= 3, (r, lam, m0)
+
+
+def test_exact_model_removes_the_induced_motion_exactly():
+    # x_m - x_hat equals the master's motion with no force feedback at all (lambda = 0) to within
+    # rounding, while the induced motion itself is millimetres
+    r = MASS_RATIOS[1]
+    res, m = _held_tap(r * SLAVE_KG, 5.0 * 1.2 * r, cancel=True)
+    free, _ = _held_tap(r * SLAVE_KG, 0.0, cancel=False)
+    xm, xhat = res.traces[:, K.O_XM], res.traces[:, K.O_XHAT]
+    assert np.abs(xhat).max() > 2e-3
+    assert np.abs(xm - xhat - free.traces[:, K.O_XM]).max() < 1e-6
