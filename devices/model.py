@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from .fileio import atomic_write_text, read_json_file
 
@@ -199,6 +198,8 @@ class ZpkModel:
         k : float
             Discrete gain.
         """
+        from scipy import signal  # deferred: scipy.signal costs ~0.7 s; loading a model (e.g. the demo's cached model set) must not pay it
+
         fs = _check_fs(fs_hz)
         zd, pd, kd = signal.bilinear_zpk(self.zeros_rad_s, self.poles_rad_s, self.gain, fs)
         return np.asarray(zd, dtype=complex), np.asarray(pd, dtype=complex), float(np.real(kd))
@@ -237,6 +238,8 @@ class ZpkModel:
         if pd.size == 0:
             y = kd * u
         else:
+            from scipy import signal  # deferred: as in to_discrete
+
             sos = signal.zpk2sos(zd, pd, kd)
             y = signal.sosfilt(sos, u)
         n = self.delay_samples(fs_hz)

@@ -18,12 +18,18 @@ stale library. ``<cache base>`` is ``--cache-dir`` or
 ``$XDG_CACHE_HOME/hfam-haptics`` (``~/.cache/hfam-haptics``). A cache entry
 is written into a temporary folder and renamed when complete, so an
 interrupted run never leaves a half-built entry behind.
+
+The figures that depend only on an entry (the library, Figure 4.8, and the identification's Bode
+plot) are kept beside it in ``figures-<key>/`` once drawn, where ``key`` hashes the drawing code, the
+project style and the matplotlib version; a cached run copies them (checked against their SHA-256)
+instead of drawing them again.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.metadata
 import json
 import os
 import shutil
@@ -41,6 +47,11 @@ from stimuli.recordings import read_tap_csv
 _CODE_PATHS = ("devices/sim", "devices/identify", "devices/model.py", "devices/recording.py",
                "stimuli/hfam", "stimuli/library.py", "stimuli/recordings.py", "renderer/demo/cache.py")
 CACHE_VERSION = 1
+#: code and style that draw an entry's own figures (hashed into the name of their cached copies)
+_FIGURE_CODE_PATHS = ("renderer/demo/figures.py", "stimuli/cli_show.py", "devices/identify/figures.py", "figstyle")
+#: an entry's own figures: name in the demo's results -> file stem (PNG, SVG and CSV each)
+PIPELINE_FIGURES = {"library": "fig_library", "bode": "fig_bode"}
+_FIGURE_SUFFIXES = (".png", ".svg", ".csv")
 
 
 @dataclass
@@ -93,18 +104,18 @@ def default_cache_base() -> Path:
 
 
 @functools.lru_cache(maxsize=4)
-def code_digest(root: Path | None = None) -> str:
-    """SHA-256 over the source files that compute the cached results (see ``_CODE_PATHS``).
+def code_digest(root: Path | None = None, paths: tuple[str, ...] = _CODE_PATHS) -> str:
+    """SHA-256 over the source files that compute the cached results (``paths``, default ``_CODE_PATHS``).
 
     Computed once per process: the code a process runs is the code it imported.
     """
     root = Path(__file__).resolve().parents[2] if root is None else root
     h = hashlib.sha256()
-    for rel in _CODE_PATHS:
+    for rel in paths:
         p = root / rel
         files = sorted(p.rglob("*")) if p.is_dir() else [p]
         for f in files:
-            if f.is_file() and f.suffix in (".py", ".toml", ".json"):
+            if f.is_file() and f.suffix in (".py", ".toml", ".json", ".mplstyle"):
                 h.update(str(f.relative_to(root)).encode())
                 h.update(f.read_bytes())
     return h.hexdigest()
@@ -172,3 +183,61 @@ def _load(entry: Path, settings: PipelineSettings) -> Pipeline:
     lib = HfamLibrary.load(entry / "library.npz")
     _, taps = read_tap_csv(entry / "recordings.csv")
     return Pipeline(entry, mset, lib, lib.fs_hz, taps, True, manifest.get("timings_s", {}))
+
+
+def figure_folder(pipe: Pipeline) -> Path:
+    """Where the entry's own figures drawn by the current code, style and matplotlib are kept."""
+    blob = code_digest(paths=_FIGURE_CODE_PATHS) + importlib.metadata.version("matplotlib")
+    return pipe.directory / f"figures-{hashlib.sha256(blob.encode()).hexdigest()[:16]}"
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def restore_figures(pipe: Pipeline, out: Path) -> dict | None:
+    """Copy the entry's kept figures into ``out``; None if they are not kept (or damaged: redraw them).
+
+    Returns
+    -------
+    dict or None
+        ``PIPELINE_FIGURES`` name -> PNG written into ``out``.
+    """
+    folder = figure_folder(pipe)
+    try:
+        sums = json.loads((folder / "sha256.json").read_text())
+        names = [stem + suf for stem in PIPELINE_FIGURES.values() for suf in _FIGURE_SUFFIXES]
+        if sorted(sums) != sorted(names) or any(_sha256(folder / n) != sums[n] for n in names):
+            return None
+    except (OSError, ValueError):
+        return None
+    out = Path(out)
+    for n in names:
+        # under a temporary name and renamed, like figstyle.save: never half a figure in ``out``
+        tmp = out / f".{n}.tmp"
+        shutil.copyfile(folder / n, tmp)
+        os.replace(tmp, out / n)
+    return {k: out / f"{stem}.png" for k, stem in PIPELINE_FIGURES.items()}
+
+
+def keep_figures(pipe: Pipeline, out: Path) -> bool:
+    """Keep the entry's own figures just drawn into ``out`` for later runs (best effort: a read-only or
+    full cache only means they are drawn again). Returns whether they were kept."""
+    folder = figure_folder(pipe)
+    if folder.is_dir():
+        return True
+    tmp = None
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=".figures-", dir=pipe.directory))
+        sums = {}
+        for stem in PIPELINE_FIGURES.values():
+            for suf in _FIGURE_SUFFIXES:
+                shutil.copyfile(Path(out) / (stem + suf), tmp / (stem + suf))
+                sums[stem + suf] = _sha256(tmp / (stem + suf))
+        (tmp / "sha256.json").write_text(json.dumps(sums, indent=1, sort_keys=True) + "\n")
+        os.replace(tmp, folder)
+        return True
+    except OSError:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return False

@@ -31,7 +31,7 @@ from devices.registry import make_device
 from stimuli.hfam.pipeline import Progress
 
 from . import runs
-from .cache import Pipeline, build_or_load
+from .cache import Pipeline, build_or_load, keep_figures, restore_figures
 from .config import DemoConfig, DemoResult
 from .report import write_summary, write_traces
 
@@ -90,12 +90,15 @@ def _tap_rendering(index: int) -> tuple[str, dict, float]:
     return r.name, out, time.perf_counter() - t0
 
 
-def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int | None = None) -> tuple[dict, dict]:
+def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int | None = None,
+             meanwhile=None) -> tuple[dict, dict]:
     """Tap every rendering at every velocity x grip; returns (traces, references).
 
     Renderings are spread over ``workers`` forked processes (default: up to 2,
     the CPUs of the reference machine); each rendering runs on a device seeded
     by its index, so the results do not depend on the number of workers.
+    ``meanwhile()`` (optional) runs in this process while the workers tap (or
+    after the taps, without workers).
     """
     global _JOB
 
@@ -113,6 +116,9 @@ def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int |
         if workers > 1 and _can_fork():
             with mp.get_context("fork").Pool(workers) as pool:
                 done = pool.imap(_tap_rendering, range(len(cfg.renderings)))
+                if meanwhile is not None:
+                    meanwhile()
+                    meanwhile = None
                 results = []
                 for name, out, dt in done:
                     progress.say(f"{name:22s} {n_cond} taps in {dt:.2f} s")
@@ -125,6 +131,8 @@ def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int |
                 results.append(out)
     finally:
         _JOB = None
+    if meanwhile is not None:
+        meanwhile()
     traces: dict = {}
     for out in results:
         traces.update(out)
@@ -324,14 +332,16 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
 
 
 def _pipeline_figures(pipe: Pipeline, cfg: DemoConfig, out: Path) -> dict:
-    """The figures that depend only on the cached pipeline: the library (Fig. 4.8) and the Bode plot."""
+    """The figures that depend only on the cached pipeline: the library (Fig. 4.8) and the Bode plot; drawn
+    once per cache entry and drawing code, then copied from the cache (``cache.keep_figures``)."""
     from . import (  # deferred: the figures load matplotlib (~0.3 s); `renderer demo --help` imports this module
         figures as figs,
     )
 
-    g_mid = cfg.medium_grip_N
-    return {"library": figs.library_figure(pipe.library, g_mid, Path(out) / "fig_library.png"),
-            "bode": figs.bode_figure(pipe.etfe_npz, pipe.model_set, Path(out) / "fig_bode.png")}
+    drawn = {"library": figs.library_figure(pipe.library, cfg.medium_grip_N, Path(out) / "fig_library.png"),
+             "bode": figs.bode_figure(pipe.etfe_npz, pipe.model_set, Path(out) / "fig_bode.png")}
+    keep_figures(pipe, out)
+    return drawn
 
 
 def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, rebuild: bool = False,
@@ -347,11 +357,21 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.say(f"[1-3/5] identification, recordings and HFAM library from the cache: {pipe.directory}",
                      indent=False)
     t_pipe = time.perf_counter() - t0
-    # the library and Bode figures need only the pipeline: draw them while the user taps
-    side = _draw_aside(_pipeline_figures, (pipe, cfg, out)) if figures else None
+    # the library and Bode figures need only the pipeline: copied from the cache, or drawn while the user taps
+    kept = restore_figures(pipe, out) if figures else None
+    side = _draw_aside(_pipeline_figures, (pipe, cfg, out)) if figures and kept is None else None
     progress.start(f"simulated user tapping {len(cfg.renderings)} renderings")
-    traces, refs = simulate(cfg, pipe, progress)
-    reactive = reactive_hand_cuts(cfg, pipe)
+    aside: dict = {}
+
+    def meanwhile():
+        # this process waits for the tap workers: tap the reactive hand here, and load pyplot for the
+        # figures (the HFAM grid's drawing process is forked from it)
+        aside["reactive"] = reactive_hand_cuts(cfg, pipe)
+        if figures:
+            import matplotlib.pyplot  # deferred: ~0.3 s, figures only (`renderer demo --help`)  # noqa: F401
+
+    traces, refs = simulate(cfg, pipe, progress, meanwhile=meanwhile)
+    reactive = aside["reactive"]
     if reactive:
         progress.say(f"{'reactive hand':22s} {reactive['taps']} taps on firm, pulse and HFAM over firm")
     t_sim = progress.done()
@@ -362,8 +382,10 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
     t_fig = 0.0
     if figures:
         progress.start("drawing figures")
-        result.figures = make_figures(cfg, result, out, pipeline_figures=side is None)
-        if side is not None:
+        result.figures = make_figures(cfg, result, out, pipeline_figures=side is None and kept is None)
+        if kept is not None:
+            result.figures.update(kept)
+        elif side is not None:
             if _drawn_aside(side):
                 result.figures.update({"library": out / "fig_library.png", "bode": out / "fig_bode.png"})
             else:

@@ -4,7 +4,9 @@ import json
 
 import pytest
 
-from renderer.demo.cache import build_or_load, cache_key
+from renderer.demo import sim_demo
+from renderer.demo.cache import PIPELINE_FIGURES, build_or_load, cache_key, figure_folder, restore_figures
+from renderer.demo.config import DemoConfig
 from stimuli.hfam.pipeline import PipelineSettings
 
 SMALL = dict(identify_grips_N=(0.0, 10.0), identify_trials=1, sweep_duration_s=0.5,
@@ -50,3 +52,29 @@ def test_settings_are_validated():
         PipelineSettings(record_velocities_m_s=(0.1,))
     with pytest.raises(ValueError, match="sim device"):
         PipelineSettings(device="serial:/dev/ttyACM0")
+
+
+def test_pipeline_figures_are_kept_and_copied_byte_for_byte(tmp_path):
+    # the library and Bode figures depend only on the entry: drawn once, then copied from the cache
+    pipe = build_or_load(PipelineSettings(**SMALL), tmp_path / "cache")
+    assert restore_figures(pipe, tmp_path) is None          # nothing kept yet
+    drawn_dir, copied_dir = tmp_path / "drawn", tmp_path / "copied"
+    drawn_dir.mkdir()
+    copied_dir.mkdir()
+    drawn = sim_demo._pipeline_figures(pipe, DemoConfig(pipeline=PipelineSettings(**SMALL)), drawn_dir)
+    assert set(drawn) == set(PIPELINE_FIGURES)
+    folder = figure_folder(pipe)
+    assert folder.parent == pipe.directory and folder.name.startswith("figures-")
+    kept = sorted(p.name for p in folder.iterdir())
+    assert kept == sorted([f"{s}{x}" for s in PIPELINE_FIGURES.values() for x in (".png", ".svg", ".csv")]
+                          + ["sha256.json"])
+    copied = restore_figures(pipe, copied_dir)
+    assert copied == {k: copied_dir / f"{s}.png" for k, s in PIPELINE_FIGURES.items()}
+    for name in kept:
+        if name != "sha256.json":
+            assert (copied_dir / name).read_bytes() == (drawn_dir / name).read_bytes(), name
+    assert not [p for p in copied_dir.iterdir() if p.name.startswith(".")]   # no temporary files left
+    # a damaged kept figure is not copied (the demo draws it again)
+    png = folder / "fig_library.png"
+    png.write_bytes(png.read_bytes()[:-10])
+    assert restore_figures(pipe, tmp_path / "copied") is None
