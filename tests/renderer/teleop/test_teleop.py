@@ -201,3 +201,20 @@ def test_teleop_help_does_not_import_the_numba_testbed():
             "print('numba' in sys.modules, 'devices.sim' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60).stdout
     assert out.strip().splitlines()[-1] == "False False", out
+
+
+def test_slave_pd_defaults_follow_the_architecture():
+    """Position-force uses the softer slave servo (docs/teleop.md, "Slave gains"), bilateral PD the stiffer
+    one; explicit gains win and run.json records the resolved numbers."""
+    from renderer.teleop.session import SLAVE_PD_DEFAULTS
+
+    for controller in ("pf", "pf+cimm"):
+        cfg = TeleopConfig(controller=controller)
+        assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == SLAVE_PD_DEFAULTS["pf"] == (200.0, 2.0)
+    for controller in ("pd", "pd+hfam"):
+        cfg = TeleopConfig(controller=controller)
+        assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == SLAVE_PD_DEFAULTS["pd"] == (600.0, 3.0)
+    cfg = TeleopConfig(controller="pf", kp_s_N_m=600.0, kd_s_Ns_m=3.0)
+    assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == (600.0, 3.0)
+    with pytest.raises(ValueError):
+        TeleopConfig(controller="pf", kp_s_N_m=-1.0)
