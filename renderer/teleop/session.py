@@ -32,7 +32,9 @@ ANALYSIS_END_S = 0.30            # analysis window after impact (inside the 0.4 
 # eq. 5.16-5.18), so its gain scales with the servo's stiffness: the slave is made only as stiff as
 # tracking the user's voluntary motion (below 5 Hz, section 5.2.2) needs -- 200 N/m on the joystick's
 # 0.032 kg is a 12.6 Hz servo (damping ratio 0.40). Measured (docs/teleop.md): 600 N/m, 3 N s/m gave
-# lambda_max 0.75, below the thesis's lambda = 1 "nearly identical" operating point.
+# lambda_max 0.75, below the thesis's lambda = 1 "nearly identical" operating point. 200/2 was picked
+# among the gains that keep lambda = 1 stable because it also meets issue 18's Figure 5.10 relations --
+# partly a fit inside the range the thesis leaves open (sensitivity table in docs/teleop.md).
 # Bilateral PD: the slave's error force is what the master feels, so the stiffer servo is kept
 # (the HFAM figures of docs/teleop.md were measured with it).
 SLAVE_PD_DEFAULTS = {"pf": (200.0, 2.0), "pd": (600.0, 3.0)}
