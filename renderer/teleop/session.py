@@ -9,7 +9,7 @@ motion, eq. 5.20). Settling time and stability are defined once here (docs/teleo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -336,8 +336,3 @@ def session_metrics(res: SessionResult) -> list[TapMetrics | None]:
 def default_path(fs_hz: float, mu: float, n_taps: int = 10, speed_m_s: float = 0.1, **kw):
     """Ten taps of the operator, scaled so the slave descends ``10 mm`` and presses ``2 mm`` (path, crossings)."""
     return tap_path(n_taps, fs_hz, speed_m_s=speed_m_s, approach_m=0.01 / mu, press_m=0.002 / mu, **kw)
-
-
-def with_(cfg: TeleopConfig, **kw) -> TeleopConfig:
-    """Copy of ``cfg`` with changes (validated)."""
-    return replace(cfg, **kw)

@@ -20,7 +20,7 @@ from renderer.__main__ import main
 from renderer.teleop.cli_teleop import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS
 from renderer.teleop.commands import largest_stable, sweep
 from renderer.teleop.models import STAND_IN_SOURCE, cimm_params, underestimation_check
-from renderer.teleop.session import TeleopConfig, default_path, run_session
+from renderer.teleop.session import SLAVE_PD_DEFAULTS, TeleopConfig, default_path, run_session
 
 LAMBDAS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 
@@ -206,8 +206,6 @@ def test_teleop_help_does_not_import_the_numba_testbed():
 def test_slave_pd_defaults_follow_the_architecture():
     """Position-force uses the softer slave servo (docs/teleop.md, "Slave gains"), bilateral PD the stiffer
     one; explicit gains win and run.json records the resolved numbers."""
-    from renderer.teleop.session import SLAVE_PD_DEFAULTS
-
     for controller in ("pf", "pf+cimm"):
         cfg = TeleopConfig(controller=controller)
         assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == SLAVE_PD_DEFAULTS["pf"] == (200.0, 2.0)
