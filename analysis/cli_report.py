@@ -10,13 +10,14 @@ import warnings
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
-from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig
+from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig, check_data_folder
 
 
 def run(args: argparse.Namespace) -> int:
     """The ``report`` command: analyse the study folder and write tables, figures and report.md/.html; returns the exit code."""
     cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha)
     out = Path(args.out)
+    check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")
     if out.is_file() or (out.is_dir() and any(out.iterdir()) and not args.force):

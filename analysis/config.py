@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 DEFAULT_REFERENCE = "wood_on_foam"
 DEFAULT_MARGIN = 0.5
@@ -37,3 +38,21 @@ class AnalysisConfig:
             raise ValueError(f"--margin must be > 0 rating points, got {self.margin}")
         if not (0 < self.alpha < 1):
             raise ValueError(f"--alpha must be in (0, 1), got {self.alpha}")
+
+
+def check_data_folder(data_dir) -> Path:
+    """``data_dir`` as a Path if it is an existing folder (of subject folders, or one subject's).
+
+    Raises
+    ------
+    FileNotFoundError
+        It does not exist.
+    ValueError
+        It is not a folder.
+    """
+    data_dir = Path(data_dir)
+    if not data_dir.exists():
+        raise FileNotFoundError(f"data folder {data_dir} does not exist")
+    if not data_dir.is_dir():
+        raise ValueError(f"{data_dir} is not a folder of subject folders")
+    return data_dir

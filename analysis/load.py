@@ -25,6 +25,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 
+from analysis.config import check_data_folder
+
 TRIAL_COLUMNS = (
     "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
     "valid", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m", "incoming_velocities_m_s",
@@ -86,10 +88,7 @@ def _warn(messages: list, text: str, stacklevel: int = 3) -> None:
 
 def _subject_folders(data_dir: Path) -> list[str]:
     """Subject folders (paths as str: no Path object per folder) under ``data_dir``, sorted by name."""
-    if not data_dir.exists():
-        raise FileNotFoundError(f"data folder {data_dir} does not exist")
-    if not data_dir.is_dir():
-        raise ValueError(f"{data_dir} is not a folder of subject folders")
+    check_data_folder(data_dir)
     if (data_dir / "session.json").is_file():   # a single subject folder given directly
         return [str(data_dir)]
     with os.scandir(data_dir) as it:     # scandir: no stat per entry for the type, unlike Path.is_dir

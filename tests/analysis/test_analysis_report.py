@@ -154,6 +154,17 @@ def test_cli_errors_exit_2(tmp_path, capsys):
     assert "session.json:3: not valid JSON" in capsys.readouterr().err
 
 
+def test_missing_data_folder_is_reported_before_any_figure_work(tmp_path):
+    # a wrong path is an error at once: no drawing process, no matplotlib, no report folder
+    code = ("import sys; from analysis.__main__ import main; "
+            f"rc = main(['report', {str(tmp_path / 'missing')!r}, '--out', {str(tmp_path / 'r')!r}]); "
+            "print(rc, 'matplotlib' in sys.modules, 'pandas' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.stdout.split() == ["2", "False", "False"], proc.stdout + proc.stderr
+    assert f"error: data folder {tmp_path / 'missing'} does not exist" in proc.stderr
+    assert not (tmp_path / "r").exists()
+
+
 def test_help(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["report", "--help"])
