@@ -188,5 +188,13 @@ def make_tap_device():
     return MassDevice(tap_trajectory(0.1, n_taps=1), grip_N=2.0)
 
 
+def make_tap_device_announced(made):
+    """:func:`make_tap_device` that sets the multiprocessing event ``made`` once the child process (its
+    imports done) builds the device: a parent stops a run only after it has started."""
+    dev = make_tap_device()
+    made.set()
+    return dev
+
+
 def make_failing_device():
     return MassDevice(tap_trajectory(0.1, n_taps=1), raise_at=200)

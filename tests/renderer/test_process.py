@@ -1,12 +1,14 @@
 """The servo loop in its own process (hardware mode): results, errors and stop requests cross the boundary."""
 
+import functools
 import multiprocessing as mp
 import threading
+import time
 
 import pytest
 
 from renderer import RendererConfig, run_in_process
-from tests.renderer.fakes import make_failing_device, make_tap_device
+from tests.renderer.fakes import make_failing_device, make_tap_device, make_tap_device_announced
 
 
 def test_run_in_process_returns_the_result():
@@ -18,14 +20,24 @@ def test_run_in_process_returns_the_result():
 
 
 def test_run_in_process_stop_event_ends_a_realtime_run():
-    stop = mp.get_context("spawn").Event()
-    timer = threading.Timer(1.5, stop.set)
-    timer.start()
+    ctx = mp.get_context("spawn")
+    stop, made = ctx.Event(), ctx.Event()
+
+    def stop_once_running():
+        # the child's start-up (a spawned interpreter importing numpy and numba) takes 0.5-2 s depending on
+        # the machine's load: count from when the child has built its device, not from now
+        if made.wait(30.0):
+            time.sleep(1.0)
+        stop.set()
+
+    stopper = threading.Thread(target=stop_once_running, daemon=True)
+    stopper.start()
     try:
-        res = run_in_process(make_tap_device, RendererConfig(), None, realtime=True, stop_event=stop,
-                             timeout_s=30.0)
+        res = run_in_process(functools.partial(make_tap_device_announced, made), RendererConfig(), None,
+                             realtime=True, stop_event=stop, timeout_s=30.0)
     finally:
-        timer.cancel()
+        stop.set()
+        stopper.join(35.0)
     assert res.stop_reason == "until"
     assert 0.2 < res.timing["wall_time_s"] < 10.0
 
