@@ -3,8 +3,10 @@
 Slave tip acceleration -> 15-point modified Bartlett-Hanning smoothing (7-sample delay) -> second-order
 Butterworth high-pass at 22 Hz -> Tustin discretisation of the inverse of the identified
 current-to-handle-acceleration model H_ha (made proper by added high-frequency zeros, right-half-plane
-zeros reflected into the left half plane: same magnitude, stable causal inverse) -> its own saturation.
-The discrete inverse's frequency response is checked against the continuous one at start-up.
+zeros reflected into the left half plane: same magnitude, stable causal inverse; real ones in the band
+are the fit's stand-in for delay, so the gain's sign leaves a delay-like all-pass, +1 at DC) -> its own
+saturation. The discrete inverse's frequency response is checked against the continuous one at start-up,
+and what the inverse leaves of the model (the all-pass) must be delay-like in the band.
 """
 
 from __future__ import annotations
@@ -42,7 +44,9 @@ class HfamFilter:
         Saturation of the HFAM channel, separate from the PD channel.
     check : dict
         Start-up check: max magnitude (dB) and phase (deg) error of discrete vs continuous inverse over
-        22-1000 Hz, the number of reflected zeros and added zeros.
+        22-1000 Hz, the number of reflected zeros (and of real ones in the band, treated as delay), added
+        zeros, and the phase (deg) of model x continuous inverse / high-pass at 50 Hz (``allpass_phase_50hz_deg``:
+        near 0 for a delay-like residual, near +-180 for an inverse of the wrong sign).
     """
 
     fir: np.ndarray
@@ -83,11 +87,21 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
 
     z = np.asarray(model.zeros_rad_s, complex)
     p = np.asarray(model.poles_rad_s, complex)
-    n_rhp = int(np.sum(z.real > 0))
+    rhp = z.real > 0
+    n_rhp = int(np.sum(rhp))
     k = float(model.gain)
-    if n_rhp:
-        # reflect right-half-plane zeros: |s - z| = |s + conj(z)| on the jw axis; keep the high-frequency gain sign
-        z = np.where(z.real > 0, -np.conj(z), z)
+    # A fit with (almost) no pure delay represents the servo cycle's delay and the sensor lag by right-half-plane
+    # zeros. Reflection (|s - z| = |s + conj(z)| on the jw axis) keeps the magnitude; what it leaves out is the
+    # all-pass H / H_min. For a real zero a > 0 above the band's lower edge, (s - a) / (s + a) is -1 in the band
+    # below a: left alone, the inverse would push the handle the wrong way there (the energy of tapping lies at
+    # 100-600 Hz). Flipping the gain makes the residual all-pass (a - s) / (a + s): +1 at DC, a phase lag of
+    # ~2/a s (first-order Pade of a delay), which the analysis removes with the pipeline delay. Complex pairs
+    # reflect with unit all-pass at DC and at infinity; a real zero below the band is absorbed by the high-pass.
+    delay_like = rhp & (np.abs(z.imag) <= 1e-9 * np.abs(z)) & (np.abs(z) > 2 * math.pi * HIGHPASS_HZ)
+    n_delay_like = int(delay_like.sum())
+    if n_delay_like % 2:
+        k = -k
+    z = np.where(rhp, -np.conj(z), z)
     # zeros at (or near) s = 0 of an acceleration model: the 22 Hz high-pass supplies s^2, so cancel them
     zero_at_dc = np.abs(z) < 2 * math.pi * 5.0   # far below the 22 Hz band: treated as s = 0
     n_dc = int(zero_at_dc.sum())
@@ -114,8 +128,18 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
     # the Tustin map warps frequency; compare at the same physical frequency
     mag_db = 20 * np.log10(np.abs(hd) / np.abs(hc))
     ph = np.degrees(np.angle(hd / hc))
+    # what the inverse leaves of the model at the bottom of the band: a delay-like all-pass is ~0 deg there
+    s50 = 2j * math.pi * 50.0
+    inv50 = inv_k * np.prod(s50 - inv_z) / np.prod(s50 - inv_p)
+    allpass50 = inv50 * complex(model.frequency_response(np.array([50.0]))[0]) * (s50 * s50 + math.sqrt(2.0) * w * s50
+                                                                                  + w * w) / (s50 * s50)
+    if abs(math.degrees(np.angle(allpass50))) > 90.0:
+        raise ValueError(f"HFAM inverse has the wrong sign in the band (model x inverse at 50 Hz: "
+                         f"{math.degrees(np.angle(allpass50)):.0f} deg)")
     check = {"max_mag_error_db": float(np.max(np.abs(mag_db))), "max_phase_error_deg": float(np.max(np.abs(ph))),
-             "band_hz": [float(f[0]), float(f[-1])], "reflected_rhp_zeros": n_rhp, "added_zeros": int(n_added),
+             "band_hz": [float(f[0]), float(f[-1])], "reflected_rhp_zeros": n_rhp,
+             "delay_like_rhp_zeros": n_delay_like, "added_zeros": int(n_added),
+             "allpass_phase_50hz_deg": float(math.degrees(np.angle(allpass50))),
              "sections": int(len(sos))}
     return HfamFilter(bartlett_hann_fir(), sos, gain, max_current_A, check)
 

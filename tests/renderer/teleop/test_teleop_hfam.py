@@ -31,6 +31,9 @@ def test_inverse_check_and_stability(hha):
     # Tustin (no prewarp) at 5 kHz warps the top of the 22-1000 Hz band by ~16 %: the check reports it.
     # Measured 4.1-4.4 dB with the prescribed hand, 7.4 dB with the default person's identified model.
     assert c["max_mag_error_db"] < 9.0 and c["sections"] <= K.MAX_SOS
+    # the fit stands in for the servo delay with a real right-half-plane zero (~600 Hz); the inverse leaves a
+    # delay-like all-pass in the band (measured -15 deg at 50 Hz), not a sign flip (+165 deg before the fix)
+    assert c["delay_like_rhp_zeros"] >= 1 and abs(c["allpass_phase_50hz_deg"]) < 45.0
     assert np.isclose(hf.fir.sum(), 1.0) and len(hf.fir) == 15 and np.argmax(hf.fir) == 7   # 7-sample delay
 
 
@@ -53,17 +56,18 @@ def _free_air_tip_rms(res):
 def test_pd_hfam_master_matches_slave_tip(wood, hha):
     hf = design_hfam(hha, 5000.0, max_current_A=4.0)
     path, cr = default_path(5000.0, 1.0, n_taps=3)
-    # without K_mu the HFAM-induced master motion re-enters x_c and the loop rings in free air
-    ring = run_session(wood, TeleopConfig(controller="pd+hfam"), path, hfam=hf, impact_ticks=cr)
+    # without K_mu the HFAM-induced master motion re-enters x_c; with the inverse's sign right in the band that
+    # loop no longer rings (it rang at ~140 Hz, 35 m/s^2, while the inverse pushed the wrong way below 596 Hz)
+    free = run_session(wood, TeleopConfig(controller="pd+hfam"), path, hfam=hf, impact_ticks=cr)
     res = run_session(wood, TeleopConfig(controller="pd+hfam", k_mu_hz=40.0), path, hfam=hf, impact_ticks=cr)
-    print("free-air tip RMS (22-1000 Hz): no K_mu", _free_air_tip_rms(ring), "K_mu 40 Hz", _free_air_tip_rms(res))
-    assert _free_air_tip_rms(ring) > 10.0 and _free_air_tip_rms(res) < 5.0   # measured 1.9-3.3 (identification run to run)
+    print("free-air tip RMS (22-1000 Hz): no K_mu", _free_air_tip_rms(free), "K_mu 40 Hz", _free_air_tip_rms(res))
+    assert _free_air_tip_rms(free) < 2.0 and _free_air_tip_rms(res) < 1.0   # measured 0.95 and 0.64 m/s^2
     assert res.fault == 0
     i = res.col(K.O_IM)
     assert np.all(np.isfinite(i)) and np.max(np.abs(i)) <= 4.0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), 5000.0)
     print("PD + HFAM (wood):", m)
-    # issue targets (correlation >= 0.8, NRMSE <= 0.5) are NOT reached: measured ~0.71 / ~0.71
-    assert m["correlation"] >= 0.6
-    assert m["nrmse"] <= 0.8
+    # measured 0.877 / 0.554 / ratio 0.60 (0.71 / 0.70 / 0.66 with the inverse of the wrong sign in the band)
+    assert m["correlation"] >= 0.85
+    assert m["nrmse"] <= 0.6
     assert m["rms_ratio"] > 0.5
