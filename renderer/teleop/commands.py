@@ -74,8 +74,8 @@ def build_hfam(args, tb: Testbed, out: Path):
         model = load_model(args.hha_model)
         print(f"H_ha: {args.hha_model}")
     else:
-        print("identifying H_ha of the master (swept sine, ETFE, fit; about 30 s)...", flush=True)
-        model = identify_master_hha(tb.master, tb.servo_rate_hz)
+        print("identifying H_ha of the master held by the operator (swept sine, ETFE, fit; about 5 s)...", flush=True)
+        model = identify_master_hha(tb.master, tb.servo_rate_hz, operator=tb.operator)
         model.save(out / "H_ha_model.json")
     hf = design_hfam(model, tb.servo_rate_hz, max_current_A=args.hfam_max_current)
     c = hf.check

@@ -22,6 +22,8 @@ from devices.identify.record import record_condition
 from devices.identify.sweep import SweepConfig
 from devices.model import ZpkModel
 from devices.sim.device import SimDevice
+from devices.sim.person import PRESCRIBED, Person
+from devices.sim.teleop import Operator
 from stimuli.hfam.inversion import make_proper
 
 FIR_TAPS = 15
@@ -151,8 +153,14 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
     return HfamFilter(bartlett_hann_fir(), sos, gain, max_current_A, check)
 
 
-def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials: int = 2) -> ZpkModel:
+def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials: int = 2,
+                        operator: Operator | None = None) -> ZpkModel:
     """H_ha of the simulated master by the project's comprehensive identification (swept sine, ETFE, fit).
+
+    H_ha includes the hand that holds the handle (section 4.2: the user's impedance shapes the
+    current-to-handle-acceleration response), so on hardware the identification is run with the user who
+    then teleoperates. ``operator`` does the same here: the identification's simulated person gets the
+    teleoperation operator's grip (k_u, b_u at ``grip_N``), hand/arm mass and muscle impedance.
 
     Parameters
     ----------
@@ -160,15 +168,34 @@ def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials
         The simulated master (the identification only sees its sensors).
     fs_hz : float
         Servo rate of the teleoperator (the sweep runs at it).
+    grip_N : float
+        Grip during the sweep (the operator's grip impedance is taken to be the one at this grip).
+    trials : int
+        Swept-sine trials (half with reversed polarity).
+    operator : Operator or None
+        The teleoperation operator holding the master; None: the simulated device's default person.
     """
     params = master_params.replace(device={"servo_rate_hz": float(fs_hz)},
                                    simulation={"max_step_s": 1.0 / fs_hz / round(1.0 / fs_hz / 1e-5)})
+    source = f"teleop master, grip {grip_N:g} N"
+    if operator is not None:
+        params = params.replace(user={"k_u_N_m": operator.k_u_N_m, "b_u_Ns_m": operator.b_u_Ns_m,
+                                      "nominal_grip_N": float(grip_N)})
+        source += ", held by the teleoperation operator"
     dev = SimDevice(params, seed=7)
     sweep = SweepConfig(amplitude_A=0.75, f_start_hz=5.0, f_end_hz=min(1000.0, 0.4 * fs_hz), duration_s=2.0,
                         fs_hz=fs_hz)
-    recs = record_condition(dev, sweep, float(grip_N), trials)
+    if operator is None:
+        recs = record_condition(dev, sweep, float(grip_N), trials)
+    else:
+        # the operator's hand/arm behind the grip (zero mass: the grip tied to a held position)
+        hand = (Person(arm_mass_kg=operator.hand_mass_kg, muscle_stiffness_N_m=operator.muscle_k_N_m,
+                       muscle_damping_Ns_m=operator.muscle_b_Ns_m) if operator.hand_mass_kg > 0 else PRESCRIBED)
+        dev.set_user(None, grip_N=float(grip_N), hand=hand)
+        # grip None: record_condition would otherwise hand the handle to the default person before each trial
+        recs = record_condition(dev, sweep, None, trials)
     curve = etfe(recs, "accel_m_s2", label=f"grip {grip_N:g} N")
-    return fit_etfes([curve], FitOptions(), source=f"teleop master, grip {grip_N:g} N", grip_N=float(grip_N)).model
+    return fit_etfes([curve], FitOptions(), source=source, grip_N=float(grip_N)).model
 
 
 def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_hz: float,
