@@ -17,24 +17,29 @@ from renderer.teleop.hfam import accel_match, bartlett_hann_fir, design_hfam, id
 from renderer.teleop.session import TeleopConfig, default_path, run_session
 
 FS = 5000.0
+# the operator the targets are measured with, spelled out: the NRMSE target holds for this operator, not for
+# every one (a 0.1 kg hand/arm gives 0.504 on wood; docs/teleop.md), so a change of the testbed's default
+# operator must not silently change what these tests measure
+OPERATOR = Operator(k_u_N_m=40.0, b_u_Ns_m=23.0, q_u_N_m5=3.125e13, hand_mass_kg=0.2, muscle_k_N_m=400.0,
+                    muscle_b_Ns_m=20.0, compensation_hz=1.0, push_N=0.0)
 
 
 @pytest.fixture(scope="module")
 def hha():
     """H_ha identified with the teleoperation operator holding the master (as the CLI does)."""
-    return identify_master_hha(default_params(), FS, operator=Operator())
+    return identify_master_hha(default_params(), FS, operator=OPERATOR)
 
 
 @pytest.fixture(scope="module")
 def wood():
     P = default_params()
-    return Testbed(P, P, environment=ENVIRONMENTS["wood"])
+    return Testbed(P, P, operator=OPERATOR, environment=ENVIRONMENTS["wood"])
 
 
 @pytest.fixture(scope="module")
 def texture():
     P = default_params()
-    return Testbed(P, P, environment=ENVIRONMENTS["texture"])
+    return Testbed(P, P, operator=OPERATOR, environment=ENVIRONMENTS["texture"])
 
 
 def _hfam_config():
