@@ -175,7 +175,8 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
     next period, zero-order hold):
 
     * ``P_MODE = 0`` bilateral PD (position-position): slave force kp_s (x_c - x_s) + kd_s (v_c - v_s)
-      with x_c = K_mu(mu x_m) (K_mu optional, as for position-force); master force kp_m (x_s/mu - x_m) + kd_m (v_s/mu - v_m); plus the HFAM
+      with x_c = K_mu(mu x_m) (K_mu optional, as for position-force); master force kp_m (x_s/mu - x_m)
+      + kd_m (v_s/mu - v_m), optionally low-passed (``P_MPD_A``, first order); plus the HFAM
       current (section 4.3.1, eq. 4.4-4.5) when ``P_HF_ON``: tip acceleration -> 15-point FIR ->
       cascade of second-order sections (22 Hz high-pass, then the discretised inverse of H_ha) ->
       its own saturation.
