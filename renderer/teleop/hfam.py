@@ -140,8 +140,8 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
     # what the inverse leaves of the model at the bottom of the band: a delay-like all-pass is ~0 deg there
     s50 = 2j * math.pi * 50.0
     inv50 = inv_k * np.prod(s50 - inv_z) / np.prod(s50 - inv_p)
-    allpass50 = inv50 * complex(model.frequency_response(np.array([50.0]))[0]) * (s50 * s50 + math.sqrt(2.0) * w * s50
-                                                                                  + w * w) / (s50 * s50)
+    hp50 = s50 * s50 / (s50 * s50 + math.sqrt(2.0) * w * s50 + w * w)
+    allpass50 = inv50 * complex(model.frequency_response(np.array([50.0]))[0]) / hp50
     if abs(math.degrees(np.angle(allpass50))) > 90.0:
         raise ValueError(f"HFAM inverse has the wrong sign in the band (model x inverse at 50 Hz: "
                          f"{math.degrees(np.angle(allpass50)):.0f} deg)")
