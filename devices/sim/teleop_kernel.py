@@ -52,6 +52,7 @@ P_HF_ON, P_HF_GAIN, P_HF_IMAX, P_HF_NSOS = 106, 107, 108, 109
 P_DIV_POS, P_DIV_VEL = 110, 111
 P_LINK_LOST_TICK = 112
 P_PUSH, P_PUSH_TICK = 113, 114   # constant operator force on the master handle (N, up) from this tick on
+P_MPD_A = 115        # bilateral PD: first-order low-pass (alpha) on the master PD force; 0 or 1 = off
 P_FIR = 120          # 15 FIR taps (modified Bartlett-Hanning)
 N_FIR = 15
 P_SOS = 140          # up to 12 second-order sections (b0 b1 b2 a1 a2), HP first then inverse
@@ -68,6 +69,7 @@ S_FF, S_FS_CMD = 55, 56                       # force applied at master / slave 
 S_WASH_Y, S_WASH_X = 57, 58
 S_CLIP_M, S_CLIP_S, S_CLIP_HF, S_NAN = 59, 60, 61, 62
 S_CONTACT, S_LINK_HOLD = 63, 64
+S_MPD = 65                                    # low-passed master PD force
 S_FIRBUF = 70                                 # 15 samples, circular
 S_FIRIDX = 86
 S_SOSZ = 90                                   # 2 per section
@@ -173,7 +175,8 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
     next period, zero-order hold):
 
     * ``P_MODE = 0`` bilateral PD (position-position): slave force kp_s (x_c - x_s) + kd_s (v_c - v_s)
-      with x_c = K_mu(mu x_m) (K_mu optional, as for position-force); master force kp_m (x_s/mu - x_m) + kd_m (v_s/mu - v_m); plus the HFAM
+      with x_c = K_mu(mu x_m) (K_mu optional, as for position-force); master force kp_m (x_s/mu - x_m)
+      + kd_m (v_s/mu - v_m), optionally low-passed (``P_MPD_A``, first order); plus the HFAM
       current (section 4.3.1, eq. 4.4-4.5) when ``P_HF_ON``: tip acceleration -> 15-point FIR ->
       cascade of second-order sections (22 Hz high-pass, then the discretised inverse of H_ha) ->
       its own saturation.
@@ -269,6 +272,13 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
         ihf = 0.0
         if mode == 0.0:
             f_m = p[P_KPM] * (xs_meas / mu - xm_meas) + p[P_KDM] * (vs_est / mu - vm_est)
+            if 0.0 < p[P_MPD_A] < 1.0:
+                # PD as the low-frequency power band only (Figure 4.2): above its corner the HFAM channel
+                # owns the master, and the PD does not pull back the handle motion HFAM creates
+                if k == k0 and k0 == 0:
+                    s[S_MPD] = f_m
+                s[S_MPD] += p[P_MPD_A] * (f_m - s[S_MPD])
+                f_m = s[S_MPD]
             if p[P_HF_ON] != 0.0:
                 # 15-point modified Bartlett-Hanning smoothing (circular buffer)
                 idx = int(s[S_FIRIDX])

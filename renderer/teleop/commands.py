@@ -33,7 +33,8 @@ from .session import TeleopConfig, default_path, run_session, session_metrics
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
                  "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
 
-HFAM_K_MU_HZ = 40.0   # pd+hfam: low-pass on x_c so the HFAM-induced master motion does not close a loop
+HFAM_K_MU_HZ = 40.0   # pd+hfam: low-pass on x_c keeps the HFAM-induced master motion out of the slave
+HFAM_MASTER_PD_HZ = 150.0   # pd+hfam: low-pass on the master PD force (PD = power band, HFAM above it)
 
 
 
@@ -74,8 +75,8 @@ def build_hfam(args, tb: Testbed, out: Path):
         model = load_model(args.hha_model)
         print(f"H_ha: {args.hha_model}")
     else:
-        print("identifying H_ha of the master (swept sine, ETFE, fit; about 30 s)...", flush=True)
-        model = identify_master_hha(tb.master, tb.servo_rate_hz)
+        print("identifying H_ha of the master held by the operator (swept sine, ETFE, fit; about 5 s)...", flush=True)
+        model = identify_master_hha(tb.master, tb.servo_rate_hz, operator=tb.operator)
         model.save(out / "H_ha_model.json")
     hf = design_hfam(model, tb.servo_rate_hz, max_current_A=args.hfam_max_current)
     c = hf.check
@@ -92,10 +93,13 @@ def build_cimm(args) -> CimmModel:
 
 
 def _teleop_config(args) -> TeleopConfig:
-    """Controller settings from the ``teleop`` arguments (K_mu defaults to 40 Hz for pd+hfam, else off)."""
-    k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if args.controller == "pd+hfam" else 0.0)
+    """Controller settings from the ``teleop`` arguments (K_mu defaults to 40 Hz and the master PD low-pass to
+    150 Hz for pd+hfam, both off otherwise)."""
+    hfam = args.controller == "pd+hfam"
+    k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if hfam else 0.0)
+    mpd = args.master_pd_lowpass_hz if args.master_pd_lowpass_hz is not None else (HFAM_MASTER_PD_HZ if hfam else 0.0)
     return TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b, k_mu_hz=k_mu,
-                        k_lambda_hz=args.k_lambda_hz)
+                        k_lambda_hz=args.k_lambda_hz, master_pd_lowpass_hz=mpd)
 
 
 def _write_traces(out: Path, res) -> None:

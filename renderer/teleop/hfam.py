@@ -3,8 +3,10 @@
 Slave tip acceleration -> 15-point modified Bartlett-Hanning smoothing (7-sample delay) -> second-order
 Butterworth high-pass at 22 Hz -> Tustin discretisation of the inverse of the identified
 current-to-handle-acceleration model H_ha (made proper by added high-frequency zeros, right-half-plane
-zeros reflected into the left half plane: same magnitude, stable causal inverse) -> its own saturation.
-The discrete inverse's frequency response is checked against the continuous one at start-up.
+zeros reflected into the left half plane: same magnitude, stable causal inverse; real ones in the band
+are the fit's stand-in for delay, so the gain's sign leaves a delay-like all-pass, +1 at DC) -> its own
+saturation. The discrete inverse's frequency response is checked against the continuous one at start-up,
+and what the inverse leaves of the model (the all-pass) must be delay-like in the band.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from devices.identify.record import record_condition
 from devices.identify.sweep import SweepConfig
 from devices.model import ZpkModel
 from devices.sim.device import SimDevice
+from devices.sim.person import PRESCRIBED, Person
+from devices.sim.teleop import Operator
 from stimuli.hfam.inversion import make_proper
 
 FIR_TAPS = 15
@@ -42,7 +46,9 @@ class HfamFilter:
         Saturation of the HFAM channel, separate from the PD channel.
     check : dict
         Start-up check: max magnitude (dB) and phase (deg) error of discrete vs continuous inverse over
-        22-1000 Hz, the number of reflected zeros and added zeros.
+        22-1000 Hz, the number of reflected zeros (and of real ones in the band, treated as delay), added
+        zeros, and the phase (deg) of model x continuous inverse / high-pass at 50 Hz (``allpass_phase_50hz_deg``:
+        near 0 for a delay-like residual, near +-180 for an inverse of the wrong sign).
     """
 
     fir: np.ndarray
@@ -53,10 +59,17 @@ class HfamFilter:
 
 
 def bartlett_hann_fir(n: int = FIR_TAPS) -> np.ndarray:
-    """Modified Bartlett-Hanning window (scipy.signal.windows.barthann), normalised to unit DC gain."""
+    """The n-point modified Bartlett-Hanning window (section 4.3.1), normalised to unit DC gain.
+
+    ``scipy.signal.windows.barthann(n)``, the same as MATLAB's ``barthannwin(n)``: its two end taps are zero,
+    so 15 points smooth over 13 nonzero taps with the thesis' 7-sample delay. The alternative reading, 15
+    nonzero taps (``barthann(17)`` without its ends), low-passes harder (at 5 kHz: -5.9 / -11.1 / -19.5 dB at
+    300 / 400 / 500 Hz against -4.4 / -8.2 / -13.8 dB), and a third of a wood tap's 22-1000 Hz energy lies at
+    300-600 Hz: even an exact inverse after it leaves a normalised RMS error of 0.57 (0.49 after this one).
+    """
     from scipy.signal import windows  # deferred: scipy.signal is heavy
 
-    w = windows.barthann(n + 2)[1:-1]
+    w = windows.barthann(n)
     return w / w.sum()
 
 
@@ -83,11 +96,21 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
 
     z = np.asarray(model.zeros_rad_s, complex)
     p = np.asarray(model.poles_rad_s, complex)
-    n_rhp = int(np.sum(z.real > 0))
+    rhp = z.real > 0
+    n_rhp = int(np.sum(rhp))
     k = float(model.gain)
-    if n_rhp:
-        # reflect right-half-plane zeros: |s - z| = |s + conj(z)| on the jw axis; keep the high-frequency gain sign
-        z = np.where(z.real > 0, -np.conj(z), z)
+    # A fit with (almost) no pure delay represents the servo cycle's delay and the sensor lag by right-half-plane
+    # zeros. Reflection (|s - z| = |s + conj(z)| on the jw axis) keeps the magnitude; what it leaves out is the
+    # all-pass H / H_min. For a real zero a > 0 above the band's lower edge, (s - a) / (s + a) is -1 in the band
+    # below a: left alone, the inverse would push the handle the wrong way there (the energy of tapping lies at
+    # 100-600 Hz). Flipping the gain makes the residual all-pass (a - s) / (a + s): +1 at DC, a phase lag of
+    # ~2/a s (first-order Pade of a delay), which the analysis removes with the pipeline delay. Complex pairs
+    # reflect with unit all-pass at DC and at infinity; a real zero below the band is absorbed by the high-pass.
+    delay_like = rhp & (np.abs(z.imag) <= 1e-9 * np.abs(z)) & (np.abs(z) > 2 * math.pi * HIGHPASS_HZ)
+    n_delay_like = int(delay_like.sum())
+    if n_delay_like % 2:
+        k = -k
+    z = np.where(rhp, -np.conj(z), z)
     # zeros at (or near) s = 0 of an acceleration model: the 22 Hz high-pass supplies s^2, so cancel them
     zero_at_dc = np.abs(z) < 2 * math.pi * 5.0   # far below the 22 Hz band: treated as s = 0
     n_dc = int(zero_at_dc.sum())
@@ -114,14 +137,30 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
     # the Tustin map warps frequency; compare at the same physical frequency
     mag_db = 20 * np.log10(np.abs(hd) / np.abs(hc))
     ph = np.degrees(np.angle(hd / hc))
+    # what the inverse leaves of the model at the bottom of the band: a delay-like all-pass is ~0 deg there
+    s50 = 2j * math.pi * 50.0
+    inv50 = inv_k * np.prod(s50 - inv_z) / np.prod(s50 - inv_p)
+    hp50 = s50 * s50 / (s50 * s50 + math.sqrt(2.0) * w * s50 + w * w)
+    allpass50 = inv50 * complex(model.frequency_response(np.array([50.0]))[0]) / hp50
+    if abs(math.degrees(np.angle(allpass50))) > 90.0:
+        raise ValueError(f"HFAM inverse has the wrong sign in the band (model x inverse at 50 Hz: "
+                         f"{math.degrees(np.angle(allpass50)):.0f} deg)")
     check = {"max_mag_error_db": float(np.max(np.abs(mag_db))), "max_phase_error_deg": float(np.max(np.abs(ph))),
-             "band_hz": [float(f[0]), float(f[-1])], "reflected_rhp_zeros": n_rhp, "added_zeros": int(n_added),
+             "band_hz": [float(f[0]), float(f[-1])], "reflected_rhp_zeros": n_rhp,
+             "delay_like_rhp_zeros": n_delay_like, "added_zeros": int(n_added),
+             "allpass_phase_50hz_deg": float(math.degrees(np.angle(allpass50))),
              "sections": int(len(sos))}
     return HfamFilter(bartlett_hann_fir(), sos, gain, max_current_A, check)
 
 
-def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials: int = 2) -> ZpkModel:
+def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials: int = 2,
+                        operator: Operator | None = None) -> ZpkModel:
     """H_ha of the simulated master by the project's comprehensive identification (swept sine, ETFE, fit).
+
+    H_ha includes the hand that holds the handle (section 4.2: the user's impedance shapes the
+    current-to-handle-acceleration response), so on hardware the identification is run with the user who
+    then teleoperates. ``operator`` does the same here: the identification's simulated person gets the
+    teleoperation operator's grip (k_u, b_u at ``grip_N``), hand/arm mass and muscle impedance.
 
     Parameters
     ----------
@@ -129,15 +168,34 @@ def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials
         The simulated master (the identification only sees its sensors).
     fs_hz : float
         Servo rate of the teleoperator (the sweep runs at it).
+    grip_N : float
+        Grip during the sweep (the operator's grip impedance is taken to be the one at this grip).
+    trials : int
+        Swept-sine trials (half with reversed polarity).
+    operator : Operator or None
+        The teleoperation operator holding the master; None: the simulated device's default person.
     """
     params = master_params.replace(device={"servo_rate_hz": float(fs_hz)},
                                    simulation={"max_step_s": 1.0 / fs_hz / round(1.0 / fs_hz / 1e-5)})
+    source = f"teleop master, grip {grip_N:g} N"
+    if operator is not None:
+        params = params.replace(user={"k_u_N_m": operator.k_u_N_m, "b_u_Ns_m": operator.b_u_Ns_m,
+                                      "nominal_grip_N": float(grip_N)})
+        source += ", held by the teleoperation operator"
     dev = SimDevice(params, seed=7)
     sweep = SweepConfig(amplitude_A=0.75, f_start_hz=5.0, f_end_hz=min(1000.0, 0.4 * fs_hz), duration_s=2.0,
                         fs_hz=fs_hz)
-    recs = record_condition(dev, sweep, float(grip_N), trials)
+    if operator is None:
+        recs = record_condition(dev, sweep, float(grip_N), trials)
+    else:
+        # the operator's hand/arm behind the grip (zero mass: the grip tied to a held position)
+        hand = (Person(arm_mass_kg=operator.hand_mass_kg, muscle_stiffness_N_m=operator.muscle_k_N_m,
+                       muscle_damping_Ns_m=operator.muscle_b_Ns_m) if operator.hand_mass_kg > 0 else PRESCRIBED)
+        dev.set_user(None, grip_N=float(grip_N), hand=hand)
+        # grip None: record_condition would otherwise hand the handle to the default person before each trial
+        recs = record_condition(dev, sweep, None, trials)
     curve = etfe(recs, "accel_m_s2", label=f"grip {grip_N:g} N")
-    return fit_etfes([curve], FitOptions(), source=f"teleop master, grip {grip_N:g} N", grip_N=float(grip_N)).model
+    return fit_etfes([curve], FitOptions(), source=source, grip_N=float(grip_N)).model
 
 
 def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_hz: float,

@@ -60,6 +60,10 @@ class TeleopConfig:
     k_mu_hz, k_lambda_hz : float
         First-order low-pass corner of the position-command filter K_mu (eq. 5.10) and of the
         force-feedback filter K_lambda (eq. 5.11); 0 = filter off.
+    master_pd_lowpass_hz : float
+        Bilateral PD only: first-order low-pass corner on the master's PD force (0 = off). With HFAM the PD
+        is the low-frequency power band and HFAM the information band above ~20 Hz (section 4.3.1,
+        Figure 4.2); unfiltered, the master PD pulls back the handle motion HFAM creates.
     velocity_hz : float
         Low-pass corner of the backward-difference velocity estimates.
     divergence_m, divergence_m_s : float
@@ -76,6 +80,7 @@ class TeleopConfig:
     b_Ns_m: float = 0.0
     k_mu_hz: float = 0.0
     k_lambda_hz: float = 0.0
+    master_pd_lowpass_hz: float = 0.0
     velocity_hz: float = 500.0
     divergence_m: float = 0.03
     divergence_m_s: float = 3.0
@@ -93,7 +98,8 @@ class TeleopConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {v!r}")
-        for name in ("lam", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m", "b_Ns_m", "k_mu_hz", "k_lambda_hz"):
+        for name in ("lam", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m", "b_Ns_m", "k_mu_hz", "k_lambda_hz",
+                     "master_pd_lowpass_hz"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -140,6 +146,7 @@ def controller_params(p: np.ndarray, tb: Testbed, cfg: TeleopConfig, hfam=None) 
     p[K.P_BDAMP] = cfg.b_Ns_m
     p[K.P_KMU_A] = 1 - math.exp(-2 * math.pi * cfg.k_mu_hz / fs) if cfg.k_mu_hz > 0 else 1.0
     p[K.P_KLAM_A] = 1 - math.exp(-2 * math.pi * cfg.k_lambda_hz / fs) if cfg.k_lambda_hz > 0 else 1.0
+    p[K.P_MPD_A] = 1 - math.exp(-2 * math.pi * cfg.master_pd_lowpass_hz / fs) if cfg.master_pd_lowpass_hz > 0 else 1.0
     p[K.P_DIV_POS], p[K.P_DIV_VEL] = cfg.divergence_m, cfg.divergence_m_s
     if cfg.controller == "pd+hfam":
         if hfam is None:
