@@ -17,12 +17,12 @@ def run(args: argparse.Namespace) -> int:
     """The ``report`` command: analyse the study folder and write tables, figures and report.md/.html; returns the exit code."""
     cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha)
     out = Path(args.out)
-    check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")
     if out.is_file() or (out.is_dir() and any(out.iterdir()) and not args.force):
         raise ValueError(f"{out} exists and is not empty; not overwriting an earlier report: choose another --out "
                          "or pass --force to replace it")
+    check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
     # the drawing process starts first, so that its imports overlap the ones below
     with (nullcontext() if args.no_figures else figure_process()) as pool:
         # the cyclic garbage collector pauses for the command: the modules and tables it creates live until
