@@ -20,7 +20,10 @@ def built():
     dev = SimDevice()
     fs, taps = record_sim_taps((0.05, 0.1, 0.15), device=dev)
     models = [(f"grip{g}", dev.linear_model(g)) for g in (2.5, 5.0)]
-    lib, report = build_library(taps, fs, models, BuildSettings(peak_current_A=dev.info.current_peak_A),
+    # issue 16: the wood tile's impact click makes the 5 N transient at 0.15 m/s need 4.7 A; scaled to the
+    # 4 A peak as the shipped library is (stimuli.hfam.pipeline.build_sim_library; thesis Figure 4.13)
+    lib, report = build_library(taps, fs, models,
+                                BuildSettings(peak_current_A=dev.info.current_peak_A, scale_to_limit=True),
                                 force_per_amp_N_A=dev.info.force_per_amp_N_A)
     return dev, fs, taps, lib, report
 
@@ -36,7 +39,10 @@ def test_recorded_sim_taps_look_like_impacts(built):
 def test_forward_model_verification_on_sim_models(built):
     _, _, _, lib, report = built
     assert lib.currents_A.shape == (3, 2, 1000)
-    assert max(r["nrmse"] for r in report.verification) < 0.12
+    # cells scaled to the 4 A limit miss their target by the scale itself (issue 16: 5 N at 0.15 m/s, x0.84,
+    # NRMSE 0.144); the others measured <= 0.118
+    assert max(r["nrmse"] for r in report.verification if r["scale"] == 1.0) < 0.12
+    assert max(r["nrmse"] for r in report.verification) < 0.2
     assert min(r["corr"] for r in report.verification) > 0.99
 
 
