@@ -138,7 +138,7 @@ def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings,
     20-60 Hz part of a tap by 43-13 deg; ``BuildSettings.highpass_phase``); its s^2 cancels the
     double pole at s = 0 that the inverse of an acceleration model has either
     way. The zero-phase inverse is non-causal at low frequency: the builder
-    keeps only what starts at impact (``build._windowed``). A tiny
+    keeps only what starts at impact (``build._current``). A tiny
     Tikhonov term (1e-12 of the peak |H|^2) keeps a zero on the unit circle
     finite.
 
