@@ -116,7 +116,8 @@ def _zpk_response(zeros, poles, gain, s: np.ndarray) -> np.ndarray:
     return out
 
 
-def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings) -> tuple[np.ndarray, int]:
+def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings,
+           zero_phase_highpass: bool = False) -> tuple[np.ndarray, int]:
     """Current (A) that makes ``model`` produce ``accel_m_s2`` (eq. 4.6), high-passed; non-causal, stable.
 
     The model's delay is discarded and it is made proper (:func:`make_proper`,
@@ -132,8 +133,12 @@ def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings)
     the builder runs offline, that low-pass is applied zero-phase (only its
     magnitude ``1/|Z|``), as the smoothing is, so it adds no phase lag inside
     the band. The second-order Butterworth high-pass at
-    ``settings.highpass_hz`` is causal (Tustin), which keeps the inverse of
-    an acceleration model (zeros at s = 0) causal at low frequency. A tiny
+    ``settings.highpass_hz`` (Tustin, prewarped) is causal, or applied as its
+    magnitude only with ``zero_phase_highpass`` (its causal phase turns the
+    20-60 Hz part of a tap by 43-13 deg; ``BuildSettings.highpass_phase``); its s^2 cancels the
+    double pole at s = 0 that the inverse of an acceleration model has either
+    way. The zero-phase inverse is non-causal at low frequency: the builder
+    keeps only what starts at impact (``build._current``). A tiny
     Tikhonov term (1e-12 of the peak |H|^2) keeps a zero on the unit circle
     finite.
 
@@ -155,6 +160,8 @@ def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings)
     w_hp = 2.0 * np.pi * settings.highpass_hz
     w_hp = 2.0 * fs_hz * np.tan(w_hp / (2.0 * fs_hz))  # prewarped so the cut-off stays at highpass_hz
     highpass = s * s / (s * s + math.sqrt(2.0) * w_hp * s + w_hp * w_hp)
+    if zero_phase_highpass:
+        highpass = np.abs(highpass)  # offline, like the smoothing: no phase turn inside the band
     mag2 = (h * np.conj(h)).real
     if settings.zero_phase_added_zeros:
         highpass = highpass * (added / np.maximum(np.abs(added), 1e-300))
@@ -165,10 +172,30 @@ def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings)
     return sp_fft.irfft(spectrum, nfft)[:n], n_added
 
 
-def highpass_target(accel_m_s2: np.ndarray, fs_hz: float, highpass_hz: float) -> np.ndarray:
-    """The desired acceleration as the library intends it: the causal 2nd-order Butterworth high-pass of ``invert``."""
-    sos = signal.butter(2, highpass_hz, btype="highpass", fs=fs_hz, output="sos")
-    return signal.sosfilt(sos, accel_m_s2)
+def highpass_target(accel_m_s2: np.ndarray, fs_hz: float, highpass_hz: float, zero_phase: bool = False) -> np.ndarray:
+    """The desired acceleration as the library intends it: the 2nd-order Butterworth high-pass of ``invert``.
+
+    Causal (Tustin) by default; with ``zero_phase`` its magnitude only, applied on a zero-padded DFT grid
+    (``BuildSettings.zero_phase_highpass``; the signal needs zero padding on both sides for its tails).
+    """
+    if not zero_phase:
+        sos = signal.butter(2, highpass_hz, btype="highpass", fs=fs_hz, output="sos")
+        return signal.sosfilt(sos, accel_m_s2)
+    n = accel_m_s2.size
+    nfft = sp_fft.next_fast_len(2 * n, real=True)
+    f = sp_fft.rfftfreq(nfft, 1.0 / fs_hz)
+    spectrum = sp_fft.rfft(accel_m_s2, nfft) * _highpass_magnitude(f, fs_hz, highpass_hz)
+    return sp_fft.irfft(spectrum, nfft)[:n]
+
+
+def _highpass_magnitude(f_hz: np.ndarray, fs_hz: float, highpass_hz: float) -> np.ndarray:
+    """|H| of the 2nd-order Butterworth high-pass (Tustin, prewarped) at ``f_hz``; 0 at and above Nyquist."""
+    out = np.zeros(f_hz.shape)
+    below = f_hz < 0.5 * fs_hz * (1.0 - 1e-9)
+    s = 2j * fs_hz * np.tan(np.pi * f_hz[below] / fs_hz)
+    w = 2.0 * fs_hz * np.tan(np.pi * highpass_hz / fs_hz)
+    out[below] = np.abs(s * s / (s * s + math.sqrt(2.0) * w * s + w * w))
+    return out
 
 
 def nrmse_corr(y: np.ndarray, d: np.ndarray) -> tuple[float, float]:

@@ -52,6 +52,22 @@ class BuildSettings:
         Apply the low-pass that the added zeros become in the inverse as its
         magnitude only (zero phase, offline) instead of causally (thesis, real
         time): no phase lag inside the band.
+    highpass_phase : str
+        Phase of the high-pass the inverse starts from: ``causal`` (Tustin
+        Butterworth), ``zero`` (its magnitude only, offline like the
+        smoothing) or ``best`` (default): both, keeping per velocity and grip
+        the one whose windowed current (after ``window_iterations``) makes the
+        desired acceleration more closely through the model over
+        ``verify_band_hz``. Section 4.4.1 asks for a second-order high-pass
+        near 10 Hz so the transient does not try to make accelerations below
+        ~8 Hz; a causal Butterworth also turns the phase of a tap's 20-60 Hz
+        content by 43-13 deg, which alone cost NRMSE ~0.26 against the sim's
+        recordings over 20-1000 Hz (docs/demo.md, "Why HFAM missed the real tap").
+    window_iterations : int
+        Corrective passes on the windowed current (``build._current``): its
+        model response's error to the desired acceleration (the recording
+        high-passed without phase turn), band-limited to ``verify_band_hz``,
+        inverted causally and added inside the window. 0: the cut inverse.
     gain : float
         Optional gain on all currents (section 4.4.1).
     verify_band_hz : (float, float)
@@ -80,6 +96,8 @@ class BuildSettings:
     taper_s: float = 0.02
     onset_delay_s: float = 0.002
     zero_phase_added_zeros: bool = True
+    highpass_phase: str = "best"
+    window_iterations: int = 4
     gain: float = 1.0
     verify_band_hz: tuple[float, float] = (20.0, 1000.0)
     peak_current_A: float | None = None
@@ -94,6 +112,9 @@ class BuildSettings:
             raise ValueError(f"BuildSettings.smooth_hz={self.smooth_hz} exceeds {MAX_SMOOTH_HZ} Hz "
                              "(the bandwidth of human perception, section 4.4.1)")
         require_int("smooth_order", self.smooth_order, minimum=1, maximum=8, prefix="BuildSettings.")
+        if self.highpass_phase not in ("causal", "zero", "best"):
+            raise ValueError(f"BuildSettings.highpass_phase must be 'causal', 'zero' or 'best', got {self.highpass_phase!r}")
+        require_int("window_iterations", self.window_iterations, minimum=0, maximum=50, prefix="BuildSettings.")
         if not (0 <= self.onset_delay_s <= 0.01):
             raise ValueError(f"BuildSettings.onset_delay_s must be in [0, 0.01] s, got {self.onset_delay_s!r}")
         if not (0 <= self.taper_s < self.duration_s):

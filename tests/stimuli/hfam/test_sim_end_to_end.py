@@ -39,11 +39,13 @@ def test_recorded_sim_taps_look_like_impacts(built):
 def test_forward_model_verification_on_sim_models(built):
     _, _, _, lib, report = built
     assert lib.currents_A.shape == (3, 2, 1000)
-    # cells scaled to the 4 A limit miss their target by the scale itself (issue 16: 5 N at 0.15 m/s, x0.84,
-    # NRMSE 0.144); the others measured <= 0.118
-    assert max(r["nrmse"] for r in report.verification if r["scale"] == 1.0) < 0.12
-    assert max(r["nrmse"] for r in report.verification) < 0.2
-    assert min(r["corr"] for r in report.verification) > 0.99
+    # against the recording high-passed without phase turn (the causal high-pass's own output was the
+    # target before, NRMSE < 0.12 against it; the causal library scores 0.287-0.296 / corr 0.962 by this
+    # measure); measured 0.180-0.274, corr >= 0.963: the 2.5 N model's slower zeros keep it above 0.25
+    rows = report.verification
+    assert max(r["nrmse"] for r in rows) < 0.28
+    assert np.mean([r["nrmse"] for r in rows]) < 0.24
+    assert min(r["corr"] for r in rows) > 0.96
 
 
 def test_grip_range_check_against_sim_device(built):
@@ -69,10 +71,14 @@ def test_transient_played_on_nonlinear_sim_reproduces_recording(built):
             acc.append(sim.read().accel_m_s2)
     pad = 100
     y = np.concatenate([np.zeros(pad), acc])
-    d = np.concatenate([np.zeros(pad), highpass_target(lib.desired_accel_m_s2[1], fs, 10.0), np.zeros(300)])
+    # the desired acceleration: high-passed without phase turn (measured 0.399 / 0.919 on the 3 g wood tile;
+    # 0.370 / 0.934 on the old 0.12 kg block, where the causal library was 0.461 / 0.890 against it, 0.394 /
+    # 0.919 against its own causally high-passed target)
+    d = np.concatenate([np.zeros(pad), highpass_target(lib.desired_accel_m_s2[1], fs, 10.0, zero_phase=True),
+                        np.zeros(300)])
     bp = band_sos(fs, (20.0, 1000.0))
     err, corr = nrmse_corr(signal.sosfiltfilt(bp, y)[pad:pad + 1000], signal.sosfiltfilt(bp, d)[pad:pad + 1000])
-    assert corr > 0.9 and err < 0.45, (err, corr)
+    assert corr > 0.9 and err < 0.42, (err, corr)
 
 
 def _rendered_tap_accel(sample, fs, n):
