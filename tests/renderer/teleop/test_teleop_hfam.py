@@ -6,6 +6,8 @@ cross-correlation (``accel_match``): PD alone, master RMS < 20 % of the tip's; P
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -65,6 +67,16 @@ def test_inverse_check_and_stability(hha):
     assert np.isclose(hf.fir.sum(), 1.0) and len(hf.fir) == 15 and np.argmax(hf.fir) == 7   # 7-sample delay
     # barthann(15) = MATLAB barthannwin(15): zero end taps; symmetric, so its delay is exactly 7 samples
     assert hf.fir[0] == 0.0 and hf.fir[-1] == 0.0 and np.allclose(hf.fir, hf.fir[::-1])
+
+
+def test_inverse_that_cannot_match_in_the_band_is_refused(hha):
+    # a real right-half-plane zero inside the band (30 Hz) is no stand-in for delay: what the inverse leaves is
+    # an all-pass turning the phase by ~-120 deg at 50 Hz, so the HFAM channel would push against the handle
+    a = 2 * np.pi * 30.0
+    bad = dataclasses.replace(hha, zeros_rad_s=np.append(hha.zeros_rad_s, a),
+                              poles_rad_s=np.append(hha.poles_rad_s, -a))
+    with pytest.raises(ValueError, match="wrong sign in the band"):
+        design_hfam(bad, FS)
 
 
 def test_smoothing_bounds_the_match(wood):
