@@ -349,22 +349,26 @@ class ServoLoop:
         self._logf.fill(0.0)
         self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
 
-    def _fill_transient(self, v_in: float, grip: float, gain: float) -> int:
-        """Write the event's transient current (A) into the buffer; returns its length (event time, not per tick)."""
+    def _fill_transient(self, v_in: float, grip: float, gain: float, nz: float = 1.0) -> int:
+        """Write the event's transient current (A) into the buffer; returns its length (event time, not per tick).
+
+        The transient (eq. 4.7, 4.8, HFAM) is a force along the outward normal of the surface hit, positive
+        (out) at onset; the device's axis gets its z component, scaled by ``nz`` like the wall's
+        ``k d n_z`` (eq. 2.1), so a surface facing down (a ceiling hit from below) is pushed down."""
         tr = self.transient
-        if tr is None or gain <= 0.0 or not self.cfg.motor_enabled:
+        if tr is None or gain <= 0.0 or nz == 0.0 or not self.cfg.motor_enabled:
             return 0
         view = self.tview
         into = getattr(tr, "current_into", None)
         if callable(into):
             n = int(into(v_in, grip, view))
             n = min(n, self.nbuf)
-            if gain != 1.0:
-                view[:n] *= gain
+            if gain * nz != 1.0:
+                view[:n] *= gain * nz
         else:
             w = np.asarray(tr.waveform(v_in, grip, self.fs_hz), dtype=np.float64)
             n = min(len(w), self.nbuf)
-            np.multiply(w[:n], gain / self.force_per_amp, out=view[:n])
+            np.multiply(w[:n], gain * nz / self.force_per_amp, out=view[:n])
         total = float(view[:n].sum()) if n else 0.0
         if total != total or total in (math.inf, -math.inf):  # cheap test: NaN/inf make the sum non-finite
             np.nan_to_num(view[:n], copy=False, nan=0.0, posinf=0.0, neginf=0.0)
@@ -558,7 +562,7 @@ class ServoLoop:
             if v_in < 0.0:
                 v_in = 0.0
             g_th, grip = float(w[LAW.W_GTH]), float(w[LAW.W_GRIP])
-            tlen = self._fill_transient(v_in, grip, self._law_c[LAW.C_TGAIN] * g_th) if g_th > 0.0 else 0
+            tlen = self._fill_transient(v_in, grip, self._law_c[LAW.C_TGAIN] * g_th, nz) if g_th > 0.0 else 0
             w[LAW.W_TLEN] = tlen
             w[LAW.W_TJ] = 0.0
             self._ev = ContactEvent(t_s=float(w[LAW.W_T]), incoming_velocity_m_s=v_in, grip_N=grip,

@@ -8,6 +8,7 @@ import pytest
 
 from renderer import ContactEvent, RendererConfig, RunResult, ServoLoop
 from renderer.loop import LOG_CHANNELS
+from renderer.scene import Plane, Scene
 from tests.renderer.fakes import MassDevice, tap_trajectory, make_info
 
 
@@ -361,6 +362,31 @@ def test_three_d_scene_on_a_one_dof_device():
     assert res.log["position_m"][ev.tick] == pytest.approx(0.002, abs=2e-5)
     inside = res.log["penetration_m"] > 0
     np.testing.assert_allclose(res.log["force_prop_N"][inside], 680.0 * res.log["penetration_m"][inside])
+
+
+def _rise(t_s: float) -> float:
+    """Desired hand height (m): from 0 up at 0.1 m/s to 8 mm, held (a push up into a ceiling at 5 mm)."""
+    return min(0.1 * t_s, 0.008)
+
+
+@pytest.mark.parametrize("normal,nz", [((0.0, 0.0, -1.0), -1.0), ((0.0, 0.6, 0.8), 0.8)],
+                         ids=["ceiling", "tilted"])
+def test_transient_pushes_out_along_the_normal(normal, nz):
+    """A contact transient pushes the handle out of the surface it hit, like the proportional force.
+
+    Eq. 4.7/4.8 give the transient's magnitude (A |v_in|, positive at onset); on the 1-DOF device its
+    force is the z component of that force along the surface's outward normal: ``F_t n_z``, as the
+    wall's ``k d n_z`` (eq. 2.1). A ceiling (n_z = -1) hit from below is pushed down, not further up."""
+    if nz < 0:
+        dev, scene = MassDevice(_rise, x0_m=0.0), Scene((Plane((0.0, 0.0, 0.005), normal),))
+    else:
+        dev, scene = MassDevice(tap_trajectory(0.1, n_taps=1)), Scene((Plane((0.0, 0.0, 0.0), normal),))
+    res = ServoLoop(dev, RendererConfig(scene=scene), BoxTransient(a_Ns_m=5.0, n=37)).run(duration_s=0.2)
+    ev = res.events[0]
+    ft, fp = res.log["force_transient_N"], res.log["force_prop_N"]
+    assert ev.incoming_velocity_m_s == pytest.approx(0.1 * abs(nz), rel=0.1)  # speed along the normal
+    np.testing.assert_allclose(ft[ev.tick + 1:ev.tick + 38], 5.0 * ev.incoming_velocity_m_s * nz, rtol=1e-12)
+    assert np.sign(fp[ev.tick + 1]) == np.sign(nz)  # the same direction as the wall's own push
 
 
 def test_save_and_load_round_trip(tmp_path):

@@ -38,6 +38,31 @@ def test_sinusoid_matches_eq_4_8_sample_by_sample():
     assert abs(w[-1]) <= 0.01 * 15.9 * 0.2
 
 
+def test_sinusoid_d_is_the_duration_and_its_net_impulse_is_half_the_pulses():
+    """Eq. 4.8's d is the total duration (the envelope is 1 % at t = d), not a time constant: the decay
+    time constant is d / ln(100) = 11.9 ms for Table 4.1's 55 ms. Its net impulse per unit incoming
+    velocity is the closed form A [w - e^(-b d) (b sin wd + w cos wd)] / (b^2 + w^2), b = ln(100)/d,
+    w = 2 pi f: 0.0430 N s per m/s, 47 % of the pulse's A d = 0.091, and 37 % (0.0340) over the first two
+    half periods (18.2 ms, about when a tap on the firm wall is deepest): why the sinusoid cuts
+    penetration less than the pulse (docs/sim.md, "What is not reached")."""
+    s, fs = DecayingSinusoid(), 1e5
+    w = s.waveform(1.0, 2.0, fs)
+    t = np.arange(1, w.size + 1) / fs
+    envelope = np.exp(math.log(0.01) * t / 0.055)
+    assert envelope[-1] == pytest.approx(0.01, rel=1e-9)
+    assert 0.055 / math.log(100.0) == pytest.approx(0.01194, abs=1e-5)
+    assert w[0] > 0 and np.all(w[: int(fs / (2 * 55.0)) - 1] > 0)  # out of the surface for the first half period
+    b, om, a, d = math.log(100.0) / 0.055, 2 * math.pi * 55.0, 15.9, 0.055
+    closed = a * (om - math.exp(-b * d) * (b * math.sin(om * d) + om * math.cos(om * d))) / (b * b + om * om)
+    assert w.sum() / fs == pytest.approx(closed, rel=1e-3)
+    assert closed == pytest.approx(0.0430, abs=1e-4)
+    pulse = Pulse().waveform(1.0, 2.0, fs).sum() / fs
+    assert pulse == pytest.approx(0.091, rel=1e-9)
+    assert closed / pulse == pytest.approx(0.473, abs=1e-3)
+    two_half_periods = int(round(fs / 55.0))
+    assert w[:two_half_periods].sum() / fs / pulse == pytest.approx(0.373, abs=2e-3)
+
+
 def test_sinusoid_warns_for_partial_half_period():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
