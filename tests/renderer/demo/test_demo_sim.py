@@ -56,33 +56,35 @@ def test_velocities_are_inside_the_library_range(result):
 def test_hfam_reproduces_real_wood_on_foam(result, rendering):
     # issue 16: with the library's high-pass no longer turning the phase of the tap's 20-60 Hz content
     # (docs/demo.md, "Why HFAM missed the real tap"), on the 3 g wood tile (docs/sim.md, "Samples"), and
-    # every transient refined by 6 playback-and-correction passes on the sim (docs/demo.md, "Refinement"):
-    # measured median / max NRMSE 0.279 / 0.319 (firm), 0.286 / 0.318 (soft), min corr 0.948 / 0.948
-    # (without refinement: 0.374 / 0.388 and 0.362 / 0.383, min corr 0.922 / 0.924; causal high-pass,
-    # 0.12 kg block: max 0.471 / 0.437). The issue's median <= 0.25 is NOT reached, see docs/sim.md
-    # "What is not reached"
+    # every transient refined by 6 playback-and-correction passes on the sim (docs/demo.md, "Refinement and
+    # the 0.03-0.3 m/s library"): measured median / max NRMSE 0.262 / 0.290 (firm), 0.272 / 0.309 (soft),
+    # min corr 0.958 / 0.951 (library 0.04-0.12 m/s without refinement: 0.374 / 0.388 and 0.362 / 0.383,
+    # min corr 0.922 / 0.924; causal high-pass, 0.12 kg block: max 0.471 / 0.437). The issue's median
+    # <= 0.25 is NOT reached, see docs/sim.md "What is not reached"
     for r in rows(result, rendering):
-        assert r["correlation"] >= 0.94, r
-        assert r["nrmse"] <= 0.33, r
+        assert r["correlation"] >= 0.945, r
+        assert r["nrmse"] <= 0.32, r
         assert r["clipped"] == 0, r
-    assert np.median([r["nrmse"] for r in rows(result, rendering)]) <= 0.295
+    assert np.median([r["nrmse"] for r in rows(result, rendering)]) <= 0.28
 
 
 @pytest.mark.parametrize("rendering", ["hfam_firm", "hfam_soft"])
 def test_hfam_at_high_velocities(result, rendering):
     # issue 16: the library now spans 0.03-0.3 m/s (recorded, refined transients, no extrapolation).
-    # Measured NRMSE at 1/2/3 N: 0.2 m/s 0.414/0.427/0.454 (firm), 0.415/0.427/0.454 (soft); 0.3 m/s
-    # 0.470/0.523/0.591, 0.462/0.525/0.587; corr >= 0.882. The 3 N transient at 0.2 m/s and the 2 and 3 N
-    # ones at 0.3 m/s reach the 4 A limit (wall + transient). Was (0.12 m/s transient extrapolated):
-    # 0.47/0.47/0.49 and 0.59/0.63/0.65, corr >= 0.844. The issue's <= 0.35 is NOT reached
-    for g, limit in zip(GRIPS, (0.44, 0.45, 0.48)):
+    # Measured NRMSE at 1/2/3 N: 0.2 m/s 0.336/0.292/0.347 (firm), 0.324/0.296/0.353 (soft): the issue's
+    # <= 0.35 is met over firm, 0.003 above it over soft at 3 N; 0.3 m/s 0.425/0.434/0.532,
+    # 0.416/0.446/0.545 (NOT met); corr >= 0.943 at 0.2 m/s, >= 0.839 at 0.3 m/s. No tap reaches the 4 A
+    # limit (refined currents stay below 0.95 x 4 A). Was (0.12 m/s transient extrapolated):
+    # 0.47/0.47/0.49 and 0.59/0.63/0.65, corr >= 0.844
+    for g, limit in zip(GRIPS, (0.35, 0.31, 0.36)):
         assert result.row(rendering, 0.2, g)["nrmse"] <= limit
-    for g, limit in zip(GRIPS, (0.49, 0.55, 0.61)):
+    for g, limit in zip(GRIPS, (0.44, 0.46, 0.56)):
         assert result.row(rendering, 0.3, g)["nrmse"] <= limit
+    for r in rows(result, rendering, velocities=(0.2,)):
+        assert r["correlation"] >= 0.935, r
     for r in rows(result, rendering, velocities=HIGH):
-        assert r["correlation"] >= 0.875, r
-    # the current limit: the light grip never reaches it
-    assert all(r["clipped"] == 0 for r in rows(result, rendering, velocities=HIGH, grips=(1.0,)))
+        assert r["correlation"] >= 0.83, r
+        assert r["clipped"] == 0, r
 
 
 def test_proportional_feedback_is_far_from_the_real_sample(result):
@@ -147,12 +149,12 @@ def test_transients_cut_penetration(result):
     HFAM for a cut of at least 1.6x (1 - 1/1.6 = 0.375; thesis: about a factor of two).
     """
     all_v = result.cfg.velocities_m_s
-    # issue 16: measured pulse 0.49, sinusoid 0.27, HFAM 0.59 over firm (2.4x) and 0.55 over soft (2.2x)
-    # with the refined 0.03-0.3 m/s library (0.02-0.3 m/s; before refinement, 0.04-0.3 m/s: 0.446 and
-    # 0.407). With the causally high-passed library HFAM cut 0.02-0.14 over firm and -0.11-0.03 over soft:
-    # its transient had no net early impulse
+    # issue 16: measured pulse 0.49, sinusoid 0.27, HFAM 0.47 over firm (1.9x) and 0.40 over soft (1.7x)
+    # with the refined 0.03-0.3 m/s library (0.02-0.3 m/s; library 0.04-0.12 m/s without refinement,
+    # 0.04-0.3 m/s: 0.446 and 0.407). With the causally high-passed library HFAM cut 0.02-0.14 over firm
+    # and -0.11-0.03 over soft: its transient had no net early impulse
     for with_tr, wall, min_cut in (("pulse_firm", "firm", 0.45), ("sinusoid_firm", "firm", 0.25),
-                                   ("hfam_firm", "firm", 0.5), ("hfam_soft", "soft", 0.5)):
+                                   ("hfam_firm", "firm", 0.375), ("hfam_soft", "soft", 0.375)):
         for v in all_v:
             pen_tr = mean(result, with_tr, "penetration_mean_m", velocities=(v,))
             pen_wall = mean(result, wall, "penetration_mean_m", velocities=(v,))
