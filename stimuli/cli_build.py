@@ -65,6 +65,11 @@ def register(subparsers) -> None:
                         "repeated taps by a person; default 0: off)")
     p.add_argument("--refine-wall", type=float, default=680.0,
                    help="wall stiffness the transients are refined over, N/m (default %(default)s)")
+    p.add_argument("--refine-gain", type=float, default=0.3,
+                   help="learning gain of each refinement correction, (0, 1] (default %(default)s)")
+    p.add_argument("--refine-max-lag", type=float, default=0.001, metavar="S",
+                   help="align the measured response to the target within +/- S seconds before taking the "
+                        "refinement error (the device's own delay is not a shape error; default %(default)s)")
     p.add_argument("--max-extrapolation", type=float, default=d.max_extrapolation,
                    help="cap of v_in/v_max above the velocity range at run time (default %(default)s)")
     with_examples(p, 'hfam-stimuli build-library --recordings REC.csv --model ident/ --scale-to-limit --out LIB.npz')
@@ -173,7 +178,8 @@ def run(args) -> int:
         )
 
         library, _ = refine_library(library, models, lambda: make_device(args.device, seed=0),
-                                    RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall), settings,
+                                    RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall,
+                                                   gain=args.refine_gain, max_lag_s=args.refine_max_lag), settings,
                                     log=lambda m: print(m, flush=True))
     for msg in report.scaled:
         print(f"warning: {msg}")

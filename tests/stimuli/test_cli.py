@@ -7,6 +7,8 @@ import sys
 import numpy as np
 import pytest
 
+from devices.recording import record_taps, write_tap_recording
+from devices.sim import SimDevice
 from stimuli import HfamLibrary
 from stimuli.__main__ import main
 from tests.stimuli.conftest import minimum_phase_model, rhp_zero_model, synthetic_taps, write_taps_csv
@@ -130,3 +132,23 @@ def test_model_set_directory_expands_to_its_accel_models(tmp_path, inputs, capsy
     assert main(["build-library", "--recordings", str(rec), "--model", str(mset), "--out", str(out),
                  "--device", "none", "--force-per-amp", "2.35"]) == 0
     assert HfamLibrary.load(out).grips_N.tolist() == [1.0, 4.0]
+
+
+def test_build_library_refine_reports_error_per_iteration(tmp_path, capsys):
+    """--refine plays each transient on the sim and prints the error before and after every pass (issue 16)."""
+    dev = SimDevice(seed=0, sample="wood_on_foam")
+    fs = dev.info.servo_rate_hz
+    taps = [t for v in (0.06, 0.1) for t in record_taps(dev, [v], grip_N=2.0,
+                                                        trajectory_options={"press_depth_m": v * 0.045 / 1.5})]
+    rec = write_tap_recording(tmp_path / "rec.csv", taps, fs)
+    model = dev.linear_model(2.0).save(tmp_path / "g2.json")
+    out = tmp_path / "lib.npz"
+    assert main(["build-library", "--recordings", str(rec), "--model", str(model), "--out", str(out),
+                 "--n-velocities", "2", "--scale-to-limit", "--refine", "2", "--refine-gain", "0.5",
+                 "--refine-max-lag", "0.001"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("refinement iteration")]
+    assert [ln.split(":")[0] for ln in lines] == [f"refinement iteration {i}" for i in range(3)]
+    first, last = (float(ln.split("median ")[1].split(",")[0]) for ln in (lines[0], lines[-1]))
+    assert last <= first
+    meta = HfamLibrary.load(out).metadata["refinement"]
+    assert meta["iterations"] == 2 and meta["gain"] == 0.5

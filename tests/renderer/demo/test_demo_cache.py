@@ -19,7 +19,11 @@ def test_rebuild_damage_and_reuse(tmp_path):
     assert not first.from_cache
     assert first.directory.name == f"demo-{cache_key(s)}"
     assert sorted(p.name for p in first.directory.iterdir()) == [
-        "identify", "library.npz", "library_verification.txt", "manifest.json", "recordings.csv"]
+        "identify", "library.npz", "library_refinement.txt", "library_verification.txt", "manifest.json",
+        "recordings.csv"]
+    # the refinement by playback (on by default) reports its error before and after every pass
+    lines = (first.directory / "library_refinement.txt").read_text().splitlines()
+    assert [ln.split(":")[0] for ln in lines] == [f"refinement iteration {i}" for i in range(s.refine_iterations + 1)]
     assert list(first.library.grips_N) == [0.0, 10.0] and len(first.library.velocities_m_s) == 3
     created = json.loads((first.directory / "manifest.json").read_text())["created_unix"]
 

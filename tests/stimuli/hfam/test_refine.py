@@ -38,3 +38,51 @@ def test_refine_settings_validated():
         RefineSettings(iterations=0)
     with pytest.raises(ValueError, match="gain"):
         RefineSettings(gain=1.5)
+
+
+def _sim_library(velocities=(0.06, 0.1)):
+    dev = SimDevice(seed=0, sample="wood_on_foam")
+    fs = dev.info.servo_rate_hz
+    raw = [t for v in velocities for t in record_taps(dev, [v], grip_N=2.0,
+                                                      trajectory_options={"press_depth_m": v * 0.045 / 1.5})]
+    taps = [Tap(i, v, t, a) for i, (v, t, a) in enumerate(raw)]
+    bs = BuildSettings(n_velocities=len(velocities), peak_current_A=dev.info.current_peak_A, scale_to_limit=True)
+    return dev, bs, taps, fs
+
+
+def test_lag_alignment_separates_delay_from_shape():
+    """A response late by the device's own delay is not a shape error (RefineSettings.max_lag_s)."""
+    dev, bs, taps, fs = _sim_library()
+    model = dev.linear_model(1.0)
+    lib, _ = build_library(taps, fs, [("linear", model)], bs, force_per_amp_N_A=dev.info.force_per_amp_N_A)
+    _, plain = refine_library(lib, [("linear", model)], lambda: SimDevice(seed=0),
+                              RefineSettings(iterations=1, max_lag_s=0.0), bs)
+    _, aligned = refine_library(lib, [("linear", model)], lambda: SimDevice(seed=0),
+                                RefineSettings(iterations=1, max_lag_s=0.001), bs)
+    # the same played transients (iteration 0): aligned within 1 ms their error can only be lower
+    e0 = [c[2] for c in plain[0]["cells"]]
+    e1 = [c[2] for c in aligned[0]["cells"]]
+    assert all(b <= a + 1e-12 for a, b in zip(e0, e1))
+    assert len(e0) == len(e1) == 2
+
+
+def test_amplitude_matched_model_sets_pick_the_nearest_sweep():
+    """Each cell's correction goes through the model set whose sweep amplitude is nearest to a quarter of its
+    peak current; a set without the cell's grip is an error that names the grip."""
+    dev, bs, taps, fs = _sim_library()
+    m2 = dev.linear_model(2.0)
+    lib, _ = build_library(taps, fs, [("linear", m2)], bs, force_per_amp_N_A=dev.info.force_per_amp_N_A)
+    peak = float(abs(lib.currents_A).max())
+    # a set at a far amplitude holding another grip only: if it were picked, the 2 N cell would find no model
+    far = [("other grip", dev.linear_model(3.0))]
+    new, hist = refine_library(lib, [("linear", m2)], lambda: SimDevice(seed=0), RefineSettings(iterations=2), bs,
+                               model_sets=[(0.25 * peak, [("linear", m2)]), (100.0, far)])
+    assert hist[-1]["median_nrmse"] <= hist[0]["median_nrmse"]
+    with pytest.raises(ValueError, match="no model for grip 2"):
+        refine_library(lib, [("linear", m2)], lambda: SimDevice(seed=0), RefineSettings(iterations=1), bs,
+                       model_sets=[(0.25 * peak, far), (100.0, [("linear", m2)])])
+
+
+def test_refine_settings_lag_validated():
+    with pytest.raises(ValueError, match="max_lag_s"):
+        RefineSettings(max_lag_s=0.01)
