@@ -81,6 +81,16 @@ def _clamp(x, limit):
 
 
 @njit(cache=True, inline="always")
+def _valid_or_last(w, slot, x, lo, hi):
+    """``x`` if inside [lo, hi] (kept in ``w[slot]`` as the last good value), else that last good value
+    (NaN is never inside); and whether it was held."""
+    if lo <= x <= hi:
+        w[slot] = x
+        return x, False
+    return w[slot], True
+
+
+@njit(cache=True, inline="always")
 def penetration(c, z):
     """Deepest signed penetration (m) of the proxy (0, 0, z) over the scene's objects and the normal's
     z component (``renderer.scene.Scene.penetration_1d``)."""
@@ -137,23 +147,15 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
             acc = w[W_LAST_ACC]
             grip = w[W_LAST_GRIP]
     # (1) validate: out of range or NaN -> hold the last good value and flag it
-    plim = c[C_PLIM]
-    if not (-plim <= pos <= plim):
-        pos = w[W_LAST_POS]
+    pos, held = _valid_or_last(w, W_LAST_POS, pos, -c[C_PLIM], c[C_PLIM])
+    if held:
         flags |= 1
-    else:
-        w[W_LAST_POS] = pos
-    alim = c[C_ALIM]
-    if not (-alim <= acc <= alim):
-        acc = w[W_LAST_ACC]
+    acc, held = _valid_or_last(w, W_LAST_ACC, acc, -c[C_ALIM], c[C_ALIM])
+    if held:
         flags |= 2
-    else:
-        w[W_LAST_ACC] = acc
-    if not (c[C_GMIN] <= grip <= c[C_GMAX]):
-        grip = w[W_LAST_GRIP]
+    grip, held = _valid_or_last(w, W_LAST_GRIP, grip, c[C_GMIN], c[C_GMAX])
+    if held:
         flags |= 4
-    else:
-        w[W_LAST_GRIP] = grip
     w[W_FLAGS] = flags
     if flags:
         w[W_NBAD] += 1.0

@@ -153,13 +153,10 @@ def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings,
     n = accel_m_s2.size
     nfft = sp_fft.next_fast_len(2 * n, real=True)
     f = sp_fft.rfftfreq(nfft, 1.0 / fs_hz)
-    below_nyquist = f < 0.5 * fs_hz * (1.0 - 1e-9)
-    s = 2j * fs_hz * np.tan(np.pi * f[below_nyquist] / fs_hz)  # Tustin frequency warping
+    below_nyquist, s = _tustin_s(f, fs_hz)
     h = _zpk_response(zp, p0, kp, s)  # the proper model
     added = _zpk_response(zp[z0.size:], [], kp / float(model.gain), s)  # Z(s), unit DC gain
-    w_hp = 2.0 * np.pi * settings.highpass_hz
-    w_hp = 2.0 * fs_hz * np.tan(w_hp / (2.0 * fs_hz))  # prewarped so the cut-off stays at highpass_hz
-    highpass = s * s / (s * s + math.sqrt(2.0) * w_hp * s + w_hp * w_hp)
+    highpass = _highpass(s, fs_hz, settings.highpass_hz)
     if zero_phase_highpass:
         highpass = np.abs(highpass)  # offline, like the smoothing: no phase turn inside the band
     mag2 = (h * np.conj(h)).real
@@ -184,18 +181,24 @@ def highpass_target(accel_m_s2: np.ndarray, fs_hz: float, highpass_hz: float, ze
     n = accel_m_s2.size
     nfft = sp_fft.next_fast_len(2 * n, real=True)
     f = sp_fft.rfftfreq(nfft, 1.0 / fs_hz)
-    spectrum = sp_fft.rfft(accel_m_s2, nfft) * _highpass_magnitude(f, fs_hz, highpass_hz)
-    return sp_fft.irfft(spectrum, nfft)[:n]
+    below, s = _tustin_s(f, fs_hz)
+    magnitude = np.zeros(f.shape)           # 0 at and above Nyquist
+    magnitude[below] = np.abs(_highpass(s, fs_hz, highpass_hz))
+    return sp_fft.irfft(sp_fft.rfft(accel_m_s2, nfft) * magnitude, nfft)[:n]
 
 
-def _highpass_magnitude(f_hz: np.ndarray, fs_hz: float, highpass_hz: float) -> np.ndarray:
-    """|H| of the 2nd-order Butterworth high-pass (Tustin, prewarped) at ``f_hz``; 0 at and above Nyquist."""
-    out = np.zeros(f_hz.shape)
+def _tustin_s(f_hz: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which of ``f_hz`` lie below Nyquist, and the Tustin-warped ``s = 2 fs j tan(pi f / fs)`` there."""
     below = f_hz < 0.5 * fs_hz * (1.0 - 1e-9)
-    s = 2j * fs_hz * np.tan(np.pi * f_hz[below] / fs_hz)
-    w = 2.0 * fs_hz * np.tan(np.pi * highpass_hz / fs_hz)
-    out[below] = np.abs(s * s / (s * s + math.sqrt(2.0) * w * s + w * w))
-    return out
+    return below, 2j * fs_hz * np.tan(np.pi * f_hz[below] / fs_hz)
+
+
+def _highpass(s: np.ndarray, fs_hz: float, highpass_hz: float) -> np.ndarray:
+    """The 2nd-order Butterworth high-pass at the warped ``s`` (Tustin, prewarped: the cut-off stays at
+    ``highpass_hz``)."""
+    w_hp = 2.0 * np.pi * highpass_hz
+    w_hp = 2.0 * fs_hz * np.tan(w_hp / (2.0 * fs_hz))
+    return s * s / (s * s + math.sqrt(2.0) * w_hp * s + w_hp * w_hp)
 
 
 def nrmse_corr(y: np.ndarray, d: np.ndarray) -> tuple[float, float]:
