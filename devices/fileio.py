@@ -11,6 +11,12 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+def user_cache_dir() -> Path:
+    """The project's per-user cache: ``$XDG_CACHE_HOME/hfam-haptics`` or ``~/.cache/hfam-haptics``."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "hfam-haptics"
+
+
 def current_umask() -> int:
     """The process's umask, read without changing it (``/proc/self/status``; fallback: set and restore).
 

@@ -8,9 +8,12 @@ from the installed distributions' metadata, so nothing heavy is imported.
 from __future__ import annotations
 
 import functools
-import importlib.metadata
+import os
 import platform
+import re
 import subprocess
+import sys
+import threading
 from pathlib import Path
 
 #: Distributions whose version can change a result (numerics, statistics, I/O, figures, transports).
@@ -20,11 +23,42 @@ RESULT_PACKAGES = ("numpy", "scipy", "numba", "llvmlite", "pandas", "statsmodels
 PROJECT = "hfam-haptics"
 
 
+def _normalize(name: str) -> str:
+    """A distribution name as wheels spell it in their ``.dist-info`` folder (PEP 503, ``-``/``.`` -> ``_``)."""
+    return re.sub(r"[-_.]+", "_", name).lower()
+
+
 def _dist_version(name: str) -> str | None:
+    """The installed version of distribution ``name`` (None if not installed).
+
+    Read from the ``{name}-{version}.dist-info`` folder names on ``sys.path``, first match wins (what
+    ``importlib.metadata.version`` finds; ~20x faster: no metadata files parsed, and importlib.metadata,
+    ~25 ms to import, is loaded only for a distribution installed some other way, e.g. an ``.egg-info``).
+    """
+    version = _dist_info_versions().get(_normalize(name))
+    if version is not None:
+        return version
+    import importlib.metadata  # deferred: ~25 ms; only for a distribution without a .dist-info folder
+
     try:
         return importlib.metadata.version(name)
     except importlib.metadata.PackageNotFoundError:
         return None
+
+
+@functools.lru_cache(maxsize=1)
+def _dist_info_versions() -> dict[str, str]:
+    found: dict[str, str] = {}
+    for entry in sys.path:
+        try:
+            names = os.listdir(entry or ".")
+        except OSError:
+            continue
+        for folder in names:
+            if folder.endswith(".dist-info") and "-" in folder:
+                dist, version = folder[:-len(".dist-info")].split("-", 1)
+                found.setdefault(_normalize(dist), version)
+    return found
 
 
 def git_commit(repo: str | Path | None = None) -> tuple[str | None, bool | None]:
@@ -56,13 +90,29 @@ def git_commit(repo: str | Path | None = None) -> tuple[str | None, bool | None]
 
 
 @functools.lru_cache(maxsize=1)
-def _versions() -> tuple:
+def _versions_once() -> tuple:
     commit, dirty = git_commit()
     out = {PROJECT: _dist_version(PROJECT) or "unknown", "git_commit": commit, "git_dirty": dirty,
            "python": platform.python_version(), "platform": platform.platform()}
     for name in RESULT_PACKAGES:
         out[name] = _dist_version(name)
     return tuple(out.items())
+
+
+_versions_lock = threading.Lock()
+
+
+def _versions() -> tuple:
+    # one computation per process, also when prefetch()'s thread is still at it (this waits for it)
+    with _versions_lock:
+        return _versions_once()
+
+
+def prefetch() -> None:
+    """Start working out :func:`software_versions` in a background thread (most of it is waiting for
+    ``git status``, ~10 ms), so a command that will save a result does not wait for it at the end. Not
+    for a paced hardware loop's process: the thread takes the GIL for a few ms."""
+    threading.Thread(target=_versions, name="provenance", daemon=True).start()
 
 
 def software_versions() -> dict:

@@ -93,7 +93,7 @@ def register(subparsers) -> None:
     p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
     p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
     add_renamed(p, "--duration-s", "--duration", dest="duration", type=_positive("--duration"), default=None,
-                   help="run length in s (hardware default: until Ctrl-C; sim: until the taps are done)")
+                   help="run length in s (hardware default: until Ctrl-C; sim default: until the taps are done)")
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
     p.add_argument("--in-process", action="store_true",
                    help="hardware: run the servo loop in this process instead of its own")
@@ -132,7 +132,10 @@ def run_command(args) -> int:
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"
     if simulated:
+        from devices import provenance  # deferred: keeps `--help` fast (a command loads only what it runs)
         from devices.sim import TapTrajectory  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+        provenance.prefetch()  # run.json's versions and git state, while the simulation runs
 
         dev = make_device(args.device, seed=args.seed)
         with dev:
@@ -141,10 +144,10 @@ def run_command(args) -> int:
             traj = TapTrajectory(args.velocity, n_taps=args.taps)
             dev.set_user(traj, grip_N=args.grip)
             loop = ServoLoop(dev, cfg, transient)
-            duration = args.duration if args.duration is not None else traj.duration_s + 0.5
+            # --duration-s: that long (the hand rests after its last tap); else the plan's length
+            duration = args.duration if args.duration is not None else traj.duration_s
             try:
-                result = loop.run(duration_s=duration, until=lambda lp: dev.trajectory_done,
-                                  realtime=args.realtime)
+                result = loop.run(duration_s=duration, realtime=args.realtime)
             except KeyboardInterrupt:
                 result = loop.result
                 if result is not None:

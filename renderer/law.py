@@ -17,7 +17,8 @@ Arrays (all float64):
   (``renderer.scene.SHAPE_CODES``) and the numbers of ``Shape.numbers()``;
 * ``w`` -- state (``W_*``), then the double-written position ring (``2 nring`` samples from
   ``W_RING``) and the transient buffer (``nbuf`` samples of current, A, from ``c[C_TBUF]``);
-* ``log`` -- (capacity, ``N_LOG``) rows ``LOG_COLUMNS``, a ring written at ``w[W_LI]``.
+* ``log`` -- (``N_LOG``, capacity): one row per channel of ``LOG_COLUMNS`` (each channel contiguous, so a
+  run's log columns are views, not copies), a ring whose column ``w[W_LI]`` is written.
 
 ``w[W_CODE]`` after a tick holds bits: ``CODE_IMPACT`` (an impact fired: do the event work after the
 command), ``CODE_CLOSED`` (the open event closed, at a re-arm or a new impact: its maximum
@@ -35,26 +36,9 @@ from devices.sim import kernel as SK
 
 from .scene import SHAPE_CODES, box_1d, plane_1d, sphere_1d, wall_1d
 
-# ---- constants
-(C_K, C_DAMP, C_MARGIN, C_HOLD_N, C_KF, C_INV_KF, C_MOTOR, C_TGAIN, C_IC, C_IPK, C_IAMP, C_HEAT, C_ALPHA,
- C_T_ATT, C_T_END, C_INV_SPAN, C_PLIM, C_ALIM, C_GMIN, C_GMAX, C_MAX_BAD, C_WV, C_NRING, C_C_SHIFT,
- C_C_SCALE, C_CAP, C_NOBJ, C_TBUF) = range(28)
-C_OBJ = 32
-OBJ_STRIDE = 8
+# the arrays' layout (numba-free, shared with renderer.loop and renderer.sim_aot)
+from .law_layout import *  # noqa: F401,F403 -- re-exported: law.C_*, law.W_*, law.CODE_*, law.LOG_COLUMNS
 
-# ---- state
-(W_TEMP, W_GTH, W_ARMED, W_OUT_N, W_TJ, W_TLEN, W_EV_ON, W_EV_PEN, W_EV_ACC, W_EV_CLIP, W_LAST_POS,
- W_LAST_ACC, W_LAST_GRIP, W_NBAD, W_BAD_TOTAL, W_S0, W_S1, W_PI, W_PO, W_PNEW, W_N, W_LI, W_CODE, W_VEL,
- W_D, W_NZ, W_FLAGS, W_CLOSED_PEN, W_CLOSED_ACC, W_CLOSED_CLIP, W_T, W_GRIP) = range(32)
-W_RING = 40
-
-# tick outcome bits: an impact fired, an open event closed, or a stop (sensors, disconnect)
-CODE_OK, CODE_IMPACT, CODE_CLOSED, CODE_SENSOR, CODE_DISCONNECTED = 0, 1, 2, 4, 8
-STATUS_SENSOR_INVALID, STATUS_DISCONNECTED = 16, 32
-
-LOG_COLUMNS = ("t_s", "position_m", "velocity_m_s", "penetration_m", "force_prop_N", "force_transient_N",
-               "current_A", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags")
-N_LOG = len(LOG_COLUMNS)
 
 # the scene's shapes, compiled from renderer.scene's own functions
 _wall_1d = njit(cache=True, inline="always")(wall_1d)
@@ -63,11 +47,6 @@ _sphere_1d = njit(cache=True, inline="always")(sphere_1d)
 _box_1d = njit(cache=True, inline="always")(box_1d)
 _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "sphere", "box"))
 
-# simulated-device vector of run_sim (the Python side is devices.sim.SimDevice's fused_state/fused_sync)
-(D_TICK, D_USER_TICK, D_HELD, D_LIMIT, D_PERIOD, D_REJECTED, D_LAST, D_STATUS, D_POS, D_ACC, D_GRIP,
- D_T) = range(12)
-N_DEV = 12
-_HOT_STATUS = 2     # devices.base.Status.OVER_TEMPERATURE
 
 
 @njit(cache=True, inline="always")
@@ -123,8 +102,8 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     ----------
     c, w : float64 arrays
         Constants and state (module doc).
-    log : float64 array (capacity, N_LOG)
-        Log ring; row ``w[W_LI]`` is written.
+    log : float64 array (N_LOG, capacity)
+        Log ring, one row per channel; column ``w[W_LI]`` is written.
     t, pos, acc, grip : float
         The device's sample: time (s), position (m, + up), acceleration (m/s^2), grip (N).
     status : int
@@ -271,21 +250,20 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     w[W_NZ] = nz
     w[W_T] = t
     w[W_GRIP] = grip
-    # (5) log row
+    # (5) log column
     li = int(w[W_LI])
-    row = log[li]
-    row[0] = t
-    row[1] = pos
-    row[2] = vel
-    row[3] = d
-    row[4] = f_p
-    row[5] = i_t_req * c[C_KF]
-    row[6] = i
-    row[7] = clip
-    row[8] = acc
-    row[9] = grip
-    row[10] = temp
-    row[11] = flags
+    log[0, li] = t
+    log[1, li] = pos
+    log[2, li] = vel
+    log[3, li] = d
+    log[4, li] = f_p
+    log[5, li] = i_t_req * c[C_KF]
+    log[6, li] = i
+    log[7, li] = clip
+    log[8, li] = acc
+    log[9, li] = grip
+    log[10, li] = temp
+    log[11, li] = flags
     li += 1
     if li == int(c[C_CAP]):
         li = 0
@@ -335,7 +313,7 @@ def run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max):
         dev[D_POS] = p
         dev[D_ACC] = a
         dev[D_GRIP] = g
-        dev[D_STATUS] = status | _HOT_STATUS if hot != 0.0 else status
+        dev[D_STATUS] = status | HOT_STATUS if hot != 0.0 else status
         if code != CODE_OK:
             return j + 1
     return n_max

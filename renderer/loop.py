@@ -44,7 +44,8 @@ import numpy as np
 
 from devices import provenance
 
-from . import law as LAW
+from . import law_layout as LAW
+from . import sim_aot
 from .config import RendererConfig
 from .safety import safety_bounds
 from .thermal import safe_continuous_current
@@ -236,6 +237,18 @@ def _set_timer_slack_ns(ns: int) -> int | None:
         return None
 
 
+#: ticks between stop-request polls of a compiled simulated run without an ``until`` predicate: each poll
+#: returns to Python (~5 us), so 16-tick chunks cost as much as the physics; 10 000 ticks take ~5 ms
+COMPILED_POLL_TICKS = 10_000
+
+
+def _law():
+    """``renderer.law``: the JIT-compiled law, imported by the first loop that runs it per tick or JIT."""
+    from . import law  # deferred: numba (~0.3 s); a simulated run compiled ahead of time never needs it
+
+    return law
+
+
 class ServoLoop:
     """Servo loop rendering a scene on a 1-DOF device (see the module doc for one tick).
 
@@ -330,7 +343,8 @@ class ServoLoop:
         self._prepared = True
 
     def request_stop(self) -> None:
-        """Ask a running loop (e.g. from a UI thread) to stop within ``cfg.until_every`` ticks."""
+        """Ask a running loop (e.g. from a UI thread) to stop within ``cfg.until_every`` ticks (a compiled
+        simulated run without an ``until`` predicate: within ``COMPILED_POLL_TICKS``, a few ms of wall time)."""
         self.stop_requested = True
 
     def _stop_check(self, until) -> str:
@@ -343,9 +357,9 @@ class ServoLoop:
         return ""
 
     def _alloc_log(self, capacity: int) -> None:
-        # the law's rows (renderer.law.LOG_COLUMNS) and the loop's own clock columns; filled now, so
-        # the loop never takes a first-touch page fault
-        self._logf = np.empty((capacity, LAW.N_LOG))
+        # the law's channels (renderer.law.LOG_COLUMNS, one contiguous row each) and the loop's own clock
+        # columns; filled now, so the loop never takes a first-touch page fault
+        self._logf = np.empty((LAW.N_LOG, capacity))
         self._logf.fill(0.0)
         self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
 
@@ -478,7 +492,7 @@ class ServoLoop:
             c[o + 1:o + 1 + len(nums)] = nums
         return c
 
-    def _prime(self) -> None:
+    def _prime(self, warm_law: bool = True) -> None:
         """Zero-current priming cycle, then the law's initial state: the position ring and its sums, the
         last good samples, the contact latch, temperature. One-time costs (a sim's JIT compile, a
         driver's first transfer) land here, not in the first paced tick."""
@@ -504,8 +518,9 @@ class ServoLoop:
         w[LAW.W_ARMED] = 1.0 if self.scene.penetration_1d(p0)[0] <= 0.0 else 0.0
         w[LAW.W_TEMP] = float(self.temp_rise_K)
         w[LAW.W_GTH] = 1.0
-        # one tick of the law on scratch copies: its first call's one-time cost lands here, not in tick 0
-        LAW.law_tick(c, w.copy(), np.zeros((1, LAW.N_LOG)), 0.0, p0, 0.0, 0.0, 0)
+        if warm_law:
+            # one tick of the law on scratch copies: its first call's one-time cost lands here, not in tick 0
+            _law().law_tick(c, w.copy(), np.zeros((LAW.N_LOG, 1)), 0.0, p0, 0.0, 0.0, 0)
 
     def _loop(self, limit, until, realtime: bool) -> None:
         """The servo loop proper; one tick of it: pace; read; the law (``renderer.law.law_tick``:
@@ -517,11 +532,17 @@ class ServoLoop:
         st = self._stats
         dev = self.device
         self._law_c = self._law_constants()
-        self._prime()
-        self._ev = None
-        self._tlen = 0
         compiled = (self.compiled_sim and not realtime and self.info.simulated
                     and callable(getattr(dev, "fused_arrays", None)))
+        if compiled:
+            # the ahead-of-time build when there is one (renderer.sim_aot: no numba in the process), which
+            # also carries the device's own physics step for the priming tick and any Python-side command
+            self._run_sim, step = sim_aot.run_sim_function()
+            if step is not None and callable(getattr(dev, "use_compiled_step", None)):
+                dev.use_compiled_step(step)
+        self._prime(warm_law=not compiled)
+        self._ev = None
+        self._tlen = 0
         st["compiled"] = compiled
         st["cpu0"] = time.process_time()
         t0 = time.perf_counter_ns()
@@ -575,7 +596,7 @@ class ServoLoop:
         st, cfg, info = self._stats, self.cfg, self.info
         read, command = self.device.read, self.device.command
         clock, sleep = time.perf_counter_ns, time.sleep
-        law_tick, c, w, log = LAW.law_tick, self._law_c, self.law_state, self._logf
+        law_tick, c, w, log = _law().law_tick, self._law_c, self.law_state, self._logf
         wm = memoryview(w)  # reading a Python float from a memoryview is cheaper than from numpy
         W_CODE, W_FLAGS, W_NBAD = LAW.W_CODE, LAW.W_FLAGS, LAW.W_NBAD
         L_w, L_cn = self._log_ns["wall_ns"], self._log_ns["compute_ns"]
@@ -669,16 +690,21 @@ class ServoLoop:
         st, dev = self._stats, self.device
         c, w, log, cap = self._law_c, self.law_state, self._logf, self._cap
         wall_col = np.frombuffer(self._log_ns["wall_ns"], dtype=np.int64)
-        until_every = int(self.cfg.until_every)
+        # with an ``until`` predicate, it sees the device as it was every ``until_every`` ticks (as in the
+        # per-tick loop); without one, only a stop request is polled, every COMPILED_POLL_TICKS ticks (a few
+        # ms of wall time), and the device's Python side is brought up to date at the end
+        until_every = int(self.cfg.until_every) if until is not None else max(int(self.cfg.until_every),
+                                                                               COMPILED_POLL_TICKS)
         uc = until_every
         n = li = 0
         st["paced"] = False
         arrays = dev.fused_arrays()
         dv = dev.fused_state()
+        run_sim = self._run_sim
         reason = "duration"
         try:
             while n < limit:
-                k = LAW.run_sim(c, w, log, dv, *arrays, min(uc, limit - n))
+                k = run_sim(c, w, log, dv, *arrays, min(uc, limit - n))
                 now = time.perf_counter_ns() - t0
                 end = li + k
                 if end <= cap:
@@ -706,10 +732,15 @@ class ServoLoop:
                     self._after_command(code, n - 1)
                 if uc == 0:
                     uc = until_every
-                    dev.fused_sync(dv)
                     self.ticks = n
                     self.time_s = float(w[LAW.W_T])
                     self.temp_rise_K = float(w[LAW.W_TEMP])
+                    if until is None:
+                        if self.stop_requested:
+                            reason = "stopped"
+                            break
+                        continue
+                    dev.fused_sync(dv)
                     stop = self._stop_check(until)
                     if stop:
                         reason = stop
@@ -753,13 +784,12 @@ class ServoLoop:
                 flags = 0 if pos == pos else 1
                 for raw in pop() or ():
                     self.events.append(ContactEvent.from_dict(raw))
-                row = log[li]
-                row[C_T] = t
-                row[C_X] = pos
-                row[C_D] = wall_h - pos
-                row[C_A] = s.accel_m_s2
-                row[C_G] = s.grip_N
-                row[C_F] = flags
+                log[C_T, li] = t
+                log[C_X, li] = pos
+                log[C_D, li] = wall_h - pos
+                log[C_A, li] = s.accel_m_s2
+                log[C_G, li] = s.grip_N
+                log[C_F, li] = flags
                 L_w[li] = tr - t0
                 L_cn[li] = clock() - tr
                 li += 1
@@ -793,15 +823,19 @@ class ServoLoop:
             if name in self._log_ns:
                 arr = np.frombuffer(self._log_ns[name], dtype=np.int64)
             else:
-                arr = self._logf[:, LAW.LOG_COLUMNS.index(name)]
+                arr = self._logf[LAW.LOG_COLUMNS.index(name)]
             if st.get("wrapped"):
                 arr = np.concatenate([arr[li:], arr[:li]])
             else:
                 arr = arr[:n_logged]
-            log[name] = arr.astype(dtype)
+            # float64 channels are views of the log (a 30 s run's copies cost ~30 MB of page faults)
+            log[name] = arr.astype(dtype, copy=False)
         ticks = st.get("ticks", 0)
-        periods = np.diff(log["wall_ns"]) / 1000.0 if n_logged > 1 else np.zeros(0)
-        compute = log["compute_ns"] / 1000.0
+        if st.get("compiled"):  # no per-tick clock inside a compiled chunk: no period or compute statistics
+            periods = compute = np.zeros(0)
+        else:
+            periods = np.diff(log["wall_ns"]) / 1000.0 if n_logged > 1 else np.zeros(0)
+            compute = log["compute_ns"] / 1000.0
         sim_time = ticks / self.fs_hz
 
         def pct(a, q):

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from ..base import Device, DeviceState, Status
-from . import kernel as K
+from . import layout as K
 from .hand import HoldTrajectory, ReactiveHand, sample_grip
 from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, get_config
 from .params import SimParams, default_params, load_sim_params
@@ -23,6 +23,17 @@ from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
 _HOT = int(Status.OVER_TEMPERATURE)
+
+
+def _kernel_tick():
+    """The compiled physics step ``devices.sim.kernel.tick``.
+
+    Imported at a device's first :meth:`SimDevice.command`, not with this module: a simulated run whose
+    servo loop was compiled ahead of time (``renderer.sim_aot``) never calls it and starts without numba.
+    """
+    from . import kernel  # deferred: numba and the cached kernels cost ~0.3 s that an AOT-compiled run never needs
+
+    return kernel.tick
 
 
 class SimDevice(Device):
@@ -44,7 +55,7 @@ class SimDevice(Device):
         self.info = self.params.device_info()
         self._period_s = 1.0 / self.info.servo_rate_hz
         self._limit_A = self.info.current_amplifier_A
-        self._tick_fn = K.tick
+        self._tick_fn = None    # devices.sim.kernel.tick, loaded at the first command (numba: ~0.3 s)
         self._s = np.zeros(K.N_STATE)
         self._p = self._build_param_array()
         # xorshift must not start at 0; mix the seed so nearby seeds differ
@@ -172,14 +183,24 @@ class SimDevice(Device):
         self._held_A = current_A
         tick = self._tick + 1
         self._tick = tick
-        pos, acc, grip, hot = self._tick_fn(self._s, self._p, self._rs, self._traj, self._grip,
-                                     tick - 1 - self._user_tick, applied)
+        fn = self._tick_fn
+        if fn is None:
+            fn = self._tick_fn = _kernel_tick()
+        pos, acc, grip, hot = fn(self._s, self._p, self._rs, self._traj, self._grip, tick - 1 - self._user_tick, applied)
         st = self._state
         st.t_s = tick * self._period_s
         st.position_m = pos
         st.accel_m_s2 = acc
         st.grip_N = grip
         st.status = status | _HOT if hot else status
+
+    def use_compiled_step(self, step) -> None:
+        """Advance the physics in :meth:`command` with ``step``: ``devices.sim.kernel.tick`` itself, compiled
+        elsewhere (ahead of time, ``renderer.sim_aot``), so that a process that runs it needs no numba.
+        Same signature and results; the loop that supplies it checks it was built from this kernel's source."""
+        if not callable(step):
+            raise ValueError(f"use_compiled_step needs a callable (devices.sim.kernel.tick), got {step!r}")
+        self._tick_fn = step
 
     # -- the compiled servo loop (renderer.law.run_sim) ------------------------
     def fused_arrays(self) -> tuple:

@@ -146,11 +146,41 @@ class TapTrajectory:
     def sample(self, fs_hz: float) -> np.ndarray:
         """Desired position at ticks ``k/fs_hz`` for k = 0..ceil(duration*fs) (m), shape (n,).
 
-        The tick times are made chunk by chunk (no full-length time array): a long plan costs the
-        same per tap as a short one (issue 21 item 2).
+        The same values as :meth:`position` at those times, bit for bit; because the times are in
+        order, each tap's samples and each of its segments are contiguous, so every segment's formula
+        runs once over its own slice (no per-sample gathering or selection): ~10x faster, linear in taps
+        and samples (issue 21 item 2).
         """
         n = int(math.ceil(self.duration_s * fs_hz)) + 1
-        return self._chunked(n, lambda i, j: np.arange(i, j) / fs_hz)
+        t = np.arange(n) / fs_hz
+        out = np.full(n, self.approach_height_m)
+        h, d, lift_s = self.approach_height_m, self.press_depth_m, self.lift_s
+        n_taps = len(self._taps)
+        # tap i owns starts[i] <= t < starts[i + 1] (the first also t < starts[0], the last all later t,
+        # as position()'s clipped search); past the plan's end the hand is at the approach height
+        edges = np.searchsorted(t, self._starts[1:n_taps], side="left")
+        lo_all = np.concatenate([[0], edges])
+        hi_all = np.concatenate([edges, [np.searchsorted(t, self._starts[-1], side="left")]])
+        for tp, s0, lo, hi in zip(self._taps, self._starts, lo_all, hi_all):
+            if hi <= lo:
+                continue
+            tau = t[lo:hi] - s0
+            v, ramp, t_surf = tp["v"], tp["ramp"], tp["t_surface"]
+            t_brake = t_surf + tp["t_through"]
+            t_rest, t_decel, t_lift = tp["t_rest"], tp["t_decel"], tp["t_lift"]
+            a, b, c, e, f, g = np.searchsorted(tau, (0.0, ramp, t_surf, t_brake, t_rest, t_lift), side="left")
+            phase = (tau[g:] - t_lift) / lift_s
+            end = g + int(np.searchsorted(phase, 1.0, side="left"))
+            x = out[lo:hi]
+            # the segment formulas of _position, operation for operation
+            x[a:b] = h - 0.5 * v / ramp * tau[a:b] ** 2
+            x[b:c] = h - v * ramp / 2 - v * (tau[b:c] - ramp)
+            x[c:e] = -v * (tau[c:e] - t_surf)
+            u = tau[e:f] - t_brake
+            x[e:f] = -0.5 * d - v * u + 0.5 * (v / t_decel) * u ** 2
+            x[f:g] = -d
+            x[g:end] = -d + (h + d) * 0.5 * (1 - np.cos(np.pi * phase[:end - g]))
+        return out
 
 
 class ScriptedTrajectory:

@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from devices.fileio import user_cache_dir
 from devices.registry import make_device
 from stimuli import HfamLibrary
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
@@ -99,8 +100,7 @@ class Pipeline:
 
 def default_cache_base() -> Path:
     """``$XDG_CACHE_HOME/hfam-haptics`` or ``~/.cache/hfam-haptics``."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "hfam-haptics"
+    return user_cache_dir()
 
 
 @functools.lru_cache(maxsize=4)

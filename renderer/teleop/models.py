@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from devices.fileio import user_cache_dir
 from devices.sim.params import DEFAULT_PARAMS_FILE, SimParams, default_params, load_sim_params
 
 # relative errors of the stand-in model (until successive isolation is merged): name -> factor
@@ -40,7 +41,7 @@ def identified_params(log=print) -> tuple[SimParams, str]:
     from devices.identify.successive import identify_successive, save_result  # deferred: heavy, first run only
 
     key = hashlib.sha256(Path(DEFAULT_PARAMS_FILE).read_bytes()).hexdigest()[:16]
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "hfam-haptics" / "teleop" / key
+    base = user_cache_dir() / "teleop" / key
     model = base / "model.json"
     if not model.is_file():
         log("identifying the master by successive isolation (about 40 s, cached afterwards)...")

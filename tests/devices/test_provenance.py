@@ -21,3 +21,15 @@ def test_versions_are_the_installed_ones_and_the_checkout_commit():
 
 def test_outside_a_checkout_the_commit_is_none(tmp_path):
     assert provenance.git_commit(tmp_path) == (None, None)
+
+
+def test_fast_version_lookup_agrees_with_importlib_metadata_and_prefetch_gives_the_same():
+    """The dist-info folder scan is a shortcut for importlib.metadata.version: same answers, also for
+    spellings that differ from the folder's (``hfam-haptics`` vs ``hfam_haptics``) and for no install."""
+    for dist in (*provenance.RESULT_PACKAGES, "hfam-haptics", "HFAM.Haptics", "pytest", "pip"):
+        assert provenance._dist_version(dist) == importlib.metadata.version(dist), dist
+    assert provenance._dist_version("no-such-distribution-xyz") is None
+    before = provenance.software_versions()
+    provenance._versions_once.cache_clear()
+    provenance.prefetch()
+    assert provenance.software_versions() == before

@@ -130,7 +130,7 @@ def _penetration(c, z):
 
 def test_the_sim_command_rule_is_the_devices_and_matches_status_bits():
     assert (SK.STATUS_FAULT, SK.STATUS_CLIPPING) == (int(Status.FAULT), int(Status.CLIPPING))
-    assert (LAW._HOT_STATUS, LAW.STATUS_SENSOR_INVALID, LAW.STATUS_DISCONNECTED) == (
+    assert (LAW.HOT_STATUS, LAW.STATUS_SENSOR_INVALID, LAW.STATUS_DISCONNECTED) == (
         int(Status.OVER_TEMPERATURE), int(Status.SENSOR_INVALID), int(Status.DISCONNECTED))
     for cmd in (0.3, -0.3, 4.0, 7.5, -9.0, float("nan"), float("inf"), -float("inf")):
         py = SK.command_rule(cmd, 4.0)

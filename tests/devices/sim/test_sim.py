@@ -338,6 +338,20 @@ def test_tap_trajectory_shape():
         TapTrajectory(-0.1)
 
 
+def test_tap_trajectory_sample_is_position_at_the_ticks_bit_for_bit():
+    """``sample`` (per-segment slices of the ordered tick times) is ``position`` (any times) at k / fs."""
+    rng = np.random.default_rng(7)
+    for _ in range(12):
+        tr = TapTrajectory(list(rng.uniform(0.01, 0.4, size=int(rng.integers(1, 4)))), n_taps=int(rng.integers(1, 9)),
+                           approach_height_m=float(rng.uniform(0.002, 0.03)), dwell_s=float(rng.uniform(0.02, 0.4)),
+                           lift_s=float(rng.uniform(0.02, 0.3)), press_depth_m=float(rng.uniform(0.001, 0.01)),
+                           pause_s=float(rng.choice([0.0, 0.1])), ramp_s=float(rng.uniform(0.002, 0.04)))
+        for fs in (FS, 997.0):
+            x = tr.sample(fs)
+            assert np.array_equal(x, tr.position(np.arange(x.size) / fs))
+            assert x[0] == tr.approach_height_m and x[-1] == tr.approach_height_m
+
+
 # ---------------------------------------------------------------- linear model
 def _etfe(dev, amp_A, grip_N=2.0, duration_s=2.0):
     t = np.arange(int(duration_s * FS)) / FS

@@ -1,0 +1,160 @@
+"""The simulated closed loop compiled ahead of time (renderer.sim_aot) against the JIT one: same law, same
+physics, the same log tick for tick; built by the background builder; loaded without numba; never stale."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import stimuli
+from devices.sim import SimDevice, TapTrajectory
+from renderer import sim_aot
+from renderer.config import RendererConfig
+from renderer.loop import ServoLoop
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def aot_dir(tmp_path_factory):
+    """One build for the module, made the way users get it: the detached background builder."""
+    base = tmp_path_factory.mktemp("sim-loop")
+    env = {**os.environ, "HFAM_SIM_AOT_DIR": str(base), "HFAM_SIM_AOT": "auto"}
+    code = "from renderer import sim_aot; print(sim_aot.schedule_build())"
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True", out
+    key = subprocess.run([sys.executable, "-c", "from renderer import sim_aot; print(sim_aot.source_key())"],
+                         env=env, cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    ext = base / key
+    deadline = time.monotonic() + 240.0
+    while not any(ext.glob("_hfam_sim_loop*")) and time.monotonic() < deadline:
+        assert not (base / f"{key}.failed").exists(), (base / f"{key}.failed").read_text()
+        time.sleep(0.5)
+    assert any(ext.glob("_hfam_sim_loop*")), "the background build did not finish in 240 s"
+    assert not (base / f"{key}.lock").exists()          # the builder released its lock
+    # a second request while a build exists starts nothing
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    return base
+
+
+def _use(monkeypatch, base, mode):
+    monkeypatch.setenv("HFAM_SIM_AOT_DIR", str(base))
+    monkeypatch.setenv("HFAM_SIM_AOT", mode)
+    monkeypatch.setattr(sim_aot, "_loaded", {})
+
+
+def _run(sample="placeholder", transient=None, velocities=(0.05, 0.1, 0.2), seconds=2.5):
+    dev = SimDevice(seed=4)
+    if sample != "placeholder":
+        dev.set_sample(sample)
+    dev.set_user(TapTrajectory(list(velocities), n_taps=3), grip_N=2.0)
+    loop = ServoLoop(dev, RendererConfig(), transient)
+    return loop.run(duration_s=seconds), dev
+
+
+@pytest.mark.parametrize("sample,transient", [("placeholder", "pulse"), ("wood_on_foam", None),
+                                              ("placeholder", "sinusoid")])
+def test_aot_loop_gives_the_jit_log_tick_for_tick(aot_dir, monkeypatch, sample, transient):
+    make = {"pulse": stimuli.Pulse, "sinusoid": stimuli.DecayingSinusoid, None: lambda: None}[transient]
+    _use(monkeypatch, aot_dir, "off")
+    jit, jdev = _run(sample, make())
+    _use(monkeypatch, aot_dir, "nobuild")
+    assert sim_aot.load() is not None
+    aot, adev = _run(sample, make())
+    assert jit.timing["ticks"] == aot.timing["ticks"] == 25_000
+    assert len(jit.events) == len(aot.events) == 3
+    for name in jit.log:
+        if name in ("wall_ns", "compute_ns"):
+            continue
+        assert np.array_equal(jit.log[name], aot.log[name]), name
+    assert [e.max_penetration_m for e in jit.events] == [e.max_penetration_m for e in aot.events]
+    # the device's own state after the run (its Python side and the physics arrays) agrees as well
+    assert np.array_equal(jdev.fused_arrays()[1], adev.fused_arrays()[1])
+    assert jdev.read().position_m == adev.read().position_m and jdev.time_s == adev.time_s
+    # the taps really happened: the wall (or the real sample, motor current 0 N/m wall above it) was hit
+    assert np.max(jit.log["penetration_m"]) > 2e-4
+    if transient is not None:
+        assert np.max(np.abs(jit.log["force_transient_N"])) > 0.05
+
+
+def test_aot_physics_step_is_the_kernel_tick(aot_dir, monkeypatch):
+    from devices.sim import kernel
+
+    _use(monkeypatch, aot_dir, "nobuild")
+    mod = sim_aot.load()
+    a, b = SimDevice(seed=2), SimDevice(seed=2)
+    for d in (a, b):
+        d.set_user(TapTrajectory(0.1), grip_N=1.5)
+    b.use_compiled_step(mod.tick)
+    rng = np.random.default_rng(0)
+    for cmd in rng.normal(0.0, 1.0, 3000):
+        a.command(float(cmd))
+        b.command(float(cmd))
+        sa, sb = a.read(), b.read()
+        assert (sa.position_m, sa.accel_m_s2, sa.grip_N, sa.status) == (sb.position_m, sb.accel_m_s2, sb.grip_N,
+                                                                        sb.status)
+    assert a._tick_fn is kernel.tick and b._tick_fn is mod.tick
+    with pytest.raises(ValueError, match="use_compiled_step needs a callable"):
+        b.use_compiled_step(None)
+
+
+def test_a_run_with_the_build_never_imports_numba(aot_dir, tmp_path):
+    """The whole point: a simulated ``renderer run`` process with a build loads neither numba nor scipy."""
+    code = ("import sys; from renderer.__main__ import main; "
+            f"rc = main(['run', '--device', 'sim', '--taps', '2', '--out', {str(tmp_path / 'r')!r}]); "
+            "print('NUMBA', 'numba' in sys.modules, 'scipy' in sys.modules, rc)")
+    env = {**os.environ, "HFAM_SIM_AOT_DIR": str(aot_dir), "HFAM_SIM_AOT": "nobuild"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "NUMBA False False 0" in out.stdout, out.stdout
+    assert "2 events" in out.stdout
+
+
+def test_a_stale_or_damaged_build_is_not_used(aot_dir, monkeypatch, tmp_path, capsys):
+    _use(monkeypatch, aot_dir, "nobuild")
+    assert sim_aot.load() is not None
+    # other sources (an edited law or kernel) have another key: no build, the JIT path
+    monkeypatch.setattr(sim_aot, "source_key", lambda: "0123456789abcdef")
+    monkeypatch.setattr(sim_aot, "_loaded", {})
+    assert sim_aot.load() is None
+    run_sim, step = sim_aot.run_sim_function()
+    from renderer import law
+
+    assert run_sim is law.run_sim and step is None
+    # a damaged file under the right key: reported, not used, the results unchanged
+    monkeypatch.setattr(sim_aot, "source_key", lambda: "fedcba9876543210")
+    monkeypatch.setattr(sim_aot, "_loaded", {})
+    bad = sim_aot.extension_path("fedcba9876543210", aot_dir)
+    bad.parent.mkdir()
+    bad.write_bytes(b"not an ELF file")
+    assert sim_aot.load() is None
+    assert "did not load" in capsys.readouterr().err
+    # and with HFAM_SIM_AOT=off the good build is not used either
+    monkeypatch.undo()
+    _use(monkeypatch, aot_dir, "off")
+    assert sim_aot.load() is None
+
+
+def test_mode_is_validated(monkeypatch):
+    monkeypatch.setenv("HFAM_SIM_AOT", "sometimes")
+    with pytest.raises(ValueError, match="HFAM_SIM_AOT must be one of auto, nobuild, off, got 'sometimes'"):
+        sim_aot.mode()
+
+
+def test_the_key_covers_every_compiled_source():
+    """run_sim's callees live in these files; a new file that it imports must join SOURCES."""
+    import renderer.law as law
+
+    names = {p.name for p in sim_aot.SOURCES}
+    assert {"law.py", "law_layout.py", "scene.py", "kernel.py", "layout.py"} <= names
+    assert all(p.is_file() for p in sim_aot.SOURCES)
+    called = {Path(f.py_func.__code__.co_filename).name for f in (law.law_tick, law.run_sim)}
+    assert called <= names
