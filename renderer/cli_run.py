@@ -176,6 +176,12 @@ def run_command(args) -> int:
     result.save(args.out)
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")
+    if simulated and not result.timing.get("aot"):
+        from . import sim_aot  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+        if sim_aot.schedule_build():
+            print("compiling the simulated loop ahead of time in the background (once, ~5 s): later simulated "
+                  "runs start without numba (docs/renderer.md, 'Compiled ahead of time')", file=sys.stderr)
     return 0 if result.stop_reason in ("duration", "until", "stopped", "interrupted") else 1
 
 
@@ -192,7 +198,8 @@ def format_table(result) -> str:
     head = (f"{tm['ticks']} ticks at {tm['rate_hz']:g} Hz, {tm['sim_time_s']:.3f} s in {tm['wall_time_s']:.3f} s wall "
             f"({tm['realtime_factor']:.1f}x real time)")
     if tm.get("compiled_sim"):
-        lines.append(head + "; law and simulated physics compiled together (no per-tick timing)")
+        how = "ahead of time" if tm.get("aot") else "JIT"
+        lines.append(head + f"; law and simulated physics compiled together ({how}; no per-tick timing)")
     else:
         lines.append(head + f"; period p50/p99/max {tm['period_p50_us']:.1f}/{tm['period_p99_us']:.1f}/"
                      f"{tm['period_max_us']:.1f} us; overruns {tm['overruns']}; compute p50/p99 "

@@ -538,6 +538,7 @@ class ServoLoop:
             # the ahead-of-time build when there is one (renderer.sim_aot: no numba in the process), which
             # also carries the device's own physics step for the priming tick and any Python-side command
             self._run_sim, step = sim_aot.run_sim_function()
+            st["aot"] = step is not None
             if step is not None and callable(getattr(dev, "use_compiled_step", None)):
                 dev.use_compiled_step(step)
         self._prime(warm_law=not compiled)
@@ -880,6 +881,8 @@ class ServoLoop:
             "on_device": bool(self.on_device),
             # law and physics in one compiled call (renderer.law.run_sim): no per-tick period or compute time
             "compiled_sim": bool(st.get("compiled", False)),
+            # that call from the ahead-of-time build (renderer.sim_aot) rather than numba's JIT
+            "aot": bool(st.get("aot", False)),
         }
         link_stats = getattr(self.device, "link_stats", None)
         if callable(link_stats):  # hardware links: frames, CRC errors, losses, longest gap, round trip

@@ -14,9 +14,9 @@ edited law or kernel is never run from a stale build: it falls back to the JIT p
 Where and when (docs/renderer.md, "Compiled ahead of time"):
 
 * ``$HFAM_SIM_AOT_DIR`` or ``$XDG_CACHE_HOME/hfam-haptics/sim-loop`` (``~/.cache/...``);
-* built by ``python -m renderer compile-sim`` (~4 s; ``make bench`` does it), or in the background the
-  first time a simulated run finds no build (a detached ``python -m renderer.sim_aot``, one at a time:
-  the loop itself does not wait; that run and the ones before the build ends use the JIT path);
+* built by ``python -m renderer compile-sim`` (~5 s; ``make bench`` does it), or in the background after
+  the first ``renderer run`` on a simulated device that found none (a detached ``python -m
+  renderer.sim_aot``, one at a time; runs until it is done use the JIT path);
 * ``HFAM_SIM_AOT=auto`` (default: use, build in the background if missing), ``nobuild`` (use if
   present, never build by itself; the tests' setting), ``off`` (always the JIT path).
 """
@@ -120,13 +120,12 @@ def load():
 def run_sim_function():
     """``(run_sim, step)`` to call: the ahead-of-time build's ``run_sim`` and ``tick`` (the device's
     physics step, ``devices.sim.kernel.tick``) if there is a build for these sources; else
-    ``renderer.law.run_sim`` (numba JIT) and None (the device keeps its own JIT step), starting a
-    background build first when ``HFAM_SIM_AOT=auto``."""
+    ``renderer.law.run_sim`` (numba JIT) and None (the device keeps its own JIT step). Never builds:
+    ``renderer run`` starts the background build after its run (:func:`schedule_build`), so a demo or a
+    study session does not share its cores with a compiler."""
     module = load()
     if module is not None:
         return module.run_sim, module.tick
-    if mode() == "auto":
-        schedule_build()
     from . import law  # deferred: numba (~0.3 s), needed only without an ahead-of-time build
 
     return law.run_sim, None
@@ -137,8 +136,11 @@ def _lock_path(key: str, base: Path) -> Path:
 
 
 def schedule_build() -> bool:
-    """Start ``python -m renderer.sim_aot`` detached, unless a build for these sources exists, is under
-    way, or failed before (``<key>.failed`` holds why; ``compile-sim`` retries). Returns True if started."""
+    """Start ``python -m renderer.sim_aot`` detached, unless ``HFAM_SIM_AOT`` is not ``auto``, or a build
+    for these sources exists, is under way, or failed before (``<key>.failed`` holds why; ``compile-sim``
+    retries). Returns True if started."""
+    if mode() != "auto":
+        return False
     base, key = cache_dir(), source_key()
     if extension_path(key, base).is_file() or (base / f"{key}.failed").is_file():
         return False

@@ -3,6 +3,7 @@ physics, the same log tick for tick; built by the background builder; loaded wit
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -21,14 +22,22 @@ from renderer.loop import ServoLoop
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _cli_run(env, out):
+    return subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1", "--out", str(out)],
+                          env=env, cwd=ROOT, capture_output=True, text=True, timeout=180)
+
+
 @pytest.fixture(scope="module")
 def aot_dir(tmp_path_factory):
-    """One build for the module, made the way users get it: the detached background builder."""
+    """One build for the module, made the way users get it: the first ``renderer run`` on the sim (JIT)
+    starts the detached background builder; the next run uses the build."""
     base = tmp_path_factory.mktemp("sim-loop")
+    runs = tmp_path_factory.mktemp("runs")
     env = {**os.environ, "HFAM_SIM_AOT_DIR": str(base), "HFAM_SIM_AOT": "auto"}
-    code = "from renderer import sim_aot; print(sim_aot.schedule_build())"
-    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "True", out
+    first = _cli_run(env, runs / "first")
+    assert first.returncode == 0, first.stderr
+    assert "compiling the simulated loop ahead of time in the background" in first.stderr
+    assert json.loads((runs / "first" / "run.json").read_text())["aot"] is False
     key = subprocess.run([sys.executable, "-c", "from renderer import sim_aot; print(sim_aot.source_key())"],
                          env=env, cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
     ext = base / key
@@ -38,9 +47,13 @@ def aot_dir(tmp_path_factory):
         time.sleep(0.5)
     assert any(ext.glob("_hfam_sim_loop*")), "the background build did not finish in 240 s"
     assert not (base / f"{key}.lock").exists()          # the builder released its lock
-    # a second request while a build exists starts nothing
-    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+    assert json.loads((ext / "manifest.json").read_text())["key"] == key
+    # the next run uses it and starts no builder; its log is the first run's, bit for bit
+    second = _cli_run(env, runs / "second")
+    assert second.returncode == 0 and "compiling" not in second.stderr, second.stderr
+    assert json.loads((runs / "second" / "run.json").read_text())["aot"] is True
+    with np.load(runs / "first" / "log.npz") as a, np.load(runs / "second" / "log.npz") as b:
+        assert np.array_equal(a["current_A"], b["current_A"]) and np.array_equal(a["position_m"], b["position_m"])
     return base
 
 
