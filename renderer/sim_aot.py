@@ -23,7 +23,6 @@ Where and when (docs/renderer.md, "Compiled ahead of time"):
 
 from __future__ import annotations
 
-import hashlib
 import importlib.machinery
 import importlib.util
 import json
@@ -34,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -80,13 +80,17 @@ def cache_dir() -> Path:
 
 
 def source_key() -> str:
-    """Digest (16 hex) of the compiled sources, the Python version, numpy's version and the machine."""
-    h = hashlib.sha256()
-    for path in SOURCES:
-        h.update(path.name.encode())
-        h.update(path.read_bytes())
-    h.update(f"{sys.version}|{np.__version__}|{platform.machine()}|{sys.implementation.cache_tag}".encode())
-    return h.hexdigest()[:16]
+    """Key (16 hex) of the compiled sources, the Python build, numpy's version and the machine.
+
+    Two CRC-32s (zlib: loaded anyway; hashlib's OpenSSL costs ~7 ms at start-up), of the sources and of
+    the environment with every source's name and length: an edit changes the key (a CRC-32 catches every
+    change of up to 32 bits and misses others with odds 2^-32); it guards against stale builds, not
+    against adversaries. The manifest of each build records the sources' SHA-256 as well.
+    """
+    blob = b"".join(path.read_bytes() for path in SOURCES)
+    env = "|".join([sys.version, np.__version__, platform.machine(), sys.implementation.cache_tag,
+                    *(f"{p.name}:{p.stat().st_size}" for p in SOURCES)])
+    return f"{zlib.crc32(blob):08x}{zlib.crc32(env.encode()):08x}"
 
 
 def extension_path(key: str | None = None, base: Path | None = None) -> Path:
@@ -192,6 +196,8 @@ def build(base: Path | None = None, background: bool = False) -> Path:
         os.write(fd, str(os.getpid()).encode())
         os.close(fd)
     tmp = Path(tempfile.mkdtemp(prefix=f"{key}.build", dir=base))
+    import hashlib  # deferred: the manifest's SHA-256 only; OpenSSL costs ~7 ms at a run's start-up
+
     try:
         t0 = time.perf_counter()
         _compile(tmp)
