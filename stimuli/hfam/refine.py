@@ -398,9 +398,9 @@ def _record(history: list, it: int, rows: list, target: str, settings: RefineSet
     rec = {"iteration": it, "median_nrmse": float(np.nanmedian(errs)), "worst_nrmse": float(np.nanmax(errs)),
            "min_corr": float(np.nanmin(cors)), "cells": rows, "target": target}
     history.append(rec)
-    say(f"refinement iteration {it} ({target}): NRMSE median {rec['median_nrmse']:.3f}, worst "
+    say(f"refinement iteration {it}: NRMSE median {rec['median_nrmse']:.3f}, worst "
         f"{rec['worst_nrmse']:.3f}, min correlation {rec['min_corr']:.3f} over {len(rows)} cells "
-        f"(wall {settings.wall_N_m:g} N/m)")
+        f"(wall {settings.wall_N_m:g} N/m, target: {target})")
 
 
 def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_cells: list, cells: list,
