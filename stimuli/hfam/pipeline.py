@@ -180,7 +180,7 @@ class PipelineSettings:
         Learning gain of each correction, (0, 1].
     refine_recording_iterations : int
         Second-stage passes of the refinement towards the unsmoothed recordings (``RefineSettings.
-        recording_iterations``; 0: none). Issue 16: demo median NRMSE 0.268 -> 0.210 (docs/demo.md).
+        recording_iterations``; 0: none). Issue 16: with it demo median NRMSE 0.268 -> 0.210 (docs/demo.md).
     seed : int
         Sensor-noise seed of the sim device.
     """
