@@ -370,8 +370,9 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
             raise ValueError(f"refine_library: recordings_m_s2 has shape {recs.shape}, the library's targets "
                              f"{library.desired_accel_m_s2.shape}")
 
-        def model_of(grip_N: float):
-            m = model_for(grip_N, 0.0)
+        def model_of(grip_N: float, peak_now_A: float):
+            # as in the first stage: with model_sets, the set whose sweep amplitude suits the transient
+            m = model_for(grip_N, peak_now_A)
             if m is None:
                 raise ValueError(f"refine_library: no model for grip {grip_N:g} N")
             return m
@@ -443,20 +444,20 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
     it0 = history[-1]["iteration"] + 1 if history else 0
     _record(history, it0, rows(), "recording", settings, say)
     open_set = set(open_cells)
-    # per grip: the band-passed model as a matrix, and the normal equations of the constrained step
+    # per model: the constrained step's operator (FFT kernels)
     normal: dict = {}
     for it in range(1, settings.recording_iterations + 1):
         for c in cells:
             err0, _, e0, gain = state[c]
             if not math.isfinite(err0):
                 continue
+            model = model_of(float(library.grips_N[c[1]]), float(np.max(np.abs(cur[c]))))
             if c not in open_set:
-                g = float(library.grips_N[c[1]])
-                if g not in normal:
-                    normal[g] = _normal_equations(model_of(g), fs, n_t, sos, settings.limit_regularisation,
-                                                  settings.limit_out_of_band_weight)
-                u = np.clip(cur[c] + box_step(*normal[g], gain * e0, cur[c], peak, settings.limit_solver_iterations),
-                            -peak, peak)
+                if id(model) not in normal:
+                    normal[id(model)] = _normal_equations(model, fs, n_t, sos, settings.limit_regularisation,
+                                                          settings.limit_out_of_band_weight)
+                du_box = box_step(*normal[id(model)], gain * e0, cur[c], peak, settings.limit_solver_iterations)
+                u = np.clip(cur[c] + du_box, -peak, peak)
                 err, corr, e = measure(c, u)
                 if err < err0:
                     cur[c] = u
@@ -464,8 +465,7 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
                 else:
                     state[c][3] = 0.5 * gain
                 continue
-            du_raw, _ = invert(np.concatenate([np.zeros(pre), e0, np.zeros(post)]), model_of(float(library.grips_N[c[1]])),
-                               fs, build_settings)
+            du_raw, _ = invert(np.concatenate([np.zeros(pre), e0, np.zeros(post)]), model, fs, build_settings)
             trials = []
             for sm in smooth:
                 du = signal.sosfiltfilt(sm, du_raw)[pre:pre + n_t]
