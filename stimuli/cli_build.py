@@ -70,6 +70,9 @@ def register(subparsers) -> None:
     p.add_argument("--refine-max-lag", type=float, default=0.001, metavar="S",
                    help="align the measured response to the target within +/- S seconds before taking the "
                         "refinement error (the device's own delay is not a shape error; default %(default)s)")
+    p.add_argument("--refine-recordings", type=int, default=4, metavar="N",
+                   help="after --refine, N line-searched passes towards the unsmoothed recordings (transients at "
+                        "the current limit take a constrained least-squares step; 0: off; default %(default)s)")
     p.add_argument("--max-extrapolation", type=float, default=d.max_extrapolation,
                    help="cap of v_in/v_max above the velocity range at run time (default %(default)s)")
     with_examples(p, 'hfam-stimuli build-library --recordings REC.csv --model ident/ --scale-to-limit --out LIB.npz')
@@ -174,13 +177,16 @@ def run(args) -> int:
 
         from .hfam.refine import (  # deferred: keeps `--help` fast (a command loads only what it runs)
             RefineSettings,
+            recording_targets,
             refine_library,
         )
 
         library, _ = refine_library(library, models, lambda: make_device(args.device, seed=0),
                                     RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall,
-                                                   gain=args.refine_gain, max_lag_s=args.refine_max_lag), settings,
-                                    log=lambda m: print(m, flush=True))
+                                                   gain=args.refine_gain, max_lag_s=args.refine_max_lag,
+                                                   recording_iterations=args.refine_recordings), settings,
+                                    log=lambda m: print(m, flush=True),
+                                    recordings_m_s2=recording_targets(library, taps, settings))
     for msg in report.scaled:
         print(f"warning: {msg}")
     g = library.grips_N

@@ -145,10 +145,13 @@ def test_build_library_refine_reports_error_per_iteration(tmp_path, capsys):
     out = tmp_path / "lib.npz"
     assert main(["build-library", "--recordings", str(rec), "--model", str(model), "--out", str(out),
                  "--n-velocities", "2", "--scale-to-limit", "--refine", "2", "--refine-gain", "0.5",
-                 "--refine-max-lag", "0.001"]) == 0
+                 "--refine-max-lag", "0.001", "--refine-recordings", "1"]) == 0
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("refinement iteration")]
-    assert [ln.split(":")[0] for ln in lines] == [f"refinement iteration {i}" for i in range(3)]
-    first, last = (float(ln.split("median ")[1].split(",")[0]) for ln in (lines[0], lines[-1]))
-    assert last <= first
+    # 2 passes towards the smoothed target (0-2), then 1 towards the recordings (3: before, 4: after)
+    assert [ln.split(":")[0] for ln in lines] == [f"refinement iteration {i}" for i in range(5)]
+    assert [ln.endswith("target: smoothed)") for ln in lines] == [True] * 3 + [False] * 2
+    for a, b in ((0, 2), (3, 4)):
+        first, last = (float(ln.split("median ")[1].split(",")[0]) for ln in (lines[a], lines[b]))
+        assert last <= first
     meta = HfamLibrary.load(out).metadata["refinement"]
-    assert meta["iterations"] == 2 and meta["gain"] == 0.5
+    assert meta["iterations"] == 2 and meta["gain"] == 0.5 and meta["recording_iterations"] == 1

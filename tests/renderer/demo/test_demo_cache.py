@@ -21,9 +21,12 @@ def test_rebuild_damage_and_reuse(tmp_path):
     assert sorted(p.name for p in first.directory.iterdir()) == [
         "identify", "library.npz", "library_refinement.txt", "library_verification.txt", "manifest.json",
         "recordings.csv"]
-    # the refinement by playback (on by default) reports its error before and after every pass
+    # the refinement by playback (on by default) reports its error before and after every pass: first towards
+    # the smoothed recordings, then (second stage, before and after each pass) towards the recordings
     lines = (first.directory / "library_refinement.txt").read_text().splitlines()
-    assert [ln.split(":")[0] for ln in lines] == [f"refinement iteration {i}" for i in range(s.refine_iterations + 1)]
+    n = s.refine_iterations + 1 + s.refine_recording_iterations + 1
+    assert [ln.split(":")[0] for ln in lines] == [f"refinement iteration {i}" for i in range(n)]
+    assert sum(ln.endswith("target: recording)") for ln in lines) == s.refine_recording_iterations + 1
     assert list(first.library.grips_N) == [0.0, 10.0] and len(first.library.velocities_m_s) == 3
     created = json.loads((first.directory / "manifest.json").read_text())["created_unix"]
 

@@ -56,34 +56,37 @@ def test_velocities_are_inside_the_library_range(result):
 def test_hfam_reproduces_real_wood_on_foam(result, rendering):
     # issue 16: with the library's high-pass no longer turning the phase of the tap's 20-60 Hz content
     # (docs/demo.md, "Why HFAM missed the real tap"), on the 3 g wood tile (docs/sim.md, "Samples"), and
-    # every transient refined by 6 playback-and-correction passes on the sim (docs/demo.md, "Refinement and
-    # the 0.03-0.3 m/s library"): measured median / max NRMSE 0.262 / 0.290 (firm), 0.272 / 0.309 (soft),
-    # min corr 0.958 / 0.951 (library 0.04-0.12 m/s without refinement: 0.374 / 0.388 and 0.362 / 0.383,
-    # min corr 0.922 / 0.924; causal high-pass, 0.12 kg block: max 0.471 / 0.437). The issue's median
-    # <= 0.25 is NOT reached, see docs/sim.md "What is not reached"
+    # every transient refined on the sim (docs/demo.md, "Refinement and the 0.03-0.3 m/s library": 6
+    # passes towards the smoothed recording, then 4 towards the recording itself, error filtered as this
+    # comparison filters): measured median / max NRMSE 0.197 / 0.228 (firm), 0.216 / 0.245 (soft), min corr
+    # 0.974 / 0.969; the issue's median <= 0.25 is met. (First refinement, 6 passes to the smoothed target
+    # with a 4th-order error band: 0.262 / 0.290 and 0.272 / 0.309, min corr 0.958 / 0.951; library
+    # 0.04-0.12 m/s without refinement: 0.374 / 0.388 and 0.362 / 0.383; causal high-pass, 0.12 kg block:
+    # max 0.471 / 0.437)
     for r in rows(result, rendering):
-        assert r["correlation"] >= 0.945, r
-        assert r["nrmse"] <= 0.32, r
+        assert r["correlation"] >= 0.96, r
+        assert r["nrmse"] <= 0.26, r
         assert r["clipped"] == 0, r
-    assert np.median([r["nrmse"] for r in rows(result, rendering)]) <= 0.28
+    assert np.median([r["nrmse"] for r in rows(result, rendering)]) <= 0.23
 
 
 @pytest.mark.parametrize("rendering", ["hfam_firm", "hfam_soft"])
 def test_hfam_at_high_velocities(result, rendering):
-    # issue 16: the library now spans 0.03-0.3 m/s (recorded, refined transients, no extrapolation).
-    # Measured NRMSE at 1/2/3 N: 0.2 m/s 0.336/0.292/0.347 (firm), 0.324/0.296/0.353 (soft): the issue's
-    # <= 0.35 is met over firm, 0.003 above it over soft at 3 N; 0.3 m/s 0.425/0.434/0.532,
-    # 0.416/0.446/0.545 (NOT met); corr >= 0.943 at 0.2 m/s, >= 0.839 at 0.3 m/s. No tap reaches the 4 A
-    # limit (refined currents stay below 0.95 x 4 A). Was (0.12 m/s transient extrapolated):
-    # 0.47/0.47/0.49 and 0.59/0.63/0.65, corr >= 0.844
-    for g, limit in zip(GRIPS, (0.35, 0.31, 0.36)):
+    # issue 16: the library spans 0.03-0.3 m/s (recorded, refined transients, no extrapolation). Measured
+    # NRMSE at 1/2/3 N: 0.2 m/s 0.285/0.218/0.299 (firm), 0.282/0.222/0.299 (soft): the issue's <= 0.35 is
+    # met; 0.3 m/s 0.247/0.333/0.426, 0.254/0.338/0.426 (3 N NOT met: the 4 A limit, docs/demo.md; with an
+    # 8 A device the same refinement reaches 0.27/0.26/0.32); corr >= 0.959 at 0.2 m/s, >= 0.945 at 0.3 m/s.
+    # No tap reaches the 4 A limit (refined currents stay below 0.95 x 4 A). First refinement: 0.2 m/s
+    # 0.336/0.292/0.347, 0.3 m/s 0.425/0.434/0.532, corr >= 0.839; before it (0.12 m/s transient
+    # extrapolated): 0.47/0.47/0.49 and 0.59/0.63/0.65
+    for g, limit in zip(GRIPS, (0.30, 0.24, 0.32)):
         assert result.row(rendering, 0.2, g)["nrmse"] <= limit
-    for g, limit in zip(GRIPS, (0.44, 0.46, 0.56)):
+    for g, limit in zip(GRIPS, (0.27, 0.35, 0.44)):
         assert result.row(rendering, 0.3, g)["nrmse"] <= limit
     for r in rows(result, rendering, velocities=(0.2,)):
-        assert r["correlation"] >= 0.935, r
+        assert r["correlation"] >= 0.95, r
     for r in rows(result, rendering, velocities=HIGH):
-        assert r["correlation"] >= 0.83, r
+        assert r["correlation"] >= 0.94, r
         assert r["clipped"] == 0, r
 
 
@@ -92,10 +95,10 @@ def test_proportional_feedback_is_far_from_the_real_sample(result):
         for r in rows(result, name):
             # issue 16: |corr| was < 0.3; the very firm wall under the person reaches 0.425
             assert r["nrmse"] > 0.9 and abs(r["correlation"]) < 0.45, r
-    # HFAM is far better than the wall it rides on, at every in-range velocity and grip (0.384x max on the
-    # wood tile; was 0.472x)
+    # HFAM is far better than the wall it rides on, at every in-range velocity and grip (0.227x max with the
+    # refinement towards the recordings; 0.384x before it on the wood tile; was 0.472x)
     for hf, wall in zip(rows(result, "hfam_firm"), rows(result, "firm")):
-        assert hf["nrmse"] < 0.40 * wall["nrmse"]
+        assert hf["nrmse"] < 0.25 * wall["nrmse"]
 
 
 def test_proportional_walls_give_smaller_lower_frequency_contact_accelerations(result):
@@ -124,12 +127,13 @@ def test_proportional_walls_give_smaller_lower_frequency_contact_accelerations(r
 
 def test_grip_compensation_matters(result):
     """Medium-grip transient at a light/firm grip: clearly larger error than the grip-interpolated one (Fig. 4.13)."""
-    # issue 16: measured 0.431 vs 0.344 (1 N) and 0.417 vs 0.349 (3 N) on the wood tile; with the causally
-    # high-passed library the fixed transient was not worse at 3 N (0.431 vs 0.467), so only 1 N was asserted
+    # issue 16: measured 0.391 vs 0.207 (1 N) and 0.289 vs 0.197 (3 N) with the refinement towards the
+    # recordings (before it 0.431 vs 0.344 and 0.417 vs 0.349 on the wood tile; with the causally high-passed
+    # library the fixed transient was not worse at 3 N, 0.431 vs 0.467, so only 1 N was asserted)
     for g in (1.0, 3.0):
         fixed = mean(result, "hfam_fixed_grip_firm", "nrmse", grips=(g,))
         interp = mean(result, "hfam_firm", "nrmse", grips=(g,))
-        assert fixed > 1.15 * interp and fixed - interp > 0.05, (g, fixed, interp)
+        assert fixed > 1.35 * interp and fixed - interp > 0.08, (g, fixed, interp)
     # ... because the uncompensated acceleration is too large for the light grip and too weak for the firm one
     for v in IN_RANGE:
         assert result.row("hfam_fixed_grip_firm", v, 1.0)["peak_accel_m_s2"] > \
@@ -149,12 +153,13 @@ def test_transients_cut_penetration(result):
     HFAM for a cut of at least 1.6x (1 - 1/1.6 = 0.375; thesis: about a factor of two).
     """
     all_v = result.cfg.velocities_m_s
-    # issue 16: measured pulse 0.49, sinusoid 0.27, HFAM 0.47 over firm (1.9x) and 0.40 over soft (1.7x)
-    # with the refined 0.03-0.3 m/s library (0.02-0.3 m/s; library 0.04-0.12 m/s without refinement,
-    # 0.04-0.3 m/s: 0.446 and 0.407). With the causally high-passed library HFAM cut 0.02-0.14 over firm
-    # and -0.11-0.03 over soft: its transient had no net early impulse
+    # issue 16: measured pulse 0.49, sinusoid 0.27, HFAM 0.56 over firm (2.3x) and 0.51 over soft (2.0x)
+    # with the library refined towards the recordings (0.02-0.3 m/s; the first refinement: 0.47 and 0.40;
+    # without the out-of-band term of its constrained step at the current limit, 0.45 and 0.35; library
+    # 0.04-0.12 m/s without refinement, 0.04-0.3 m/s: 0.446 and 0.407). With the causally high-passed
+    # library HFAM cut 0.02-0.14 over firm and -0.11-0.03 over soft: its transient had no net early impulse
     for with_tr, wall, min_cut in (("pulse_firm", "firm", 0.45), ("sinusoid_firm", "firm", 0.25),
-                                   ("hfam_firm", "firm", 0.375), ("hfam_soft", "soft", 0.375)):
+                                   ("hfam_firm", "firm", 0.53), ("hfam_soft", "soft", 0.48)):
         for v in all_v:
             pen_tr = mean(result, with_tr, "penetration_mean_m", velocities=(v,))
             pen_wall = mean(result, wall, "penetration_mean_m", velocities=(v,))
@@ -171,7 +176,7 @@ def test_reactive_hand_transients_cut_penetration_more(result):
     """With the reactive simulated hand (devices.sim.ReactiveHand: hand mass, muscle impedance, reflex),
     a transient's impulse decelerates a real mass, so the cut grows (docs/demo.md, "The reactive hand").
 
-    Measured (0.11 and 0.115 m/s x 1-3 N): pulse 36 %, HFAM 28 % (the causally high-passed library: -18 %)."""
+    Measured (0.11 and 0.115 m/s x 1-3 N): pulse 36 %, HFAM 29 % (the causally high-passed library: -18 %)."""
     rx = result.reactive
     assert rx["velocities_m_s"] == (0.11, 0.115) and rx["grips_N"] == GRIPS
     pen = rx["penetration_m"]
@@ -185,9 +190,10 @@ def test_reactive_hand_transients_cut_penetration_more(result):
     assert rx["cuts"]["pulse_firm"] >= 0.30
     # issue 16: the default is now the simulated person (lighter arm, no braking below the surface), which
     # cuts more than the older reactive hand (pulse 0.52 vs 0.36; was: reactive >= 2x the old default); the
-    # reactive hand's HFAM cut was -0.18 with the causally high-passed library, now 0.283
+    # reactive hand's HFAM cut was -0.18 with the causally high-passed library, 0.283 with the first
+    # refinement, now 0.291
     assert default_cut("pulse_firm") > rx["cuts"]["pulse_firm"]
-    assert rx["cuts"]["hfam_firm"] >= 0.18
+    assert rx["cuts"]["hfam_firm"] >= 0.26
     line = report.format_reactive(rx)
     assert f"cut {rx['cuts']['pulse_firm'] * 100:.0f} % (pulse)" in line and "(HFAM)" in line
 

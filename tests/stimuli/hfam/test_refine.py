@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
+from scipy import signal
 
 from devices.recording import record_taps
 from devices.sim import SimDevice
 from stimuli.hfam import BuildSettings, build_library
-from stimuli.hfam.refine import RefineSettings, refine_library
+from stimuli.hfam.refine import RefineSettings, _normal_equations, box_step, recording_targets, refine_library
 from stimuli.recordings import Tap
 
 
@@ -86,3 +90,63 @@ def test_amplitude_matched_model_sets_pick_the_nearest_sweep():
 def test_refine_settings_lag_validated():
     with pytest.raises(ValueError, match="max_lag_s"):
         RefineSettings(max_lag_s=0.01)
+
+
+def test_second_stage_aims_at_the_recordings():
+    """Given the recordings, the refinement continues towards them (``recording_iterations`` passes, a line
+    search over the correction's smoothing); the second stage never makes a cell worse."""
+    dev, bs, taps, fs = _sim_library()
+    model = dev.linear_model(2.0)
+    lib, _ = build_library(taps, fs, [("linear", model)], bs, force_per_amp_N_A=dev.info.force_per_amp_N_A)
+    recs = recording_targets(lib, taps, bs)
+    assert recs.shape == lib.desired_accel_m_s2.shape
+    # the builder's target is this recording smoothed (zero-phase, 500 Hz): same timing, less click
+    smooth = signal.butter(bs.smooth_order, bs.smooth_hz, fs=fs, output="sos")
+    for r, d in zip(recs, lib.desired_accel_m_s2):
+        mid = slice(50, r.size - 50)
+        assert np.corrcoef(signal.sosfiltfilt(smooth, r)[mid], d[mid])[0, 1] > 0.999
+    new, hist = refine_library(lib, [("linear", model)], lambda: SimDevice(seed=0),
+                               RefineSettings(iterations=1, recording_iterations=2), bs, recordings_m_s2=recs)
+    stages = [h["target"] for h in hist]
+    assert stages == ["smoothed", "smoothed", "recording", "recording", "recording"]
+    first, last = hist[2]["cells"], hist[-1]["cells"]
+    assert all(b[2] <= a[2] + 1e-12 for a, b in zip(first, last))
+    assert new.metadata["refinement"]["recording_iterations"] == 2
+    assert abs(new.currents_A).max() <= 0.95 * dev.info.current_peak_A + 1e-12
+    with pytest.raises(ValueError, match="shape"):
+        refine_library(lib, [("linear", model)], lambda: SimDevice(seed=0), RefineSettings(iterations=1), bs,
+                       recordings_m_s2=recs[:, :-1])
+
+
+def test_box_step_respects_the_current_limit_and_lowers_the_model_error():
+    """At the current limit the correction is the box-constrained least-squares step through the model: it
+    keeps the transient within +/- peak and lowers the band-passed model error that clipping an
+    unconstrained step leaves higher."""
+    dev = SimDevice(seed=0)
+    fs = dev.info.servo_rate_hz
+    model = dev.linear_model(2.0)
+    n_t, peak = 400, 1.0
+    sos = signal.butter(2, [20.0, 1000.0], btype="bandpass", fs=fs, output="sos")
+    K, QK, L, n_fft = _normal_equations(model, fs, n_t, sos, 0.03, 1.0)
+    t = np.arange(n_t) / fs
+    wanted = 3.0 * np.sin(2 * np.pi * 60 * t) * np.exp(-t / 0.02)      # needs 3 A; the limit is 1 A
+    current = np.clip(0.5 * wanted, -peak, peak)
+
+    def band_response(u):
+        return np.fft.irfft(K * np.fft.rfft(u, n_fft), n_fft)[:n_t]
+    error = band_response(wanted) - band_response(current)
+    du = box_step(K, QK, L, n_fft, error, current, peak)
+    assert np.all(np.abs(current + du) <= peak + 1e-12)
+    after = np.linalg.norm(band_response(current + du) - band_response(wanted))
+    clipped = np.linalg.norm(band_response(np.clip(wanted, -peak, peak)) - band_response(wanted))
+    assert after < 0.9 * np.linalg.norm(error) and after < clipped
+
+
+def test_refine_settings_second_stage_validated():
+    for kw, msg in (({"band_order": 0}, "band_order"), ({"recording_iterations": -1}, "recording_iterations"),
+                    ({"candidate_smooth_hz": (500.0, 1200.0)}, "candidate_smooth_hz"),
+                    ({"backtracks": -1}, "backtracks"), ({"limit_regularisation": -0.1}, "limit_regularisation"),
+                    ({"limit_out_of_band_weight": math.nan}, "limit_out_of_band_weight"),
+                    ({"limit_solver_iterations": 0}, "limit_solver_iterations")):
+        with pytest.raises(ValueError, match=msg):
+            RefineSettings(**kw)
