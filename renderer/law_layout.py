@@ -8,6 +8,24 @@ are described in ``renderer.law``'s module doc.
 
 from __future__ import annotations
 
+# the simulated device's Python-side vector that run_sim advances (devices.sim.SimDevice.fused_state)
+from devices.sim.layout import (  # re-exported for renderer.law
+    D_ACC,
+    D_GRIP,
+    D_HELD,
+    D_LAST,
+    D_LIMIT,
+    D_PERIOD,
+    D_POS,
+    D_REJECTED,
+    D_STATUS,
+    D_T,
+    D_TICK,
+    D_USER_TICK,
+    HOT_STATUS,
+    N_DEV,
+)
+
 # ---- constants
 (C_K, C_DAMP, C_MARGIN, C_HOLD_N, C_KF, C_INV_KF, C_MOTOR, C_TGAIN, C_IC, C_IPK, C_IAMP, C_HEAT, C_ALPHA,
  C_T_ATT, C_T_END, C_INV_SPAN, C_PLIM, C_ALIM, C_GMIN, C_GMAX, C_MAX_BAD, C_WV, C_NRING, C_C_SHIFT,
@@ -28,9 +46,3 @@ STATUS_SENSOR_INVALID, STATUS_DISCONNECTED = 16, 32
 LOG_COLUMNS = ("t_s", "position_m", "velocity_m_s", "penetration_m", "force_prop_N", "force_transient_N",
                "current_A", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags")
 N_LOG = len(LOG_COLUMNS)
-
-# simulated-device vector of run_sim (the Python side is devices.sim.SimDevice's fused_state/fused_sync)
-(D_TICK, D_USER_TICK, D_HELD, D_LIMIT, D_PERIOD, D_REJECTED, D_LAST, D_STATUS, D_POS, D_ACC, D_GRIP,
- D_T) = range(12)
-N_DEV = 12
-HOT_STATUS = 2     # devices.base.Status.OVER_TEMPERATURE

@@ -209,7 +209,7 @@ class SimDevice(Device):
         return self._p, self._s, self._rs, self._traj, self._grip
 
     def fused_state(self) -> np.ndarray:
-        """The Python-side state that :meth:`command` keeps, as ``renderer.law``'s ``D_*`` vector."""
+        """The Python-side state that :meth:`command` keeps, as the ``D_*`` vector of :mod:`devices.sim.layout`."""
         st = self._state
         return np.array([self._tick, self._user_tick, self._held_A, self._limit_A, self._period_s,
                          self.rejected_commands, self.last_command_A, st.status, st.position_m, st.accel_m_s2,
@@ -217,13 +217,14 @@ class SimDevice(Device):
 
     def fused_sync(self, d: np.ndarray) -> None:
         """Take back the state a compiled loop advanced (the inverse of :meth:`fused_state`)."""
-        self._tick = int(d[0])
-        self._held_A = float(d[2])
-        self.rejected_commands = int(d[5])
-        self.last_command_A = float(d[6])
+        self._tick = int(d[K.D_TICK])
+        self._held_A = float(d[K.D_HELD])
+        self.rejected_commands = int(d[K.D_REJECTED])
+        self.last_command_A = float(d[K.D_LAST])
         st = self._state
-        st.status = int(d[7])
-        st.position_m, st.accel_m_s2, st.grip_N, st.t_s = float(d[8]), float(d[9]), float(d[10]), float(d[11])
+        st.status = int(d[K.D_STATUS])
+        st.position_m, st.accel_m_s2 = float(d[K.D_POS]), float(d[K.D_ACC])
+        st.grip_N, st.t_s = float(d[K.D_GRIP]), float(d[K.D_T])
 
     # -- simulation controls -------------------------------------------------
     @property

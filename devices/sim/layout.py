@@ -57,8 +57,15 @@ P_S_K1, P_S_MXDECAY = N_PARAM - 11, N_PARAM - 12
 # person's internal model of the tool's drag: Coulomb friction (N) and viscous damping (N s/m) in handle space
 P_HAND_CTOOL, P_HAND_BTOOL = N_PARAM - 13, N_PARAM - 14
 
+# the device's Python-side state as a vector (SimDevice.fused_state / fused_sync), for compiled loops that
+# stand in for SimDevice.command (renderer.law.run_sim, stimuli.hfam's taps on a wall)
+(D_TICK, D_USER_TICK, D_HELD, D_LIMIT, D_PERIOD, D_REJECTED, D_LAST, D_STATUS, D_POS, D_ACC, D_GRIP,
+ D_T) = range(12)
+N_DEV = 12
+
 
 STATUS_FAULT, STATUS_CLIPPING = 1, 8      # devices.base.Status.FAULT, CLIPPING
+HOT_STATUS = 2                            # devices.base.Status.OVER_TEMPERATURE
 
 
 def command_rule(current_A, limit_A):

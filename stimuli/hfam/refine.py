@@ -214,12 +214,38 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     device.set_user(traj, grip_N=float(grip_N), hand=hand)
     device.motor_enabled = True
     n_hist = int(round(0.005 * fs))
+    acc = np.full(n, np.nan)
+    limit = int(math.ceil(traj.duration_s * fs))
+    if callable(getattr(device, "fused_arrays", None)):
+        # the same ticks in one compiled call (~15x faster: the refinement plays ~900 taps per demo build)
+        from ._fasttap import tap_on_wall  # deferred: numba-compiled kernel, loaded on the first tap
+
+        dv = device.fused_state()
+        ring = np.empty(n_hist)
+        try:
+            k_imp, pushed = tap_on_wall(dv, *device.fused_arrays(), np.ascontiguousarray(current_A, dtype=float),
+                                        float(wall_N_m), float(kf), limit, ring, acc)
+        finally:
+            device.fused_sync(dv)
+        h = ring[np.arange(pushed - min(pushed, n_hist), pushed) % n_hist]  # the ring, oldest first
+    else:
+        k_imp, hist = _tap_loop(device, current_A, wall_N_m, kf, limit, acc)
+        h = np.array(hist[-n_hist:])
+    if k_imp < 0:
+        return acc, math.nan
+    t = np.arange(h.size) / fs
+    v_in = -float(np.polyfit(t, h, 1)[0]) if h.size > 2 else math.nan
+    return acc, v_in
+
+
+def _tap_loop(device, current_A, wall_N_m, kf, limit, acc):
+    """:func:`play_on_wall`'s ticks through ``read()``/``command()`` (any device); returns the crossing tick
+    (-1: none) and the positions read up to it."""
+    n = int(current_A.size)
     hist = []
     k_imp = -1
-    acc = np.full(n, np.nan)
     prev = device.read().position_m
     k = 0
-    limit = int(math.ceil(traj.duration_s * fs))
     while k < limit:
         x = device.read().position_m
         if k_imp < 0:
@@ -237,12 +263,7 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
             break
         prev = x
         k += 1
-    if k_imp < 0:
-        return acc, math.nan
-    h = np.array(hist[-n_hist:])
-    t = np.arange(h.size) / fs
-    v_in = -float(np.polyfit(t, h, 1)[0]) if h.size > 2 else math.nan
-    return acc, v_in
+    return k_imp, hist
 
 
 def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], device_factory: Callable,
