@@ -9,6 +9,10 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+# byte-code of the packages only the tests, the analysis and pip itself import: compiled by `make test`
+# and `make bench`, not by `make demo` (which never imports them; ~6 s of a fresh clone's first demo)
+COMPILED := $(VENV)/.compiled
+LATER  := /site-packages/(pandas|statsmodels|patsy|pyarrow|playwright|_pytest|pytest|pluggy|pygments|narwhals|pip|setuptools|pkg_resources)/
 
 .PHONY: demo test bench venv deps system-deps clean gallery
 
@@ -19,32 +23,36 @@ $(STAMP): pyproject.toml
 	$(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 0))" \
 	    || $(PY) -m pip install --quiet --upgrade pip
 	@# wheels only (no surprise source builds); pip's own byte-compiling is serial (about half of its CPU
-	@# time here), so it is skipped and compileall does it on every core instead (~12 s on 2 cores). It
-	@# cannot be left to first use: where PYTHONDONTWRITEBYTECODE is set (as on this project's CI
-	@# machines) nothing is ever written, and every process would recompile scipy, pandas and matplotlib
-	@# (~3 s per `devices identify`, per demo worker, per study report)
+	@# time here), so it is skipped and compileall does it on every core instead (~6 s on 2 cores, then
+	@# ~6 s more for $(COMPILED)). It cannot be left to first use: where PYTHONDONTWRITEBYTECODE is set
+	@# (as on this project's CI machines) nothing is ever written, and every process would recompile
+	@# scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker, per study report)
 	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
-	$(PY) -m compileall -q -j 0 $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
+	$(PY) -m compileall -q -j 0 -x '$(LATER)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
 	    analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
+
+$(COMPILED): $(STAMP)
+	$(PY) -m compileall -q -j 0 $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") > /dev/null
+	touch $(COMPILED)
 
 venv: $(STAMP)
 
 demo: $(STAMP)
 	$(PY) -m renderer demo --device sim
 
-test: $(STAMP) deps
+test: $(STAMP) $(COMPILED) deps
 	$(PY) -m pytest -q
 
 # once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
 deps: $(STAMP)
 	@$(PY) -m devices.provision
 
-bench: $(STAMP)
+bench: $(STAMP) $(COMPILED)
 	$(PY) -m benchmarks
 
 # the figure gallery of the docs (docs/gallery/): a synthetic study's report and the sim demo
-gallery: $(STAMP)
+gallery: $(STAMP) $(COMPILED)
 	$(PY) -m figstyle.gallery --out docs/gallery
 
 # Debian packages: PortAudio for sounddevice, espeak-ng for the study's spoken cues,
