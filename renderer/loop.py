@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import array
 import csv
-import ctypes
 import dataclasses
 import json
 import math
@@ -228,6 +227,8 @@ def transient_name(transient) -> str:
 
 def _set_timer_slack_ns(ns: int) -> int | None:
     """Set this thread's timer slack (Linux prctl) so short sleeps wake on time; returns the old value."""
+    import ctypes  # deferred: paced loops only (~1.5 ms of a simulated run's start-up)
+
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         old = libc.prctl(30, 0, 0, 0, 0)  # PR_GET_TIMERSLACK
@@ -375,11 +376,20 @@ class ServoLoop:
             return "until"
         return ""
 
-    def _alloc_log(self, capacity: int) -> None:
+    def _alloc_log(self, capacity: int, clocks_per_tick: bool = True) -> None:
         # the law's channels (renderer.law.LOG_COLUMNS, one contiguous row each) and the loop's own clock
-        # columns; mapped now, so the loop never takes a first-touch page fault
+        # columns; mapped now, so the loop never takes a first-touch page fault. A compiled simulated run
+        # writes its clock columns once per chunk (compute_ns never): zero pages mapped on demand
         self._logf = _prefaulted_zeros((LAW.N_LOG, capacity))
-        self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
+        if clocks_per_tick:
+            self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
+        else:
+            self._log_ns = {name: np.zeros(capacity, dtype=np.int64) for name in ("wall_ns", "compute_ns")}
+
+    def _compiled_path(self, realtime: bool) -> bool:
+        """Whether this run takes the compiled simulated loop (:meth:`_run_compiled`)."""
+        return (self.compiled_sim and not realtime and not self.on_device and self.info.simulated
+                and callable(getattr(self.device, "fused_arrays", None)))
 
     def _fill_transient(self, v_in: float, grip: float, gain: float, nz: float = 1.0) -> int:
         """Write the event's transient current (A) into the buffer; returns its length (event time, not per tick).
@@ -448,7 +458,7 @@ class ServoLoop:
         self.events = []
         self.bad_transients = 0
         self.stop_requested = False
-        self._alloc_log(cap_ticks)
+        self._alloc_log(cap_ticks, clocks_per_tick=not self._compiled_path(bool(realtime)))
         self._cap = cap_ticks
         self._stats = {"stop_reason": "exception", "n_logged": 0, "wrapped": False, "ticks": 0,
                        "overruns": 0, "bad_samples": 0, "error": ""}
@@ -550,8 +560,7 @@ class ServoLoop:
         st = self._stats
         dev = self.device
         self._law_c = self._law_constants()
-        compiled = (self.compiled_sim and not realtime and self.info.simulated
-                    and callable(getattr(dev, "fused_arrays", None)))
+        compiled = self._compiled_path(realtime)
         if compiled:
             # the ahead-of-time build when there is one (renderer.sim_aot: no numba in the process), which
             # also carries the device's own physics step for the priming tick and any Python-side command
