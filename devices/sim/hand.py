@@ -152,19 +152,28 @@ class TapTrajectory:
         and samples (issue 21 item 2).
         """
         n = int(math.ceil(self.duration_s * fs_hz)) + 1
-        t = np.arange(n) / fs_hz
         out = np.full(n, self.approach_height_m)
         h, d, lift_s = self.approach_height_m, self.press_depth_m, self.lift_s
         n_taps = len(self._taps)
+
+        def first_tick_at(t_s: float) -> int:
+            # the first tick k with k / fs >= t_s, decided by the same division as the tick times
+            k = max(0, min(n, int(math.ceil(t_s * fs_hz))))
+            while k > 0 and (k - 1) / fs_hz >= t_s:
+                k -= 1
+            while k < n and k / fs_hz < t_s:
+                k += 1
+            return k
+
         # tap i owns starts[i] <= t < starts[i + 1] (the first also t < starts[0], the last all later t,
         # as position()'s clipped search); past the plan's end the hand is at the approach height
-        edges = np.searchsorted(t, self._starts[1:n_taps], side="left")
-        lo_all = np.concatenate([[0], edges])
-        hi_all = np.concatenate([edges, [np.searchsorted(t, self._starts[-1], side="left")]])
+        edges = [first_tick_at(float(s0)) for s0 in self._starts[1:n_taps]]
+        lo_all = [0, *edges]
+        hi_all = [*edges, first_tick_at(float(self._starts[-1]))]
         for tp, s0, lo, hi in zip(self._taps, self._starts, lo_all, hi_all):
             if hi <= lo:
                 continue
-            tau = t[lo:hi] - s0
+            tau = np.arange(lo, hi) / fs_hz - s0      # this tap's tick times only: memory linear in one tap
             v, ramp, t_surf = tp["v"], tp["ramp"], tp["t_surface"]
             t_brake = t_surf + tp["t_through"]
             t_rest, t_decel, t_lift = tp["t_rest"], tp["t_decel"], tp["t_lift"]
