@@ -228,6 +228,9 @@ class StudyRunner:
             contacts = 0
         else:
             self._subject("rate", "rate")
+            # "Stop. Please rate." never talks over "Tap now.": a person's window (1 s) outlasts the tap cue
+            # (~0.7 s), but a simulated participant's window runs faster than real time
+            self.audio.wait_cues(2.0)
             self.audio.cue_rate()
             contacts = self.apparatus.after_window(self.protocol.homing_after_s)
             rating, rejected, contacts_rating = self.get_rating(trial, attempt, plan, tap)
