@@ -465,6 +465,15 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
     it0 = history[-1]["iteration"] + 1 if history else 0
     _record(history, it0, rows(), "recording", settings, say)
     open_set = set(open_cells)
+
+    def keep_if_better(c: tuple, u: np.ndarray, err: float, corr: float, e: np.ndarray, err0: float,
+                       gain: float) -> None:
+        # a pass that does not lower the cell's error is undone and the cell's gain halved
+        if err < err0:
+            cur[c] = u
+            state[c][:3] = [err, corr, e]
+        else:
+            state[c][3] = 0.5 * gain
     # per model: the constrained step's operator (FFT kernels)
     normal: dict = {}
     for it in range(1, settings.recording_iterations + 1):
@@ -479,12 +488,7 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
                                                           settings.limit_out_of_band_weight)
                 du_box = box_step(*normal[id(model)], gain * e0, cur[c], peak, settings.limit_solver_iterations)
                 u = np.clip(cur[c] + du_box, -peak, peak)
-                err, corr, e = measure(c, u)
-                if err < err0:
-                    cur[c] = u
-                    state[c][:3] = [err, corr, e]
-                else:
-                    state[c][3] = 0.5 * gain
+                keep_if_better(c, u, *measure(c, u), err0, gain)
                 continue
             du_raw, _ = invert(np.concatenate([np.zeros(pre), e0, np.zeros(post)]), model, fs, build_settings)
             trials = []
@@ -500,11 +504,7 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
                 step *= 0.5
                 u = np.clip(cur[c] + step * du, -peak, peak)
                 err, corr, e = measure(c, u)
-            if err < err0:
-                cur[c] = u
-                state[c][:3] = [err, corr, e]
-            else:
-                state[c][3] = 0.5 * gain
+            keep_if_better(c, u, err, corr, e, err0, gain)
         _record(history, it0 + it, rows(), "recording", settings, say)
 
 

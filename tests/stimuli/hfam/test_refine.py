@@ -150,3 +150,23 @@ def test_refine_settings_second_stage_validated():
                     ({"limit_solver_iterations": 0}, "limit_solver_iterations")):
         with pytest.raises(ValueError, match=msg):
             RefineSettings(**kw)
+
+
+def test_compiled_tap_is_the_read_command_loop_tick_for_tick():
+    """play_on_wall's compiled tap (stimuli/hfam/_fasttap.py over the sim's fused arrays) and its
+    read()/command() loop (any device) give the same accelerations, incoming speed and device state."""
+    from devices.sim import SimDevice
+    from stimuli.hfam.refine import play_on_wall
+
+    rng = np.random.default_rng(0)
+    for v, g in ((0.05, 1.0), (0.1, 2.0), (0.3, 3.0)):
+        current = rng.normal(0.0, 0.5, 600)
+        fast, slow = SimDevice(seed=3), SimDevice(seed=3)
+        slow.fused_arrays = None                # hides the compiled path: the generic loop
+        a_fast, v_fast = play_on_wall(fast, current, v, g, 680.0)
+        a_slow, v_slow = play_on_wall(slow, current, v, g, 680.0)
+        assert np.array_equal(a_fast, a_slow, equal_nan=True) and v_fast == v_slow, (v, g)
+        assert np.isfinite(a_fast).all() and 0.5 * v < v_fast < 1.5 * v
+        assert np.max(np.abs(a_fast)) > 1.0      # the transient and the wall really moved the handle
+        assert (fast.time_s, fast.read().position_m, fast.rejected_commands, fast.last_command_A) == \
+            (slow.time_s, slow.read().position_m, slow.rejected_commands, slow.last_command_A)
