@@ -101,11 +101,12 @@ def extension_path(key: str | None = None, base: Path | None = None) -> Path:
 
 
 def load():
-    """The ahead-of-time compiled extension module (``run_sim``, ``tick``), or None (no build for these sources, ``HFAM_SIM_AOT=off``,
-    or a build that fails to load: reported once on stderr). Looked up once per process."""
-    if "fn" in _loaded:
-        return _loaded["fn"]
-    fn = None
+    """The ahead-of-time compiled extension module (``run_sim``, ``tick``), or None: no build for these
+    sources, ``HFAM_SIM_AOT=off``, or a build that fails to load (reported once on stderr). Looked up once
+    per process."""
+    if "module" in _loaded:
+        return _loaded["module"]
+    found = None
     if mode() != "off":
         path = extension_path()
         if path.is_file():
@@ -113,12 +114,12 @@ def load():
                 spec = importlib.util.spec_from_file_location(MODULE, path)
                 module = importlib.util.module_from_spec(spec)
                 spec.loader.exec_module(module)
-                fn = module if callable(getattr(module, "tick", None)) else None
+                found = module if callable(getattr(module, "tick", None)) else None
             except Exception as exc:  # a damaged or foreign build: the JIT path gives the same results
                 print(f"renderer: the ahead-of-time compiled loop {path} did not load ({exc}); using the "
                       f"JIT-compiled one (rebuild: python -m renderer compile-sim)", file=sys.stderr)
-    _loaded["fn"] = fn
-    return fn
+    _loaded["module"] = found
+    return found
 
 
 def run_sim_function():
