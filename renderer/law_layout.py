@@ -9,7 +9,7 @@ are described in ``renderer.law``'s module doc.
 from __future__ import annotations
 
 # the simulated device's Python-side vector that run_sim advances (devices.sim.SimDevice.fused_state)
-from devices.sim.layout import (  # re-exported for renderer.law
+from devices.sim.layout import (  # noqa: F401 -- re-exported for renderer.law
     D_ACC,
     D_GRIP,
     D_HELD,
