@@ -37,13 +37,13 @@ import mmap
 import os
 import pathlib
 import time
-import zipfile
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from devices import provenance
+from devices.fileio import save_npz
 
 from . import law_layout as LAW
 from . import sim_aot
@@ -175,7 +175,7 @@ class RunResult:
                 writer.writerow(row)
         os.replace(tmp, out / "events.csv")
         tmp = out / "log.tmp.npz"
-        save_npz_views(tmp, self.log)
+        save_npz(tmp, self.log)
         os.replace(tmp, out / "log.npz")
         run = dict(self.timing)
         run.update(stop_reason=self.stop_reason, error=self.error, events=len(self.events),
@@ -219,22 +219,6 @@ def _json_default(obj):
     return str(obj)
 
 
-def save_npz_views(path, arrays: dict) -> None:
-    """``np.savez(path, **arrays)`` (uncompressed ``.npz``, one ``.npy`` member per array) without copying
-    contiguous arrays: each is written from its own memory. ``np.savez`` copies every array in chunks
-    (``tobytes``) before writing; a 30 s run's log is 34 MB. Read back by ``np.load`` like any ``.npz``
-    (``tests/renderer/test_loop.py`` checks it against ``np.savez``)."""
-    with zipfile.ZipFile(path, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
-        for name, arr in arrays.items():
-            arr = np.asanyarray(arr)
-            with zf.open(name + ".npy", mode="w", force_zip64=True) as fp:
-                if arr.flags.c_contiguous and arr.dtype.kind in "biuf" and arr.size:
-                    np.lib.format.write_array_header_1_0(fp, np.lib.format.header_data_from_array_1_0(arr))
-                    fp.write(memoryview(arr).cast("B"))
-                else:  # object, structured, empty or strided: numpy's own writer
-                    np.lib.format.write_array(fp, arr, allow_pickle=False)
-
-
 def transient_name(transient) -> str:
     """The transient's ``name`` ("none" for None)."""
     if transient is None:
@@ -261,8 +245,8 @@ def _prefaulted_zeros(shape: tuple[int, int]) -> np.ndarray:
 
     On Linux an anonymous ``MAP_POPULATE`` mapping: the kernel maps every page in one call (~0.4 ms/MB
     here). numpy's own arrays of 4 MB and more ask for transparent huge pages, whose compaction made
-    the same 29 MB (a 30 s log) cost 10-70 ms, varying with the machine's memory; elsewhere np.zeros
-    touched page by page.
+    the same 29 MB (a 30 s log) cost 10-70 ms, varying with the machine's memory. Elsewhere an array
+    filled (touched page by page) here.
     """
     nbytes = 8 * shape[0] * shape[1]
     populate = getattr(mmap, "MAP_POPULATE", 0)
@@ -475,7 +459,8 @@ class ServoLoop:
         self.events = []
         self.bad_transients = 0
         self.stop_requested = False
-        self._alloc_log(cap_ticks, clocks_per_tick=not self._compiled_path(bool(realtime)))
+        compiled = self._compiled_path(bool(realtime))
+        self._alloc_log(cap_ticks, clocks_per_tick=not compiled)
         self._cap = cap_ticks
         self._stats = {"stop_reason": "exception", "n_logged": 0, "wrapped": False, "ticks": 0,
                        "overruns": 0, "bad_samples": 0, "error": ""}
@@ -487,7 +472,7 @@ class ServoLoop:
                 if self.on_device:
                     self._loop_on_device(limit, until)
                 else:
-                    self._loop(limit, until, bool(realtime))
+                    self._loop(limit, until, bool(realtime), compiled)
             except BaseException as exc:
                 self._stats["stop_reason"] = "interrupted" if isinstance(exc, KeyboardInterrupt) else "exception"
                 self._stats["error"] = f"{type(exc).__name__}: {exc}"
@@ -567,7 +552,7 @@ class ServoLoop:
             # one tick of the law on scratch copies: its first call's one-time cost lands here, not in tick 0
             _law().law_tick(c, w.copy(), np.zeros((LAW.N_LOG, 1)), 0.0, p0, 0.0, 0.0, 0)
 
-    def _loop(self, limit, until, realtime: bool) -> None:
+    def _loop(self, limit, until, realtime: bool, compiled: bool) -> None:
         """The servo loop proper; one tick of it: pace; read; the law (``renderer.law.law_tick``:
         validate, velocity, transient sample, collision, events, wall law, saturation, thermal, log
         row); command; then the impact's work that must not delay the output; every ``until_every``
@@ -577,7 +562,6 @@ class ServoLoop:
         st = self._stats
         dev = self.device
         self._law_c = self._law_constants()
-        compiled = self._compiled_path(realtime)
         if compiled:
             # the ahead-of-time build when there is one (renderer.sim_aot: no numba in the process), which
             # also carries the device's own physics step for the priming tick and any Python-side command

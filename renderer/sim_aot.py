@@ -136,8 +136,9 @@ def run_sim_function():
     return law.run_sim, None
 
 
-def _lock_path(key: str, base: Path) -> Path:
-    return base / f"{key}.lock"
+def _marker(base: Path, key: str, kind: str) -> Path:
+    """``<base>/<key>.lock`` (a builder is at work) or ``<base>/<key>.failed`` (why the last build failed)."""
+    return base / f"{key}.{kind}"
 
 
 def schedule_build() -> bool:
@@ -147,9 +148,9 @@ def schedule_build() -> bool:
     if mode() != "auto":
         return False
     base, key = cache_dir(), source_key()
-    if extension_path(key, base).is_file() or (base / f"{key}.failed").is_file():
+    if extension_path(key, base).is_file() or _marker(base, key, "failed").is_file():
         return False
-    lock = _lock_path(key, base)
+    lock = _marker(base, key, "lock")
     try:
         if lock.is_file() and time.time() - lock.stat().st_mtime < STALE_LOCK_S:
             return False
@@ -163,8 +164,8 @@ def schedule_build() -> bool:
 
 
 def build(base: Path | None = None, background: bool = False) -> Path:
-    """Compile ``renderer.law.run_sim`` and ``devices.sim.kernel.tick`` into ``<base>/<key>/_hfam_sim_loop<ext>`` (atomic: built in a
-    temporary folder, renamed when complete; builds of other keys are removed).
+    """Compile ``renderer.law.run_sim`` and ``devices.sim.kernel.tick`` into ``<base>/<key>/_hfam_sim_loop<ext>``
+    (atomic: built in a temporary folder, renamed when complete; builds of other keys are removed).
 
     Parameters
     ----------
@@ -179,13 +180,15 @@ def build(base: Path | None = None, background: bool = False) -> Path:
     Path
         The extension module.
     """
+    import hashlib  # deferred: the manifest's SHA-256 only; OpenSSL costs ~7 ms at a run's start-up
+
     base = cache_dir() if base is None else Path(base)
     key = source_key()
     dest = extension_path(key, base)
     if dest.is_file():
         return dest
     base.mkdir(parents=True, exist_ok=True)
-    lock = _lock_path(key, base)
+    lock, failed = _marker(base, key, "lock"), _marker(base, key, "failed")
     if background:
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
@@ -197,8 +200,6 @@ def build(base: Path | None = None, background: bool = False) -> Path:
         os.write(fd, str(os.getpid()).encode())
         os.close(fd)
     tmp = Path(tempfile.mkdtemp(prefix=f"{key}.build", dir=base))
-    import hashlib  # deferred: the manifest's SHA-256 only; OpenSSL costs ~7 ms at a run's start-up
-
     try:
         t0 = time.perf_counter()
         _compile(tmp)
@@ -215,11 +216,11 @@ def build(base: Path | None = None, background: bool = False) -> Path:
         for old in base.iterdir():  # earlier sources' builds: never loaded again
             if old.is_dir() and old.name != key and ".build" not in old.name and (old / "manifest.json").is_file():
                 shutil.rmtree(old, ignore_errors=True)
-        (base / f"{key}.failed").unlink(missing_ok=True)
+        failed.unlink(missing_ok=True)
     except Exception as exc:
         if not background:
             raise
-        (base / f"{key}.failed").write_text(f"{type(exc).__name__}: {exc}\n", encoding="utf-8")
+        failed.write_text(f"{type(exc).__name__}: {exc}\n", encoding="utf-8")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         if background:

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..library import HfamLibrary
-from .inversion import forward_simulate, invert, nrmse_corr
+from .inversion import band_sos, forward_simulate, invert, nrmse_corr
 from .settings import MAX_SMOOTH_HZ, BuildSettings
 
 
@@ -326,7 +326,7 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
         _, table = min(by_grip, key=lambda s: abs(s[0] - amplitude_ratio * peak_A) if math.isfinite(s[0]) else 0.0)
         return table.get(round(grip_N, 6))
     # the demo's comparison filter (renderer.demo.metrics.bandpass): order 2, forwards and backwards
-    sos = signal.butter(settings.band_order, list(settings.band_hz), btype="bandpass", fs=fs, output="sos")
+    sos = band_sos(fs, settings.band_hz, settings.band_order)
     smooth = signal.butter(build_settings.smooth_order, build_settings.smooth_hz, fs=fs, output="sos")
     cur = np.array(library.currents_A, dtype=float)
     n_v, n_g, n_t = cur.shape
