@@ -8,21 +8,7 @@ from __future__ import annotations
 from numba import njit
 
 from devices.sim import kernel as SK
-from devices.sim.layout import (
-    D_ACC,
-    D_GRIP,
-    D_HELD,
-    D_LAST,
-    D_LIMIT,
-    D_PERIOD,
-    D_POS,
-    D_REJECTED,
-    D_STATUS,
-    D_T,
-    D_TICK,
-    D_USER_TICK,
-    HOT_STATUS,
-)
+from devices.sim import layout as L
 
 
 @njit(cache=True)
@@ -55,10 +41,10 @@ def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hi
     n_hist = hist.shape[0]
     k_imp = -1
     pushed = 0
-    prev = dev[D_POS]
+    prev = dev[L.D_POS]
     k = 0
     while k < limit:
-        x = dev[D_POS]
+        x = dev[L.D_POS]
         if k_imp < 0:
             hist[pushed % n_hist] = x
             pushed += 1
@@ -70,19 +56,19 @@ def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hi
             i_cmd += current_A[j - 1]
         # SimDevice.command(i_cmd): the device's input rule, then one servo period of its physics (written
         # out as in renderer.law.run_sim: one shared inlined helper for both made that loop 20 % slower)
-        i, status, rejected = SK.command_rule_nb(i_cmd, dev[D_LIMIT])
-        dev[D_REJECTED] += rejected
-        dev[D_LAST] = i
-        applied = dev[D_HELD]
-        dev[D_HELD] = i
-        tick = dev[D_TICK] + 1.0
-        dev[D_TICK] = tick
-        p, a, g, hot = SK.tick(ss, sp, srs, traj, grip, int(tick - 1.0 - dev[D_USER_TICK]), applied)
-        dev[D_T] = tick * dev[D_PERIOD]
-        dev[D_POS] = p
-        dev[D_ACC] = a
-        dev[D_GRIP] = g
-        dev[D_STATUS] = status | HOT_STATUS if hot != 0.0 else status
+        i, status, rejected = SK.command_rule_nb(i_cmd, dev[L.D_LIMIT])
+        dev[L.D_REJECTED] += rejected
+        dev[L.D_LAST] = i
+        applied = dev[L.D_HELD]
+        dev[L.D_HELD] = i
+        tick = dev[L.D_TICK] + 1.0
+        dev[L.D_TICK] = tick
+        p, a, g, hot = SK.tick(ss, sp, srs, traj, grip, int(tick - 1.0 - dev[L.D_USER_TICK]), applied)
+        dev[L.D_T] = tick * dev[L.D_PERIOD]
+        dev[L.D_POS] = p
+        dev[L.D_ACC] = a
+        dev[L.D_GRIP] = g
+        dev[L.D_STATUS] = status | L.HOT_STATUS if hot != 0.0 else status
         if 0 <= j < n:
             acc[j] = a
         if j >= n - 1:
