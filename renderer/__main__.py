@@ -6,7 +6,8 @@ from devices.dispatch import Command, main as dispatch, run_as_script
 
 #: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
 COMMANDS = (
-    Command("run", "renderer.cli_run", "render a virtual wall under a simulated or real user tapping"),
+    Command("run", "renderer.cli_run", "render a virtual wall under a simulated or real user tapping",
+            preload=("renderer.loop", "devices.registry")),
     Command("demo", "renderer.demo.cli_demo",
             "virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample"),
     Command("teleop", "renderer.teleop.cli_teleop", "run a simulated teleoperation session (thesis ch. 5)"),

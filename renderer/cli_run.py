@@ -100,7 +100,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output directory (new or empty)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier run")
     with_examples(p, 'hfam-renderer run --device sim --transient pulse --stiffness-N-m 680 --taps 10 --velocities-m-s 0.1 --out runs/pulse', 'hfam-renderer run --device serial:/dev/ttyACM0 --transient hfam --library LIB.npz --duration-s 60 --out runs/hw')
-    p.set_defaults(func=run_command)
+    # run_command closes the device and every file and joins its threads before it returns
+    p.set_defaults(func=run_command, fast_exit=True)
 
 
 def _build_config(args):

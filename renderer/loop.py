@@ -379,8 +379,10 @@ class ServoLoop:
 
     def _alloc_log(self, capacity: int, clocks_per_tick: bool = True) -> None:
         # the law's channels (renderer.law.LOG_COLUMNS, one contiguous row each) and the loop's own clock
-        # columns; mapped now, so the loop never takes a first-touch page fault. A compiled simulated run
-        # writes its clock columns once per chunk (compute_ns never): zero pages mapped on demand
+        # columns; mapped now, so the loop never takes a first-touch page fault (mapping them on the other
+        # core while the compiled loop runs, which releases the GIL, measured no faster: the loop slowed by
+        # what it saved). A compiled simulated run writes its clock columns once per chunk (compute_ns
+        # never): zero pages mapped on demand
         self._logf = _prefaulted_zeros((LAW.N_LOG, capacity))
         if clocks_per_tick:
             self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}

@@ -54,6 +54,11 @@ _SIM = Path(devices.sim.layout.__file__).resolve().parent
 SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "scene.py",
            _SIM / "kernel.py", _SIM / "layout.py")
 MODES = ("auto", "nobuild", "off")
+#: how the exported functions are built (part of the key): they release the GIL while they run, like the
+#: JIT ``run_sim`` (``nogil=True``), so ``renderer.loop`` can pre-fault the log on the other core
+BUILD_OPTIONS = "release_gil"
+#: whether a loaded build releases the GIL (every build under the current key does)
+RELEASES_GIL = True
 STALE_LOCK_S = 600.0        # a builder that has held the lock this long died: take over
 
 _loaded: dict = {}
@@ -88,7 +93,7 @@ def source_key() -> str:
     against adversaries. The manifest of each build records the sources' SHA-256 as well.
     """
     blob = b"".join(path.read_bytes() for path in SOURCES)
-    env = "|".join([sys.version, np.__version__, platform.machine(), sys.implementation.cache_tag,
+    env = "|".join([sys.version, np.__version__, platform.machine(), sys.implementation.cache_tag, BUILD_OPTIONS,
                     *(f"{p.name}:{p.stat().st_size}" for p in SOURCES)])
     return f"{zlib.crc32(blob):08x}{zlib.crc32(env.encode()):08x}"
 
@@ -206,7 +211,7 @@ def build(base: Path | None = None, background: bool = False) -> Path:
         seconds = time.perf_counter() - t0
         (tmp / "manifest.json").write_text(json.dumps({
             "key": key, "sources": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in SOURCES},
-            "python": sys.version, "numpy": np.__version__, "machine": platform.machine(),
+            "python": sys.version, "numpy": np.__version__, "machine": platform.machine(), "options": BUILD_OPTIONS,
             "compile_s": round(seconds, 2)}, indent=2) + "\n", encoding="utf-8")
         try:
             os.rename(tmp, dest.parent)
@@ -242,12 +247,28 @@ def _compile(out_dir: Path) -> None:
 
         from . import law  # deferred: the JIT law whose source is compiled, build only
 
+        from numba.pycc import compiler as pycc_compiler  # deferred: build only
+
         cc = CC(MODULE)
         cc.output_dir = str(out_dir)
         cc.verbose = False
         cc.export("run_sim", SIGNATURE)(law.run_sim.py_func)
         cc.export("tick", TICK_SIGNATURE)(kernel.tick.py_func)
-        cc.compile()
+        # numba.pycc has no switch for numba's ``release_gil`` flag (what ``nogil=True`` sets for the JIT):
+        # its compiler makes its flags with ``Flags()``, so it gets a subclass that sets it, for this build
+        # only. tests/renderer/test_sim_aot.py checks that a build's run_sim lets another thread run.
+        pycc_flags = pycc_compiler.Flags
+
+        class _ReleaseGilFlags(pycc_flags):
+            def __init__(self, *args, **kwargs):
+                super().__init__(*args, **kwargs)
+                self.release_gil = True
+
+        pycc_compiler.Flags = _ReleaseGilFlags
+        try:
+            cc.compile()
+        finally:
+            pycc_compiler.Flags = pycc_flags
 
 
 def register(subparsers) -> None:

@@ -1,18 +1,44 @@
 """devices.fileio: the servo log's .npz writer against numpy's."""
 
-import numpy as np
+import zipfile
 
+import numpy as np
+import pytest
+
+from devices import fileio
 from devices.fileio import save_npz
 
 
-def test_save_npz_matches_numpy_savez(tmp_path):
-    """save_npz (no copies of contiguous arrays) writes what np.savez writes: same members, same
-    headers and bytes (the files are the same size), the same arrays back through np.load."""
+def _arrays():
     rng = np.random.default_rng(3)
-    log = np.ascontiguousarray(rng.normal(size=(3, 1000)))
-    arrays = {"t_s": log[0], "position_m": log[1][:500], "clipped": rng.integers(0, 8, 1000).astype(np.uint8),
-              "wall_ns": np.arange(1000, dtype=np.int64), "flag": rng.random(10) > 0.5,
-              "strided": log[2][::3], "empty": np.zeros(0), "big_endian": np.arange(4, dtype=">f8")}
+    log = np.ascontiguousarray(rng.normal(size=(3, 100_000)))
+    return {"t_s": log[0], "position_m": log[1][:500], "clipped": rng.integers(0, 8, 1000).astype(np.uint8),
+            "wall_ns": np.arange(1000, dtype=np.int64), "flag": rng.random(10) > 0.5,
+            "strided": log[2][::3], "empty": np.zeros(0), "big_endian": np.arange(4, dtype=">f8"),
+            "gripkraft_\u00fc": np.ones(3)}
+
+
+@pytest.mark.parametrize("zip64", [False, True])
+def test_save_npz_writes_the_bytes_of_numpy_savez(tmp_path, monkeypatch, zip64):
+    """save_npz (no copies, CRCs on a second thread) writes np.savez's file byte for byte, also in the
+    zip64 form zipfile uses beyond 2 GiB (forced here by lowering both writers' limit to 1 kB: zip64 sizes
+    and offsets in the central directory, the zip64 end records)."""
+    if zip64:
+        monkeypatch.setattr(zipfile, "ZIP64_LIMIT", 1000)
+        monkeypatch.setattr(fileio, "_ZIP64_LIMIT", 1000)
+    arrays = _arrays()
+    save_npz(tmp_path / "ours.npz", arrays)
+    np.savez(tmp_path / "numpy.npz", **arrays)
+    ours, theirs = (tmp_path / "ours.npz").read_bytes(), (tmp_path / "numpy.npz").read_bytes()
+    assert len(ours) > 800_000 and ours == theirs
+    assert (b"PK\x06\x06" in ours) is zip64
+    with zipfile.ZipFile(tmp_path / "ours.npz") as zf:
+        assert zf.testzip() is None  # every member's CRC-32 checks out
+
+
+def test_save_npz_matches_numpy_savez(tmp_path):
+    """The same arrays back through np.load, dtypes included."""
+    arrays = _arrays()
     save_npz(tmp_path / "ours.npz", arrays)
     np.savez(tmp_path / "numpy.npz", **arrays)
     assert (tmp_path / "ours.npz").stat().st_size == (tmp_path / "numpy.npz").stat().st_size

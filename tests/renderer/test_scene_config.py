@@ -145,6 +145,27 @@ def test_one_dof_fast_path_matches_the_3d_query():
             assert nz == pytest.approx(n[2], abs=1e-12)
 
 
+def test_endpoint_weights_match_pinv_and_savgol():
+    """The closed-form quadratic endpoint derivative agrees with the least-squares pseudo-inverse and with
+    scipy's Savitzky-Golay coefficients for every window the estimator can use (and beyond)."""
+    from scipy.signal import savgol_coeffs
+
+    from renderer.velocity import endpoint_derivative_weights
+
+    dt = 1e-4
+    for window in range(3, 201):
+        u = np.arange(window, dtype=float) - (window - 1)
+        ref = np.linalg.pinv(np.stack([np.ones(window), u, u * u], axis=1))[1] / dt
+        sg = savgol_coeffs(window, 2, deriv=1, delta=dt, pos=window - 1, use="dot")
+        w = np.array(endpoint_derivative_weights(window, dt))
+        scale = np.max(np.abs(ref))
+        assert np.max(np.abs(w - ref)) < 1e-10 * scale, window
+        assert np.max(np.abs(w - sg)) < 1e-10 * scale, window
+        assert abs(float(np.sum(w))) < 1e-9 * scale  # a constant has no slope
+    with pytest.raises(ValueError, match=">= 3 samples"):
+        endpoint_derivative_weights(2, dt)
+
+
 def test_velocity_fits_are_exact_on_polynomials():
     import array
 

@@ -118,6 +118,47 @@ def test_aot_physics_step_is_the_kernel_tick(aot_dir, monkeypatch):
         b.use_compiled_step(None)
 
 
+@pytest.mark.parametrize("mode", ["off", "nobuild"])
+def test_the_compiled_loop_lets_other_threads_run(aot_dir, monkeypatch, mode):
+    """run_sim releases the GIL (JIT: ``nogil=True``; the build: numba's release_gil flag set for pycc), so
+    a UI, audio or web thread keeps running while a compiled simulated run is inside a chunk. Chunks of
+    200 000 ticks (~0.1 s) here: a thread that timestamps itself in a loop would see a gap of a whole
+    chunk if run_sim held the GIL; released, its longest gap is the loop's own Python between chunks."""
+    import threading
+
+    from renderer import loop as loop_module
+
+    _use(monkeypatch, aot_dir, mode)
+    monkeypatch.setattr(loop_module, "COMPILED_POLL_TICKS", 200_000)
+    run_sim, _ = sim_aot.run_sim_function()
+    assert (mode == "nobuild") == (type(run_sim).__name__ == "builtin_function_or_method")
+    ServoLoop(SimDevice(seed=1), RendererConfig()).run(max_ticks=200)  # JIT warm-up outside the measurement
+    dev = SimDevice(seed=1)
+    dev.set_user(TapTrajectory(0.1, n_taps=1), grip_N=2.0)  # one tap, then the hand rests: long chunks
+    loop = ServoLoop(dev, RendererConfig())
+    stop, gaps = threading.Event(), [0.0, 0]
+
+    def watch():
+        last = time.perf_counter()
+        while not stop.is_set():
+            now = time.perf_counter()
+            gaps[0] = max(gaps[0], now - last)
+            gaps[1] += 1
+            last = now
+
+    thread = threading.Thread(target=watch)
+    thread.start()
+    try:
+        res = loop.run(duration_s=60.0)
+    finally:
+        stop.set()
+        thread.join()
+    assert res.timing["aot"] is (mode == "nobuild") and res.timing["ticks"] == 600_000
+    chunk_s = res.timing["wall_time_s"] / 3.0  # 600 000 ticks in 3 chunks (and the tap's event work)
+    assert chunk_s > 0.05
+    assert gaps[0] < 0.3 * chunk_s, (gaps, chunk_s)
+
+
 def test_a_run_with_the_build_never_imports_numba(aot_dir, tmp_path):
     """The whole point: a simulated ``renderer run`` process with a build loads neither numba nor scipy."""
     code = ("import sys; from renderer.__main__ import main; "
