@@ -273,7 +273,7 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     return i
 
 
-# nogil: while a run is in here, another thread (renderer.loop's page pre-faulter, a UI) runs on another core
+# nogil: while a run is in here, other threads (a UI, the study's audio callback, a web server) keep running
 @njit(cache=True, nogil=True)
 def run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max):
     """Up to ``n_max`` ticks of the law on the simulated device (``devices.sim.kernel.tick``) in one call.

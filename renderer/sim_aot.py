@@ -55,10 +55,8 @@ SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "scene
            _SIM / "kernel.py", _SIM / "layout.py")
 MODES = ("auto", "nobuild", "off")
 #: how the exported functions are built (part of the key): they release the GIL while they run, like the
-#: JIT ``run_sim`` (``nogil=True``), so ``renderer.loop`` can pre-fault the log on the other core
+#: JIT ``run_sim`` (``nogil=True``), so other threads of the process keep running during a compiled run
 BUILD_OPTIONS = "release_gil"
-#: whether a loaded build releases the GIL (every build under the current key does)
-RELEASES_GIL = True
 STALE_LOCK_S = 600.0        # a builder that has held the lock this long died: take over
 
 _loaded: dict = {}

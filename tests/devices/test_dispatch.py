@@ -1,0 +1,62 @@
+"""devices.dispatch: preloaded command modules and the fast exit, in processes of their own."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# a package with one command that registers an exit handler, may start a thread that outlives it, and
+# reports whether its preload module was imported (and frozen out of the collector) before it ran
+COMMAND = '''
+import atexit, gc, os, sys, threading, time
+
+def register(sub):
+    p = sub.add_parser("go")
+    p.add_argument("--thread", action="store_true")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=run, fast_exit=True)
+
+def run(args):
+    print("PRELOADED", "json" in sys.modules and "fakecmd_pre" in sys.modules, gc.get_freeze_count() > 0,
+          gc.isenabled(), flush=True)
+    atexit.register(lambda: open(os.path.join(args.out, "atexit"), "w").close())
+    if args.thread:
+        def late():
+            time.sleep(0.3)
+            open(os.path.join(args.out, "thread"), "w").close()
+        threading.Thread(target=late).start()
+    return 3
+'''
+MAIN = '''
+import sys
+from devices.dispatch import Command, main, run_as_script
+run_as_script(lambda: main("fake", "fake", (Command("go", "fakecmd", "go", preload=("fakecmd_pre",)),)))
+'''
+
+
+def _run(tmp_path, *extra):
+    (tmp_path / "fakecmd.py").write_text(textwrap.dedent(COMMAND))
+    (tmp_path / "fakecmd_pre.py").write_text("import json\n")
+    out = tmp_path / "out"
+    out.mkdir(exist_ok=True)
+    proc = subprocess.run([sys.executable, "-c", MAIN, "go", "--out", str(out), *extra], cwd=ROOT,
+                          env={"PYTHONPATH": f"{ROOT}:{tmp_path}", "PATH": "/usr/bin:/bin"}, capture_output=True,
+                          text=True, timeout=60)
+    return proc, out
+
+
+def test_preload_is_imported_before_the_command_and_the_fast_exit_runs_the_exit_handlers(tmp_path):
+    proc, out = _run(tmp_path)
+    assert proc.returncode == 3, proc.stderr       # the command's exit code, also through os._exit
+    assert "PRELOADED True True True" in proc.stdout  # imported, frozen, the collector back on for the command
+    assert (out / "atexit").exists()                # the exit handlers ran before the process ended
+
+
+def test_no_fast_exit_while_a_thread_of_the_command_still_runs(tmp_path):
+    proc, out = _run(tmp_path, "--thread")
+    assert proc.returncode == 3, proc.stderr
+    assert (out / "thread").exists() and (out / "atexit").exists()  # the interpreter waited for the thread
