@@ -37,15 +37,17 @@ def run(args: argparse.Namespace) -> int:
             # imports the statistics and reads the trials files
             sessions = submit_sessions(args.data, pool)
             from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads what it runs)
-            from analysis.report import start_accelerations, write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
+            from analysis.report import list_traces, start_accelerations, write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
 
-            # and it draws Figure 4.20 (its taps read here from the traces once the study is loaded) while
-            # this one computes the statistics
+            # then it lists the subject folders holding traces while this one loads the study, and draws
+            # Figure 4.20 (its taps read here from the traces once the study is loaded) while this one
+            # computes the statistics
+            traced = list_traces(sessions[1], pool)
             started = []
 
             def loaded(study):
                 if pool is not None:
-                    started.append(start_accelerations(study, out, args.velocity, pool))
+                    started.append(start_accelerations(study, out, args.velocity, pool, traced))
 
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", AnalysisWarning)

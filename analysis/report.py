@@ -15,7 +15,7 @@ import numpy as np
 from analysis import figures
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
-from analysis.traces import typical_taps
+from analysis.traces import folders_with_traces, typical_taps
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
     import pandas as pd
@@ -195,10 +195,18 @@ def _finish(future, job: tuple) -> dict:
     return fn(*args)
 
 
+def list_traces(folders: list, pool):
+    """The subject folders that hold traces (:func:`analysis.traces.folders_with_traces`), listed in
+    ``pool``'s process (idle while the study loads): a future for :func:`start_accelerations`, or None
+    without a pool."""
+    return _submit(pool, (folders_with_traces, folders))
+
+
 def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = None,
-                        pool=None) -> tuple[tuple | None, list[str]]:
+                        pool=None, traced=None) -> tuple[tuple | None, list[str]]:
     """Begin Figure 4.20: the typical taps are read from the traces here and the figure is submitted to
-    ``pool`` (without one, :func:`make_figures` draws it here).
+    ``pool`` (without one, :func:`make_figures` draws it here). ``traced``: the future of
+    :func:`list_traces` for the study's folders, or None (they are listed here).
 
     Returns
     -------
@@ -218,7 +226,9 @@ def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = No
     # those rows only the columns that locate a trace (not the lists as text)
     velocities = (values[keep], (np.cumsum(sel) - 1)[row[keep]])
     rows = t.loc[sel, ["subject", "phase", "trial", "attempt", "sample"]]
-    taps, v, why = typical_taps(rows, dirs, study.catalog, target_v_m_s, velocities=velocities)
+    if traced is not None:
+        traced = _finish(traced, (folders_with_traces, list(dirs.values())))
+    taps, v, why = typical_taps(rows, dirs, study.catalog, target_v_m_s, velocities=velocities, traced=traced)
     if not taps:
         for ext in ("png", "svg", "csv"):
             stale = out / f"fig_4_20_accelerations.{ext}"
