@@ -31,14 +31,29 @@ def run(args: argparse.Namespace) -> int:
         collecting = gc.isenabled()
         gc.disable()
         try:
-            from analysis.load import AnalysisWarning  # deferred: keeps `--help` fast (a command loads what it runs)
+            from analysis.load import AnalysisWarning, submit_sessions  # deferred: keeps `--help` fast (a command loads what it runs)
+
+            # the drawing process, idle until the study is loaded, reads the session files while this one
+            # imports the statistics and reads the trials files
+            sessions = submit_sessions(args.data, pool)
             from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads what it runs)
-            from analysis.report import write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
+            from analysis.report import list_traces, start_accelerations, write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
+
+            # then it lists the subject folders holding traces while this one loads the study, and draws
+            # Figure 4.20 (its taps read here from the traces once the study is loaded) while this one
+            # computes the statistics
+            traced = list_traces(sessions[1], pool)
+            started = []
+
+            def loaded(study):
+                if pool is not None:
+                    started.append(start_accelerations(study, out, args.velocity, pool, traced))
+
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", AnalysisWarning)
-                res = analyse(args.data, cfg)
+                res = analyse(args.data, cfg, sessions=sessions, loaded=loaded)
                 written = write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
-                                       pool=pool)
+                                       pool=pool, accelerations=started[0] if started else None)
         finally:
             if collecting:
                 gc.enable()
@@ -57,10 +72,12 @@ def figure_process():
     """An executor with a second process for :func:`analysis.report.make_figures`, or None.
 
     The figures cost the same at any number of subjects (~2.5 s of matplotlib in all): that process
-    draws three of them while this one reads the traces and draws Figure 4.20. It is forked first,
+    reads the session files while this one imports the statistics and reads the trials files, then
+    draws Figure 4.20 (once the study is loaded; the taps are read from the traces here) and Figure
+    4.19 while this one computes the statistics and draws Figures 4.18 and 4.17. It is forked first,
     once matplotlib is imported, while this process runs a single thread (a fork of a process running
     other threads, such as pyarrow's readers, can copy a lock one of them holds and deadlock), and
-    imports the figure module (pandas) while this one imports the statistics and loads the study.
+    imports the figure module (pandas) while this one imports the statistics.
     A fork, not a new interpreter: a spawned process would run the calling script's top level again.
     None where no fork is safe or possible (not Linux; other threads running, e.g. in a caller's
     process, or BLAS threads where the environment asks for more than one; a daemonic process): the
@@ -100,7 +117,7 @@ def _single_threaded() -> bool:
 def _start_drawing() -> None:
     """Initializer of the drawing process: it leaves Ctrl-C to the main process (which stops it after the
     figure at hand), ends when the main process is gone (killed: a pool process would otherwise wait for
-    its next task for ever), and does the figures' imports while the main process reads the study."""
+    its next task for ever), and does the figures' imports while the main process imports the statistics."""
     import multiprocessing  # deferred: the drawing process's own start-up
     import signal  # deferred: the drawing process's own start-up
     import threading  # deferred: the drawing process's own start-up

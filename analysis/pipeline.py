@@ -42,13 +42,27 @@ def _exclusion_table(matrix: stats.RatingMatrix, group_names) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["subject", "experience", "missing_samples", "excluded_from", "groups"])
 
 
-def analyse(data_dir, config: AnalysisConfig | None = None) -> Analysis:
+def analyse(data_dir, config: AnalysisConfig | None = None, sessions: tuple | None = None,
+            loaded=None) -> Analysis:
     """Run every table of issue 7 on the study in ``data_dir``.
+
+    Parameters
+    ----------
+    data_dir : path
+        Study folder (see :func:`analysis.load.load_study`).
+    config : AnalysisConfig or None
+        Default: ``AnalysisConfig()``.
+    sessions : tuple or None
+        Its session files being read in another process (:func:`analysis.load.submit_sessions`).
+    loaded : callable or None
+        Called with the :class:`analysis.load.Study` once it is loaded and the configuration checked
+        against it, before the tables: the report starts Figure 4.20 there, so that it is drawn while
+        the statistics run.
 
     Raises ValueError/FileNotFoundError on bad input (see :func:`analysis.load.load_study`).
     """
     config = config or AnalysisConfig()
-    study = load_study(Path(data_dir))
+    study = load_study(Path(data_dir), sessions)
     messages = list(study.warnings)
 
     def warn(text):
@@ -58,6 +72,8 @@ def analyse(data_dir, config: AnalysisConfig | None = None) -> Analysis:
     if config.reference not in study.catalog:
         raise ValueError(f"--reference {config.reference!r} is not a sample of the catalog "
                          f"({', '.join(study.catalog)})")
+    if loaded is not None:
+        loaded(study)
     matrix = stats.rating_matrix(study)
     no_data = [s for s, c in zip(matrix.subjects, matrix.counts.sum(axis=1)) if c == 0]
     if no_data:

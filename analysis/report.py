@@ -15,11 +15,12 @@ import numpy as np
 from analysis import figures
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
-from analysis.traces import typical_taps
+from analysis.traces import folders_with_traces, typical_taps
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
     import pandas as pd
 
+    from analysis.load import Study
     from analysis.pipeline import Analysis
 
 FIGURES = {
@@ -143,61 +144,103 @@ def _strong(text: str) -> str:
 
 
 def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None,
-                 pool=None) -> tuple[list[Path], list[str]]:
+                 pool=None, accelerations=None) -> tuple[list[Path], list[str]]:
     """Write the four figures (PNG, SVG and CSV each); returns (PNG paths written, notes on skipped figures).
 
     ``pool``: an executor with a second process (:func:`analysis.cli_report.figure_process`) that draws
-    Figures 4.17-4.19 while this process reads the traces and draws Figure 4.20; None draws all four here,
-    in turn. Each figure costs the same at any number of subjects (~0.2-1 s of matplotlib).
+    Figures 4.20 and 4.19 while this process draws 4.18 and 4.17 (each figure costs the same at any
+    number of subjects, ~0.2-1 s of matplotlib; the two halves take about as long); None draws all four
+    here, in turn. A figure whose process died is drawn here. ``accelerations``: Figure 4.20 as begun
+    by :func:`start_accelerations` (with ``pool``, once the study was loaded), else begun here.
     """
     alpha = res.config.alpha
-    jobs = [(figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png"),
-            (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha),
-            (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png")]
-    drawing = []
-    if pool is not None:
+    ratings = (figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png")
+    pvalues = (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha)
+    penetration = (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png")
+    if pool is None:
+        written = [fn(*args) for fn, *args in (ratings, pvalues, penetration)]
+        acc, notes = start_accelerations(res.study, out, target_v_m_s)
+        return [w["png"] for w in written + ([_finish(*acc)] if acc else [])], notes
+    acc, notes = accelerations if accelerations is not None else \
+        start_accelerations(res.study, out, target_v_m_s, pool)
+    there = _submit(pool, penetration)          # queued behind Figure 4.20
+    here = [fn(*args) for fn, *args in (ratings, pvalues)]
+    written = here + [_finish(there, penetration)] + ([_finish(*acc)] if acc else [])
+    return [w["png"] for w in written], notes
+
+
+def _submit(pool, job: tuple):
+    """``job`` (function, arguments...) submitted to ``pool``; None without one or when its process is gone."""
+    if pool is None:
+        return None
+    from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
+
+    try:
+        return pool.submit(*job)
+    except (BrokenProcessPool, RuntimeError):        # its process died, or the pool was shut down
+        return None
+
+
+def _finish(future, job: tuple) -> dict:
+    """The paths a figure job returns: ``future``'s result, or ``job`` run here without a future or when
+    the process drawing it died."""
+    if future is not None:
         from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
 
         try:
-            drawing = [pool.submit(*job) for job in jobs]
-        except BrokenProcessPool:          # the drawing process died (killed?): draw them here
-            pass
-    written = [] if drawing else [fn(*args) for fn, *args in jobs]
-    acc, notes = _accelerations(res, out, target_v_m_s)
-    if drawing:
-        try:
-            written = [f.result() for f in drawing]
+            return future.result()
         except BrokenProcessPool:
-            written = [fn(*args) for fn, *args in jobs]
-    return [w["png"] for w in written + acc], notes
+            pass
+    fn, *args = job
+    return fn(*args)
 
 
-def _accelerations(res: Analysis, out: Path, target_v_m_s: float | None) -> tuple[list[dict], list[str]]:
-    """Figure 4.20 (the typical taps read from the traces); (paths written, notes)."""
-    written = []
+def list_traces(folders: list, pool):
+    """The subject folders that hold traces (:func:`analysis.traces.folders_with_traces`), listed in
+    ``pool``'s process (idle while the study loads): a future for :func:`start_accelerations`, or None
+    without a pool."""
+    return _submit(pool, (folders_with_traces, folders))
+
+
+def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = None,
+                        pool=None, traced=None) -> tuple[tuple | None, list[str]]:
+    """Begin Figure 4.20: the typical taps are read from the traces here and the figure is submitted to
+    ``pool`` (without one, :func:`make_figures` draws it here). ``traced``: the future of
+    :func:`list_traces` for the study's folders, or None (they are listed here).
+
+    Returns
+    -------
+    pending : (future or None, job) or None
+        The drawing and the job that draws it (:func:`_finish` gives its paths); None when no trace
+        gives a tap (stale files of an earlier report removed).
+    notes : list of str
+        Why the figure lacks samples or was skipped.
+    """
     notes = []
-    dirs = dict(zip(res.study.subjects["subject"], res.study.subjects["folder"]))     # folder paths as str
-    t = res.study.trials
+    dirs = dict(zip(study.subjects["subject"], study.subjects["folder"]))     # folder paths as str
+    t = study.trials
     sel = valid_testing_mask(t)
-    values, row = res.study.taps["incoming_velocities_m_s"]
+    values, row = study.taps["incoming_velocities_m_s"]
     keep = sel[row]
     # the velocities parsed at loading, re-indexed to the valid testing rows (no second parse), and of
     # those rows only the columns that locate a trace (not the lists as text)
     velocities = (values[keep], (np.cumsum(sel) - 1)[row[keep]])
     rows = t.loc[sel, ["subject", "phase", "trial", "attempt", "sample"]]
-    taps, v, why = typical_taps(rows, dirs, res.study.catalog, target_v_m_s, velocities=velocities)
-    if taps:
-        written.append(figures.fig_accelerations(taps, res.study.catalog, v, out / "fig_4_20_accelerations.png"))
-        if why:
-            notes.append("Figure 4.20 lacks some samples: " + "; ".join(why[:12]))
-    else:
+    if traced is not None:
+        traced = _finish(traced, (folders_with_traces, list(dirs.values())))
+    taps, v, why = typical_taps(rows, dirs, study.catalog, target_v_m_s, velocities=velocities, traced=traced)
+    if not taps:
         for ext in ("png", "svg", "csv"):
             stale = out / f"fig_4_20_accelerations.{ext}"
             if stale.exists():
                 stale.unlink()
         notes.append("Figure 4.20 skipped: no usable per-attempt traces (" + "; ".join(why[:3])
                      + ("; ..." if len(why) > 3 else "") + ").")
-    return written, notes
+        return None, notes
+    if why:
+        notes.append("Figure 4.20 lacks some samples: " + "; ".join(why[:12]))
+    job = (figures.fig_accelerations, taps, study.catalog, v, out / "fig_4_20_accelerations.png")
+    return (_submit(pool, job), job), notes
 
 
 def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
@@ -329,15 +372,16 @@ TABLE_TITLES = (
 
 
 def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: float | None = None,
-                 pool=None) -> dict:
+                 pool=None, accelerations=None) -> dict:
     """Write tables, figures, ``report.md`` and a self-contained ``report.html`` into ``out_dir``.
 
-    ``pool``: see :func:`make_figures`. Returns a dict with ``tables``, ``figures`` (paths), ``notes``
-    and ``md``/``html`` paths.
+    ``pool``, ``accelerations``: see :func:`make_figures`. Returns a dict with ``tables``, ``figures``
+    (paths), ``notes`` and ``md``/``html`` paths.
     """
     out = Path(out_dir)
     tables = write_tables(res, out)
-    fig_paths, notes = make_figures(res, out, target_v_m_s, pool) if figures else ([], ["Figures not requested."])
+    fig_paths, notes = make_figures(res, out, target_v_m_s, pool, accelerations) if figures else \
+        ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
     cfg = res.config
     md = ["# Realism study analysis", "",

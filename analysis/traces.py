@@ -115,8 +115,22 @@ def _taps_from_arrays(arrays, path, subject, sample, velocities_m_s, pre_s, post
     return taps
 
 
+def folders_with_traces(folders) -> set:
+    """The folders (of ``folders``, as given) whose ``traces`` folder holds a ``.npz`` file: one directory
+    listing per folder, not a stat per attempt."""
+    found = set()
+    for folder in folders:
+        try:
+            with os.scandir(os.path.join(folder, "traces")) as it:
+                if any(e.name.endswith(".npz") for e in it):
+                    found.add(folder)
+        except OSError:
+            continue
+    return found
+
+
 def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s: float | None = None,
-                 max_files_per_sample: int = 30, velocities=None) -> tuple[dict, float, list[str]]:
+                 max_files_per_sample: int = 30, velocities=None, traced=None) -> tuple[dict, float, list[str]]:
     """For each sample, the tap whose incoming velocity is nearest a common target (Figure 4.20).
 
     Parameters
@@ -135,6 +149,9 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
         The rows' listed incoming velocities already parsed: every value (m/s) and the 0-based row
         of ``trials`` it belongs to (as :attr:`analysis.load.Study.taps` holds them); parsed from
         ``incoming_velocities_m_s`` when None.
+    traced : set or None
+        The values of ``subject_dirs`` whose folders hold traces (:func:`folders_with_traces`, e.g. listed
+        by the report's drawing process while the study loads); listed here when None.
 
     Returns
     -------
@@ -164,16 +181,12 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
     def parsed(r):
         return allv[starts[r]:starts[r + 1]]
 
-    # only subjects that saved any trace can give a tap (one directory listing per subject, not a stat
-    # per attempt): with thousands of subjects the nearest velocities are otherwise all trace-less
-    with_traces = []
-    for subj in pd.unique(trials["subject"]):
-        try:
-            with os.scandir(os.path.join(subject_dirs[subj], "traces")) as it:
-                if any(e.name.endswith(".npz") for e in it):
-                    with_traces.append(subj)
-        except OSError:
-            continue
+    # only subjects that saved any trace can give a tap: with thousands of subjects the nearest velocities
+    # are otherwise all trace-less
+    subjects = pd.unique(trials["subject"])
+    if traced is None:
+        traced = folders_with_traces([subject_dirs[subj] for subj in subjects])
+    with_traces = [subj for subj in subjects if subject_dirs[subj] in traced]
     has_trace = trials["subject"].isin(with_traces).to_numpy(dtype=bool)
     out = {}
     codes = pd.Categorical(trials["sample"], categories=list(samples)).codes

@@ -12,7 +12,7 @@ bytecode cache (``PYTHONPYCACHEPREFIX`` in the temporary folder) filled by one u
 without it the children inherit the environment as it is.
 
 The command is run as ``python -m analysis report`` runs it (``analysis.__main__.run``, exit included).
-The report draws three of its figures in a second process it forks at its start
+The report draws two of its figures (and reads the session files) in a second process it forks at its start
 (``analysis.cli_report.figure_process``): that process's CPU time and peak memory are printed beside the
 main one's, and the memory target is checked against the sum of the two peaks.
 """

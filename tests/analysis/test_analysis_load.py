@@ -245,6 +245,44 @@ def test_fast_reader_gives_the_exact_readers_table(tmp_path):
         np.testing.assert_array_equal(fast.taps[col][1], exact.taps[col][1])
 
 
+def test_sessions_read_in_another_process_give_the_same_study(tmp_path):
+    """submit_sessions (the report's drawing process reads the session files): same study, warnings, errors."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import pandas as pd
+
+    import analysis.load as L
+
+    def load(*args):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            study = L.load_study(*args)
+        return study, [str(w.message) for w in caught if issubclass(w.category, L.AnalysisWarning)]
+
+    write_synthetic_study(tmp_path, 6, seed=5, missing={"S002": ["foam"]}, unfinished=["S003"])
+    catalog = json.loads((tmp_path / "S005" / "session.json").read_text())
+    catalog["catalog"] = catalog["catalog"][::-1]              # a catalog differing from the first session's
+    (tmp_path / "S005" / "session.json").write_text(json.dumps(catalog))
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        (here, here_warned), (there, there_warned) = load(tmp_path), load(tmp_path, L.submit_sessions(tmp_path, pool))
+        assert len(here.warnings) == 2 and there.warnings == here.warnings and there_warned == here_warned
+        pd.testing.assert_frame_equal(there.trials, here.trials)
+        pd.testing.assert_frame_equal(there.subjects, here.subjects)
+        assert there.catalog == here.catalog and there.kinds == here.kinds
+        for col in L.LIST_COLUMNS:
+            for a, b in zip(there.taps[col], here.taps[col]):
+                np.testing.assert_array_equal(a, b)
+        (tmp_path / "S004" / "session.json").write_text('{"subject": "S004",')
+        with pytest.raises(ValueError) as exact:
+            L.load_study(tmp_path)
+        with pytest.raises(ValueError) as elsewhere:
+            L.load_study(tmp_path, L.submit_sessions(tmp_path, pool))
+        assert str(elsewhere.value) == str(exact.value) and "S004/session.json" in str(exact.value)
+        with pytest.raises(ValueError, match="sessions submitted for"):
+            L.load_study(tmp_path, L.submit_sessions(tmp_path / "S001", pool))
+
+
 def test_header_lines_only_is_an_error(small):
     for path in small.glob("*/trials.csv"):
         _write(path, _lines(path)[:1])

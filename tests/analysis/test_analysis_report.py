@@ -82,7 +82,7 @@ def test_html_is_self_contained(report):
 
 
 def test_figures_of_the_drawing_process_equal_those_drawn_here(report, analysed, tmp_path):
-    """The command draws Figures 4.17-4.19 in its second process: byte for byte what write_report draws in one."""
+    """The command draws Figures 4.19-4.20 in its second process: byte for byte what write_report draws in one."""
     from analysis.report import write_report
     out, _ = report
     write_report(analysed, tmp_path)
