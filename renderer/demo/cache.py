@@ -98,11 +98,6 @@ class Pipeline:
         return self.directory / "library.npz"
 
 
-def default_cache_base() -> Path:
-    """``$XDG_CACHE_HOME/hfam-haptics`` or ``~/.cache/hfam-haptics``."""
-    return user_cache_dir()
-
-
 @functools.lru_cache(maxsize=4)
 def code_digest(root: Path | None = None, paths: tuple[str, ...] = _CODE_PATHS) -> str:
     """SHA-256 over the source files that compute the cached results (``paths``, default ``_CODE_PATHS``).
@@ -138,14 +133,14 @@ def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, re
     ----------
     settings : PipelineSettings
     cache_base : Path or None
-        Cache folder (default :func:`default_cache_base`).
+        Cache folder (default :func:`devices.fileio.user_cache_dir`).
     rebuild : bool
         Ignore and replace an existing cache entry.
     progress : Progress or None
         Where the three steps report; None prints nothing.
     """
     progress = progress or Progress(3, quiet=True)
-    base = Path(cache_base) if cache_base is not None else default_cache_base()
+    base = Path(cache_base) if cache_base is not None else user_cache_dir()
     key = cache_key(settings)
     entry = base / f"demo-{key}"
     if not rebuild and (entry / "manifest.json").is_file():

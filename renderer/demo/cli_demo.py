@@ -7,10 +7,10 @@ import math
 import time
 from pathlib import Path
 
+from devices.fileio import user_cache_dir
 from stimuli.hfam.pipeline import PipelineSettings
 
 from . import runs
-from .cache import default_cache_base
 from .config import DemoConfig
 from .report import format_reactive
 from .sim_demo import format_table, run_sim_demo
@@ -35,7 +35,7 @@ def register(subparsers) -> None:
                                                   "hid:<vid>:<pid>")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default ./out/demo)")
     p.add_argument("--cache-dir", type=Path, default=None,
-                   help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {default_cache_base()})")
+                   help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {user_cache_dir()})")
     p.add_argument("--rebuild", action="store_true", help="rebuild the cached identification/recordings/library")
     p.add_argument("--velocities", default=None, help="comma-separated tap speeds in m/s (sim; default "
                                                        + ",".join(f"{v:g}" for v in DemoConfig.velocities_m_s) + ")")
