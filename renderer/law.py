@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from devices.jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
 
 from devices.sim import kernel as SK
 
@@ -41,15 +41,15 @@ from .law_layout import *  # noqa: F401,F403 -- re-exported: law.C_*, law.W_*, l
 
 
 # the scene's shapes, compiled from renderer.scene's own functions
-_wall_1d = njit(cache=True, inline="always")(wall_1d)
-_plane_1d = njit(cache=True, inline="always")(plane_1d)
-_sphere_1d = njit(cache=True, inline="always")(sphere_1d)
-_box_1d = njit(cache=True, inline="always")(box_1d)
+_wall_1d = njit(cache=True, _nrt=False, inline="always")(wall_1d)
+_plane_1d = njit(cache=True, _nrt=False, inline="always")(plane_1d)
+_sphere_1d = njit(cache=True, _nrt=False, inline="always")(sphere_1d)
+_box_1d = njit(cache=True, _nrt=False, inline="always")(box_1d)
 _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "sphere", "box"))
 
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, inline="always")
 def _clamp(x, limit):
     """``x`` limited to +/- ``limit`` and whether it was beyond (a NaN passes unclipped)."""
     if x > limit:
@@ -59,7 +59,7 @@ def _clamp(x, limit):
     return x, False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, inline="always")
 def _valid_or_last(w, slot, x, lo, hi):
     """``x`` if inside [lo, hi] (kept in ``w[slot]`` as the last good value), else that last good value
     (NaN is never inside); and whether it was held."""
@@ -69,7 +69,7 @@ def _valid_or_last(w, slot, x, lo, hi):
     return w[slot], True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, inline="always")
 def penetration(c, z):
     """Deepest signed penetration (m) of the proxy (0, 0, z) over the scene's objects and the normal's
     z component (``renderer.scene.Scene.penetration_1d``)."""
@@ -94,7 +94,7 @@ def penetration(c, z):
 
 # an explicit signature: compiled (or loaded from the cache) at import, and a device that reports an
 # int or a numpy scalar never triggers a new compilation in the middle of a paced loop
-@njit("float64(float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, float64, int64)", cache=True)
+@njit("float64(float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, float64, int64)", cache=True, _nrt=False)
 def law_tick(c, w, log, t, pos, acc, grip, status):
     """One tick of the servo law (module doc): returns the motor current (A) to command now.
 
@@ -274,7 +274,7 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
 
 
 # nogil: while a run is in here, other threads (a UI, the study's audio callback, a web server) keep running
-@njit(cache=True, nogil=True)
+@njit(cache=True, _nrt=False, nogil=True)
 def run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max):
     """Up to ``n_max`` ticks of the law on the simulated device (``devices.sim.kernel.tick``) in one call.
 

@@ -55,8 +55,9 @@ SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "scene
            _SIM / "kernel.py", _SIM / "layout.py")
 MODES = ("auto", "nobuild", "off")
 #: how the exported functions are built (part of the key): they release the GIL while they run, like the
-#: JIT ``run_sim`` (``nogil=True``), so other threads of the process keep running during a compiled run
-BUILD_OPTIONS = "release_gil"
+#: JIT ``run_sim`` (``nogil=True``), so other threads of the process keep running during a compiled run;
+#: and without numba's reference-counting runtime, like the JIT kernels (``_nrt=False``, devices/jitcache.py)
+BUILD_OPTIONS = "release_gil no_nrt"
 STALE_LOCK_S = 600.0        # a builder that has held the lock this long died: take over
 
 _loaded: dict = {}
@@ -207,6 +208,7 @@ def build(base: Path | None = None, background: bool = False) -> Path:
         t0 = time.perf_counter()
         _compile(tmp)
         seconds = time.perf_counter() - t0
+        _check_loads(tmp / dest.name)
         (tmp / "manifest.json").write_text(json.dumps({
             "key": key, "sources": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in SOURCES},
             "python": sys.version, "numpy": np.__version__, "machine": platform.machine(), "options": BUILD_OPTIONS,
@@ -250,6 +252,9 @@ def _compile(out_dir: Path) -> None:
         cc = CC(MODULE)
         cc.output_dir = str(out_dir)
         cc.verbose = False
+        # the kernels never allocate (each is compiled with _nrt=False): no runtime to link in, and a kernel
+        # that did need it would make the build fail to load (an undefined NRT symbol), not run slower
+        cc.use_nrt = False
         cc.export("run_sim", SIGNATURE)(law.run_sim.py_func)
         cc.export("tick", TICK_SIGNATURE)(kernel.tick.py_func)
         # numba.pycc has no switch for numba's ``release_gil`` flag (what ``nogil=True`` sets for the JIT):
@@ -267,6 +272,24 @@ def _compile(out_dir: Path) -> None:
             cc.compile()
         finally:
             pycc_compiler.Flags = pycc_flags
+
+
+def _check_loads(path: Path) -> None:
+    """Import the fresh build in a process of its own (this one may hold an older build under the same
+    module name): a build that cannot load (e.g. an undefined symbol) is never installed.
+
+    Raises
+    ------
+    RuntimeError
+        The build did not load; the message names it and quotes the import error.
+    """
+    code = ("import importlib.util, sys; spec = importlib.util.spec_from_file_location(sys.argv[2], sys.argv[1]); "
+            "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m); "
+            "assert callable(m.run_sim) and callable(m.tick), 'run_sim or tick missing'")
+    proc = subprocess.run([sys.executable, "-c", code, str(path), MODULE], capture_output=True, text=True)
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeError(f"the build {path} does not load: {last}")
 
 
 def register(subparsers) -> None:

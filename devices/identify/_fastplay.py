@@ -4,12 +4,12 @@ in one compiled call."""
 
 from __future__ import annotations
 
-from numba import njit
+from ..jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
 
 from ..sim import kernel as K
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def play_open(s, p, rs, traj, grip, k0, held, u, limit, pos, acc, g, xs, accs, gs):
     """Play ``u`` (already finite); record the state read before each command into ``xs, accs, gs``.
 

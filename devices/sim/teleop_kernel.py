@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ..jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
 
 from .kernel import _friction, _xorshift_normal, hysteresis_step
 
@@ -85,7 +85,7 @@ MODE_PD, MODE_PF = 0, 1
 FAULT_NONE, FAULT_NAN, FAULT_DIVERGED = 0, 1, 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, inline="always")
 def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, dt):
     """One semi-implicit Euler substep of a joystick chain (eq. 3.32-3.35); returns the handle acceleration.
 
@@ -140,13 +140,13 @@ def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, dt):
     return ah
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, inline="always")
 def _grip_force(p, ik, iq, ib, x_rel, v_rel):
     """Linear + quintic user stiffness and damper (section 5.7.1): force on the handle (N)."""
     return -(p[ik] * x_rel + p[iq] * x_rel ** 5) - p[ib] * v_rel
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, inline="always")
 def _contact(p, s, xtip, vtip, surf):
     """Environment contact force on the slave tip (N, up) and block acceleration; Hunt-Crossley."""
     kind = p[P_EKIND]
@@ -167,7 +167,7 @@ def _contact(p, s, xtip, vtip, surf):
     return 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
     """Run ticks ``k0 .. k1-1`` of a teleoperation session; returns (fault code, tick of the fault or -1).
 
@@ -412,7 +412,7 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
     return 0, -1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def cimm_model_run(p, s, force_N, out_x):
     """Advance only the CIMM induced-motion model (sections 5.6-5.7) one servo tick per input sample.
 

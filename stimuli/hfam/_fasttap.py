@@ -5,13 +5,13 @@ device's input rule and one period of output delay), in one compiled call over t
 
 from __future__ import annotations
 
-from numba import njit
+from devices.jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
 
 from devices.sim import kernel as SK
 from devices.sim import layout as L
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hist, acc):
     """One tap on the wall ``-wall_N_m x`` (x < 0) with ``current_A`` played from the tick after the crossing.
 

@@ -212,3 +212,21 @@ def test_the_key_covers_every_compiled_source():
     assert all(p.is_file() for p in sim_aot.SOURCES)
     called = {Path(f.py_func.__code__.co_filename).name for f in (law.law_tick, law.run_sim)}
     assert called <= names
+
+
+def test_a_build_that_does_not_load_is_never_installed(tmp_path, monkeypatch):
+    """The build is imported in a process of its own before it is installed (a kernel that needed numba's
+    runtime, which the build does not link, would leave an undefined symbol): it is an error naming the
+    build, or in the background a recorded failure; nothing is installed under the key."""
+    def broken(out_dir):
+        (Path(out_dir) / sim_aot.extension_path(base=tmp_path).name).write_bytes(b"\x7fELF, but not a module")
+
+    monkeypatch.setattr(sim_aot, "_compile", broken)
+    with pytest.raises(RuntimeError, match=r"the build .*_hfam_sim_loop.* does not load: ImportError"):
+        sim_aot.build(tmp_path)
+    assert not sim_aot.extension_path(base=tmp_path).exists()
+    sim_aot.build(tmp_path, background=True)
+    assert not sim_aot.extension_path(base=tmp_path).exists()
+    failed = (tmp_path / f"{sim_aot.source_key()}.failed").read_text()
+    assert failed.startswith("RuntimeError: the build") and "does not load" in failed
+    assert [p.name for p in tmp_path.iterdir()] == [f"{sim_aot.source_key()}.failed"]   # no leftover build folder

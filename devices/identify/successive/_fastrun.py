@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ...jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
 
 from ...sim import kernel as K
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def run_pd(s, p, rs, traj, grip, ff, ref, closed, kp, kd, va, fs, limit, held, xs, acc, cmd, cur):
     """Run one experiment; fills ``xs, acc, cmd, cur`` (encoder position, accel, command, amplifier
     current per tick) and returns the current still held for the next period. Gains in A/m, A s/m."""
