@@ -14,6 +14,13 @@ a reader that goes away (``| head``) exits 1 without a traceback.
 A command whose parser sets ``fast_exit=True`` (``set_defaults``) declares that it has closed every
 file and joined every thread it started when it returns; run as a script (:func:`run_as_script`),
 its process then ends after the exit handlers (``atexit``) without tearing the interpreter down.
+
+A :class:`Command` with ``blas_threads`` set runs, as a script, with that many BLAS threads unless the
+user chose (``OPENBLAS_NUM_THREADS``, ``MKL_NUM_THREADS``, ``OMP_NUM_THREADS``; the processes it starts
+inherit them). OpenBLAS starts its worker threads when numpy loads, and each spins (yielding) for
+about 2^28 cycles, ~0.1 s, waiting for work: in a simulated ``renderer run``, which makes no BLAS call,
+that was a quarter of the process's CPU samples (``perf``), on the core its log writer and
+provenance thread use.
 """
 
 from __future__ import annotations
@@ -43,6 +50,12 @@ class Command(NamedTuple):
     module: str
     help: str
     preload: tuple[str, ...] = ()
+    blas_threads: int | None = None
+
+
+#: the environment variables by which the BLAS builds numpy and scipy ship with (OpenBLAS, MKL, OpenMP
+#: builds) take their thread count; read once, when the library loads
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
 
 
 def build_parser(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str]):
@@ -81,6 +94,10 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
         The command's exit code; 2 after an ``error:`` line for a user error.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    wanted = next((c for c in commands if c.name == next((a for a in argv if not a.startswith("-")), None)), None)
+    if _as_script and wanted is not None and wanted.blas_threads and "numpy" not in sys.modules:
+        for var in BLAS_THREAD_VARS:  # before numpy (and its BLAS) loads; a user's own setting stays
+            os.environ.setdefault(var, str(int(wanted.blas_threads)))
     # start-up allocates ~10^5 long-lived objects (code, numpy's tables), which the cyclic collector would
     # walk again and again for nothing (~7 ms of a simulated run): the parser, the command's module and
     # its ``preload`` modules are imported with the collector off, then frozen out of its generations

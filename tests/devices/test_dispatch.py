@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -60,3 +61,45 @@ def test_no_fast_exit_while_a_thread_of_the_command_still_runs(tmp_path):
     proc, out = _run(tmp_path, "--thread")
     assert proc.returncode == 3, proc.stderr
     assert (out / "thread").exists() and (out / "atexit").exists()  # the interpreter waited for the thread
+
+
+BLAS = '''
+import os, sys
+from devices.dispatch import Command, main, run_as_script
+
+def register(sub):
+    sub.add_parser("blas").set_defaults(func=run)
+
+def run(args):
+    import numpy  # the command's own import: numpy and its BLAS load here
+    print("BLAS", os.environ.get("OPENBLAS_NUM_THREADS"), len(os.listdir("/proc/self/task")), flush=True)
+
+if __name__ == "__main__":
+    run_as_script(lambda: main("fake", "fake", (Command("blas", "blascmd", "blas", blas_threads=int(os.environ["FAKE_BLAS_THREADS"])),),
+                                   sys.argv[1:]))
+'''
+
+
+def _blas(tmp_path, threads, **env):
+    (tmp_path / "blascmd.py").write_text(textwrap.dedent(BLAS))
+    proc = subprocess.run([sys.executable, str(tmp_path / "blascmd.py"), "blas"], cwd=ROOT,
+                          env={"PYTHONPATH": f"{ROOT}:{tmp_path}", "PATH": "/usr/bin:/bin",
+                               "FAKE_BLAS_THREADS": str(threads), **env},
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    _, var, tasks = proc.stdout.split()
+    return var, int(tasks)
+
+
+def test_blas_threads_keep_the_blas_from_starting_worker_threads(tmp_path):
+    """OpenBLAS starts a worker per core when numpy loads (each spins ~0.1 s for work); a command that
+    declares ``blas_threads=1`` gets none: its process has a single thread (its /proc/self/task entries)."""
+    var, tasks = _blas(tmp_path, 1)
+    assert (var, tasks) == ("1", 1)
+    # the control, no limit declared: one BLAS thread per core (numpy's OpenBLAS, up to its build's maximum)
+    var, tasks = _blas(tmp_path, 0)
+    assert var == "None"
+    assert tasks == min(os.cpu_count(), 64) or os.cpu_count() == 1 and tasks == 1
+    # a user's own setting is kept
+    var, tasks = _blas(tmp_path, 1, OPENBLAS_NUM_THREADS="2")
+    assert (var, tasks) == ("2", 2)
