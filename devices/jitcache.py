@@ -33,10 +33,15 @@ ROOT_ATTR = "_hfam_source_root"
 
 def source_root(py_file: str | os.PathLike) -> Path:
     """The folder holding ``py_file``'s top-level package (the first parent without ``__init__.py``)."""
-    folder = Path(py_file).resolve().parent
-    while (folder / "__init__.py").is_file():
-        folder = folder.parent
-    return folder
+    return _package_root(os.path.dirname(os.path.abspath(py_file)))
+
+
+@functools.lru_cache(maxsize=None)
+def _package_root(folder: str) -> Path:
+    path = Path(folder).resolve()
+    while (path / "__init__.py").is_file():
+        path = path.parent
+    return path
 
 
 def _module_file(root: Path, parts: list[str]) -> Path | None:
@@ -66,8 +71,10 @@ def _statements(source: str):
         yield from tree.body
 
 
-def _imports(path: Path, root: Path) -> set[Path]:
-    """The files under ``root`` that ``path`` imports (any ``import``/``from`` statement in it)."""
+@functools.lru_cache(maxsize=None)
+def _imports(path: Path, root: Path) -> frozenset[Path]:
+    """The files under ``root`` that ``path`` imports (any ``import``/``from`` statement in it); read once
+    per process (the kernels' files import one another)."""
     package = list(path.relative_to(root).parent.parts)
     if path.name != "__init__.py" and not (path.parent / "__init__.py").is_file():
         package = []
@@ -96,7 +103,7 @@ def _imports(path: Path, root: Path) -> set[Path]:
                 elif module is not None:
                     found.add(module)  # a name defined in the module (or ``*``)
     found.discard(path)
-    return found
+    return frozenset(found)
 
 
 def dependency_files(py_file: str | os.PathLike, root: str | os.PathLike | None = None) -> tuple[Path, ...]:
@@ -118,27 +125,22 @@ def dependency_files(py_file: str | os.PathLike, root: str | os.PathLike | None 
     return tuple(sorted(seen))
 
 
-@functools.lru_cache(maxsize=None)
-def _digest(path: str, mtime_ns: int, size: int) -> bytes:
-    # keyed by mtime and size, like numba's own stamp: a file edited while the process runs is re-read
-    return hashlib.sha256(Path(path).read_bytes()).digest()
-
-
-@functools.lru_cache(maxsize=None)
-def _dependencies_cached(py_file: str, root: str, mtime_ns: int) -> tuple[Path, ...]:
-    return dependency_files(py_file, root)
-
-
 def dependency_stamp(py_file: str | os.PathLike, root: str | os.PathLike | None = None) -> bytes:
     """SHA-256 over the names and contents of :func:`dependency_files` (the cache's source stamp)."""
     path = Path(py_file).resolve()
     base = Path(root).resolve() if root is not None else source_root(path)
     h = hashlib.sha256()
-    for dep in _dependencies_cached(str(path), str(base), path.stat().st_mtime_ns):
-        st = dep.stat()
+    for dep in dependency_files(path, base):
         h.update(str(dep.relative_to(base)).encode())
-        h.update(_digest(str(dep), st.st_mtime_ns, st.st_size))
+        h.update(hashlib.sha256(dep.read_bytes()).digest())
     return h.digest()
+
+
+@functools.lru_cache(maxsize=None)
+def _stamp_once(py_file: str, root: str) -> bytes:
+    # once per file and process: the stamp describes the sources this process imported, which an edit
+    # made after the import does not change (numba stamps each decorated function; 19 for the servo path)
+    return dependency_stamp(py_file, root)
 
 
 class _DependencyStamp:
@@ -148,7 +150,7 @@ class _DependencyStamp:
     _root: str
 
     def get_source_stamp(self):
-        return super().get_source_stamp(), dependency_stamp(self._py_file, self._root)
+        return super().get_source_stamp(), _stamp_once(self._py_file, self._root)
 
     @classmethod
     def from_function(cls, py_func, py_file):
