@@ -164,7 +164,7 @@ class _DependencyStamp:
 
 
 def _numba(name: str):
-    # numba 0.59-0.6x named these with a leading underscore; later releases made them public
+    # older numba releases name these with a leading underscore (0.68 made them public)
     return getattr(caching, name, None) or getattr(caching, "_" + name)
 
 
