@@ -13,6 +13,9 @@ STAMP  := $(VENV)/.installed
 # and `make bench`, not by `make demo` (which never imports them; ~6 s of a fresh clone's first demo)
 COMPILED := $(VENV)/.compiled
 LATER  := /site-packages/(pandas|statsmodels|patsy|pyarrow|playwright|_pytest|pytest|pluggy|pygments|narwhals|pip|setuptools|pkg_resources)/
+# the third-party packages' own test suites (a third to a half of numpy's, scipy's, numba's and matplotlib's
+# files; ~3 s of the first compile on 2 cores): nothing here imports them
+THEIRTESTS := /site-packages/.*/tests/
 
 .PHONY: demo test bench venv deps system-deps clean gallery
 
@@ -28,12 +31,12 @@ $(STAMP): pyproject.toml
 	@# (as on this project's CI machines) nothing is ever written, and every process would recompile
 	@# scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker, per study report)
 	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
-	$(PY) -m compileall -q -j 0 -x '$(LATER)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
+	$(PY) -m compileall -q -j 0 -x '$(LATER)|$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
 	    analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
 
 $(COMPILED): $(STAMP)
-	$(PY) -m compileall -q -j 0 $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") > /dev/null
+	$(PY) -m compileall -q -j 0 -x '$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") > /dev/null
 	touch $(COMPILED)
 
 venv: $(STAMP)
