@@ -71,39 +71,38 @@ def _statements(source: str):
         yield from tree.body
 
 
+def _resolve(node, path: Path, root: Path) -> set[Path]:
+    """The files under ``root`` that one ``import``/``from`` statement ``node`` of ``path`` names."""
+    found: set[Path] = set()
+    if isinstance(node, ast.Import):
+        for alias in node.names:
+            parts = alias.name.split(".")
+            # ``import a.b.c`` runs a, a.b and a.b.c: any of them may hold what is compiled in
+            found.update(f for n in range(1, len(parts) + 1) if (f := _module_file(root, parts[:n])) is not None)
+    elif isinstance(node, ast.ImportFrom):
+        if node.level:
+            package = list(path.relative_to(root).parent.parts)
+            if node.level > len(package):
+                return found
+            parts = package[:len(package) - node.level + 1] + (node.module.split(".") if node.module else [])
+        else:
+            parts = node.module.split(".")
+        module = _module_file(root, parts)
+        for alias in node.names:
+            sub = _module_file(root, parts + [alias.name]) if alias.name != "*" else None
+            if sub is not None:
+                found.add(sub)  # ``from package import submodule``
+            elif module is not None:
+                found.add(module)  # a name defined in the module (or ``*``)
+    found.discard(path)
+    return found
+
+
 @functools.lru_cache(maxsize=None)
 def _imports(path: Path, root: Path) -> frozenset[Path]:
     """The files under ``root`` that ``path`` imports (any ``import``/``from`` statement in it); read once
     per process (the kernels' files import one another)."""
-    package = list(path.relative_to(root).parent.parts)
-    if path.name != "__init__.py" and not (path.parent / "__init__.py").is_file():
-        package = []
-    found: set[Path] = set()
-    for node in _statements(path.read_text(encoding="utf-8")):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                parts = alias.name.split(".")
-                # ``import a.b.c`` runs a, a.b and a.b.c: any of them may hold what is compiled in
-                for n in range(1, len(parts) + 1):
-                    target = _module_file(root, parts[:n])
-                    if target is not None:
-                        found.add(target)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                if node.level > len(package):
-                    continue
-                parts = package[:len(package) - node.level + 1] + (node.module.split(".") if node.module else [])
-            else:
-                parts = node.module.split(".")
-            module = _module_file(root, parts)
-            for alias in node.names:
-                sub = _module_file(root, parts + [alias.name]) if alias.name != "*" else None
-                if sub is not None:
-                    found.add(sub)  # ``from package import submodule``
-                elif module is not None:
-                    found.add(module)  # a name defined in the module (or ``*``)
-    found.discard(path)
-    return frozenset(found)
+    return frozenset(f for node in _statements(path.read_text(encoding="utf-8")) for f in _resolve(node, path, root))
 
 
 def dependency_files(py_file: str | os.PathLike, root: str | os.PathLike | None = None) -> tuple[Path, ...]:

@@ -17,30 +17,9 @@ KERNEL_MODULES = ("devices.sim.kernel", "devices.sim.teleop_kernel", "devices.id
 
 
 def _imports_full_parse(path: Path, root: Path) -> set[Path]:
-    """Reference for jitcache._imports: the same resolution over a full ``ast.parse`` of the file."""
-    package = list(path.relative_to(root).parent.parts)
-    found = set()
-    for node in ast.walk(ast.parse(path.read_bytes())):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                parts = alias.name.split(".")
-                found.update(f for n in range(1, len(parts) + 1) if (f := jitcache._module_file(root, parts[:n])))
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                if node.level > len(package):
-                    continue
-                parts = package[:len(package) - node.level + 1] + (node.module.split(".") if node.module else [])
-            else:
-                parts = node.module.split(".")
-            module = jitcache._module_file(root, parts)
-            for alias in node.names:
-                sub = jitcache._module_file(root, parts + [alias.name]) if alias.name != "*" else None
-                if sub is not None:
-                    found.add(sub)
-                elif module is not None:
-                    found.add(module)
-    found.discard(path)
-    return found
+    """Reference for jitcache._imports: every import statement found by a full ``ast.parse`` of the file
+    (``_imports`` parses only the lines that look like imports), resolved the same way."""
+    return {f for node in ast.walk(ast.parse(path.read_bytes())) for f in jitcache._resolve(node, path, root)}
 
 
 def test_import_scan_agrees_with_a_full_parse_on_every_project_file():
