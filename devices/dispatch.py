@@ -44,7 +44,8 @@ _as_script = False
 
 class Command(NamedTuple):
     """One subcommand: its name, the module that implements it (``register(subparsers)``), its help line,
-    and the modules it imports when it runs (imported by :func:`main` before it runs, see there)."""
+    the modules it imports when it runs (imported by :func:`main` before it runs, see there) and the BLAS
+    threads its process should have (None: the library's default; module doc)."""
 
     name: str
     module: str
@@ -56,6 +57,11 @@ class Command(NamedTuple):
 #: the environment variables by which the BLAS builds numpy and scipy ship with (OpenBLAS, MKL, OpenMP
 #: builds) take their thread count; read once, when the library loads
 BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def _command_name(argv: Sequence[str]) -> str | None:
+    """The command ``argv`` names: its first argument that is not an option."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def build_parser(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str]):
@@ -75,7 +81,7 @@ def build_parser(prog: str, description: str, commands: Sequence[Command], argv:
     """
     parser = argparse.ArgumentParser(prog=prog, description=description)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{" + ",".join(c.name for c in commands) + "}")
-    wanted = next((a for a in argv if not a.startswith("-")), None)
+    wanted = _command_name(argv)
     for c in commands:
         if c.name == wanted:
             importlib.import_module(c.module).register(sub)  # may register its sibling commands too
@@ -94,7 +100,7 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
         The command's exit code; 2 after an ``error:`` line for a user error.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    wanted = next((c for c in commands if c.name == next((a for a in argv if not a.startswith("-")), None)), None)
+    wanted = next((c for c in commands if c.name == _command_name(argv)), None)
     if _as_script and wanted is not None and wanted.blas_threads and "numpy" not in sys.modules:
         for var in BLAS_THREAD_VARS:  # before numpy (and its BLAS) loads; a user's own setting stays
             os.environ.setdefault(var, str(int(wanted.blas_threads)))

@@ -286,7 +286,8 @@ def _check_loads(path: Path) -> None:
     code = ("import importlib.util, sys; spec = importlib.util.spec_from_file_location(sys.argv[2], sys.argv[1]); "
             "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m); "
             "assert callable(m.run_sim) and callable(m.tick), 'run_sim or tick missing'")
-    proc = subprocess.run([sys.executable, "-c", code, str(path), MODULE], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-c", code, str(path), MODULE], capture_output=True, text=True,
+                          timeout=300)
     if proc.returncode != 0:
         last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
         raise RuntimeError(f"the build {path} does not load: {last}")
