@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 
+from analysis import workers
 from analysis.config import check_data_folder
 
 TRIAL_COLUMNS = (
@@ -752,32 +753,19 @@ def submit_sessions(data_dir, executor) -> tuple:
         As :func:`load_study` does for a data folder without subject folders.
     """
     folders = _subject_folders(Path(data_dir))
-    future = None
-    if executor is not None:
-        from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
-
-        try:
-            future = executor.submit(_read_sessions_quietly, folders)
-        except (BrokenProcessPool, RuntimeError):       # its process died, or the pool was shut down
-            future = None
-    return Path(data_dir), folders, future
+    return Path(data_dir), folders, workers.submit(executor, _read_sessions_quietly, folders)
 
 
 def _sessions(future, folders: list, messages: list) -> tuple[pd.DataFrame, list, dict]:
     """:func:`_read_sessions`'s result: ``future``'s (of :func:`_read_sessions_quietly`; its warnings are
     issued here) or, without one or when its process died, the session files read here."""
-    if future is not None:
-        from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
-
-        try:
-            subjects, catalog, kinds, found = future.result()     # raises the reading's error, if any
-        except BrokenProcessPool:
-            pass
-        else:
-            for text in found:
-                _warn(messages, text, stacklevel=4)     # at load_study's caller, as _read_sessions warns
-            return subjects, catalog, kinds
-    return _read_sessions(folders, messages)
+    got = workers.result(future)     # raises the reading's error, if any
+    if got is None:
+        return _read_sessions(folders, messages)
+    subjects, catalog, kinds, found = got
+    for text in found:
+        _warn(messages, text, stacklevel=4)     # at load_study's caller, as _read_sessions warns
+    return subjects, catalog, kinds
 
 
 def load_study(data_dir, sessions: tuple | None = None) -> Study:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis import figures
+from analysis import figures, workers
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
 from analysis.traces import folders_with_traces, typical_taps
@@ -163,43 +163,27 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None,
         return [w["png"] for w in written + ([_finish(*acc)] if acc else [])], notes
     acc, notes = accelerations if accelerations is not None else \
         start_accelerations(res.study, out, target_v_m_s, pool)
-    there = _submit(pool, penetration)          # queued behind Figure 4.20
+    there = workers.submit(pool, *penetration)          # queued behind Figure 4.20
     here = [fn(*args) for fn, *args in (ratings, pvalues)]
     written = here + [_finish(there, penetration)] + ([_finish(*acc)] if acc else [])
     return [w["png"] for w in written], notes
 
 
-def _submit(pool, job: tuple):
-    """``job`` (function, arguments...) submitted to ``pool``; None without one or when its process is gone."""
-    if pool is None:
-        return None
-    from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
-
-    try:
-        return pool.submit(*job)
-    except (BrokenProcessPool, RuntimeError):        # its process died, or the pool was shut down
-        return None
-
-
 def _finish(future, job: tuple) -> dict:
     """The paths a figure job returns: ``future``'s result, or ``job`` run here without a future or when
     the process drawing it died."""
-    if future is not None:
-        from concurrent.futures.process import BrokenProcessPool  # deferred: loaded already with a pool
-
-        try:
-            return future.result()
-        except BrokenProcessPool:
-            pass
-    fn, *args = job
-    return fn(*args)
+    got = workers.result(future)
+    if got is None:
+        fn, *args = job
+        got = fn(*args)
+    return got
 
 
 def list_traces(folders: list, pool):
     """The subject folders that hold traces (:func:`analysis.traces.folders_with_traces`), listed in
     ``pool``'s process (idle while the study loads): a future for :func:`start_accelerations`, or None
     without a pool."""
-    return _submit(pool, (folders_with_traces, folders))
+    return workers.submit(pool, folders_with_traces, folders)
 
 
 def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = None,
@@ -240,7 +224,7 @@ def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = No
     if why:
         notes.append("Figure 4.20 lacks some samples: " + "; ".join(why[:12]))
     job = (figures.fig_accelerations, taps, study.catalog, v, out / "fig_4_20_accelerations.png")
-    return (_submit(pool, job), job), notes
+    return (workers.submit(pool, *job), job), notes
 
 
 def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
