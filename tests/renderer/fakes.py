@@ -188,12 +188,26 @@ def make_tap_device():
     return MassDevice(tap_trajectory(0.1, n_taps=1), grip_N=2.0)
 
 
+class _AnnouncingMassDevice(MassDevice):
+    """A :class:`MassDevice` that sets the multiprocessing event ``made`` at its first ``read()``: the loop's
+    first tick, after the child's imports and the loop's own set-up (loading compiled code can take over a
+    second on a loaded machine)."""
+
+    def __init__(self, made, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._made = made
+
+    def read(self) -> DeviceState:
+        if self._made is not None:
+            self._made.set()
+            self._made = None
+        return super().read()
+
+
 def make_tap_device_announced(made):
-    """:func:`make_tap_device` that sets the multiprocessing event ``made`` once the child process (its
-    imports done) builds the device: a parent stops a run only after it has started."""
-    dev = make_tap_device()
-    made.set()
-    return dev
+    """:func:`make_tap_device` that sets the multiprocessing event ``made`` once the run in the child process
+    has started (its first tick): a parent stops a run only after it has started."""
+    return _AnnouncingMassDevice(made, tap_trajectory(0.1, n_taps=1), grip_N=2.0)
 
 
 def make_failing_device():

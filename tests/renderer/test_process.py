@@ -24,8 +24,8 @@ def test_run_in_process_stop_event_ends_a_realtime_run():
     stop, made = ctx.Event(), ctx.Event()
 
     def stop_once_running():
-        # the child's start-up (a spawned interpreter importing numpy and numba) takes 0.5-2 s depending on
-        # the machine's load: count from when the child has built its device, not from now
+        # the child's start-up (a spawned interpreter importing numpy and numba, then the loop's set-up) takes
+        # 0.5-3 s depending on the machine's load: count from the run's first tick, not from now
         if made.wait(30.0):
             time.sleep(1.0)
         stop.set()
