@@ -100,6 +100,15 @@ class RendererConfig:
         further behind than this, it skips ahead (those ticks are lost).
     until_every : int
         The ``until`` callback of :meth:`ServoLoop.run` is evaluated every this many ticks.
+    instability_window_s : float
+        Leak time constant (s) of the wall's passivity observer (Hannaford & Ryu 2002): the net work the
+        proportional wall did on the handle, forgotten over about this long.
+    instability_energy_frac : float
+        The loop stops ("unstable", zero output) once that net work exceeds this fraction of the most
+        energy the wall can store below its current limit, ``F_c^2 / (2 k)`` (``F_c`` = continuous
+        current limit x force per amp). A stable wall gives back what it stored plus a sampling leak of
+        order ``k T v^2`` per tap, a few percent of it (docs/renderer.md); a wall that chatters or
+        diverges generates it again every cycle.
     """
 
     stiffness_N_m: float = 680.0
@@ -131,6 +140,8 @@ class RendererConfig:
     spin_margin_s: float = 80e-6
     max_catchup_s: float = 0.1
     until_every: int = 16
+    instability_window_s: float = 1.0
+    instability_energy_frac: float = 1.0
 
     def __post_init__(self) -> None:
         def num(key: str, **rule):
@@ -144,7 +155,8 @@ class RendererConfig:
         num("rearm_hold_s", minimum=0.0)
         num("transient_gain", minimum=0.0)
         for key in ("velocity_window_s", "impact_window_s", "impact_min_window_s", "impact_counts", "max_transient_s", "watchdog_overrun_s",
-                    "position_limit_m", "log_capacity_s", "spin_margin_s", "max_catchup_s"):
+                    "position_limit_m", "log_capacity_s", "spin_margin_s", "max_catchup_s",
+                    "instability_window_s", "instability_energy_frac"):
             num(key, minimum=0.0, strict=True)
         for key in ("current_continuous_A", "current_peak_A", "current_amplifier_A", "overrun_tolerance_s"):
             num(key, minimum=0.0, strict=True, optional=True)

@@ -23,7 +23,9 @@ Arrays (all float64):
 ``w[W_CODE]`` after a tick holds bits: ``CODE_IMPACT`` (an impact fired: do the event work after the
 command), ``CODE_CLOSED`` (the open event closed, at a re-arm or a new impact: its maximum
 penetration, peak |acceleration| and amplifier-clip flag are in ``W_CLOSED_*``), ``CODE_SENSOR`` (too
-many invalid samples in a row) or ``CODE_DISCONNECTED`` (both: stop with zero current).
+many invalid samples in a row), ``CODE_DISCONNECTED`` or ``CODE_UNSTABLE`` (the wall's passivity
+observer ``W_PO_E`` exceeded ``C_PO_LIMIT``: the loop generates energy); the last three stop with zero
+current.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from devices.jitcache import njit  # numba.njit; its cache and _nrt=False: devic
 
 from devices.sim import kernel as SK
 
+from .passivity import wall_energy
 from .scene import SHAPE_CODES, box_1d, plane_1d, sphere_1d, wall_1d
 
 # the arrays' layout (numba-free, shared with renderer.loop and renderer.sim_aot)
@@ -45,6 +48,8 @@ _wall_1d = njit(cache=True, _nrt=False, inline="always")(wall_1d)
 _plane_1d = njit(cache=True, _nrt=False, inline="always")(plane_1d)
 _sphere_1d = njit(cache=True, _nrt=False, inline="always")(sphere_1d)
 _box_1d = njit(cache=True, _nrt=False, inline="always")(box_1d)
+# the energy the wall stores (its passivity observer), compiled from renderer.passivity's own function
+_wall_energy = njit(cache=True, _nrt=False, inline="always")(wall_energy)
 _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "sphere", "box"))
 
 
@@ -178,6 +183,18 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
         i_t = 0.0
     # collision and contact events
     d, nz = penetration(c, pos)
+    # passivity observer (Hannaford & Ryu 2002) of the proportional wall: the work its force, held over the
+    # last period, did on the handle plus the change of the energy it stores, with a leak. A spring-like
+    # wall only leaks a little through sampling (of order k T v^2 per tap); an unstable loop keeps
+    # generating energy, every cycle
+    u = _wall_energy(c[C_K], c[C_PO_FC], d, nz)
+    e_po = w[W_PO_E] * c[C_PO_DECAY] + w[W_PO_F] * (pos - w[W_PO_X]) + u - w[W_PO_U]
+    w[W_PO_E] = e_po
+    w[W_PO_X] = pos
+    w[W_PO_U] = u
+    if e_po > c[C_PO_LIMIT]:
+        w[W_CODE] = CODE_UNSTABLE
+        return 0.0
     armed = w[W_ARMED] != 0.0
     if d > 0.0:
         if armed:  # impact: the event's work is done after command() (the caller)
@@ -221,6 +238,9 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
         clip |= 4
     if c[C_MOTOR] == 0.0 or i != i:
         i = 0.0
+        w[W_PO_F] = 0.0
+    else:
+        w[W_PO_F] = i_p * c[C_KF]
     # winding thermal model: attenuate, then end, transients before the limit
     temp = w[W_TEMP]
     temp += (c[C_HEAT] * i * i - temp) * c[C_ALPHA]

@@ -48,6 +48,7 @@ from devices.fileio import save_npz
 from . import law_layout as LAW
 from . import sim_aot
 from .config import RendererConfig
+from .passivity import passivity_constants, wall_energy
 from .safety import safety_bounds
 from .thermal import safe_continuous_current
 from .scene import SHAPE_CODES
@@ -135,7 +136,7 @@ class RunResult:
         The ``run.json`` timing fields.
     stop_reason : str
         "duration", "until", "stopped" (request_stop), "watchdog", "sensor", "disconnected",
-        "exception", "interrupted".
+        "unstable" (the wall's passivity observer), "exception", "interrupted".
     config, device, transient : run metadata for ``run.json``.
     """
 
@@ -517,6 +518,8 @@ class ServoLoop:
         c[LAW.C_WV], c[LAW.C_NRING] = self.w_vel, self.nring
         c[LAW.C_C_SHIFT], c[LAW.C_C_SCALE] = ls_constants(self.w_vel, self.dt_s)
         c[LAW.C_CAP], c[LAW.C_NOBJ], c[LAW.C_TBUF] = self._cap, len(objs), self.tbuf_at
+        c[LAW.C_PO_FC] = self.continuous_safe_A * self.force_per_amp
+        c[LAW.C_PO_DECAY], c[LAW.C_PO_LIMIT] = passivity_constants(cfg, self.dt_s, c[LAW.C_PO_FC])
         for j, obj in enumerate(objs):
             nums = obj.numbers()
             o = LAW.C_OBJ + LAW.OBJ_STRIDE * j
@@ -545,6 +548,9 @@ class ServoLoop:
         w[LAW.W_PI] = 0
         w[LAW.W_PO] = (0 - wv) % nring
         w[LAW.W_LAST_POS] = p0
+        w[LAW.W_PO_X] = p0
+        d0, nz0 = self.scene.penetration_1d(p0)
+        w[LAW.W_PO_U] = wall_energy(c[LAW.C_K], c[LAW.C_PO_FC], d0, nz0)
         if c[LAW.C_GMIN] <= s0.grip_N <= c[LAW.C_GMAX]:
             w[LAW.W_LAST_GRIP] = s0.grip_N
         w[LAW.W_ARMED] = 1.0 if self.scene.penetration_1d(p0)[0] <= 0.0 else 0.0
@@ -629,7 +635,7 @@ class ServoLoop:
         clock, sleep = time.perf_counter_ns, time.sleep
         law_tick, c, w, log = _law().law_tick, self._law_c, self.law_state, self._logf
         wm = memoryview(w)  # reading a Python float from a memoryview is cheaper than from numpy
-        W_CODE, W_FLAGS, W_NBAD = LAW.W_CODE, LAW.W_FLAGS, LAW.W_NBAD
+        W_CODE = LAW.W_CODE
         L_w, L_cn = self._log_ns["wall_ns"], self._log_ns["compute_ns"]
         cap = self._cap
         fs = self.fs_hz
@@ -678,15 +684,13 @@ class ServoLoop:
                 # ---- the law
                 i = law_tick(c, w, log, s.t_s, s.position_m, s.accel_m_s2, s.grip_N, s.status)
                 code = int(wm[W_CODE])
-                if code >= 4:  # a stop: LAW.CODE_SENSOR or LAW.CODE_DISCONNECTED
+                if code >= 4:  # a stop: LAW.CODE_SENSOR, CODE_DISCONNECTED or CODE_UNSTABLE
                     command(0.0)
                     if code & LAW.CODE_DISCONNECTED:
                         reason = "disconnected"
                         st["error"] = str(s.extra.get("error", "device reported a disconnect"))
                     else:
-                        reason = "sensor"
-                        st["error"] = (f"{int(wm[W_NBAD])} invalid sensor samples in a row "
-                                       f"(flags {int(wm[W_FLAGS])}) at tick {n}")
+                        reason, st["error"] = self._law_stop(code, n)
                     break
                 # ---- command, then the impact work that must not delay the output
                 tc = clock()
@@ -713,6 +717,17 @@ class ServoLoop:
             self._n = n
             st["overruns"] = overruns
         return reason
+
+    def _law_stop(self, code: int, n: int) -> tuple[str, str]:
+        """Stop reason and message of a law stop at tick ``n``: invalid sensors or an unstable wall."""
+        w, c = self.law_state, self._law_c
+        if code & LAW.CODE_UNSTABLE:
+            return "unstable", (f"the wall generated {w[LAW.W_PO_E] * 1e3:.3g} mJ net over the last "
+                                f"~{self.cfg.instability_window_s:g} s at tick {n} (limit {c[LAW.C_PO_LIMIT] * 1e3:.3g} mJ "
+                                f"at stiffness_N_m={self.cfg.stiffness_N_m:g}): the loop is unstable; output zeroed. "
+                                "Lower the stiffness or add damping (docs/renderer.md, 'Stopping an unstable wall')")
+        return "sensor", (f"{int(w[LAW.W_NBAD])} invalid sensor samples in a row "
+                          f"(flags {int(w[LAW.W_FLAGS])}) at tick {n}")
 
     def _run_compiled(self, limit, until, t0: int) -> str:
         """Law and simulated physics in ``renderer.law.run_sim``, in chunks of ``until_every`` ticks; an
@@ -755,9 +770,7 @@ class ServoLoop:
                         reason = "disconnected"
                         st["error"] = str(dev.read().extra.get("error", "device reported a disconnect"))
                     else:
-                        reason = "sensor"
-                        st["error"] = (f"{int(w[LAW.W_NBAD])} invalid sensor samples in a row "
-                                       f"(flags {int(w[LAW.W_FLAGS])}) at tick {n}")
+                        reason, st["error"] = self._law_stop(code, n)
                     break
                 if code:
                     self._after_command(code, n - 1)

@@ -10,7 +10,8 @@ transient law, inlined per tick for speed) and :class:`renderer.homing.HomingCon
 * the commanded current is clamped (the continuous, thermally safe limit for steady forces) and a
   NaN becomes 0 A;
 * the winding temperature rise is stepped every tick (section 4.4.2, :mod:`renderer.thermal`);
-* on hardware, a servo period longer than one period plus ``watchdog_overrun_s`` stops it.
+* on hardware, a servo period longer than one period plus ``watchdog_overrun_s`` stops it;
+* the wall law's passivity observer (:mod:`renderer.passivity`) stops an unstable wall loop.
 """
 
 from __future__ import annotations
@@ -93,3 +94,4 @@ def safety_bounds(info, fs_hz: float, cfg: RendererConfig | None = None,
         t_attenuate_K=cfg.thermal_attenuate_frac * tmax, t_end_K=cfg.thermal_end_frac * tmax,
         # a stalled simulation endangers nothing: the watchdog guards real motors only
         watchdog_period_ns=None if info.simulated else period_ns + int(cfg.watchdog_overrun_s * 1e9))
+

@@ -51,7 +51,7 @@ TICK_SIGNATURE = ("UniTuple(float64, 4)(float64[::1], float64[::1], uint64[::1],
 _RENDERER = Path(__file__).resolve().parent
 _SIM = Path(devices.sim.layout.__file__).resolve().parent
 #: every file whose source is compiled into the extension (run_sim and all it calls)
-SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "scene.py",
+SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "passivity.py", _RENDERER / "scene.py",
            _SIM / "kernel.py", _SIM / "layout.py")
 MODES = ("auto", "nobuild", "off")
 #: how the exported functions are built (part of the key): they release the GIL while they run, like the
