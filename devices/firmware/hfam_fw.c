@@ -659,12 +659,16 @@ static void handle_frame(void) {
         if (n != 4) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
         float amps = get_f32(p);
         state_slot_t s;
-        if (!(amps == amps)) { fault_latched = 1; amps = 0.0f; }
+        /* NaN or +-inf (exponent bits all ones) latches FAULT; a finite value beyond the amplifier is clamped */
+        if ((get_u32(p) & 0x7F800000UL) == 0x7F800000UL) fault_latched = 1;
         if (fault_latched) amps = 0.0f;
-        /* the command just reset the watchdog, so the tick leaves the motor and the ADC alone meanwhile */
+        /* streaming: the command just reset the watchdog, so the tick leaves the motor and the ADC alone
+         * meanwhile. On-device mode (not rendering) a CURRENT arms the watchdog but does not feed it: once it
+         * has tripped the output stays zero until CLEAR_FAULTS (emulator.py _on_current); `tripped` is read
+         * with the tick locked, so a trip between here and the write cannot be undone by it. */
         int32_t q = (int32_t)((amps > I_AMP_A ? I_AMP_A : (amps < -I_AMP_A ? -I_AMP_A : amps)) * Q24);
         TICK_LOCK();
-        motor_set_q24(q);
+        motor_set_q24(tripped ? 0 : q);
         TICK_UNLOCK();
         s.accel_raw = adc_read(0);
         s.grip_raw = adc_read(1);
@@ -740,11 +744,14 @@ static void handle_frame(void) {
         break;
     }
     case MSG_LIMITS: {
-        if (n != 12 || !finite4(p, 3) || get_f32(p) < 0 || get_f32(p + 4) < get_f32(p)) {
-            nak(type, seq, NAK_BAD_PAYLOAD); break;
-        }
-        int32_t c = q24_of(fminf(get_f32(p), I_CONT_A));
-        int32_t pk = q24_of(fminf(fminf(get_f32(p + 4), get_f32(p + 8)), I_PEAK_A));
+        if (n != 12 || !finite4(p, 3)) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
+        /* as logic.set_limits after emulator._on_limits: clamp to the device's limits (peak also to the
+         * amplifier limit), then require 0 <= continuous <= peak: a negative or too small amplifier_A is refused */
+        float cf = fminf(get_f32(p), I_CONT_A), pf = fminf(fminf(get_f32(p + 4), get_f32(p + 8)), I_PEAK_A);
+        if (!(cf >= 0.0f && pf >= cf)) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
+        int32_t c = q24_of(cf);
+        int32_t pk = q24_of(pf);
+        if (pk < 0) pk = 0; /* never a negative peak limit: render_tick would drive -peak with no contact */
         TICK_LOCK();
         lim_cont_q24 = c; lim_peak_q24 = pk;
         TICK_UNLOCK();
@@ -785,8 +792,11 @@ static void handle_frame(void) {
     case MSG_REARM_DATA: {
         uint32_t off = get_u32(p);
         uint8_t k = (uint8_t)((n - 4) / 4);
-        if (n < 4 || (n - 4) % 4 || !finite4(p + 4, k)) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
-        if (off + k > REARM_MAX) { nak(type, seq, NAK_TOO_LARGE); break; }
+        if (n < 4 || (n - 4) % 4) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
+        /* no off + k: it wraps in 32 bits (off = 0xFFFFFFFF passed and wrote outside rearm_buf); the size
+         * before the values, as logic.rearm_data */
+        if (off > REARM_MAX || k > REARM_MAX - off) { nak(type, seq, NAK_TOO_LARGE); break; }
+        if (!finite4(p + 4, k)) { nak(type, seq, NAK_BAD_PAYLOAD); break; }
         TICK_LOCK();
         uint8_t playing = in_event && tr_k < tr_n && ev_kind == 4;
         TICK_UNLOCK();

@@ -711,7 +711,9 @@ class ProtocolDevice(Device):
         """Upload wall, limits and transient, then start on-board rendering (see module doc).
 
         ``wall``: height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m;
-        ``limits``: continuous_A, peak_A, amplifier_A (clamped to the device's own);
+        ``limits``: continuous_A, peak_A and optionally amplifier_A, each a finite number >= 0 (ValueError
+        naming the key otherwise), clamped to the device's own (the device refuses, ValueError, unless
+        continuous <= peak after the clamp, the peak also clamped to amplifier_A);
         ``transient``: a stimuli transient (pulse/sinusoid -> parameters, HfamLibrary -> table,
         anything else -> a sampled transient the host re-arms from the approach velocity and grip).
         """
@@ -720,11 +722,12 @@ class ProtocolDevice(Device):
         if not self._is_open:
             raise DeviceError(f"{self.name}: open the device before configure_rendering")
         w = [_number(wall, key, "wall") for key in ("height_m", "stiffness_N_m", "damping_N_s_m", "rearm_margin_m")]
-        lim = [_number(limits, key, "limits") for key in ("continuous_A", "peak_A")]
         info = self.info
+        lim = [_limit(limits, key) for key in ("continuous_A", "peak_A")]
+        amp = _limit(limits, "amplifier_A") if "amplifier_A" in limits else info.current_amplifier_A
         cont = min(lim[0], info.current_continuous_A)
         peak = min(lim[1], info.current_peak_A)
-        amp = min(float(limits.get("amplifier_A", info.current_amplifier_A)), info.current_amplifier_A)
+        amp = min(amp, info.current_amplifier_A)
         caps = self.wire_info.capability_bits
         kind = _transient_upload_kind(transient, caps)
         if transient is not None:
@@ -843,6 +846,14 @@ def _number(mapping: dict, key: str, what: str) -> float:
         raise ValueError(f"{what}.{key} must be a number, got {mapping[key]!r}") from None
     if not math.isfinite(value):
         raise ValueError(f"{what}.{key} must be finite, got {value}")
+    return value
+
+
+def _limit(limits: dict, key: str) -> float:
+    """A current limit (A) of ``configure_rendering``'s ``limits``: a finite number >= 0 (ValueError naming the key)."""
+    value = _number(limits, key, "limits")
+    if value < 0:
+        raise ValueError(f"limits.{key} must be >= 0 A, got {value}")
     return value
 
 

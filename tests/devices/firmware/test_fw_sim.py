@@ -4,7 +4,11 @@ The host connects through the normal serial driver; the harness closes the physi
 paddle-and-hand model and measures the firmware's timing in simulated MCU cycles.
 """
 
+import os
+import select
+import struct
 import time
+import tty
 
 import numpy as np
 import pytest
@@ -243,3 +247,216 @@ def test_firmware_report_command(capsys):
     assert main(["firmware-report", "--speeds", "0.5,4"]) == 0
     text = capsys.readouterr().out
     assert "budget 4000 cycles" in text and "RAM:" in text and "encoder counts first drop at 4.0 m/s" in text
+
+
+# -- safety: the C firmware and its Python mirror answer the same frames the same way -----------------------
+class _RawLink:
+    """The host end of the real firmware's pty, frame by frame (no driver in between): what hfam_fw.c answers."""
+
+    def __init__(self, port):
+        self.fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.fd)
+        self.parser = P.FrameParser()
+        self.seq = 0
+
+    def close(self):
+        os.close(self.fd)
+
+    def frames(self, quiet_s, max_s=0.5):
+        """The frames that arrive until a gap of ``quiet_s`` s (or for ``max_s`` s, while telemetry flows)."""
+        out = []
+        end = time.monotonic() + max_s
+        while time.monotonic() < end and select.select([self.fd], [], [], quiet_s)[0]:
+            out += self.parser.feed(os.read(self.fd, 4096))
+        return out
+
+    def send(self, msg_type, payload=b""):
+        seq = self.seq = (self.seq + 1) & 0xFF
+        os.write(self.fd, P.encode_frame(msg_type, seq, payload))
+        return seq
+
+    def request(self, msg_type, payload=b"", timeout_s=5.0):
+        """Send one frame; return its answer as :func:`_answer` words it."""
+        self.frames(0.02)  # telemetry or trip reports from before: not the answer
+        seq = self.send(msg_type, payload)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for f in self.parser.feed(os.read(self.fd, 4096)) if select.select([self.fd], [], [], 0.05)[0] else []:
+                a = _answer(f, msg_type, seq)
+                if a is not None:
+                    return a
+        raise AssertionError(f"the firmware did not answer {P.TYPE_NAMES.get(msg_type)} seq {seq}")
+
+
+def _answer(frame, msg_type, seq):
+    """("ACK",), ("NAK", code), ("INFO", payload) or ("STATE", status, current_mA) if ``frame`` answers the request."""
+    if frame.type == P.ACK and tuple(frame.payload) == (msg_type, seq):
+        return ("ACK",)
+    if frame.type == P.NAK and tuple(frame.payload[:2]) == (msg_type, seq):
+        return ("NAK", frame.payload[2])
+    if frame.type == P.INFO and msg_type == P.HELLO:
+        return ("INFO", frame.payload)
+    if frame.type == P.STATE and msg_type == P.CURRENT:
+        st = P.decode_state(frame.payload)
+        if st.cmd_seq == seq:
+            return ("STATE", st.status, st.current_mA)
+    return None
+
+
+class _Mirror:
+    """The Python firmware (devices/firmware/emulator.py + logic.py) set up as the C firmware's INFO describes it."""
+
+    def __init__(self, wire):
+        from devices.firmware.emulator import build_emulator
+
+        emu = build_emulator("on-device", taps_m_s=())
+        info = wire.info
+        emu.wire, emu.caps, emu.watchdog_ms = wire, wire.capability_bits, wire.watchdog_ms
+        emu.fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, info.servo_rate_hz,
+                                  info.current_amplifier_A, wire.max_table_samples, velocity_window=4,
+                                  thermal=(info.winding_resistance_ohm, info.thermal_resistance_K_W,
+                                           info.thermal_time_constant_s, info.winding_max_temp_rise_K))
+        self.sent = []
+        emu.send = lambda t, payload=b"": self.sent.append(P.Frame(t, 0, bytes(payload)))
+        self.emu = emu
+
+    def request(self, msg_type, payload, seq):
+        self.sent.clear()
+        self.emu.handle(P.Frame(msg_type, seq, payload))
+        answers = [a for a in (_answer(f, msg_type, seq) for f in self.sent) if a is not None]
+        assert len(answers) == 1, self.sent
+        return answers[0]
+
+    def trip_watchdog(self):
+        """The mirror's watchdog check, as time had passed beyond ``watchdog_ms``: the STATE it reports."""
+        self.sent.clear()
+        self.emu._check_watchdog(self.emu.last_cmd + self.emu.watchdog_ms * 1e-3 + 0.01)
+        st = [P.decode_state(f.payload) for f in self.sent if f.type == P.STATE]
+        return [(s.status, s.current_mA) for s in st]
+
+
+@pytest.fixture
+def fw_and_mirror():
+    """(link, mirror, handle, both): the real firmware on simavr (hand at 10 mm, above the wall at 0) and the
+    mirror; ``both(type, payload)`` sends the same frame to each and returns the C firmware's answer after
+    asserting the mirror's is the same."""
+    port, handle = fw_sim.start_fw_sim(taps_m_s=())
+    link = _RawLink(port)
+    try:
+        kind, payload = link.request(P.HELLO, P.HELLO_STRUCT.pack(*P.PROTOCOL_VERSION))
+        assert kind == "INFO"
+        mirror = _Mirror(P.decode_info(payload))
+
+        def both(msg_type, payload=b""):
+            c = link.request(msg_type, payload)
+            m = mirror.request(msg_type, payload, link.seq)
+            assert c == m, (P.TYPE_NAMES.get(msg_type), payload.hex(), "C:", c, "mirror:", m)
+            return c
+
+        yield link, mirror, handle, both
+    finally:
+        link.close()
+        handle.stop()
+
+
+def _f32_bits(bits):
+    return struct.pack("<I", bits)
+
+
+OK = ("ACK",)
+NAK_BAD_PAYLOAD = ("NAK", P.NAK_BAD_PAYLOAD)
+NAK_TOO_LARGE = ("NAK", P.NAK_TOO_LARGE)
+FAULT, TRIPPED = int(Status.FAULT), int(Status.WATCHDOG_TRIPPED)
+
+
+def test_non_finite_current_latches_fault_and_zero_output_like_the_mirror(fw_and_mirror):
+    """docs/protocol.md: a NaN or infinite CURRENT latches FAULT and zeroes the output (every NaN and both
+    infinities, by the float's exponent bits); a finite one beyond the amplifier is clamped to it (2 A)."""
+    link, mirror, handle, both = fw_and_mirror
+    assert both(P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(60000)) == OK  # no trip while the mirror runs in between
+    assert both(P.CURRENT, P.encode_current(0.25)) == ("STATE", 0, 250)
+    for bits in (0x7F800000, 0xFF800000, 0x7FC00000, 0xFFC00000, 0x7F800001, 0x7FFFFFFF):  # +-inf, NaNs
+        assert both(P.CURRENT, P.encode_current(1.0)) == ("STATE", 0, 1000)
+        assert both(P.CURRENT, _f32_bits(bits)) == ("STATE", FAULT, 0), hex(bits)
+        t = time.monotonic()
+        assert handle.stats_after(t)["motor_A"] == 0.0  # the PWM output itself, not only the report
+        assert both(P.CURRENT, P.encode_current(0.5)) == ("STATE", FAULT, 0)  # latched until cleared
+        assert both(P.CLEAR_FAULTS) == OK
+    # finite, beyond the 2 A amplifier: clamped to it, applied, no fault (what the mirror does)
+    assert both(P.CURRENT, P.encode_current(1e30)) == ("STATE", 0, 2000)
+    assert both(P.CURRENT, _f32_bits(0xFF7FFFFF)) == ("STATE", 0, -2000)  # -FLT_MAX
+    assert both(P.CURRENT, P.encode_current(-0.4)) == ("STATE", 0, -400)
+    assert handle.stats_after(time.monotonic())["motor_A"] == pytest.approx(-0.4, abs=2.0 / 255)
+
+
+def test_limits_need_0_le_continuous_le_peak_after_the_amplifier_clamp_like_the_mirror(fw_and_mirror):
+    """LIMITS as the mirror checks them: continuous' = min(continuous, 0.8 A), peak' = min(peak, 2 A, amplifier);
+    NAK unless 0 <= continuous' <= peak' (so a negative or too small amplifier limit is refused)."""
+    link, mirror, handle, both = fw_and_mirror
+    assert both(P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(60000)) == OK
+    assert both(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_ON_DEVICE, 2)) == OK
+    lim = P.LIMITS_STRUCT.pack
+    assert both(P.LIMITS, lim(0.5, 1.0, -1.0)) == NAK_BAD_PAYLOAD  # the audit's case: -1 A on every tick
+    assert both(P.LIMITS, lim(0.0, 0.0, -1e-6)) == NAK_BAD_PAYLOAD
+    assert both(P.LIMITS, lim(0.5, 1.0, 0.3)) == NAK_BAD_PAYLOAD  # amplifier below the continuous limit
+    assert both(P.LIMITS, lim(-0.1, 1.0, 2.0)) == NAK_BAD_PAYLOAD
+    assert both(P.LIMITS, lim(0.6, 0.5, 2.0)) == NAK_BAD_PAYLOAD
+    assert both(P.LIMITS, lim(0.0, 0.0, 0.0)) == OK
+    assert both(P.LIMITS, lim(0.5, 1.0, 0.5)) == OK
+    assert both(P.LIMITS, lim(1.5, 1.0, 2.0)) == OK  # 1.5 A continuous is clamped to the device's 0.8 first
+    # the rejected limits never reach the renderer: the hand holds the handle 10 mm above the wall (no
+    # contact) and every rendered tick's current is 0 A (with amplifier_A = -1 accepted it was -1 A)
+    assert both(P.LIMITS, lim(0.0, 0.0, 0.0)) == OK
+    assert link.request(P.WALL, P.WALL_STRUCT.pack(0.0, 680.0, 0.0, 0.002)) == OK
+    assert link.request(P.LIMITS, lim(0.5, 1.0, -1.0)) == NAK_BAD_PAYLOAD
+    assert link.request(P.RENDER_START) == OK
+    states = []
+    deadline = time.monotonic() + 10.0
+    while len(states) < 200 and time.monotonic() < deadline:
+        states += [P.decode_state(f.payload) for f in link.frames(0.05) if f.type == P.STATE]
+    assert len(states) >= 200
+    assert {s.current_mA for s in states} == {0} and all(s.encoder > 0 for s in states)
+    assert handle.stats_after(time.monotonic())["motor_A"] == 0.0
+
+
+def test_current_in_on_device_mode_after_a_watchdog_trip_outputs_zero_like_the_mirror(fw_and_mirror):
+    """On-device mode, not rendering: a CURRENT is applied (and arms the watchdog) but does not feed it; once
+    the watchdog has tripped, CURRENT answers a STATE with WATCHDOG_TRIPPED and 0 A (the motor stays off)
+    until CLEAR_FAULTS, as in the mirror."""
+    link, mirror, handle, both = fw_and_mirror
+    assert both(P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(30)) == OK
+    assert both(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_ON_DEVICE, 1)) == OK
+    assert both(P.CLEAR_FAULTS) == OK  # feeds the watchdog: 30 ms from here
+    assert both(P.CURRENT, P.encode_current(1.5)) == ("STATE", 0, 1500)
+    # the host goes silent: the firmware trips and reports it once (a STATE), as the mirror does
+    trip, deadline = [], time.monotonic() + 5.0
+    while not trip and time.monotonic() < deadline:
+        trip = [P.decode_state(f.payload) for f in link.frames(0.05) if f.type == P.STATE]
+    assert [(s.status, s.current_mA) for s in trip] == mirror.trip_watchdog() == [(TRIPPED, 0)]
+    for _ in range(3):  # the stale command is not applied, however often it comes
+        assert both(P.CURRENT, P.encode_current(1.5)) == ("STATE", TRIPPED, 0)
+    time.sleep(0.1)
+    assert handle.stats_after(time.monotonic())["motor_A"] == 0.0
+    assert both(P.CLEAR_FAULTS) == OK
+    assert both(P.CURRENT, P.encode_current(0.5)) == ("STATE", 0, 500)
+
+
+def test_rearm_data_offset_is_bounds_checked_without_overflow_like_the_mirror(fw_and_mirror):
+    """REARM_DATA beyond the 128-sample buffer is NAKed too-large, also where offset + count wraps in 32 bits
+    (it used to pass the check and write outside the buffer); the size check comes before the NaN check."""
+    link, mirror, handle, both = fw_and_mirror
+    assert both(P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(60000)) == OK
+    chunk = P.encode_data_chunk
+    assert mirror.emu.fw.max_table_samples == 128
+    assert both(P.REARM_DATA, chunk(0xFFFFFFFF, [1.0, 1.0])) == NAK_TOO_LARGE
+    assert both(P.REARM_DATA, chunk(0xFFFFFFFE, [1.0, 1.0])) == NAK_TOO_LARGE
+    assert both(P.REARM_DATA, chunk(0xFFFFFFE8, [1.0] * 30)) == NAK_TOO_LARGE  # wraps to 6
+    assert both(P.REARM_DATA, chunk(0xFFFFFFFF, [float("nan")])) == NAK_TOO_LARGE
+    assert both(P.REARM_DATA, chunk(127, [1.0, 1.0])) == NAK_TOO_LARGE
+    assert both(P.REARM_DATA, chunk(129, [])) == NAK_TOO_LARGE
+    assert both(P.REARM_DATA, chunk(0, [float("inf")])) == NAK_BAD_PAYLOAD
+    assert both(P.REARM_DATA, chunk(0, [1.0])[:7]) == NAK_BAD_PAYLOAD
+    assert both(P.REARM_DATA, chunk(127, [1.0])) == OK
+    assert both(P.REARM_DATA, chunk(128, [])) == OK
+    assert both(P.REARM_DATA, chunk(98, [0.5] * 30)) == OK  # up to the last sample
+    assert link.request(P.CURRENT, P.encode_current(0.3)) == ("STATE", 0, 300)  # the firmware runs on

@@ -166,6 +166,13 @@ def test_configure_rendering_validates(on_device):
         dev.configure_rendering({"height_m": 0.0}, LIMITS, None)
     with pytest.raises(ValueError, match="limits.peak_A must be finite"):
         dev.configure_rendering(WALL, dict(LIMITS, peak_A=math.nan), None)
+    # amplifier_A is checked like the other limits (it used to go to the device unchecked: a negative one
+    # made the firmware's peak limit negative, -1 A on every tick)
+    for bad, why in ((-1.0, ">= 0 A"), (math.nan, "finite"), (math.inf, "finite"), ("2 A", "a number")):
+        with pytest.raises(ValueError, match=f"limits.amplifier_A must be {why}"):
+            dev.configure_rendering(WALL, dict(LIMITS, amplifier_A=bad), None)
+    with pytest.raises(ValueError, match="limits.continuous_A must be >= 0 A"):
+        dev.configure_rendering(WALL, dict(LIMITS, continuous_A=-0.1), None)
     with pytest.raises(ValueError, match="sample rate"):
         lib = HfamLibrary([0.1], [2.0], np.zeros((1, 1, 10)), 5e3, dev.info.force_per_amp_N_A)
         dev.configure_rendering(WALL, LIMITS, lib)
