@@ -1,6 +1,7 @@
 """``python -m stimuli build-library`` and ``show`` end to end, through real files."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -185,7 +186,7 @@ def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path
     (mset / "model_set.json").write_text(json.dumps(index))
     bad = rec if case == "csv_nonutf8" else mset / "model_set.json"
     res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
-                          str(mset), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp", "2.35"],
+                          str(mset), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
@@ -195,3 +196,20 @@ def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path
         val = subprocess.run([sys.executable, "-m", "devices", "validate", str(mset)], capture_output=True,
                              text=True, timeout=120)
         assert val.returncode == 2 and errors[0] in val.stderr.splitlines(), val.stderr
+
+
+@pytest.mark.parametrize("key", ["gain", "delay_s", "poles_rad_s"])
+def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, key):
+    """Audit model_bigint_gain.txt: a 400-digit integer gain raised OverflowError out of the model check; now
+    exit 2 with one ``error:`` line naming the model file and key."""
+    rec, m1, _ = inputs
+    data = json.loads(m1.read_text())
+    data[key] = [[-(10 ** 400), 0]] + data[key] if key == "poles_rad_s" else 10 ** 400
+    m1.write_text(json.dumps(data))
+    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
+                          str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
+    assert len(errors) == 1 and re.match(re.escape(f"error: {m1}: key ") + f"'?{key}'?", errors[0]), res.stderr
+    assert "finite" in errors[0] and not (tmp_path / "x.npz").exists()
