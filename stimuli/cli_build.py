@@ -109,7 +109,7 @@ def expand_model_paths(paths) -> list[Path]:
         if not index.is_file():
             raise FileNotFoundError(f"model file not found: {path}")
         if index.name == "model_set.json" or path.is_dir():
-            from devices.identify.modelset import read_model_set_index  # the index checks `devices validate` uses
+            from devices.identify.modelset import read_model_set_index  # deferred: identify pulls in scipy; same index checks as `devices validate`
 
             index, _, by_output = read_model_set_index(index)
             files = [f for f in by_output.get("accel_m_s2", []) if f is not None]
