@@ -139,17 +139,32 @@ def _catalog_cached(raw, path: Path) -> tuple[list[str], dict]:
     return result
 
 
+def _read_text(path, encoding: str) -> str:
+    """The text of a subject's session.json or trials.csv; a missing file, a directory in its place, an
+    unreadable or non-UTF-8 file give one error naming the file (and the line of a bad byte)."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a directory, expected a file") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror})") from None
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
 def read_session(path) -> dict:
     """Read and check one ``session.json`` (``path``: str or Path); errors name the file, line or key.
 
     Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
     finished, seed, software_version, device``.
     """
-    try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
+    text = _read_text(path, "utf-8")
     try:
         raw = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -181,13 +196,7 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
     The third value is True when a torn last line (a crash mid-write, no final newline, wrong
     number of fields) was left out; the caller warns.
     """
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:  # -sig: tolerate a spreadsheet BOM
-            text = fh.read()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    text = _read_text(path, "utf-8-sig")  # -sig: tolerate a spreadsheet BOM
     reader = csv.reader(io.StringIO(text, newline=""))
     header = next(reader, None)
     if header is None:

@@ -14,6 +14,8 @@ renamed array degrades Figure 4.20 to a note in the report instead of an error:
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -202,8 +204,8 @@ def typical_taps(trials: pd.DataFrame, subject_dirs: dict, samples, target_v_m_s
             found_file = True
             try:
                 taps = read_trace_taps(path, rec["subject"], sample, parsed(r))
-            except (OSError, ValueError) as exc:
-                notes.append(f"{path}: unreadable trace ({exc})")
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # truncated/corrupt npz
+                notes.append(f"{path}: unreadable trace ({type(exc).__name__}: {exc})")
                 continue
             for tap in taps:
                 if best is None or abs(tap.v_in_m_s - target_v_m_s) < abs(best.v_in_m_s - target_v_m_s):

@@ -334,10 +334,20 @@ def load_model(path) -> ZpkModel:
 def _finite_float(value, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ModelError(f"{key}: must be a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # a JSON integer with hundreds of digits
+        raise ModelError(f"{key}: must be finite, got an integer too large for a float") from None
     if not math.isfinite(v):
         raise ModelError(f"{key}: must be finite, got {v}")
     return v
+
+
+def _isfinite(x) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an integer too large for a float
+        return False
 
 
 def _check_fs(fs_hz) -> float:
@@ -355,8 +365,8 @@ def _read_roots(value, where: str, key: str) -> np.ndarray:
         if (not isinstance(item, (list, tuple)) or len(item) != 2
                 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in item)):
             raise ValueError(f"{where}: key {key!r}[{i}] must be a [re, im] pair of numbers, got {item!r}")
-        if not all(math.isfinite(x) for x in item):
-            raise ValueError(f"{where}: key {key!r}[{i}] is not finite: {item!r}")
+        if not all(_isfinite(x) for x in item):
+            raise ValueError(f"{where}: key {key!r}[{i}] is not finite: {item!r:.80}")
         out[i] = complex(item[0], item[1])
     return out
 

@@ -21,6 +21,7 @@ file and line of the first problem; this is the one reader of the format
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -86,7 +87,13 @@ class Tap:
 
 def _parse_rows(path: Path) -> list[tuple[int, float, list[float], list[float], list[int]]]:
     """Rows of a tap recording grouped per tap: (tap, v, t_s values, accel values, line numbers)."""
-    with open(path, encoding="utf-8", newline="") as fh:
+    raw = Path(path).read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}: line {line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         try:
             header = next(reader)

@@ -29,6 +29,7 @@ from devices.validation import require_int, require_number
 from .scene import Scene, Wall, parse_scene
 
 PACING_MODES = ("sleep_spin", "spin")
+MAX_TRANSIENT_LIMIT_S = 10.0  # upper bound of max_transient_s: the transient buffer is allocated up front
 
 
 @dataclass(frozen=True)
@@ -67,8 +68,8 @@ class RendererConfig:
     impact_counts : float
         The impact window is sized so the handle travelled about this many encoder counts.
     max_transient_s : float
-        Transient buffer length; a transient whose ``max_samples`` exceeds it is
-        rejected before the loop starts.
+        Transient buffer length (at most :data:`MAX_TRANSIENT_LIMIT_S`); a transient whose
+        ``max_samples`` exceeds it is rejected before the loop starts.
     current_continuous_A, current_peak_A, current_amplifier_A : float or None
         Optional lower limits than the device's (proportional channel, transient
         channel, sum). None = the device's value; larger than the device's is an error.
@@ -158,6 +159,9 @@ class RendererConfig:
                     "position_limit_m", "log_capacity_s", "spin_margin_s", "max_catchup_s",
                     "instability_window_s", "instability_energy_frac"):
             num(key, minimum=0.0, strict=True)
+        if self.max_transient_s > MAX_TRANSIENT_LIMIT_S:  # the buffer is preallocated: 1e9 s would ask for TiB
+            raise ValueError(f"max_transient_s must be at most {MAX_TRANSIENT_LIMIT_S:g} s (a transient buffer of "
+                             f"that length), got {self.max_transient_s!r}")
         for key in ("current_continuous_A", "current_peak_A", "current_amplifier_A", "overrun_tolerance_s"):
             num(key, minimum=0.0, strict=True, optional=True)
         num("thermal_attenuate_frac", minimum=0.0, strict=True)
@@ -216,12 +220,29 @@ def config_from_dict(data: Mapping[str, Any], where: str = "config") -> Renderer
         if key == "scene":
             value = parse_scene(value, where=f"{where}: scene")
         elif isinstance(value, int) and not isinstance(value, bool) and key not in ("max_bad_samples", "until_every"):
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise ValueError(f"{where}: {key} must be a finite number, got an integer too large for a "
+                                 "float") from None
         kwargs[key] = value
     try:
         return RendererConfig(**kwargs)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
+
+
+def _read_utf8(path: pathlib.Path, what: str) -> str:
+    """A config file's text; a non-UTF-8 file or an unreadable one is a ValueError naming the file (and line)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: {what} cannot be read ({exc.strerror})") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: {what} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
 def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
@@ -239,7 +260,7 @@ def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"renderer config file not found: {path}")
-    text = path.read_text(encoding="utf-8")
+    text = _read_utf8(path, "renderer config")
     try:
         if path.suffix.lower() == ".json":
             data = json.loads(text)
@@ -249,6 +270,9 @@ def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a renderer config must be a table/object of settings, got "
+                         f"{type(data).__name__} {data!r:.60}")
     data = dict(data)
     data.update(overrides)
     return config_from_dict(data, where=str(path))
@@ -259,13 +283,13 @@ def load_scene(path: str | pathlib.Path) -> Scene:
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"scene file not found: {path}")
-    text = path.read_text(encoding="utf-8")
+    text = _read_utf8(path, "scene file")
     try:
         data = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML: {exc}") from None
-    if "scene" in data:
+    if isinstance(data, dict) and "scene" in data:
         return config_from_dict(data, where=str(path)).effective_scene
     return parse_scene(data, where=str(path))

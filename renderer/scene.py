@@ -283,7 +283,7 @@ def parse_scene(data: Mapping[str, Any], where: str = "scene") -> Scene:
         if not isinstance(raw, Mapping):
             raise ValueError(f"{here} must be a table")
         shape = raw.get("shape")
-        if shape not in SHAPES:
+        if not isinstance(shape, str) or shape not in SHAPES:  # a list or table is unhashable: no raw TypeError
             raise ValueError(f"{here}.shape: unknown shape {shape!r} (known: {', '.join(SHAPES)})")
         cls, keys = SHAPES[shape]
         kwargs = {}

@@ -183,8 +183,15 @@ def load_catalog(path=None, library_dir=None) -> list[CatalogSample]:
     path = DEFAULT_CATALOG if path is None else Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"catalog file not found: {path}")
+    raw = path.read_bytes()
     try:
-        data = tomllib.loads(path.read_text())
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:  # e.g. saved as Latin-1
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: catalog is not UTF-8 text ({exc.reason} at byte {exc.start}); "
+                         "save it as UTF-8") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML ({exc})") from None
     unknown = sorted(set(data) - TOP_KEYS)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -110,12 +109,10 @@ def expand_model_paths(paths) -> list[Path]:
         if not index.is_file():
             raise FileNotFoundError(f"model file not found: {path}")
         if index.name == "model_set.json" or path.is_dir():
-            try:
-                data = json.loads(index.read_text())
-                names = data["models"]["accel_m_s2"]
-            except (json.JSONDecodeError, KeyError, TypeError) as exc:
-                raise ValueError(f"{index}: not a model set index (needs models.accel_m_s2): {exc}") from None
-            files = [index.parent / n for n in names if n]
+            from devices.identify.modelset import read_model_set_index  # deferred: identify pulls in scipy; same index checks as `devices validate`
+
+            index, _, by_output = read_model_set_index(index)
+            files = [f for f in by_output.get("accel_m_s2", []) if f is not None]
             if not files:
                 raise ValueError(f"{index}: the model set has no acceleration models")
             out.extend(files)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import bisect
 import json
 import math
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -337,31 +339,73 @@ class HfamLibrary:
             missing = [k for k in ("velocities_m_s", "grips_N", "currents_A", "fs_hz", "force_per_amp_N_A") if k not in data]
             if missing:
                 raise ValueError(f"{path}: missing array(s) {', '.join(missing)}; not an HFAM library")
-            try:
-                meta = json.loads(str(data["metadata_json"])) if "metadata_json" in data else {}
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{path}: metadata_json is not valid JSON ({exc})") from None
-            if meta.get("format", FORMAT) != FORMAT or int(meta.get("format_version", FORMAT_VERSION)) > FORMAT_VERSION:
+            meta = {}
+            if "metadata_json" in data:
+                raw = _member(data, "metadata_json", path)
+                if raw.dtype.kind not in "US" or raw.ndim != 0:
+                    raise ValueError(f"{path}: metadata_json must be a single JSON string, got a {raw.dtype} array "
+                                     f"of shape {raw.shape}")
+                try:
+                    meta = json.loads(str(raw))
+                except json.JSONDecodeError as exc:
+                    raise ValueError(f"{path}: metadata_json is not valid JSON ({exc})") from None
+                if not isinstance(meta, dict):
+                    raise ValueError(f"{path}: metadata_json must be a JSON object, got {type(meta).__name__}")
+            version = meta.get("format_version", FORMAT_VERSION)
+            if isinstance(version, bool) or not isinstance(version, int):
+                raise ValueError(f"{path}: metadata_json format_version must be an integer, got {version!r}")
+            if meta.get("format", FORMAT) != FORMAT or version > FORMAT_VERSION:
                 raise ValueError(
                     f"{path}: format {meta.get('format')!r} version {meta.get('format_version')!r} is not "
                     f"{FORMAT!r} <= {FORMAT_VERSION}"
                 )
+            arrays = {key: _member(data, key, path) for key in ("velocities_m_s", "grips_N", "currents_A")}
+            for key, arr in arrays.items():
+                if arr.dtype.kind not in "iuf":
+                    raise ValueError(f"{path}: {key} must be a numeric array, got dtype {arr.dtype}")
             return cls(
-                data["velocities_m_s"],
-                data["grips_N"],
-                data["currents_A"],
-                float(data["fs_hz"]),
-                float(data["force_per_amp_N_A"]),
-                gain=float(data["gain"]) if gain is None and "gain" in data else (1.0 if gain is None else gain),
+                arrays["velocities_m_s"],
+                arrays["grips_N"],
+                arrays["currents_A"],
+                _scalar(data, "fs_hz", path),
+                _scalar(data, "force_per_amp_N_A", path),
+                gain=_scalar(data, "gain", path) if gain is None and "gain" in data else (1.0 if gain is None else gain),
                 max_extrapolation=(
-                    float(data["max_extrapolation"])
+                    _scalar(data, "max_extrapolation", path)
                     if max_extrapolation is None and "max_extrapolation" in data
                     else (DEFAULT_MAX_EXTRAPOLATION if max_extrapolation is None else max_extrapolation)
                 ),
                 metadata=meta,
-                desired_accel_m_s2=data["desired_accel_m_s2"] if "desired_accel_m_s2" in data else None,
+                desired_accel_m_s2=(_numeric(data, "desired_accel_m_s2", path)
+                                    if "desired_accel_m_s2" in data else None),
                 source=str(path),
             )
+
+
+def _member(data, key: str, path) -> np.ndarray:
+    """Read one member of an open library archive; a corrupt member or a pickled (object) array names the key."""
+    try:
+        return data[key]
+    except (zipfile.BadZipFile, EOFError, OSError, zlib.error) as exc:
+        raise ValueError(f"{path}: member {key!r} of the HFAM library is corrupt ({exc})") from None
+    except ValueError as exc:  # object arrays (allow_pickle=False) and malformed .npy headers
+        raise ValueError(f"{path}: member {key!r} of the HFAM library cannot be read ({exc})") from None
+
+
+def _numeric(data, key: str, path) -> np.ndarray:
+    arr = _member(data, key, path)
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: {key} must be a numeric array, got dtype {arr.dtype}")
+    return arr
+
+
+def _scalar(data, key: str, path) -> float:
+    """One number stored as a 0-d (or one-element) numeric array; anything else names the key."""
+    arr = _member(data, key, path)
+    if arr.dtype.kind not in "iuf" or arr.size != 1:
+        shown = arr.tolist() if arr.size <= 5 else f"shape {arr.shape}"
+        raise ValueError(f"{path}: {key} must be a single number, got {shown!r} (dtype {arr.dtype})")
+    return float(arr.reshape(()))
 
 
 def _json_default(obj):

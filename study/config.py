@@ -118,10 +118,18 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
         where = str(p)
         if not p.is_file():
             raise FileNotFoundError(f"{what} file {p} not found")
+        raw = p.read_bytes()
         try:
-            data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = raw[:exc.start].count(b"\n") + 1
+            raise ValueError(f"{p}:{line}: {what} file is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        try:
+            data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
         except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{p}: cannot parse ({exc})") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{p}: a {what} file must hold a table/object of settings, got {type(data).__name__}")
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:

@@ -119,6 +119,43 @@ def _jsonable(obj):
     return obj
 
 
+def _check_resumed_session(previous: dict, where) -> None:
+    """The parts of a resumed ``session.json`` that resuming reads: present and of the right type, or one
+    ValueError naming the file and the key (a hand-edited or damaged file, not a raw KeyError/TypeError)."""
+    def bad(key: str, want: str) -> ValueError:
+        if key.split(".")[0] not in previous:
+            return ValueError(f"{where}: session.json has no {key!r} key; it is damaged or not written by this "
+                              "program")
+        value = previous
+        for part in key.split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        return ValueError(f"{where}: {key} must be {want}, got {value!r}")
+
+    if not isinstance(previous.get("device"), dict):
+        raise bad("device", "an object with the device string under \"spec\"")
+    if not isinstance(previous["device"].get("spec"), str):
+        raise bad("device.spec", "a device string such as \"sim\"")
+    if not isinstance(previous.get("participant"), str):
+        raise bad("participant", "a string (\"simulated\" or \"keyboard\")")
+    if not isinstance(previous.get("protocol"), dict):
+        raise bad("protocol", "an object of protocol settings")
+    if isinstance(previous.get("seed"), bool) or not isinstance(previous.get("seed"), int):
+        raise bad("seed", "an integer")
+    for key in ("age", "gender", "handedness", "experience"):
+        if key not in previous:
+            raise bad(key, "present")
+    catalog = previous.get("catalog")
+    if not isinstance(catalog, list) or not all(isinstance(c, dict) and isinstance(c.get("name"), str)
+                                                for c in catalog):
+        raise bad("catalog", "a list of sample objects, each with a \"name\"")
+    for key in ("library_dir", "catalog_file"):
+        if previous.get(key) is not None and not isinstance(previous[key], str):
+            raise bad(key, "a path string or null")
+    for key in ("resumed_at", "audio_resumed"):
+        if key in previous and not isinstance(previous[key], list):
+            raise bad(key, "a list")
+
+
 def plan_session(args) -> SessionPlan:
     """Open the session folder, new or resumed, and settle everything a session needs before it starts.
 
@@ -136,6 +173,7 @@ def plan_session(args) -> SessionPlan:
     store.check()  # unwritable folder, existing subject without --resume: refused before anything starts
     previous = store.load_session() if args.resume else None
     if previous is not None:
+        _check_resumed_session(previous, store.session_path)
         was_sim = previous["device"]["spec"].split(":", 1)[0] == "sim"
         args.device = args.device or previous["device"]["spec"]
         if (args.device.split(":", 1)[0] == "sim") != was_sim:
@@ -156,13 +194,19 @@ def plan_session(args) -> SessionPlan:
     protocol_overrides = {"repetitions": args.repetitions, "tap_window_s": args.tap_window_s,
                           "masking_level_dbfs": args.masking_level_dbfs, "cue_level_db": args.cue_level_db}
     if previous is not None:
-        protocol = load_protocol(None, **previous["protocol"])
+        try:
+            protocol = load_protocol(None, **previous["protocol"])
+        except ValueError as exc:  # the settings come from session.json, not from the command line
+            raise ValueError(f"{store.session_path}: protocol: {str(exc).removeprefix('command line: ')}") from None
         if args.seed is not None and args.seed != previous["seed"]:
             raise ValueError(f"--seed {args.seed} differs from the session's seed {previous['seed']} "
                              f"({store.session_path}); omit --seed when resuming")
         seed = int(previous["seed"])
-        info = SubjectInfo(subject, previous["age"], previous["gender"], previous["handedness"],
-                           previous["experience"])
+        try:
+            info = SubjectInfo(subject, previous["age"], previous["gender"], previous["handedness"],
+                               previous["experience"])
+        except ValueError as exc:
+            raise ValueError(f"{store.session_path}: {exc}") from None
     else:
         protocol = load_protocol(args.protocol, **protocol_overrides)
         seed = args.seed if args.seed is not None else secrets.randbelow(2 ** 31)

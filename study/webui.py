@@ -199,7 +199,8 @@ class _Handler(BaseHTTPRequestHandler):
         if raw is None:
             length = 0
         else:
-            if not raw.strip().isdigit():
+            raw = raw.strip()
+            if not (raw.isascii() and raw.isdigit()):  # str.isdigit() also takes "²", which int() refuses
                 raise BadRequest(400, "Content-Length must be a non-negative integer")
             length = int(raw)
             if length > MAX_BODY_BYTES:

@@ -57,18 +57,37 @@ def load_calibration(path, device_id: str, defaults: Calibration) -> Calibration
     if not path.exists():
         return defaults
     try:
-        data = json.loads(path.read_text())
+        raw = path.read_bytes()
+    except OSError as exc:  # a directory, no permission
+        raise ValueError(f"{path}: calibration file cannot be read ({exc.strerror})") from None
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: calibration file is not UTF-8 text ({exc.reason} at byte {exc.start})") \
+            from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
-    entry = data.get("devices", {}).get(device_id) if isinstance(data, dict) else None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a calibration file must hold a JSON object {{\"devices\": {{...}}}}, "
+                         f"got {type(data).__name__}")
+    devices = data.get("devices", {})
+    if not isinstance(devices, dict):
+        raise ValueError(f"{path}: devices must be an object {{\"<name>/<serial>\": {{...}}}}, "
+                         f"got {type(devices).__name__}")
+    entry = devices.get(device_id)
     if entry is None:
         return defaults
+    if not isinstance(entry, dict):
+        raise ValueError(f"{path}: devices.{device_id} must be an object of calibration values, "
+                         f"got {type(entry).__name__} {entry!r}")
     values = asdict(defaults)
     for key, value in entry.items():
         if key not in values:
             raise ValueError(f"{path}: devices.{device_id}.{key} is not a calibration key ({', '.join(values)})")
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-            raise ValueError(f"{path}: devices.{device_id}.{key} must be a finite number, got {value!r}")
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not _finite(value):
+            shown = repr(value) if not isinstance(value, int) or _finite(value) else "an integer too large for a float"
+            raise ValueError(f"{path}: devices.{device_id}.{key} must be a finite number, got {shown}")
         values[key] = value
     if values["encoder_sign"] not in (1, -1):
         raise ValueError(f"{path}: devices.{device_id}.encoder_sign must be 1 or -1")
@@ -78,6 +97,13 @@ def load_calibration(path, device_id: str, defaults: Calibration) -> Calibration
     values["encoder_zero_counts"] = int(values["encoder_zero_counts"])
     values["encoder_sign"] = int(values["encoder_sign"])
     return Calibration(**values)
+
+
+def _finite(value) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer too large for a float
+        return False
 
 
 def save_calibration(path, device_id: str, cal: Calibration) -> Path:

@@ -144,15 +144,27 @@ class ModelSet:
         return atomic_write_text(d / INDEX_NAME, json.dumps(index, indent=2) + "\n")
 
 
-def load_model_set(path) -> ModelSet:
-    """Load a model set from its index file (or the directory holding ``model_set.json``).
+def read_model_set_index(path) -> tuple[Path, dict, dict]:
+    """Read and check a model set's index file (or the directory holding ``model_set.json``), loading no model.
+
+    Shared by :func:`load_model_set` and ``python -m stimuli build-library``, so both refuse the same
+    malformed indexes with the same messages.
+
+    Returns
+    -------
+    index : Path
+        The index file.
+    data : dict
+        Its parsed content.
+    files : dict of str -> list of (Path or None)
+        Per output, the model file of each grip level (None where there is none).
 
     Raises
     ------
     FileNotFoundError
-        Index or a model file missing.
+        Index missing.
     ValueError
-        Malformed index (naming file and key) or model files.
+        Malformed index, naming the file and key.
     """
     path = Path(path)
     if path.is_dir():
@@ -165,14 +177,29 @@ def load_model_set(path) -> ModelSet:
             raise ValueError(f"{path}: missing key {key!r}")
     if not isinstance(data["models"], dict):
         raise ValueError(f"{path}: key 'models' must be an object of output -> list of files")
-    models = {}
-    for out, files in data["models"].items():
-        if not isinstance(files, list):
+    files = {}
+    for out, names in data["models"].items():
+        if not isinstance(names, list):
             raise ValueError(f"{path}: key 'models.{out}' must be a list of file names")
-        for i, f in enumerate(files):
+        for i, f in enumerate(names):
             if f is not None and not isinstance(f, str):
                 raise ValueError(f"{path}: key 'models.{out}'[{i}] must be a file name or null")
-        models[out] = [None if f is None else load_model(path.parent / f) for f in files]
+        files[out] = [None if f is None else path.parent / f for f in names]
+    return path, data, files
+
+
+def load_model_set(path) -> ModelSet:
+    """Load a model set from its index file (or the directory holding ``model_set.json``).
+
+    Raises
+    ------
+    FileNotFoundError
+        Index or a model file missing.
+    ValueError
+        Malformed index (naming file and key) or model files.
+    """
+    path, data, files = read_model_set_index(path)
+    models = {out: [None if f is None else load_model(f) for f in fs] for out, fs in files.items()}
     try:
         return ModelSet(np.asarray(data["grip_N"], dtype=float), models)
     except (ValueError, TypeError) as exc:

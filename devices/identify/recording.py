@@ -202,6 +202,15 @@ def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
     return arrays
 
 
+def _finite_number(value) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer too large for a float
+        return False
+
+
 def read_recording(path) -> Recording:
     """Read and validate a recording (CSV + sidecar).
 
@@ -223,6 +232,10 @@ def read_recording(path) -> Recording:
         raise FileNotFoundError(f"recording sidecar not found: {side} (needed next to {path})")
     meta = read_json_file(side, "recording sidecar")
     sweep = _sweep_from_sidecar(meta, str(side))
+    grip = meta.get("grip_mean_N")  # groups the curves of `devices fit` and is averaged by identify
+    if grip is not None and not _finite_number(grip):
+        raise ValueError(f"{side}: key 'grip_mean_N' must be a finite number (mean grip in N) or absent, got "
+                         f"{grip!r:.40}")
     arrays = read_csv_columns(path, COLUMNS)
     rec = Recording(sweep, arrays["t_s"], arrays["current_A"], arrays["accel_m_s2"], arrays["position_m"],
                     arrays["grip_N"], {k: v for k, v in meta.items() if k not in SIDECAR_KEYS}, path)

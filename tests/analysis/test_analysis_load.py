@@ -288,3 +288,26 @@ def test_header_lines_only_is_an_error(small):
         _write(path, _lines(path)[:1])
     with pytest.raises(ValueError, match="the trials.csv files hold no attempts"):
         load_study(small)
+
+
+@pytest.mark.parametrize("name", ["session.json", "trials.csv"])
+@pytest.mark.parametrize("damage,match", [("dir", ": is a directory, expected a file"),
+                                          ("nonutf8", r":\d+: not UTF-8 text \(invalid start byte at byte \d+\)")])
+def test_report_names_a_directory_or_non_utf8_subject_file(small, capsys, name, damage, match):
+    """Audit analysis_{session,trials}_{is_dir,nonutf8}.txt: a raw IsADirectoryError traceback or a codec message
+    without the file; now ``python -m analysis report`` exits 2 with one line naming the file (and the line)."""
+    from analysis.__main__ import main
+    path = small / "S002" / name
+    if damage == "dir":
+        path.unlink()
+        path.mkdir()
+    else:
+        raw = path.read_bytes()
+        at = raw.index(b"\n", raw.index(b"\n") + 1) + 3         # on the third line
+        path.write_bytes(raw[:at] + b"\xff" + raw[at + 1:])
+    capsys.readouterr()
+    assert main(["report", str(small), "--out", str(small.with_name(small.name + "_rep")), "--no-figures"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.fullmatch(re.escape(f"error: {path}") + match, err[0]), err
+    if damage == "nonutf8":
+        assert err[0].startswith(f"error: {path}:3: ")

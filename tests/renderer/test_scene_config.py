@@ -189,3 +189,28 @@ def test_velocity_fits_are_exact_on_polynomials():
     assert est.at(99, 0.3) == pytest.approx(-0.3 + 20.0 * t[-1], rel=1e-8)
     assert est(array.array("d", quad[-100:]), 99) == pytest.approx(-0.3 + 20.0 * t[-1], rel=1e-8)
     assert est.window_for(0.05) == est.w_max == 100 and est.window_for(0.4) == 20 and est.window_for(5.0) == 20
+
+
+@pytest.mark.parametrize("name,content,match", [
+    ("list.json", b"[1, 2]", ": a renderer config must be a table/object of settings, got list"),
+    ("num.json", b"5", ": a renderer config must be a table/object of settings, got int"),
+    ("shape_list.toml", b'[scene]\nobjects = [ { shape = ["wall"] } ]\n',
+     ": scene.objects[0].shape: unknown shape ['wall']"),
+    ("maxtr.toml", b"max_transient_s = 1e9\n", ": max_transient_s must be at most 10 s"),
+    ("bigint.toml", b"max_transient_s = 1" + b"0" * 400 + b"\n",
+     ": max_transient_s must be a finite number, got an integer too large"),
+    ("nonutf.toml", b"stiffness_N_m = 340\n# \xff\n", ":2: renderer config is not UTF-8 text (invalid start byte"),
+])
+def test_renderer_run_refuses_config_of_wrong_type_naming_file_and_key(tmp_path, name, content, match):
+    """Audit renderer_config_{list,num,shape_list,maxtr,nonutf}.txt: raw TypeError / MemoryError tracebacks or a
+    codec message without the file; now ``python -m renderer run`` exits 2 with one line naming file and key."""
+    import subprocess
+    import sys
+    path = tmp_path / name
+    path.write_bytes(content)
+    res = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--config", str(path), "--taps",
+                          "1", "--out", str(tmp_path / "RR")], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}{match}"), res.stderr
+    assert not (tmp_path / "RR").exists()

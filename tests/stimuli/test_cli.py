@@ -1,6 +1,7 @@
 """``python -m stimuli build-library`` and ``show`` end to end, through real files."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -155,3 +156,60 @@ def test_build_library_refine_reports_error_per_iteration(tmp_path, capsys):
         assert last <= first
     meta = HfamLibrary.load(out).metadata["refinement"]
     assert meta["iterations"] == 2 and meta["gain"] == 0.5 and meta["recording_iterations"] == 1
+
+
+@pytest.mark.parametrize("case,match", [
+    ("entry_number", ": key 'models.accel_m_s2'[0] must be a file name or null"),
+    ("models_list", ": key 'models' must be an object of output -> list of files"),
+    ("no_kind", ": key 'kind' must be \"model_set\""),
+    ("csv_nonutf8", ": line 3: not UTF-8 text (invalid start byte at byte "),
+])
+def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path, inputs, case, match):
+    """Audit modelset_entry_number_build.txt, csv_nonutf8.txt: a number as a model file name was a raw TypeError
+    (build-library had its own index parser); it now uses devices.identify.modelset's checks, the same message
+    ``devices validate`` gives. A non-UTF-8 recording names the file and line. Exit 2, one ``error:`` line."""
+    rec, m1, _ = inputs
+    mset = tmp_path / "ms4"
+    mset.mkdir()
+    m1.rename(mset / "accel_g1N.json")
+    index = {"kind": "model_set", "grip_N": [1.0, 4.0], "models": {"accel_m_s2": [5, "accel_g1N.json"]}}
+    if case == "models_list":
+        index["models"] = [["accel_g1N.json"]]
+    elif case == "no_kind":
+        del index["kind"]
+    elif case == "csv_nonutf8":
+        index["models"]["accel_m_s2"] = ["accel_g1N.json"]
+        index["grip_N"] = [1.0]
+        raw = rec.read_bytes().split(b"\n")
+        raw[2] = raw[2] + b"\xff"
+        rec.write_bytes(b"\n".join(raw))
+    (mset / "model_set.json").write_text(json.dumps(index))
+    bad = rec if case == "csv_nonutf8" else mset / "model_set.json"
+    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
+                          str(mset), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {bad}{match}"), res.stderr
+    assert not (tmp_path / "x.npz").exists()
+    if case == "entry_number":   # the same words as `python -m devices validate ms4`
+        val = subprocess.run([sys.executable, "-m", "devices", "validate", str(mset)], capture_output=True,
+                             text=True, timeout=120)
+        assert val.returncode == 2 and errors[0] in val.stderr.splitlines(), val.stderr
+
+
+@pytest.mark.parametrize("key", ["gain", "delay_s", "poles_rad_s"])
+def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, key):
+    """Audit model_bigint_gain.txt: a 400-digit integer gain raised OverflowError out of the model check; now
+    exit 2 with one ``error:`` line naming the model file and key."""
+    rec, m1, _ = inputs
+    data = json.loads(m1.read_text())
+    data[key] = [[-(10 ** 400), 0]] + data[key] if key == "poles_rad_s" else 10 ** 400
+    m1.write_text(json.dumps(data))
+    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
+                          str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
+    assert len(errors) == 1 and re.match(re.escape(f"error: {m1}: key ") + f"'?{key}'?", errors[0]), res.stderr
+    assert "finite" in errors[0] and not (tmp_path / "x.npz").exists()

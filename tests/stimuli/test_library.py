@@ -1,6 +1,7 @@
 """HfamLibrary lookup (section 4.4.2), checks against a device, and the file round trip."""
 
 import json
+import re
 import tracemalloc
 
 import numpy as np
@@ -176,3 +177,58 @@ def test_check_device():
     # a single-grip library is grip-independent: no grip-range check
     make_lib(grips=(2.0,)).check_device(DeviceInfo("t", 2000, 15.0, 0.15, 0.0235, 1.26, 4.0, 4.0, 1e4,
                                                    grip_range_N=(0.0, 12.0)), 1e4)
+
+
+def _rewrite(src, dst, **changes):
+    """Copy the library archive ``src`` to ``dst`` with members replaced (``None`` drops one)."""
+    with np.load(src) as data:
+        arrays = {k: data[k] for k in data.files}
+    for key, value in changes.items():
+        if value is None:
+            arrays.pop(key, None)
+        else:
+            arrays[key] = value
+    np.savez(dst, **arrays)
+    return dst
+
+
+@pytest.mark.parametrize("case,match", [
+    ("fs_vec", r"fs_hz must be a single number"),
+    ("fs_str", r"fs_hz must be a single number"),
+    ("cur_obj", r"member 'currents_A' of the HFAM library cannot be read"),
+    ("cur_str", r"currents_A must be a numeric array"),
+    ("meta_list", r"metadata_json must be a JSON object, got list"),
+    ("meta_ver_str", r"metadata_json format_version must be an integer, got 'x'"),
+    ("corrupt_mid", r"member 'currents_A' of the HFAM library is corrupt \(Bad CRC-32"),
+])
+def test_show_refuses_damaged_library_members_naming_file_and_key(tmp_path, case, match):
+    """Audit lib_*.txt: each damaged member was a raw traceback or a message without file/key; now one error line."""
+    import subprocess
+    import sys
+    good = make_lib().save(tmp_path / "good.npz")
+    bad = tmp_path / f"{case}.npz"
+    if case == "fs_vec":
+        _rewrite(good, bad, fs_hz=np.array([1e4, 1e4]))
+    elif case == "fs_str":
+        _rewrite(good, bad, fs_hz=np.array("abc"))
+    elif case == "cur_obj":
+        _rewrite(good, bad, currents_A=np.array([None, 1], dtype=object))
+    elif case == "cur_str":
+        _rewrite(good, bad, currents_A=np.array(["a", "b"]))
+    elif case == "meta_list":
+        _rewrite(good, bad, metadata_json=np.array(json.dumps([1, 2])))
+    elif case == "meta_ver_str":
+        _rewrite(good, bad, metadata_json=np.array(json.dumps({"format": "hfam-library", "format_version": "x"})))
+    else:  # flip one byte in the middle of the (stored, uncompressed) currents_A member: its CRC no longer matches
+        _rewrite(good, bad)
+        raw = bytearray(bad.read_bytes())
+        at = raw.index(b"currents_A.npy") + 400
+        raw[at] ^= 0xFF
+        bad.write_bytes(bytes(raw))
+    res = subprocess.run([sys.executable, "-m", "stimuli", "show", str(bad), "--out", str(tmp_path / "s.png")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {bad}:"), res.stderr
+    assert re.search(match, lines[0]), lines[0]

@@ -110,3 +110,25 @@ def test_data_folder_under_a_file_refused(tmp_path, capsys):
     f = write(tmp_path / "plainfile", "x")
     assert run_study("--subject", "S1", "--out", f / "DATA", "--seed", 1) == 2
     assert "cannot be created" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name,content,option,match", [
+    ("num.json", b"5", "--protocol", ": a protocol file must hold a table/object of settings, got int"),
+    ("list.json", b"[1, 2]", "--protocol", ": a protocol file must hold a table/object of settings, got list"),
+    ("nonutf.toml", b"repetitions = 2\n# \xff\n", "--protocol",
+     ":2: protocol file is not UTF-8 text (invalid start byte at byte 18)"),
+    ("latin1.toml", '[[sample]]\nname = "caf\u00e9"\n'.encode("latin-1"), "--catalog",
+     ":2: catalog is not UTF-8 text (invalid continuation byte at byte 22); save it as UTF-8"),
+])
+def test_protocol_or_catalog_of_wrong_type_or_encoding_names_the_file(tmp_path, capsys, name, content, option,
+                                                                      match):
+    """Audit protocol_json_number.txt, protocol_nonutf8.txt, catalog_nonutf8.txt: a raw TypeError traceback or
+    a codec message without the file; now exit 2 and one ``error:`` line naming the file (and line)."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    capsys.readouterr()
+    assert run_study("--subject", "S9", "--seed", 1, "--out", tmp_path / "DATA", "--samples", "wood,firm",
+                     option, path) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {path}{match}"]
+    assert not (tmp_path / "DATA" / "S9").exists()

@@ -7,6 +7,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from .helpers import quick_args, read_rows, read_session, run_study
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -93,3 +95,52 @@ def test_resume_refuses_a_changed_library(tmp_path, capsys):
     assert run_study("--subject", "L01", "--out", tmp_path / "DATA", "--resume") == 2
     assert "sample 'hfam_firm' changed since the session started" in capsys.readouterr().err
     assert (tmp_path / "DATA" / "L01" / "trials.csv").read_bytes() == rows_before
+
+
+@pytest.fixture(scope="module")
+def interrupted_session(tmp_path_factory):
+    """One short finished sim session, marked unfinished: each damaged-session case edits a copy of it."""
+    import json
+
+    tmp = tmp_path_factory.mktemp("resume_schema")
+    assert run_study(*quick_args(tmp, "R01", 3, "--samples", "wood", "--repetitions", "1")) == 0
+    path = tmp / "DATA" / "R01" / "session.json"
+    session = json.loads(path.read_text())
+    session["finished_at"] = None
+    path.write_text(json.dumps(session))
+    return tmp / "DATA"
+
+
+@pytest.mark.parametrize("edit,match", [
+    (("del", "device"), "session.json has no 'device' key"),
+    (("del", "participant"), "session.json has no 'participant' key"),
+    (("del", "protocol"), "session.json has no 'protocol' key"),
+    (("del", "seed"), "session.json has no 'seed' key"),
+    (("del", "catalog"), "session.json has no 'catalog' key"),
+    (("set", "device", "sim"), "device must be an object"),
+    (("set", "seed", "7"), "seed must be an integer, got '7'"),
+    (("set", "catalog", [5]), "catalog must be a list of sample objects"),
+    (("set", "protocol", {"tap_window_s": -1}), "protocol: tap_window_s must be a positive finite number"),
+])
+def test_resume_of_a_damaged_session_json_names_the_file_and_key(tmp_path, interrupted_session, edit, match):
+    """Audit resume_session_*.txt, resume_protocol_where.txt: a missing or mistyped key was a raw KeyError or
+    TypeError (or blamed the command line); now one error line naming session.json and the key, exit 2."""
+    import json
+    import shutil
+
+    data = tmp_path / "DATA"
+    shutil.copytree(interrupted_session, data)
+    path = data / "R01" / "session.json"
+    session = json.loads(path.read_text())
+    if edit[0] == "del":
+        del session[edit[1]]
+    else:
+        session[edit[1]] = edit[2]
+    path.write_text(json.dumps(session))
+    before = path.read_bytes()
+    res = subprocess.run([sys.executable, "-m", "study", "run", "--subject", "R01", "--out", str(data), "--resume",
+                          "--quiet"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr
+    assert res.stderr.startswith(f"error: {path}: ") and match in res.stderr, res.stderr
+    assert path.read_bytes() == before    # refused before anything was written

@@ -105,6 +105,10 @@ ATTACKS = [
     ("negative Content-Length", lambda p: post(p, b"/api/key", b"x" * 100000, length=b"-1"), 400),
     ("declared 1e9 body", lambda p: post(p, b"/api/key", b"", length=b"1000000000"), 413),
     ("Content-Length not a number", lambda p: post(p, b"/api/key", b"{}", length=b"12abc"), 400),
+    # audit web_probe.txt: "\u00b2" (a header is decoded as Latin-1) passed str.isdigit(), then int() raised
+    # in the server thread: a traceback and a dropped connection instead of a 400
+    ("Content-Length superscript two", lambda p: post(p, b"/api/key", b"{}", length=b"\xb2"), 400),
+    ("Content-Length Arabic-Indic digit", lambda p: post(p, b"/api/key", b"{}", length="\u0662".encode()), 400),
     ("chunked body", lambda p: (b"POST /api/key HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nTransfer-Encoding: chunked\r\n\r\n"
                                 b"5\r\n{}{}{\r\n0\r\n\r\n" % p), 400),
     ("body shorter than declared (slow)", lambda p: post(p, b"/api/key", b"{", length=b"100"), 408),

@@ -283,3 +283,32 @@ def test_reopen_after_close_and_after_a_lost_link(emulator):
         after = dev.link_stats()
         # counters are cumulative over the object's life: a reopen does not reset them
         assert all(after[k] >= before[k] for k in ("losses", "timeouts", "frames_tx", "frames_rx")), (before, after)
+
+
+@pytest.mark.parametrize("content,match", [
+    (b'{"devices": [1, 2]}', r": devices must be an object .*got list"),
+    (b'[1]', r": a calibration file must hold a JSON object .*got list"),
+    (b'{"devices": {"hfam-emulator(sim-joystick)/EMU0001": 5}}',
+     r": devices\.hfam-emulator\(sim-joystick\)/EMU0001 must be an object of calibration values, got int 5"),
+    (b'{"devices": {"hfam-emulator(sim-joystick)/EMU0001": {"encoder_zero_counts": 1' + b"0" * 400 + b'}}}',
+     r": devices\.hfam-emulator\(sim-joystick\)/EMU0001\.encoder_zero_counts must be a finite number, got an "
+     r"integer too large"),
+    (b'{"devices":\n {"\xff": {}}}', r":2: calibration file is not UTF-8 text \(invalid start byte at byte 15\)"),
+])
+def test_bad_calibration_file_types_are_one_cli_error_naming_file_and_key(emulator, tmp_path, content, match):
+    """Audit calib_devices_list.txt, calib_entry_number.txt, calib_nonutf8.txt: a wrong type was a raw
+    AttributeError, a non-UTF-8 file a codec message without the file; now one ``error:`` line, exit 2."""
+    import os
+    import re
+    import subprocess
+    import sys
+    port, _ = emulator
+    path = tmp_path / "cal.json"
+    path.write_bytes(content)
+    res = subprocess.run([sys.executable, "-m", "devices", "latency", "--device", f"serial:{port}", "--n", "10",
+                          "--warmup", "1"], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "HFAM_CALIBRATION": str(path)})
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}"), res.stderr
+    assert re.search(match, lines[0]), lines[0]

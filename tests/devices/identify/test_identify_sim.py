@@ -156,6 +156,29 @@ def test_cli_fit_refuses_bad_recording(tmp_path, capsys):
     assert "r.csv: line 11" in err and not (tmp_path / "m.json").exists()
 
 
+@pytest.mark.parametrize("grip", ["x", True, [2.0], 10 ** 400])
+def test_cli_fit_refuses_a_sidecar_grip_that_is_not_a_number(tmp_path, capsys, grip):
+    """Audit fit_sidecar_grip_str.txt: grip_mean_N "x" in a recording's sidecar was a raw TypeError out of the
+    curve grouping; now exit 2 naming the sidecar and the key."""
+    import json
+
+    from devices.identify.recording import sidecar_path, write_recording
+    from devices.identify.synthetic import synthetic_recording
+
+    dev = SimDevice.from_spec("lti")
+    rec = synthetic_recording(dev.linear_model(2.0), None, SweepConfig(duration_s=0.5, fs_hz=10_000.0))
+    path = write_recording(tmp_path / "g2N_t0.csv", rec)
+    side = sidecar_path(path)
+    meta = json.loads(side.read_text())
+    meta["grip_mean_N"] = grip
+    side.write_text(json.dumps(meta))
+    capsys.readouterr()
+    assert devices_main(["fit", str(path), "--out", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {side}: key 'grip_mean_N' must be a finite number"), err
+    assert not (tmp_path / "m.json").exists()
+
+
 class _GripStub:
     """Wraps the sim as if it were hardware (no set_user, grip read from the sensor) with a scripted grip."""
 

@@ -551,3 +551,22 @@ def test_hysteresis_makes_resonance_amplitude_dependent():
     assert f_small > 1.25 * f_large
     lin = default_params().replace(mechanics={"hysteresis": False})
     assert _resonance_hz(lin, 0.1) == pytest.approx(_resonance_hz(lin, 2.0), rel=0.03)
+
+
+@pytest.mark.parametrize("section,key", [("mechanics", "m_h_kg"), ("device", "encoder_lines")])
+def test_a_400_digit_integer_in_a_param_file_is_one_cli_error(tmp_path, section, key):
+    """Audit params_json_bigint.txt: a 400-digit integer raised OverflowError out of the value check; now
+    ``python -m devices record --device sim:<file>`` exits 2 naming the file and the key."""
+    import subprocess
+    import sys
+    data = default_params().to_dict()
+    data[section][key] = 10 ** 400
+    path = tmp_path / "params_bigint.json"
+    path.write_text(json.dumps(data))
+    res = subprocess.run([sys.executable, "-m", "devices", "record", "--device", f"sim:{path}", "--velocities-m-s",
+                          "0.05", "--out", str(tmp_path / "p_rec.csv")], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}: key '{section}.{key}' must be finite, got an "
+                                                   "integer too large for a float"), res.stderr
+    assert not (tmp_path / "p_rec.csv").exists()
