@@ -264,7 +264,9 @@ def run_fit(args) -> int:
 
     refuse_overwrite(args.out, args.force)
     if args.plot:
-        refuse_overwrite(args.plot, args.force)
+        import figstyle  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+        figstyle.check_outputs(args.plot, force=args.force)   # the PNG, SVG and .plot.csv it will write
     recs = [read_recording(p) for p in args.recordings]
     groups = group_recordings(recs)
     curves = [etfe(rs, args.output, label=f"{key} ({len(rs)} trials)", detrend=args.detrend)
@@ -286,7 +288,8 @@ def run_fit(args) -> int:
           f"delay {m['delay_s'] * 1e3:.3f} ms, RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, "
           f"worst band {m['worst_band_db']:.2f} dB")
     if args.plot:
-        bode_plot(curves, [result.model], args.plot, title=f"{args.output}: ETFE (solid) and fitted model (dashed)")
+        bode_plot(curves, [result.model], args.plot, title=f"{args.output}: ETFE (solid) and fitted model (dashed)",
+                  force=args.force)
         print(f"wrote {args.plot}")
     for path in args.validate:
         from .identify.validate import (  # deferred: keeps `--help` fast (a command loads only what it runs)

@@ -155,3 +155,49 @@ def test_build_library_refine_reports_error_per_iteration(tmp_path, capsys):
         assert last <= first
     meta = HfamLibrary.load(out).metadata["refinement"]
     assert meta["iterations"] == 2 and meta["gain"] == 0.5 and meta["recording_iterations"] == 1
+
+
+def _sha(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, inputs):
+    """Auditor: ``stimuli show wood.npz`` wrote wood.png/.svg and replaced the recording wood.csv with the plot's
+    data. The plot's data is ``<stem>.plot.csv``; a second show refuses, naming every existing file, unless --force."""
+    rec, m1, _ = inputs
+    wood = tmp_path / "wood.csv"
+    wood.write_bytes(rec.read_bytes())
+    lib = tmp_path / "wood.npz"
+    assert main(["build-library", "--recordings", str(wood), "--model", str(m1), "--out", str(lib),
+                 "--device", "none", "--force-per-amp", "2.35", "--peak-current-A", "50"]) == 0
+    before = _sha(wood)
+
+    def show(*extra):
+        return subprocess.run([sys.executable, "-m", "stimuli", "show", "wood.npz", *extra], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=300)
+
+    res = show()
+    assert res.returncode == 0, res.stderr
+    assert _sha(wood) == before                                       # the recording survives
+    assert wood.read_text().startswith("tap,incoming_velocity_m_s,t_s,accel_m_s2")
+    plot_csv = tmp_path / "wood.plot.csv"
+    assert plot_csv.read_text().startswith("t_ms,")
+    sums = {p.name: _sha(p) for p in (tmp_path / "wood.png", tmp_path / "wood.svg", plot_csv)}
+    # a second show refuses before drawing, naming each file it would replace
+    res = show()
+    assert res.returncode == 2
+    err = res.stderr.strip()
+    assert err.startswith("error: ") and len(err.splitlines()) == 1
+    assert "wood.png" in err and "wood.svg" in err and "wood.plot.csv" in err and "--force" in err
+    assert {n: _sha(tmp_path / n) for n in sums} == sums and _sha(wood) == before
+    # an existing data file alone is enough to refuse
+    (tmp_path / "wood.png").unlink()
+    (tmp_path / "wood.svg").unlink()
+    res = show()
+    assert res.returncode == 2 and "wood.plot.csv" in res.stderr and not (tmp_path / "wood.png").exists()
+    # --force replaces the figure's own files, still not the recording
+    res = show("--force")
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "wood.png").exists() and _sha(wood) == before
