@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import struct
 import tempfile
@@ -146,6 +147,18 @@ def fsync_dir(path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+#: the name :func:`atomic_open` gives its temporary file: ``mkstemp(prefix=<name> + ".", suffix=".tmp")``,
+#: i.e. ``<name>.<8 of a-z, 0-9, _>.tmp`` (``tempfile``'s random names)
+ATOMIC_TEMP_RE = re.compile(r"^(?P<target>.+)\.[a-z0-9_]{8}\.tmp$")
+
+
+def atomic_temp_target(name: str) -> str | None:
+    """The file name an :func:`atomic_open` temporary file ``name`` was for, or None if ``name`` is not one
+    (e.g. a user's ``notes.2026-11-26.tmp``)."""
+    m = ATOMIC_TEMP_RE.match(name)
+    return m.group("target") if m else None
 
 
 @contextmanager
