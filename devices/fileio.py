@@ -322,6 +322,59 @@ def refuse_overwrite(path, force: bool, flag: str = "--force") -> Path:
     raise ValueError(f"{p} exists; not overwriting it: choose another --out or pass {flag} to replace it")
 
 
+def _parent_not_a_folder(p: Path, what: str) -> None:
+    for parent in p.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"cannot write {what} {p}: {parent} is a file, not a folder")
+
+
+def check_output_file(path, force: bool, flag: str = "--force", what: str = "--out") -> Path:
+    """Check a file a command will write, before it measures or computes anything.
+
+    Refused (``ValueError`` naming the path): an existing folder (also with ``force``: a file
+    cannot replace it), a path below an existing file, and an existing file unless ``force``
+    (:func:`refuse_overwrite`).
+
+    Parameters
+    ----------
+    path : str or path
+    force : bool
+        The user passed ``flag``.
+    flag : str
+        The option that allows overwriting, named in the message.
+    what : str
+        The option that gave ``path`` (``--out``, ``--plot``), named in the message.
+
+    Returns
+    -------
+    Path
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{what} {p} is a folder; give the name of a file to write")
+    _parent_not_a_folder(p, what)
+    return refuse_overwrite(p, force, flag)
+
+
+def check_output_dir(path, force: bool | None = None, flag: str = "--force", what: str = "--out") -> Path:
+    """Check a folder a command will write into, before it measures or computes anything.
+
+    Refused (``ValueError`` naming the path): an existing file, a path below an existing file and,
+    when ``force`` is given (not None) and false, a folder that is not empty (:func:`refuse_overwrite`).
+
+    Returns
+    -------
+    Path
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{what} {p} is a file, not a folder")
+    _parent_not_a_folder(p, what)
+    if force is not None:
+        refuse_overwrite(p, force, flag)
+    return p
+
+
 def clear_products(folder, patterns) -> list[Path]:
     """Delete what an earlier run of a command wrote into ``folder`` (glob ``patterns``), so old and new never mix.
 

@@ -201,3 +201,37 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
     res = show("--force")
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "wood.png").exists() and _sha(wood) == before
+
+
+def _stimuli(tmp_path, *args):
+    return subprocess.run([sys.executable, "-m", "stimuli", *[str(a) for a in args]], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_sim_library_refuses_an_existing_out_unless_forced(tmp_path):
+    """Auditor (simlib_overwrite): ``sim-library --out my_results.npz`` replaced the user's file."""
+    mine = tmp_path / "my_results.npz"
+    mine.write_text("my precious library\n")
+    res = _stimuli(tmp_path, "sim-library", "--out", "my_results.npz")
+    assert res.returncode == 2
+    assert res.stderr.strip() == ("error: my_results.npz exists; not overwriting it: choose another --out or pass "
+                                  "--force to replace it")
+    assert mine.read_text() == "my precious library\n"
+    (tmp_path / "adir").mkdir()
+    res = _stimuli(tmp_path, "sim-library", "--out", "adir", "--force")
+    assert res.returncode == 2 and "error: --out adir is a folder" in res.stderr
+    res = _stimuli(tmp_path, "sim-library", "--out", "my_results.npz", "--force")
+    assert res.returncode == 0, res.stderr
+    assert HfamLibrary.load(mine).currents_A.size > 0
+
+
+def test_build_library_out_below_a_file_is_refused_before_building(tmp_path, inputs):
+    """Auditor (build_out_parent_file): the whole build ran, then a traceback at mkdir."""
+    rec, m1, _ = inputs
+    (tmp_path / "afile").write_text("my file\n")
+    res = _stimuli(tmp_path, "build-library", "--recordings", rec, "--model", m1, "--device", "none",
+                   "--force-per-amp-N-A", "2.35", "--out", "afile/lib.npz")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip() == "error: cannot write --out afile/lib.npz: afile is a file, not a folder"
+    assert "reading" not in res.stdout                          # refused before reading or building
+    assert (tmp_path / "afile").read_text() == "my file\n"
