@@ -107,7 +107,7 @@ def build_ratings(summary: pd.DataFrame):
 def fig_ratings(summary: pd.DataFrame, path: Path) -> dict:
     """Write Figure 4.17 (:func:`build_ratings`) as PNG, SVG and CSV; returns the paths."""
     fig, data = build_ratings(summary)
-    return figstyle.save(fig, path, data)
+    return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
 # ------------------------------------------------------------------------------------ Figure 4.18
@@ -233,7 +233,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
 def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path, alpha: float = 0.05) -> dict:
     """Write Figure 4.18 (:func:`build_pvalues`) as PNG, SVG and CSV; returns the paths."""
     fig, data = build_pvalues(pairwise, samples, alpha)
-    return figstyle.save(fig, path, data)
+    return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
 # ------------------------------------------------------------------------------------ Figure 4.19
@@ -271,7 +271,7 @@ def build_penetration(summary: pd.DataFrame):
 def fig_penetration(summary: pd.DataFrame, path: Path) -> dict:
     """Write Figure 4.19 (:func:`build_penetration`) as PNG, SVG and CSV; returns the paths."""
     fig, data = build_penetration(summary)
-    return figstyle.save(fig, path, data)
+    return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
 # ------------------------------------------------------------------------------------ Figure 4.20
@@ -340,4 +340,4 @@ def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3
 def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path) -> dict:
     """Write Figure 4.20 (:func:`build_accelerations`) as PNG, SVG and CSV; returns the paths."""
     fig, data = build_accelerations(taps, samples, target_v_m_s)
-    return figstyle.save(fig, path, data)
+    return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
+import sys
+import tempfile
 from collections import OrderedDict
 from pathlib import Path
 
@@ -121,7 +124,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--force", action="store_true",
                    help="replace an earlier identification in --out (its models, recordings, plots and report are "
-                        "deleted first, so old and new models never mix)")
+                        "replaced once the new run has succeeded, so old and new models never mix; a failed or "
+                        "interrupted run leaves them as they were)")
     with_examples(p, 'hfam-devices identify --device sim --out ident/                  # grips 0,1,2,3,5,10 N', 'hfam-devices identify --device serial:/dev/ttyACM0 --grips-N 1,2,4 --trials 4 --out ident_hw/')
     p.set_defaults(func=run_identify)
 
@@ -171,22 +175,41 @@ def check_out_dir(out, overwrite: bool, marker_files=("model_set.json", "model.j
                          "--force")
 
 
-#: What identify writes into --out (deleted first with --force).
+#: What identify writes into --out (replaced with --force, only once a new run has succeeded).
 IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model_set.json", "bode_*.png",
-                     "report.txt", "report.json")
+                     "bode_*.svg", "bode_*.csv", "etfe_*.npz", "report.txt", "report.json")
+
+
+def _swap_in(new: Path, out: Path) -> None:
+    """Replace identify's earlier products in ``out`` by everything in ``new`` (a finished run), then remove
+    ``new``. Other files in ``out`` are kept. Paths to ``new`` in the reports are rewritten to ``out``."""
+    for name in ("report.json", "report.txt"):
+        p = new / name
+        if p.is_file():
+            p.write_text(p.read_text(encoding="utf-8").replace(str(new), str(out)), encoding="utf-8")
+    entries = sorted(new.iterdir())
+    clear_products(out, IDENTIFY_PRODUCTS + tuple(e.name for e in entries))
+    for e in entries:
+        os.replace(e, out / e.name)
+    new.rmdir()
 
 
 def run_identify(args) -> int:
-    """The ``identify`` command (comprehensive or successive, see ``--method``); returns the exit code."""
-    from .identify.pipeline import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        IdentifyConfig,
-        identify_device,
-    )
-    from .identify.sweep import SweepConfig  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from .registry import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        check_device_spec,
-        make_device,
-    )
+    """The ``identify`` command (comprehensive or successive, see ``--method``); returns the exit code.
+
+    With ``--force`` over earlier results, the new run is measured into a temporary folder beside
+    ``--out`` and swapped in only when it succeeded: a failure or Ctrl-C leaves the earlier results as
+    they were. Ctrl-C prints one line and exits 130.
+    """
+    try:
+        return _run_identify(args)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: identification stopped; nothing in {args.out} was replaced", file=sys.stderr)
+        return 130
+
+
+def _run_identify(args) -> int:
+    from .registry import check_device_spec  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     check_device_spec(args.device)
     if any(not a > 0 for a in args.amplitude):
@@ -194,9 +217,47 @@ def run_identify(args) -> int:
     if args.method == "successive":
         return run_successive(args)
     refuse_overwrite(args.out, args.force)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    for parent in out.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"cannot write --out {out}: {parent} is a file, not a folder")
+    # earlier results stay until the new run has succeeded: it is measured into a sibling folder
+    replace = out.is_dir() and any(out.iterdir())
+    target = Path(tempfile.mkdtemp(prefix=f".{out.name}.identify-", dir=out.parent)) if replace else out
+    try:
+        report = _measure(args, target)
+    except BaseException as exc:
+        if replace:
+            if isinstance(exc, ValueError) and (target / "report.txt").is_file():
+                kept = out.parent / f"{out.name}.failed"
+                shutil.rmtree(kept, ignore_errors=True)
+                os.replace(target, kept)
+                raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier results; "
+                                 f"this run's files are in {kept})") from None
+            shutil.rmtree(target, ignore_errors=True)
+        raise
+    if replace:
+        _swap_in(target, out)
+    from .identify.pipeline import format_report  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+    print(format_report(report).replace(str(target), str(out)), end="")
+    print(f"wrote {out / 'model_set.json'}, models, etfe_accel.npz, etfe_position.npz, bode_accel.png, "
+          "bode_position.png, report.txt")
+    return 0
+
+
+def _measure(args, out: Path) -> dict:
+    """Identify ``args.device`` into ``out``; returns the report."""
+    from .identify.pipeline import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        IdentifyConfig,
+        identify_device,
+    )
+    from .identify.sweep import SweepConfig  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
+
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
-    if args.force:
-        clear_products(args.out, IDENTIFY_PRODUCTS)
     with dev:
         sweep = SweepConfig(amplitude_A=args.amplitude[0], f_start_hz=args.f_start, f_end_hz=args.f_end,
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
@@ -209,13 +270,7 @@ def run_identify(args) -> int:
                              detrend=args.detrend, reverse_half=not args.no_reverse,
                              amplitudes_A=tuple(args.amplitude) if len(args.amplitude) > 1 else (),
                              purpose=args.purpose, workers=max(1, workers))
-        report = identify_device(dev, cfg, args.out, device_spec=args.device, seed=args.seed)
-    from .identify.pipeline import format_report  # deferred: keeps `--help` fast (a command loads only what it runs)
-
-    print(format_report(report), end="")
-    print(f"wrote {Path(args.out) / 'model_set.json'}, models, etfe_accel.npz, etfe_position.npz, bode_accel.png, "
-          "bode_position.png, report.txt")
-    return 0
+        return identify_device(dev, cfg, out, device_spec=args.device, seed=args.seed)
 
 
 def run_successive(args) -> int:
@@ -264,7 +319,9 @@ def run_fit(args) -> int:
 
     refuse_overwrite(args.out, args.force)
     if args.plot:
-        refuse_overwrite(args.plot, args.force)
+        import figstyle  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+        figstyle.check_outputs(args.plot, force=args.force)   # the PNG, SVG and .plot.csv it will write
     recs = [read_recording(p) for p in args.recordings]
     groups = group_recordings(recs)
     curves = [etfe(rs, args.output, label=f"{key} ({len(rs)} trials)", detrend=args.detrend)
@@ -286,7 +343,8 @@ def run_fit(args) -> int:
           f"delay {m['delay_s'] * 1e3:.3f} ms, RMS {m['rms_db']:.2f} dB, {m['rms_phase_deg']:.1f} deg, "
           f"worst band {m['worst_band_db']:.2f} dB")
     if args.plot:
-        bode_plot(curves, [result.model], args.plot, title=f"{args.output}: ETFE (solid) and fitted model (dashed)")
+        bode_plot(curves, [result.model], args.plot, title=f"{args.output}: ETFE (solid) and fitted model (dashed)",
+                  force=args.force)
         print(f"wrote {args.plot}")
     for path in args.validate:
         from .identify.validate import (  # deferred: keeps `--help` fast (a command loads only what it runs)

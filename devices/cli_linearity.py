@@ -39,7 +39,7 @@ def register(subparsers) -> None:
 
 def run_linearity(args) -> int:
     """Run ``linearity`` (see the parser's description); returns the exit code."""
-    from .fileio import atomic_write_text  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .fileio import atomic_write_text, check_output_dir  # deferred: keeps `--help` fast (a command loads only what it runs)
     from .identify.linearity import (  # deferred: keeps `--help` fast (a command loads only what it runs)
         default_conditions,
         format_linearity,
@@ -55,6 +55,8 @@ def run_linearity(args) -> int:
     if args.trials < 2:
         raise ValueError("--trials must be >= 2 (coherence across trials)")
     out = Path(args.out) if args.out else None
+    if out is not None:
+        check_output_dir(out)   # a file, or a path below one: refused before measuring
     if out is not None and (out / "linearity.json").exists() and not args.force:
         raise ValueError(f"--out {out} already holds a linearity report; choose another folder or pass --force")
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from .cliargs import add_renamed, with_examples
-from .fileio import refuse_overwrite
+from .fileio import check_output_file
 
 
 def _velocities(text: str) -> list[float]:
@@ -59,7 +59,7 @@ def run(args) -> int:
     )
     from .registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
-    refuse_overwrite(args.out, args.force)
+    check_output_file(args.out, args.force)   # a folder, a path below a file, an existing file: before tapping
     vels = _velocities(args.velocities)
     if not (math.isfinite(args.grip) and args.grip >= 0):
         raise ValueError(f"--grip: must be >= 0 N, got {args.grip}")

@@ -7,6 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
+from .fileio import check_output_file
+
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
@@ -33,6 +35,7 @@ def register(subparsers) -> None:
                    help="sweep amplitudes for the ETFE comparison (nonlinear models; default 0.2,0.75,1.25)")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
     p.add_argument("--plot", default=None, help="write the time-domain figure (Figure 3.10 style) here")
+    p.add_argument("--force", action="store_true", help="overwrite --plot if it exists")
     p.set_defaults(func=run_validate)
 
 
@@ -76,6 +79,8 @@ def run_validate(args) -> int:
     )
 
     check_device_spec(args.device)
+    if args.plot:
+        check_output_file(args.plot, args.force, what="--plot")   # before measuring
     kind, model, src = _load(Path(args.model), args.grip)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:

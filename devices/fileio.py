@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import struct
 import tempfile
@@ -146,6 +147,18 @@ def fsync_dir(path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+#: the name :func:`atomic_open` gives its temporary file: ``mkstemp(prefix=<name> + ".", suffix=".tmp")``,
+#: i.e. ``<name>.<8 of a-z, 0-9, _>.tmp`` (``tempfile``'s random names)
+ATOMIC_TEMP_RE = re.compile(r"^(?P<target>.+)\.[a-z0-9_]{8}\.tmp$")
+
+
+def atomic_temp_target(name: str) -> str | None:
+    """The file name an :func:`atomic_open` temporary file ``name`` was for, or None if ``name`` is not one
+    (e.g. a user's ``notes.2026-11-26.tmp``)."""
+    m = ATOMIC_TEMP_RE.match(name)
+    return m.group("target") if m else None
 
 
 @contextmanager
@@ -307,6 +320,59 @@ def refuse_overwrite(path, force: bool, flag: str = "--force") -> Path:
                              f"--out or pass {flag} to replace them")
         return p
     raise ValueError(f"{p} exists; not overwriting it: choose another --out or pass {flag} to replace it")
+
+
+def _parent_not_a_folder(p: Path, what: str) -> None:
+    for parent in p.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"cannot write {what} {p}: {parent} is a file, not a folder")
+
+
+def check_output_file(path, force: bool, flag: str = "--force", what: str = "--out") -> Path:
+    """Check a file a command will write, before it measures or computes anything.
+
+    Refused (``ValueError`` naming the path): an existing folder (also with ``force``: a file
+    cannot replace it), a path below an existing file, and an existing file unless ``force``
+    (:func:`refuse_overwrite`).
+
+    Parameters
+    ----------
+    path : str or path
+    force : bool
+        The user passed ``flag``.
+    flag : str
+        The option that allows overwriting, named in the message.
+    what : str
+        The option that gave ``path`` (``--out``, ``--plot``), named in the message.
+
+    Returns
+    -------
+    Path
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{what} {p} is a folder; give the name of a file to write")
+    _parent_not_a_folder(p, what)
+    return refuse_overwrite(p, force, flag)
+
+
+def check_output_dir(path, force: bool | None = None, flag: str = "--force", what: str = "--out") -> Path:
+    """Check a folder a command will write into, before it measures or computes anything.
+
+    Refused (``ValueError`` naming the path): an existing file, a path below an existing file and,
+    when ``force`` is given (not None) and false, a folder that is not empty (:func:`refuse_overwrite`).
+
+    Returns
+    -------
+    Path
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{what} {p} is a file, not a folder")
+    _parent_not_a_folder(p, what)
+    if force is not None:
+        refuse_overwrite(p, force, flag)
+    return p
 
 
 def clear_products(folder, patterns) -> list[Path]:

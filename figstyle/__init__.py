@@ -123,8 +123,48 @@ def _write_csv(path: Path, data) -> None:
             w.writerow([repr(float(v)) if isinstance(v, float) else v for v in r])
 
 
-def save(fig, path, data=None, formats=FORMATS, close: bool = True) -> dict:
-    """Save ``fig`` as ``<stem>.png`` and ``<stem>.svg`` and its data as ``<stem>.csv``.
+#: suffix of a figure's data file: ``<stem>.plot.csv``, never ``<stem>.csv`` (a figure named after a
+#: library ``wood.npz`` must not replace the tap recording ``wood.csv`` it was built from)
+DATA_SUFFIX = ".plot.csv"
+
+
+def _stem(path) -> Path:
+    path = Path(path)
+    if path.name.endswith(DATA_SUFFIX):
+        return path.with_name(path.name[:-len(DATA_SUFFIX)])
+    return path.with_suffix("") if path.suffix in (".png", ".svg", ".pdf", ".csv") else path
+
+
+def outputs(path, formats=FORMATS, data: bool = True) -> list[Path]:
+    """The files :func:`save` writes for ``path``: ``<stem>.<fmt>`` per format, then ``<stem>.plot.csv``."""
+    stem = _stem(path)
+    return [stem.with_name(stem.name + "." + fmt) for fmt in formats] + (
+        [stem.with_name(stem.name + DATA_SUFFIX)] if data else [])
+
+
+def check_outputs(path, formats=FORMATS, data: bool = True, force: bool = False, flag: str = "--force") -> list[Path]:
+    """Refuse (``ValueError`` naming every one) if any file :func:`save` would write exists, unless ``force``;
+    a folder or a file in place of the parent folder is refused always. Returns the files."""
+    targets = outputs(path, formats, data)
+    for t in targets:
+        if t.is_dir():
+            raise ValueError(f"{t} is a folder; a figure is written as files: choose another file name")
+        for parent in t.parents:
+            if parent.exists() and not parent.is_dir():
+                raise ValueError(f"cannot write {t}: {parent} is a file, not a folder")
+    found = [str(t) for t in targets if t.exists()]
+    if found and not force:
+        raise ValueError(f"{', '.join(found)} exist{'s' if len(found) == 1 else ''}; not overwriting "
+                         f"{'it' if len(found) == 1 else 'them'}: choose another file name or pass {flag} to replace "
+                         f"{'it' if len(found) == 1 else 'them'}")
+    return targets
+
+
+def save(fig, path, data=None, formats=FORMATS, close: bool = True, force: bool = False) -> dict:
+    """Save ``fig`` as ``<stem>.png`` and ``<stem>.svg`` and its data as ``<stem>.plot.csv``.
+
+    Every file it would write is checked first (:func:`check_outputs`): if one exists and ``force``
+    is false nothing is written and ``ValueError`` names the existing files.
 
     Files are written under temporary names and renamed, so a crash never leaves half a figure;
     PNG and SVG carry no date, so the same figure gives the same bytes (a committed gallery
@@ -134,13 +174,15 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True) -> dict:
     ----------
     fig : matplotlib.figure.Figure
     path : str or Path
-        Target; its suffix is ignored (``fig_x.png`` and ``fig_x`` both give ``fig_x.png/.svg/.csv``).
+        Target; its suffix is ignored (``fig_x.png`` and ``fig_x`` both give ``fig_x.png/.svg/.plot.csv``).
     data : DataFrame, dict of columns, (header, rows) or None
         The plotted numbers in SI-derived units named in the column headers.
     formats : tuple of str
         Image formats (``png``, ``svg``, ``pdf``).
     close : bool
         Close the figure afterwards.
+    force : bool
+        Replace existing files (the caller checked them, e.g. its own output folder, or ``--force``).
 
     Returns
     -------
@@ -149,8 +191,8 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True) -> dict:
     """
     import matplotlib.pyplot as plt  # deferred: see style()
 
-    path = Path(path)
-    stem = path.with_suffix("") if path.suffix in (".png", ".svg", ".pdf", ".csv") else path
+    targets = check_outputs(path, formats, data is not None, force)
+    stem = _stem(path)
     stem.parent.mkdir(parents=True, exist_ok=True)
     out = {}
     meta = {"png": {"Software": None}, "svg": {"Date": None, "Creator": None}, "pdf": {"CreationDate": None}}
@@ -162,7 +204,7 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True) -> dict:
             tmp.replace(target)
             out[fmt] = target
     if data is not None:
-        target = stem.with_name(stem.name + ".csv")
+        target = targets[-1]
         tmp = target.with_name(target.name + ".tmp")
         _write_csv(tmp, data)
         tmp.replace(target)

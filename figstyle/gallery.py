@@ -3,7 +3,7 @@
 Runs the project's own commands in subprocesses (so this leaf package imports none of the
 others): a synthetic study (``python -m analysis synthetic``) analysed by ``python -m analysis
 report``, and the simulated demo (``python -m renderer demo --device sim``, which also draws the
-identification's Bode plot and the HFAM library). Copies every figure (PNG, SVG, CSV) into
+identification's Bode plot and the HFAM library). Copies every figure (PNG, SVG, .plot.csv) into
 ``OUT/study`` and ``OUT/demo`` and writes ``OUT/README.md`` with the captions.
 """
 
@@ -63,13 +63,13 @@ def _copy(src_dir: Path, stem: str, dst_dir: Path, formats) -> list[str]:
     names = []
     for ext in formats:
         src = src_dir / f"{stem}.{ext}"
-        if src.exists() and not (ext == "csv" and src.stat().st_size > MAX_CSV_BYTES):
+        if src.exists() and not (ext.endswith("csv") and src.stat().st_size > MAX_CSV_BYTES):
             shutil.copyfile(src, dst_dir / src.name)
             names.append(src.name)
     return names
 
 
-def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "csv")) -> Path:
+def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "plot.csv")) -> Path:
     """Regenerate the gallery into ``out``; returns the path of its README.md.
 
     Parameters

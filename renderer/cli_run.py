@@ -19,7 +19,7 @@ import math
 import sys
 
 from devices.cliargs import add_renamed, with_examples
-from devices.fileio import refuse_overwrite
+from devices.fileio import check_output_dir, refuse_overwrite
 
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
 
@@ -128,6 +128,7 @@ def run_command(args) -> int:
 
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    check_output_dir(args.out)   # a file, or a path below one: refused before the run
     refuse_overwrite(args.out, args.force)
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)

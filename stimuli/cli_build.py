@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from devices.cliargs import add_renamed, with_examples
+from devices.fileio import check_output_file
 
 from .hfam.settings import BuildSettings
 from .recordings import read_tap_csv
@@ -127,6 +128,7 @@ def run(args) -> int:
 
     from .hfam.build import build_library, format_verification, source_entry  # deferred: scipy.signal (~1 s)
 
+    check_output_file(args.out, force=True)   # a folder or a path below a file: refused before building
     if args.out.exists() and not args.force:
         raise ValueError(f"{args.out} exists; use --force to overwrite it")
     if args.out.suffix != ".npz":

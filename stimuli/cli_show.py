@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from devices.cliargs import with_examples
-from devices.fileio import refuse_overwrite
 
 from .library import HfamLibrary
 
@@ -28,7 +27,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("library", type=Path, help="library file (.npz)")
     p.add_argument("--out", type=Path, default=None, help="PNG to write (default: next to the library, .png)")
-    p.add_argument("--force", action="store_true", help="overwrite the PNG if it exists")
+    p.add_argument("--force", action="store_true", help="overwrite the PNG, SVG and .plot.csv if they exist")
     with_examples(p, 'hfam-stimuli show LIB.npz --out LIB.png')
     p.set_defaults(func=run)
 
@@ -54,11 +53,12 @@ def summary(lib: HfamLibrary) -> str:
     return "\n".join(lines)
 
 
-def plot_library(lib: HfamLibrary, out: Path) -> Path:
+def plot_library(lib: HfamLibrary, out: Path, force: bool = False) -> Path:
     """Figure 4.8: desired accelerations (top row) and current transients (bottom row), one column per grip.
 
-    Saved in the project style as ``out`` (PNG) plus SVG and a CSV of every plotted trace
-    (figstyle); the demo's library figure is this same plot.
+    Saved in the project style as ``out`` (PNG) plus SVG and ``<stem>.plot.csv`` of every plotted trace
+    (figstyle); the demo's library figure is this same plot. Refuses (``ValueError``) before drawing if
+    any of the three exists, unless ``force``.
 
     Parameters
     ----------
@@ -73,6 +73,7 @@ def plot_library(lib: HfamLibrary, out: Path) -> Path:
     """
     import figstyle  # deferred: with matplotlib behind it: only this command draws
 
+    figstyle.check_outputs(out, force=force)   # before drawing: the PNG, SVG and .plot.csv
     n_g = len(lib.grips_N)
     t_ms = (np.arange(lib.n_samples) + 1) / lib.fs_hz * 1e3
     data = {"t_ms": t_ms}
@@ -103,7 +104,7 @@ def plot_library(lib: HfamLibrary, out: Path) -> Path:
         if lib.desired_accel_m_s2 is not None:
             fig.legend(handles=axes[0, 0].lines, loc="outside right upper", title="incoming velocity")
         fig.suptitle(f"HFAM library {Path(lib.source).name} (cf. thesis Fig. 4.8)")
-        paths = figstyle.save(fig, out, data)
+        paths = figstyle.save(fig, out, data, force=force)
     return paths["png"]
 
 
@@ -112,7 +113,6 @@ def run(args) -> int:
     lib = HfamLibrary.load(args.library)
     print(summary(lib))
     out = args.out if args.out is not None else args.library.with_suffix(".png")
-    refuse_overwrite(out, args.force)
-    plot_library(lib, out)
+    plot_library(lib, out, force=args.force)   # refuses an existing PNG, SVG or .plot.csv unless --force
     print(f"wrote {out}")
     return 0

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from devices.fileio import atomic_write_bytes as _atomic_write_bytes
-from devices.fileio import current_umask, fsync_dir
+from devices.fileio import atomic_temp_target, current_umask, fsync_dir
 
 TRIAL_COLUMNS = (
     "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
@@ -224,6 +224,32 @@ def parse_row(raw: dict, where: str) -> dict:
     return row
 
 
+def _whole_last_row(head: bytes, last: bytes, where: str) -> bool:
+    """Whether ``last`` (a trials.csv line without its newline, after the lines ``head``) is a complete,
+    valid row: as many fields as the header and every value parses."""
+    try:
+        head_text, last_text = head.decode("utf-8"), last.decode("utf-8")
+        header = next(csv.reader(io.StringIO(head_text)), None)
+        if header is None:                          # the header line itself lacks its newline
+            return tuple(next(csv.reader([last_text]), ())) in (TRIAL_COLUMNS, LEGACY_TRIAL_COLUMNS)
+        fields = list(csv.reader(io.StringIO(last_text + "\n")))
+        if len(fields) != 1 or len(fields[0]) != len(header):
+            return False
+        parse_row(dict(zip(header, fields[0])), where)
+        return True
+    except (UnicodeDecodeError, ValueError, csv.Error):
+        return False
+
+
+#: the files a session writes atomically (their half-written temporary files are removed on --resume)
+_ATOMIC_PRODUCTS = (".json", ".jsonl", ".csv", ".npz")
+
+
+def _is_session_temp(name: str) -> bool:
+    target = atomic_temp_target(name)
+    return target is not None and target.endswith(_ATOMIC_PRODUCTS)
+
+
 class SessionStore:
     """The folder of one subject; see the module doc.
 
@@ -293,9 +319,10 @@ class SessionStore:
 
     def _remove_partial_writes(self) -> None:
         """Remove the temporary files of atomic writes that a killed runner left half written
-        (``devices.fileio.atomic_open``: ``<name>.<random>.tmp``, never renamed into place, so never
-        data). Called with the subject's lock held: no other runner is writing them."""
-        stale = [p for p in self.dir.rglob("*.tmp") if p.is_file() and p.name.count(".") >= 2]
+        (``devices.fileio.atomic_open``: ``<name>.<8 random characters>.tmp`` for a file the session
+        writes, never renamed into place, so never data). Only that pattern: a user's own ``*.tmp`` file
+        is kept. Called with the subject's lock held: no other runner is writing them."""
+        stale = [p for p in self.dir.rglob("*.tmp") if p.is_file() and _is_session_temp(p.name)]
         for p in stale:
             p.unlink()
         if stale:
@@ -410,15 +437,32 @@ class SessionStore:
 
     # -- trials.csv ------------------------------------------------------
     def read_trials(self) -> list[dict]:
-        """Read recorded attempts, dropping (and truncating away) a torn last line from a crash."""
+        """Read recorded attempts. A last line without its newline is completed if it is a whole, valid
+        row; only one that does not parse (torn by a crash) is dropped: copied to ``trials.csv.torn``,
+        truncated away, with a note naming the file and line."""
         data = self.trials_path.read_bytes()
         if data and not data.endswith(b"\n"):
             cut = data.rfind(b"\n") + 1
-            with open(self.trials_path, "r+b") as fh:
-                fh.truncate(cut)
-                fh.flush()
-                os.fsync(fh.fileno())
-            data = data[:cut]
+            line_no = data.count(b"\n") + 1
+            if _whole_last_row(data[:cut], data[cut:], f"{self.trials_path} line {line_no}"):
+                with open(self.trials_path, "ab") as fh:     # a complete row: only its newline is missing
+                    fh.write(b"\n")
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                data += b"\n"
+            else:
+                torn = self.trials_path.with_name(self.trials_path.name + ".torn")
+                with open(torn, "ab") as fh:                 # kept, never just thrown away
+                    fh.write(data[cut:] + b"\n")
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                with open(self.trials_path, "r+b") as fh:
+                    fh.truncate(cut)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                print(f"note: {self.trials_path} line {line_no} was torn by a crash while it was "
+                      f"written (it does not parse); removed it and kept it in {torn}")
+                data = data[:cut]
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError as exc:

@@ -81,8 +81,8 @@ def resonance_and_3db(f_hz: np.ndarray, H: np.ndarray) -> tuple[float, float, fl
     return float(f_hz[i]), peak, float(f3)
 
 
-def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: str = "") -> Path:
-    """Write ``path`` (PNG) plus SVG and CSV: ETFE curves (solid) and their fitted models (dashed).
+def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: str = "", force: bool = False) -> Path:
+    """Write ``path`` (PNG) plus SVG and ``.plot.csv``: ETFE curves (solid) and their fitted models (dashed).
 
     Parameters
     ----------
@@ -91,14 +91,17 @@ def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: st
         One per curve (None: no model for that curve), or one shared model
         drawn in black when ``len(models) == 1 < len(curves)``.
     path : str or Path
-        PNG to write; ``.svg`` and ``.csv`` are written beside it.
+        PNG to write; ``.svg`` and ``.plot.csv`` are written beside it.
     title : str
+    force : bool
+        Replace existing files; otherwise ``ValueError`` (naming them) before drawing if any exists.
 
     Returns
     -------
     Path
         The PNG.
     """
+    figstyle.check_outputs(path, force=force)
     with np.errstate(divide="ignore", invalid="ignore"):
         lines = bode_lines(curves, models)
     with figstyle.style() as plt:
@@ -120,7 +123,7 @@ def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: st
         ax_m.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
         if title:
             ax_m.set_title(title, loc="left")
-        paths = figstyle.save(fig, path, bode_table(lines))
+        paths = figstyle.save(fig, path, bode_table(lines), force=force)
     return paths["png"]
 
 

@@ -249,11 +249,11 @@ def draw_bode_plots(jobs: list, parallel: bool = False) -> list[Path]:
         The PNGs, in the order of ``jobs``.
     """
     if not parallel or len(jobs) < 2:
-        return [bode_plot(*job) for job in jobs]
+        return [bode_plot(*job, force=True) for job in jobs]   # into identify's own --out
     preload_figures()
     with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork")) as pool:
-        futures = [pool.submit(bode_plot, *job) for job in jobs[1:]]
-        first = bode_plot(*jobs[0])
+        futures = [pool.submit(bode_plot, *job, force=True) for job in jobs[1:]]
+        first = bode_plot(*jobs[0], force=True)
         return [first] + [f.result() for f in futures]
 
 

@@ -50,9 +50,9 @@ _CODE_PATHS = ("devices/sim", "devices/identify", "devices/model.py", "devices/r
 CACHE_VERSION = 1
 #: code and style that draw an entry's own figures (hashed into the name of their cached copies)
 _FIGURE_CODE_PATHS = ("renderer/demo/figures.py", "stimuli/cli_show.py", "devices/identify/figures.py", "figstyle")
-#: an entry's own figures: name in the demo's results -> file stem (PNG, SVG and CSV each)
+#: an entry's own figures: name in the demo's results -> file stem (PNG, SVG and .plot.csv each)
 PIPELINE_FIGURES = {"library": "fig_library", "bode": "fig_bode"}
-_FIGURE_SUFFIXES = (".png", ".svg", ".csv")
+_FIGURE_SUFFIXES = (".png", ".svg", ".plot.csv")
 
 
 @dataclass

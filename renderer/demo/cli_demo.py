@@ -7,7 +7,7 @@ import math
 import time
 from pathlib import Path
 
-from devices.fileio import user_cache_dir
+from devices.fileio import check_output_dir, user_cache_dir
 from stimuli.hfam.pipeline import PipelineSettings
 
 from . import runs
@@ -34,6 +34,8 @@ def register(subparsers) -> None:
     p.add_argument("--device", default="sim", help="sim (default), sim:lti, sim:<params file>, serial:<port>, "
                                                   "hid:<vid>:<pid>")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default ./out/demo)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an earlier demo's results in --out (summary.csv, traces.npz, figures)")
     p.add_argument("--cache-dir", type=Path, default=None,
                    help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {user_cache_dir()})")
     p.add_argument("--rebuild", action="store_true", help="rebuild the cached identification/recordings/library")
@@ -75,6 +77,21 @@ def _floats(text: str | None, what: str) -> tuple | None:
     return vals
 
 
+#: what the sim demo writes into --out (an earlier demo's, refused without --force)
+DEMO_PRODUCTS = ("summary.csv", "traces.npz", "fig_*.png", "fig_*.svg", "fig_*.plot.csv")
+
+
+def check_demo_out(out: Path, force: bool) -> None:
+    """Refuse (``ValueError``) an --out that is a file or below one, or that holds an earlier demo's results
+    unless ``force``; before anything is built or measured."""
+    check_output_dir(out)
+    found = sorted({p.name for pattern in DEMO_PRODUCTS for p in out.glob(pattern)}) if out.is_dir() else []
+    if found and not force:
+        shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
+        raise ValueError(f"--out {out} already holds a demo's results ({shown}); not overwriting them: choose "
+                         "another --out or pass --force to replace them")
+
+
 def run(args) -> int:
     """The ``demo`` command: the sim demo (or, with a hardware device, the person-tapping demo); returns the exit code."""
     if not args.device.startswith("sim"):
@@ -105,6 +122,7 @@ def run(args) -> int:
     if args.taps is not None:
         changes["taps"] = args.taps
     cfg = DemoConfig(**changes)
+    check_demo_out(args.out, args.force)
     res = run_sim_demo(cfg, args.out, args.cache_dir, args.rebuild, figures=not args.no_figures)
     print()
     print(format_table(cfg, res.rows, res.pipeline.library))

@@ -124,11 +124,11 @@ def test_overlap_check_finds_a_legend_over_data():
 def test_each_csv_reproduces_the_plotted_values(written, analysed):
     out, res = written
     for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration", "fig_4_20_accelerations"):
-        for ext in ("png", "svg", "csv"):
+        for ext in ("png", "svg", "plot.csv"):
             assert (out / f"{stem}.{ext}").stat().st_size > 500, (stem, ext)
         assert (out / f"{stem}.svg").read_text()[:200].lstrip().startswith("<?xml")
     # 4.17: sorted by mean, CIs = t-intervals of the per-subject means (scipy)
-    d = pd.read_csv(out / "fig_4_17_ratings.csv")
+    d = pd.read_csv(out / "fig_4_17_ratings.plot.csv")
     assert list(d["mean_rating"]) == sorted(d["mean_rating"], reverse=True)
     fig, data = F.build_ratings(analysed.summary)
     ax = fig.axes[0]
@@ -143,7 +143,7 @@ def test_each_csv_reproduces_the_plotted_values(written, analysed):
     assert (d["ci95_low_rating"].iloc[0], d["ci95_high_rating"].iloc[0]) == pytest.approx(ci, rel=1e-9)
     assert [t.get_text() for t in ax.get_yticklabels()] == [figstyle.sample_style(s)["label"] for s in d["sample"]]
     # 4.18: the CSV's log10 p per cell equals the image
-    d = pd.read_csv(out / "fig_4_18_pvalues.csv")
+    d = pd.read_csv(out / "fig_4_18_pvalues.plot.csv")
     fig, _ = F.build_pvalues(analysed.pairwise, analysed.study.catalog)
     for ax in [a for a in fig.axes if a.get_title("left").endswith("Holm-adjusted p")]:
         g = ax.get_title("left").split(" ")[0]
@@ -152,13 +152,13 @@ def test_each_csv_reproduces_the_plotted_values(written, analysed):
         np.testing.assert_allclose(img[sub["row"], sub["col"]], sub["log10_p_holm"], rtol=1e-8, equal_nan=True)
         assert (sub["stars"].fillna("") == F.stars(sub["p_holm"].to_numpy())).all()
     # 4.19: points and error bars
-    d = pd.read_csv(out / "fig_4_19_penetration.csv")
+    d = pd.read_csv(out / "fig_4_19_penetration.plot.csv")
     fig, _ = F.build_penetration(analysed.summary)
     pts = np.array([[c.lines[0].get_xdata()[0], c.lines[0].get_ydata()[0]] for c in fig.axes[0].containers])
     np.testing.assert_allclose(pts, d[["mean_rating", "penetration_mean_mm"]].to_numpy(), rtol=1e-8)
     np.testing.assert_allclose(d["penetration_mean_mm"], analysed.summary["penetration_mean_m"] * 1e3, rtol=1e-8)
     # 4.20: every panel's line is the CSV's rows of that sample
-    d = pd.read_csv(out / "fig_4_20_accelerations.csv")
+    d = pd.read_csv(out / "fig_4_20_accelerations.plot.csv")
     dirs = dict(zip(analysed.study.subjects["subject"], map(Path, analysed.study.subjects["folder"])))
     taps, v, _ = typical_taps(valid_testing(analysed.study), dirs, analysed.study.catalog, None)
     fig, _ = F.build_accelerations(taps, analysed.study.catalog, v)

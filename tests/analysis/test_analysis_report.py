@@ -87,7 +87,7 @@ def test_figures_of_the_drawing_process_equal_those_drawn_here(report, analysed,
     out, _ = report
     write_report(analysed, tmp_path)
     for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration", "fig_4_20_accelerations"):
-        for ext in ("png", "svg", "csv"):
+        for ext in ("png", "svg", "plot.csv"):
             assert (out / f"{stem}.{ext}").read_bytes() == (tmp_path / f"{stem}.{ext}").read_bytes(), (stem, ext)
 
 

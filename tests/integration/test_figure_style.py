@@ -47,8 +47,8 @@ def test_demo_figures(tmp_path, checked):
     for rec in checked:
         assert rec["overlaps"] == [] and rec["units"] == [] and rec["legends"] >= 1, rec["path"]
     for stem in ("fig_contact", "fig_hfam_grid"):
-        assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 1000 for ext in ("png", "svg", "csv"))
-    d = pd.read_csv(tmp_path / "fig_contact.csv")
+        assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 1000 for ext in ("png", "svg", "plot.csv"))
+    d = pd.read_csv(tmp_path / "fig_contact.plot.csv")
     np.testing.assert_allclose(d["HFAM over firm accel_m_s2"], panels[2][1])
     line = checked[0]["fig"].axes[2].lines[1]          # the HFAM panel: reference dashed, then HFAM
     np.testing.assert_allclose(line.get_ydata(), d["HFAM over firm accel_m_s2"])
@@ -66,7 +66,7 @@ def test_library_figure(tmp_path, checked):
     plot_library(lib, tmp_path / "lib.png")
     (rec,) = checked
     assert rec["overlaps"] == [] and rec["units"] == []
-    d = pd.read_csv(tmp_path / "lib.csv")
+    d = pd.read_csv(tmp_path / "lib.plot.csv")
     np.testing.assert_allclose(d["current 0.08 m/s grip 3 N (A)"], cur[1, 1])
 
 
@@ -85,7 +85,7 @@ def test_bode_plot_wraps_phase_masks_low_coherence_and_marks_resonance(tmp_path,
     bode_plot([curve], [model], tmp_path / "bode.png", title="test")
     (rec,) = checked
     assert rec["overlaps"] == [] and rec["units"] == []
-    d = pd.read_csv(tmp_path / "bode.csv")
+    d = pd.read_csv(tmp_path / "bode.plot.csv")
     etfe = d[d["kind"] == "etfe"]
     assert -180 < etfe["phase_deg"].dropna().iloc[0] <= 180            # wrapped at the low-frequency end
     assert etfe.loc[~etfe["trusted"].astype(bool), "phase_deg"].isna().all()   # low coherence: no phase

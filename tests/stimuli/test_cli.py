@@ -213,3 +213,83 @@ def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, 
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
     assert len(errors) == 1 and re.match(re.escape(f"error: {m1}: key ") + f"'?{key}'?", errors[0]), res.stderr
     assert "finite" in errors[0] and not (tmp_path / "x.npz").exists()
+
+
+def _sha(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, inputs):
+    """Auditor: ``stimuli show wood.npz`` wrote wood.png/.svg and replaced the recording wood.csv with the plot's
+    data. The plot's data is ``<stem>.plot.csv``; a second show refuses, naming every existing file, unless --force."""
+    rec, m1, _ = inputs
+    wood = tmp_path / "wood.csv"
+    wood.write_bytes(rec.read_bytes())
+    lib = tmp_path / "wood.npz"
+    assert main(["build-library", "--recordings", str(wood), "--model", str(m1), "--out", str(lib),
+                 "--device", "none", "--force-per-amp", "2.35", "--peak-current-A", "50"]) == 0
+    before = _sha(wood)
+
+    def show(*extra):
+        return subprocess.run([sys.executable, "-m", "stimuli", "show", "wood.npz", *extra], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=300)
+
+    res = show()
+    assert res.returncode == 0, res.stderr
+    assert _sha(wood) == before                                       # the recording survives
+    assert wood.read_text().startswith("tap,incoming_velocity_m_s,t_s,accel_m_s2")
+    plot_csv = tmp_path / "wood.plot.csv"
+    assert plot_csv.read_text().startswith("t_ms,")
+    sums = {p.name: _sha(p) for p in (tmp_path / "wood.png", tmp_path / "wood.svg", plot_csv)}
+    # a second show refuses before drawing, naming each file it would replace
+    res = show()
+    assert res.returncode == 2
+    err = res.stderr.strip()
+    assert err.startswith("error: ") and len(err.splitlines()) == 1
+    assert "wood.png" in err and "wood.svg" in err and "wood.plot.csv" in err and "--force" in err
+    assert {n: _sha(tmp_path / n) for n in sums} == sums and _sha(wood) == before
+    # an existing data file alone is enough to refuse
+    (tmp_path / "wood.png").unlink()
+    (tmp_path / "wood.svg").unlink()
+    res = show()
+    assert res.returncode == 2 and "wood.plot.csv" in res.stderr and not (tmp_path / "wood.png").exists()
+    # --force replaces the figure's own files, still not the recording
+    res = show("--force")
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "wood.png").exists() and _sha(wood) == before
+
+
+def _stimuli(tmp_path, *args):
+    return subprocess.run([sys.executable, "-m", "stimuli", *[str(a) for a in args]], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_sim_library_refuses_an_existing_out_unless_forced(tmp_path):
+    """Auditor (simlib_overwrite): ``sim-library --out my_results.npz`` replaced the user's file."""
+    mine = tmp_path / "my_results.npz"
+    mine.write_text("my precious library\n")
+    res = _stimuli(tmp_path, "sim-library", "--out", "my_results.npz")
+    assert res.returncode == 2
+    assert res.stderr.strip() == ("error: my_results.npz exists; not overwriting it: choose another --out or pass "
+                                  "--force to replace it")
+    assert mine.read_text() == "my precious library\n"
+    (tmp_path / "adir").mkdir()
+    res = _stimuli(tmp_path, "sim-library", "--out", "adir", "--force")
+    assert res.returncode == 2 and "error: --out adir is a folder" in res.stderr
+    res = _stimuli(tmp_path, "sim-library", "--out", "my_results.npz", "--force")
+    assert res.returncode == 0, res.stderr
+    assert HfamLibrary.load(mine).currents_A.size > 0
+
+
+def test_build_library_out_below_a_file_is_refused_before_building(tmp_path, inputs):
+    """Auditor (build_out_parent_file): the whole build ran, then a traceback at mkdir."""
+    rec, m1, _ = inputs
+    (tmp_path / "afile").write_text("my file\n")
+    res = _stimuli(tmp_path, "build-library", "--recordings", rec, "--model", m1, "--device", "none",
+                   "--force-per-amp-N-A", "2.35", "--out", "afile/lib.npz")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip() == "error: cannot write --out afile/lib.npz: afile is a file, not a folder"
+    assert "reading" not in res.stdout                          # refused before reading or building
+    assert (tmp_path / "afile").read_text() == "my file\n"

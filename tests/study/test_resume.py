@@ -44,7 +44,7 @@ def test_sigkill_then_resume_completes_without_loss_or_duplicates(tmp_path):
     assert trials.read_bytes() == before
 
     # a trace the kill interrupted mid-write (atomic write: a temporary file never renamed into place)
-    (folder / "traces" / "testing_t099_a01.npz.k1ll3d.tmp").write_bytes(b"PK\x03\x04 half")
+    (folder / "traces" / "testing_t099_a01.npz.k1ll3d_x.tmp").write_bytes(b"PK\x03\x04 half")
     assert run_study("--subject", "K01", "--out", tmp_path / "DATA", "--resume") == 0
     after = trials.read_bytes()
     assert after.startswith(complete_before)              # rows on disk were kept byte for byte

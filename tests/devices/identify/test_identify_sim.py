@@ -139,6 +139,15 @@ def test_cli_identify_then_fit(tmp_path, capsys):
     rc = devices_main(["fit", *recs, "--order", "1", "--max-rms-db", "0.1", "--out", str(bad)])
     assert rc == 2 and not bad.exists()
     assert "did not reach the requested error" in capsys.readouterr().err
+    # --plot writes fit.png, fit.svg and fit.plot.csv; a plot whose data file alone exists is refused
+    # before fitting, naming it (figstyle.check_outputs), and the user's file is kept
+    assert (tmp_path / "fit.plot.csv").exists() and not (tmp_path / "fit.csv").exists()
+    mine = tmp_path / "mine.plot.csv"
+    mine.write_text("my data\n")
+    rc = devices_main(["fit", *recs, "--out", str(tmp_path / "fit2.json"), "--plot", str(tmp_path / "mine.png")])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"{mine} exists" in err and "--force" in err
+    assert mine.read_text() == "my data\n" and not (tmp_path / "fit2.json").exists()
 
 
 def test_cli_fit_refuses_bad_recording(tmp_path, capsys):

@@ -101,7 +101,7 @@ def test_bode_plots_in_parallel_write_the_same_files(tmp_path):
     ser = draw_bode_plots([(c, m, tmp_path / "b" / p.name, t) for c, m, p, t in jobs], parallel=False)
     assert [p.name for p in par] == [p.name for p in ser] == ["bode_one.png", "bode_two.png"]
     for name in ("bode_one", "bode_two"):
-        for ext in ("png", "svg", "csv"):
+        for ext in ("png", "svg", "plot.csv"):
             assert (tmp_path / "a" / f"{name}.{ext}").read_bytes() == (tmp_path / "b" / f"{name}.{ext}").read_bytes()
 
 
@@ -132,7 +132,7 @@ def test_bode_csv_is_what_pandas_wrote(tmp_path, case):
     curves, models = _curves_and_models()
     models = {"own models": models, "shared model": [models[1]], "a missing model": [models[0], None, models[2]]}[case]
     bode_plot(curves, models, tmp_path / "bode.png")
-    assert (tmp_path / "bode.csv").read_text() == _pandas_csv(curves, models)
+    assert (tmp_path / "bode.plot.csv").read_text() == _pandas_csv(curves, models)
 
 
 def test_csv_columns_are_the_text_of_savetxt(tmp_path):

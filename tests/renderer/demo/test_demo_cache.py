@@ -73,7 +73,7 @@ def test_pipeline_figures_are_kept_and_copied_byte_for_byte(tmp_path):
     folder = figure_folder(pipe)
     assert folder.parent == pipe.directory and folder.name.startswith("figures-")
     kept = sorted(p.name for p in folder.iterdir())
-    assert kept == sorted([f"{s}{x}" for s in PIPELINE_FIGURES.values() for x in (".png", ".svg", ".csv")]
+    assert kept == sorted([f"{s}{x}" for s in PIPELINE_FIGURES.values() for x in (".png", ".svg", ".plot.csv")]
                           + ["sha256.json"])
     copied = restore_figures(pipe, copied_dir)
     assert copied == {k: copied_dir / f"{s}.png" for k, s in PIPELINE_FIGURES.items()}

@@ -46,3 +46,30 @@ def test_window_scope_draws_headless():
     assert scope.la.get_xydata().shape == (400, 2)
     scope.close()
     assert make_scope("none") is None
+
+
+def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path):
+    """Auditor (demo_overwrite): a second demo replaced the user's summary.csv without asking."""
+    import subprocess
+    import sys
+
+    mine = tmp_path / "myresults" / "summary.csv"
+    mine.parent.mkdir()
+    mine.write_text("rendering,my,precious,data\n")
+    (tmp_path / "afile").write_text("x\n")
+
+    def demo(out, *extra):
+        return subprocess.run([sys.executable, "-m", "renderer", "demo", "--device", "sim", "--out", out,
+                               "--cache-dir", "democache", "--velocities", "0.1", "--grips", "2", "--no-figures",
+                               *extra], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+
+    res = demo("myresults")
+    assert res.returncode == 2
+    assert res.stderr.strip() == ("error: --out myresults already holds a demo's results (summary.csv); not "
+                                  "overwriting them: choose another --out or pass --force to replace them")
+    assert mine.read_text() == "rendering,my,precious,data\n"
+    assert not (tmp_path / "democache").exists()                # refused before anything was built
+    res = demo("afile/run")
+    assert res.returncode == 2 and "afile is a file, not a folder" in res.stderr
+    assert "--force" in subprocess.run([sys.executable, "-m", "renderer", "demo", "--help"], capture_output=True,
+                                       text=True, cwd=tmp_path).stdout

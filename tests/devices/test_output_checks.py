@@ -1,0 +1,73 @@
+"""Output paths are checked before anything is measured (auditor: validate_plot_overwrite, record_out_dir,
+record_out_parent_file, linearity_out_is_file): one ``error:`` line naming the path, exit 2, the user's files
+byte for byte as they were."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.stimuli.conftest import minimum_phase_model
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _devices(tmp: Path, *args):
+    return subprocess.run([sys.executable, "-m", "devices", *[str(a) for a in args]], cwd=tmp,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=300)
+
+
+def _one_error_line(res, *words):
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    err = res.stderr.strip()
+    assert err.startswith("error: ") and len(err.splitlines()) == 1, err
+    for w in words:
+        assert w in err, err
+    return err
+
+
+def _sha(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+def test_validate_plot_refuses_an_existing_file_before_measuring(tmp_path):
+    model = minimum_phase_model(grip_N=2.0).save(tmp_path / "accel_g2N.json")
+    fig = tmp_path / "myfig.png"
+    fig.write_text("my figure\n")
+    before = _sha(fig)
+    res = _devices(tmp_path, "validate", model, "--device", "sim", "--plot", "myfig.png")
+    _one_error_line(res, "myfig.png", "--force")
+    assert "time-domain validation" not in res.stdout          # refused before measuring
+    assert _sha(fig) == before
+    res = _devices(tmp_path, "validate", model, "--device", "sim", "--plot", "myfig.png", "--force")
+    assert res.returncode == 0, res.stderr
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("out, words", [
+    ("adir", ["--out adir is a folder"]),                     # an existing (empty) folder
+    ("afile/rec.csv", ["afile/rec.csv", "afile is a file, not a folder"]),
+])
+def test_record_checks_out_before_tapping(tmp_path, out, words):
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "afile").write_text("my file\n")
+    before = _sha(tmp_path / "afile")
+    for force in ((), ("--force",)):
+        res = _devices(tmp_path, "record", "--device", "sim", "--velocities-m-s", "0.05", "--out", out, *force)
+        _one_error_line(res, *words)
+        assert "tap 0" not in res.stdout
+    assert _sha(tmp_path / "afile") == before and not any((tmp_path / "adir").iterdir())
+
+
+def test_linearity_out_that_is_a_file_is_refused_before_measuring(tmp_path):
+    (tmp_path / "afile").write_text("my file\n")
+    before = _sha(tmp_path / "afile")
+    res = _devices(tmp_path, "linearity", "--device", "sim", "--trials", "2", "--out", "afile")
+    _one_error_line(res, "--out afile is a file, not a folder")
+    assert "[1/7]" not in res.stdout                            # before the first condition
+    assert _sha(tmp_path / "afile") == before
