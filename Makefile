@@ -42,7 +42,9 @@ $(COMPILED): $(STAMP)
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m renderer demo --device sim
+	@# the README's demo, repeatable: it replaces its own out/demo (and says so); `python -m renderer demo`
+	@# itself refuses an --out that holds earlier results unless --force
+	$(PY) -m renderer demo --device sim --force
 
 test: $(STAMP) $(COMPILED) deps
 	$(PY) -m pytest -q

@@ -86,10 +86,12 @@ def check_demo_out(out: Path, force: bool) -> None:
     unless ``force``; before anything is built or measured."""
     check_output_dir(out)
     found = sorted({p.name for pattern in DEMO_PRODUCTS for p in out.glob(pattern)}) if out.is_dir() else []
+    shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
     if found and not force:
-        shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
         raise ValueError(f"--out {out} already holds a demo's results ({shown}); not overwriting them: choose "
                          "another --out or pass --force to replace them")
+    if found:
+        print(f"--force: replacing an earlier demo's results in {out} ({shown})")
 
 
 def run(args) -> int:
