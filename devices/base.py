@@ -29,6 +29,8 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
+from .stopsignals import holding
+
 
 class Status(enum.IntFlag):
     """Status bits reported with every state sample (also the wire format)."""
@@ -175,14 +177,17 @@ class Device(ABC):
         return self
 
     def close(self) -> None:
-        """Command 0 A, then release the device (idempotent; the zero is sent even if closing fails)."""
+        """Command 0 A, then release the device (idempotent; the zero is sent even if closing fails).
+
+        A SIGTERM/SIGHUP arriving meanwhile (devices.stopsignals) is raised after it, not in the middle."""
         if self._is_open:
-            try:
-                self._send_current(0.0)
-                self.last_command_A = 0.0
-            finally:
-                self._is_open = False
-                self._close()
+            with holding():
+                try:
+                    self._send_current(0.0)
+                    self.last_command_A = 0.0
+                finally:
+                    self._is_open = False
+                    self._close()
 
     def __enter__(self) -> "Device":
         return self.open()

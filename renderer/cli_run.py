@@ -121,8 +121,27 @@ def _build_config(args):
 
 
 def run_command(args) -> int:
-    """The ``run`` command: render the wall (and transient) under the tapping hand and write events.csv, run.json, log.npz; returns the exit code."""
+    """The ``run`` command: render the wall (and transient) under the tapping hand and write events.csv, run.json, log.npz; returns the exit code.
+
+    SIGTERM and SIGHUP stop the run as Ctrl-C does (the output is zeroed, the partial run saved) and the
+    command returns 128 + the signal's number (143, 129); Ctrl-C returns 130 (docs/renderer.md, Safety).
+    """
+    from devices.stopsignals import stop_on_signals  # deferred: keeps `--help` fast
+
+    with stop_on_signals():  # from before the device is opened until its files are written
+        return _run(args)
+
+
+def _save_partial(result, out: str, why: str) -> None:
+    """Save a partial run (if any) after a stop signal or Ctrl-C, and say so."""
+    if result is not None:
+        result.save(out)
+        print(f"{why}: partial run saved to {out}", file=sys.stderr)
+
+
+def _run(args) -> int:
     from devices.registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from devices.stopsignals import Terminated  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     from .loop import ServoLoop  # deferred: keeps `--help` fast (a command loads only what it runs)
 
@@ -151,19 +170,24 @@ def run_command(args) -> int:
             try:
                 result = loop.run(duration_s=duration, realtime=args.realtime)
             except KeyboardInterrupt:
-                result = loop.result
-                if result is not None:
-                    result.save(args.out)
-                    print(f"interrupted: partial run saved to {args.out}", file=sys.stderr)
+                _save_partial(loop.result, args.out, "interrupted")
                 return 130
+            except Terminated as exc:
+                _save_partial(loop.result, args.out, str(exc))
+                return exc.code
     elif args.in_process:
         dev = make_device(args.device)
-        with dev:
-            loop = ServoLoop(dev, cfg, transient)
-            try:
-                result = loop.run(duration_s=args.duration, realtime=True)
-            except KeyboardInterrupt:
-                result = loop.result
+        loop = None
+        try:
+            with dev:
+                loop = ServoLoop(dev, cfg, transient)
+                try:
+                    result = loop.run(duration_s=args.duration, realtime=True)
+                except KeyboardInterrupt:
+                    result = loop.result
+        except Terminated as exc:  # the output was zeroed by the loop and again on closing
+            _save_partial(loop.result if loop is not None else None, args.out, str(exc))
+            return exc.code
     else:
         from .process import run_in_process  # deferred: keeps `--help` fast (a command loads only what it runs)
 
@@ -175,6 +199,9 @@ def run_command(args) -> int:
                 partial.save(args.out)
                 print(f"partial run saved to {args.out}", file=sys.stderr)
             raise
+        except Terminated as exc:  # the servo process zeroed and stopped first
+            _save_partial(exc.partial_result, args.out, str(exc))
+            return exc.code
     result.save(args.out)
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")

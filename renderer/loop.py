@@ -44,6 +44,7 @@ import numpy as np
 
 from devices import provenance
 from devices.fileio import save_npz
+from devices.stopsignals import Terminated, holding, stop_on_signals
 
 from . import law_layout as LAW
 from . import sim_aot
@@ -136,7 +137,7 @@ class RunResult:
         The ``run.json`` timing fields.
     stop_reason : str
         "duration", "until", "stopped" (request_stop), "watchdog", "sensor", "disconnected",
-        "unstable" (the wall's passivity observer), "exception", "interrupted".
+        "unstable" (the wall's passivity observer), "exception", "interrupted" (Ctrl-C, SIGTERM, SIGHUP).
     config, device, transient : run metadata for ``run.json``.
     """
 
@@ -441,8 +442,16 @@ class ServoLoop:
         Without any stop condition the loop runs until Ctrl-C. The device is
         commanded to zero on every exit path; exceptions (including
         KeyboardInterrupt) propagate after zeroing, with the partial result in
-        ``self.result``.
+        ``self.result``. In the main thread SIGTERM and SIGHUP stop the run the
+        same way (``devices.stopsignals``: :class:`devices.stopsignals.Terminated`,
+        a SystemExit with code 128 + the signal's number, propagates after the
+        zero), unless the caller has its own handlers; the handlers in place
+        before the call are back when it returns.
         """
+        with stop_on_signals():
+            return self._run(duration_s, until, realtime, max_ticks)
+
+    def _run(self, duration_s, until, realtime, max_ticks) -> RunResult:
         if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
             raise ValueError(f"duration_s must be > 0, got {duration_s!r}")
         self.prepare()
@@ -470,17 +479,20 @@ class ServoLoop:
         old_slack = _set_timer_slack_ns(1000) if realtime and self.cfg.pacing == "sleep_spin" else None
         wall0 = time.perf_counter()
         cpu0 = time.process_time()
+        failure = None
         try:
+            if self.on_device:
+                self._loop_on_device(limit, until)
+            else:
+                self._loop(limit, until, bool(realtime), compiled)
+        except BaseException as exc:
+            self._stats["stop_reason"] = ("interrupted" if isinstance(exc, (KeyboardInterrupt, Terminated))
+                                          else "exception")
+            self._stats["error"] = f"{type(exc).__name__}: {exc}"
+            failure = exc
+        # the zero, then the (partial) result: a SIGTERM/SIGHUP arriving meanwhile is raised after both
+        with holding():
             try:
-                if self.on_device:
-                    self._loop_on_device(limit, until)
-                else:
-                    self._loop(limit, until, bool(realtime), compiled)
-            except BaseException as exc:
-                self._stats["stop_reason"] = "interrupted" if isinstance(exc, KeyboardInterrupt) else "exception"
-                self._stats["error"] = f"{type(exc).__name__}: {exc}"
-                raise
-            finally:
                 try:
                     dev.zero()
                 finally:
@@ -489,14 +501,19 @@ class ServoLoop:
                             dev.stop_rendering()
                         except Exception:
                             pass
-        finally:
-            # measured from the first tick (after the priming cycle) when the loop got that far
-            wall = (time.perf_counter_ns() - self._stats["t0_ns"]) * 1e-9 if "t0_ns" in self._stats \
-                else time.perf_counter() - wall0
-            cpu = time.process_time() - self._stats.get("cpu0", cpu0)
-            if old_slack is not None:
-                _set_timer_slack_ns(old_slack)
-            self.result = self._build_result(wall, cpu, bool(realtime))
+            finally:
+                # measured from the first tick (after the priming cycle) when the loop got that far
+                wall = (time.perf_counter_ns() - self._stats["t0_ns"]) * 1e-9 if "t0_ns" in self._stats \
+                    else time.perf_counter() - wall0
+                cpu = time.process_time() - self._stats.get("cpu0", cpu0)
+                if old_slack is not None:
+                    _set_timer_slack_ns(old_slack)
+                self.result = self._build_result(wall, cpu, bool(realtime))
+            if failure is not None:
+                try:
+                    raise failure
+                finally:
+                    failure = None
         return self.result
 
     def _law_constants(self) -> np.ndarray:

@@ -12,6 +12,19 @@ not survive pickling), runs :class:`renderer.ServoLoop`, and sends the
 in the parent sets a stop event, the child finishes the tick, zeroes the
 device and returns the partial result. The "spawn" start method is used
 because forking a process that runs audio/UI threads is unsafe.
+
+Every way out zeroes the output (``devices.stopsignals``):
+
+* SIGTERM or SIGHUP to the parent (main thread): it sets the stop event, waits
+  for the child's zeroed partial result, then raises
+  :class:`devices.stopsignals.Terminated` (exit status 128 + the signal's number
+  if uncaught) with the result as ``partial_result``.
+* SIGTERM to the child: an orderly stop (the loop's zeroing path), as for Ctrl-C.
+* The parent dies (even by SIGKILL): the kernel sends the child SIGTERM
+  (Linux ``PR_SET_PDEATHSIG``); elsewhere the loop's stop check notices the
+  new parent id within ~1000 ticks.
+* ``timeout_s``: the child is asked to stop (stop event), then sent SIGTERM,
+  and killed only if it still has not exited.
 """
 
 from __future__ import annotations
@@ -24,32 +37,43 @@ from typing import Callable
 
 from devices.base import DeviceError
 from devices.registry import make_device
+from devices.stopsignals import ParentWatch, Terminated, die_with_parent, holding, stop_on_signals
 
 from .config import RendererConfig
 from .loop import ServoLoop
 
 
-def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, realtime, stop_event,
-           nice) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if nice:
-        try:  # a higher CFS priority (not SCHED_FIFO: busy-waiting under it trips real-time throttling)
-            os.nice(nice)
-        except OSError:
-            pass
+#: s the parent waits for the child at each step of ending it (stop event, SIGTERM, SIGKILL)
+STOP_GRACE_S = 5.0
 
+
+def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, realtime, stop_event,
+           nice, parent_pid) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     loop = None
+    terminated = None
     try:
-        if isinstance(device, str):
-            dev = make_device(device, **(device_options or {}))
-        else:
-            dev = device()
-        with dev:
-            loop = ServoLoop(dev, cfg, transient)
-            result = loop.run(duration_s=duration_s, max_ticks=max_ticks, realtime=realtime,
-                              until=lambda lp: stop_event.is_set())
+        # SIGTERM (the parent's timeout path, the parent's death) and SIGHUP: the loop's zeroing path
+        with stop_on_signals(own_process=True):
+            die_with_parent(parent_pid)
+            if nice:
+                try:  # a higher CFS priority (not SCHED_FIFO: busy-waiting under it trips real-time throttling)
+                    os.nice(nice)
+                except OSError:
+                    pass
+            if isinstance(device, str):
+                dev = make_device(device, **(device_options or {}))
+            else:
+                dev = device()
+            with dev:
+                loop = ServoLoop(dev, cfg, transient)
+                parent_gone = ParentWatch(parent_pid)  # where PR_SET_PDEATHSIG is missing: ~every 1000 ticks
+                result = loop.run(duration_s=duration_s, max_ticks=max_ticks, realtime=realtime,
+                                  until=lambda lp: parent_gone() or stop_event.is_set())
         conn.send(("ok", result, "", ""))
     except BaseException as exc:  # report everything, including partial results
+        if isinstance(exc, Terminated):
+            terminated = exc
         partial = loop.result if loop is not None else None
         try:
             conn.send(("error", partial, type(exc).__name__, str(exc)))
@@ -57,6 +81,36 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
             pass
     finally:
         conn.close()
+    if terminated is not None:
+        raise terminated  # exit status 128 + the signal's number
+
+
+def _end_child(proc, conn, want_message: bool):
+    """Wait for the child to exit: ``STOP_GRACE_S``, then SIGTERM (an orderly stop that zeroes the device) and
+    as long again, SIGKILL last. Returns the child's message if ``want_message`` and one arrives meanwhile."""
+    message = None
+    for step in (None, proc.terminate, proc.kill):  # the kill: last resort, the device's watchdog must zero
+        if step is not None:
+            if not proc.is_alive():
+                break
+            step()
+        deadline = time.monotonic() + STOP_GRACE_S
+        while proc.is_alive() and time.monotonic() < deadline:
+            if want_message and conn.poll(0.05):  # read while waiting: a large result blocks the child's send
+                try:
+                    message = conn.recv()
+                except (EOFError, OSError):
+                    pass
+                want_message = False
+            else:
+                proc.join(0.05)
+    if want_message:
+        try:
+            if conn.poll(0):
+                message = conn.recv()
+        except (EOFError, OSError):
+            pass
+    return message
 
 
 def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, transient=None, *,
@@ -81,8 +135,13 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
         ``os.nice`` increment for the servo process (negative = higher
         priority; needs privileges, silently skipped without them; 0 = leave).
     timeout_s : float, optional
-        Give up waiting (the child is terminated; the device's own watchdog
-        must then zero it) after this long.
+        After this long the child is asked to stop (the stop event), then, if it
+        has not answered within ``STOP_GRACE_S``, sent SIGTERM (an orderly stop
+        that zeroes the device), and killed only as a last resort.
+
+    SIGTERM and SIGHUP to this process (called in the main thread) stop the
+    child the same way and then raise :class:`devices.stopsignals.Terminated`
+    (module doc); the handlers in place before the call are back afterwards.
 
     Raises
     ------
@@ -90,42 +149,64 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
         If the child rejected the configuration (message preserved).
     RuntimeError
         If the child failed otherwise or died without a result.
+    devices.stopsignals.Terminated
+        On SIGTERM/SIGHUP, after the child zeroed and stopped (``partial_result``: its result).
     """
     ctx = mp.get_context("spawn")
     stop = stop_event if stop_event is not None else ctx.Event()
     parent_conn, child_conn = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_child, name="renderer-servo",
                        args=(child_conn, device, device_options, cfg or RendererConfig(), transient,
-                             duration_s, max_ticks, realtime, stop, nice), daemon=True)
-    proc.start()
-    child_conn.close()
-
-    t_end = None if timeout_s is None else time.monotonic() + timeout_s
+                             duration_s, max_ticks, realtime, stop, nice, os.getpid()), daemon=True)
     message = None
     interrupted = False
-    while message is None:
+    terminated = None
+    with stop_on_signals():
         try:
-            if parent_conn.poll(0.05):
-                message = parent_conn.recv()
-                break
-            if not proc.is_alive():
-                if parent_conn.poll(0.2):
-                    message = parent_conn.recv()
-                break
-            if t_end is not None and time.monotonic() > t_end:
-                stop.set()
-                if parent_conn.poll(2.0):
-                    message = parent_conn.recv()
-                break
-        except KeyboardInterrupt:
-            interrupted = True
+            proc.start()
+            child_conn.close()
+            t_end = None if timeout_s is None else time.monotonic() + timeout_s
+            while message is None:
+                try:
+                    if parent_conn.poll(0.05):
+                        with holding():  # a signal must not cut a message in two
+                            message = parent_conn.recv()
+                        break
+                    if not proc.is_alive():
+                        if parent_conn.poll(0.2):
+                            with holding():
+                                message = parent_conn.recv()
+                        break
+                    if t_end is not None and time.monotonic() > t_end:
+                        stop.set()  # _end_child waits for the zeroed result, then escalates
+                        break
+                except KeyboardInterrupt:
+                    interrupted = True
+                    stop.set()
+                except Terminated as exc:  # stop the child as for Ctrl-C, then re-raise with its result
+                    terminated = exc
+                    stop.set()
+                    break
+                except EOFError:
+                    break
+        except Terminated as exc:  # during start(): the child, if it started, is ended below
+            terminated = exc
             stop.set()
-        except EOFError:
-            break
-    proc.join(timeout=5.0)
-    if proc.is_alive():
-        proc.terminate()
-        proc.join(timeout=2.0)
+        finally:
+            if proc.pid is not None:
+                try:
+                    with holding():  # a signal now is raised once the child is gone
+                        late = _end_child(proc, parent_conn, message is None)
+                        if message is None:
+                            message = late
+                except Terminated as exc:
+                    terminated = terminated or exc
+    if terminated is not None:
+        partial = message[1] if message is not None else None
+        if partial is not None and partial.stop_reason == "until":
+            partial.stop_reason = "interrupted"
+        terminated.partial_result = partial
+        raise terminated
     if message is None:
         raise RuntimeError(f"servo process exited (code {proc.exitcode}) without a result")
     status, result, exc_type, text = message

@@ -22,6 +22,7 @@ from dataclasses import asdict
 
 from devices.cliargs import add_renamed, with_examples
 from devices.progress import Progress
+from devices.stopsignals import Terminated, stop_on_signals
 
 from .config import GENDERS, HANDEDNESS
 from .data import EXPERIENCE, SessionStore, release_all_locks
@@ -86,9 +87,14 @@ def register(subparsers) -> None:
 
 
 def run_command(args) -> int:
-    """Run (or resume) one session; the subject lock is released on every way out."""
+    """Run (or resume) one session; the subject lock is released on every way out.
+
+    SIGTERM and SIGHUP end the session as Ctrl-C does (the output zeroed, the data so far kept for
+    ``--resume``) and the command returns 128 + the signal's number (devices.stopsignals).
+    """
     try:
-        return _run_command(args)
+        with stop_on_signals():
+            return _run_command(args)
     finally:
         release_all_locks()
 
@@ -207,6 +213,9 @@ def _run_command(args) -> int:
     except KeyboardInterrupt:
         print(f"interrupted: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
         return 130
+    except Terminated as exc:  # SIGTERM/SIGHUP: as Ctrl-C, with the signal's exit status
+        print(f"{exc}: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
+        return exc.code
     except Exception as exc:
         from .apparatus import ServoStopped  # deferred: keeps `--help` fast (a command loads only what it runs)
         from .uistate import Aborted  # deferred: keeps `--help` fast (a command loads only what it runs)

@@ -15,7 +15,10 @@ loops and the homing controller live in a child process started with the
   saturation and the parent plays the low tone as it arrives.
 
 The child zeroes and closes the device on every exit path (the Device base
-class guarantees it); if the parent dies, the child sees the pipe close and exits. With a hardware
+class guarantees it); SIGTERM and SIGHUP stop it the same way
+(devices.stopsignals). If the parent dies, the kernel sends the child SIGTERM
+(Linux ``PR_SET_PDEATHSIG``), and between requests it also sees the pipe close
+and exits. With a hardware
 device the child keeps homing between requests, so the device is commanded
 every tick for the whole session (a streaming device's watchdog would
 otherwise zero it in the gaps while the parent writes data).
@@ -30,14 +33,24 @@ import signal
 from dataclasses import asdict
 
 from devices import make_device
+from devices.stopsignals import die_with_parent, stop_on_signals
 
 from .apparatus import Apparatus, ServoStopped
 from .rater import tap_features
 
 
 def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
-           sim_participant, realtime) -> None:
+           sim_participant, realtime, parent_pid) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C there closes the pipe
+    # SIGTERM (also on the parent's death) and SIGHUP raise Terminated: _serve's finally zeroes and closes
+    with stop_on_signals(own_process=True):
+        die_with_parent(parent_pid)
+        _serve(conn, clip_q, hold_event, spec, device_options, catalog, protocol, library_dir, sim_participant,
+               realtime)
+
+
+def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
+           sim_participant, realtime) -> None:
     if realtime is not False:
         try:  # a higher CFS priority for the servo (not SCHED_FIFO: its busy-waits would trip RT throttling)
             os.nice(-10)
@@ -88,7 +101,10 @@ def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
 
 
 class IsolatedApparatus:
-    """Same interface as :class:`study.apparatus.Apparatus`, backed by a child process (see module doc)."""
+    """Same interface as :class:`study.apparatus.Apparatus`, backed by a child process (see module doc).
+
+    Create it in a thread that outlives it (the main thread): on Linux the child is sent SIGTERM when
+    the thread that started it ends (``PR_SET_PDEATHSIG``, devices.stopsignals)."""
 
     def __init__(self, spec: str, device_options: dict, catalog, protocol, library_dir=None,
                  sim_participant=None, realtime=None) -> None:
@@ -98,7 +114,7 @@ class IsolatedApparatus:
         self._hold = ctx.Event()
         self._proc = ctx.Process(target=_child, name="study-servo", daemon=True,
                                  args=(child_conn, self._clip_q, self._hold, spec, device_options, catalog, protocol,
-                                       library_dir, sim_participant, realtime))
+                                       library_dir, sim_participant, realtime, os.getpid()))
         self._proc.start()
         child_conn.close()
         info = self._recv()

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..base import Device, DeviceError, DeviceInfo, DeviceState, Status
 from ..fileio import atomic_write_text
+from ..stopsignals import holding
 from . import wire_protocol as P
 from .calibration import Calibration
 from .transport import SerialTransport, Transport, TransportClosed
@@ -347,16 +348,19 @@ class ProtocolDevice(Device):
         self._rendering = False
 
     def close(self) -> None:
-        """Zero the output (confirmed by the device's reply when it answers), then release the port."""
-        if self._is_open and not self._disconnected:
-            try:
-                if self._rendering:
-                    self.stop_rendering()
-                self.zero()
-                self.read()  # the STATE reply confirms the zero reached the firmware
-            except (DeviceError, ValueError):
-                pass
-        super().close()
+        """Zero the output (confirmed by the device's reply when it answers), then release the port.
+
+        A SIGTERM/SIGHUP arriving meanwhile (devices.stopsignals) is raised after both, not in between."""
+        with holding():
+            if self._is_open and not self._disconnected:
+                try:
+                    if self._rendering:
+                        self.stop_rendering()
+                    self.zero()
+                    self.read()  # the STATE reply confirms the zero reached the firmware
+                except (DeviceError, ValueError):
+                    pass
+            super().close()
 
     # -- low level I/O -------------------------------------------------------------
     def _fail(self, why: str) -> DeviceError:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from devices.registry import make_device
+from devices.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 from stimuli import HfamLibrary
 
 from ..config import RendererConfig
@@ -40,44 +41,54 @@ MATCH_TOLERANCE = 0.25  # relative incoming-velocity difference allowed between 
 SPARK = " ▁▂▃▄▅▆▇█"
 
 
-def _child(conn, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop) -> None:
-    """Servo process: run the loop until ``n_taps`` contacts are over, ``timeout_s`` or ``stop``."""
+def _child(conn, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop, parent_pid) -> None:
+    """Servo process: run the loop until ``n_taps`` contacts are over, ``timeout_s`` or ``stop``.
+
+    SIGTERM/SIGHUP, and the parent's death, stop it with the output zeroed (as in renderer.process)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     loop = None
+    terminated = None
     try:
-        dev = make_device(spec)
-        with dev:
-            loop = ServoLoop(dev, cfg, transient)
-            state = dev.read()
-            done_at = [math.inf]
+        with stop_on_signals(own_process=True):
+            die_with_parent(parent_pid)
+            dev = make_device(spec)
+            with dev:
+                loop = ServoLoop(dev, cfg, transient)
+                state = dev.read()
+                done_at = [math.inf]
+                parent_gone = ParentWatch(parent_pid, every=1000)  # until runs every tick here
 
-            def until(lp) -> bool:
-                k = ring_n.value
-                j = 3 * (k % RING)
-                ring[j] = state.t_s
-                ring[j + 1] = state.position_m
-                ring[j + 2] = state.accel_m_s2
-                ring_n.value = k + 1
-                ne = len(lp.events)
-                if ne and ne <= MAX_EVENTS and events[0] < ne:
-                    ev = lp.events[ne - 1]
-                    events[1 + 2 * (ne - 1)] = ev.incoming_velocity_m_s
-                    events[2 + 2 * (ne - 1)] = ev.grip_N
-                    events[0] = ne
-                if ne >= n_taps and done_at[0] == math.inf:
-                    done_at[0] = lp.time_s + runs.POST_S + 0.2
-                return stop.is_set() or lp.time_s >= done_at[0]
+                def until(lp) -> bool:
+                    k = ring_n.value
+                    j = 3 * (k % RING)
+                    ring[j] = state.t_s
+                    ring[j + 1] = state.position_m
+                    ring[j + 2] = state.accel_m_s2
+                    ring_n.value = k + 1
+                    ne = len(lp.events)
+                    if ne and ne <= MAX_EVENTS and events[0] < ne:
+                        ev = lp.events[ne - 1]
+                        events[1 + 2 * (ne - 1)] = ev.incoming_velocity_m_s
+                        events[2 + 2 * (ne - 1)] = ev.grip_N
+                        events[0] = ne
+                    if ne >= n_taps and done_at[0] == math.inf:
+                        done_at[0] = lp.time_s + runs.POST_S + 0.2
+                    return stop.is_set() or lp.time_s >= done_at[0] or parent_gone()
 
-            result = loop.run(duration_s=timeout_s, until=until, realtime=None)
+                result = loop.run(duration_s=timeout_s, until=until, realtime=None)
         conn.send(("ok", result, ""))
     except BaseException as exc:
+        if isinstance(exc, Terminated):
+            terminated = exc
         try:
             conn.send(("error", loop.result if loop is not None else None, f"{type(exc).__name__}: {exc}"))
         except Exception:
             pass
     finally:
         conn.close()
+    if terminated is not None:
+        raise terminated  # exit status 128 + the signal's number
 
 
 class TextScope:
@@ -171,7 +182,8 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
     """Run one rendering while a person taps; returns the :class:`renderer.RunResult`.
 
     The servo loop runs in a spawned child; the parent only reads the shared
-    ring for the scope. Ctrl-C stops the run cleanly (the child zeroes the device).
+    ring for the scope. Ctrl-C stops the run cleanly (the child zeroes the device); so do SIGTERM and
+    SIGHUP, after which :class:`devices.stopsignals.Terminated` is raised (``partial_result``: the run).
     """
     ctx = mp.get_context("spawn")
     ring = ctx.RawArray("d", 3 * RING)
@@ -181,34 +193,46 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
     parent, child = ctx.Pipe(duplex=False)
     cfg = cfg.replace(until_every=1)
     proc = ctx.Process(target=_child, name="demo-servo",
-                       args=(child, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop), daemon=True)
-    proc.start()
-    child.close()
+                       args=(child, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop, os.getpid()),
+                       daemon=True)
     msg = None
-    try:
-        while msg is None:
-            if parent.poll(scope_period_s):
-                msg = _recv(parent)
-                break
-            if not proc.is_alive():
-                if parent.poll(0.5):
+    terminated = None
+    with stop_on_signals():
+        try:
+            proc.start()
+            child.close()
+            while msg is None:
+                if parent.poll(scope_period_s):
                     msg = _recv(parent)
-                break
-            if scope is not None:
+                    break
+                if not proc.is_alive():
+                    if parent.poll(0.5):
+                        msg = _recv(parent)
+                    break
+                if scope is not None:
+                    _show_ring(scope, ring, ring_n.value, int(events[0]), n_taps)
+        except (KeyboardInterrupt, Terminated) as exc:
+            if isinstance(exc, Terminated):
+                terminated = exc
+            stop.set()
+            if proc.pid is not None and parent.poll(5.0):
+                msg = _recv(parent)
+        finally:
+            if scope is not None:  # the final state of the ring, so the scope ends on what happened last
                 _show_ring(scope, ring, ring_n.value, int(events[0]), n_taps)
-    except KeyboardInterrupt:
-        stop.set()
-        if parent.poll(5.0):
-            msg = _recv(parent)
-    finally:
-        if scope is not None:  # the final state of the ring, so the scope ends on what happened last
-            _show_ring(scope, ring, ring_n.value, int(events[0]), n_taps)
-        proc.join(timeout=5.0)
-        if proc.is_alive():
-            proc.terminate()
-            proc.join(timeout=2.0)
-        if scope is not None and hasattr(scope, "close") and isinstance(scope, TextScope):
-            scope.close()
+            if proc.pid is not None:
+                proc.join(timeout=5.0)
+                if proc.is_alive():
+                    proc.terminate()  # SIGTERM: the child zeroes the device and stops
+                    proc.join(timeout=5.0)
+                if proc.is_alive():  # last resort; the device's own watchdog must zero the output then
+                    proc.kill()
+                    proc.join(timeout=5.0)
+            if scope is not None and hasattr(scope, "close") and isinstance(scope, TextScope):
+                scope.close()
+    if terminated is not None:
+        terminated.partial_result = msg[1] if msg is not None else None
+        raise terminated
     if msg is None:
         raise RuntimeError(f"servo process exited (code {proc.exitcode}) without a result")
     status, result, text = msg
@@ -249,7 +273,15 @@ def nearest_reference(v_in: float, real: list):
 
 
 def run_hardware_demo(args, prompt=input, say=print) -> int:
-    """The hardware demo (see module doc); ``prompt``/``say`` are injectable for scripted tests."""
+    """The hardware demo (see module doc); ``prompt``/``say`` are injectable for scripted tests.
+
+    SIGTERM/SIGHUP end it like Ctrl-C (the output zeroed, the taps so far kept and summarised), and it
+    returns 128 + the signal's number."""
+    with stop_on_signals():
+        return _hardware_demo(args, prompt, say)
+
+
+def _hardware_demo(args, prompt, say) -> int:
     spec = args.device
     n_taps = args.taps or 5
     timeout_s = float(getattr(args, "timeout", None) or 120.0)
@@ -277,6 +309,7 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
         say(f"note: no --library given: skipping {', '.join(skipped)}")
     scope = make_scope(getattr(args, "scope", "auto"))
     traces: dict = {}
+    code = 0
     try:
         for i, r in enumerate(todo):
             where = ("Put the wood-on-foam sample under the stylus (the motor stays off)" if r.is_real else
@@ -300,6 +333,9 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
                 f"overruns {tm.get('overruns', 0)}")
     except (KeyboardInterrupt, EOFError):  # Ctrl-C / Ctrl-D at a prompt: keep what was tapped so far
         say("\ninterrupted: saving the taps recorded so far")
+    except Terminated as exc:  # SIGTERM/SIGHUP: the servo process zeroed and stopped; keep what was tapped
+        say(f"\n{exc}: saving the taps recorded so far")
+        code = exc.code
     finally:
         if scope is not None and not isinstance(scope, TextScope):
             scope.close()
@@ -346,4 +382,4 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
         p = figs.contact_figure(panels, ref.accel, fs, runs.PRE_S, round(ref.v_in_m_s, 3), ref.grip_N,
                                 out / "fig_contact.png")
         say(f"figure contact  : {p}")
-    return 0
+    return code

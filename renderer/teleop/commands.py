@@ -192,8 +192,12 @@ def run_teleop_master(args) -> int:
     -------
     int
         0; 1 if the link was lost or the loop faulted (the output was zeroed either way).
+
+    SIGTERM/SIGHUP stop the session like Ctrl-C: :class:`devices.stopsignals.Terminated` propagates (exit
+    status 128 + the signal's number) after closing the master has zeroed its output.
     """
     from devices.registry import make_device  # deferred: load only the driver asked for
+    from devices.stopsignals import stop_on_signals  # deferred: the real-master session only
 
     from .serial_master import run_serial_session  # deferred: the real-master loop only when asked for
 
@@ -212,7 +216,7 @@ def run_teleop_master(args) -> int:
     cimm = build_cimm(args) if args.controller == "pf+cimm" else None
     out = _new_dir(Path(args.out))
     dev = make_device(args.master)
-    with dev:
+    with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
         P = default_params()
         tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz)
         check = None

@@ -8,6 +8,9 @@ the sim device), a one-cycle output delay, and fault injection hooks.
 from __future__ import annotations
 
 import math
+import os
+import struct
+import time
 
 from devices.base import Device, DeviceInfo, DeviceState
 
@@ -212,3 +215,59 @@ def make_tap_device_announced(made):
 
 def make_failing_device():
     return MassDevice(tap_trajectory(0.1, n_taps=1), raise_at=200)
+
+
+def _pressing(t: float) -> float:
+    """The hand's target 5 mm under the wall at 0: the wall pushes back with a steady current (~0.3 A)."""
+    return -0.005
+
+
+class RecordingMassDevice(MassDevice):
+    """A :class:`MassDevice` pressed into the wall that appends every current it is sent (float64, also the
+    open/zero/close ones) to the file ``path``, and its process id to ``path + ".pid"``: tests that stop the
+    process driving it read what reached the "motor" last. ``hang_at``: from this tick on ``read()`` blocks
+    (a stalled link), so only a signal can end the run."""
+
+    def __init__(self, path: str, hang_at: int | None = None):
+        super().__init__(_pressing, grip_N=2.0, record=False)
+        self.path = path
+        self.hang_at = hang_at
+        self._fd = None
+
+    def _open(self) -> None:
+        with open(self.path + ".pid", "w") as fh:
+            fh.write(str(os.getpid()))
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+
+    def _close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def _send_current(self, current_A: float) -> None:
+        if self._fd is not None:
+            os.write(self._fd, struct.pack("<d", current_A))
+        super()._send_current(current_A)
+
+    def read(self) -> DeviceState:
+        if self.hang_at is not None and self.tick >= self.hang_at:
+            while True:
+                time.sleep(0.05)
+        return super().read()
+
+
+def make_recording_device(path: str, hang_at: int | None = None) -> RecordingMassDevice:
+    """Picklable factory (with functools.partial) of a :class:`RecordingMassDevice`."""
+    return RecordingMassDevice(path, hang_at)
+
+
+def recorded_currents(path):
+    """The currents a :class:`RecordingMassDevice` was sent, in order (A), as a numpy array."""
+    import numpy as np
+
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        return np.zeros(0)
+    return np.frombuffer(data[:8 * (len(data) // 8)], dtype="<f8")

@@ -1,0 +1,111 @@
+"""SIGTERM to `renderer run` on a (pty-emulated) serial device: the host's last CURRENT frame is 0 A.
+
+The emulator runs in a thread of this process and records every current the host commands; the
+command runs in its own process, as from a shell or a service manager, streaming at 1 kHz with no
+``--duration-s`` ("until Ctrl-C"), the emulated hand pressing the stylus into the wall (a steady
+current). Both the in-process loop and the servo child (renderer.process) are checked.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from devices.firmware.emulator import EmulatorHandle, build_emulator
+from devices.hardware import wire_protocol as P
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _pressing_emulator():
+    """A streaming emulator whose prescribed hand holds the stylus 10 mm into the wall at 0; returns
+    (port, handle, currents the host commanded, in order)."""
+    emu = build_emulator("streaming", taps_m_s=())
+    emu.set_hand(-0.01, grip_N=3.0, hand="prescribed")
+    sent = []
+    handle_frame = emu.handle
+
+    def recording(frame):
+        if frame.type == P.CURRENT:
+            sent.append(P.decode_current(frame.payload))
+        handle_frame(frame)
+
+    emu.handle = recording
+    port = emu.open_pty()
+    stop = threading.Event()
+    thread = threading.Thread(target=emu.serve, args=(stop,), name="hfam-emulator", daemon=True)
+    thread.start()
+    return port, EmulatorHandle(port, emu, thread, stop), sent
+
+
+def _servo_children(pid: int) -> list[int]:
+    """The multiprocessing children of ``pid`` that run a target (not its resource tracker)."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    ppid = int(fh.read().rsplit(")", 1)[1].split()[1])
+                with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                    cmdline = fh.read()
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == pid and b"spawn_main" in cmdline:
+                out.append(int(entry))
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("in_process", [True, False], ids=["in-process", "servo-process"])
+def test_sigterm_to_renderer_run_zeroes_the_serial_device(in_process, tmp_path):
+    port, handle, sent = _pressing_emulator()
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text("watchdog_overrun_s = 0.2\n")  # a loaded machine's stalls are not what is tested here
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "renderer", "run", "--device", f"serial:{port}?loss_timeout_s=0.02",
+           "--config", str(cfg), "--out", str(out)] + (["--in-process"] if in_process else [])
+    log = tmp_path / "output.txt"
+    with open(log, "w") as fh:  # a file, not a pipe: an orphaned servo child would hold a pipe open
+        p = subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=fh,
+                             stderr=subprocess.STDOUT)
+    kids = []
+    try:
+        t_end = time.monotonic() + 120.0  # a spawned interpreter's start-up on a loaded machine
+        while not (len(sent) > 1000 and all(sent[-50:])):
+            assert p.poll() is None, log.read_text()
+            assert time.monotonic() < t_end, f"no steady current within 120 s ({len(sent)} frames)"
+            time.sleep(0.05)
+        kids = _servo_children(p.pid)
+        assert len(kids) == (0 if in_process else 1)
+        p.send_signal(signal.SIGTERM)
+        p.wait(timeout=60)
+        err = log.read_text()
+        n = len(sent)
+        time.sleep(1.0)  # the link stays quiet
+        assert p.returncode == 128 + signal.SIGTERM, err
+        # the host's own last command is 0 A (the device watchdog, 100 ms later, is only the last line of defence)
+        assert sent[-1] == 0.0 and max(abs(i) for i in sent) > 0.05
+        assert len(sent) == n, f"{len(sent) - n} frames after the command exited"
+        assert not any(_running(k) for k in kids), "the servo child outlived the command"
+        run = json.loads((out / "run.json").read_text())  # the partial run is kept, as after Ctrl-C
+        assert run["stop_reason"] == "interrupted" and run["ticks"] > 1000
+    finally:
+        for pid in [p.pid] + kids:  # before the fix the servo child outlived the command
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        handle.stop()
