@@ -86,7 +86,7 @@ static void on_signal(int s) { (void)s; quit = 1; }
 static const char *elf_path, *stats_path;
 static int pace_realtime = 1, selfhost;
 static double speed = 1.0, max_sim_s = 0.0;
-static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe;
+static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns;
 static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current) */
 static double f_drop, f_corrupt, f_garbage, f_duplicate, f_disconnect_s = -1.0;
 static unsigned rng_state = 12345;
@@ -409,7 +409,10 @@ static avr_cycle_count_t attach_cycle;
 static int faults_on;
 /* self-host: parse what the firmware sends */
 static hfam_parser_t sh_parser;
-static uint64_t sh_states, sh_events, sh_gaps, sh_naks, sh_acks;
+static uint64_t sh_states, sh_events, sh_gaps, sh_naks, sh_acks, sh_rearm_acks, sh_rearms, sh_rearm_timeouts;
+static int sh_rearm_off = -1; /* next REARM_DATA offset of the upload under way (-1: none) */
+static double sh_rearm_deadline, sh_rearm_t0, sh_rearm_max_s;
+static void sh_rearm_next(void);
 static int sh_last_seq = -1;
 
 static void out_push(const uint8_t *b, unsigned n) {
@@ -428,8 +431,18 @@ static void selfhost_rx(uint8_t c) {
     sh_last_seq = seq;
     if (type == MSG_STATE) sh_states++;
     else if (type == MSG_EVENT) sh_events++;
-    else if (type == MSG_NAK) sh_naks++;
-    else if (type == MSG_ACK) sh_acks++;
+    else if (type == MSG_NAK) {
+        sh_naks++;
+        if (sh_parser.buf[5] == MSG_REARM_DATA || sh_parser.buf[5] == MSG_REARM_COMMIT) sh_rearm_off = -1;
+    } else if (type == MSG_ACK) {
+        sh_acks++;
+        if (sh_parser.buf[5] == MSG_REARM_DATA) { sh_rearm_acks++; sh_rearm_next(); } /* as the host: one frame in flight */
+        else if (sh_parser.buf[5] == MSG_REARM_COMMIT) {
+            sh_rearm_acks++; sh_rearms++; sh_rearm_off = -1;
+            double d = avr->cycle / (double)F_CPU_HZ - sh_rearm_t0;
+            if (d > sh_rearm_max_s) sh_rearm_max_s = d;
+        }
+    }
 }
 
 static void uart_out_hook(avr_irq_t *irq, uint32_t value, void *param) {
@@ -517,6 +530,24 @@ static void sh_send(uint8_t type, const uint8_t *p, uint8_t n) {
     host_push(f, len);
 }
 static int sh_stage, sh_decimation = 1;
+/* a 128-sample re-arm the way serial_device.py sends one while rendering: 24-sample REARM_DATA frames
+ * (107 bytes, wire_protocol.DATA_CHUNK_SAMPLES), each sent when the previous one's ACK is back, then the commit */
+#define SH_CHUNK 24
+static void sh_rearm_next(void) {
+    if (sh_rearm_off < 0 || sh_rearm_off > 128) return;
+    uint8_t p[4 + SH_CHUNK * 4];
+    sh_rearm_deadline = avr->cycle / (double)F_CPU_HZ + 0.05;
+    if (sh_rearm_off >= 128) {
+        put_u32(p, 128); sh_send(MSG_REARM_COMMIT, p, 4);
+        sh_rearm_off = 129; /* the commit in flight: the next upload waits for its ACK */
+        return;
+    }
+    uint32_t off = (uint32_t)sh_rearm_off, k = 128 - off < SH_CHUNK ? 128 - off : SH_CHUNK;
+    put_u32(p, off);
+    for (uint32_t i = 0; i < k; i++) put_f32(p + 4 + 4 * i, 0.1f * (float)((off + i) % 7));
+    sh_send(MSG_REARM_DATA, p, (uint8_t)(4 + 4 * k));
+    sh_rearm_off = (int)(off + k);
+}
 static double sh_next_t, sh_rearm_t;
 static void selfhost_step(void) {
     double t = avr->cycle / (double)F_CPU_HZ;
@@ -535,16 +566,12 @@ static void selfhost_step(void) {
     }
     if (sh_stage >= 1 && t >= sh_next_t) { sh_send(MSG_KEEPALIVE, p, 0); sh_next_t = t + 0.02; }
     /* second half of the sweeps: host re-arms a 128-sample transient every 20 ms (the longest frames) */
-    if (sh_stage == 1 && hand_mode == HAND_SWEEP && sweep_k >= (n_sweep + 1) / 2) sh_stage = 2;
-    if (sh_stage == 2 && t >= sh_rearm_t) {
-        static uint8_t big[4 + 60 * 4];
-        for (uint32_t off = 0; off < 128; off += 60) {
-            uint32_t k = 128 - off < 60 ? 128 - off : 60;
-            put_u32(big, off);
-            for (uint32_t i = 0; i < k; i++) put_f32(big + 4 + 4 * i, 0.1f * (float)((off + i) % 7));
-            sh_send(MSG_REARM_DATA, big, (uint8_t)(4 + 4 * k));
-        }
-        put_u32(p, 128); sh_send(MSG_REARM_COMMIT, p, 4);
+    if (sh_stage == 1 && hand_mode == HAND_SWEEP && sweep_k >= n_sweep / 2) sh_stage = 2;
+    if (sh_rearm_off >= 0 && t > sh_rearm_deadline) { sh_rearm_timeouts++; sh_rearm_off = -1; } /* no ACK: give up */
+    if (sh_stage == 2 && t >= sh_rearm_t && sh_rearm_off < 0) { /* every 20 ms, one upload at a time */
+        sh_rearm_off = 0;
+        sh_rearm_t0 = t;
+        sh_rearm_next();
         sh_rearm_t = t + 0.02;
     }
 }
@@ -589,13 +616,17 @@ static void write_stats(int final) {
     fprintf(f, " \"faults\": {\"dropped\": %llu, \"corrupted\": %llu, \"garbage\": %llu, \"duplicated\": %llu, \"disconnected\": %d},\n",
             (unsigned long long)frames_dropped, (unsigned long long)frames_corrupted, (unsigned long long)frames_garbage,
             (unsigned long long)frames_duplicated, disconnected);
-    fprintf(f, " \"selfhost\": {\"states\": %llu, \"events\": %llu, \"seq_gaps\": %llu, \"naks\": %llu, \"acks\": %llu}",
+    fprintf(f, " \"selfhost\": {\"states\": %llu, \"events\": %llu, \"seq_gaps\": %llu, \"naks\": %llu, \"acks\": %llu, "
+            "\"rearm_acks\": %llu, \"rearms\": %llu, \"rearm_timeouts\": %llu, \"rearm_max_ms\": %.3f}",
             (unsigned long long)sh_states, (unsigned long long)sh_events, (unsigned long long)sh_gaps,
-            (unsigned long long)sh_naks, (unsigned long long)sh_acks);
+            (unsigned long long)sh_naks, (unsigned long long)sh_acks, (unsigned long long)sh_rearm_acks,
+            (unsigned long long)sh_rearms, (unsigned long long)sh_rearm_timeouts, sh_rearm_max_s * 1000);
     if (sym_parser) {
         uint8_t *d = avr->data + sym_parser + HFAM_MAX_PAYLOAD + HFAM_OVERHEAD + 2;
         fprintf(f, ",\n \"fw_parser\": {\"crc_errors\": %u, \"garbage\": %u}", d[0] | (d[1] << 8), d[2] | (d[3] << 8));
     }
+    if (sym_rx_overruns) /* received bytes the firmware dropped: its RX ring was full */
+        fprintf(f, ",\n \"fw_rx_overruns\": %u", avr->data[sym_rx_overruns] | (avr->data[sym_rx_overruns + 1] << 8));
     fprintf(f, "}\n");
     fclose(f);
     rename(tmp, stats_path);
@@ -650,6 +681,7 @@ int main(int argc, char **argv) {
         else if (OPT("--sym-bss-end")) sym_bss_end = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-parser")) sym_parser = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-probe")) sym_probe = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-rx-overruns")) sym_rx_overruns = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--tick-log")) { tick_log = fopen(val, "wb"); if (!tick_log) { perror(val); return 2; } }
         else if (OPT("--taps")) { n_taps = parse_list(val, taps, 32); hand_mode = n_taps ? HAND_TAP : HAND_HOLD; }
         else if (OPT("--hold-m")) { hand_mode = HAND_HOLD; hold_m = atof(val); }

@@ -147,6 +147,7 @@ class Build:
     data_bytes: int
     bss_bytes: int
     text_bytes: int
+    rx_overruns_addr: int = 0
 
 
 def _cache_base() -> Path:
@@ -216,7 +217,7 @@ def build(force: bool = False) -> Build:
               str(harness), str(FIRMWARE_DIR / "fw_sim.c"), str(FIRMWARE_DIR / "hfam_protocol.c"), *ldflags],
              "simavr harness build (cc + libsimavr)")
         b = Build(folder, elf, harness, syms["encoder_count"], syms["__bss_end"], syms["parser"], syms["tick_probe"],
-                  data, bss, text)
+                  data, bss, text, syms["rx_overruns"])
         d = {k: (str(v) if isinstance(v, Path) else v) for k, v in b.__dict__.items()}
         info.write_text(json.dumps(d, indent=1))
         return b
@@ -234,6 +235,8 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
            "--sym-encoder", str(b.encoder_count_addr), "--sym-bss-end", str(b.bss_end_addr),
            "--sym-parser", str(b.parser_addr), "--sym-probe", str(b.probe_addr), "--grip-N", str(grip_N),
            "--seed", str(int(seed))]
+    if b.rx_overruns_addr:
+        cmd += ["--sym-rx-overruns", str(b.rx_overruns_addr)]
     if tick_log is not None:
         cmd += ["--tick-log", str(tick_log)]
     if sweep_m_s:
@@ -509,8 +512,10 @@ def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), dec
         ``tick`` (min/median/p99/max cycles from the Timer1 compare match to the end of the tick, and of
         the tick's own code), ``budget_cycles``, ``margin_cycles`` (budget - max), ``lost_ticks``, ``isr``
         (per vector max cycles and max latency), ``uart_rx_deadline_cycles`` (two characters at 1 Mbaud),
-        ``ram`` (static + stack high-water bytes of 2048), ``encoder`` (per speed: counts, missed) and
-        ``first_missing_speed_m_s``.
+        ``ram`` (static + stack high-water bytes of 2048), ``encoder`` (per speed: counts, missed),
+        ``first_missing_speed_m_s``, ``fw_parser`` (the firmware parser's CRC-error and garbage counts),
+        ``fw_rx_overruns`` (received bytes dropped on a full RX ring) and ``selfhost`` (what the scripted host
+        got back: ``rearm_acks``, ``rearms`` (re-arm uploads acknowledged to the commit), ``rearm_timeouts``).
     """
     rated = [v for v in speeds_m_s if v <= MAX_RATED_SPEED_M_S] or [MAX_RATED_SPEED_M_S]
     t = run_selfhosted(rated, decimation)
@@ -529,7 +534,8 @@ def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), dec
                 "total_bytes": static + t["ram_stack_high_water_bytes"], "of_bytes": RAM_BYTES},
         "encoder": e["sweeps"], "first_missing_speed_m_s": first_drop, "max_rated_speed_m_s": MAX_RATED_SPEED_M_S,
         "sim_time_s": t["sim_time_s"] + e["sim_time_s"], "telemetry_seq_gaps": t["selfhost"]["seq_gaps"],
-        "fw_parser": t.get("fw_parser", {}),
+        "fw_parser": t.get("fw_parser", {}), "fw_rx_overruns": t.get("fw_rx_overruns"),
+        "selfhost": t["selfhost"],
     }
 
 

@@ -64,22 +64,77 @@
 #define POS_RES_M (2.0f * 3.14159265f * HANDLE_LENGTH_M / (4.0f * ENCODER_LINES * GEAR_RATIO))
 
 /* ---- UART ring buffers ------------------------------------------------------------ */
-#define RX_SIZE 128 /* power of two; covers the longest main-loop stall (~0.5 ms = 50 bytes at 1 Mbaud) */
+/* RX ring: power of two. The main loop parses ~200 cycles per byte (was ~335), slower than
+ * the 160-cycle byte time at 1 Mbaud, and handling a 24-sample data frame takes ~20,000 cycles: a
+ * burst longer than the ring is lost whatever the ring size RAM allows. So the ring must hold one whole
+ * frame with nothing drained (hosts send data frames of at most 24 samples = 107 bytes, and wait for each
+ * one's ACK: wire_protocol.DATA_CHUNK_SAMPLES, docs/protocol.md "Receive buffer"); a byte that finds it
+ * full is dropped and counted in rx_overruns (read by the simavr harness). */
+#define RX_SIZE 128
 #define TX_SIZE 256 /* must stay 256: the 8-bit indices wrap by themselves */
 static volatile uint8_t rx_buf[RX_SIZE];
 static volatile uint8_t rx_head, rx_tail;
+volatile uint16_t rx_overruns; /* bytes dropped because the ring was full (not static: fw_sim.c reads it) */
 static volatile uint8_t tx_buf[TX_SIZE];
 static volatile uint8_t tx_head, tx_tail; /* 8-bit: atomic on the AVR, wraps at TX_SIZE = 256 */
 static void tx_commit(void);
 
+#ifdef __AVR__
+/* At 1 Mbaud a data frame arrives at one byte per 160 cycles and this interrupt nests in the servo tick:
+ * avr-gcc's version (r0/r1/r18 saved for nothing) took ~67 cycles a byte, 40 % of the CPU, and a
+ * tick overlapped by a frame ran ~3,800 of its 4,000 cycles (simavr). This one saves only what it
+ * uses: ~51 cycles. Same logic as the C version below (the host build's). */
+ISR(USART_RX_vect, ISR_NAKED) {
+    __asm__ __volatile__(
+        "push r24\n\t"
+        "in   r24, __SREG__\n\t"
+        "push r24\n\t"
+        "push r25\n\t"
+        "push r30\n\t"
+        "push r31\n\t"
+        "lds  r25, %[udr]\n\t"              /* the byte (clears RXC0) */
+        "lds  r30, %[head]\n\t"
+        "mov  r24, r30\n\t"
+        "subi r24, 0xFF\n\t"                /* next = (head + 1) & (RX_SIZE - 1) */
+        "andi r24, %[mask]\n\t"
+        "lds  r31, %[tail]\n\t"
+        "cp   r24, r31\n\t"
+        "breq 1f\n\t"                       /* full: drop it, count it */
+        "ldi  r31, 0\n\t"
+        "subi r30, lo8(-(%[buf]))\n\t"
+        "sbci r31, hi8(-(%[buf]))\n\t"
+        "st   Z, r25\n\t"
+        "sts  %[head], r24\n\t"
+        "rjmp 2f\n"
+        "1:\n\t"
+        "lds  r24, %[ovr]\n\t"
+        "lds  r25, %[ovr]+1\n\t"
+        "adiw r24, 1\n\t"
+        "sts  %[ovr]+1, r25\n\t"
+        "sts  %[ovr], r24\n"
+        "2:\n\t"
+        "pop  r31\n\t"
+        "pop  r30\n\t"
+        "pop  r25\n\t"
+        "pop  r24\n\t"
+        "out  __SREG__, r24\n\t"
+        "pop  r24\n\t"
+        "reti\n\t"
+        :: [udr] "n" (_SFR_MEM_ADDR(UDR0)), [head] "i" (&rx_head), [tail] "i" (&rx_tail), [buf] "i" (rx_buf),
+           [ovr] "i" (&rx_overruns), [mask] "M" (RX_SIZE - 1));
+}
+#else
 ISR(USART_RX_vect) {
     uint8_t c = UDR0;
     uint8_t next = (uint8_t)((rx_head + 1) & (RX_SIZE - 1));
     if (next != rx_tail) {
         rx_buf[rx_head] = c;
         rx_head = next;
+    } else {
+        rx_overruns++;
     }
 }
+#endif
 
 ISR(USART_UDRE_vect) {
     if (tx_head == tx_tail) {
@@ -153,8 +208,8 @@ static int32_t encoder_read(void) {
 }
 
 /* ---- time, ADC, motor -------------------------------------------------------------- */
-/* The servo tick runs inside the Timer1 compare interrupt, with interrupts re-enabled at its
- * entry (ISR_NOBLOCK) so the encoder and UART interrupts nest in it: it starts within a few
+/* The servo tick runs inside the Timer1 compare interrupt, with interrupts re-enabled right after
+ * its prologue (UDRIE0 off first, see below) so the encoder and UART receive interrupts nest in it: it starts within a few
  * dozen cycles of the compare match whatever the main loop is doing (parsing a long frame,
  * assembling telemetry). The main loop owns the UART: the tick leaves its STATE/EVENT payloads
  * in small slots (below) that the main loop frames and sends. Main-loop code that writes what
@@ -167,13 +222,18 @@ static volatile uint16_t tick_overruns; /* compare matches that found the previo
 static void servo_tick(void);
 #define TICK_LOCK() cli()
 #define TICK_UNLOCK() sei()
-ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
+ISR(TIMER1_COMPA_vect) {
+    /* the transmitter waits for the tick (one interrupt per byte would take ~40 % of the CPU
+     * inside it); receive and encoder interrupts stay on: they have deadlines. UDRIE0 goes off before
+     * interrupts come back on: with ISR_NOBLOCK (sei first) the ~35-cycle register-saving prologue ran
+     * one instruction per nested interrupt while telemetry went out and a data frame came in, and
+     * the tick started ~730 cycles late (simavr trace, 2026-11: a lost tick in the re-arm run). The
+     * prologue with interrupts off delays the RX and encoder interrupts by at most ~40 cycles. */
+    UCSR0B &= (uint8_t)~_BV(UDRIE0);
+    sei();
     tick_count++;
     if (tick_busy) { tick_overruns++; return; }
     tick_busy = 1;
-    /* the transmitter waits for the tick (one interrupt per byte would take ~40 % of the CPU
-     * inside it); receive and encoder interrupts stay on: they have deadlines */
-    UCSR0B &= (uint8_t)~_BV(UDRIE0);
     servo_tick();
     if (tx_head != tx_tail) UCSR0B |= _BV(UDRIE0);
     tick_busy = 0;
@@ -899,8 +959,10 @@ static void service_uart(void) {
             TRACE_MARK(MARK_FRAME_START);
             handle_frame();
             TRACE_MARK(MARK_FRAME_END);
+            flush_telemetry();
+        } else if ((n & 3) == 0) {
+            flush_telemetry(); /* every 4th byte (~0.1 ms): per byte it took a quarter of the parse time */
         }
-        flush_telemetry();
     }
 }
 

@@ -83,13 +83,24 @@ static void crc_add(hfam_parser_t *p, uint16_t i) {
  * overlaps a rejected one may be lost; the host retries. */
 uint8_t hfam_parse_byte(hfam_parser_t *p, uint8_t byte) {
     uint8_t *b = p->buf;
-    if (p->pos == 0 && byte != HFAM_SYNC0) {
-        p->garbage++;
-        return 0;
+    uint16_t pos = p->pos;
+    if (pos >= 5) {
+        /* the candidate's header passed check() (sync, known type): collect the payload and CRC without
+         * the general path, ~4x fewer cycles a byte (the AVR parsed a 1 Mbaud frame at ~40 % of its rate) */
+        uint16_t end = (uint16_t)b[2] + 5;
+        b[pos] = byte;
+        if (pos < end) p->crc = hfam_crc16_byte(p->crc, byte);
+        p->pos = ++pos;
+        if (pos < end + 2) return 0;
+    } else {
+        if (pos == 0 && byte != HFAM_SYNC0) {
+            p->garbage++;
+            return 0;
+        }
+        b[pos] = byte;
+        crc_add(p, pos);
+        p->pos = pos + 1;
     }
-    b[p->pos] = byte;
-    crc_add(p, p->pos);
-    p->pos++;
     for (;;) {
         uint8_t r = check(p);
         if (r == 0) return 0;

@@ -221,12 +221,15 @@ class ProtocolDevice(Device):
         self._rearm = False
         self._rearm_truncation_warned = False
         self._last_rearm = 0.0
+        self._upload_q: collections.deque = collections.deque()  # re-arm frames not yet sent (one in flight)
+        self._upload_key = None  # (type, seq) of the re-arm frame in flight
+        self._upload_sent = 0.0
         self._vel_ring = [(0.0, 0.0)] * 10
         self._vel_i = 0
         self._wall_height_m = 0.0
         self.stats = {"crc_errors": 0, "garbage_bytes": 0, "seq_gaps": 0, "duplicates": 0, "timeouts": 0,
                       "retransmits": 0, "stale_states": 0, "frames_rx": 0, "frames_tx": 0, "naks": 0,
-                      "watchdog_trips": 0, "losses": 0, "max_consecutive_losses": 0}
+                      "watchdog_trips": 0, "losses": 0, "max_consecutive_losses": 0, "rearms": 0}
         if not (isinstance(loss_timeout_s, (int, float)) and 0 < loss_timeout_s < 1):
             raise ValueError(f"loss_timeout_s must be within (0, 1) s, got {loss_timeout_s!r}")
         if not (0 < float(max_loss_rate) <= 1) or int(loss_window) < 1 or int(max_consecutive_losses) < 0:
@@ -277,6 +280,8 @@ class ProtocolDevice(Device):
         self._rx_seq = None
         self._states.clear()
         self._replies.clear()
+        self._upload_q.clear()
+        self._upload_key = None
         self._info_payload = None
         self._have_state = False
         self._cmd_pending = False
@@ -416,11 +421,20 @@ class ProtocolDevice(Device):
             self._on_event(frame.payload)
         elif t == P.ACK:
             if len(frame.payload) == 2:
-                self._replies[tuple(frame.payload)] = (True, "")
+                if tuple(frame.payload) == self._upload_key:
+                    if self._upload_key[0] == P.REARM_COMMIT:
+                        self.stats["rearms"] += 1
+                    self._upload_next()
+                else:
+                    self._replies[tuple(frame.payload)] = (True, "")
         elif t == P.NAK:
             self.stats["naks"] += 1
             if len(frame.payload) >= 3:
-                self._replies[(frame.payload[0], frame.payload[1])] = (False, P.describe_nak(frame.payload))
+                if (frame.payload[0], frame.payload[1]) == self._upload_key:
+                    self._upload_q.clear()  # e.g. NAK 3 while the last transient still plays: re-armed later
+                    self._upload_key = None
+                else:
+                    self._replies[(frame.payload[0], frame.payload[1])] = (False, P.describe_nak(frame.payload))
         elif t == P.INFO:
             self._info_payload = frame.payload
         elif t == P.PONG:
@@ -687,7 +701,8 @@ class ProtocolDevice(Device):
             ``loss_timeout_s``), ``max_consecutive_losses``, ``seq_gaps``, ``duplicates``, ``timeouts``,
             ``retransmits``, ``naks``, ``garbage_bytes``, ``stale_states``, ``watchdog_trips``,
             ``longest_gap_s`` (longest time between two answered commands' states) and the command->state
-            round trip ``rtt_median_s``/``rtt_p99_s``/``rtt_max_s`` (over the last 65536 replies).
+            round trip ``rtt_median_s``/``rtt_p99_s``/``rtt_max_s`` (over the last 65536 replies); ``rearms``:
+            sampled transients re-armed while rendering, every frame acknowledged up to the commit.
         """
         out = dict(self.stats)
         n = min(self._rtt_n, RTT_RING)
@@ -764,6 +779,8 @@ class ProtocolDevice(Device):
             transient.check_device(info, info.servo_rate_hz)
         if self._rendering:
             self.stop_rendering()
+        self._upload_q.clear()  # a re-arm still under way is void: its ACKs must not send more of it
+        self._upload_key = None
         self._request(P.SET_CALIBRATION, self.cal.to_payload())
         self._request(P.WALL, P.WALL_STRUCT.pack(*w))
         self._request(P.LIMITS, P.LIMITS_STRUCT.pack(cont, peak, amp))
@@ -802,7 +819,7 @@ class ProtocolDevice(Device):
         self._request(P.TABLE_BEGIN, P.encode_table_begin(lib.velocities_m_s, lib.grips_N, n_s, lib.fs_hz,
                                                           lib.gain, lib.max_extrapolation))
         flat = c.reshape(-1).tolist()
-        step = P.TABLE_CHUNK_SAMPLES
+        step = P.DATA_CHUNK_SAMPLES  # one frame at a time, each fits the device's receive buffer
         for off in range(0, len(flat), step):
             self._request(P.TABLE_DATA, P.encode_data_chunk(off, flat[off:off + step]))
         self._request(P.TABLE_COMMIT, P.DATA_OFFSET_STRUCT.pack(len(flat)))
@@ -816,11 +833,34 @@ class ProtocolDevice(Device):
             warnings.warn(f"{self.name}: transient of {len(current)} samples truncated to the device's "
                           f"{limit}-sample buffer ({limit / fs * 1000:.1f} ms)", RuntimeWarning, stacklevel=3)
         samples = [float(x) for x in current[:limit]]
-        send = self._request if wait else self._tx
-        step = P.TABLE_CHUNK_SAMPLES
-        for off in range(0, len(samples), step):
-            send(P.REARM_DATA, P.encode_data_chunk(off, samples[off:off + step]))
-        send(P.REARM_COMMIT, P.DATA_OFFSET_STRUCT.pack(len(samples)))
+        step = P.DATA_CHUNK_SAMPLES
+        frames = [(P.REARM_DATA, P.encode_data_chunk(off, samples[off:off + step]))
+                  for off in range(0, len(samples), step)]
+        frames.append((P.REARM_COMMIT, P.DATA_OFFSET_STRUCT.pack(len(samples))))
+        if wait:
+            for msg_type, payload in frames:
+                self._request(msg_type, payload)
+            return
+        # while rendering: no blocking, but still one frame in flight. Frames sent back to back overran the
+        # firmware's 128-byte receive ring (it parses slower than 1 Mbaud arrives, and handles a data frame for
+        # ~20,000 cycles): bytes were dropped and every long frame failed its CRC (docs/protocol.md).
+        self._upload_q = collections.deque(frames)
+        self._upload_key = None
+        self._upload_next()
+
+    def _upload_next(self) -> None:
+        """Send the next queued re-arm frame (after the ACK of the previous one)."""
+        self._upload_key = None
+        if not self._upload_q:
+            return
+        msg_type, payload = self._upload_q.popleft()
+        try:
+            seq = self._tx(msg_type, payload)
+        except DeviceError:
+            self._upload_q.clear()
+            return
+        self._upload_key = (msg_type, seq)
+        self._upload_sent = time.monotonic()
 
     def _maybe_rearm(self, now: float, st: DeviceState) -> None:
         """While the handle approaches the wall from above, keep the armed transient matched to its velocity."""
@@ -829,6 +869,12 @@ class ProtocolDevice(Device):
         t_old, x_old = ring[i]
         ring[i] = (st.t_s, st.position_m)
         self._vel_i = (i + 1) % len(ring)
+        if self._upload_key is not None:  # an upload is under way: wait for it (or give it up when no ACK came)
+            if now - self._upload_sent < max(self.timeout_s, 0.05) * (self.retries + 1):
+                return
+            self.stats["timeouts"] += 1
+            self._upload_q.clear()
+            self._upload_key = None
         if now - self._last_rearm < self.rearm_interval_s or st.t_s <= t_old:
             return
         v = (st.position_m - x_old) / (st.t_s - t_old)
@@ -860,6 +906,8 @@ class ProtocolDevice(Device):
         if not self._rendering:
             return
         self._rendering = False
+        self._upload_q.clear()
+        self._upload_key = None
         self._request(P.RENDER_STOP)
         self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_STREAMING, 1))
         self._states.clear()

@@ -98,7 +98,11 @@ NAK_NAMES = {NAK_UNKNOWN_TYPE: "unknown message type", NAK_BAD_PAYLOAD: "malform
 EVENT_FLAG_CLIPPED = 1
 EVENT_FLAG_WATCHDOG = 2
 
-TABLE_CHUNK_SAMPLES = 60  # float32 samples per TABLE_DATA/REARM_DATA frame (4 + 240 bytes)
+TABLE_CHUNK_SAMPLES = 60  # at most this many float32 samples per TABLE_DATA/REARM_DATA frame (4 + 240 bytes)
+# What hosts send per data frame, one frame at a time (the next once the last one's ACK is back): a
+# 24-sample frame is 107 bytes and fits whole in a 128-byte receive buffer (the reference firmware's,
+# devices/firmware/hfam_fw.c) however busy the device is; see docs/protocol.md "Receive buffer".
+DATA_CHUNK_SAMPLES = 24
 
 # -- payload layouts --------------------------------------------------------
 # STATE: t_us u32, encoder i32, accel_raw i16, grip_raw u16, status u8, cmd_seq u8, current_mA i16
