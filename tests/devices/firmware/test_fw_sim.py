@@ -57,7 +57,8 @@ def test_handshake_info_and_streaming_against_the_real_firmware():
     assert dev.handle is None  # the simulated MCU was stopped on close
 
 
-def _python_mirror(dev, transient):
+def _mirror_renderer(dev):
+    """The Python firmware logic set up as the tests set up the real firmware (wall, limits, calibration)."""
     info = dev.info
     fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, 4000.0, 2.0, velocity_window=4,
                           thermal=(info.winding_resistance_ohm, info.thermal_resistance_K_W,
@@ -65,6 +66,11 @@ def _python_mirror(dev, transient):
     fw.cal = dev.cal
     fw.set_wall(*(WALL[k] for k in ("height_m", "stiffness_N_m", "damping_N_s_m", "rearm_margin_m")))
     fw.set_limits(LIMITS["continuous_A"], LIMITS["peak_A"])
+    return fw
+
+
+def _python_mirror(dev, transient):
+    fw = _mirror_renderer(dev)
     amp = transient.gain * transient.amplitude_Ns_m
     if transient.name == "pulse":
         fw.set_param_transient(P.TRANSIENT_PULSE, amp, transient.duration_s, 0.0, 0.0)
@@ -152,13 +158,7 @@ class _FixedTransient:
 def _rendered_like_the_mirror(dev, samples_A):
     """Render the hand's taps (every tick logged) and replay every tick through the Python firmware logic
     given the sampled transient ``samples_A`` as uploaded (float32 on the wire): returns (c_mA, py_mA, events)."""
-    info = dev.info
-    fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, 4000.0, 2.0, velocity_window=4,
-                          thermal=(info.winding_resistance_ohm, info.thermal_resistance_K_W,
-                                   info.thermal_time_constant_s, info.winding_max_temp_rise_K))
-    fw.cal = dev.cal
-    fw.set_wall(*(WALL[k] for k in ("height_m", "stiffness_N_m", "damping_N_s_m", "rearm_margin_m")))
-    fw.set_limits(LIMITS["continuous_A"], LIMITS["peak_A"])
+    fw = _mirror_renderer(dev)
     s32 = [float(x) for x in np.asarray(samples_A, dtype=np.float32)]
     fw.rearm_data(0, s32)
     fw.rearm_commit(len(s32))
