@@ -55,7 +55,7 @@ def _run_demo(out: Path, cache: Path, env_extra: dict | None = None) -> float:
     env.update(env_extra or {})
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "renderer", "demo", "--device", "sim", "--out", str(out),
-                           "--cache-dir", str(cache)], cwd=ROOT, env=env, capture_output=True, text=True)
+                           "--cache-dir", str(cache), "--force"], cwd=ROOT, env=env, capture_output=True, text=True)
     dt = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"demo failed ({proc.returncode}): {proc.stderr[-2000:]}")
