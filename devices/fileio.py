@@ -277,13 +277,19 @@ def read_json_file(path, what: str):
     FileNotFoundError
         ``"<what> not found: <path>"``.
     ValueError
-        ``"<path>: not valid JSON (line N: reason)"``.
+        ``"<path>: not valid JSON (line N: reason)"``, ``"<path>:N: <what> is not UTF-8 text (...)"``.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what} not found: {path}")
+    raw = path.read_bytes()
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: {what} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    try:
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
 

@@ -141,7 +141,10 @@ class ZpkModel:
                 raise ModelError(f"band_hz: must be [lo, hi] with 0 <= lo < hi, got {self.band_hz!r}")
             object.__setattr__(self, "band_hz", band)
         if self.grip_N is not None:
-            object.__setattr__(self, "grip_N", _finite_float(self.grip_N, "grip_N"))
+            grip = _finite_float(self.grip_N, "grip_N")
+            if grip < 0:  # a grip force presses: a negative one is a typo or a sign error, not a grip level
+                raise ModelError(f"grip_N: must be >= 0 N, got {grip}")
+            object.__setattr__(self, "grip_N", grip)
         if not isinstance(self.fit, dict):
             raise ModelError(f"fit: must be an object, got {type(self.fit).__name__}")
         object.__setattr__(self, "fit", dict(self.fit))

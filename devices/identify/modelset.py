@@ -56,8 +56,8 @@ class ModelSet:
 
     def __post_init__(self) -> None:
         g = np.asarray(self.grip_N, dtype=float)
-        if g.ndim != 1 or g.size < 1 or np.any(np.diff(g) <= 0) or not np.all(np.isfinite(g)):
-            raise ValueError(f"model set grip levels must be finite and strictly increasing, got {self.grip_N!r}")
+        if g.ndim != 1 or g.size < 1 or np.any(np.diff(g) <= 0) or not np.all(np.isfinite(g)) or np.any(g < 0):
+            raise ValueError(f"model set grip levels must be finite, >= 0 N and strictly increasing, got {self.grip_N!r}")
         for out, ms in self.models.items():
             if out not in OUTPUTS:
                 raise ValueError(f"model set: unknown output {out!r}")
@@ -201,6 +201,24 @@ def load_model_set(path) -> ModelSet:
     path, data, files = read_model_set_index(path)
     models = {out: [None if f is None else load_model(f) for f in fs] for out, fs in files.items()}
     try:
-        return ModelSet(np.asarray(data["grip_N"], dtype=float), models)
+        ms = ModelSet(np.asarray(data["grip_N"], dtype=float), models)
     except (ValueError, TypeError) as exc:
         raise ValueError(f"{path}: {exc}") from None
+    _check_entries(path, ms, files)
+    return ms
+
+
+def _check_entries(path, ms: ModelSet, files: dict) -> None:
+    """Each model file named in the index describes the output it is listed under, and (where it records
+    its grip) the grip level of its slot: its grip is nearer to that level than to any other. Identification
+    records the mean measured grip, so an exact match is not required; a list in the wrong order is caught."""
+    levels = ms.grip_N
+    for out, fs in files.items():
+        for j, (f, m) in enumerate(zip(fs, ms.models[out])):
+            if m is None:
+                continue
+            if m.output != out:
+                raise ValueError(f"{path}: models.{out}[{j}] = {f} is a model of {m.output!r}, not {out!r}")
+            if m.grip_N is not None and int(np.argmin(np.abs(levels - m.grip_N))) != j:
+                raise ValueError(f"{path}: models.{out}[{j}] = {f} was identified at grip {m.grip_N:g} N, not at "
+                                 f"the index's level {levels[j]:g} N (is the list in the order of grip_N?)")

@@ -215,6 +215,20 @@ def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, 
     assert "finite" in errors[0] and not (tmp_path / "x.npz").exists()
 
 
+def test_build_library_names_a_model_file_that_is_not_utf8(tmp_path, inputs):
+    """Audit model_nonutf8.txt: a model file that is not UTF-8 gave the codec's message without the file; now
+    one ``error:`` line naming the file and line (devices.fileio.read_json_file, every JSON model/index reader)."""
+    rec, m1, _ = inputs
+    m1.write_bytes(m1.read_bytes().replace(b"{", b"{\n\"note\": \"\xff\",", 1))
+    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
+                          str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
+    assert errors == [f"error: {m1}:2: model file is not UTF-8 text (invalid start byte at byte {m1.read_bytes().index(0xff)})"], \
+        res.stderr
+    assert not (tmp_path / "x.npz").exists()
+
 def _sha(path) -> str:
     import hashlib
 

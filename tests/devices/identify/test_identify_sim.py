@@ -102,6 +102,46 @@ def test_model_set_save_load_and_errors(tmp_path):
         mset.model_at(1.5, "position_m")
 
 
+def test_model_set_index_entries_must_match_the_models_they_name(tmp_path, capsys):
+    """Audit modelset_grip_swapped / modelset_output_mismatch / model_neg_grip: a list out of grip order, a
+    position model under accel_m_s2 and a negative grip were loaded silently (validate then printed NRMSE
+    1.000 and model_at(0 N) returned the 10 N model)."""
+    dev = SimDevice.from_spec("lti")
+    mset = ModelSet(np.array([1.0, 2.0, 5.0]), {"accel_m_s2": [dev.linear_model(g) for g in (1.0, 2.0, 5.0)],
+                                              "position_m": [dev.linear_model(g, "position_m") for g in (1.0, 2.0, 5.0)]})
+    path = mset.save(tmp_path)
+    assert load_model_set(path).model_at(1.0).grip_N == 1.0
+    good = json.loads(path.read_text())
+    swapped = json.loads(path.read_text())
+    accel = swapped["models"]["accel_m_s2"]
+    accel[0], accel[2] = accel[2], accel[0]
+    path.write_text(json.dumps(swapped))
+    with pytest.raises(ValueError, match=r"models\.accel_m_s2\[0\] = .* identified at grip 5 N, not at the index's "
+                                         r"level 1 N"):
+        load_model_set(path)
+    crossed = json.loads(json.dumps(good))
+    crossed["models"]["accel_m_s2"][1] = good["models"]["position_m"][1]
+    path.write_text(json.dumps(crossed))
+    with pytest.raises(ValueError, match=r"models\.accel_m_s2\[1\] = .* is a model of 'position_m', not 'accel_m_s2'"):
+        load_model_set(path)
+    # the CLI says so in one line (it printed "NRMSE 1.000" for the crossed set)
+    assert devices_main(["validate", str(tmp_path), "--grip", "2"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error:")]
+    assert len(err) == 1 and "is a model of 'position_m'" in err[0], err
+    # identification records the mean measured grip: near its level is accepted
+    m = json.loads((tmp_path / good["models"]["accel_m_s2"][1]).read_text())
+    m["grip_N"] = 2.3
+    (tmp_path / good["models"]["accel_m_s2"][1]).write_text(json.dumps(m))
+    path.write_text(json.dumps(good))
+    assert load_model_set(path).model_at(2.0).grip_N == pytest.approx(2.3)
+    m["grip_N"] = -5.0
+    (tmp_path / good["models"]["accel_m_s2"][1]).write_text(json.dumps(m))
+    with pytest.raises(ValueError, match=r"grip_N: must be >= 0 N, got -5"):
+        load_model_set(path)
+    with pytest.raises(ValueError, match=">= 0 N"):
+        ModelSet(np.array([-1.0, 2.0]), {"accel_m_s2": [dev.linear_model(g) for g in (1.0, 2.0)]})
+
+
 def test_time_domain_validation_on_lti_sim():
     dev = SimDevice.from_spec("lti", seed=2)
     with dev:
