@@ -7,10 +7,11 @@ import math
 import time
 from pathlib import Path
 
-from devices.fileio import check_output_dir, user_cache_dir
+from devices.fileio import user_cache_dir
 from stimuli.hfam.pipeline import PipelineSettings
 
 from . import runs
+from .report import check_demo_out
 from .config import DemoConfig
 from .report import format_reactive
 from .sim_demo import format_table, run_sim_demo
@@ -75,23 +76,6 @@ def _floats(text: str | None, what: str) -> tuple | None:
     if not vals or any(not (math.isfinite(x) and x > 0) for x in vals):
         raise ValueError(f"{what}: values must be positive numbers, got {text!r}")
     return vals
-
-
-#: what the sim demo writes into --out (an earlier demo's, refused without --force)
-DEMO_PRODUCTS = ("summary.csv", "traces.npz", "fig_*.png", "fig_*.svg", "fig_*.plot.csv")
-
-
-def check_demo_out(out: Path, force: bool) -> None:
-    """Refuse (``ValueError``) an --out that is a file or below one, or that holds an earlier demo's results
-    unless ``force``; before anything is built or measured."""
-    check_output_dir(out)
-    found = sorted({p.name for pattern in DEMO_PRODUCTS for p in out.glob(pattern)}) if out.is_dir() else []
-    shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
-    if found and not force:
-        raise ValueError(f"--out {out} already holds a demo's results ({shown}); not overwriting them: choose "
-                         "another --out or pass --force to replace them")
-    if found:
-        print(f"--force: replacing an earlier demo's results in {out} ({shown})")
 
 
 def run(args) -> int:

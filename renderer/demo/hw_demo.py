@@ -33,7 +33,7 @@ from ..loop import ServoLoop
 from . import figures as figs
 from . import metrics as dm
 from . import runs
-from .report import write_summary
+from .report import check_demo_out, write_summary
 
 RING = 4096          # ticks kept in the shared scope ring
 MAX_EVENTS = 256
@@ -286,6 +286,8 @@ def _hardware_demo(args, prompt, say) -> int:
     n_taps = args.taps or 5
     timeout_s = float(getattr(args, "timeout", None) or 120.0)
     out = Path(args.out)
+    # a person's taps are not repeatable: an earlier session's results are refused before the device opens
+    check_demo_out(out, bool(getattr(args, "force", False)))
     out.mkdir(parents=True, exist_ok=True)
     dev = make_device(spec)  # validates the string; opened by the servo process, not here
     with dev:

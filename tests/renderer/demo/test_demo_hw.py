@@ -58,6 +58,12 @@ def test_person_taps_each_rendering_over_the_emulated_serial_port(tmp_path, caps
         assert 0.07 < float(r["velocity_m_s"]) < 0.13
         # compared with the real tap at the same speed: proportional feedback and a pulse are poor copies
         assert float(r["nrmse"]) > 0.8 and float(r["correlation"]) < 0.6
+    # a second session into the same folder is refused before the device is opened: a person's taps are
+    # not repeatable, and the first session's results stay as they were
+    before = (tmp_path / "summary.csv").read_bytes()
+    with pytest.raises(ValueError, match="already holds a demo's results .*summary.csv.*--force"):
+        demo_hw.run_hardware_demo(args_for("/dev/nonexistent-port", tmp_path), prompt=person)
+    assert (tmp_path / "summary.csv").read_bytes() == before
     assert (tmp_path / "fig_contact.png").read_bytes()[:4] == b"\x89PNG"
 
 
