@@ -6,6 +6,7 @@ emulator's simulated hand taps. The session must complete and write its trials.
 """
 
 import csv
+import http.client
 import json
 import socket
 import subprocess
@@ -44,8 +45,8 @@ def _play_operator_and_subject(base: str, stop: threading.Event, seen: dict) -> 
             if sub.get("prompt") == "rate":
                 post("/api/key", {"key": "5"})
                 seen["ratings"] += 1
-        except OSError:  # server not up yet, or gone at the end
-            pass
+        except (OSError, http.client.HTTPException):  # server not up yet, or gone at the end (mid-reply:
+            pass                                        # IncompleteRead when the study process exits)
         time.sleep(0.03)
 
 
