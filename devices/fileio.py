@@ -263,6 +263,32 @@ def atomic_write_text(path, text: str) -> Path:
     return Path(path)
 
 
+def read_text_utf8(path, what: str) -> str:
+    """A text file's contents; unreadable or not UTF-8 is a ValueError naming the file (and the line).
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        What the file is ("model file", "catalog"), for the message.
+
+    Raises
+    ------
+    ValueError
+        ``"<path>:N: <what> is not UTF-8 text (<reason> at byte B)"`` or ``"<path>: <what> cannot be read (...)"``.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:  # a directory, no permission
+        raise ValueError(f"{path}: {what} cannot be read ({exc.strerror})") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:  # e.g. saved as Latin-1
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: {what} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
 def read_json_file(path, what: str):
     """Parse a JSON file.
 
@@ -282,12 +308,7 @@ def read_json_file(path, what: str):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what} not found: {path}")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: {what} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    text = read_text_utf8(path, what)
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import atomic_write_text
+from .fileio import atomic_write_text, read_text_utf8
 
 COLUMNS = ("tap", "incoming_velocity_m_s", "t_s", "accel_m_s2")
 # t_s steps may wobble by 1 % (timestamp rounding, e.g. 7 decimals at 10 kHz) before they count as
@@ -87,12 +87,7 @@ class Tap:
 
 def _parse_rows(path: Path) -> list[tuple[int, float, list[float], list[float], list[int]]]:
     """Rows of a tap recording grouped per tap: (tap, v, t_s values, accel values, line numbers)."""
-    raw = Path(path).read_bytes()
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}: line {line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    text = read_text_utf8(path, "tap recording")
     with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         try:

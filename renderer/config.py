@@ -24,6 +24,7 @@ import tomllib
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from devices.fileio import read_text_utf8
 from devices.validation import require_int, require_number
 
 from .scene import Scene, Wall, parse_scene
@@ -232,19 +233,6 @@ def config_from_dict(data: Mapping[str, Any], where: str = "config") -> Renderer
         raise ValueError(f"{where}: {exc}") from None
 
 
-def _read_utf8(path: pathlib.Path, what: str) -> str:
-    """A config file's text; a non-UTF-8 file or an unreadable one is a ValueError naming the file (and line)."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"{path}: {what} cannot be read ({exc.strerror})") from None
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: {what} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-
-
 def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
     """Load a TOML (``.toml``) or JSON (``.json``) renderer config/scene file.
 
@@ -260,7 +248,7 @@ def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"renderer config file not found: {path}")
-    text = _read_utf8(path, "renderer config")
+    text = read_text_utf8(path, "renderer config")
     try:
         if path.suffix.lower() == ".json":
             data = json.loads(text)
@@ -283,7 +271,7 @@ def load_scene(path: str | pathlib.Path) -> Scene:
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"scene file not found: {path}")
-    text = _read_utf8(path, "scene file")
+    text = read_text_utf8(path, "scene file")
     try:
         data = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
     except json.JSONDecodeError as exc:

@@ -13,6 +13,8 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from devices.fileio import read_text_utf8
+
 from .library import HfamLibrary
 from .transients import DecayingSinusoid, NoTransient, Pulse
 
@@ -183,13 +185,7 @@ def load_catalog(path=None, library_dir=None) -> list[CatalogSample]:
     path = DEFAULT_CATALOG if path is None else Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"catalog file not found: {path}")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:  # e.g. saved as Latin-1
-        line = raw[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: catalog is not UTF-8 text ({exc.reason} at byte {exc.start}); "
-                         "save it as UTF-8") from None
+    text = read_text_utf8(path, "catalog")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

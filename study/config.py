@@ -15,6 +15,7 @@ import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from devices.fileio import read_text_utf8
 from devices.validation import require_int, require_positive
 
 from .data import EXPERIENCE, check_subject_id
@@ -118,12 +119,7 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
         where = str(p)
         if not p.is_file():
             raise FileNotFoundError(f"{what} file {p} not found")
-        raw = p.read_bytes()
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            line = raw[:exc.start].count(b"\n") + 1
-            raise ValueError(f"{p}:{line}: {what} file is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        text = read_text_utf8(p, f"{what} file")
         try:
             data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
         except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:

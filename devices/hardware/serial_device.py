@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..base import Device, DeviceError, DeviceInfo, DeviceState, Status
-from ..fileio import atomic_write_text
+from ..fileio import atomic_write_text, read_text_utf8
 from ..stopsignals import holding
 from . import wire_protocol as P
 from .calibration import Calibration
@@ -57,16 +57,9 @@ def load_calibration(path, device_id: str, defaults: Calibration) -> Calibration
     path = Path(path)
     if not path.exists():
         return defaults
+    text = read_text_utf8(path, "calibration file")
     try:
-        raw = path.read_bytes()
-    except OSError as exc:  # a directory, no permission
-        raise ValueError(f"{path}: calibration file cannot be read ({exc.strerror})") from None
-    try:
-        data = json.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: calibration file is not UTF-8 text ({exc.reason} at byte {exc.start})") \
-            from None
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict):

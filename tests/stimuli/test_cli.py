@@ -162,7 +162,7 @@ def test_build_library_refine_reports_error_per_iteration(tmp_path, capsys):
     ("entry_number", ": key 'models.accel_m_s2'[0] must be a file name or null"),
     ("models_list", ": key 'models' must be an object of output -> list of files"),
     ("no_kind", ": key 'kind' must be \"model_set\""),
-    ("csv_nonutf8", ": line 3: not UTF-8 text (invalid start byte at byte "),
+    ("csv_nonutf8", ":3: tap recording is not UTF-8 text (invalid start byte at byte "),
 ])
 def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path, inputs, case, match):
     """Audit modelset_entry_number_build.txt, csv_nonutf8.txt: a number as a model file name was a raw TypeError

@@ -118,7 +118,7 @@ def test_data_folder_under_a_file_refused(tmp_path, capsys):
     ("nonutf.toml", b"repetitions = 2\n# \xff\n", "--protocol",
      ":2: protocol file is not UTF-8 text (invalid start byte at byte 18)"),
     ("latin1.toml", '[[sample]]\nname = "caf\u00e9"\n'.encode("latin-1"), "--catalog",
-     ":2: catalog is not UTF-8 text (invalid continuation byte at byte 22); save it as UTF-8"),
+     ":2: catalog is not UTF-8 text (invalid continuation byte at byte 22)"),
 ])
 def test_protocol_or_catalog_of_wrong_type_or_encoding_names_the_file(tmp_path, capsys, name, content, option,
                                                                       match):
