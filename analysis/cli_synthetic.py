@@ -13,6 +13,8 @@ def run(args: argparse.Namespace) -> int:
     )
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} is a file, not a folder; synthetic data is written into a new or empty folder")
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; synthetic data is only written into a new or empty folder")
     if args.subjects < 1:

@@ -450,6 +450,9 @@ def _parse_columns(t: pd.DataFrame) -> pd.DataFrame:
         bad = ~np.isfinite(num) | (num != np.round(num))
         if bad.any():
             _fail(t, bad, col, "is not an integer")
+        bad = np.abs(num) > 2.0 ** 53  # beyond exact float integers; astype(int64) would wrap it
+        if bad.any():
+            _fail(t, bad, col, "is out of range (beyond +/-2^53)")
         out[col] = num.astype(np.int64)
     for col in FLOAT_COLUMNS + ("rating",):
         raw = t[col].to_numpy(dtype=object)

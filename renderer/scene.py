@@ -115,7 +115,7 @@ class Plane:
     shape = "plane"
 
     def __post_init__(self) -> None:
-        n = math.sqrt(sum(c * c for c in self.normal))
+        n = math.hypot(*self.normal)  # no underflow: a normal of 1e-200 still has a direction
         if not n > 0:
             raise ValueError("plane normal must be a non-zero vector")
         object.__setattr__(self, "normal", (self.normal[0] / n, self.normal[1] / n, self.normal[2] / n))
@@ -301,7 +301,7 @@ def parse_scene(data: Mapping[str, Any], where: str = "scene") -> Scene:
                 vec = _vec3(value, f"{here}.{key}")
                 if kind == "vec3+" and min(vec) <= 0:
                     raise ValueError(f"{here}.{key} must be all > 0, got {list(vec)}")
-                if key == "normal" and not any(vec):
+                if key == "normal" and not math.hypot(*vec) > 0:
                     raise ValueError(f"{here}.normal must be a non-zero vector")
                 kwargs[key] = vec
         built.append(cls(**kwargs))

@@ -79,7 +79,8 @@ class ProtocolConfig:
         require_positive(self, "tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s",
                          "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s")
         require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1)
-        if not (math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
+        if not (isinstance(self.masking_level_dbfs, (int, float)) and not isinstance(self.masking_level_dbfs, bool)
+                and math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
             raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")
         if not (isinstance(self.cue_level_db, (int, float)) and math.isfinite(self.cue_level_db)
                 and -30.0 <= self.cue_level_db <= 30.0):

@@ -7,7 +7,7 @@ import math
 import time
 from pathlib import Path
 
-from devices.fileio import user_cache_dir
+from devices.fileio import check_output_dir, user_cache_dir
 from stimuli.hfam.pipeline import PipelineSettings
 
 from . import runs
@@ -109,6 +109,8 @@ def run(args) -> int:
         changes["taps"] = args.taps
     cfg = DemoConfig(**changes)
     check_demo_out(args.out, args.force)
+    if args.cache_dir is not None:
+        check_output_dir(args.cache_dir, what="--cache-dir")  # a file there: refused before anything is built
     res = run_sim_demo(cfg, args.out, args.cache_dir, args.rebuild, figures=not args.no_figures)
     print()
     print(format_table(cfg, res.rows, res.pipeline.library))

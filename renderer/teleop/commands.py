@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.fileio import atomic_write_text
+from devices.fileio import atomic_write_text, check_output_dir
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import CimmModel, Testbed, get_environment
@@ -53,6 +53,7 @@ def software_versions() -> dict:
 def _new_dir(path: Path) -> Path:
     """Create an output folder; refuse to touch an existing non-empty one."""
     path = Path(path)
+    check_output_dir(path)  # a file, or a folder below a file: refused before anything runs
     if path.exists() and any(path.iterdir()):
         raise ValueError(f"output folder {path} exists and is not empty (choose another --out)")
     path.mkdir(parents=True, exist_ok=True)

@@ -132,6 +132,10 @@ def test_bad_values_name_file_line_column(small):
     with pytest.raises(ValueError, match=re.escape(f"{path}:4: column 'phase'")):
         load_study(small)
     write_synthetic_study(small, 3, seed=11)
+    _set_field(path, 3, "trial", "1e20")  # was reported as value -9223372036854775808 (int64 wrap)
+    with pytest.raises(ValueError, match=re.escape(f"{path}:3: column 'trial': value '1e20' is out of range")):
+        load_study(small)
+    write_synthetic_study(small, 3, seed=11)
     line = _first_line(path)
     _set_field(path, line, "incoming_velocities_m_s", "0.1;fast")
     from analysis.pipeline import analyse

@@ -77,6 +77,9 @@ def test_parse_scene_round_trip_and_errors():
         parse_scene({"objects": [{"shape": "box", "half_extents_m": [1, 0, 1]}]})
     with pytest.raises(ValueError, match="normal must be a non-zero vector"):
         parse_scene({"objects": [{"shape": "plane", "normal": [0, 0, 0]}]})
+    # a tiny normal still has a direction (its squared length underflowed to 0: audit renderer_config_tiny_normal)
+    tiny = parse_scene({"objects": [{"shape": "plane", "normal": [0, 1e-200, 1e-200]}]}).objects[0]
+    assert tiny.normal == pytest.approx((0.0, 2 ** -0.5, 2 ** -0.5), rel=1e-12)
     with pytest.raises(ValueError, match="non-empty list"):
         parse_scene({"objects": []})
 

@@ -119,6 +119,9 @@ def test_data_folder_under_a_file_refused(tmp_path, capsys):
      ":2: protocol file is not UTF-8 text (invalid start byte at byte 18)"),
     ("latin1.toml", '[[sample]]\nname = "caf\u00e9"\n'.encode("latin-1"), "--catalog",
      ":2: catalog is not UTF-8 text (invalid continuation byte at byte 22)"),
+    # audit protocol_mask_str.txt: "must be real number, not str" named no key
+    ("mask_str.toml", b'masking_level_dbfs = "loud"\n', "--protocol",
+     ": masking_level_dbfs must be between -100 and -3 dBFS, got 'loud'"),
 ])
 def test_protocol_or_catalog_of_wrong_type_or_encoding_names_the_file(tmp_path, capsys, name, content, option,
                                                                       match):
