@@ -145,6 +145,9 @@ def outputs(path, formats=FORMATS, data: bool = True) -> list[Path]:
 def check_outputs(path, formats=FORMATS, data: bool = True, force: bool = False, flag: str = "--force") -> list[Path]:
     """Refuse (``ValueError`` naming every one) if any file :func:`save` would write exists, unless ``force``;
     a folder or a file in place of the parent folder is refused always. Returns the files."""
+    if Path(path).is_dir():  # "--out results/" meant a folder: the files would land beside it, named after it
+        raise ValueError(f"{path} is a folder; a figure is written as files ({Path(path).name}.png, ...): give a "
+                         "file name, e.g. " + str(Path(path) / "figure.png"))
     targets = outputs(path, formats, data)
     for t in targets:
         if t.is_dir():

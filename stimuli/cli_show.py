@@ -113,6 +113,6 @@ def run(args) -> int:
     lib = HfamLibrary.load(args.library)
     print(summary(lib))
     out = args.out if args.out is not None else args.library.with_suffix(".png")
-    plot_library(lib, out, force=args.force)   # refuses an existing PNG, SVG or .plot.csv unless --force
-    print(f"wrote {out}")
+    png = plot_library(lib, out, force=args.force)   # refuses an existing PNG, SVG or .plot.csv unless --force
+    print(f"wrote {png}")
     return 0

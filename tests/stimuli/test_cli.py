@@ -4,6 +4,7 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -273,6 +274,14 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
     res = show("--force")
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "wood.png").exists() and _sha(wood) == before
+    # --out naming a folder: refused (it wrote <folder>.png/.svg/.plot.csv beside it and said "wrote <folder>")
+    (tmp_path / "figs").mkdir()
+    res = show("--out", "figs")
+    assert res.returncode == 2 and res.stderr.strip().startswith("error: figs is a folder; a figure is written as "
+                                                                 "files (figs.png, ...)"), res.stderr
+    assert not (tmp_path / "figs.png").exists() and not any((tmp_path / "figs").iterdir())
+    res = show("--out", "figs/lib")
+    assert res.returncode == 0 and f"wrote {Path('figs/lib.png')}" in res.stdout, (res.stdout, res.stderr)
 
 
 def _stimuli(tmp_path, *args):
