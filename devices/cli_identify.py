@@ -12,7 +12,7 @@ from collections import OrderedDict
 from pathlib import Path
 
 from .cliargs import add_renamed, with_examples
-from .fileio import clear_products, refuse_overwrite
+from .fileio import check_output_dir, clear_products, refuse_overwrite
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -166,9 +166,7 @@ def default_grip_levels(grip_range_N: tuple[float, float]) -> tuple[float, ...]:
 def check_out_dir(out, overwrite: bool, marker_files=("model_set.json", "model.json")) -> None:
     """Refuse to write into a folder that already holds a model unless ``overwrite`` (never overwrite a
     user's results silently)."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
+    out = check_output_dir(out)  # a file, or a path below one: refused whatever ``overwrite``
     found = [m for m in marker_files if (out / m).exists()]
     if found and not overwrite:
         raise ValueError(f"--out {out} already holds a model ({', '.join(found)}); choose another folder or pass "
@@ -216,13 +214,7 @@ def _run_identify(args) -> int:
         raise ValueError(f"--amplitudes-A must be > 0 A, got {args.amplitude}")
     if args.method == "successive":
         return run_successive(args)
-    refuse_overwrite(args.out, args.force)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
-    for parent in out.parents:
-        if parent.exists() and not parent.is_dir():
-            raise ValueError(f"cannot write --out {out}: {parent} is a file, not a folder")
+    out = check_output_dir(args.out, args.force)
     # earlier results stay until the new run has succeeded: it is measured into a sibling folder
     replace = out.is_dir() and any(out.iterdir())
     target = Path(tempfile.mkdtemp(prefix=f".{out.name}.identify-", dir=out.parent)) if replace else out

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .fileio import atomic_write_text, read_json_file
+from .validation import is_finite_number
 
 INPUTS = ("current_A",)
 OUTPUTS = ("accel_m_s2", "position_m")
@@ -346,13 +347,6 @@ def _finite_float(value, key: str) -> float:
     return v
 
 
-def _isfinite(x) -> bool:
-    try:
-        return math.isfinite(x)
-    except OverflowError:  # an integer too large for a float
-        return False
-
-
 def _check_fs(fs_hz) -> float:
     fs = float(fs_hz)
     if not (math.isfinite(fs) and fs > 0):
@@ -368,7 +362,7 @@ def _read_roots(value, where: str, key: str) -> np.ndarray:
         if (not isinstance(item, (list, tuple)) or len(item) != 2
                 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in item)):
             raise ValueError(f"{where}: key {key!r}[{i}] must be a [re, im] pair of numbers, got {item!r}")
-        if not all(_isfinite(x) for x in item):
+        if not all(is_finite_number(x) for x in item):
             raise ValueError(f"{where}: key {key!r}[{i}] is not finite: {item!r:.80}")
         out[i] = complex(item[0], item[1])
     return out

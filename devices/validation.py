@@ -14,8 +14,25 @@ from __future__ import annotations
 import math
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+def is_finite_number(value) -> bool:
+    """An int or float (not bool) that is finite; an integer too large for a float (a JSON number with
+    hundreds of digits) is not, instead of raising OverflowError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def shown_value(value) -> str:
+    """``repr(value)`` for a message, except an integer too large for a float, which is said in words."""
+    if isinstance(value, int) and not isinstance(value, bool) and not is_finite_number(value):
+        return "an integer too large for a float"
+    return repr(value)
+
+
+_is_number = is_finite_number
 
 
 def require_number(name: str, value, *, minimum: float | None = None, strict: bool = False,
@@ -50,7 +67,7 @@ def require_number(name: str, value, *, minimum: float | None = None, strict: bo
     if value is None and optional:
         return None
     if not _is_number(value):
-        raise ValueError(f"{prefix}{name} must be a finite number, got {value!r}")
+        raise ValueError(f"{prefix}{name} must be a finite number, got {shown_value(value)}")
     if minimum is not None and (value <= minimum if strict else value < minimum):
         raise ValueError(f"{prefix}{name} must be {'>' if strict else '>='} {minimum}, got {value!r}")
     if maximum is not None and value > maximum:

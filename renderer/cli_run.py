@@ -19,7 +19,7 @@ import math
 import sys
 
 from devices.cliargs import add_renamed, with_examples
-from devices.fileio import check_output_dir, refuse_overwrite
+from devices.fileio import check_output_dir
 
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
 
@@ -147,8 +147,7 @@ def _run(args) -> int:
 
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
-    check_output_dir(args.out)   # a file, or a path below one: refused before the run
-    refuse_overwrite(args.out, args.force)
+    check_output_dir(args.out, args.force)   # a file, a path below one or earlier results: refused before the run
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"

@@ -85,9 +85,10 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
         raise terminated  # exit status 128 + the signal's number
 
 
-def _end_child(proc, conn, want_message: bool):
-    """Wait for the child to exit: ``STOP_GRACE_S``, then SIGTERM (an orderly stop that zeroes the device) and
-    as long again, SIGKILL last. Returns the child's message if ``want_message`` and one arrives meanwhile."""
+def end_child(proc, conn, want_message: bool):
+    """Wait for a servo child to exit: ``STOP_GRACE_S``, then SIGTERM (an orderly stop that zeroes the device)
+    and as long again, SIGKILL last. Returns the child's message if ``want_message`` and one arrives meanwhile.
+    Used by :func:`run_in_process` and the hardware demo's servo process."""
     message = None
     for step in (None, proc.terminate, proc.kill):  # the kill: last resort, the device's watchdog must zero
         if step is not None:
@@ -178,7 +179,7 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
                                 message = parent_conn.recv()
                         break
                     if t_end is not None and time.monotonic() > t_end:
-                        stop.set()  # _end_child waits for the zeroed result, then escalates
+                        stop.set()  # end_child waits for the zeroed result, then escalates
                         break
                 except KeyboardInterrupt:
                     interrupted = True
@@ -196,7 +197,7 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
             if proc.pid is not None:
                 try:
                     with holding():  # a signal now is raised once the child is gone
-                        late = _end_child(proc, parent_conn, message is None)
+                        late = end_child(proc, parent_conn, message is None)
                         if message is None:
                             message = late
                 except Terminated as exc:

@@ -359,10 +359,7 @@ class HfamLibrary:
                     f"{path}: format {meta.get('format')!r} version {meta.get('format_version')!r} is not "
                     f"{FORMAT!r} <= {FORMAT_VERSION}"
                 )
-            arrays = {key: _member(data, key, path) for key in ("velocities_m_s", "grips_N", "currents_A")}
-            for key, arr in arrays.items():
-                if arr.dtype.kind not in "iuf":
-                    raise ValueError(f"{path}: {key} must be a numeric array, got dtype {arr.dtype}")
+            arrays = {key: _numeric(data, key, path) for key in ("velocities_m_s", "grips_N", "currents_A")}
             return cls(
                 arrays["velocities_m_s"],
                 arrays["grips_N"],

@@ -91,7 +91,7 @@ class ProtocolConfig:
         return asdict(self)
 
 
-def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
+def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, where: str = "command line"):
     """Build the frozen dataclass ``cls`` from a TOML (``.toml``) or JSON file.
 
     Parameters
@@ -104,6 +104,9 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
         What the file is, for messages ("protocol", "participant").
     overrides : dict or None
         Values that win over the file's (entries that are None are ignored).
+    where : str
+        Where the values come from without a file, for messages (e.g. a resumed session's
+        ``session.json: protocol``).
 
     Raises
     ------
@@ -114,7 +117,6 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
         ones) or a value ``cls`` refuses.
     """
     data: dict = {}
-    where = "command line"
     if path is not None:
         p = Path(path)
         where = str(p)
@@ -138,9 +140,10 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None):
         raise ValueError(f"{where}: {exc}") from None
 
 
-def load_protocol(path, **overrides) -> ProtocolConfig:
-    """Load a :class:`ProtocolConfig` from TOML/JSON; CLI ``overrides`` (not None) win."""
-    return load_dataclass_file(path, ProtocolConfig, "protocol", overrides)
+def load_protocol(path, where: str = "command line", **overrides) -> ProtocolConfig:
+    """Load a :class:`ProtocolConfig` from TOML/JSON; ``overrides`` (not None) win; ``where`` names their
+    source in messages when there is no file."""
+    return load_dataclass_file(path, ProtocolConfig, "protocol", overrides, where)
 
 
 @dataclass(frozen=True)

@@ -241,6 +241,14 @@ def _whole_last_row(head: bytes, last: bytes, where: str) -> bool:
         return False
 
 
+def _append_durably(path: Path, data: bytes) -> None:
+    """Append ``data`` to ``path`` and fsync it before returning."""
+    with open(path, "ab") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
 #: the files a session writes atomically (their half-written temporary files are removed on --resume)
 _ATOMIC_PRODUCTS = (".json", ".jsonl", ".csv", ".npz")
 
@@ -445,17 +453,11 @@ class SessionStore:
             cut = data.rfind(b"\n") + 1
             line_no = data.count(b"\n") + 1
             if _whole_last_row(data[:cut], data[cut:], f"{self.trials_path} line {line_no}"):
-                with open(self.trials_path, "ab") as fh:     # a complete row: only its newline is missing
-                    fh.write(b"\n")
-                    fh.flush()
-                    os.fsync(fh.fileno())
+                _append_durably(self.trials_path, b"\n")  # a complete row: only its newline is missing
                 data += b"\n"
             else:
                 torn = self.trials_path.with_name(self.trials_path.name + ".torn")
-                with open(torn, "ab") as fh:                 # kept, never just thrown away
-                    fh.write(data[cut:] + b"\n")
-                    fh.flush()
-                    os.fsync(fh.fileno())
+                _append_durably(torn, data[cut:] + b"\n")  # kept, never just thrown away
                 with open(self.trials_path, "r+b") as fh:
                     fh.truncate(cut)
                     fh.flush()

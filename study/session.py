@@ -194,10 +194,8 @@ def plan_session(args) -> SessionPlan:
     protocol_overrides = {"repetitions": args.repetitions, "tap_window_s": args.tap_window_s,
                           "masking_level_dbfs": args.masking_level_dbfs, "cue_level_db": args.cue_level_db}
     if previous is not None:
-        try:
-            protocol = load_protocol(None, **previous["protocol"])
-        except ValueError as exc:  # the settings come from session.json, not from the command line
-            raise ValueError(f"{store.session_path}: protocol: {str(exc).removeprefix('command line: ')}") from None
+        # the settings come from session.json, not from the command line
+        protocol = load_protocol(None, where=f"{store.session_path}: protocol", **previous["protocol"])
         if args.seed is not None and args.seed != previous["seed"]:
             raise ValueError(f"--seed {args.seed} differs from the session's seed {previous['seed']} "
                              f"({store.session_path}); omit --seed when resuming")

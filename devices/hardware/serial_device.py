@@ -38,6 +38,7 @@ import numpy as np
 from ..base import Device, DeviceError, DeviceInfo, DeviceState, Status
 from ..fileio import atomic_write_text, read_text_utf8
 from ..stopsignals import holding
+from ..validation import is_finite_number, shown_value
 from . import wire_protocol as P
 from .calibration import Calibration
 from .transport import SerialTransport, Transport, TransportClosed
@@ -79,9 +80,8 @@ def load_calibration(path, device_id: str, defaults: Calibration) -> Calibration
     for key, value in entry.items():
         if key not in values:
             raise ValueError(f"{path}: devices.{device_id}.{key} is not a calibration key ({', '.join(values)})")
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not _finite(value):
-            shown = repr(value) if not isinstance(value, int) or _finite(value) else "an integer too large for a float"
-            raise ValueError(f"{path}: devices.{device_id}.{key} must be a finite number, got {shown}")
+        if not is_finite_number(value):
+            raise ValueError(f"{path}: devices.{device_id}.{key} must be a finite number, got {shown_value(value)}")
         values[key] = value
     if values["encoder_sign"] not in (1, -1):
         raise ValueError(f"{path}: devices.{device_id}.encoder_sign must be 1 or -1")
@@ -92,12 +92,6 @@ def load_calibration(path, device_id: str, defaults: Calibration) -> Calibration
     values["encoder_sign"] = int(values["encoder_sign"])
     return Calibration(**values)
 
-
-def _finite(value) -> bool:
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an integer too large for a float
-        return False
 
 
 def save_calibration(path, device_id: str, cal: Calibration) -> Path:

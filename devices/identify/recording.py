@@ -10,7 +10,6 @@ and sweep bands above Nyquist, naming the file, key and line.
 from __future__ import annotations
 
 import json
-import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import atomic_open, atomic_write_text, read_json_file
+from ..validation import is_finite_number, shown_value
 from .sweep import SweepConfig
 
 COLUMNS = ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N")
@@ -156,8 +156,8 @@ def _sweep_from_sidecar(data: dict, where: str) -> SweepConfig:
         if key not in data:
             raise ValueError(f"{where}: missing key {key!r}")
         value = data[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(f"{where}: key {key!r} must be a finite number, got {value!r}")
+        if not is_finite_number(value):
+            raise ValueError(f"{where}: key {key!r} must be a finite number, got {shown_value(value)}")
     if data["repetitions"] != int(data["repetitions"]):
         raise ValueError(f"{where}: key 'repetitions' must be an integer, got {data['repetitions']!r}")
     try:
@@ -202,15 +202,6 @@ def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _finite_number(value) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an integer too large for a float
-        return False
-
-
 def read_recording(path) -> Recording:
     """Read and validate a recording (CSV + sidecar).
 
@@ -233,7 +224,7 @@ def read_recording(path) -> Recording:
     meta = read_json_file(side, "recording sidecar")
     sweep = _sweep_from_sidecar(meta, str(side))
     grip = meta.get("grip_mean_N")  # groups the curves of `devices fit` and is averaged by identify
-    if grip is not None and not _finite_number(grip):
+    if grip is not None and not is_finite_number(grip):
         raise ValueError(f"{side}: key 'grip_mean_N' must be a finite number (mean grip in N) or absent, got "
                          f"{grip!r:.40}")
     arrays = read_csv_columns(path, COLUMNS)

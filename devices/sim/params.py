@@ -18,6 +18,7 @@ from pathlib import Path
 from types import MappingProxyType
 
 from ..base import DeviceInfo
+from ..validation import is_finite_number, shown_value
 
 _HERE = Path(__file__).parent
 DEFAULT_PARAMS_FILE = _HERE / "default_params.toml"
@@ -180,14 +181,7 @@ class SimParams:
 def _check_value(value, rule: str, key: str, where: str):
     """Validate one value against its schema rule; return the normalized value."""
     def fail(why: str):
-        shown = repr(value) if _finite(value) or not isinstance(value, int) else "an integer too large for a float"
-        raise ValueError(f"{where}: key {key!r} {why}, got {shown:.200}")
-
-    def _finite(x) -> bool:
-        try:
-            return math.isfinite(x)
-        except (OverflowError, TypeError):  # an integer too large for a float; not a number
-            return False
+        raise ValueError(f"{where}: key {key!r} {why}, got {shown_value(value):.200}")
 
     if rule == "bool":
         if not isinstance(value, bool):
@@ -206,13 +200,13 @@ def _check_value(value, rule: str, key: str, where: str):
             if not (isinstance(item, list) and len(item) == 4):
                 fail("must be a list of [f_zero_hz, zeta_zero, f_pole_hz, zeta_pole]")
             for x in item:
-                if isinstance(x, bool) or not isinstance(x, (int, float)) or not _finite(x) or x <= 0:
+                if not is_finite_number(x) or x <= 0:
                     fail("entries must be positive finite numbers")
             pairs.append(tuple(float(x) for x in item))
         return tuple(pairs)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         fail("must be a number")
-    if not _finite(value):
+    if not is_finite_number(value):
         fail("must be finite")
     if rule == "int_pos":
         if int(value) != value or value <= 0:

@@ -30,6 +30,7 @@ from stimuli import HfamLibrary
 
 from ..config import RendererConfig
 from ..loop import ServoLoop
+from ..process import end_child
 from . import figures as figs
 from . import metrics as dm
 from . import runs
@@ -220,14 +221,8 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
         finally:
             if scope is not None:  # the final state of the ring, so the scope ends on what happened last
                 _show_ring(scope, ring, ring_n.value, int(events[0]), n_taps)
-            if proc.pid is not None:
-                proc.join(timeout=5.0)
-                if proc.is_alive():
-                    proc.terminate()  # SIGTERM: the child zeroes the device and stops
-                    proc.join(timeout=5.0)
-                if proc.is_alive():  # last resort; the device's own watchdog must zero the output then
-                    proc.kill()
-                    proc.join(timeout=5.0)
+            if proc.pid is not None:  # wait, then SIGTERM (the child zeroes and stops), SIGKILL last
+                end_child(proc, parent, want_message=False)
             if scope is not None and hasattr(scope, "close") and isinstance(scope, TextScope):
                 scope.close()
     if terminated is not None:

@@ -3,7 +3,7 @@
 import pytest
 
 from devices.identify.sweep import SweepConfig
-from devices.validation import require_int, require_number, require_positive
+from devices.validation import is_finite_number, require_int, require_number, require_positive, shown_value
 from renderer.config import RendererConfig
 from renderer.homing import HomingConfig
 from stimuli.hfam.settings import BuildSettings
@@ -36,6 +36,26 @@ def test_require_number_bounds_and_optional():
     assert require_number("k", None, optional=True) is None
     with pytest.raises(ValueError, match=r"^k must be a finite number, got None$"):
         require_number("k", None)
+
+
+@pytest.mark.parametrize("value, finite", [(1, True), (-2.5, True), (10 ** 300, True), (10 ** 400, False),
+                                           (-(10 ** 400), False), (float("nan"), False), (float("-inf"), False),
+                                           (True, False), ("1", False), (None, False)])
+def test_is_finite_number_never_overflows(value, finite):
+    # a JSON integer with hundreds of digits made math.isfinite raise OverflowError in five readers
+    assert is_finite_number(value) is finite
+    if finite:
+        assert require_number("k", value) == value
+    else:
+        with pytest.raises(ValueError, match=r"^k must be a finite number, got "):
+            require_number("k", value)
+
+
+def test_shown_value_says_a_huge_integer_in_words():
+    assert shown_value(10 ** 400) == "an integer too large for a float"
+    assert shown_value(10 ** 300) == repr(10 ** 300) and shown_value("x") == "'x'" and shown_value(True) == "True"
+    with pytest.raises(ValueError, match=r"^k must be a finite number, got an integer too large for a float$"):
+        require_number("k", 10 ** 400)
 
 
 def test_require_int_rejects_bools_and_floats():
