@@ -22,7 +22,7 @@ import numpy as np
 
 from devices.sim import ScriptedTrajectory, TapTrajectory
 from renderer import RendererConfig, ServoLoop
-from renderer.homing import HomingConfig, HomingController
+from renderer.homing import SAFETY_STOPS, HomingConfig, HomingController
 
 from .rater import Reference, tap_features
 
@@ -32,7 +32,8 @@ REFERENCE_VELOCITIES_M_S = (0.04, 0.06, 0.08, 0.10, 0.13, 0.17, 0.22, 0.28)
 
 
 class ServoStopped(RuntimeError):
-    """The servo loop stopped itself (watchdog, invalid sensors, disconnect); the output is already zero."""
+    """The servo loop or homing stopped itself (watchdog, invalid sensors, disconnect, an unstable or run-away
+    homing PD); the output is already zero."""
 
 
 class TapResult:
@@ -221,8 +222,8 @@ class Apparatus:
         self.homing.temp_rise_K = self.temp_rise_K
         res = self.homing.run(duration_s, **kw)
         self.temp_rise_K = self.homing.temp_rise_K
-        if res.stop_reason in ("sensor", "disconnected", "watchdog"):
-            raise ServoStopped(f"homing stopped ({res.stop_reason}) after {res.duration_s:.2f} s, output zeroed")
+        if res.stop_reason in SAFETY_STOPS:
+            raise ServoStopped(f"homing stopped ({res.stop_reason}) after {res.duration_s:.2f} s: {res.message}")
         return res.contacts
 
     def home(self, max_s: float) -> None:
