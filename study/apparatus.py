@@ -145,6 +145,9 @@ class Apparatus:
         self.temp_rise_K = 0.0
         self.current = None
         self.reference: Reference | None = None
+        # polled by every homing and servo loop here (with their stop checks); it raises to abort the loop,
+        # whose output is then zeroed on the way out (the servo process: its parent died, study.isolated)
+        self.stop_check = None
         if self.is_sim:
             self.real_saturation_detection = "sim contact force (true_state)"
         else:
@@ -219,6 +222,10 @@ class Apparatus:
     # -- homing -------------------------------------------------------------
     def _home(self, duration_s: float, **kw) -> int:
         """Run homing with the apparatus' winding temperature; a safety stop ends the session."""
+        check = self.stop_check
+        if check is not None:
+            inner = kw.get("until")
+            kw["until"] = lambda: check() or (inner is not None and inner())
         self.homing.temp_rise_K = self.temp_rise_K
         res = self.homing.run(duration_s, **kw)
         self.temp_rise_K = self.homing.temp_rise_K
@@ -272,6 +279,7 @@ class Apparatus:
         flim = self.force_limit_N
         clip_bit = 8  # devices.base.Status.CLIPPING
         t_start = st.t_s
+        check = self.stop_check
         state = {"sat": False, "fmax": 0.0, "checked": 0}
         toned = set()
 
@@ -284,6 +292,8 @@ class Apparatus:
                     on_clip()
 
         def until(lp) -> bool:
+            if check is not None:
+                check()
             evs = lp.events
             current = len(evs) - 1
             if force_of is not None:
@@ -344,8 +354,10 @@ class Apparatus:
         dev.set_user(traj, grip)
         loop = ServoLoop(dev, RendererConfig(stiffness_N_m=0.0, motor_enabled=False,
                                              log_capacity_s=traj.duration_s + 1.0))
+        check = self.stop_check
         try:
-            result = loop.run(duration_s=traj.duration_s + 0.2)
+            result = loop.run(duration_s=traj.duration_s + 0.2,
+                              until=None if check is None else (lambda lp: check()))
         finally:
             dev.motor_enabled = True
             dev.set_sample("placeholder")
