@@ -285,7 +285,7 @@ def run_successive(args) -> int:
         identify_successive,
         save_result,
     )
-    from .identify.successive.procedure import STATE_FILE  # deferred, as above
+    from .identify.successive.procedure import STATE_FILE  # deferred: keeps `--help` fast
 
     out = check_output_dir(args.out)  # a file, or a path below one: refused whatever --force
     if not args.resume:
