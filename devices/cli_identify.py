@@ -178,15 +178,20 @@ IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model
                      "bode_*.svg", "bode_*.csv", "etfe_*.npz", "report.txt", "report.json")
 
 
-def _swap_in(new: Path, out: Path) -> None:
-    """Replace identify's earlier products in ``out`` by everything in ``new`` (a finished run), then remove
-    ``new``. Other files in ``out`` are kept. Paths to ``new`` in the reports are rewritten to ``out``."""
+#: What ``identify --method successive`` writes into --out (devices.identify.successive.save_result).
+SUCCESSIVE_PRODUCTS = ("model.json", "report.txt", "report.json", "stage_*.png", "successive_state.json")
+
+
+def _swap_in(new: Path, out: Path, products=IDENTIFY_PRODUCTS) -> None:
+    """Replace a command's earlier ``products`` (glob patterns) in ``out`` by everything in ``new`` (a finished
+    run), then remove ``new``. Other files in ``out`` are kept. Paths to ``new`` in the reports are rewritten
+    to ``out``."""
     for name in ("report.json", "report.txt"):
         p = new / name
         if p.is_file():
             p.write_text(p.read_text(encoding="utf-8").replace(str(new), str(out)), encoding="utf-8")
     entries = sorted(new.iterdir())
-    clear_products(out, IDENTIFY_PRODUCTS + tuple(e.name for e in entries))
+    clear_products(out, tuple(products) + tuple(e.name for e in entries))
     for e in entries:
         os.replace(e, out / e.name)
     new.rmdir()
@@ -266,21 +271,51 @@ def _measure(args, out: Path) -> dict:
 
 
 def run_successive(args) -> int:
-    """``identify --method successive``: stage by stage, progress per stage, model.json + report + figures."""
+    """``identify --method successive``: stage by stage, progress per stage, model.json + report + figures.
+
+    As the comprehensive method: a folder that holds a model is refused without ``--force`` (the message
+    names the file); with it, the new run is identified into a temporary folder beside ``--out`` and
+    swapped in only once its model, report and figures are written, so a failure or Ctrl-C midway leaves
+    the earlier model as it was. A failed stage's state is kept in ``<out>.failed`` (``--resume`` there
+    continues it). ``--resume`` continues the run whose state is in ``--out`` itself, in place.
+    """
     from .identify.successive import (  # deferred: keeps `--help` fast (a command loads only what it runs)
         STAGE_NAMES,
         format_result,
         identify_successive,
         save_result,
     )
+    from .identify.successive.procedure import STATE_FILE  # deferred: keeps `--help` fast
 
-    out = Path(args.out)
+    out = check_output_dir(args.out)  # a file, or a path below one: refused whatever --force
     if not args.resume:
-        check_out_dir(out, args.force)
+        check_out_dir(out, args.force)  # a model there: refused without --force, named
+        found = sorted({p.name for pattern in SUCCESSIVE_PRODUCTS for p in out.glob(pattern)}) if out.is_dir() else []
+        if found and not args.force:  # the rest of an earlier run (its report, figures, state) is the user's too
+            raise ValueError(f"--out {out} already holds an identification's files ({', '.join(found)}); choose "
+                             "another folder, pass --resume to continue it or --force to replace it")
     stages = tuple(s.strip() for s in args.stages.split(",")) if args.stages else STAGE_NAMES
-    result = identify_successive(args.device, stages=stages, state_dir=out, resume=args.resume, seed=args.seed,
-                                 log=lambda m: print(m, flush=True))
-    path = save_result(result, out, overwrite=args.force or args.resume, figures=not args.no_figures)
+    # earlier results stay until the new run has succeeded: it is identified into a sibling folder
+    replace = not args.resume and out.is_dir() and any(out.iterdir())
+    target = Path(tempfile.mkdtemp(prefix=f".{out.name}.identify-", dir=out.parent)) if replace else out
+    try:
+        result = identify_successive(args.device, stages=stages, state_dir=target, resume=args.resume,
+                                     seed=args.seed, log=lambda m: print(m, flush=True))
+        path = save_result(result, target, overwrite=args.resume, figures=not args.no_figures)
+    except BaseException as exc:
+        if replace:
+            if isinstance(exc, ValueError) and (target / STATE_FILE).is_file():
+                kept = out.parent / f"{out.name}.failed"
+                shutil.rmtree(kept, ignore_errors=True)
+                os.replace(target, kept)
+                raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier model; "
+                                 f"this run's finished stages are in {kept}: --out {kept} --resume continues "
+                                 "it)") from None
+            shutil.rmtree(target, ignore_errors=True)
+        raise
+    if replace:
+        _swap_in(target, out, SUCCESSIVE_PRODUCTS)
+        path = out / path.name
     print(format_result(result), end="")
     print(f"wrote {path} (use it as --device sim:{path}), report.txt, report.json"
           + ("" if args.no_figures else ", stage_*.png"))

@@ -26,6 +26,28 @@ temperature is stepped every tick (``temp_rise_K``, carried between calls so
 the study's loops and homing share one thermal state), and on hardware a servo
 period beyond the watchdog bound stops it; every stop zeroes the output and is
 reported in :attr:`HomingResult.stop_reason`.
+
+A PD whose gains are too high for the device (sampling, the velocity filter's lag and the amplifier's
+delay make it active) oscillates at the current limit, and one whose motor or encoder sign is reversed
+runs away from home; both are stopped with zero current (docs/study.md, "Homing controller"):
+
+* ``"unstable"``: a passivity observer on the PD, like the wall's (:mod:`renderer.passivity`, Hannaford
+  & Ryu 2002), sums every tick the work the force commanded over the last period did on the handle
+  plus the change of the energy the PD's saturated spring stores, with a leak of time constant
+  ``instability_window_s``, never below zero (energy the damping dissipated earlier is no credit for
+  energy generated later)::
+
+      E <- max(0, exp(-T / window) E + F_{k-1} (x_k - x_{k-1}) + U(x_k) - U(x_{k-1}))
+
+  ``U`` is the potential of ``clamp(kp (x_home - x), +-F_max)``. A PD that behaves like a spring and
+  a damper keeps ``E`` near zero whatever the hand does (the hand's work is not counted: it moves
+  ``x`` and ``U`` together); a limit cycle at the current limit generates energy every cycle. The
+  limit is ``instability_energy_frac * (F_max^2 / (2 kp) + F_max * 1 mm)`` (:func:`homing_energy_limit`).
+* ``"runaway"``: the observer assumes the commanded force is the force applied, which a reversed
+  sign breaks (it then sees a spring). The second check: the handle moved more than
+  ``runaway_distance_m`` away from home, faster than ``runaway_speed_m_s`` all the way, while
+  homing pushed toward home at its full current. A hand that overpowers homing presses the stylus
+  onto the sample, at most the home height plus a few millimetres into it, far below the default 50 mm.
 """
 
 from __future__ import annotations
@@ -36,6 +58,7 @@ from dataclasses import dataclass
 
 from devices.validation import require_number, require_positive
 
+from .passivity import TRAVEL_M
 from .safety import STATUS_DISCONNECTED, STATUS_SENSOR_INVALID, safety_bounds
 
 
@@ -63,6 +86,16 @@ class HomingConfig:
     contact_tolerance_m : float
         The stylus counts as touching the surface within this height above it
         (a stiff real sample stops it at the surface, within encoder quantization).
+    instability_window_s : float
+        Leak time constant (s) of the PD's passivity observer (module doc).
+    instability_energy_frac : float
+        Stop (``"unstable"``) once the observed energy exceeds this fraction of
+        :func:`homing_energy_limit`'s scale; inf turns the check off.
+    runaway_distance_m : float
+        Stop (``"runaway"``) once the handle moved this far (m) away from home at more than
+        ``runaway_speed_m_s`` while homing pushed toward home at its current limit; inf turns it off.
+    runaway_speed_m_s : float
+        Speed (m/s) above which motion away from home counts toward ``runaway_distance_m``.
     """
 
     home_height_m: float = 0.01
@@ -74,10 +107,19 @@ class HomingConfig:
     settle_speed_m_s: float = 0.02
     rearm_margin_m: float = 0.004
     contact_tolerance_m: float = 0.002
+    instability_window_s: float = 1.0
+    instability_energy_frac: float = 1.0
+    runaway_distance_m: float = 0.05
+    runaway_speed_m_s: float = 0.02
 
     def __post_init__(self) -> None:
         require_positive(self, "home_height_m", "kp_N_m", "velocity_cutoff_hz", "settle_tolerance_m",
-                         "settle_speed_m_s", "rearm_margin_m", "contact_tolerance_m", prefix="homing.")
+                         "settle_speed_m_s", "rearm_margin_m", "contact_tolerance_m", "instability_window_s",
+                         prefix="homing.")
+        for key in ("instability_energy_frac", "runaway_distance_m", "runaway_speed_m_s"):
+            value = getattr(self, key)
+            if value != math.inf:  # inf: that check off
+                require_number(key, value, minimum=0.0, strict=True, prefix="homing.")
         require_number("kd_N_s_m", self.kd_N_s_m, minimum=0.0, prefix="homing.")
         require_number("max_current_A", self.max_current_A, minimum=0.0, strict=True, optional=True, prefix="homing.")
 
@@ -91,9 +133,68 @@ class HomingResult:
     settled: bool
     contacts: int                 # impacts on the surface (from above the rearm margin) while homing
     final_position_m: float
-    stop_reason: str = "duration"  # duration | settled | until | sensor | disconnected | watchdog
+    stop_reason: str = "duration"  # duration | settled | until | sensor | disconnected | watchdog | unstable | runaway
     bad_samples: int = 0          # implausible sensor samples held (renderer.safety)
     temp_rise_K: float = 0.0      # winding temperature rise at the end (K)
+    peak_energy_J: float = 0.0    # largest energy the PD's passivity observer saw (J; module doc)
+    energy_limit_J: float = math.inf  # its stop threshold (J)
+    max_runaway_m: float = 0.0    # longest run away from home under full current toward it (m; module doc)
+    message: str = ""             # why a safety stop happened, and what to change (empty otherwise)
+
+
+#: stop reasons after which the output was zeroed for safety (the owner should end its session)
+SAFETY_STOPS = ("sensor", "disconnected", "watchdog", "unstable", "runaway")
+
+
+def saturated_spring_energy(kp: float, f_max: float, e: float) -> float:
+    """Energy (J) the homing PD's saturated spring stores at distance ``e`` (m) from home.
+
+    The potential of ``clamp(kp e, +-f_max)``: ``kp e^2 / 2`` up to ``e_s = f_max / kp``, then
+    ``f_max`` more per metre. Same form as :func:`renderer.passivity.wall_energy` (two-sided).
+
+    Parameters
+    ----------
+    kp : float
+        Proportional gain (N/m, > 0).
+    f_max : float
+        Force limit (N).
+    e : float
+        Distance from home (m), either sign.
+
+    Returns
+    -------
+    float
+    """
+    a = abs(e)
+    if kp * a <= f_max:
+        return 0.5 * kp * a * a
+    e_s = f_max / kp
+    return 0.5 * f_max * e_s + f_max * (a - e_s)
+
+
+def homing_energy_limit(config: HomingConfig, f_max_N: float) -> float:
+    """Stop threshold (J) of the homing PD's passivity observer (module doc).
+
+    ``instability_energy_frac * (F_max^2 / (2 kp) + F_max * TRAVEL_M)``: the most energy the
+    saturated spring stores before the force limit, plus full force over
+    :data:`renderer.passivity.TRAVEL_M` (1 mm), as for the wall.
+
+    Parameters
+    ----------
+    config : HomingConfig
+    f_max_N : float
+        The homing force limit (N): its current limit times the force per amp.
+
+    Returns
+    -------
+    float
+        J (inf when ``instability_energy_frac`` is inf).
+    """
+    frac = float(config.instability_energy_frac)
+    if frac == math.inf:
+        return math.inf
+    f = float(f_max_N)
+    return frac * (f * f / (2.0 * config.kp_N_m) + f * TRAVEL_M)
 
 
 class HomingController:
@@ -112,6 +213,8 @@ class HomingController:
         self.surface_height_m = surface_height_m
         wc = 2.0 * math.pi * self.config.velocity_cutoff_hz * self.dt_s
         self._alpha = wc / (1.0 + wc)
+        self.force_limit_N = self.max_current_A * abs(self.force_per_amp_N_A)
+        self.energy_limit_J = homing_energy_limit(self.config, self.force_limit_N)
 
     def run(self, duration_s: float, until_settled: bool = False, min_duration_s: float = 0.0,
             until=None, check_every: int = 200, realtime: bool = False, zero_at_end: bool = True) -> HomingResult:
@@ -142,10 +245,21 @@ class HomingController:
         plim, alim, max_bad = b.position_limit_m, b.accel_limit_m_s2, b.max_bad_samples
         heat, t_alpha, wd_ns = b.heat_K_A2, b.alpha, b.watchdog_period_ns
         temp = float(self.temp_rise_K)
+        # the passivity observer (module doc): leak, limit, the spring's force limit; its state
+        po_decay = math.exp(-self.dt_s / cfg.instability_window_s)
+        po_limit = self.energy_limit_J
+        fmax = self.force_limit_N
+        fpa = self.force_per_amp_N_A
+        run_dist, run_speed = cfg.runaway_distance_m, cfg.runaway_speed_m_s
         state = dev.read()
         x_prev = state.position_m
         if not (-plim <= x_prev <= plim):
             x_prev = home  # no plausible first sample: assume home (no velocity kick)
+        e_po = e_peak = 0.0
+        u_prev = saturated_spring_energy(kp, fmax, home - x_prev)
+        f_prev = 0.0  # force commanded over the last period (N)
+        away = away_max = 0.0  # distance run away from home under full current toward it (m)
+        message = ""
         v = 0.0
         armed = x_prev > armed_level
         contacts = 0
@@ -177,8 +291,26 @@ class HomingController:
                         break
                 else:
                     nbad = 0
-                v += alpha * ((x - x_prev) * inv_dt - v)
+                dx = x - x_prev
+                v += alpha * (dx * inv_dt - v)
                 x_prev = x
+                # passivity observer: work of the force held over the last period + change of the stored energy
+                err = home - x
+                u = saturated_spring_energy(kp, fmax, err)
+                e_po = e_po * po_decay + f_prev * dx + u - u_prev
+                if e_po < 0.0:
+                    e_po = 0.0  # dissipated energy is no credit for what an unstable loop generates later
+                u_prev = u
+                if e_po > e_peak:
+                    e_peak = e_po
+                    if e_po > po_limit:
+                        reason = "unstable"
+                        message = (f"homing generated {e_po * 1e3:.3g} mJ net over the last "
+                                   f"~{cfg.instability_window_s:g} s (limit {po_limit * 1e3:.3g} mJ) at "
+                                   f"kp_N_m={kp:g}, kd_N_s_m={kd:g}: the homing PD oscillates on this device; "
+                                   "output zeroed. Lower homing kp_N_m or kd_N_s_m (docs/study.md, 'Homing "
+                                   "controller')")
+                        break
                 if armed:
                     if x < surface:
                         contacts += 1
@@ -193,6 +325,22 @@ class HomingController:
                     i = -imax
                 elif i != i:
                     i = 0.0
+                # run-away: moving away from home, fast, while homing pushes toward it at full current
+                if (i == imax if err > 0.0 else i == -imax) and v * err < 0.0 and abs(v) > run_speed:
+                    away += abs(dx)
+                    if away > away_max:
+                        away_max = away
+                    if away > run_dist:
+                        reason = "runaway"
+                        message = (f"the handle ran {away * 1e3:.0f} mm away from home (at {abs(v):.2f} m/s, "
+                                   f"now {abs(err) * 1e3:.0f} mm from it) while homing pushed toward home at its "
+                                   f"current limit {imax:g} A (kp_N_m={kp:g}, kd_N_s_m={kd:g}): the motor's or the "
+                                   "encoder's sign is probably reversed; output zeroed. Check the device's "
+                                   "calibration and wiring (docs/study.md, 'Homing controller')")
+                        break
+                else:
+                    away = 0.0
+                f_prev = i * fpa
                 temp += (heat * i * i - temp) * t_alpha
                 # (4) command
                 dev.command(i)
@@ -221,13 +369,18 @@ class HomingController:
             self.temp_rise_K = temp
             raise
         self.temp_rise_K = temp
-        if zero_at_end or reason in ("sensor", "disconnected", "watchdog"):
+        if zero_at_end or reason in SAFETY_STOPS:
             dev.command(0.0)
-        if reason in ("sensor", "disconnected", "watchdog"):
-            return HomingResult(duration_s=tick * self.dt_s, ticks=tick, settled=False, contacts=contacts,
-                                final_position_m=x, stop_reason=reason, bad_samples=bad_total, temp_rise_K=temp)
+        common = dict(duration_s=tick * self.dt_s, ticks=tick, contacts=contacts, stop_reason=reason,
+                      bad_samples=bad_total, temp_rise_K=temp, peak_energy_J=e_peak, energy_limit_J=po_limit,
+                      max_runaway_m=away_max)
+        if reason in SAFETY_STOPS:
+            if not message:
+                message = {"sensor": f"{nbad} implausible sensor samples in a row",
+                           "disconnected": "the device reported a disconnect",
+                           "watchdog": "a servo period beyond the watchdog bound"}[reason] + "; output zeroed"
+            return HomingResult(settled=False, final_position_m=x, message=message, **common)
         x = state.position_m if -plim <= state.position_m <= plim else x
         if not settled:
             settled = abs(x - home) < tol and abs(v) < vtol
-        return HomingResult(duration_s=tick * self.dt_s, ticks=tick, settled=settled, contacts=contacts,
-                            final_position_m=x, stop_reason=reason, bad_samples=bad_total, temp_rise_K=temp)
+        return HomingResult(settled=settled, final_position_m=x, **common)

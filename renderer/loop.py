@@ -823,6 +823,11 @@ class ServoLoop:
              "rearm_margin_m": cfg.rearm_margin_m},
             dict(self.limits), self.transient)
         read, pop = dev.read, dev.pop_events
+        # a telemetry frame every ``per`` firmware ticks (a serial link's decimation): count device ticks, so
+        # duration_s and max_ticks mean device time as in the host loops
+        per = getattr(dev, "telemetry_decimation", 1)
+        per = int(per) if isinstance(per, int) and per >= 1 else 1
+        frames = 0
         clock = time.perf_counter_ns
         log, cap = self._logf, self._cap
         L_w, L_cn = self._log_ns["wall_ns"], self._log_ns["compute_ns"]
@@ -856,12 +861,13 @@ class ServoLoop:
                 li += 1
                 if li == cap:
                     li = 0
-                n += 1
+                n += per
+                frames += 1
                 if s.status & LAW.STATUS_DISCONNECTED:
                     reason = "disconnected"
                     st["error"] = str(s.extra.get("error", "device reported a disconnect"))
                     break
-                if n % cfg.until_every == 0:
+                if frames % cfg.until_every == 0:
                     self.ticks = n
                     self.time_s = t
                     stop = self._stop_check(until)
@@ -871,7 +877,7 @@ class ServoLoop:
         finally:
             self.ticks = n
             self.time_s = t
-            st.update(stop_reason=reason, ticks=n, n_logged=min(n, cap), wrapped=n > cap, li=li,
+            st.update(stop_reason=reason, ticks=n, n_logged=min(frames, cap), wrapped=frames > cap, li=li,
                       overruns=0, bad_samples=0, paced=True)
 
     # ------------------------------------------------------------------ result

@@ -22,7 +22,7 @@ import numpy as np
 
 from devices.sim import ScriptedTrajectory, TapTrajectory
 from renderer import RendererConfig, ServoLoop
-from renderer.homing import HomingConfig, HomingController
+from renderer.homing import SAFETY_STOPS, HomingConfig, HomingController
 
 from .rater import Reference, tap_features
 
@@ -32,7 +32,8 @@ REFERENCE_VELOCITIES_M_S = (0.04, 0.06, 0.08, 0.10, 0.13, 0.17, 0.22, 0.28)
 
 
 class ServoStopped(RuntimeError):
-    """The servo loop stopped itself (watchdog, invalid sensors, disconnect); the output is already zero."""
+    """The servo loop or homing stopped itself (watchdog, invalid sensors, disconnect, an unstable or run-away
+    homing PD); the output is already zero."""
 
 
 class TapResult:
@@ -144,6 +145,9 @@ class Apparatus:
         self.temp_rise_K = 0.0
         self.current = None
         self.reference: Reference | None = None
+        # polled by every homing and servo loop here (with their stop checks); it raises to abort the loop,
+        # whose output is then zeroed on the way out (the servo process: its parent died, study.isolated)
+        self.stop_check = None
         if self.is_sim:
             self.real_saturation_detection = "sim contact force (true_state)"
         else:
@@ -218,11 +222,15 @@ class Apparatus:
     # -- homing -------------------------------------------------------------
     def _home(self, duration_s: float, **kw) -> int:
         """Run homing with the apparatus' winding temperature; a safety stop ends the session."""
+        check = self.stop_check
+        if check is not None:
+            inner = kw.get("until")
+            kw["until"] = lambda: check() or (inner is not None and inner())
         self.homing.temp_rise_K = self.temp_rise_K
         res = self.homing.run(duration_s, **kw)
         self.temp_rise_K = self.homing.temp_rise_K
-        if res.stop_reason in ("sensor", "disconnected", "watchdog"):
-            raise ServoStopped(f"homing stopped ({res.stop_reason}) after {res.duration_s:.2f} s, output zeroed")
+        if res.stop_reason in SAFETY_STOPS:
+            raise ServoStopped(f"homing stopped ({res.stop_reason}) after {res.duration_s:.2f} s: {res.message}")
         return res.contacts
 
     def home(self, max_s: float) -> None:
@@ -271,6 +279,7 @@ class Apparatus:
         flim = self.force_limit_N
         clip_bit = 8  # devices.base.Status.CLIPPING
         t_start = st.t_s
+        check = self.stop_check
         state = {"sat": False, "fmax": 0.0, "checked": 0}
         toned = set()
 
@@ -283,6 +292,8 @@ class Apparatus:
                     on_clip()
 
         def until(lp) -> bool:
+            if check is not None:
+                check()
             evs = lp.events
             current = len(evs) - 1
             if force_of is not None:
@@ -343,8 +354,10 @@ class Apparatus:
         dev.set_user(traj, grip)
         loop = ServoLoop(dev, RendererConfig(stiffness_N_m=0.0, motor_enabled=False,
                                              log_capacity_s=traj.duration_s + 1.0))
+        check = self.stop_check
         try:
-            result = loop.run(duration_s=traj.duration_s + 0.2)
+            result = loop.run(duration_s=traj.duration_s + 0.2,
+                              until=None if check is None else (lambda lp: check()))
         finally:
             dev.motor_enabled = True
             dev.set_sample("placeholder")

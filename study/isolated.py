@@ -17,8 +17,11 @@ loops and the homing controller live in a child process started with the
 The child zeroes and closes the device on every exit path (the Device base
 class guarantees it); SIGTERM and SIGHUP stop it the same way
 (devices.stopsignals). If the parent dies, the kernel sends the child SIGTERM
-(Linux ``PR_SET_PDEATHSIG``), and between requests it also sees the pipe close
-and exits. With a hardware
+(Linux ``PR_SET_PDEATHSIG``); wherever that is missing or failed, the child
+also polls ``os.getppid()`` (:class:`devices.stopsignals.ParentWatch`, as the
+renderer's and the demo's servo children do) in every homing, hold and tapping
+loop and between requests, and stops the same way (zero output, device closed,
+exit status 143); between requests it also sees the pipe close and exits. With a hardware
 device the child keeps homing between requests, so the device is commanded
 every tick for the whole session (a streaming device's watchdog would
 otherwise zero it in the gaps while the parent writes data).
@@ -33,7 +36,7 @@ import signal
 from dataclasses import asdict
 
 from devices import make_device
-from devices.stopsignals import die_with_parent, stop_on_signals
+from devices.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 
 from .apparatus import Apparatus, ServoStopped
 from .rater import tap_features
@@ -46,11 +49,16 @@ def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
     with stop_on_signals(own_process=True):
         die_with_parent(parent_pid)
         _serve(conn, clip_q, hold_event, spec, device_options, catalog, protocol, library_dir, sim_participant,
-               realtime)
+               realtime, parent_pid)
+
+
+#: the servo process asks the OS for its parent once every this many loop stop checks (homing: every 200
+#: ticks, so every 80 ms at 10 kHz, 0.8 s at 1 kHz; a tapping window: every 16-64 ticks)
+PARENT_CHECK_EVERY = 4
 
 
 def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
-           sim_participant, realtime) -> None:
+           sim_participant, realtime, parent_pid: int) -> None:
     if realtime is not False:
         try:  # a higher CFS priority for the servo (not SCHED_FIFO: its busy-waits would trip RT throttling)
             os.nice(-10)
@@ -63,6 +71,15 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
         device.open()
         app = Apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
                         realtime=realtime)
+        parent_gone = ParentWatch(parent_pid, every=PARENT_CHECK_EVERY)
+
+        def check_parent() -> bool:
+            # where PR_SET_PDEATHSIG is missing or failed: stop as its SIGTERM would (the loops zero the output)
+            if parent_gone():
+                raise Terminated(signal.SIGTERM)
+            return False
+
+        app.stop_check = check_parent
 
         conn.send(("ok", {"real_saturation_detection": app.real_saturation_detection, "device_info": asdict(device.info),
                           "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz}))
@@ -71,6 +88,7 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
                 # a streaming device must be commanded every tick (its watchdog zeroes it otherwise): keep homing
                 # while the parent writes data, updates the views or waits for the next request
                 while not conn.poll(0):
+                    check_parent()
                     app._home(0.02, zero_at_end=False)
             try:
                 method, args = conn.recv()

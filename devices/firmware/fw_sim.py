@@ -417,8 +417,10 @@ class FwSimDevice(SerialDevice):
     ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``grip_N``, ``faults``, ``tick_log``
     (1: keep every rendered tick's inputs and command, in ``last_tick_log`` after ``close()``), plus every
     :class:`~devices.hardware.serial_device.SerialDevice` option (``mode``, ``timeout_s``, ...).
-    ``telemetry_decimation`` defaults to 2 here: a STATE frame (23 bytes) every 250 us tick would need
-    92 % of the 1 Mbaud link, more than it carries beside the servo tick (docs/firmware.md).
+    ``baudrate`` defaults to the firmware's 1 Mbaud UART, so the serial driver's telemetry rule
+    (:func:`devices.hardware.serial_device.default_telemetry_decimation`) picks a STATE frame every 2nd
+    tick: one (23 bytes) every 250 us tick would need 92 % of the link, more than it carries beside the
+    servo tick (devices/firmware/README.md).
     """
 
     def __init__(self, pace: str = "realtime", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
@@ -435,7 +437,7 @@ class FwSimDevice(SerialDevice):
         self.tick_log = bool(int(tick_log))
         self.last_tick_log: dict | None = None
         self.handle: FwSimHandle | None = None
-        options.setdefault("telemetry_decimation", 2)
+        options.setdefault("baudrate", 1_000_000)  # the firmware's UART (the pty itself ignores it)
         if pace == "fast" and options.get("watchdog_ms") is None:
             # simulated time outruns the host's clock (keepalives every watchdog_ms/4 of wall time):
             # give the firmware watchdog room, or it trips between two keepalives

@@ -44,6 +44,44 @@ from .calibration import Calibration
 from .transport import SerialTransport, Transport, TransportClosed
 
 MODES = ("streaming", "on-device")
+#: bytes of one STATE frame on the wire (header, payload, CRC: 23)
+STATE_FRAME_BYTES = P.OVERHEAD + P.STATE_STRUCT.size
+#: share of a UART's bandwidth the on-device telemetry may take by default: the rest carries ACKs, EVENT
+#: frames and re-arm replies, and leaves slack for the firmware's transmit timing
+TELEMETRY_LINK_BUDGET = 0.5
+#: decimation when the link's rate is unknown (a transport other than a serial port, e.g. HID)
+CONSERVATIVE_DECIMATION = 2
+
+
+def default_telemetry_decimation(servo_rate_hz: float, link_bytes_per_s: float | None,
+                                 frame_bytes: int = STATE_FRAME_BYTES,
+                                 budget: float = TELEMETRY_LINK_BUDGET) -> int:
+    """The smallest on-device telemetry decimation whose STATE frames take at most ``budget`` of the link.
+
+    ``d = ceil(frame_bytes * servo_rate_hz / (budget * link_bytes_per_s))``, at least 1. Example: the
+    4 kHz ATmega328P board at 1 Mbaud (8N1: 100 kB/s) needs 92 kB/s for a frame every tick; half the
+    link allows 50 kB/s, so every 2nd tick (46 %). A link whose rate is unknown gets
+    :data:`CONSERVATIVE_DECIMATION`.
+
+    Parameters
+    ----------
+    servo_rate_hz : float
+        The firmware's tick rate (Hz), from INFO.
+    link_bytes_per_s : float or None
+        What the device can send per second (bytes/s; a UART: baud / 10 for 8N1); None if unknown.
+    frame_bytes : int
+        Bytes per STATE frame on the wire.
+    budget : float
+        Share of the link the telemetry may take (0-1].
+
+    Returns
+    -------
+    int
+    """
+    if link_bytes_per_s is None or not link_bytes_per_s > 0:
+        return CONSERVATIVE_DECIMATION
+    need = frame_bytes * float(servo_rate_hz) / (budget * float(link_bytes_per_s))
+    return max(1, math.ceil(need - 1e-9))
 RTT_RING = 65536  # round-trip samples kept for the link statistics (preallocated)
 CALIBRATION_ENV = "HFAM_CALIBRATION"
 
@@ -138,8 +176,13 @@ class ProtocolDevice(Device):
         JSON calibration file (default: ``$HFAM_CALIBRATION`` if set).
     watchdog_ms : int or None
         Device watchdog period to request (None: the firmware default from INFO).
-    telemetry_decimation : int
-        On-device mode: one telemetry STATE frame every this many firmware ticks.
+    telemetry_decimation : int or None
+        On-device mode: one telemetry STATE frame every this many firmware ticks. None (default): the
+        smallest that keeps the STATE frames within half the link (:func:`default_telemetry_decimation`,
+        from INFO's servo rate, the frame size and the link's rate: a serial port's baud rate; a link
+        whose rate is unknown gets 2). A native-USB board ignores the baud rate and can carry a frame
+        every tick: set 1 explicitly there. The value used is ``telemetry_decimation`` once rendering
+        is configured.
     loss_timeout_s : float
         Streaming, once the link runs: a state frame not back this long after its command is a *lost*
         frame (dropped or corrupt). The device keeps applying the last command, ``read()`` returns the
@@ -161,7 +204,7 @@ class ProtocolDevice(Device):
 
     def __init__(self, *, mode: str = "streaming", timeout_s: float = 0.02, hello_timeout_s: float = 1.0,
                  retries: int = 3, calibration=None, watchdog_ms: int | None = None,
-                 telemetry_decimation: int = 1, rearm_interval_s: float = 0.02, loss_timeout_s: float = 0.005,
+                 telemetry_decimation: int | None = None, rearm_interval_s: float = 0.02, loss_timeout_s: float = 0.005,
                  max_consecutive_losses: int = 10, max_loss_rate: float = 0.05, loss_window: int = 1000) -> None:
         super().__init__()
         mode = str(mode).replace("_", "-")
@@ -176,7 +219,10 @@ class ProtocolDevice(Device):
         self.retries = int(retries)
         self.calibration_path = calibration if calibration is not None else os.environ.get(CALIBRATION_ENV)
         self.watchdog_ms = None if watchdog_ms is None else int(watchdog_ms)
-        self.telemetry_decimation = int(telemetry_decimation)
+        if telemetry_decimation is not None and not (int(telemetry_decimation) >= 1):
+            raise ValueError(f"telemetry_decimation must be >= 1 tick, got {telemetry_decimation!r}")
+        self.telemetry_decimation_option = None if telemetry_decimation is None else int(telemetry_decimation)
+        self.telemetry_decimation = self.telemetry_decimation_option  # resolved by configure_rendering
         self.rearm_interval_s = float(rearm_interval_s)
         self._info: DeviceInfo | None = None
         self.wire_info: P.WireInfo | None = None
@@ -259,6 +305,10 @@ class ProtocolDevice(Device):
 
     def _make_transport(self) -> Transport:
         raise NotImplementedError
+
+    def link_bytes_per_s(self) -> float | None:
+        """Bytes per second the device can send over this link, or None when the transport does not say."""
+        return None
 
     # -- lifecycle ---------------------------------------------------------------------
     def _reset_link(self) -> None:
@@ -790,7 +840,11 @@ class ProtocolDevice(Device):
         self._transient = transient
         self._transient_name = getattr(transient, "name", "none") if transient is not None else "none"
         self._wall_height_m = w[0]
-        self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_ON_DEVICE, self.telemetry_decimation))
+        dec = self.telemetry_decimation_option
+        if dec is None:
+            dec = default_telemetry_decimation(info.servo_rate_hz, self.link_bytes_per_s())
+        self.telemetry_decimation = dec
+        self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_ON_DEVICE, dec))
         self._request(P.CLEAR_FAULTS)
         self._states.clear()
         self._events.clear()
@@ -945,3 +999,7 @@ class SerialDevice(ProtocolDevice):
 
     def _make_transport(self) -> Transport:
         return SerialTransport(self.port, self.baudrate)
+
+    def link_bytes_per_s(self) -> float:
+        """``baudrate / 10``: a UART sends 10 bits (start, 8 data, stop) per byte."""
+        return self.baudrate / 10.0

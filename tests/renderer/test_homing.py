@@ -1,5 +1,9 @@
 """Homing controller (renderer.homing) on the real sim device."""
 
+import math
+
+import pytest
+
 from devices.sim import SimDevice, TapTrajectory
 from renderer.homing import HomingConfig, HomingController
 
@@ -91,3 +95,83 @@ def test_homing_runs_through_the_safety_path():
     res = ctl.run(1.0)
     assert res.temp_rise_K == ctl.temp_rise_K and res.temp_rise_K != 5.0
     assert ctl.max_current_A <= dev.info.current_continuous_A
+
+
+class _Reversed(CurrentSpy):
+    """A motor wired the other way round: the device pushes against every command (a real sim device behind it)."""
+
+    def command(self, i):
+        self.currents.append(i)
+        self.dev.command(-i)
+
+
+def _released_hand(start_m):
+    """The sim device with a light hand resting ``start_m`` above the surface (it follows the handle)."""
+    dev = SimDevice(seed=1).open()
+    dev.set_sample("placeholder")
+    dev.set_user(start_m, grip_N=2.0)
+    dev.set_user(None, grip_N=0.5)
+    return dev
+
+
+def test_homing_gains_far_too_high_are_stopped_as_unstable():
+    """kp 100 x the default buzzes at the current limit: the PD's passivity observer stops it, output zeroed."""
+    for kp, kd, within_s in ((3e4, 3.0, 1.5), (3e5, 3.0, 0.3)):
+        dev = _released_hand(0.03)
+        spy = CurrentSpy(dev)
+        ctl = HomingController(spy, HomingConfig(home_height_m=0.01, kp_N_m=kp, kd_N_s_m=kd))
+        res = ctl.run(5.0)
+        assert res.stop_reason == "unstable", res
+        assert res.duration_s < within_s, res
+        assert res.peak_energy_J > res.energy_limit_J == ctl.energy_limit_J
+        # the limit: F_max^2 / (2 kp) + F_max * 1 mm
+        f = ctl.max_current_A * dev.info.force_per_amp_N_A
+        assert abs(res.energy_limit_J - (f * f / (2 * kp) + f * 1e-3)) < 1e-12
+        assert spy.currents[-1] == 0.0 and len(spy.currents) == res.ticks   # zeroed at the stop, nothing after
+        assert max(abs(i) for i in spy.currents) <= ctl.max_current_A + 1e-12
+        assert f"kp_N_m={kp:g}" in res.message and "Lower homing kp_N_m or kd_N_s_m" in res.message
+        assert sum(1 for i in spy.currents if abs(i) >= ctl.max_current_A - 1e-9) > 100  # it really buzzed
+        assert not res.settled
+
+
+def test_homing_with_a_reversed_motor_is_stopped_as_a_runaway():
+    for start, grip in ((0.03, 0.5), (0.012, 0.5), (0.03, 2.0)):
+        dev = SimDevice(seed=1).open()
+        dev.set_sample("placeholder")
+        dev.set_user(start, grip_N=2.0)
+        dev.set_user(None, grip_N=grip)
+        spy = _Reversed(dev)
+        ctl = HomingController(spy, HomingConfig(home_height_m=0.01))
+        res = ctl.run(5.0)
+        assert res.stop_reason == "runaway", res
+        assert res.duration_s < 0.2, res                      # 50 mm at up to ~1 m/s
+        assert 0.05 < res.max_runaway_m < 0.06 and res.final_position_m > 0.055
+        assert spy.currents[-1] == 0.0 and len(spy.currents) == res.ticks
+        assert "sign is probably reversed" in res.message and "50 mm" in res.message
+        # the passivity observer cannot see it (it sees a spring): the run-away check is what stops it
+        assert res.peak_energy_J < 0.01 * res.energy_limit_J
+
+
+def test_normal_and_overpowered_homing_keep_far_from_both_limits():
+    """The study's cases: homing from above and below, a long hold, a tap that overpowers homing."""
+    for start in (0.03, 0.0, 0.06):
+        dev = _released_hand(start)
+        res = HomingController(dev, HomingConfig(home_height_m=0.01)).run(3.0, until_settled=True)
+        assert res.stop_reason == "settled", res
+        assert res.peak_energy_J < 0.01 * res.energy_limit_J and res.max_runaway_m < 0.005
+    dev = SimDevice(seed=1).open()
+    dev.set_sample("wood")
+    dev.set_user(TapTrajectory([0.15], 1, approach_height_m=0.01, press_depth_m=0.03), grip_N=8.0, hand="prescribed")
+    res = HomingController(dev, HomingConfig(home_height_m=0.01)).run(1.5)
+    assert res.stop_reason == "duration" and res.contacts == 1   # overpowered: counted, not taken for instability
+    assert res.peak_energy_J < 0.01 * res.energy_limit_J
+    assert 0.005 < res.max_runaway_m < 0.5 * HomingConfig().runaway_distance_m
+
+
+def test_homing_stability_checks_validate_and_can_be_turned_off():
+    for key in ("instability_energy_frac", "runaway_distance_m", "runaway_speed_m_s", "instability_window_s"):
+        with pytest.raises(ValueError, match=f"homing.{key} must be"):
+            HomingConfig(**{key: -1.0})
+    dev = _released_hand(0.03)
+    res = HomingController(dev, HomingConfig(kp_N_m=3e5, instability_energy_frac=math.inf)).run(0.5)
+    assert res.stop_reason == "duration" and res.energy_limit_J == math.inf and res.peak_energy_J > 0.003
