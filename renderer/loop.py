@@ -134,7 +134,8 @@ class RunResult:
         Full-rate arrays (see ``LOG_CHANNELS``), trimmed to the ticks logged
         (the last ``log_capacity_s`` if the run was longer).
     timing : dict
-        The ``run.json`` timing fields.
+        The ``run.json`` timing fields; ``log_rate_hz`` is the log's row rate (the servo rate, or the
+        on-device telemetry's: servo rate / decimation).
     stop_reason : str
         "duration", "until", "stopped" (request_stop), "watchdog", "sensor", "disconnected",
         "unstable" (the wall's passivity observer), "exception", "interrupted" (Ctrl-C, SIGTERM, SIGHUP).
@@ -319,6 +320,7 @@ class ServoLoop:
             raise ValueError(f"rate_hz={fs:g} differs from the sim device's servo_rate_hz={info.servo_rate_hz:g}; "
                              "a sim device advances 1/servo_rate_hz per command, so create it with that rate")
         self.fs_hz = fs
+        self.log_rate_hz = fs  # rows of the log per second of device time (lower on-device with decimated telemetry)
         self.dt_s = 1.0 / fs
         limits = {}
         for key in ("current_continuous_A", "current_peak_A", "current_amplifier_A"):
@@ -466,6 +468,7 @@ class ServoLoop:
         if max_ticks is not None:
             limit = min(limit, int(max_ticks))
         cap_ticks = max(1, int(round(self.cfg.log_capacity_s * self.fs_hz)))
+        self.log_rate_hz = self.fs_hz  # one log row per tick (the on-device loop: per telemetry frame)
         if limit != math.inf:
             cap_ticks = max(1, min(cap_ticks, int(limit)))
         self.events = []
@@ -827,6 +830,7 @@ class ServoLoop:
         # duration_s and max_ticks mean device time as in the host loops
         per = getattr(dev, "telemetry_decimation", 1)
         per = int(per) if isinstance(per, int) and per >= 1 else 1
+        self.log_rate_hz = self.fs_hz / per  # the log holds one row per frame
         frames = 0
         clock = time.perf_counter_ns
         log, cap = self._logf, self._cap
@@ -920,6 +924,7 @@ class ServoLoop:
             "wall_time_s": wall_s,
             "ticks": int(ticks),
             "rate_hz": self.fs_hz,
+            "log_rate_hz": self.log_rate_hz,
             "achieved_rate_hz": ticks / wall_s if wall_s > 0 else 0.0,
             "realtime_factor": sim_time / wall_s if wall_s > 0 else 0.0,
             "realtime_factor_cpu": sim_time / cpu_s if cpu_s > 0 else 0.0,

@@ -335,13 +335,15 @@ class Apparatus:
         saturated = state["sat"] or any(e.clipped for e in events) or bool(np.any(log["clipped"] & 4))
         if real and force_of is None:
             saturated = state["sat"]
-        return TapResult(events, log, window_start, bool(saturated), state["fmax"], self.fs_hz, smp.name,
+        # on-device telemetry may carry every n-th tick: the log's own rate, not the servo rate
+        log_fs = float(result.timing.get("log_rate_hz", self.fs_hz))
+        return TapResult(events, log, window_start, bool(saturated), state["fmax"], log_fs, smp.name,
                          result.timing)
 
     # -- synthetic rater support (sim) ------------------------------------------
     def features(self, tap: TapResult) -> np.ndarray:
         """The rater's features of a tap window (acceleration spectrum around the impacts; :func:`study.rater.tap_features`)."""
-        return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], self.fs_hz)
+        return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], tap.fs_hz)
 
     def record_reference(self, reference_sample: str = "wood_on_foam") -> Reference:
         """Tap the real wood-on-foam (sim) at several velocities with the motor off; fit the rater's reference."""
@@ -362,6 +364,7 @@ class Apparatus:
             dev.motor_enabled = True
             dev.set_sample("placeholder")
         events = result.events
-        feats = tap_features(result.log["t_s"], result.log["accel_m_s2"], [e.t_s for e in events], self.fs_hz)
+        feats = tap_features(result.log["t_s"], result.log["accel_m_s2"], [e.t_s for e in events],
+                             float(result.timing.get("log_rate_hz", self.fs_hz)))
         self.reference = Reference.fit([e.incoming_velocity_m_s for e in events], feats)
         return self.reference

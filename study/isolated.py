@@ -222,7 +222,7 @@ class IsolatedApparatus:
 
     def features(self, tap):
         """The rater's features of a tap window, computed here from the returned log."""
-        return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], self.fs_hz)
+        return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], tap.fs_hz)
 
     def record_reference(self, reference_sample: str = "wood_on_foam"):
         """Record the rater's reference taps in the servo process; returns and keeps the reference."""

@@ -47,6 +47,9 @@ def _run_on_board(spec: str):
     dev = make_device(spec)
     with dev:
         res = ServoLoop(dev, RendererConfig()).run(duration_s=1.0)
+        # the log's row rate is the telemetry's, which the study's spectra and saved traces use
+        assert res.timing["log_rate_hz"] == dev.info.servo_rate_hz / dev.telemetry_decimation
+        assert res.timing["rate_hz"] == dev.info.servo_rate_hz
         return dev.telemetry_decimation, np.asarray(res.log["t_s"]), dev.stats["seq_gaps"]
 
 
