@@ -307,6 +307,8 @@ def _hardware_demo(args, prompt, say) -> int:
     scope = make_scope(getattr(args, "scope", "auto"))
     traces: dict = {}
     code = 0
+    # rows of the log per second: the servo rate, or on-device the telemetry's (servo rate / decimation)
+    log_fs = fs
     try:
         for i, r in enumerate(todo):
             where = ("Put the wood-on-foam sample under the stylus (the motor stays off)" if r.is_real else
@@ -323,7 +325,8 @@ def _hardware_demo(args, prompt, say) -> int:
                                     if getattr(args, "watchdog_overrun_s", None) else {}))
             transient = runs.make_transient(r, library)
             result = tap_session(spec, cfg, transient, n_taps, timeout_s, scope)
-            traces[r.name] = traces_from_result(r.name, result, fs, info.force_per_amp_N_A)
+            log_fs = float(result.timing.get("log_rate_hz", fs))  # the same device string: the same for every run
+            traces[r.name] = traces_from_result(r.name, result, log_fs, info.force_per_amp_N_A)
             tm = result.timing
             say(f"    {len(traces[r.name])} taps recorded (stop: {result.stop_reason}); {tm.get('ticks', 0)} ticks in "
                 f"{tm.get('wall_time_s', math.nan):.1f} s, period p99 {tm.get('period_p99_us', math.nan):.0f} us, "
@@ -341,7 +344,7 @@ def _hardware_demo(args, prompt, say) -> int:
     for name, taps in traces.items():
         for tp in taps:
             ref = nearest_reference(tp.v_in_m_s, [x for x in real if x is not tp])
-            runs.add_metrics(tp, None if ref is None else ref.accel, fs)
+            runs.add_metrics(tp, None if ref is None else ref.accel, log_fs)
             m = tp.metrics
             rows.append({"rendering": name, "velocity_m_s": round(tp.v_in_m_s, 4), "grip_N": round(tp.grip_N, 3),
                          "peak_accel_m_s2": m["peak_accel_m_s2"], "dominant_freq_hz": m["dominant_freq_hz"],
@@ -365,7 +368,7 @@ def _hardware_demo(args, prompt, say) -> int:
             f"{m('dominant_freq_hz'):8.0f} {m('penetration_mean_m') * 1e3:7.2f} {m('nrmse'):6.3f} "
             f"{m('correlation'):6.3f} {sum(x['clipped'] for x in sel):4d}/{len(sel)}")
     say(f"NRMSE/correlation: each tap against the real tap of closest incoming velocity (within "
-        f"{MATCH_TOLERANCE:.0%}), 20-1000 Hz (limited by Nyquist at {fs:g} Hz).")
+        f"{MATCH_TOLERANCE:.0%}), 20-1000 Hz (limited by Nyquist at {log_fs:g} Hz).")
     say(f"detail (one row per tap): {out / 'summary.csv'}")
     if real and len(traces) > 1:
         v_target = 0.11
@@ -376,7 +379,7 @@ def _hardware_demo(args, prompt, say) -> int:
                 panels.append((f"{name} ({tp.v_in_m_s:.2f} m/s)", tp.accel))
         ref = min(real, key=lambda x: abs(x.v_in_m_s - v_target))
         panels = [(lab, ref.accel if lab.startswith(runs.REAL.name) else w) for lab, w in panels]
-        p = figs.contact_figure(panels, ref.accel, fs, runs.PRE_S, round(ref.v_in_m_s, 3), ref.grip_N,
+        p = figs.contact_figure(panels, ref.accel, log_fs, runs.PRE_S, round(ref.v_in_m_s, 3), ref.grip_N,
                                 out / "fig_contact.png")
         say(f"figure contact  : {p}")
     return code

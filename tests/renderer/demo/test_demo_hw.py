@@ -113,6 +113,9 @@ def test_hfam_rendered_on_the_device_over_the_emulated_serial_port(tmp_path, cap
     finally:
         handle.stop()
     assert code == 0
+    # the serial driver's default telemetry over the emulator's 921,600 baud: every 5th 10 kHz tick, and the
+    # windows and spectra are taken at that 2 kHz rate, not the servo rate
+    assert "limited by Nyquist at 2000 Hz" in capsys.readouterr().out
     with open(tmp_path / "out" / "summary.csv") as fh:
         rows = list(csv.DictReader(fh))
     hfam = [r for r in rows if r["rendering"] == "hfam_firm"]
