@@ -1,13 +1,19 @@
 """The emulator as a command and a child process; fault-spec parsing; the latency command."""
 
 import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from devices import make_device
 from devices.__main__ import main as devices_main
 from devices.firmware.emulator import FaultSpec, start_emulator
 from devices.hardware.serial_device import SerialDevice
+from renderer import RendererConfig, ServoLoop
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -56,3 +62,27 @@ def test_emulate_rejects_bad_fault_spec(capsys):
     # its SIGTERM/SIGINT handlers are gone again: a pool forked later by this process (the demo's tap
     # workers) must still die on SIGTERM (a leaked handler once hung Pool.terminate for 600 s)
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_on_device_emulate_prints_a_device_string_for_telemetry_every_tick(tmp_path):
+    """The emulator stands for a native-USB board: its hint gives a frame every 10 kHz tick (not every 5th)."""
+    err = tmp_path / "stderr.txt"
+    with open(err, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "devices", "emulate", "--pty", "--mode", "on-device",
+                                 "--pace", "host", "--duration-s", "60"], stdout=subprocess.PIPE, stderr=fh, text=True)
+    try:
+        port = proc.stdout.readline().split()[1]
+        deadline = time.monotonic() + 30.0
+        hint = ""
+        while "telemetry_decimation=1" not in hint and time.monotonic() < deadline:
+            time.sleep(0.05)
+            hint = err.read_text()
+        spec = hint.split('--device "', 1)[1].split('"', 1)[0]
+        assert spec == f"serial:{port}?mode=on-device&telemetry_decimation=1"
+        with make_device(spec) as dev:
+            res = ServoLoop(dev, RendererConfig()).run(duration_s=0.05)
+        assert res.timing["log_rate_hz"] == res.timing["rate_hz"] == 10000.0
+        assert np.all(np.round(np.diff(res.log["t_s"]) * 1e6) == 100.0)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
