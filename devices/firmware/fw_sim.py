@@ -148,6 +148,7 @@ class Build:
     bss_bytes: int
     text_bytes: int
     rx_overruns_addr: int = 0
+    po_e_addr: int = 0
 
 
 def _cache_base() -> Path:
@@ -217,7 +218,7 @@ def build(force: bool = False) -> Build:
               str(harness), str(FIRMWARE_DIR / "fw_sim.c"), str(FIRMWARE_DIR / "hfam_protocol.c"), *ldflags],
              "simavr harness build (cc + libsimavr)")
         b = Build(folder, elf, harness, syms["encoder_count"], syms["__bss_end"], syms["parser"], syms["tick_probe"],
-                  data, bss, text, syms["rx_overruns"])
+                  data, bss, text, syms["rx_overruns"], syms.get("po_e", 0))
         d = {k: (str(v) if isinstance(v, Path) else v) for k, v in b.__dict__.items()}
         info.write_text(json.dumps(d, indent=1))
         return b
@@ -237,6 +238,8 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
            "--seed", str(int(seed))]
     if b.rx_overruns_addr:
         cmd += ["--sym-rx-overruns", str(b.rx_overruns_addr)]
+    if b.po_e_addr:
+        cmd += ["--sym-po-e", str(b.po_e_addr)]
     if tick_log is not None:
         cmd += ["--tick-log", str(tick_log)]
     if sweep_m_s:
@@ -328,7 +331,7 @@ class FwSimHandle:
 
 
 TICK_LOG_DTYPE = np.dtype([("t_us", "<u4"), ("encoder", "<i4"), ("accel_raw", "<u2"), ("grip_raw", "<u2"),
-                           ("current_q24", "<i4")])
+                           ("current_q24", "<i4"), ("po_e", "<i4")])
 
 
 def read_tick_log(path: Path) -> dict:
@@ -341,11 +344,12 @@ def read_tick_log(path: Path) -> dict:
     Returns
     -------
     dict
-        ``t_us``, ``encoder``, ``accel_raw``, ``grip_raw`` (int arrays, shape (n_ticks,)) and
+        ``t_us``, ``encoder``, ``accel_raw``, ``grip_raw``, ``po_e`` (int arrays, shape (n_ticks,): ``po_e`` is the
+        wall's passivity observer's energy after the tick, Q16 A count as the firmware keeps it) and
         ``current_A`` (float array: the commanded current, Q24 -> A).
     """
     raw = np.fromfile(path, dtype=TICK_LOG_DTYPE) if Path(path).exists() else np.zeros(0, TICK_LOG_DTYPE)
-    out = {k: raw[k].astype(np.int64) for k in ("t_us", "encoder", "accel_raw", "grip_raw")}
+    out = {k: raw[k].astype(np.int64) for k in ("t_us", "encoder", "accel_raw", "grip_raw", "po_e")}
     out["current_A"] = raw["current_q24"].astype(np.float64) / 2.0 ** 24
     return out
 
