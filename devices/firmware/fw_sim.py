@@ -418,7 +418,8 @@ class FwSimDevice(SerialDevice):
     """Device string ``fw-sim``: the real firmware on simavr, started on ``open()`` and stopped on ``close()``.
 
     Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (realtime | fast), ``speed`` (times real time),
-    ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``grip_N``, ``faults``, ``tick_log``
+    ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``hold_m`` (with ``taps=``: the height
+    the hand holds the handle at, default 0.01; below the wall it presses into it), ``grip_N``, ``faults``, ``tick_log``
     (1: keep every rendered tick's inputs and command, in ``last_tick_log`` after ``close()``), plus every
     :class:`~devices.hardware.serial_device.SerialDevice` option (``mode``, ``timeout_s``, ...).
     ``telemetry_decimation`` defaults to 2 here: a STATE frame (23 bytes) every 250 us tick would need
@@ -426,7 +427,7 @@ class FwSimDevice(SerialDevice):
     """
 
     def __init__(self, pace: str = "realtime", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
-                 faults: str | None = None, tick_log=0, **options) -> None:
+                 faults: str | None = None, tick_log=0, hold_m: float | None = None, **options) -> None:
         if isinstance(taps, (int, float)):
             taps = str(taps)
         try:
@@ -437,6 +438,12 @@ class FwSimDevice(SerialDevice):
             raise ValueError(f"fw-sim: pace must be 'realtime' or 'fast', got {pace!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
         self.tick_log = bool(int(tick_log))
+        try:
+            self.hold_m = None if hold_m is None else float(hold_m)
+        except ValueError:
+            raise ValueError(f"fw-sim: hold_m must be a height in m, got {hold_m!r}") from None
+        if self.hold_m is not None and (self.taps_m_s or not abs(self.hold_m) <= 0.05):
+            raise ValueError(f"fw-sim: hold_m (|hold_m| <= 0.05 m) needs taps= (no taps), got hold_m={hold_m!r}")
         self.last_tick_log: dict | None = None
         self.handle: FwSimHandle | None = None
         options.setdefault("telemetry_decimation", 2)
@@ -457,8 +464,8 @@ class FwSimDevice(SerialDevice):
     def _open(self) -> None:
         if self.handle is None or not self.handle.alive:
             try:
-                self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, grip_N=self.grip_N,
-                                                      faults=self.faults, tick_log=self.tick_log)
+                self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, hold_m=self.hold_m,
+                                                      grip_N=self.grip_N, faults=self.faults, tick_log=self.tick_log)
             except FwSimError as exc:
                 raise DeviceError(f"fw-sim: {exc}") from None
         super()._open()

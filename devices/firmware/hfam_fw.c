@@ -607,17 +607,20 @@ static inline __attribute__((always_inline)) int32_t mul_su16(int16_t a, uint16_
  * cycles), every intermediate bounded below 2^31 (comments). Returns 1 when E exceeds the limit: latched in
  * po_unstable and fault_latched until CLEAR_FAULTS. */
 static inline __attribute__((always_inline)) uint8_t po_step(int32_t x, int32_t pen, int32_t ip, int32_t f) {
-    /* stored energy U = s (pen + min(pen, d_s)) / 2 with s = min(k pen, F_c): k pen^2 / 2 below the clamp,
-     * F_c (pen - d_s / 2) beyond it (renderer.passivity.wall_energy) */
+    /* stored energy U = s m / 2 with s = min(k pen, F_c) and m = 2 pen - min(pen, d_s): k pen^2 / 2 below the
+     * clamp, F_c (pen - d_s / 2) beyond it (renderer.passivity.wall_energy) */
     int32_t u = 0;
     if (pen > 0) {
-        int32_t s = ip, m = pen > PO_PEN_MAX ? PO_PEN_MAX : pen;
-        if (s > lim_cont_q24) { s = lim_cont_q24; m += po_ds_q8; } /* po_ds_q8 <= PO_PEN_MAX: m <= 2^23 */
-        else m += m;                                               /* m = 2 x the mean penetration, Q8 */
+        int32_t s = ip, m = pen > PO_PEN_MAX ? PO_PEN_MAX : pen; /* Q8 counts */
+        if (s > lim_cont_q24) { /* clamped: m = 2 pen - d_s, 0 <= m < 2^23 (po_ds_q8 <= pen + 1 LSB here) */
+            s = lim_cont_q24;
+            m += m - po_ds_q8;
+            if (m < 0) m = 0;
+        }
         uint16_t s16 = (uint16_t)(s >> 8); /* Q16 A: 0 <= s <= lim_cont_q24 < 2^24 (_Static_assert above) */
-        if (m < (1L << 17)) /* Q16 A x the mean penetration in Q8 (< 2^16) = Q24 -> Q16 */
+        if (m < (1L << 17)) /* Q16 A x m / 2 in Q8 (< 2^16) = Q24 -> Q16 */
             u = (int32_t)(mul_uu16(s16, (uint16_t)(m >> 1)) >> 8);
-        else { /* beyond 256 counts: whole counts of the mean (< 2^14); U within 0.8 A count, no drift (U is a state) */
+        else { /* m beyond 512 counts: whole counts of m / 2 (< 2^14); U within 0.8 A count, no drift (U is a state) */
             u = (int32_t)mul_uu16(s16, (uint16_t)(m >> 8) >> 1);
             if (u > PO_U_MAX) u = PO_U_MAX;
         }
