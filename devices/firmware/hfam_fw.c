@@ -1,12 +1,13 @@
 /* Reference firmware for a Hapkit-style 1-DOF paddle on an ATmega328P (Arduino Uno/Nano, 16 MHz).
  *
- * Speaks protocol 1.0 of docs/protocol.md over the UART at 1 Mbaud (U2X, exact at 16 MHz; the
+ * Speaks protocol 1.1 of docs/protocol.md over the UART at 1 Mbaud (U2X, exact at 16 MHz; the
  * host opens the port at any nominal baud the USB-serial bridge maps to 1 Mbaud, or use a
  * native-USB board). Same behaviour as the Python emulator (devices/firmware/emulator.py +
  * devices/firmware/logic.py): hello/INFO, streaming (one CURRENT in -> one STATE out),
  * on-device rendering of wall + pulse / decaying sinusoid / host re-armed sampled transient
- * with a steady-state and a peak current limit (thesis Fig. 4.9), contact events, and a
- * watchdog that zeroes the motor while the host is quiet (reported; output resumes with the host).
+ * with a steady-state and a peak current limit (thesis Fig. 4.9), contact events, a passivity
+ * observer that stops an unstable wall (FAULT + UNSTABLE, latched), and a watchdog that zeroes
+ * the motor while the host is quiet (reported; output resumes with the host).
  *
  * Hardware (pins as on an Uno; change the #defines for another board):
  *   quadrature encoder A/B on INT0 (PD2) / INT1 (PD3), x4 decoding in the interrupts;

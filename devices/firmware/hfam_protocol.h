@@ -1,4 +1,4 @@
-/* hfam device protocol 1.0 (docs/protocol.md): framing, CRC-16/CCITT-FALSE, stream parser.
+/* hfam device protocol 1.1 (docs/protocol.md): framing, CRC-16/CCITT-FALSE, stream parser.
  * Platform independent (AVR firmware and the host-side check program share it). */
 #ifndef HFAM_PROTOCOL_H
 #define HFAM_PROTOCOL_H
