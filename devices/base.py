@@ -42,6 +42,7 @@ class Status(enum.IntFlag):
     CLIPPING = 8
     SENSOR_INVALID = 16
     DISCONNECTED = 32
+    UNSTABLE = 64  # the on-device wall's passivity observer stopped rendering (with FAULT; protocol 1.1)
 
 
 @dataclass(frozen=True)

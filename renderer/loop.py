@@ -43,6 +43,7 @@ from typing import Callable
 import numpy as np
 
 from devices import provenance
+from devices.base import Status
 from devices.fileio import save_npz
 from devices.stopsignals import Terminated, holding, stop_on_signals
 
@@ -54,6 +55,8 @@ from .safety import safety_bounds
 from .thermal import safe_continuous_current
 from .scene import SHAPE_CODES
 from .velocity import ImpactVelocityEstimator, ls_constants
+
+_STATUS_UNSTABLE = int(Status.UNSTABLE)  # an on-device wall stopped by the device's passivity observer
 
 # name, array typecode, numpy dtype, description (documented in docs/renderer.md)
 LOG_CHANNELS: tuple[tuple[str, str, str, str], ...] = (
@@ -749,6 +752,15 @@ class ServoLoop:
         return "sensor", (f"{int(w[LAW.W_NBAD])} invalid sensor samples in a row "
                           f"(flags {int(w[LAW.W_FLAGS])}) at tick {n}")
 
+    def _device_unstable_message(self, t: float) -> str:
+        """The message of an on-device observer stop (the device reports the stop, not its energy)."""
+        limit, f_c = self._po_device
+        cfg = self.cfg
+        return (f"the device's passivity observer stopped its wall at t = {t:.3f} s: the wall generated more than "
+                f"the limit of {limit * 1e3:.3g} mJ net over the last ~{cfg.instability_window_s:g} s "
+                f"(stiffness_N_m={cfg.stiffness_N_m:g}, force limit {f_c:.3g} N): the loop is unstable; the device "
+                "zeroed its output. Lower the stiffness or add damping (docs/renderer.md, 'Stopping an unstable wall')")
+
     def _run_compiled(self, limit, until, t0: int) -> str:
         """Law and simulated physics in ``renderer.law.run_sim``, in chunks of ``until_every`` ticks; an
         impact or a stop returns to Python for the event work or the stop. The per-tick clock columns
@@ -821,9 +833,16 @@ class ServoLoop:
         """On-device rendering (docs/architecture.md): configure once, then only read, log and collect events."""
         cfg, dev, st = self.cfg, self.device, self._stats
         wall = self.scene.single_wall
+        # the wall's passivity observer runs on the device (protocol 1.1), at the device's own servo period and
+        # with its wall force limit: the continuous current limit sent with LIMITS (renderer.passivity)
+        po_fc = self.limits["continuous_A"] * self.force_per_amp
+        po_decay, po_limit = passivity_constants(cfg, 1.0 / float(self.info.servo_rate_hz), po_fc)
+        po_limit = po_limit if math.isfinite(po_limit) else 0.0  # no stiffness: nothing to observe (0 = off)
+        self._po_device = (po_limit, po_fc)
         dev.configure_rendering(
             {"height_m": wall.height_m, "stiffness_N_m": cfg.stiffness_N_m, "damping_N_s_m": cfg.damping_N_s_m,
-             "rearm_margin_m": cfg.rearm_margin_m},
+             "rearm_margin_m": cfg.rearm_margin_m, "instability_limit_J": po_limit,
+             "instability_leak": -math.expm1(-1.0 / (float(self.info.servo_rate_hz) * cfg.instability_window_s))},
             dict(self.limits), self.transient)
         read, pop = dev.read, dev.pop_events
         # a telemetry frame every ``per`` firmware ticks (a serial link's decimation): count device ticks, so
@@ -870,6 +889,10 @@ class ServoLoop:
                 if s.status & LAW.STATUS_DISCONNECTED:
                     reason = "disconnected"
                     st["error"] = str(s.extra.get("error", "device reported a disconnect"))
+                    break
+                if s.status & _STATUS_UNSTABLE:  # the device's passivity observer stopped its wall
+                    reason = "unstable"
+                    st["error"] = self._device_unstable_message(t)
                     break
                 if frames % cfg.until_every == 0:
                     self.ticks = n

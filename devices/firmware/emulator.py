@@ -317,6 +317,8 @@ class Emulator:
             s |= Status.WATCHDOG_TRIPPED
         if self.fault_latched:
             s |= Status.FAULT
+        if self.fw.unstable:  # the wall's passivity observer stopped the rendering (latched with FAULT)
+            s |= Status.FAULT | Status.UNSTABLE
         if self.rendering and self.fw.clipping:
             s |= Status.CLIPPING
         if self.fw.over_temperature:
@@ -415,6 +417,7 @@ class Emulator:
     def _on_clear_faults(self, frame: P.Frame) -> None:
         self.tripped = False
         self.fault_latched = False
+        self.fw.clear_unstable()
         self.last_cmd = time.monotonic()
         self._ack(frame)
 
@@ -460,7 +463,7 @@ class Emulator:
         P.SET_WATCHDOG: _on_set_watchdog,
         P.CLEAR_FAULTS: _on_clear_faults,
         P.SET_CALIBRATION: _on_calibration,
-        P.WALL: _acked(lambda fw, pl: fw.set_wall(*P._unpack(P.WALL_STRUCT, pl, "WALL"))),
+        P.WALL: _acked(lambda fw, pl: fw.set_wall(*P.decode_wall(pl))),
         P.LIMITS: _on_limits,
         P.TRANSIENT_PARAM: _acked(lambda fw, pl: fw.set_param_transient(
             *P._unpack(P.TRANSIENT_PARAM_STRUCT, pl, "TRANSIENT_PARAM"))),
@@ -508,6 +511,8 @@ class Emulator:
         st = phys.read()
         t_us, enc, a, g = self._raw(st)
         i = self.fw.tick(t_us, enc, a, g)
+        if self.fw.unstable:  # as the firmware: the trip latches FAULT, zero output until CLEAR_FAULTS
+            self.fault_latched = True
         if self.tripped or self.fault_latched:
             i = 0.0
         self.applied_A = i

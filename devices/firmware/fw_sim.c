@@ -86,8 +86,9 @@ static void on_signal(int s) { (void)s; quit = 1; }
 static const char *elf_path, *stats_path;
 static int pace_realtime = 1, selfhost;
 static double speed = 1.0, max_sim_s = 0.0;
-static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns;
-static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current) */
+static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns, sym_po_e;
+static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current)
+                        * and its passivity observer's energy po_e (Q16 A count) */
 static double f_drop, f_corrupt, f_garbage, f_duplicate, f_disconnect_s = -1.0;
 static unsigned rng_state = 12345;
 static double rnd(void) { rng_state = rng_state * 1103515245u + 12345u; return ((rng_state >> 8) & 0xFFFFFF) / 16777216.0; }
@@ -355,7 +356,12 @@ static void gpior0_write(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param) {
             const uint8_t *d = a->data + sym_probe;
             static uint32_t last_t = 0; /* the probe starts zeroed: tick 0 never renders (no host yet) */
             uint32_t t = (uint32_t)d[0] | (uint32_t)d[1] << 8 | (uint32_t)d[2] << 16 | (uint32_t)d[3] << 24;
-            if (t != last_t) { fwrite(d, 1, 16, tick_log); last_t = t; } /* only ticks that rendered */
+            if (t != last_t) { /* only ticks that rendered */
+                static const uint8_t zero[4];
+                fwrite(d, 1, 16, tick_log);
+                fwrite(sym_po_e ? a->data + sym_po_e : zero, 1, 4, tick_log);
+                last_t = t;
+            }
         }
         uint64_t total = tick_open ? c - match_cycle : c - tick_start_cycle, body = c - tick_start_cycle;
         tick_hist[total < HIST ? total : HIST - 1]++;
@@ -557,7 +563,10 @@ static void selfhost_step(void) {
         p[0] = 1; put_u16(p + 1, (uint16_t)sh_decimation); sh_send(MSG_SET_MODE, p, 3); /* on-device rendering */
         sh_send(MSG_CLEAR_FAULTS, p, 0);
         put_f32(p, 0.0f); put_f32(p + 4, 1000.0f); put_f32(p + 8, 1.0f); put_f32(p + 12, 0.001f);
-        sh_send(MSG_WALL, p, 16);
+        /* the passivity observer on (protocol 1.1) with a 1 s window, and a limit (0.5 J) the sweeps never reach:
+         * every tick runs it and none stops */
+        put_f32(p + 16, 0.5f); put_f32(p + 20, 2.4996876e-4f);
+        sh_send(MSG_WALL, p, 24);
         put_f32(p, 0.8f); put_f32(p + 4, 2.0f); put_f32(p + 8, 2.0f); sh_send(MSG_LIMITS, p, 12);
         p[0] = 2; put_f32(p + 1, 20.0f); put_f32(p + 5, 0.05f); put_f32(p + 9, 300.0f); put_f32(p + 13, 0.0f);
         sh_send(MSG_TRANSIENT_PARAM, p, 17); /* decaying sinusoid: the costliest tick */
@@ -681,6 +690,7 @@ int main(int argc, char **argv) {
         else if (OPT("--sym-bss-end")) sym_bss_end = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-parser")) sym_parser = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-probe")) sym_probe = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-po-e")) sym_po_e = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-rx-overruns")) sym_rx_overruns = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--tick-log")) { tick_log = fopen(val, "wb"); if (!tick_log) { perror(val); return 2; } }
         else if (OPT("--taps")) { n_taps = parse_list(val, taps, 32); hand_mode = n_taps ? HAND_TAP : HAND_HOLD; }

@@ -148,6 +148,7 @@ class Build:
     bss_bytes: int
     text_bytes: int
     rx_overruns_addr: int = 0
+    po_e_addr: int = 0
 
 
 def _cache_base() -> Path:
@@ -217,7 +218,7 @@ def build(force: bool = False) -> Build:
               str(harness), str(FIRMWARE_DIR / "fw_sim.c"), str(FIRMWARE_DIR / "hfam_protocol.c"), *ldflags],
              "simavr harness build (cc + libsimavr)")
         b = Build(folder, elf, harness, syms["encoder_count"], syms["__bss_end"], syms["parser"], syms["tick_probe"],
-                  data, bss, text, syms["rx_overruns"])
+                  data, bss, text, syms["rx_overruns"], syms.get("po_e", 0))
         d = {k: (str(v) if isinstance(v, Path) else v) for k, v in b.__dict__.items()}
         info.write_text(json.dumps(d, indent=1))
         return b
@@ -237,6 +238,8 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
            "--seed", str(int(seed))]
     if b.rx_overruns_addr:
         cmd += ["--sym-rx-overruns", str(b.rx_overruns_addr)]
+    if b.po_e_addr:
+        cmd += ["--sym-po-e", str(b.po_e_addr)]
     if tick_log is not None:
         cmd += ["--tick-log", str(tick_log)]
     if sweep_m_s:
@@ -328,7 +331,7 @@ class FwSimHandle:
 
 
 TICK_LOG_DTYPE = np.dtype([("t_us", "<u4"), ("encoder", "<i4"), ("accel_raw", "<u2"), ("grip_raw", "<u2"),
-                           ("current_q24", "<i4")])
+                           ("current_q24", "<i4"), ("po_e", "<i4")])
 
 
 def read_tick_log(path: Path) -> dict:
@@ -341,11 +344,12 @@ def read_tick_log(path: Path) -> dict:
     Returns
     -------
     dict
-        ``t_us``, ``encoder``, ``accel_raw``, ``grip_raw`` (int arrays, shape (n_ticks,)) and
+        ``t_us``, ``encoder``, ``accel_raw``, ``grip_raw``, ``po_e`` (int arrays, shape (n_ticks,): ``po_e`` is the
+        wall's passivity observer's energy after the tick, Q16 A count as the firmware keeps it) and
         ``current_A`` (float array: the commanded current, Q24 -> A).
     """
     raw = np.fromfile(path, dtype=TICK_LOG_DTYPE) if Path(path).exists() else np.zeros(0, TICK_LOG_DTYPE)
-    out = {k: raw[k].astype(np.int64) for k in ("t_us", "encoder", "accel_raw", "grip_raw")}
+    out = {k: raw[k].astype(np.int64) for k in ("t_us", "encoder", "accel_raw", "grip_raw", "po_e")}
     out["current_A"] = raw["current_q24"].astype(np.float64) / 2.0 ** 24
     return out
 
@@ -414,7 +418,8 @@ class FwSimDevice(SerialDevice):
     """Device string ``fw-sim``: the real firmware on simavr, started on ``open()`` and stopped on ``close()``.
 
     Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (realtime | fast), ``speed`` (times real time),
-    ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``grip_N``, ``faults``, ``tick_log``
+    ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``hold_m`` (with ``taps=``: the height
+    the hand holds the handle at, default 0.01; below the wall it presses into it), ``grip_N``, ``faults``, ``tick_log``
     (1: keep every rendered tick's inputs and command, in ``last_tick_log`` after ``close()``), plus every
     :class:`~devices.hardware.serial_device.SerialDevice` option (``mode``, ``timeout_s``, ...).
     ``baudrate`` defaults to the firmware's 1 Mbaud UART, so the serial driver's telemetry rule
@@ -424,7 +429,7 @@ class FwSimDevice(SerialDevice):
     """
 
     def __init__(self, pace: str = "realtime", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
-                 faults: str | None = None, tick_log=0, **options) -> None:
+                 faults: str | None = None, tick_log=0, hold_m: float | None = None, **options) -> None:
         if isinstance(taps, (int, float)):
             taps = str(taps)
         try:
@@ -435,6 +440,12 @@ class FwSimDevice(SerialDevice):
             raise ValueError(f"fw-sim: pace must be 'realtime' or 'fast', got {pace!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
         self.tick_log = bool(int(tick_log))
+        try:
+            self.hold_m = None if hold_m is None else float(hold_m)
+        except ValueError:
+            raise ValueError(f"fw-sim: hold_m must be a height in m, got {hold_m!r}") from None
+        if self.hold_m is not None and (self.taps_m_s or not abs(self.hold_m) <= 0.05):
+            raise ValueError(f"fw-sim: hold_m (|hold_m| <= 0.05 m) needs taps= (no taps), got hold_m={hold_m!r}")
         self.last_tick_log: dict | None = None
         self.handle: FwSimHandle | None = None
         options.setdefault("baudrate", 1_000_000)  # the firmware's UART (the pty itself ignores it)
@@ -455,8 +466,8 @@ class FwSimDevice(SerialDevice):
     def _open(self) -> None:
         if self.handle is None or not self.handle.alive:
             try:
-                self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, grip_N=self.grip_N,
-                                                      faults=self.faults, tick_log=self.tick_log)
+                self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, hold_m=self.hold_m,
+                                                      grip_N=self.grip_N, faults=self.faults, tick_log=self.tick_log)
             except FwSimError as exc:
                 raise DeviceError(f"fw-sim: {exc}") from None
         super()._open()

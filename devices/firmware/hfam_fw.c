@@ -1,12 +1,13 @@
 /* Reference firmware for a Hapkit-style 1-DOF paddle on an ATmega328P (Arduino Uno/Nano, 16 MHz).
  *
- * Speaks protocol 1.0 of docs/protocol.md over the UART at 1 Mbaud (U2X, exact at 16 MHz; the
+ * Speaks protocol 1.1 of docs/protocol.md over the UART at 1 Mbaud (U2X, exact at 16 MHz; the
  * host opens the port at any nominal baud the USB-serial bridge maps to 1 Mbaud, or use a
  * native-USB board). Same behaviour as the Python emulator (devices/firmware/emulator.py +
  * devices/firmware/logic.py): hello/INFO, streaming (one CURRENT in -> one STATE out),
  * on-device rendering of wall + pulse / decaying sinusoid / host re-armed sampled transient
- * with a steady-state and a peak current limit (thesis Fig. 4.9), contact events, and a
- * watchdog that zeroes the motor while the host is quiet (reported; output resumes with the host).
+ * with a steady-state and a peak current limit (thesis Fig. 4.9), contact events, a passivity
+ * observer that stops an unstable wall (FAULT + UNSTABLE, latched), and a watchdog that zeroes
+ * the motor while the host is quiet (reported; output resumes with the host).
  *
  * Hardware (pins as on an Uno; change the #defines for another board):
  *   quadrature encoder A/B on INT0 (PD2) / INT1 (PD3), x4 decoding in the interrupts;
@@ -324,6 +325,26 @@ static int32_t sin_c1, sin_c2, sin_s1, sin_s2, sin_y1, sin_y2;
 static uint16_t tr_param_n;
 static int32_t rearm_buf[REARM_MAX]; /* Q24 A */
 static uint16_t rearm_n, rearm_pending_n;
+/* The wall's passivity observer (Hannaford & Ryu 2002; renderer/passivity.py, docs/renderer.md "Stopping an
+ * unstable wall"), as the host-side law runs it: every tick E <- a E + F_{k-1} (x_k - x_{k-1}) + U(x_k) -
+ * U(x_{k-1}), F the wall channel's current (proportional + damping, after the continuous clamp; no transient),
+ * U the potential of the clamped spring, and the rendering stops (zero output, FAULT + UNSTABLE) once E
+ * exceeds the host's limit. Energies in Q16 "A count" (one ampere over one encoder count is FORCE_PER_AMP *
+ * POS_RES_M = 59 uJ; Q16 keeps 1 nJ), saturated at +/-SAT (16,384 A count, 0.96 J); F in Q16 A; the leak
+ * 1 - a as a 16-bit multiplier po_leak_m 2^-(16 + 8 po_leak_sh). Set with WALL (protocol 1.1: limit 0 = off;
+ * the 1.0 WALL turns it off). 22 bytes of RAM. */
+#define PO_Q16_PER_J (65536.0f / (FORCE_PER_AMP * POS_RES_M))
+#define PO_PEN_MAX (1L << 22) /* Q8: penetrations beyond 16,384 counts (36 cm) count as that much */
+#define PO_U_MAX (1L << 29)   /* stored energy, Q16 A count (8,192 A count, 0.48 J: F_c over 10,000 counts) */
+#define PO_DX_MAX 8191        /* counts per tick (720 m/s): the work term stays below 2^29 */
+/* currents of the wall channel (<= the continuous limit, at most I_CONT_A) fit 16 bits in Q16 A */
+_Static_assert(I_CONT_A < 1.0f, "the passivity observer keeps the wall current in 16 bits (Q16 A): I_CONT_A < 1 A");
+int32_t po_e; /* not static: the simavr harness logs it per tick (fw_sim.c --sym-po-e) */
+static int32_t po_limit, po_u;
+static uint16_t po_f, po_leak_m, po_x16; /* F (Q16 A); the leak multiplier; the last position's low 16 bits */
+static uint8_t po_leak_sh;
+static int32_t po_ds_q8 = PO_PEN_MAX; /* penetration at which k * pen reaches the continuous limit, Q8 counts */
+static uint8_t po_fresh = 1, po_unstable;
 static uint8_t rearm_pending;
 static int32_t vel_ring[VEL_WINDOW];  /* positions in counts */
 static uint16_t vel_tick[VEL_WINDOW]; /* servo period number of each sample (low 16 bits) */
@@ -436,7 +457,8 @@ static void send_info(void) {
 
 static uint8_t status_bits(void) {
     uint8_t b = (uint8_t)(((tripped || trip_report) ? ST_WATCHDOG_TRIPPED : 0) | (fault_latched ? ST_FAULT : 0) |
-                          (clipping ? ST_CLIPPING : 0) | (over_temp ? ST_OVER_TEMPERATURE : 0));
+                          (clipping ? ST_CLIPPING : 0) | (over_temp ? ST_OVER_TEMPERATURE : 0) |
+                          (po_unstable ? ST_UNSTABLE : 0));
     trip_report = 0;
     return b;
 }
@@ -549,6 +571,113 @@ static inline int32_t mul_sh16(int32_t a, int32_t b) { /* (a * b) >> 16, callers
     return r;
 }
 
+/* 16 x 16 -> 32-bit products for the passivity observer. avr-gcc turns a product of 16-bit operands inside
+ * a longer expression into a 32 x 32 one (__mulsi3, register shuffling around a call): inline MULs instead. */
+static inline __attribute__((always_inline)) uint32_t mul_uu16(uint16_t a, uint16_t b) {
+#ifdef __AVR__
+    uint32_t r;
+    __asm__("mul  %A1, %A2\n\t"
+            "movw %A0, r0\n\t"
+            "mul  %B1, %B2\n\t"
+            "movw %C0, r0\n\t"
+            "mul  %B1, %A2\n\t"
+            "add  %B0, r0\n\t"
+            "adc  %C0, r1\n\t"
+            "clr  r1\n\t" /* the zero register again; clr keeps the carry */
+            "adc  %D0, r1\n\t"
+            "mul  %A1, %B2\n\t"
+            "add  %B0, r0\n\t"
+            "adc  %C0, r1\n\t"
+            "clr  r1\n\t"
+            "adc  %D0, r1\n\t"
+            : "=&r"(r) : "r"(a), "r"(b));
+    return r;
+#else
+    return (uint32_t)a * b;
+#endif
+}
+static inline __attribute__((always_inline)) int32_t mul_su16(int16_t a, uint16_t b) { /* |a| <= 2^15, b < 2^16: |a b| < 2^31 */
+    if (a >= 0) return (int32_t)mul_uu16((uint16_t)a, b);
+    return -(int32_t)mul_uu16((uint16_t)(0U - (uint16_t)a), b);
+}
+
+/* One step of the wall's passivity observer (po_e above; FirmwareRenderer._observe in logic.py does the same
+ * integer arithmetic). x: position (counts); pen: penetration (Q8 counts); ip: k * pen before the clamp (Q24 A,
+ * 0 outside the wall); f: this tick's wall current (Q24 A, 0..lim_cont_q24), the F of the next step. Only
+ * 16 x 16 -> 32-bit products and byte shifts (a first version with 32-bit products and bit shifts took ~430
+ * cycles), every intermediate bounded below 2^31 (comments). Returns 1 when E exceeds the limit: latched in
+ * po_unstable and fault_latched until CLEAR_FAULTS. */
+static inline __attribute__((always_inline)) uint8_t po_step(int32_t x, int32_t pen, int32_t ip, int32_t f) {
+    if (pen <= 0 && po_f == 0 && po_u == 0 && !po_fresh) {
+        /* outside the wall after a tick without wall force (most ticks): F dx = 0, dU = 0, f = 0, and the leak
+         * only takes E towards 0, never above the limit: the full step below, without the arithmetic */
+        po_x16 = (uint16_t)x;
+        int16_t eh = (int16_t)(po_e >> 16);
+        if (eh) {
+            int32_t lk = mul_su16(eh, po_leak_m);
+            if (po_leak_sh) lk >>= 8;
+            po_e -= lk;
+        }
+        return 0;
+    }
+    /* stored energy U = s m / 2 with s = min(k pen, F_c) and m = 2 pen - min(pen, d_s): k pen^2 / 2 below the
+     * clamp, F_c (pen - d_s / 2) beyond it (renderer.passivity.wall_energy) */
+    int32_t u = 0;
+    if (pen > 0) {
+        int32_t s = ip, m = pen > PO_PEN_MAX ? PO_PEN_MAX : pen; /* Q8 counts */
+        if (s > lim_cont_q24) { /* clamped: m = 2 pen - d_s, 0 <= m < 2^23 (po_ds_q8 <= pen + 1 LSB here) */
+            s = lim_cont_q24;
+            m += m - po_ds_q8;
+            if (m < 0) m = 0;
+        }
+        uint16_t s16 = (uint16_t)(s >> 8); /* Q16 A: 0 <= s <= lim_cont_q24 < 2^24 (_Static_assert above) */
+        if (m < (1L << 17)) /* Q16 A x m / 2 in Q8 (< 2^16) = Q24 -> Q16 */
+            u = (int32_t)(mul_uu16(s16, (uint16_t)(m >> 1)) >> 8);
+        else { /* m beyond 512 counts: whole counts of m / 2 (< 2^14); U within 0.8 A count, no drift (U is a state) */
+            u = (int32_t)mul_uu16(s16, (uint16_t)(m >> 8) >> 1);
+            if (u > PO_U_MAX) u = PO_U_MAX;
+        }
+    }
+    uint16_t x16 = (uint16_t)x; /* the position's low 16 bits: a tick moves far less than 2^15 counts */
+    if (po_fresh) { /* first tick after RENDER_START / CLEAR_FAULTS / WALL: nothing moved yet */
+        po_fresh = 0;
+        po_x16 = x16;
+        po_u = u;
+    }
+    int16_t dx = (int16_t)(x16 - po_x16);
+    if (dx > PO_DX_MAX) dx = PO_DX_MAX;
+    else if (dx < -PO_DX_MAX) dx = -PO_DX_MAX;
+    /* leak (1 - a) E as floor(E / 2^16) po_leak_m >> 8 po_leak_sh: one 16 x 16 product. The part of E below one
+     * A count (2^16) does not leak: E stays within 1 A count (1-3 % of the limits of 340-2e5 N/m walls) above
+     * the exactly leaked sum, on the safe side. */
+    int32_t e = po_e; /* -2^30 <= e <= SAT */
+    int32_t lk = mul_su16((int16_t)(e >> 16), po_leak_m);
+    if (po_leak_sh) lk >>= 8;
+    /* |F dx| < 2^16 * 2^13 = 2^29, |dU| <= 2^29: |inc| < 2^30, so |e - lk + inc| < 2^31 before the clamp */
+    e += mul_su16(dx, po_f) + (u - po_u) - lk;
+    int8_t top = (int8_t)(e >> 24); /* clamp to [-2^30, SAT] by the top byte (a byte move) */
+    if (top >= 0x40) e = SAT;
+    else if (top < -0x40) e = -SAT;
+    po_e = e;
+    po_x16 = x16;
+    po_u = u;
+    po_f = (uint16_t)(f >> 8); /* Q16 A: 0 <= f <= lim_cont_q24 < 2^24 */
+    if (e > po_limit) {
+        po_unstable = 1;
+        fault_latched = 1;
+        return 1;
+    }
+    return 0;
+}
+
+/* the clamp's penetration F_c / k in Q8 counts (WALL, LIMITS; 32-bit: F_c < 2^24 in Q24 A), at most PO_PEN_MAX */
+static int32_t po_clamp_q8(int32_t lim_q24, int32_t k) {
+    if (k <= 0) return PO_PEN_MAX;
+    uint32_t l = (uint32_t)(lim_q24 > 0xFFFFFF ? 0xFFFFFF : (lim_q24 < 0 ? 0 : lim_q24));
+    uint32_t d = (l * 256UL + (uint32_t)k / 2) / (uint32_t)k;
+    return d > (uint32_t)PO_PEN_MAX ? PO_PEN_MAX : (int32_t)d;
+}
+
 /* One on-device servo tick: same algorithm as FirmwareRenderer.tick, in fixed point. The two ADC
  * conversions (13 us each) run while the position and wall current are computed. */
 static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint16_t *grip_out) {
@@ -582,16 +711,19 @@ static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint
         if (in_event) finish_event();
     }
     /* wall: proportional + damping, pushes only, steady-state limit */
-    int32_t i_cmd = 0;
+    int32_t i_cmd = 0, ip = 0;
     uint8_t clipped = 0;
     if (pen > 0) {
         int32_t bd = dt < 2 * VEL_WINDOW ? b_wall[dt] : b_wall_1 / dt;
         /* k * pen: whole counts times k, plus the 1/256-count fraction times k / 256 (error < 16 uA);
          * two 32-bit products instead of a 64-bit one while pen stays below pen_c_max counts */
-        int32_t pc = pen >> 8, ip;
+        int32_t pc = pen >> 8;
         if (pc < pen_c_max) ip = k_wall * pc + (k_wall >> 8) * (pen & 255);
         else ip = mul_sh8_sat(k_wall, pen);
-        int32_t id = (dc > -64 && dc < 64 && bd < (1L << 24)) ? bd * dc : mul_sat(bd, dc); /* |.| < 2^30 */
+        /* |bd dc| < 2^30 in 32 bits (either case), else the saturated 64-bit product (~150 cycles): with typical
+         * gains (bd ~ 2^17 at 1 N s/m) moves faster than 64 counts per window (1.4 m/s) took it */
+        int32_t id = ((dc > -64 && dc < 64 && bd < (1L << 24)) || (dc > -1024 && dc < 1024 && bd < (1L << 20)))
+                         ? bd * dc : mul_sat(bd, dc);
         int32_t f = ip - id;
         if (f > 0) {
             i_cmd = f;
@@ -615,6 +747,12 @@ static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint
         }
         else if (tr_kind == 4) tr_n = rearm_n;
         else tr_n = 0;
+    }
+    if (po_limit && po_step(x, pen, ip, i_cmd)) { /* the wall generates energy: stop, zero output */
+        i_cmd = 0;
+        clipped = 0;
+        tr_n = tr_k;
+        if (in_event) finish_event();
     }
     /* transient overlay */
     if (tr_k < tr_n) {
@@ -765,6 +903,7 @@ static void handle_frame(void) {
     case MSG_CLEAR_FAULTS:
         TICK_LOCK();
         tripped = 0; fault_latched = 0; last_cmd_tick = tick_count;
+        po_unstable = 0; po_e = 0; po_fresh = 1; /* a fresh observer: the energy that tripped it is gone */
         TICK_UNLOCK();
         ack(type, seq);
         break;
@@ -782,8 +921,22 @@ static void handle_frame(void) {
         break;
     }
     case MSG_WALL: {
-        if (n != 16 || !finite4(p, 4) || get_f32(p + 4) < 0 || get_f32(p + 8) < 0 || get_f32(p + 12) < 0) {
+        /* 16 bytes (protocol 1.0: no observer) or 24 (1.1: + observer limit J >= 0, 0 = off, and leak 0..1) */
+        if ((n != 16 && n != 24) || !finite4(p, n / 4) || get_f32(p + 4) < 0 || get_f32(p + 8) < 0 ||
+            get_f32(p + 12) < 0 || (n == 24 && (get_f32(p + 16) < 0 || get_f32(p + 20) < 0 || get_f32(p + 20) >= 1))) {
             nak(type, seq, NAK_BAD_PAYLOAD); break;
+        }
+        int32_t plim = 0, lm = 0;
+        uint8_t lsh = 0;
+        if (n == 24 && get_f32(p + 16) > 0) {
+            plim = sat_round(get_f32(p + 16) * PO_Q16_PER_J); /* J -> Q16 A count, at most 1e9 (0.9 J) */
+            if (plim < 1) plim = 1;
+            /* the leak as a 16-bit multiplier: Q24 while it fits (windows from 0.25 s at 4 kHz, >= 13 bits at
+             * 1 s), else Q16 (shorter windows; a leak of 1 or more per tick is refused above) */
+            lm = sat_round(get_f32(p + 20) * 16777216.0f);
+            lsh = 1;
+            if (lm > 65535) { lm = sat_round(get_f32(p + 20) * 65536.0f); lsh = 0; }
+            if (lm > 65535) lm = 65535;
         }
         /* SI -> fixed point, once (soft-float here, never in the tick) */
         int32_t h = sat_round(get_f32(p) * (256.0f / POS_RES_M));
@@ -792,8 +945,12 @@ static void handle_frame(void) {
         int32_t bw[2 * VEL_WINDOW], b1;
         window_gains(bw, &b1, get_f32(p + 8) * (POS_RES_M * SERVO_HZ / FORCE_PER_AMP) * Q24);
         int32_t pcm = k > 0 ? SAT / k - 1 : 0x7FFFFFFFL;
+        int32_t ds = po_clamp_q8(lim_cont_q24, k); /* lim_cont_q24: written by this (main-loop) code only */
         TICK_LOCK();
         wall_h_q8 = h; k_wall = k; pen_c_max = pcm; wall_rearm_q8 = rearm; b_wall_1 = b1;
+        TICK_UNLOCK();
+        TICK_LOCK();
+        po_limit = plim; po_leak_m = (uint16_t)lm; po_leak_sh = lsh; po_ds_q8 = ds; po_e = 0; po_fresh = 1;
         TICK_UNLOCK();
         for (uint8_t t = 0; t < 2 * VEL_WINDOW; t++) { /* one entry at a time: each stays whole */
             TICK_LOCK();
@@ -812,8 +969,9 @@ static void handle_frame(void) {
         int32_t c = q24_of(cf);
         int32_t pk = q24_of(pf);
         if (pk < 0) pk = 0; /* never a negative peak limit: render_tick would drive -peak with no contact */
+        int32_t ds = po_clamp_q8(c, k_wall);
         TICK_LOCK();
-        lim_cont_q24 = c; lim_peak_q24 = pk;
+        lim_cont_q24 = c; lim_peak_q24 = pk; po_ds_q8 = ds;
         TICK_UNLOCK();
         ack(type, seq);
         break;
@@ -890,6 +1048,7 @@ static void handle_frame(void) {
         TICK_LOCK();
         rendering = 1; watchdog_armed = 1; last_cmd_tick = tick_count;
         armed = 0; in_event = 0; tr_k = tr_n = 0; vel_filled = 0;
+        po_e = 0; po_f = 0; po_fresh = 1; /* an UNSTABLE trip stays latched until CLEAR_FAULTS */
         TICK_UNLOCK();
         break;
     case MSG_RENDER_STOP:
@@ -931,7 +1090,9 @@ static void servo_tick_body(void) {
     }
     if (!rendering) return;
     uint16_t acc, grip;
-    int32_t q = render_tick(t_us, enc, &acc, &grip);
+    int32_t q = 0;
+    if (!po_unstable) q = render_tick(t_us, enc, &acc, &grip); /* the tick that trips returns 0 */
+    else { acc = adc_read(0); grip = adc_read(1); } /* stopped by the observer: telemetry only, zero output */
     motor_set_q24(tripped || fault_latched ? 0 : q);
     tick_probe.t_us = t_us; tick_probe.enc = enc; tick_probe.accel_raw = acc; tick_probe.grip_raw = grip;
     tick_probe.current_q24 = applied_q24;

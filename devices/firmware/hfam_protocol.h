@@ -1,4 +1,4 @@
-/* hfam device protocol 1.0 (docs/protocol.md): framing, CRC-16/CCITT-FALSE, stream parser.
+/* hfam device protocol 1.1 (docs/protocol.md): framing, CRC-16/CCITT-FALSE, stream parser.
  * Platform independent (AVR firmware and the host-side check program share it). */
 #ifndef HFAM_PROTOCOL_H
 #define HFAM_PROTOCOL_H
@@ -6,7 +6,7 @@
 #include <stdint.h>
 
 #define HFAM_PROTO_MAJOR 1
-#define HFAM_PROTO_MINOR 0
+#define HFAM_PROTO_MINOR 1 /* 1.1: WALL may carry the passivity observer's limit and leak; status bit 64 UNSTABLE */
 #define HFAM_SYNC0 0xA5
 #define HFAM_SYNC1 0x5A
 #define HFAM_MAX_PAYLOAD 255
@@ -54,6 +54,7 @@
 #define ST_OVER_TEMPERATURE 2
 #define ST_WATCHDOG_TRIPPED 4
 #define ST_CLIPPING 8
+#define ST_UNSTABLE 64 /* the on-device wall's passivity observer stopped the rendering (with ST_FAULT) */
 
 /* CRC-16/CCITT-FALSE update by one byte (polynomial 0x1021, no reflection; callers start at 0xFFFF).
  * On the AVR a table in flash; elsewhere the table-free shift-and-xor form of the same update. */

@@ -14,6 +14,11 @@ cited in 4.4.2) runs on board too: above ``THERMAL_ATTENUATE_FRAC`` of the
 allowed temperature rise the output is scaled down linearly, reaching zero at
 ``THERMAL_END_FRAC`` (the renderer's defaults), and OVER_TEMPERATURE is reported.
 
+The wall's passivity observer (Hannaford & Ryu 2002, as ``renderer.passivity`` on the host; protocol 1.1)
+runs in the same integer arithmetic as the C firmware (:meth:`FirmwareRenderer._observe`): the net energy
+the wall channel generated, in Q16 ampere x encoder count, with a leak; above the host's limit the
+rendering stops with zero output (``unstable``, reported as FAULT + UNSTABLE) until CLEAR_FAULTS.
+
 Plain scalar Python, no numpy in :meth:`FirmwareRenderer.tick` and no
 allocation per tick apart from the event dict at the end of a contact.
 """
@@ -28,6 +33,29 @@ from ..hardware.calibration import Calibration
 
 THERMAL_ATTENUATE_FRAC = 0.7
 THERMAL_END_FRAC = 0.9
+
+# the C firmware's fixed point (devices/firmware/hfam_fw.c): saturation of its 32-bit values, the observer's bounds
+SAT = 0x3FFFFFFF
+PO_PEN_MAX = 1 << 22  # Q8 counts
+PO_U_MAX = 1 << 29  # Q16 A count
+PO_DX_MAX = 8191  # counts per tick
+
+
+def sat_round(f: float) -> int:
+    """The firmware's float -> int32 conversion: rounded half away from zero (lroundf), saturated at +/-1e9."""
+    if f > 1e9:
+        return 1_000_000_000
+    if f < -1e9:
+        return -1_000_000_000
+    return int(math.floor(f + 0.5)) if f >= 0 else -int(math.floor(-f + 0.5))
+
+
+def po_clamp_q8(lim_q24: int, k_q24: int) -> int:
+    """The wall's clamp penetration F_c / k in Q8 counts, as the firmware's ``po_clamp_q8``."""
+    if k_q24 <= 0:
+        return PO_PEN_MAX
+    lim = min(max(lim_q24, 0), 0xFFFFFF)
+    return min((lim * 256 + k_q24 // 2) // k_q24, PO_PEN_MAX)
 
 
 def _finite(*values: float) -> bool:
@@ -67,6 +95,21 @@ class FirmwareRenderer:
         self.k = 0.0
         self.b = 0.0
         self.rearm_m = 0.001
+        # passivity observer (protocol 1.1; off until a WALL carries a limit): fixed point as the firmware
+        self._h_q8 = 0
+        self._k_q = 0
+        self._pcm = 0x7FFFFFFF
+        self._lim_q = 0
+        self._po_ds = PO_PEN_MAX
+        self._po_limit = 0
+        self._po_leak_m = 0
+        self._po_leak_sh = 0
+        self.po_e = 0  # the observer's energy, Q16 A count (1 A count = force_per_amp * resolution J)
+        self._po_u = 0
+        self._po_f = 0
+        self._po_x16 = 0
+        self._po_fresh = True
+        self.unstable = False  # latched when the observer stopped the rendering; clear_unstable() (CLEAR_FAULTS)
         # limits (continuous for the wall alone, peak for wall + transient)
         self.cont_A = 0.0
         self.peak_A = 0.0
@@ -108,7 +151,8 @@ class FirmwareRenderer:
             self._t_att = self._t_end = math.inf
 
     # -- configuration (from host frames) -----------------------------------
-    def set_wall(self, height_m: float, stiffness_N_m: float, damping_N_s_m: float, rearm_margin_m: float) -> None:
+    def set_wall(self, height_m: float, stiffness_N_m: float, damping_N_s_m: float, rearm_margin_m: float,
+                 instability_limit_J: float = 0.0, instability_leak: float = 0.0) -> None:
         """WALL frame: the horizontal wall and its proportional + damping law (thesis Fig. 2.5).
 
         Parameters
@@ -119,16 +163,48 @@ class FirmwareRenderer:
             Wall stiffness (N/m) and damping (N s/m), both >= 0.
         rearm_margin_m : float
             The handle must rise this far above the wall (m) before the next contact counts.
+        instability_limit_J, instability_leak : float
+            The passivity observer (protocol 1.1): stop once the wall generated more than this (J; 0: off),
+            leaking ``instability_leak = 1 - exp(-T / window)`` of it per tick (0 <= leak < 1).
 
         Raises
         ------
         ProtocolError
-            A value is not finite, or stiffness, damping or margin is negative (the firmware NAKs).
+            A value is not finite, or stiffness, damping, margin or limit is negative, or the leak is not in
+            [0, 1) (the firmware NAKs).
         """
-        if not _finite(height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m) or stiffness_N_m < 0 \
-                or damping_N_s_m < 0 or rearm_margin_m < 0:
-            raise P.ProtocolError("WALL needs finite height and non-negative stiffness, damping and re-arm margin")
+        if not _finite(height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m, instability_limit_J,
+                       instability_leak) or stiffness_N_m < 0 or damping_N_s_m < 0 or rearm_margin_m < 0 \
+                or instability_limit_J < 0 or not 0.0 <= instability_leak < 1.0:
+            raise P.ProtocolError("WALL needs finite height and non-negative stiffness, damping and re-arm margin"
+                                  " (and an observer limit >= 0 and leak in [0, 1))")
         self.height_m, self.k, self.b, self.rearm_m = height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m
+        # the firmware's fixed point (hfam_fw.c MSG_WALL): height Q8 counts, stiffness Q24 A per count
+        self._h_q8 = sat_round(height_m * 256.0 / self.res)
+        self._k_q = sat_round(stiffness_N_m * (self.res / self.fpa) * 16777216.0)
+        self._pcm = SAT // self._k_q - 1 if self._k_q > 0 else 0x7FFFFFFF
+        self._po_ds = po_clamp_q8(self._lim_q, self._k_q)
+        limit = leak_m = leak_sh = 0
+        if instability_limit_J > 0:
+            limit = max(1, sat_round(instability_limit_J * 65536.0 / (self.fpa * self.res)))  # Q16 A count
+            leak_m, leak_sh = sat_round(instability_leak * 16777216.0), 1
+            if leak_m > 65535:
+                leak_m, leak_sh = sat_round(instability_leak * 65536.0), 0
+            leak_m = min(leak_m, 65535)
+        self._po_limit, self._po_leak_m, self._po_leak_sh = limit, leak_m, leak_sh
+        self.po_e = 0
+        self._po_fresh = True
+
+    @property
+    def instability_limit_q16(self) -> int:
+        """The observer's limit as the firmware holds it (Q16 A count; 0: off)."""
+        return self._po_limit
+
+    def clear_unstable(self) -> None:
+        """CLEAR_FAULTS: forget an observer trip and start it afresh (the energy that tripped it is gone)."""
+        self.unstable = False
+        self.po_e = 0
+        self._po_fresh = True
 
     def set_limits(self, continuous_A: float, peak_A: float) -> None:
         """LIMITS frame: the wall alone at ``continuous_A``, wall + transient at ``peak_A`` (A; Fig. 4.9).
@@ -139,6 +215,8 @@ class FirmwareRenderer:
             raise P.ProtocolError("LIMITS need 0 <= continuous <= peak")
         self.cont_A = min(continuous_A, self.amplifier_A)
         self.peak_A = min(peak_A, self.amplifier_A)
+        self._lim_q = sat_round(self.cont_A * 16777216.0)
+        self._po_ds = po_clamp_q8(self._lim_q, self._k_q)
 
     def set_param_transient(self, kind: int, p0: float, p1: float, p2: float, p3: float) -> None:
         """Pulse: p0 = amplitude N*s/m (gain included), p1 = width s (eq. 4.7).
@@ -239,10 +317,16 @@ class FirmwareRenderer:
         self._rearm_ready = getattr(self, "_rearm_ready", None)
         self._active_buf = None
         self._tw = None
+        # a fresh observer (RENDER_START); an UNSTABLE trip stays latched until clear_unstable()
+        self.po_e = 0
+        self._po_f = 0
+        self._po_fresh = True
 
     # -- one servo tick ---------------------------------------------------------
     def tick(self, t_us: int, encoder: int, accel_raw: int, grip_raw: int) -> float:
         """Return the motor current (A) for this tick; may append a finished event to ``self.events``."""
+        if self.unstable:  # stopped by the passivity observer: no rendering, zero output
+            return 0.0
         cal = self.cal
         x = cal.encoder_sign * (encoder - cal.encoder_zero_counts) * self.res
         ring = self._ring
@@ -284,6 +368,22 @@ class FirmwareRenderer:
                 if i_cmd > self.cont_A:
                     i_cmd = self.cont_A
                     clipped = True
+        if self._po_limit:  # passivity observer: in the firmware's integers, on its own fixed-point inputs
+            counts = encoder - cal.encoder_zero_counts
+            xc = -counts if cal.encoder_sign < 0 else counts
+            pen_q8 = self._h_q8 - xc * 256
+            ip = 0
+            if pen_q8 > 0:
+                k = self._k_q
+                pc = pen_q8 >> 8
+                ip = k * pc + (k >> 8) * (pen_q8 & 255) if pc < self._pcm else min((k * pen_q8) >> 8, SAT)
+            f_q24 = self._lim_q if clipped else sat_round(i_cmd * 16777216.0)
+            if self._observe(xc, pen_q8, ip, f_q24):
+                i_cmd = 0.0
+                clipped = False
+                self.trans_n = self.trans_k
+                if self.in_event:
+                    self._finish_event()
         # transient overlay
         if self.trans_k < self.trans_n:
             i_cmd += self._transient_sample(self.trans_k)
@@ -311,6 +411,52 @@ class FirmwareRenderer:
             if clipped:
                 self.ev_clipped = True
         return i_cmd
+
+    def _observe(self, x: int, pen: int, ip: int, f: int) -> bool:
+        """One step of the wall's passivity observer, the firmware's ``po_step`` integer for integer.
+
+        ``x`` position (counts), ``pen`` penetration (Q8 counts), ``ip`` k * pen before the clamp (Q24 A, 0
+        outside), ``f`` this tick's wall current (Q24 A, 0 .. continuous limit). Energies in Q16 A count.
+        Returns True (and latches ``unstable``) when the energy exceeds the limit.
+        """
+        u = 0
+        if pen > 0:
+            s, m = ip, min(pen, PO_PEN_MAX)  # U = s m / 2, m = 2 pen - min(pen, d_s) (Q8 counts)
+            if s > self._lim_q:
+                s = self._lim_q
+                m = max(m + m - self._po_ds, 0)
+            s16 = (s >> 8) & 0xFFFF
+            if m < 1 << 17:
+                u = (s16 * ((m >> 1) & 0xFFFF)) >> 8
+            else:
+                u = min(s16 * (((m >> 8) & 0xFFFF) >> 1), PO_U_MAX)
+        x16 = x & 0xFFFF
+        if self._po_fresh:
+            self._po_fresh = False
+            self._po_x16 = x16
+            self._po_u = u
+        dx = (x16 - self._po_x16) & 0xFFFF
+        if dx >= 0x8000:
+            dx -= 0x10000
+        dx = max(-PO_DX_MAX, min(PO_DX_MAX, dx))
+        e = self.po_e
+        lk = (e >> 16) * self._po_leak_m
+        if self._po_leak_sh:
+            lk >>= 8
+        e += dx * self._po_f + (u - self._po_u) - lk
+        top = e >> 24
+        if top >= 0x40:
+            e = SAT
+        elif top < -0x40:
+            e = -SAT
+        self.po_e = e
+        self._po_x16 = x16
+        self._po_u = u
+        self._po_f = (f >> 8) & 0xFFFF
+        if e > self._po_limit:
+            self.unstable = True
+            return True
+        return False
 
     def _start_event(self, t_us: int, v_in: float, grip: float) -> None:
         if self.in_event:  # re-contact before re-arm cannot happen (armed is False), kept for safety

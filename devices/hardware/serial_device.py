@@ -792,7 +792,11 @@ class ProtocolDevice(Device):
     def configure_rendering(self, wall: dict, limits: dict, transient=None) -> None:
         """Upload wall, limits and transient, then start on-board rendering (see module doc).
 
-        ``wall``: height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m;
+        ``wall``: height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m, and optionally the wall's passivity
+        observer (protocol 1.1; ``renderer.passivity.passivity_constants`` computes them): instability_limit_J
+        (stop once the wall generated more than this, J; 0 or absent: off) and instability_leak (``1 -
+        exp(-T / window)`` per device tick). The device then stops on its own with zero output and reports
+        status FAULT + UNSTABLE (``Status.UNSTABLE``); a 1.0 device gets the 16-byte WALL (no observer, warned);
         ``limits``: continuous_A, peak_A and optionally amplifier_A, each a finite number >= 0 (ValueError
         naming the key otherwise), clamped to the device's own (the device refuses, ValueError, unless
         continuous <= peak after the clamp, the peak also clamped to amplifier_A);
@@ -804,6 +808,11 @@ class ProtocolDevice(Device):
         if not self._is_open:
             raise DeviceError(f"{self.name}: open the device before configure_rendering")
         w = [_number(wall, key, "wall") for key in ("height_m", "stiffness_N_m", "damping_N_s_m", "rearm_margin_m")]
+        po_limit = _number(wall, "instability_limit_J", "wall") if "instability_limit_J" in wall else 0.0
+        po_leak = _number(wall, "instability_leak", "wall") if "instability_leak" in wall else 0.0
+        if po_limit < 0 or not 0.0 <= po_leak < 1.0:
+            raise ValueError(f"wall: instability_limit_J must be >= 0 and instability_leak in [0, 1), got "
+                             f"{po_limit!r} and {po_leak!r}")
         info = self.info
         lim = [_limit(limits, key) for key in ("continuous_A", "peak_A")]
         amp = _limit(limits, "amplifier_A") if "amplifier_A" in limits else info.current_amplifier_A
@@ -819,7 +828,15 @@ class ProtocolDevice(Device):
         self._upload_q.clear()  # a re-arm still under way is void: its ACKs must not send more of it
         self._upload_key = None
         self._request(P.SET_CALIBRATION, self.cal.to_payload())
-        self._request(P.WALL, P.WALL_STRUCT.pack(*w))
+        if po_limit > 0 and self.wire_info.protocol_version < (1, 1):
+            warnings.warn(f"{self.name}: the device speaks protocol {self.wire_info.protocol_version[0]}."
+                          f"{self.wire_info.protocol_version[1]}, before the wall's passivity observer (1.1): "
+                          "an unstable on-device wall is not stopped by it", RuntimeWarning, stacklevel=2)
+            po_limit = 0.0
+        if po_limit > 0:
+            self._request(P.WALL, P.WALL_OBSERVER_STRUCT.pack(*w, po_limit, po_leak))
+        else:
+            self._request(P.WALL, P.WALL_STRUCT.pack(*w))
         self._request(P.LIMITS, P.LIMITS_STRUCT.pack(cont, peak, amp))
         self._rearm = False
         if kind == "none":

@@ -32,7 +32,8 @@ CRC_SIZE = 2
 OVERHEAD = HEADER_SIZE + CRC_SIZE
 MAX_PAYLOAD = 255
 
-PROTOCOL_VERSION = (1, 0)  # (major, minor); a major mismatch is refused at the hello
+PROTOCOL_VERSION = (1, 1)  # (major, minor); a major mismatch is refused at the hello
+# 1.1: WALL may append the passivity observer's limit and leak (WALL_OBSERVER_STRUCT); STATE status bit 64 UNSTABLE
 
 # -- message types: host -> device -----------------------------------------
 HELLO = 0x01
@@ -113,6 +114,8 @@ EVENT_STRUCT = struct.Struct("<IffffBBH")
 ACK_STRUCT = struct.Struct("<BB")
 NAK_STRUCT = struct.Struct("<BBB")
 WALL_STRUCT = struct.Struct("<ffff")
+# WALL with the passivity observer (protocol 1.1): ... instability_limit_J f32 (0: off), instability_leak f32 (per tick)
+WALL_OBSERVER_STRUCT = struct.Struct("<ffffff")
 LIMITS_STRUCT = struct.Struct("<fff")
 MODE_STRUCT = struct.Struct("<BH")
 WATCHDOG_STRUCT = struct.Struct("<H")
@@ -264,6 +267,14 @@ def _unpack(st: struct.Struct, payload: bytes, what: str) -> tuple:
     if len(payload) != st.size:
         raise ProtocolError(f"{what} payload must be {st.size} bytes, got {len(payload)}")
     return st.unpack(payload)
+
+
+def decode_wall(payload: bytes) -> tuple:
+    """WALL payload -> (height_m, stiffness_N_m, damping_N_s_m, rearm_margin_m, instability_limit_J,
+    instability_leak): 16 bytes (protocol 1.0, observer off: limit and leak 0) or 24 (1.1); ProtocolError otherwise."""
+    if len(payload) == WALL_STRUCT.size:
+        return (*WALL_STRUCT.unpack(payload), 0.0, 0.0)
+    return _unpack(WALL_OBSERVER_STRUCT, payload, "WALL")
 
 
 def encode_current(current_A: float) -> bytes:

@@ -461,7 +461,15 @@ def test_on_device_rendering_hook():
     box = BoxTransient()
     res = ServoLoop(dev, RendererConfig(stiffness_N_m=340.0, damping_N_s_m=1.0), box).run(max_ticks=300)
     wall, limits, transient = dev.configured
-    assert wall == {"height_m": 0.0, "stiffness_N_m": 340.0, "damping_N_s_m": 1.0, "rearm_margin_m": 0.002}
+    # the wall's passivity observer goes to the device too: its limit at the continuous limit (1.26 A x the
+    # device's force per amp), its leak per device tick (renderer.passivity.passivity_constants)
+    f_c = 1.26 * dev.info.force_per_amp_N_A
+    limit = f_c * f_c / (2 * 340.0) + f_c * 1e-3
+    leak = 1.0 - math.exp(-1.0 / dev.info.servo_rate_hz)
+    assert wall == pytest.approx({"height_m": 0.0, "stiffness_N_m": 340.0, "damping_N_s_m": 1.0,
+                                  "rearm_margin_m": 0.002, "instability_limit_J": limit,
+                                  "instability_leak": leak}, rel=1e-12)
+    assert 0.01 < limit < 0.03 and leak > 0
     assert limits == {"continuous_A": 1.26, "peak_A": 4.0, "amplifier_A": 4.0}
     assert transient is box
     assert dev.stopped and dev.applied[-1] == 0.0

@@ -122,3 +122,78 @@ def test_c_firmware_speaks_the_protocol_and_renders_like_the_python_firmware(tmp
     assert [e["incoming_velocity_m_s"] for e in events] == pytest.approx(
         [e["incoming_velocity_m_s"] for e in fw.events[:len(events)]], rel=1e-5)
     assert events[0]["max_penetration_m"] == pytest.approx(fw.events[0]["max_penetration_m"], rel=1e-5)
+
+
+def _harness_tap_run(tmp_path, wall, n_ticks):
+    """The host-built firmware through the harness's scripted tap (0.1 m/s down from +2.5 mm to -1.5 mm, then an
+    instant lift) with ``wall`` (a WALL payload); returns (STATE frames, EVENT frames, INFO)."""
+    from devices.hardware.calibration import Calibration
+
+    r = _make("fw-harness", tmp_path)
+    assert r.returncode == 0, r.stderr
+    cal = Calibration(0, 1, 0.345, 512, 0.0098, 0)
+    # no keepalives come from the harness: a 60 s watchdog, so only the observer stops the output
+    stream = _frames((P.HELLO, P.HELLO_STRUCT.pack(1, 1)), (P.SET_MODE, P.MODE_STRUCT.pack(1, 1)),
+                     (P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(60000)),
+                     (P.CLEAR_FAULTS, b""), (P.SET_CALIBRATION, cal.to_payload()), (P.WALL, wall),
+                     (P.LIMITS, P.LIMITS_STRUCT.pack(0.8, 2.0, 2.0)),
+                     (P.TRANSIENT_PARAM, P.TRANSIENT_PARAM_STRUCT.pack(P.TRANSIENT_PULSE, 5.0, 0.002, 0, 0)),
+                     (P.RENDER_START, b""))
+    out = subprocess.run([str(tmp_path / "fw_harness"), str(n_ticks)], input=stream, capture_output=True,
+                         timeout=30).stdout
+    frames = P.FrameParser().feed(out)
+    assert [f.type for f in frames[:9]] == [P.INFO] + [P.ACK] * 8  # the 24-byte WALL (protocol 1.1) accepted
+    info = P.decode_info(frames[0].payload)
+    return ([P.decode_state(f.payload) for f in frames if f.type == P.STATE],
+            [P.decode_event(f.payload) for f in frames if f.type == P.EVENT], info, cal)
+
+
+def test_c_firmware_passivity_observer_trips_like_the_python_firmware(tmp_path):
+    """The wall's passivity observer in hfam_fw.c and in devices/firmware/logic.py, tick by tick. The harness's
+    scripted tap lifts the handle out of the wall in one tick (4 mm at full wall force): each lift is ~40 A count
+    of energy the wall generates (a jump no real paddle makes, so the observer has something to stop). With a
+    limit of 6 mJ (~102 A count) both stop on the same tick, with zero current from then on and FAULT + UNSTABLE
+    in every STATE; the 1.0 WALL (no observer) renders the same taps to the end."""
+    import math
+    import struct
+
+    from devices import Status
+    from devices.firmware.logic import FirmwareRenderer
+
+    n_ticks = 1500
+    leak = -math.expm1(-1.0 / 4000.0)  # 1 s window at 4 kHz, as renderer.passivity.passivity_constants
+    wall = struct.pack("<ffffff", 0.0, 500.0, 0.0, 0.001, 0.006, leak)
+    states, events, w, cal = _harness_tap_run(tmp_path, wall, n_ticks)
+    assert w.protocol_version == (1, 1)
+    info = w.info
+    fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, 4000.0, 2.0, velocity_window=4,
+                          thermal=(info.winding_resistance_ohm, info.thermal_resistance_K_W,
+                                   info.thermal_time_constant_s, info.winding_max_temp_rise_K))
+    fw.cal = cal
+    fw.set_wall(*P.decode_wall(wall))
+    fw.set_limits(0.8, 2.0)
+    fw.set_param_transient(P.TRANSIENT_PULSE, 5.0, 0.002, 0.0, 0.0)
+    py_mA, py_unstable, py_e = [], [], []
+    for k, s in enumerate(states):
+        py_mA.append(round(fw.tick((k + 1) * 250, s.encoder, 600, 600) * 1000.0))
+        py_unstable.append(fw.unstable)
+        py_e.append(fw.po_e)
+    c_mA = [s.current_mA for s in states]
+    c_unstable = [bool(s.status & Status.UNSTABLE) for s in states]
+    assert len(states) == n_ticks
+    trip = c_unstable.index(True)
+    assert py_unstable.index(True) == trip  # the same tick
+    assert all(c_unstable[trip:]) and all(s.status & Status.FAULT for s in states[trip:])
+    assert not any(s.status & (Status.FAULT | Status.UNSTABLE) for s in states[:trip])
+    # three lifts (160 ticks apart) of ~40 A count each against the 102 A count limit: the third one trips
+    limit = fw.instability_limit_q16
+    assert limit == pytest.approx(0.006 / (info.force_per_amp_N_A * info.position_resolution_m) * 65536, rel=1e-6)
+    assert 300 < trip < 600, trip
+    assert py_e[trip] > limit > py_e[trip - 1] > 0.5 * limit
+    assert max(c_mA[:trip]) > 200 and c_mA[trip:] == [0] * (n_ticks - trip) and py_mA[trip:] == c_mA[trip:]
+    assert max(abs(a - b) for a, b in zip(c_mA, py_mA)) <= 1
+    assert len(events) == len(fw.events) >= 2  # the contact open at the trip was closed and reported
+    # the same taps with the 1.0 WALL (16 bytes: observer off) render to the end
+    states0, _, _, _ = _harness_tap_run(tmp_path, wall[:16], n_ticks)
+    assert not any(s.status & (Status.FAULT | Status.UNSTABLE | Status.WATCHDOG_TRIPPED) for s in states0)
+    assert max(s.current_mA for s in states0[trip:]) > 200

@@ -33,7 +33,7 @@ def test_handshake_info_and_streaming_against_the_real_firmware():
     with make_device("fw-sim?taps=") as dev:  # hand holds the handle at 10 mm
         w = dev.wire_info
         assert w.info.name == "hapkit-paddle" and w.serial_number == "HK0001" and w.info.servo_rate_hz == 4000.0
-        assert w.protocol_version == (1, 0) and w.firmware_version == (1, 0, 0) and w.watchdog_ms == 100
+        assert w.protocol_version == (1, 1) and w.firmware_version == (1, 0, 0) and w.watchdog_ms == 100
         assert "on_device" in w.info.capabilities and "table_transient" not in w.info.capabilities
         res = dev.info.position_resolution_m
         s = dev.read()
@@ -366,6 +366,100 @@ def test_disconnect_clear_error_zero_current_no_hang():
         handle.stop()
 
 
+def _observer_run(k_N_m, device_options, duration_s, **cfg):
+    """The renderer on fw-sim in on-device mode with a wall of ``k_N_m``: returns the run, the tick log, the
+    WALL and LIMITS payloads the driver sent, and the Python firmware logic set up with them."""
+    from renderer.config import RendererConfig
+    from renderer.loop import ServoLoop
+
+    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&tick_log=1&" + device_options)
+    tx = []
+    with dev:
+        real_tx = dev._tx
+        dev._tx = lambda t, p=b"": (tx.append((t, bytes(p))), real_tx(t, p))[1]
+        loop = ServoLoop(dev, RendererConfig(stiffness_N_m=k_N_m, **cfg))
+        res = loop.run(duration_s=duration_s)
+        cal, info = dev.cal, dev.info
+    wall = [p for t, p in tx if t == P.WALL][-1]
+    limits = [p for t, p in tx if t == P.LIMITS][-1]
+    fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, 4000.0, 2.0, velocity_window=4,
+                          thermal=(info.winding_resistance_ohm, info.thermal_resistance_K_W,
+                                   info.thermal_time_constant_s, info.winding_max_temp_rise_K))
+    fw.cal = cal
+    fw.set_wall(*P.decode_wall(wall))
+    cont, peak, amp = P.LIMITS_STRUCT.unpack(limits)
+    fw.set_limits(min(cont, info.current_continuous_A), min(peak, info.current_peak_A, amp))
+    return res, dev.last_tick_log, wall, fw
+
+
+def _replay(fw, log):
+    """Every logged tick through the Python firmware logic: (current mA, observer energy Q16 A count) arrays."""
+    mA, e = [], []
+    for a, b, c, d in zip(log["t_us"], log["encoder"], log["accel_raw"], log["grip_raw"]):
+        mA.append(round(fw.tick(int(a), int(b), int(c), int(d)) * 1000.0))
+        e.append(fw.po_e)
+    return np.array(mA), np.array(e)
+
+
+def test_on_device_observer_stops_a_wall_far_too_stiff():
+    """A 2 x 10^5 N/m wall (saturates within half an encoder count) pressed by the hand (held 2 mm inside):
+    the firmware chatters between 0 and the 0.8 A continuous limit at ~100 Hz, its passivity observer stops it
+    within a second (measured 0.65 s) with zero current, and the host's run ends "unstable" with the limit and
+    the stiffness in its message. The Python firmware logic replays every logged tick to the same trip tick,
+    currents within 1 mA, energies within 2 %. With the observer's limit out of reach (energy frac 10^6) the
+    same wall chatters for the whole run."""
+    res, log, wall, fw = _observer_run(2e5, "taps=&hold_m=-0.002", 2.0)
+    assert len(wall) == 24  # the 1.1 WALL carries the observer's limit and leak
+    assert res.stop_reason == "unstable", (res.stop_reason, res.error)
+    assert "stiffness_N_m=200000" in res.error and "limit of 2.15 mJ" in res.error and "Lower the stiffness" in res.error
+    i = log["current_A"]
+    e_c = log["po_e"]
+    limit = fw.instability_limit_q16
+    trip = int(np.argmax(e_c > limit))
+    assert e_c[trip] > limit and np.all(e_c[:trip] <= limit)
+    assert 0.1 < trip * 250e-6 < 1.0, trip  # stopped within 1 s of rendering (the whole log is rendering time)
+    assert np.all(i[trip:] == 0.0) and len(i) - trip >= 2  # zero from the trip tick on, until the host stopped
+    on = np.abs(i[:trip]) > 0.4
+    rising = np.count_nonzero(np.diff(on.astype(int)) == 1)
+    assert rising >= 30 and i[:trip].max() == pytest.approx(0.8, abs=1e-3) and i[trip // 2:trip].min() == 0.0
+    py_mA, e_py = _replay(fw, log)
+    print(f"\nstiff wall: stopped after {trip * 250e-6:.3f} s of rendering, {rising} bursts at full current "
+          f"({rising / (trip * 250e-6):.0f} Hz); E/limit at the trip {e_c[trip] / limit:.4f}; "
+          f"C - Python energy max {np.max(np.abs(e_c[:trip + 1] - e_py[:trip + 1])) / limit:.2e} of the limit")
+    py_trip = int(np.argmax(e_py > limit))
+    assert py_trip == trip and fw.unstable
+    assert np.max(np.abs(np.round(i * 1000.0) - py_mA)) <= 1
+    assert np.max(np.abs(e_c[:trip + 1] - e_py[:trip + 1])) <= 0.02 * limit
+    # the observer out of reach (limit 2 kJ, capped on the device at 0.9 J): the chatter goes on to the end
+    res, log, _, fw = _observer_run(2e5, "taps=&hold_m=-0.002", 1.0, instability_energy_frac=1e6)
+    assert res.stop_reason == "duration", res.error
+    i = log["current_A"]
+    last = np.abs(i[-2000:]) > 0.4  # the last 0.5 s
+    assert np.count_nonzero(np.diff(last.astype(int)) == 1) >= 30
+    assert log["po_e"].max() < 0.01 * fw.instability_limit_q16
+
+
+@pytest.mark.parametrize("k_N_m, bound", [(340.0, 0.03), (680.0, 0.05), (1020.0, 0.09)])
+def test_on_device_observer_leaves_the_study_walls_alone(k_N_m, bound):
+    """Taps at 0.05-0.3 m/s on the soft, firm and very firm walls: never stopped; the firmware's peak energy
+    stays a few percent of the limit (measured 0.011, 0.024, 0.042; the energy below one A count does not leak
+    on the device, ~0.7-1 % of these limits), and the Python firmware logic computes the same energies."""
+    res, log, _, fw = _observer_run(k_N_m, "taps=0.05,0.1,0.2,0.3", 3.0)
+    assert res.stop_reason == "duration", res.error
+    assert len(res.events) >= 6
+    v = sorted(e.incoming_velocity_m_s for e in res.events)
+    assert v[0] < 0.08 and v[-1] > 0.2  # the slowest and the fastest taps were both met
+    limit = fw.instability_limit_q16
+    e_c = log["po_e"]
+    peak = e_c.max() / limit
+    print(f"\nk = {k_N_m:g} N/m: peak E / limit = {peak:.4f} ({len(res.events)} taps)")
+    assert 0.001 < peak < bound
+    py_mA, e_py = _replay(fw, log)
+    assert not fw.unstable
+    assert np.max(np.abs(np.round(log["current_A"] * 1000.0) - py_mA)) <= 1
+    assert np.max(np.abs(e_c - e_py)) <= 0.005 * limit
+
+
 def test_device_string_and_bad_options():
     dev = make_device("fw-sim?mode=on-device&pace=fast&taps=0.05,0.2")
     assert dev.on_device_rendering and dev.pace == "fast" and dev.taps_m_s == (0.05, 0.2)
@@ -373,6 +467,9 @@ def test_device_string_and_bad_options():
         make_device("fw-sim?pace=warp")
     with pytest.raises(ValueError, match="taps must be"):
         make_device("fw-sim?taps=fast")
+    assert make_device("fw-sim?taps=&hold_m=-0.002").hold_m == -0.002
+    with pytest.raises(ValueError, match="hold_m"):
+        make_device("fw-sim?taps=0.1&hold_m=0.01")
 
 
 def test_firmware_report_command(capsys):

@@ -32,7 +32,7 @@ def test_handshake_reports_the_device(emulator):
         assert info.force_per_amp_N_A == pytest.approx(sim.force_per_amp_N_A, rel=1e-6)
         assert "streaming" in info.capabilities and "on_device" not in info.capabilities
         assert not dev.on_device_rendering
-        assert dev.wire_info.protocol_version == (1, 0) and dev.wire_info.firmware_version == (1, 0, 0)
+        assert dev.wire_info.protocol_version == (1, 1) and dev.wire_info.firmware_version == (1, 0, 0)
         assert dev.wire_info.watchdog_ms == 100
 
 
@@ -174,7 +174,7 @@ def test_device_that_never_answers_the_hello(emulator):
 @pytest.mark.parametrize("emulator", [{"faults": "protocol_major=2"}], indirect=True)
 def test_wrong_protocol_version_is_refused(emulator):
     port, handle = emulator
-    with pytest.raises(DeviceError, match=r"device speaks protocol 2\.0, this host speaks 1\.0"):
+    with pytest.raises(DeviceError, match=r"device speaks protocol 2\.1, this host speaks 1\.1"):
         SerialDevice(port).open()
 
 

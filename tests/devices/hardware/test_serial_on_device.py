@@ -208,3 +208,31 @@ def test_firmware_thermal_model_fades_out_a_sustained_push():
     assert fw.over_temperature and currents[-1] < 1.26 * 0.9
     # steady state: the current settles where heating balances at the fade
     assert THERMAL_ATTENUATE_FRAC * 20.0 < temps[-1] < THERMAL_END_FRAC * 20.0
+
+
+def test_emulator_observer_stop_reaches_the_renderer_as_unstable():
+    """The emulator runs the firmware's passivity observer (devices/firmware/logic.py): with a limit the first
+    tap exceeds (energy frac 10^-6: 23 nJ), the device stops its wall with zero output and FAULT + UNSTABLE,
+    and the renderer's on-device run ends "unstable" with the limit and the stiffness in its message; the next
+    configure_rendering (its CLEAR_FAULTS) clears the latch."""
+    from devices import Status
+    from renderer.config import RendererConfig
+    from renderer.loop import ServoLoop
+
+    port, handle = start_emulator("on-device", pace="host", watchdog_ms=200)
+    try:
+        with SerialDevice(port, mode="on-device", timeout_s=0.1) as dev:
+            loop = ServoLoop(dev, RendererConfig(stiffness_N_m=680.0, instability_energy_frac=1e-6))
+            res = loop.run(duration_s=3.0)
+            fw = handle.emulator.fw
+            assert res.stop_reason == "unstable", (res.stop_reason, res.error)
+            assert "stiffness_N_m=680" in res.error and "Lower the stiffness" in res.error
+            assert fw.unstable and fw.po_e > fw.instability_limit_q16 > 0
+            assert 0 < res.timing["ticks"] < 30000  # stopped at the first tap, well before the 3 s
+            # latched until CLEAR_FAULTS, which configure_rendering sends before RENDER_START
+            dev.configure_rendering({"height_m": 0.0, "stiffness_N_m": 680.0, "damping_N_s_m": 0.0,
+                                     "rearm_margin_m": 0.002}, {"continuous_A": 1.26, "peak_A": 4.0})
+            s = dev.read()
+            assert not s.status & Status.UNSTABLE and not fw.unstable  # configure_rendering sends CLEAR_FAULTS
+    finally:
+        handle.stop()
