@@ -444,7 +444,7 @@ def test_on_device_observer_leaves_the_study_walls_alone(k_N_m, bound):
     """Taps at 0.05-0.3 m/s on the soft, firm and very firm walls: never stopped; the firmware's peak energy
     stays a few percent of the limit (measured 0.011, 0.024, 0.042; the energy below one A count does not leak
     on the device, ~0.7-1 % of these limits), and the Python firmware logic computes the same energies."""
-    res, log, _, fw = _observer_run(k_N_m, "taps=0.05,0.1,0.2,0.3", 3.0)
+    res, log, _, fw = _observer_run(k_N_m, "taps=0.05,0.1,0.2,0.3", 6.0)  # s of device time
     assert res.stop_reason == "duration", res.error
     assert len(res.events) >= 6
     v = sorted(e.incoming_velocity_m_s for e in res.events)
