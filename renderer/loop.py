@@ -855,8 +855,8 @@ class ServoLoop:
         log, cap = self._logf, self._cap
         L_w, L_cn = self._log_ns["wall_ns"], self._log_ns["compute_ns"]
         col = {name: j for j, name in enumerate(LAW.LOG_COLUMNS)}
-        C_T, C_X, C_D, C_A, C_G, C_F = (col[k] for k in ("t_s", "position_m", "penetration_m", "accel_m_s2",
-                                                          "grip_N", "sensor_flags"))
+        C_T, C_X, C_D, C_A, C_G, C_F, C_I = (col[k] for k in ("t_s", "position_m", "penetration_m", "accel_m_s2",
+                                                               "grip_N", "sensor_flags", "current_A"))
         wall_h = wall.height_m
         n = li = 0
         reason = "duration"
@@ -879,6 +879,8 @@ class ServoLoop:
                 log[C_A, li] = s.accel_m_s2
                 log[C_G, li] = s.grip_N
                 log[C_F, li] = flags
+                # the current the device commanded at that tick (STATE telemetry), not computed here
+                log[C_I, li] = s.extra.get("current_A", math.nan)
                 L_w[li] = tr - t0
                 L_cn[li] = clock() - tr
                 li += 1

@@ -52,7 +52,8 @@ class FaultSpec:
     bytes before the frame), ``delay`` (hold the frame ``delay_s`` first),
     ``disconnect_after_s`` (close the pty that many seconds after the first
     frame from a host), ``silent`` (never answer the hello), ``protocol_major`` (claim
-    another protocol version in INFO). Scripted (deterministic, counted over the frames sent):
+    another protocol version in INFO), ``protocol_minor`` (claim another minor version; 0 stands for a
+    protocol 1.0 firmware, which takes only the 16-byte WALL, without the passivity observer). Scripted (deterministic, counted over the frames sent):
     ``drop_every=N`` drops every N-th frame, ``corrupt_every=N`` flips a bit in every N-th,
     ``drop_burst=K`` with ``drop_burst_at=N`` drops K frames in a row from the N-th on.
     """
@@ -66,6 +67,7 @@ class FaultSpec:
     disconnect_after_s: float | None = None
     silent: bool = False
     protocol_major: int | None = None
+    protocol_minor: int | None = None
     drop_every: int = 0
     corrupt_every: int = 0
     drop_burst_at: int = 0
@@ -98,7 +100,7 @@ class FaultSpec:
                 raise ValueError(f"--fault: {key}={raw} is a probability and must be <= 1")
             if key == "silent":
                 value = bool(value)
-            elif key in ("protocol_major", "drop_every", "corrupt_every", "drop_burst_at", "drop_burst"):
+            elif key in ("protocol_major", "protocol_minor", "drop_every", "corrupt_every", "drop_burst_at", "drop_burst"):
                 value = int(value)
             values[key] = value
         return cls(**values)
@@ -173,7 +175,8 @@ class Emulator:
             winding_max_temp_rise_K=sim_info.winding_max_temp_rise_K, accel_range_m_s2=sim_info.accel_range_m_s2,
             grip_range_N=sim_info.grip_range_N, capabilities=P.capability_names(caps), simulated=False)
         major = self.faults.protocol_major if self.faults.protocol_major is not None else P.PROTOCOL_VERSION[0]
-        self.wire = P.WireInfo(info, (major, P.PROTOCOL_VERSION[1]), FIRMWARE_VERSION, serial_number,
+        minor = self.faults.protocol_minor if self.faults.protocol_minor is not None else P.PROTOCOL_VERSION[1]
+        self.wire = P.WireInfo(info, (major, minor), FIRMWARE_VERSION, serial_number,
                                self.accel_scale, 0, self.grip_scale, 0, self.watchdog_ms, caps, MAX_TABLE_SAMPLES)
         self.fw = FirmwareRenderer(self.res, info.force_per_amp_N_A, self.fs, info.current_amplifier_A,
                                    MAX_TABLE_SAMPLES,
@@ -443,6 +446,14 @@ class Emulator:
         self._ack(frame)
         self._start_render()
 
+    def _on_wall(self, frame: P.Frame) -> None:
+        if self.wire.protocol_version < (1, 1) and len(frame.payload) != P.WALL_STRUCT.size:
+            # as a protocol 1.0 firmware: WALL is 16 bytes, no passivity observer
+            raise P.ProtocolError(f"WALL: {len(frame.payload)} bytes, protocol {self.wire.protocol_version[0]}."
+                                  f"{self.wire.protocol_version[1]} takes {P.WALL_STRUCT.size}")
+        self.fw.set_wall(*P.decode_wall(frame.payload))
+        self._ack(frame)
+
     def _on_render_stop(self, frame: P.Frame) -> None:
         self._stop_render()
         self._ack(frame)
@@ -463,7 +474,7 @@ class Emulator:
         P.SET_WATCHDOG: _on_set_watchdog,
         P.CLEAR_FAULTS: _on_clear_faults,
         P.SET_CALIBRATION: _on_calibration,
-        P.WALL: _acked(lambda fw, pl: fw.set_wall(*P.decode_wall(pl))),
+        P.WALL: lambda self, frame: self._on_wall(frame),
         P.LIMITS: _on_limits,
         P.TRANSIENT_PARAM: _acked(lambda fw, pl: fw.set_param_transient(
             *P._unpack(P.TRANSIENT_PARAM_STRUCT, pl, "TRANSIENT_PARAM"))),

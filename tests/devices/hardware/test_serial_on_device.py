@@ -8,6 +8,8 @@ import pytest
 from devices import DeviceError, Status
 from devices.firmware.emulator import start_emulator
 from devices.hardware.serial_device import SerialDevice
+from renderer.config import RendererConfig
+from renderer.loop import ServoLoop
 from stimuli.library import HfamLibrary
 from stimuli.transients import DecayingSinusoid, Pulse
 
@@ -215,10 +217,6 @@ def test_emulator_observer_stop_reaches_the_renderer_as_unstable():
     tap exceeds (energy frac 10^-6: 23 nJ), the device stops its wall with zero output and FAULT + UNSTABLE,
     and the renderer's on-device run ends "unstable" with the limit and the stiffness in its message; the next
     configure_rendering (its CLEAR_FAULTS) clears the latch."""
-    from devices import Status
-    from renderer.config import RendererConfig
-    from renderer.loop import ServoLoop
-
     port, handle = start_emulator("on-device", pace="host", watchdog_ms=200)
     try:
         with SerialDevice(port, mode="on-device", timeout_s=0.1) as dev:
@@ -234,5 +232,30 @@ def test_emulator_observer_stop_reaches_the_renderer_as_unstable():
                                      "rearm_margin_m": 0.002}, {"continuous_A": 1.26, "peak_A": 4.0})
             s = dev.read()
             assert not s.status & Status.UNSTABLE and not fw.unstable  # configure_rendering sends CLEAR_FAULTS
+    finally:
+        handle.stop()
+
+
+def test_a_protocol_1_0_device_gets_the_old_wall_and_a_warning():
+    """A firmware before the passivity observer (protocol 1.0) takes only the 16-byte WALL: the host sends that,
+    warns that an unstable wall is not stopped on the device, and the wall renders (observer off)."""
+    port, handle = start_emulator("on-device", faults="protocol_minor=0", pace="host", watchdog_ms=200)
+    try:
+        with SerialDevice(port, mode="on-device", timeout_s=0.1, telemetry_decimation=1) as dev:
+            assert dev.wire_info.protocol_version == (1, 0)
+            loop = ServoLoop(dev, RendererConfig(stiffness_N_m=680.0, instability_energy_frac=1e-6))
+            with pytest.warns(RuntimeWarning, match=r"protocol 1\.0, before the wall's passivity observer \(1\.1\)"):
+                res = loop.run(duration_s=1.0)
+            fw = handle.emulator.fw
+            # the same tiny limit that stops a 1.1 device at its first tap: no observer here, the taps render
+            assert res.stop_reason == "duration", (res.stop_reason, res.error)
+            assert len(res.events) >= 1 and fw.instability_limit_q16 == 0 and not fw.unstable
+            # the log carries the current the device commanded (telemetry): the wall's, k d / (N/A), capped
+            i, d = res.log["current_A"], res.log["penetration_m"]
+            assert np.max(i) > 0.1
+            expected = np.minimum(680.0 * np.maximum(d, 0.0) / dev.info.force_per_amp_N_A, loop.continuous_safe_A)
+            # (a frame may carry the current of the position one tick earlier; telemetry is in whole mA)
+            err = np.minimum(np.abs(i[1:] - expected[1:]), np.abs(i[1:] - expected[:-1]))
+            assert np.max(err) <= 0.0015
     finally:
         handle.stop()
