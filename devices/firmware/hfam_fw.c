@@ -985,6 +985,29 @@ static int32_t sat_round(float f) {
 }
 static int32_t q24_of(float amps) { return sat_round(amps * Q24); }
 
+/* q24_of() of a float given by its IEEE-754 bits, in integers (REARM_DATA: lroundf per sample was ~750 cycles of
+ * soft-float, ~20,000 cycles per 24-sample frame on simavr), the same value for every finite float: f 2^24 is
+ * exact in float (finite4: |f| <= 1e30, so no overflow), = m 2^(e - 126) with m the 24-bit significand (normal
+ * numbers; subnormals are below 2^-126 and give 0), rounded half away from zero as lroundf, saturated at +/-1e9 as
+ * sat_round. (tests/devices/firmware/test_c_firmware.py compares the two over all exponents.) */
+static int32_t q24_of_bits(uint32_t bits) {
+    /* the exponent from the top two bytes (a 23-bit shift of an int32 is a ~125-cycle loop on the AVR) */
+    uint8_t e = (uint8_t)((uint8_t)(bits >> 24) << 1 | (uint8_t)(bits >> 16) >> 7);
+    if (e < 126 - 24) return 0; /* |f 2^24| < 2^-1 (and zero, subnormals): rounds to 0 */
+    uint32_t m = (bits & 0x7FFFFFUL) | 0x800000UL, v;
+    if (e >= 126 + 7) v = 1000000001UL; /* >= 2^30: beyond the saturation */
+    else if (e >= 126) v = m << (e - 126); /* < 2^30 */
+    else {
+        uint8_t r = (uint8_t)(126 - e); /* 1..24 */
+        v = m + (1UL << (r - 1)); /* half away from zero (on the magnitude), then >> r: whole bytes first */
+        if (r >= 16) { v >>= 16; r -= 16; }
+        if (r >= 8) { v >>= 8; r -= 8; }
+        v >>= r;
+    }
+    if (v > 1000000000UL) v = 1000000000UL;
+    return (bits & 0x80000000UL) ? -(int32_t)v : (int32_t)v;
+}
+
 /* per-window-length gains: value per count moved over t ticks = per_count_per_s * fs / t */
 static void window_gains(int32_t *table, int32_t *one, float q24_per_count_at_1_tick) {
     for (uint8_t t = 1; t < 2 * VEL_WINDOW; t++) table[t] = sat_round(q24_per_count_at_1_tick / (float)t);
@@ -1176,7 +1199,7 @@ static void handle_frame(void) {
         TICK_UNLOCK();
         if (playing) { nak(type, seq, NAK_BAD_STATE); break; }
         for (uint8_t i = 0; i < k; i++) { /* A -> Q24 A here, so the tick adds integers */
-            int32_t q = q24_of(get_f32(p + 4 + 4 * i));
+            int32_t q = q24_of_bits(get_u32(p + 4 + 4 * i)); /* = q24_of(the float), in integers */
             TICK_LOCK();
             rearm_buf[off + i] = q;
             TICK_UNLOCK();
