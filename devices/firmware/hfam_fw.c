@@ -66,7 +66,8 @@
 
 /* ---- UART ring buffers ------------------------------------------------------------ */
 /* RX ring: power of two. The main loop parses ~200 cycles per byte (was ~335), slower than
- * the 160-cycle byte time at 1 Mbaud, and handling a 24-sample data frame takes ~20,000 cycles: a
+ * the 160-cycle byte time at 1 Mbaud, and handling a 24-sample data frame takes ~3,400 cycles of its own (~6,300
+ * with the servo ticks and UART interrupts meanwhile, up to ~12,000; simavr): a
  * burst longer than the ring is lost whatever the ring size RAM allows. So the ring must hold one whole
  * frame with nothing drained (hosts send data frames of at most 24 samples = 107 bytes, and wait for each
  * one's ACK: wire_protocol.DATA_CHUNK_SAMPLES, docs/protocol.md "Receive buffer"); a byte that finds it
@@ -985,8 +986,9 @@ static int32_t sat_round(float f) {
 }
 static int32_t q24_of(float amps) { return sat_round(amps * Q24); }
 
-/* q24_of() of a float given by its IEEE-754 bits, in integers (REARM_DATA: lroundf per sample was ~750 cycles of
- * soft-float, ~20,000 cycles per 24-sample frame on simavr), the same value for every finite float: f 2^24 is
+/* q24_of() of a float given by its IEEE-754 bits, in integers (REARM_DATA: the soft-float product and lroundf
+ * took ~175 cycles a sample more; a 24-sample frame's own handling 7,600 -> 3,400 cycles on simavr), the same
+ * value for every finite float: f 2^24 is
  * exact in float (finite4: |f| <= 1e30, so no overflow), = m 2^(e - 126) with m the 24-bit significand (normal
  * numbers; subnormals are below 2^-126 and give 0), rounded half away from zero as lroundf, saturated at +/-1e9 as
  * sat_round. (tests/devices/firmware/test_c_firmware.py compares the two over all exponents.) */
