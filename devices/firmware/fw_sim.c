@@ -86,7 +86,7 @@ static void on_signal(int s) { (void)s; quit = 1; }
 static const char *elf_path, *stats_path;
 static int pace_realtime = 1, selfhost;
 static double speed = 1.0, max_sim_s = 0.0;
-static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns, sym_po_e;
+static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns, sym_po_e, sym_tr_k, sym_ev_kind, sym_heat_n;
 static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current)
                         * and its passivity observer's energy po_e (Q16 A count) */
 static double f_drop, f_corrupt, f_garbage, f_duplicate, f_disconnect_s = -1.0;
@@ -303,12 +303,32 @@ static void uart_fix_byte_time(void) {
 
 /* ---- timing instrumentation -------------------------------------------------------------- */
 #define HIST 65536
-static uint32_t tick_hist[HIST], body_hist[HIST];
+static uint32_t tick_hist[HIST], body_hist[HIST], own_hist[HIST]; /* own: no latency, no nested interrupts */
 static uint64_t ticks, tick_overruns, compare_matches;
 static avr_cycle_count_t overrun_at[8]; /* MCU cycle of the first overruns, for the report */
 static avr_cycle_count_t match_cycle, tick_start_cycle, frame_start_cycle;
 static int tick_open;
 static uint32_t frame_max, frames_handled;
+static uint8_t frame_type;
+static uint32_t rearm_frame_max, rearm_frames, rearm_own_max; /* REARM_DATA frames: handling cycles (FRAME marks) */
+static uint64_t rearm_frame_total, rearm_own_total;
+static int isr_depth, frame_open;
+static uint64_t frame_isr_cycles; /* interrupts (outermost, nested ones inside them) while a frame was handled */
+/* the worst tick, taken apart: compare match -> Timer1 entry, the interrupts that nested in it (count and
+ * cycles per vector), and a cycles-per-instruction-address profile of everything that ran meanwhile */
+#define NPC 0x4000
+static uint32_t cur_pc[NPC], worst_pc[NPC];
+static uint16_t cur_touched[NPC];
+static unsigned n_touched;
+static struct { uint32_t n, cycles; } cur_nest[8], worst_nest[8];
+static uint64_t worst_total, worst_at, worst_latency, cur_latency;
+static int tick_entered;
+/* what each tick rendered, from the firmware's RAM at its end (tr_k advanced: a transient sample of kind ev_kind
+ * played; heat_n back to 0: the thermal model stepped): per transient kind the ticks and their worst case */
+static uint16_t last_tr_k;
+static uint64_t tr_ticks[5], tr_rx_ticks[5], thermal_steps;
+static uint32_t tr_max[5];
+static int worst_kind = -1, worst_thermal;
 static struct { const char *name; int vec; uint64_t n; avr_cycle_count_t pend, run; uint32_t max_dur, max_lat; avr_cycle_count_t max_lat_at; } isr[] = {
     {.name = "INT0", .vec = V_INT0}, {.name = "INT1", .vec = V_INT1}, {.name = "TIMER1_COMPA", .vec = V_TIMER1_COMPA},
     {.name = "USART_RX", .vec = V_USART_RX},
@@ -335,13 +355,18 @@ static void isr_running(avr_irq_t *irq, uint32_t value, void *param) {
     (void)irq;
     size_t k = (size_t)param;
     if (value) {
+        isr_depth++;
         isr[k].n++;
         isr[k].run = avr->cycle;
         uint32_t lat = (uint32_t)(avr->cycle - isr[k].pend);
+        if (isr[k].vec == V_TIMER1_COMPA && tick_open) { cur_latency = lat; tick_entered = 1; }
         if (lat > isr[k].max_lat && ticks > 0) { isr[k].max_lat = lat; isr[k].max_lat_at = avr->cycle; } /* after boot */
     } else {
         uint32_t dur = (uint32_t)(avr->cycle - isr[k].run);
         if (dur > isr[k].max_dur) isr[k].max_dur = dur;
+        if (isr_depth > 0 && --isr_depth == 0 && frame_open) frame_isr_cycles += dur;
+        /* nested in the tick (an interrupt before the Timer1 entry is part of the latency) */
+        if (tick_open && tick_entered && isr[k].vec != V_TIMER1_COMPA && k < 8) { cur_nest[k].n++; cur_nest[k].cycles += dur; }
     }
 }
 
@@ -365,14 +390,53 @@ static void gpior0_write(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param) {
         }
         uint64_t total = tick_open ? c - match_cycle : c - tick_start_cycle, body = c - tick_start_cycle;
         tick_hist[total < HIST ? total : HIST - 1]++;
+        uint64_t own = total - cur_latency; /* the tick's own code: what does not depend on how bytes line up */
+        for (int j = 0; j < 8; j++) own -= cur_nest[j].cycles;
+        own_hist[own < HIST ? own : HIST - 1]++;
+        int kind = -1, thermal = 0;
+        if (sym_tr_k && sym_ev_kind) {
+            uint16_t k = (uint16_t)(a->data[sym_tr_k] | a->data[sym_tr_k + 1] << 8);
+            if (k != last_tr_k && k != 0 && a->data[sym_ev_kind] < 5) {
+                kind = a->data[sym_ev_kind];
+                tr_ticks[kind]++;
+                if (cur_nest[3].n) tr_rx_ticks[kind]++; /* isr[3]: USART_RX nested in it (a frame arriving) */
+                if (total > tr_max[kind]) tr_max[kind] = (uint32_t)total;
+            }
+            last_tr_k = k;
+        }
+        if (sym_heat_n && a->data[sym_heat_n] == 0) { thermal = 1; thermal_steps++; }
+        if (total > worst_total) {
+            worst_total = total; worst_at = c; worst_latency = cur_latency; worst_kind = kind; worst_thermal = thermal;
+            memset(worst_pc, 0, sizeof worst_pc);
+            for (unsigned j = 0; j < n_touched; j++) worst_pc[cur_touched[j]] = cur_pc[cur_touched[j]];
+            memcpy(worst_nest, cur_nest, sizeof cur_nest);
+        }
+        for (unsigned j = 0; j < n_touched; j++) cur_pc[cur_touched[j]] = 0;
+        n_touched = 0;
+        memset(cur_nest, 0, sizeof cur_nest);
+        cur_latency = 0;
+        tick_entered = 0;
         body_hist[body < HIST ? body : HIST - 1]++;
         ticks++;
         tick_open = 0;
-    } else if (v == 3) frame_start_cycle = c;
-    else if (v == 4) {
+    } else if (v == 3) {
+        frame_start_cycle = c;
+        frame_open = 1;
+        frame_isr_cycles = 0;
+        frame_type = sym_parser ? a->data[sym_parser + 3] : 0; /* parser.buf: sync, sync, length, type */
+    } else if (v == 4) {
         uint32_t d = (uint32_t)(c - frame_start_cycle);
         if (d > frame_max) frame_max = d;
         frames_handled++;
+        frame_open = 0;
+        if (frame_type == MSG_REARM_DATA) {
+            uint32_t own = d - (uint32_t)frame_isr_cycles; /* the main loop's own cycles, interrupts taken out */
+            rearm_frames++;
+            rearm_frame_total += d;
+            rearm_own_total += own;
+            if (d > rearm_frame_max) rearm_frame_max = d;
+            if (own > rearm_own_max) rearm_own_max = own;
+        }
     }
 }
 
@@ -415,10 +479,13 @@ static avr_cycle_count_t attach_cycle;
 static int faults_on;
 /* self-host: parse what the firmware sends */
 static hfam_parser_t sh_parser;
+static uint64_t sh_events_kind[5], sh_rearm_busy;
 static uint64_t sh_states, sh_events, sh_gaps, sh_naks, sh_acks, sh_rearm_acks, sh_rearms, sh_rearm_timeouts;
 static int sh_rearm_off = -1; /* next REARM_DATA offset of the upload under way (-1: none) */
 static double sh_rearm_deadline, sh_rearm_t0, sh_rearm_max_s;
 static void sh_rearm_next(void);
+static void sh_sinusoid(void);
+static double sh_next_t, sh_rearm_t;
 static int sh_last_seq = -1;
 
 static void out_push(const uint8_t *b, unsigned n) {
@@ -436,15 +503,24 @@ static void selfhost_rx(uint8_t c) {
     if (sh_last_seq >= 0) sh_gaps += (uint8_t)(seq - sh_last_seq - 1);
     sh_last_seq = seq;
     if (type == MSG_STATE) sh_states++;
-    else if (type == MSG_EVENT) sh_events++;
+    else if (type == MSG_EVENT) {
+        sh_events++;
+        if (sh_parser.buf[5 + 21] < 5) sh_events_kind[sh_parser.buf[5 + 21]]++;
+    }
     else if (type == MSG_NAK) {
-        sh_naks++;
+        /* a re-arm refused while the re-armed transient plays (the single buffer): expected, retried; others count */
+        if (sh_parser.buf[5] == MSG_REARM_DATA && sh_parser.buf[7] == NAK_BAD_STATE) sh_rearm_busy++;
+        else sh_naks++;
         if (sh_parser.buf[5] == MSG_REARM_DATA || sh_parser.buf[5] == MSG_REARM_COMMIT) sh_rearm_off = -1;
     } else if (type == MSG_ACK) {
         sh_acks++;
         if (sh_parser.buf[5] == MSG_REARM_DATA) { sh_rearm_acks++; sh_rearm_next(); } /* as the host: one frame in flight */
         else if (sh_parser.buf[5] == MSG_REARM_COMMIT) {
             sh_rearm_acks++; sh_rearms++; sh_rearm_off = -1;
+            if (sh_rearms % 2 == 0) { /* every 2nd re-arm the sinusoid again: contacts play both kinds */
+                sh_sinusoid();
+                sh_rearm_t = avr->cycle / (double)F_CPU_HZ + 0.02; /* the next upload's frame not on its heels (RX ring) */
+            }
             double d = avr->cycle / (double)F_CPU_HZ - sh_rearm_t0;
             if (d > sh_rearm_max_s) sh_rearm_max_s = d;
         }
@@ -554,7 +630,11 @@ static void sh_rearm_next(void) {
     sh_send(MSG_REARM_DATA, p, (uint8_t)(4 + 4 * k));
     sh_rearm_off = (int)(off + k);
 }
-static double sh_next_t, sh_rearm_t;
+static void sh_sinusoid(void) {
+    uint8_t p[17];
+    p[0] = 2; put_f32(p + 1, 20.0f); put_f32(p + 5, 0.05f); put_f32(p + 9, 300.0f); put_f32(p + 13, 0.0f);
+    sh_send(MSG_TRANSIENT_PARAM, p, 17); /* decaying sinusoid: the costliest tick */
+}
 static void selfhost_step(void) {
     double t = avr->cycle / (double)F_CPU_HZ;
     uint8_t p[64];
@@ -562,14 +642,18 @@ static void selfhost_step(void) {
         put_u16(p, 0x0001); sh_send(MSG_HELLO, p, 2);
         p[0] = 1; put_u16(p + 1, (uint16_t)sh_decimation); sh_send(MSG_SET_MODE, p, 3); /* on-device rendering */
         sh_send(MSG_CLEAR_FAULTS, p, 0);
+        /* the encoder's zero at the physical wall height 0 (the firmware counts from its power-up position, the
+         * sweep's +5 mm): each downward pass re-arms above 1 mm and contacts the wall, 5 mm deep */
+        put_u32(p, (uint32_t)(int32_t)-enc_c0); p[4] = 1; put_f32(p + 5, (float)ACCEL_SCALE); put_f32(p + 9, (float)ACCEL_OFFSET);
+        put_f32(p + 13, (float)GRIP_SCALE); put_f32(p + 17, 0.0f);
+        sh_send(MSG_SET_CALIBRATION, p, 21);
         put_f32(p, 0.0f); put_f32(p + 4, 1000.0f); put_f32(p + 8, 1.0f); put_f32(p + 12, 0.001f);
         /* the passivity observer on (protocol 1.1) with a 1 s window, and a limit (0.5 J) the sweeps never reach:
          * every tick runs it and none stops */
         put_f32(p + 16, 0.5f); put_f32(p + 20, 2.4996876e-4f);
         sh_send(MSG_WALL, p, 24);
         put_f32(p, 0.8f); put_f32(p + 4, 2.0f); put_f32(p + 8, 2.0f); sh_send(MSG_LIMITS, p, 12);
-        p[0] = 2; put_f32(p + 1, 20.0f); put_f32(p + 5, 0.05f); put_f32(p + 9, 300.0f); put_f32(p + 13, 0.0f);
-        sh_send(MSG_TRANSIENT_PARAM, p, 17); /* decaying sinusoid: the costliest tick */
+        sh_sinusoid();
         sh_send(MSG_RENDER_START, p, 0);
         sh_stage = 1; sh_next_t = t + 0.02; sh_rearm_t = t + 0.02;
     }
@@ -595,16 +679,41 @@ static void write_stats(int final) {
     unsigned mn, med, mx, p99, bmn, bmed, bmx, bp99;
     hist_stats(tick_hist, ticks, &mn, &med, &mx, &p99);
     hist_stats(body_hist, ticks, &bmn, &bmed, &bmx, &bp99);
+    unsigned omn, omed, omx, op99;
+    hist_stats(own_hist, ticks, &omn, &omed, &omx, &op99);
     fprintf(f, "{\"final\": %d, \"cycles\": %llu, \"sim_time_s\": %.6f, \"f_cpu_hz\": %lu,\n", final,
             (unsigned long long)avr->cycle, avr->cycle / (double)F_CPU_HZ, F_CPU_HZ);
-    fprintf(f, " \"ticks\": %llu, \"compare_matches\": %llu, \"tick_overruns\": %llu,\n", (unsigned long long)ticks,
-            (unsigned long long)compare_matches, (unsigned long long)tick_overruns);
+    /* a tick still running when the run stopped is not a lost one: its compare match is left out */
+    fprintf(f, " \"ticks\": %llu, \"compare_matches\": %llu, \"tick_in_progress\": %d, \"tick_overruns\": %llu,\n",
+            (unsigned long long)ticks, (unsigned long long)(compare_matches - (tick_open ? 1 : 0)), tick_open,
+            (unsigned long long)tick_overruns);
     fprintf(f, " \"overrun_at_cycles\": [");
     for (unsigned k = 0; k < 8 && k < tick_overruns; k++) fprintf(f, "%s%llu", k ? ", " : "", (unsigned long long)overrun_at[k]);
     fprintf(f, "],\n");
     fprintf(f, " \"tick_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", mn, med, p99, mx);
+    fprintf(f, " \"tick_own_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", omn, omed, op99, omx);
     fprintf(f, " \"tick_body_cycles\": {\"min\": %u, \"median\": %u, \"p99\": %u, \"max\": %u},\n", bmn, bmed, bp99, bmx);
     fprintf(f, " \"frame_handling_max_cycles\": %u, \"frames_handled\": %u,\n", frame_max, frames_handled);
+    fprintf(f, " \"rearm_data_frames\": {\"n\": %u, \"max_cycles\": %u, \"mean_cycles\": %.0f, \"own_max_cycles\": %u, "
+            "\"own_mean_cycles\": %.0f},\n", rearm_frames, rearm_frame_max,
+            rearm_frames ? (double)rearm_frame_total / rearm_frames : 0.0, rearm_own_max,
+            rearm_frames ? (double)rearm_own_total / rearm_frames : 0.0);
+    fprintf(f, " \"worst_tick\": {\"cycles\": %llu, \"at_cycle\": %llu, \"latency\": %llu, \"nested\": {",
+            (unsigned long long)worst_total, (unsigned long long)worst_at, (unsigned long long)worst_latency);
+    for (size_t k = 0, first = 1; k < N_ISR && k < 8; k++)
+        if (isr[k].vec != V_TIMER1_COMPA) {
+            fprintf(f, "%s\"%s\": [%u, %u]", first ? "" : ", ", isr[k].name, worst_nest[k].n, worst_nest[k].cycles);
+            first = 0;
+        }
+    fprintf(f, "}, \"transient_kind\": %d, \"thermal_step\": %d, \"pc_cycles\": [", worst_kind, worst_thermal);
+    for (unsigned w = 0, first = 1; w < NPC; w++)
+        if (worst_pc[w]) { fprintf(f, "%s[%u, %u]", first ? "" : ", ", w * 2, worst_pc[w]); first = 0; }
+    fprintf(f, "]},\n");
+    fprintf(f, " \"thermal_steps\": %llu, \"transient_ticks\": {", (unsigned long long)thermal_steps);
+    for (int k = 0; k < 5; k++)
+        fprintf(f, "%s\"%d\": {\"n\": %llu, \"with_rx\": %llu, \"max_cycles\": %u}", k ? ", " : "", k,
+                (unsigned long long)tr_ticks[k], (unsigned long long)tr_rx_ticks[k], tr_max[k]);
+    fprintf(f, "},\n");
     fprintf(f, " \"isr\": {");
     for (size_t k = 0; k < N_ISR; k++)
         fprintf(f, "%s\"%s\": {\"n\": %llu, \"max_cycles\": %u, \"max_latency_cycles\": %u, \"max_latency_at_cycle\": %llu}",
@@ -626,10 +735,13 @@ static void write_stats(int final) {
             (unsigned long long)frames_dropped, (unsigned long long)frames_corrupted, (unsigned long long)frames_garbage,
             (unsigned long long)frames_duplicated, disconnected);
     fprintf(f, " \"selfhost\": {\"states\": %llu, \"events\": %llu, \"seq_gaps\": %llu, \"naks\": %llu, \"acks\": %llu, "
-            "\"rearm_acks\": %llu, \"rearms\": %llu, \"rearm_timeouts\": %llu, \"rearm_max_ms\": %.3f}",
+            "\"rearm_acks\": %llu, \"rearms\": %llu, \"rearm_timeouts\": %llu, \"rearm_max_ms\": %.3f, "
+            "\"events_sinusoid\": %llu, \"events_rearm\": %llu, \"rearm_busy\": %llu}",
             (unsigned long long)sh_states, (unsigned long long)sh_events, (unsigned long long)sh_gaps,
             (unsigned long long)sh_naks, (unsigned long long)sh_acks, (unsigned long long)sh_rearm_acks,
-            (unsigned long long)sh_rearms, (unsigned long long)sh_rearm_timeouts, sh_rearm_max_s * 1000);
+            (unsigned long long)sh_rearms, (unsigned long long)sh_rearm_timeouts, sh_rearm_max_s * 1000,
+            (unsigned long long)sh_events_kind[2], (unsigned long long)sh_events_kind[4],
+            (unsigned long long)sh_rearm_busy);
     if (sym_parser) {
         uint8_t *d = avr->data + sym_parser + HFAM_MAX_PAYLOAD + HFAM_OVERHEAD + 2;
         fprintf(f, ",\n \"fw_parser\": {\"crc_errors\": %u, \"garbage\": %u}", d[0] | (d[1] << 8), d[2] | (d[3] << 8));
@@ -691,6 +803,9 @@ int main(int argc, char **argv) {
         else if (OPT("--sym-parser")) sym_parser = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-probe")) sym_probe = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-po-e")) sym_po_e = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-tr-k")) sym_tr_k = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-ev-kind")) sym_ev_kind = (uint16_t)strtoul(val, NULL, 0);
+        else if (OPT("--sym-heat-n")) sym_heat_n = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--sym-rx-overruns")) sym_rx_overruns = (uint16_t)strtoul(val, NULL, 0);
         else if (OPT("--tick-log")) { tick_log = fopen(val, "wb"); if (!tick_log) { perror(val); return 2; } }
         else if (OPT("--taps")) { n_taps = parse_list(val, taps, 32); hand_mode = n_taps ? HAND_TAP : HAND_HOLD; }
@@ -702,7 +817,7 @@ int main(int argc, char **argv) {
         else if (OPT("--seed")) rng_state = (unsigned)atoi(val);
         else if (!strcmp(a, "--selfhost")) selfhost = 1;
         else if (OPT("--decimation")) sh_decimation = atoi(val) < 1 ? 1 : atoi(val);
-        else if (OPT("--profile")) profile = atoi(val); /* GPIOR0 mark to profile: 1 tick, 3 frame */
+        else if (OPT("--profile")) profile = atoi(val); /* 1: the tick (GPIOR0 mark); 3: frames' own code; 5: the main loop during re-arm uploads */
         else { fprintf(stderr, "error: unknown or incomplete option %s\n", a); return 2; }
     }
     if (getenv("FW_SIM_TRACE_FROM")) trace_from = strtoull(getenv("FW_SIM_TRACE_FROM"), NULL, 0);
@@ -772,7 +887,13 @@ int main(int argc, char **argv) {
             if (trace_from && c_before >= trace_from)
                 fprintf(stderr, "T %llu pc %x sp %x g %d\n", (unsigned long long)c_before, pc_before,
                         avr->data[0x5D] | (avr->data[0x5E] << 8), avr->data[A_GPIOR0]);
-            if (profile && avr->data[A_GPIOR0] == profile) prof[(pc_before >> 1) & 0x3FFF] += (uint32_t)(avr->cycle - c_before);
+            if (profile == 3 ? frame_open && !isr_depth : profile == 5 ? !frame_open && !isr_depth && sh_rearm_off >= 0 : profile && avr->data[A_GPIOR0] == profile) /* 3: frames own code; 5: main loop during re-arms */
+                prof[(pc_before >> 1) & 0x3FFF] += (uint32_t)(avr->cycle - c_before);
+            if (tick_open || avr->data[A_GPIOR0] == 1) { /* everything the CPU ran between a compare match and its tick's end */
+                unsigned w = (pc_before >> 1) & (NPC - 1);
+                if (!cur_pc[w]) cur_touched[n_touched++] = (uint16_t)w;
+                cur_pc[w] += (uint32_t)(avr->cycle - c_before);
+            }
             if (state == cpu_Done || state == cpu_Crashed) break;
         }
         if (state == cpu_Done || state == cpu_Crashed) {

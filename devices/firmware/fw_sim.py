@@ -149,6 +149,9 @@ class Build:
     text_bytes: int
     rx_overruns_addr: int = 0
     po_e_addr: int = 0
+    tr_k_addr: int = 0
+    ev_kind_addr: int = 0
+    heat_n_addr: int = 0
 
 
 def _cache_base() -> Path:
@@ -218,7 +221,8 @@ def build(force: bool = False) -> Build:
               str(harness), str(FIRMWARE_DIR / "fw_sim.c"), str(FIRMWARE_DIR / "hfam_protocol.c"), *ldflags],
              "simavr harness build (cc + libsimavr)")
         b = Build(folder, elf, harness, syms["encoder_count"], syms["__bss_end"], syms["parser"], syms["tick_probe"],
-                  data, bss, text, syms["rx_overruns"], syms.get("po_e", 0))
+                  data, bss, text, syms["rx_overruns"], syms.get("po_e", 0), syms.get("tr_k", 0), syms.get("ev_kind", 0),
+                  syms.get("heat_n", 0))
         d = {k: (str(v) if isinstance(v, Path) else v) for k, v in b.__dict__.items()}
         info.write_text(json.dumps(d, indent=1))
         return b
@@ -240,6 +244,8 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
         cmd += ["--sym-rx-overruns", str(b.rx_overruns_addr)]
     if b.po_e_addr:
         cmd += ["--sym-po-e", str(b.po_e_addr)]
+    if b.tr_k_addr and b.ev_kind_addr and b.heat_n_addr:
+        cmd += ["--sym-tr-k", str(b.tr_k_addr), "--sym-ev-kind", str(b.ev_kind_addr), "--sym-heat-n", str(b.heat_n_addr)]
     if tick_log is not None:
         cmd += ["--tick-log", str(tick_log)]
     if sweep_m_s:
@@ -522,23 +528,33 @@ def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), dec
     Returns
     -------
     dict
-        ``tick`` (min/median/p99/max cycles from the Timer1 compare match to the end of the tick, and of
-        the tick's own code), ``budget_cycles``, ``margin_cycles`` (budget - max), ``lost_ticks``, ``isr``
+        ``tick`` (min/median/p99/max cycles from the Timer1 compare match to the end of the tick), ``tick_body``
+        (from the tick's start), ``tick_own`` (its own code: no latency, no nested interrupts), ``budget_cycles``, ``margin_cycles`` (budget - max), ``lost_ticks``, ``isr``
         (per vector max cycles and max latency), ``uart_rx_deadline_cycles`` (two characters at 1 Mbaud),
         ``ram`` (static + stack high-water bytes of 2048), ``encoder`` (per speed: counts, missed),
         ``first_missing_speed_m_s``, ``fw_parser`` (the firmware parser's CRC-error and garbage counts),
         ``fw_rx_overruns`` (received bytes dropped on a full RX ring) and ``selfhost`` (what the scripted host
-        got back: ``rearm_acks``, ``rearms`` (re-arm uploads acknowledged to the commit), ``rearm_timeouts``).
+        got back: ``rearm_acks``, ``rearms`` (re-arm uploads acknowledged to the commit), ``rearm_timeouts``,
+        ``events_sinusoid``, ``events_rearm`` (contacts by the transient they played), ``rearm_busy`` (REARM_DATA
+        refused while the re-armed transient played), ``rearm_max_ms``), ``worst_tick`` (the longest tick taken
+        apart: ``latency`` from the compare match, ``nested`` interrupts [count, cycles] per vector, ``transient_kind``
+        it played, -1 none; ``pc_cycles`` per instruction address), ``transient_ticks`` (per kind: ticks that played a
+        sample, ``with_rx`` of them while bytes arrived, ``max_cycles``) and ``rearm_data_frames`` (handling cycles
+        per REARM_DATA frame, with and without the interrupts meanwhile).
+
+    The timing run's sweeps (each rated speed twice) pass through the wall: every downward pass is a contact; the
+    scripted host plays the sinusoid, re-arms a 128-sample transient every 20 ms in the second half and switches
+    back to the sinusoid after every second re-arm, so contacts play both while re-arm frames arrive.
     """
     rated = [v for v in speeds_m_s if v <= MAX_RATED_SPEED_M_S] or [MAX_RATED_SPEED_M_S]
-    t = run_selfhosted(rated, decimation)
+    t = run_selfhosted(rated * 2, decimation)
     e = run_selfhosted(speeds_m_s, decimation)
     tick, body = t["tick_cycles"], t["tick_body_cycles"]
     static = t["build"]["data_bytes"] + t["build"]["bss_bytes"]
     first_drop = next((s["v_m_s"] for s in e["sweeps"] if s["missed"]), None)
     return {
         "f_cpu_hz": F_CPU_HZ, "servo_hz": SERVO_HZ, "telemetry_decimation": decimation,
-        "budget_cycles": TICK_BUDGET_CYCLES, "tick": tick, "tick_body": body,
+        "budget_cycles": TICK_BUDGET_CYCLES, "tick": tick, "tick_body": body, "tick_own": t["tick_own_cycles"],
         "margin_cycles": TICK_BUDGET_CYCLES - tick["max"],
         "ticks": t["ticks"], "compare_matches": t["compare_matches"],
         "lost_ticks": t["compare_matches"] - t["ticks"], "frame_handling_max_cycles": t["frame_handling_max_cycles"],
@@ -548,7 +564,8 @@ def timing_report(speeds_m_s=(0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0), dec
         "encoder": e["sweeps"], "first_missing_speed_m_s": first_drop, "max_rated_speed_m_s": MAX_RATED_SPEED_M_S,
         "sim_time_s": t["sim_time_s"] + e["sim_time_s"], "telemetry_seq_gaps": t["selfhost"]["seq_gaps"],
         "fw_parser": t.get("fw_parser", {}), "fw_rx_overruns": t.get("fw_rx_overruns"),
-        "selfhost": t["selfhost"],
+        "selfhost": t["selfhost"], "worst_tick": t["worst_tick"], "transient_ticks": t["transient_ticks"],
+        "rearm_data_frames": t["rearm_data_frames"],
     }
 
 
@@ -574,9 +591,23 @@ def format_report(r: dict) -> str:
         f"max {tk['max']} cycles; margin {r['margin_cycles']} cycles "
         f"({'fits' if r['margin_cycles'] > 0 else 'OVER BUDGET'})",
         f"servo tick code incl. interrupts: min {bd['min']} / median {bd['median']} / p99 {bd['p99']} / max {bd['max']} cycles",
+        f"servo tick code alone (no latency, no nested interrupts): median {r['tick_own']['median']} / p99 "
+        f"{r['tick_own']['p99']} / max {r['tick_own']['max']} cycles",
         f"ticks run {r['ticks']} of {r['compare_matches']} timer periods (lost {r['lost_ticks']}); "
         f"longest frame handling {r['frame_handling_max_cycles']} cycles",
     ]
+    w, sh, tt, rf = r["worst_tick"], r["selfhost"], r["transient_ticks"], r["rearm_data_frames"]
+    kinds = {-1: "no transient", 1: "pulse", 2: "sinusoid", 4: "re-armed transient"}
+    lines.append(f"worst tick: {w['cycles']} cycles = compare-match latency {w['latency']} + nested interrupts " +
+                 ", ".join(f"{k} {n}x {c}" for k, (n, c) in w["nested"].items() if n) +
+                 f" + tick code; it played {kinds.get(w['transient_kind'], w['transient_kind'])}")
+    lines.append(f"contacts: {sh['events']} ({sh['events_sinusoid']} sinusoid, {sh['events_rearm']} re-armed); transient "
+                 f"ticks: sinusoid {tt['2']['n']} ({tt['2']['with_rx']} while a frame arrived, max {tt['2']['max_cycles']} "
+                 f"cycles), re-armed {tt['4']['n']} ({tt['4']['with_rx']}, max {tt['4']['max_cycles']} cycles)")
+    lines.append(f"re-arms: {sh['rearms']} committed ({sh['rearm_acks']} frames acknowledged, {sh['rearm_busy']} refused "
+                 f"while the re-armed transient played), longest upload {sh['rearm_max_ms']:.1f} ms; REARM_DATA (24 "
+                 f"samples) handling mean {rf['own_mean_cycles']:.0f} / max {rf['own_max_cycles']} cycles of its own "
+                 f"(incl. interrupts meanwhile mean {rf['mean_cycles']:.0f} / max {rf['max_cycles']})")
     for name, s in r["isr"].items():
         if s["n"]:
             lines.append(f"ISR {name:<13} n {s['n']:>6}  max {s['max_cycles']:>4} cycles  max latency "

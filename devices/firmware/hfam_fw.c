@@ -66,7 +66,8 @@
 
 /* ---- UART ring buffers ------------------------------------------------------------ */
 /* RX ring: power of two. The main loop parses ~200 cycles per byte (was ~335), slower than
- * the 160-cycle byte time at 1 Mbaud, and handling a 24-sample data frame takes ~20,000 cycles: a
+ * the 160-cycle byte time at 1 Mbaud, and handling a 24-sample data frame takes ~3,400 cycles of its own (~6,300
+ * with the servo ticks and UART interrupts meanwhile, up to ~12,000; simavr): a
  * burst longer than the ring is lost whatever the ring size RAM allows. So the ring must hold one whole
  * frame with nothing drained (hosts send data frames of at most 24 samples = 107 bytes, and wait for each
  * one's ACK: wire_protocol.DATA_CHUNK_SAMPLES, docs/protocol.md "Receive buffer"); a byte that finds it
@@ -74,7 +75,14 @@
 #define RX_SIZE 128
 #define TX_SIZE 256 /* must stay 256: the 8-bit indices wrap by themselves */
 static volatile uint8_t rx_buf[RX_SIZE];
+#ifdef __AVR__
+/* the ring's indices in the general-purpose I/O registers GPIOR1/GPIOR2: `in`/`out` (1 cycle) instead of
+ * `lds`/`sts` (2) in the receive interrupt, which nests in the servo tick once per byte while a frame arrives */
+#define rx_head GPIOR1
+#define rx_tail GPIOR2
+#else
 static volatile uint8_t rx_head, rx_tail;
+#endif
 volatile uint16_t rx_overruns; /* bytes dropped because the ring was full (not static: fw_sim.c reads it) */
 static volatile uint8_t tx_buf[TX_SIZE];
 static volatile uint8_t tx_head, tx_tail; /* 8-bit: atomic on the AVR, wraps at TX_SIZE = 256 */
@@ -94,25 +102,18 @@ ISR(USART_RX_vect, ISR_NAKED) {
         "push r30\n\t"
         "push r31\n\t"
         "lds  r25, %[udr]\n\t"              /* the byte (clears RXC0) */
-        "lds  r30, %[head]\n\t"
+        "in   r30, %[head]\n\t"
         "mov  r24, r30\n\t"
         "subi r24, 0xFF\n\t"                /* next = (head + 1) & (RX_SIZE - 1) */
         "andi r24, %[mask]\n\t"
-        "lds  r31, %[tail]\n\t"
+        "in   r31, %[tail]\n\t"
         "cp   r24, r31\n\t"
-        "breq 1f\n\t"                       /* full: drop it, count it */
+        "breq 1f\n\t"                       /* full: drop it, count it (out of line: no jump on the common path) */
         "ldi  r31, 0\n\t"
         "subi r30, lo8(-(%[buf]))\n\t"
         "sbci r31, hi8(-(%[buf]))\n\t"
         "st   Z, r25\n\t"
-        "sts  %[head], r24\n\t"
-        "rjmp 2f\n"
-        "1:\n\t"
-        "lds  r24, %[ovr]\n\t"
-        "lds  r25, %[ovr]+1\n\t"
-        "adiw r24, 1\n\t"
-        "sts  %[ovr]+1, r25\n\t"
-        "sts  %[ovr], r24\n"
+        "out  %[head], r24\n"
         "2:\n\t"
         "pop  r31\n\t"
         "pop  r30\n\t"
@@ -120,9 +121,16 @@ ISR(USART_RX_vect, ISR_NAKED) {
         "pop  r24\n\t"
         "out  __SREG__, r24\n\t"
         "pop  r24\n\t"
-        "reti\n\t"
-        :: [udr] "n" (_SFR_MEM_ADDR(UDR0)), [head] "i" (&rx_head), [tail] "i" (&rx_tail), [buf] "i" (rx_buf),
-           [ovr] "i" (&rx_overruns), [mask] "M" (RX_SIZE - 1));
+        "reti\n"
+        "1:\n\t"
+        "lds  r24, %[ovr]\n\t"
+        "lds  r25, %[ovr]+1\n\t"
+        "adiw r24, 1\n\t"
+        "sts  %[ovr]+1, r25\n\t"
+        "sts  %[ovr], r24\n\t"
+        "rjmp 2b\n\t"
+        :: [udr] "n" (_SFR_MEM_ADDR(UDR0)), [head] "I" (_SFR_IO_ADDR(GPIOR1)), [tail] "I" (_SFR_IO_ADDR(GPIOR2)),
+           [buf] "i" (rx_buf), [ovr] "i" (&rx_overruns), [mask] "M" (RX_SIZE - 1));
 }
 #else
 ISR(USART_RX_vect) {
@@ -218,6 +226,7 @@ static int32_t encoder_read(void) {
  * far shorter than the UART receive deadline (two characters, 320 cycles), and a compare match
  * meanwhile is served as soon as it ends. */
 static volatile uint32_t tick_count;
+static volatile uint32_t tick_us; /* tick_count * 250 us, kept beside it (the product took ~40 cycles a tick) */
 static volatile uint8_t tick_busy;
 static volatile uint16_t tick_overruns; /* compare matches that found the previous tick still running */
 static void servo_tick(void);
@@ -233,6 +242,7 @@ ISR(TIMER1_COMPA_vect) {
     UCSR0B &= (uint8_t)~_BV(UDRIE0);
     sei();
     tick_count++;
+    tick_us += 1000000UL / SERVO_HZ;
     if (tick_busy) { tick_overruns++; return; }
     tick_busy = 1;
     servo_tick();
@@ -255,8 +265,10 @@ static uint16_t adc_read(uint8_t channel) {
 }
 
 /* Currents in fixed point: Q24 amperes (int32, 1 LSB = 60 nA, range +/-128 A), so the servo tick
- * needs no soft-float (~100-150 cycles per operation on the AVR); 32x32->64-bit products keep the
- * precision far below the 1 mA the host test allows against devices/firmware/logic.py. */
+ * needs no soft-float (~100-150 cycles per operation on the AVR); its products are 16 x 16 -> 32-bit MULs
+ * (mul_uu16, mul_su16, mul_ss16 below), with the ranges that allow it stated where they are used, and keep the
+ * precision far below the 1 mA the host test allows against devices/firmware/logic.py (32 x 32 -> 64-bit ones
+ * only beyond those ranges: 5.6 mm into a wall past its clamp, 1,400 m/s). */
 #define Q24 16777216.0f
 static volatile int32_t applied_q24;
 static void motor_set_q24(int32_t q) {
@@ -319,8 +331,10 @@ static uint8_t tr_kind; /* 0 none, 1 pulse, 2 sinusoid, 4 re-armed buffer */
 static int32_t tr_gain[2 * VEL_WINDOW]; /* transient amplitude per count moved over t ticks, Q24 A */
 static int32_t tr_gain_1;
 /* decaying sinusoid e^{-a t} sin(w t) at t = (k+1)/fs as the recurrence y_k = c1 y_{k-1} - c2 y_{k-2}
- * (c1 = 2 r cos(w/fs), c2 = r^2, r = e^{-a/fs}); y in Q31, c1/c2 in Q30: two 32x32->64 products per
- * tick instead of expf + sinf (~5,000 cycles); coefficients set with TRANSIENT_PARAM */
+ * (c1 = 2 r cos(w/fs), c2 = r^2, r = e^{-a/fs}); c1/c2 in Q30, the first two samples s1, s2 in Q31 (set with
+ * TRANSIENT_PARAM), instead of expf + sinf (~5,000 cycles). The recurrence is linear, so it runs on the current
+ * itself, z_k = amplitude * y_k in Q24 A (sin_y1, sin_y2: z_{k-1}, z_{k-2}): two mulhi16 per tick and no
+ * product by the amplitude (set once per contact from s1, s2) */
 static int32_t sin_c1, sin_c2, sin_s1, sin_s2, sin_y1, sin_y2;
 static uint16_t tr_param_n;
 static int32_t rearm_buf[REARM_MAX]; /* Q24 A */
@@ -354,15 +368,16 @@ static uint8_t armed, in_event, ev_clipped, ev_kind, clipping, over_temp;
 /* first-order winding model dT = (i^2 R_w R_th - T) dt / tau, T in Q20 K */
 #define T_Q20(k) ((int32_t)((k) * 1048576.0f))
 static int32_t temp_q20;
-#define HEAT_Q12 ((int32_t)(R_WINDING_OHM * R_THERMAL_K_W * 4096.0f + 0.5f)) /* K/A^2, Q12 */
 /* The model is stepped every THERMAL_EVERY ticks with the mean i^2 over them (tau = 30 s is 120,000
  * ticks: the difference from a per-tick step is far below the model's own accuracy, and a Q20
  * temperature step of dt/tau per tick would round away differences below 0.11 K) */
 #define THERMAL_EVERY 16
-#define ALPHA_Q32 ((int32_t)(4294967296.0 * THERMAL_EVERY / (TAU_THERMAL_S * SERVO_HZ) + 0.5)) /* Q32 */
-#define T_RANGE_INV_Q32 ((int32_t)(4294967296.0 / (T_END_K - T_ATTENUATE_K) + 0.5)) /* 1/K, Q32 */
 static int32_t heat_acc; /* sum of i^2 (Q24 A^2) since the last thermal step */
 static uint8_t heat_n;
+static void thermal_service(void);
+static uint32_t heat_post; /* sums of i^2 over the blocks of THERMAL_EVERY ticks not yet stepped, Q16 A^2 (< 2^22 each) */
+static uint8_t heat_posts;
+static uint32_t temp_fade_q16; /* 0: below T_att, else the fade-out factor (Q16) + 1 (thermal_step) */
 static uint16_t tr_k, tr_n, ev_index;
 static int32_t tr_scale_q24;
 /* the current event, in raw units (the main loop converts them to SI for the EVENT frame) */
@@ -424,11 +439,20 @@ static void info_bytes(const uint8_t *b, uint8_t n) { for (uint8_t i = 0; i < n;
 static void info_f32(float f) { uint8_t b[4]; put_f32(b, f); info_bytes(b, 4); }
 static void info_u16(uint16_t v) { uint8_t b[2]; put_u16(b, v); info_bytes(b, 2); }
 static void info_u32(uint32_t v) { uint8_t b[4]; put_u32(b, v); info_bytes(b, 4); }
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define INFO_FLASH PROGMEM
+#define INFO_FLOAT(p) pgm_read_float(p)
+#else
+#define INFO_FLASH
+#define INFO_FLOAT(p) (*(p))
+#endif
 #define INFO_LEN (5 + 4 + 9 * 4 + 2 + 4 + 2 + 6 * 4 + 2 + 2 + 4 + 2 + 1 + sizeof(DEVICE_NAME) - 1 + 1 + sizeof(SERIAL_NUMBER) - 1)
 static void send_info(void) {
-    static const float f1[9] = {GEAR_RATIO, HANDLE_LENGTH_M, KT_NM_A, I_CONT_A, I_PEAK_A, I_AMP_A, (float)SERVO_HZ,
-                                ACCEL_RANGE_M_S2, ACCEL_SCALE_M_S2_PER_COUNT};
-    static const float f2[6] = {0.0f, GRIP_MAX_N, R_WINDING_OHM, R_THERMAL_K_W, TAU_THERMAL_S, T_MAX_RISE_K};
+    /* in flash (60 bytes of RAM in .data otherwise) */
+    static const float f1[9] INFO_FLASH = {GEAR_RATIO, HANDLE_LENGTH_M, KT_NM_A, I_CONT_A, I_PEAK_A, I_AMP_A,
+                                           (float)SERVO_HZ, ACCEL_RANGE_M_S2, ACCEL_SCALE_M_S2_PER_COUNT};
+    static const float f2[6] INFO_FLASH = {0.0f, GRIP_MAX_N, R_WINDING_OHM, R_THERMAL_K_W, TAU_THERMAL_S, T_MAX_RISE_K};
     static const uint8_t version[5] = {HFAM_PROTO_MAJOR, HFAM_PROTO_MINOR, FW_MAJOR, FW_MINOR, FW_PATCH};
     uint8_t seq = tx_seq++;
     if (!tx_begin((uint16_t)INFO_LEN + HFAM_OVERHEAD)) return;
@@ -439,11 +463,11 @@ static void send_info(void) {
     tx_put(seq, 1);
     info_bytes(version, 5);
     info_u32(ENCODER_LINES);
-    for (uint8_t i = 0; i < 9; i++) info_f32(f1[i]);
+    for (uint8_t i = 0; i < 9; i++) info_f32(INFO_FLOAT(&f1[i]));
     info_u16((uint16_t)ACCEL_OFFSET_COUNTS);
     info_f32(GRIP_SCALE_N_PER_COUNT);
     info_u16((uint16_t)GRIP_OFFSET_COUNTS);
-    for (uint8_t i = 0; i < 6; i++) info_f32(f2[i]);
+    for (uint8_t i = 0; i < 6; i++) info_f32(INFO_FLOAT(&f2[i]));
     info_u16(watchdog_ms);
     info_u16(CAP_STREAMING | CAP_ON_DEVICE | CAP_PARAM_TRANSIENT | CAP_REARM_TRANSIENT);
     info_u32(REARM_MAX);
@@ -519,8 +543,9 @@ static void send_event_slot(const event_slot_t *e) {
     send(MSG_EVENT, p, 24);
 }
 
-/* main loop: frame and send what the tick posted */
+/* main loop: frame and send what the tick posted (and step the thermal model) */
 static void flush_telemetry(void) {
+    thermal_service();
     while (evq_tail != evq_head) {
         send_event_slot(&ev_queue[evq_tail]);
         evq_tail = (uint8_t)((evq_tail + 1) & (EV_QUEUE - 1));
@@ -540,14 +565,10 @@ static void flush_telemetry(void) {
 
 /* 32x32 -> 64-bit products (libgcc's __mulsidi3) with the result taken by bytes: avr-gcc shifts an
  * int64 with a bit-by-bit library loop (__ashrdi3, ~10 cycles per bit), a byte offset costs nothing.
- * Results are saturated to +/-(2^30 - 1) (64 A in Q24): far beyond any current limit. */
+ * Results are saturated to +/-(2^30 - 1) (64 A in Q24): far beyond any current limit. Only the fallbacks
+ * beyond the 16-bit products' ranges use them now (~150-250 cycles each on simavr). */
 typedef union { int64_t q; struct { uint32_t lo; int32_t hi; } w; uint8_t b[8]; } prod_t;
 #define SAT 0x3FFFFFFFL
-static inline int32_t mulhi(int32_t a, int32_t b) { /* (a * b) >> 32 */
-    prod_t u;
-    u.q = (int64_t)a * b;
-    return u.w.hi;
-}
 static inline int32_t mul_sat(int32_t a, int32_t b) { /* a * b, saturated */
     prod_t u;
     u.q = (int64_t)a * b;
@@ -561,13 +582,6 @@ static inline int32_t mul_sh8_sat(int32_t a, int32_t b) { /* (a * b) >> 8, satur
     int32_t top = u.w.hi >> 6; /* bits 38..63: all equal <=> |result| < 2^30 */
     if (top != 0 && top != -1) return u.w.hi < 0 ? -SAT : SAT;
     memcpy(&r, &u.b[1], 4);
-    return r;
-}
-static inline int32_t mul_sh16(int32_t a, int32_t b) { /* (a * b) >> 16, callers keep it in range */
-    prod_t u;
-    int32_t r;
-    u.q = (int64_t)a * b;
-    memcpy(&r, &u.b[2], 4);
     return r;
 }
 
@@ -596,9 +610,89 @@ static inline __attribute__((always_inline)) uint32_t mul_uu16(uint16_t a, uint1
     return (uint32_t)a * b;
 #endif
 }
-static inline __attribute__((always_inline)) int32_t mul_su16(int16_t a, uint16_t b) { /* |a| <= 2^15, b < 2^16: |a b| < 2^31 */
-    if (a >= 0) return (int32_t)mul_uu16((uint16_t)a, b);
-    return -(int32_t)mul_uu16((uint16_t)(0U - (uint16_t)a), b);
+/* signed x unsigned and signed x signed 16 x 16 -> 32 with the AVR's MULSU / MULS (Atmel AVR201): no sign
+ * branches or 32-bit negations (~15 cycles instead of ~35 with mul_uu16 on magnitudes). After a MULSU/MULS the
+ * carry is the 16-bit product's sign bit: `sbc top, zero` sign-extends a partial product added at byte 1. */
+static inline __attribute__((always_inline)) int32_t mul_su16(int16_t a, uint16_t b) { /* a b, |a b| < 2^31 */
+#ifdef __AVR__
+    int32_t r;
+    uint8_t z;
+    __asm__("clr   %[z]\n\t"
+            "mulsu %B[a], %B[b]\n\t"
+            "movw  %C[r], r0\n\t"
+            "mul   %A[a], %A[b]\n\t"
+            "movw  %A[r], r0\n\t"
+            "mulsu %B[a], %A[b]\n\t"
+            "sbc   %D[r], %[z]\n\t"
+            "add   %B[r], r0\n\t"
+            "adc   %C[r], r1\n\t"
+            "adc   %D[r], %[z]\n\t"
+            "mul   %B[b], %A[a]\n\t"
+            "add   %B[r], r0\n\t"
+            "adc   %C[r], r1\n\t"
+            "adc   %D[r], %[z]\n\t"
+            "clr   r1\n\t"
+            : [r] "=&r"(r), [z] "=&r"(z) : [a] "a"(a), [b] "a"(b));
+    return r;
+#else
+    return (int32_t)a * b;
+#endif
+}
+
+static inline __attribute__((always_inline)) int32_t mul_ss16(int16_t a, int16_t b) { /* a b, |a b| <= 2^30 */
+#ifdef __AVR__
+    int32_t r;
+    uint8_t z;
+    __asm__("clr   %[z]\n\t"
+            "muls  %B[a], %B[b]\n\t"
+            "movw  %C[r], r0\n\t"
+            "mul   %A[a], %A[b]\n\t"
+            "movw  %A[r], r0\n\t"
+            "mulsu %B[a], %A[b]\n\t"
+            "sbc   %D[r], %[z]\n\t"
+            "add   %B[r], r0\n\t"
+            "adc   %C[r], r1\n\t"
+            "adc   %D[r], %[z]\n\t"
+            "mulsu %B[b], %A[a]\n\t"
+            "sbc   %D[r], %[z]\n\t"
+            "add   %B[r], r0\n\t"
+            "adc   %C[r], r1\n\t"
+            "adc   %D[r], %[z]\n\t"
+            "clr   r1\n\t"
+            : [r] "=&r"(r), [z] "=&r"(z) : [a] "a"(a), [b] "a"(b));
+    return r;
+#else
+    return (int32_t)a * b;
+#endif
+}
+/* floor(a b / 2^16) for any int32 a and b < 2^16, exact: a = ah 2^16 + al (ah = a >> 16 in [-2^15, 2^15), al
+ * unsigned), so a b / 2^16 = ah b + al b / 2^16 and only the second term needs the floor; |result| < 2^31 */
+static inline __attribute__((always_inline)) int32_t mul_s32u16_sh16(int32_t a, uint16_t b) {
+    return mul_su16((int16_t)(a >> 16), b) + (int32_t)(mul_uu16((uint16_t)a, b) >> 16);
+}
+/* a * b saturated to +/-SAT, exact, for any int32 a and |b| < 2^16 (the 64-bit mul_sat otherwise): two 16 x 16
+ * products. |a| b = ah b 2^16 + al b (ah, al: the 16-bit halves of |a|); ah b >= 2^14 means |a b| >= 2^30 > SAT,
+ * else ah b 2^16 <= 0x3FFF0000 and a carry out of the 32-bit sum also means > SAT. Same values as mul_sat. */
+static __attribute__((noinline)) int32_t mul_sat64(int32_t a, int32_t b) { return mul_sat(a, b); }
+static inline __attribute__((always_inline)) int32_t mul_sat16(int32_t a, int32_t b) {
+    if (b <= -65536 || b >= 65536) return mul_sat64(a, b); /* out of line: its 64-bit registers stay out of the tick */
+    uint32_t ua = a >= 0 ? (uint32_t)a : 0U - (uint32_t)a, ub = b >= 0 ? (uint32_t)b : 0U - (uint32_t)b;
+    uint32_t hi = mul_uu16((uint16_t)(ua >> 16), (uint16_t)ub), lo = mul_uu16((uint16_t)ua, (uint16_t)ub), r;
+    if (hi > ((uint32_t)SAT >> 16)) r = SAT;
+    else {
+        r = (hi << 16) + lo;
+        if (r < lo || r > (uint32_t)SAT) r = SAT;
+    }
+    return (a < 0) != (b < 0) ? -(int32_t)r : (int32_t)r;
+}
+/* (a * b) >> 32 of the sinusoid recurrence from three 16 x 16 products (a = ah 2^16 + al, b likewise; ah, bh
+ * signed, al, bl unsigned): ah bh + (ah bl >> 16) + (al bh >> 16), the al bl term and the carries between the
+ * partial sums dropped: 0 to 2 LSB below the exact floor (Q31 y: < 1e-9 of full scale a step; the recurrence's
+ * gain, ~1 / (1 - r) ~ 50 for the report's 50 ms decay, keeps the sum far below the 1 mA tolerance). Replaces
+ * libgcc's 32 x 32 -> 64-bit __mulsidi3 (~250 cycles each in the worst tick, simavr). |result| <= 2^30 + 2^16. */
+static inline __attribute__((always_inline)) int32_t mulhi16(int32_t a, int32_t b) {
+    int16_t ah = (int16_t)(a >> 16), bh = (int16_t)(b >> 16);
+    return mul_ss16(ah, bh) + (mul_su16(ah, (uint16_t)b) >> 16) + (mul_su16(bh, (uint16_t)a) >> 16);
 }
 
 /* One step of the wall's passivity observer (po_e above; FirmwareRenderer._observe in logic.py does the same
@@ -715,15 +809,23 @@ static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint
     uint8_t clipped = 0;
     if (pen > 0) {
         int32_t bd = dt < 2 * VEL_WINDOW ? b_wall[dt] : b_wall_1 / dt;
-        /* k * pen: whole counts times k, plus the 1/256-count fraction times k / 256 (error < 16 uA);
-         * two 32-bit products instead of a 64-bit one while pen stays below pen_c_max counts */
+        /* k * pen = (k_wall * pen) >> 8 exactly (logic.py the same), from 16 x 16 products: 0 <= k_wall < 2^30
+         * (sat_round) = kh 2^16 + kl, and below the clamp's reach (pc < pen_c_max = SAT / k - 1) the result is below
+         * SAT - k. Up to 256 counts (5.6 mm): pen < 2^16, (k pen) >> 8 = (kh pen << 8) + (kl pen >> 8), two products
+         * and byte moves; up to 65,536 counts: k pc + (k p8 >> 8) with p8 = pen & 255, four; beyond (or past the
+         * clamp's reach) the saturated 64-bit product. (Before: k pc + (k >> 8) p8, two __mulsi3, ~200 cycles.) */
         int32_t pc = pen >> 8;
-        if (pc < pen_c_max) ip = k_wall * pc + (k_wall >> 8) * (pen & 255);
-        else ip = mul_sh8_sat(k_wall, pen);
-        /* |bd dc| < 2^30 in 32 bits (either case), else the saturated 64-bit product (~150 cycles): with typical
-         * gains (bd ~ 2^17 at 1 N s/m) moves faster than 64 counts per window (1.4 m/s) took it */
-        int32_t id = ((dc > -64 && dc < 64 && bd < (1L << 24)) || (dc > -1024 && dc < 1024 && bd < (1L << 20)))
-                         ? bd * dc : mul_sat(bd, dc);
+        uint16_t kh = (uint16_t)((uint32_t)k_wall >> 16), kl = (uint16_t)k_wall;
+        if (pc < pen_c_max && pen < 65536L)
+            ip = (int32_t)((mul_uu16(kh, (uint16_t)pen) << 8) + (mul_uu16(kl, (uint16_t)pen) >> 8));
+        else if (pc < pen_c_max && pc < 65536L) {
+            uint16_t p8 = (uint16_t)(pen & 255);
+            ip = (int32_t)((mul_uu16(kh, (uint16_t)pc) << 16) + mul_uu16(kl, (uint16_t)pc) + (mul_uu16(kh, p8) << 8) +
+                           (mul_uu16(kl, p8) >> 8));
+        } else ip = mul_sh8_sat(k_wall, pen);
+        /* bd dc saturated, from two 16 x 16 products while |dc| < 2^16 counts per window (the 64-bit product
+         * beyond: 1,400 m/s); it had taken the 64-bit product (~150 cycles) above 1.4 m/s, __mulsi3 below */
+        int32_t id = mul_sat16(bd, dc);
         int32_t f = ip - id;
         if (f > 0) {
             i_cmd = f;
@@ -741,9 +843,13 @@ static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint
         if (tr_kind == 1 || tr_kind == 2) {
             tr_n = tr_param_n;
             int32_t g = dt < 2 * VEL_WINDOW ? tr_gain[dt] : tr_gain_1 / dt;
-            tr_scale_q24 = dc < 0 ? mul_sat(g, -dc) : 0; /* amplitude * incoming speed / (N/A) */
-            sin_y2 = 0;
-            sin_y1 = 0;
+            tr_scale_q24 = dc < 0 ? mul_sat16(g, -dc) : 0; /* amplitude * incoming speed / (N/A) */
+            /* the sinusoid's first two currents z_0, z_1 (Q24 A x Q31 >> 31; |s| < 1, 0 <= amplitude <= SAT), kept
+             * in sin_y1 and sin_y2 until the recurrence takes over at tr_k = 2 */
+            if (tr_kind == 2) {
+                sin_y1 = mulhi16(tr_scale_q24, sin_s1) << 1;
+                sin_y2 = mulhi16(tr_scale_q24, sin_s2) << 1;
+            }
         }
         else if (tr_kind == 4) tr_n = rearm_n;
         else tr_n = 0;
@@ -758,35 +864,37 @@ static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint
     if (tr_k < tr_n) {
         if (ev_kind == 1) i_cmd += tr_scale_q24;
         else if (ev_kind == 2) {
-            int32_t y = tr_k == 0 ? sin_s1 : (tr_k == 1 ? sin_s2 : (mulhi(sin_c1, sin_y1) - mulhi(sin_c2, sin_y2)) << 2);
-            sin_y2 = sin_y1;
-            sin_y1 = y;
-            /* amplitude (Q15 A) * y (Q15) in 32 bits (< 2^31, Q30 -> Q24; error < 0.1 mA) up to 2 A,
-             * the 64-bit product above */
-            int32_t ts = tr_scale_q24 >> 9;
-            if (ts <= 65535) i_cmd += (ts * (int32_t)(int16_t)(y >> 16)) >> 6;
-            else i_cmd += mulhi(tr_scale_q24, y) << 1;
+            /* z_k = (c1 z_{k-1} - c2 z_{k-2}) >> 30 (Q30 x Q24 -> Q24): |z| <= amplitude <= SAT < 2^30 (|y| <= 1),
+             * so each mulhi16 is below 2^29 and their difference below 2^28 before the << 2. Each mulhi16 is 0..2
+             * LSB (Q22) low: < 0.5 uA a step, ~25 uA summed through the recurrence's gain (~50): far inside 1 mA */
+            int32_t z;
+            if (tr_k >= 2) {
+                z = (mulhi16(sin_c1, sin_y1) - mulhi16(sin_c2, sin_y2)) << 2;
+                sin_y2 = sin_y1;
+                sin_y1 = z;
+            } else if (tr_k == 0) z = sin_y1; /* z_0 */
+            else { /* z_1: from now on sin_y1 = z_{k-1}, sin_y2 = z_{k-2} */
+                z = sin_y2;
+                sin_y2 = sin_y1;
+                sin_y1 = z;
+            }
+            i_cmd += z;
         } else if (ev_kind == 4) i_cmd += rearm_buf[tr_k];
         tr_k++;
     }
     if (i_cmd > lim_peak_q24) { i_cmd = lim_peak_q24; clipped = 1; }
     else if (i_cmd < -lim_peak_q24) { i_cmd = -lim_peak_q24; clipped = 1; }
-    int32_t temp = temp_q20;
-    if (temp > T_Q20(T_ATTENUATE_K)) { /* protect the winding: fade out between 70 % and 90 % of the rise */
-        over_temp = 1;
-        int32_t k = T_Q20(T_END_K) - temp;
-        if (k < 0) k = 0;
-        int32_t factor = mulhi(k, T_RANGE_INV_Q32); /* (T_end - T) / (T_end - T_att), Q20 */
-        i_cmd = mul_sh16(i_cmd, factor) >> 4;
-    } else {
-        over_temp = 0;
-    }
-    int32_t i8 = i_cmd >> 8;   /* byte moves; a 12-bit shift of an int32 is a 72-cycle loop on the AVR */
-    int32_t i12 = i8 >> 4;     /* Q12 A; i12^2 <= 2^26 for |i| <= 2 A, 16 of them fit */
-    heat_acc += i12 * i12;
-    if (++heat_n >= THERMAL_EVERY) {
-        int32_t heat = mul_sh16(heat_acc >> 4, HEAT_Q12); /* mean i^2 (Q24) * Q12 >> 16 = Q20 K; 16 = 2^4 ticks */
-        temp_q20 = temp + mulhi(heat - temp, ALPHA_Q32);
+    /* protect the winding: fade out between 70 % and 90 % of the rise; the factor (Q16) changes with the
+     * temperature, at the thermal steps only */
+    over_temp = temp_fade_q16 != 0;
+    if (over_temp) i_cmd = mul_s32u16_sh16(i_cmd, (uint16_t)(temp_fade_q16 - 1));
+    /* Q12 A, floor(i / 2^12) from bytes: the top 16 bits (Q8) times 16 plus bits 12..15 (a 12-bit shift of an
+     * int32 is a loop on the AVR: ~85 cycles on simavr); |i12| <= 2^13 for |i| <= 2 A (peak limit), i12^2 <= 2^26,
+     * 16 of them fit */
+    int16_t i12 = (int16_t)(((uint16_t)(i_cmd >> 16) << 4) | ((uint8_t)(i_cmd >> 8) >> 4));
+    heat_acc += mul_ss16(i12, i12);
+    if (++heat_n >= THERMAL_EVERY) { /* the block's sum (Q16 A^2: a byte move) to the main loop, which steps the model */
+        if (heat_posts < 255) { heat_post += (uint32_t)heat_acc >> 8; heat_posts++; }
         heat_acc = 0;
         heat_n = 0;
     }
@@ -803,6 +911,55 @@ static int32_t render_tick(uint32_t t_us, int32_t enc, uint16_t *accel_out, uint
     *accel_out = accel_raw;
     *grip_out = grip_raw;
     return i_cmd;
+}
+
+/* The thermal model, stepped by the main loop (thermal_service, from flush_telemetry) once per block of
+ * THERMAL_EVERY ticks the tick posted (heat_post, heat_posts): the tick only sums i^2 (it had stepped the model
+ * itself every 16th tick with two 64-bit products, ~400 cycles, in the worst tick on simavr). tau is 30 s: a
+ * main loop behind by a frame's handling (~1 ms) changes nothing; blocks it did not take yet are stepped with
+ * their mean. heat = mean i^2 R_w R_th in Q20 K: the block sum b (Q16 A^2 over 16 ticks, < 2^22) times
+ * R_w R_th / 16 in Q20 = (b << 8) HEAT_Q8 >> 16 (R_w R_th in Q8, 16 bits, within 2e-5 of itself). T += (heat - T)
+ * alpha with alpha in Q24 (12 bits, within 2e-5: tau 30 s -> 29.9995 s), |heat - T| < 2^30: floor((heat - T)
+ * alpha_q24 / 2^16) >> 8, the Q20 step as before (T settles within 0.007 K of heat). The fade-out factor
+ * (T_end - T) / (T_end - T_att) in Q16 (within 2^-16 of the Q20 one the tick had computed, 30 uA at 2 A) for the
+ * ticks to come; temp_fade_q16 is 0 below T_att (no fade), else factor + 1 (1..65536). */
+#define ALPHA_Q24 ((uint16_t)(16777216.0 * THERMAL_EVERY / (TAU_THERMAL_S * SERVO_HZ) + 0.5))
+_Static_assert(16777216.0 * THERMAL_EVERY / (TAU_THERMAL_S * SERVO_HZ) < 65535.0, "alpha in Q24 fits 16 bits");
+#define HEAT_Q8 ((uint16_t)(R_WINDING_OHM * R_THERMAL_K_W * 256.0f + 0.5f)) /* K/A^2, Q8 */
+_Static_assert(R_WINDING_OHM * R_THERMAL_K_W * 256.0f < 65535.0f, "R_w R_th in Q8 fits 16 bits (below 256 K/A^2)");
+_Static_assert(THERMAL_EVERY == 16, "the block sum of 16 ticks' i^2 times R_w R_th / 16 is the mean's heat");
+/* (T_end - T) / (T_end - T_att) in Q16 = ((T_end - T) in Q20 >> FADE_SH) * FADE_INV >> 16 */
+#define FADE_Q20 (T_Q20(T_END_K) - T_Q20(T_ATTENUATE_K))
+#define FADE_SH 8 /* (T_end - T) >> 8: Q12 K, below 2^16 for a fade range up to 16 K */
+#define FADE_INV_Q ((uint32_t)(4294967296.0 / FADE_Q20 * 256.0 + 0.5)) /* 2^40 / range: factor Q16 = x * inv >> 16 */
+_Static_assert((T_END_K - T_ATTENUATE_K) <= 16.0f && 4294967296.0 / FADE_Q20 * 256.0 < 4294967296.0,
+               "the fade range (T_end - T_att) is at most 16 K: Q12 K fits 16 bits");
+static void thermal_step(uint32_t block_q16) {
+    int32_t heat = mul_s32u16_sh16((int32_t)(block_q16 << 8), HEAT_Q8); /* < 2^30 * 2^16 / 2^16 */
+    int32_t temp = temp_q20;
+    temp += mul_s32u16_sh16(heat - temp, ALPHA_Q24) >> 8;
+    temp_q20 = temp;
+    uint32_t f = 0;
+    if (temp > T_Q20(T_ATTENUATE_K)) {
+        int32_t k = T_Q20(T_END_K) - temp; /* 0 .. range */
+        if (k < 0) k = 0;
+        uint16_t x = (uint16_t)((uint32_t)k >> FADE_SH); /* < 2^16: range <= 16 K (assert) and T > T_att */
+        f = 1 + ((mul_uu16(x, (uint16_t)FADE_INV_Q) >> 16) + (uint32_t)x * (uint16_t)(FADE_INV_Q >> 16));
+    }
+    TICK_LOCK(); /* the tick reads it */
+    temp_fade_q16 = f;
+    TICK_UNLOCK();
+}
+static void thermal_service(void) { /* main loop */
+    if (!heat_posts) return;
+    TICK_LOCK();
+    uint32_t sum = heat_post;
+    uint8_t n = heat_posts;
+    heat_post = 0;
+    heat_posts = 0;
+    TICK_UNLOCK();
+    uint32_t block = n == 1 ? sum : sum / n;
+    while (n--) thermal_step(block);
 }
 
 static void stop_render(void) { /* main loop, tick locked */
@@ -828,6 +985,30 @@ static int32_t sat_round(float f) {
     return (int32_t)lroundf(f);
 }
 static int32_t q24_of(float amps) { return sat_round(amps * Q24); }
+
+/* q24_of() of a float given by its IEEE-754 bits, in integers (REARM_DATA: the soft-float product and lroundf
+ * took ~175 cycles a sample more; a 24-sample frame's own handling 7,600 -> 3,400 cycles on simavr), the same
+ * value for every finite float: f 2^24 is
+ * exact in float (finite4: |f| <= 1e30, so no overflow), = m 2^(e - 126) with m the 24-bit significand (normal
+ * numbers; subnormals are below 2^-126 and give 0), rounded half away from zero as lroundf, saturated at +/-1e9 as
+ * sat_round. (tests/devices/firmware/test_c_firmware.py compares the two over all exponents.) */
+static int32_t q24_of_bits(uint32_t bits) {
+    /* the exponent from the top two bytes (a 23-bit shift of an int32 is a ~125-cycle loop on the AVR) */
+    uint8_t e = (uint8_t)((uint8_t)(bits >> 24) << 1 | (uint8_t)(bits >> 16) >> 7);
+    if (e < 126 - 24) return 0; /* |f 2^24| < 2^-1 (and zero, subnormals): rounds to 0 */
+    uint32_t m = (bits & 0x7FFFFFUL) | 0x800000UL, v;
+    if (e >= 126 + 7) v = 1000000001UL; /* >= 2^30: beyond the saturation */
+    else if (e >= 126) v = m << (e - 126); /* < 2^30 */
+    else {
+        uint8_t r = (uint8_t)(126 - e); /* 1..24 */
+        v = m + (1UL << (r - 1)); /* half away from zero (on the magnitude), then >> r: whole bytes first */
+        if (r >= 16) { v >>= 16; r -= 16; }
+        if (r >= 8) { v >>= 8; r -= 8; }
+        v >>= r;
+    }
+    if (v > 1000000000UL) v = 1000000000UL;
+    return (bits & 0x80000000UL) ? -(int32_t)v : (int32_t)v;
+}
 
 /* per-window-length gains: value per count moved over t ticks = per_count_per_s * fs / t */
 static void window_gains(int32_t *table, int32_t *one, float q24_per_count_at_1_tick) {
@@ -1020,7 +1201,7 @@ static void handle_frame(void) {
         TICK_UNLOCK();
         if (playing) { nak(type, seq, NAK_BAD_STATE); break; }
         for (uint8_t i = 0; i < k; i++) { /* A -> Q24 A here, so the tick adds integers */
-            int32_t q = q24_of(get_f32(p + 4 + 4 * i));
+            int32_t q = q24_of_bits(get_u32(p + 4 + 4 * i)); /* = q24_of(the float), in integers */
             TICK_LOCK();
             rearm_buf[off + i] = q;
             TICK_UNLOCK();
@@ -1073,9 +1254,8 @@ static void handle_frame(void) {
 /* One servo period (in the Timer1 interrupt): watchdog, then on-board rendering and telemetry. */
 static uint8_t dec_count;
 static void servo_tick_body(void) {
-    uint32_t tk;
-    cli(); tk = tick_count; sei(); /* 32-bit counter written by the timer interrupt: read it whole */
-    uint32_t t_us = tk * (1000000UL / SERVO_HZ);
+    uint32_t tk, t_us;
+    cli(); tk = tick_count; t_us = tick_us; sei(); /* 32-bit counters written by the timer interrupt: read whole */
     render_tick_n = (uint16_t)tk;
     int32_t enc = encoder_read(); /* every tick, so the delta stays small */
     /* device-side watchdog: no command within watchdog_ms -> zero current, latched, reported */

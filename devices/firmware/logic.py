@@ -98,7 +98,6 @@ class FirmwareRenderer:
         # passivity observer (protocol 1.1; off until a WALL carries a limit): fixed point as the firmware
         self._h_q8 = 0
         self._k_q = 0
-        self._pcm = 0x7FFFFFFF
         self._lim_q = 0
         self._po_ds = PO_PEN_MAX
         self._po_limit = 0
@@ -182,7 +181,6 @@ class FirmwareRenderer:
         # the firmware's fixed point (hfam_fw.c MSG_WALL): height Q8 counts, stiffness Q24 A per count
         self._h_q8 = sat_round(height_m * 256.0 / self.res)
         self._k_q = sat_round(stiffness_N_m * (self.res / self.fpa) * 16777216.0)
-        self._pcm = SAT // self._k_q - 1 if self._k_q > 0 else 0x7FFFFFFF
         self._po_ds = po_clamp_q8(self._lim_q, self._k_q)
         limit = leak_m = leak_sh = 0
         if instability_limit_J > 0:
@@ -375,8 +373,7 @@ class FirmwareRenderer:
             ip = 0
             if pen_q8 > 0:
                 k = self._k_q
-                pc = pen_q8 >> 8
-                ip = k * pc + (k >> 8) * (pen_q8 & 255) if pc < self._pcm else min((k * pen_q8) >> 8, SAT)
+                ip = min((k * pen_q8) >> 8, SAT)  # k * pen before the clamp (Q24 A), as the firmware: exact
             f_q24 = self._lim_q if clipped else sat_round(i_cmd * 16777216.0)
             if self._observe(xc, pen_q8, ip, f_q24):
                 i_cmd = 0.0

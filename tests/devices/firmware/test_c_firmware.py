@@ -197,3 +197,15 @@ def test_c_firmware_passivity_observer_trips_like_the_python_firmware(tmp_path):
     states0, _, _, _ = _harness_tap_run(tmp_path, wall[:16], n_ticks)
     assert not any(s.status & (Status.FAULT | Status.UNSTABLE | Status.WATCHDOG_TRIPPED) for s in states0)
     assert max(s.current_mA for s in states0[trip:]) > 200
+
+
+def test_rearm_samples_convert_in_integers_exactly_as_the_float_rounding_did(tmp_path):
+    """REARM_DATA samples are converted to Q24 A from their IEEE-754 bits in integers (q24_of_bits; soft-float
+    lroundf per sample before): the same value as the float conversion for every pattern checked (every 13th
+    32-bit pattern, each with the significands around its rounding halves: ~1.2e9 finite floats)."""
+    r = _make("fw-harness", tmp_path)
+    assert r.returncode == 0, r.stderr
+    out = subprocess.run([str(tmp_path / "fw_harness"), "--q24-check", "13"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    checked, mismatches = (int(v) for v in out.stdout.split()[1::2])
+    assert mismatches == 0 and checked > 5e8, out.stdout

@@ -282,6 +282,19 @@ def test_servo_tick_fits_its_budget(report):
     # 60-sample frames sent back to back were lost in the RX ring and never handled, unnoticed.)
     sh = report["selfhost"]
     assert sh["rearms"] >= 1 and sh["rearm_acks"] >= 7 and sh["rearm_timeouts"] == 0 and sh["naks"] == 0
+    # and the sweeps really contact the wall (before, they never re-armed above it: no contact, no transient in the
+    # run): each downward pass (6) is a contact; they played the sinusoid and the re-armed transient, many of
+    # their ticks while a re-arm frame arrived, and the worst case above counts those ticks (the run's numbers:
+    # 6 contacts, 4 sinusoid + 2 re-armed, 800 + 256 transient ticks, 32 + 23 of them with bytes arriving)
+    assert sh["events"] >= 5 and sh["events_sinusoid"] >= 2 and sh["events_rearm"] >= 1, sh
+    tt = report["transient_ticks"]
+    assert tt["2"]["n"] >= 400 and tt["4"]["n"] >= 128, tt  # whole transients: 200 and 128 ticks each
+    assert tt["2"]["with_rx"] >= 10 and tt["4"]["with_rx"] >= 10, tt
+    assert max(tt["2"]["max_cycles"], tt["4"]["max_cycles"]) <= report["tick"]["max"]
+    # the worst tick's breakdown adds up: latency + nested interrupts below the total, the rest the tick's own code
+    w = report["worst_tick"]
+    assert w["cycles"] == report["tick"]["max"]
+    assert w["latency"] + sum(c for _, c in w["nested"].values()) < w["cycles"]
 
 
 def test_no_encoder_count_lost_up_to_the_rated_speed(report):
