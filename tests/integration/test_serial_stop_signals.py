@@ -11,37 +11,14 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from devices.firmware.emulator import EmulatorHandle, build_emulator
-from devices.hardware import wire_protocol as P
+from tests.emulated import recording_emulator
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _pressing_emulator():
-    """A streaming emulator whose prescribed hand holds the stylus 10 mm into the wall at 0; returns
-    (port, handle, currents the host commanded, in order)."""
-    emu = build_emulator("streaming", taps_m_s=())
-    emu.set_hand(-0.01, grip_N=3.0, hand="prescribed")
-    sent = []
-    handle_frame = emu.handle
-
-    def recording(frame):
-        if frame.type == P.CURRENT:
-            sent.append(P.decode_current(frame.payload))
-        handle_frame(frame)
-
-    emu.handle = recording
-    port = emu.open_pty()
-    stop = threading.Event()
-    thread = threading.Thread(target=emu.serve, args=(stop,), name="hfam-emulator", daemon=True)
-    thread.start()
-    return port, EmulatorHandle(port, emu, thread, stop), sent
 
 
 def _servo_children(pid: int) -> list[int]:
@@ -71,7 +48,7 @@ def _running(pid: int) -> bool:
 
 @pytest.mark.parametrize("in_process", [True, False], ids=["in-process", "servo-process"])
 def test_sigterm_to_renderer_run_zeroes_the_serial_device(in_process, tmp_path):
-    port, handle, sent = _pressing_emulator()
+    port, handle, sent = recording_emulator(-0.01)
     cfg = tmp_path / "cfg.toml"
     cfg.write_text("watchdog_overrun_s = 0.2\n")  # a loaded machine's stalls are not what is tested here
     out = tmp_path / "run"

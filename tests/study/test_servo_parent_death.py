@@ -16,14 +16,12 @@ import signal
 import subprocess
 import sys
 import textwrap
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from devices.firmware.emulator import EmulatorHandle, build_emulator
-from devices.hardware import wire_protocol as P
+from tests.emulated import recording_emulator
 
 ROOT = Path(__file__).resolve().parents[2]
 START_S = 120.0  # spawned interpreter start-up + device open on a loaded machine
@@ -54,26 +52,6 @@ PARENT = textwrap.dedent("""
 """)
 
 
-def _holding_emulator():
-    """A streaming emulator whose prescribed hand holds the stylus 30 mm up (home is 10 mm): (port, handle, sent)."""
-    emu = build_emulator("streaming", taps_m_s=())
-    emu.set_hand(0.03, grip_N=3.0, hand="prescribed")
-    sent = []
-    handle_frame = emu.handle
-
-    def recording(frame):
-        if frame.type == P.CURRENT:
-            sent.append(P.decode_current(frame.payload))
-        handle_frame(frame)
-
-    emu.handle = recording
-    port = emu.open_pty()
-    stop = threading.Event()
-    thread = threading.Thread(target=emu.serve, args=(stop,), name="hfam-emulator", daemon=True)
-    thread.start()
-    return port, EmulatorHandle(port, emu, thread, stop), sent
-
-
 def _running(pid: int) -> bool:
     try:
         with open(f"/proc/{pid}/stat") as fh:
@@ -91,7 +69,7 @@ def _kill(pid: int) -> None:
 
 @pytest.mark.parametrize("pdeathsig", [True, False], ids=["PR_SET_PDEATHSIG", "getppid-polling-only"])
 def test_study_servo_child_zeroes_and_exits_when_its_parent_dies_while_holding(pdeathsig, tmp_path):
-    port, handle, sent = _holding_emulator()
+    port, handle, sent = recording_emulator(0.03)
     pid_file = tmp_path / "child.pid"
     script = tmp_path / "parent.py"
     script.write_text(PARENT)
