@@ -182,6 +182,26 @@ IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model
 SUCCESSIVE_PRODUCTS = ("model.json", "report.txt", "report.json", "stage_*.png", "successive_state.json")
 
 
+def _keep_failed(target: Path, out: Path) -> Path:
+    """Move a failed run's folder ``target`` beside ``out`` as ``<out>.failed`` and return where it went.
+
+    An earlier failed run's folder is never replaced (its finished stages may have taken an operator an
+    hour on hardware): the next free ``<out>.failed.2``, ``.3``, ... is used instead.
+    """
+    kept = out.parent / f"{out.name}.failed"
+    n = 1
+    while True:
+        try:
+            os.rename(target, kept)  # fails if kept exists and is not empty (Linux: ENOTEMPTY / EEXIST)
+        except OSError:
+            if not kept.exists():
+                raise
+            n += 1
+            kept = out.parent / f"{out.name}.failed.{n}"
+            continue
+        return kept
+
+
 def _swap_in(new: Path, out: Path, products=IDENTIFY_PRODUCTS) -> None:
     """Replace a command's earlier ``products`` (glob patterns) in ``out`` by everything in ``new`` (a finished
     run), then remove ``new``. Other files in ``out`` are kept. Paths to ``new`` in the reports are rewritten
@@ -228,9 +248,7 @@ def _run_identify(args) -> int:
     except BaseException as exc:
         if replace:
             if isinstance(exc, ValueError) and (target / "report.txt").is_file():
-                kept = out.parent / f"{out.name}.failed"
-                shutil.rmtree(kept, ignore_errors=True)
-                os.replace(target, kept)
+                kept = _keep_failed(target, out)
                 raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier results; "
                                  f"this run's files are in {kept})") from None
             shutil.rmtree(target, ignore_errors=True)
@@ -305,9 +323,7 @@ def run_successive(args) -> int:
     except BaseException as exc:
         if replace:
             if isinstance(exc, ValueError) and (target / STATE_FILE).is_file():
-                kept = out.parent / f"{out.name}.failed"
-                shutil.rmtree(kept, ignore_errors=True)
-                os.replace(target, kept)
+                kept = _keep_failed(target, out)
                 raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier model; "
                                  f"this run's finished stages are in {kept}: --out {kept} --resume continues "
                                  "it)") from None

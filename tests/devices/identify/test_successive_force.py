@@ -64,6 +64,14 @@ def test_a_forced_successive_run_that_fails_midway_keeps_the_earlier_model(tmp_p
     assert [s["stage"] for s in state["stages"]] == ["timing"]  # the finished stage, kept to resume
     assert not (kept / "model.json").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ident", "ident.failed"]   # no temporary folder left
+    # failing again: the first failed run's stages are not replaced; this one's go beside them
+    first = _hashes(kept)
+    assert devices_main([*QUICK, "--out", str(out), "--force"]) == 2
+    kept2 = tmp_path / "ident.failed.2"
+    assert f"--out {kept2} --resume" in capsys.readouterr().err
+    assert _hashes(kept) == first and _hashes(out) == before
+    assert (kept2 / "successive_state.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ident", "ident.failed", "ident.failed.2"]
 
 
 def test_a_forced_successive_run_replaces_the_earlier_model_when_it_succeeds(tmp_path, capsys):
