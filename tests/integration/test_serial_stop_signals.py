@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from tests.emulated import recording_emulator
+from tests.procs import running
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,14 +37,6 @@ def _servo_children(pid: int) -> list[int]:
             if ppid == pid and b"spawn_main" in cmdline:
                 out.append(int(entry))
     return out
-
-
-def _running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 @pytest.mark.parametrize("in_process", [True, False], ids=["in-process", "servo-process"])
@@ -77,7 +70,7 @@ def test_sigterm_to_renderer_run_zeroes_the_serial_device(in_process, tmp_path):
         # the host's own last command is 0 A (the device watchdog, 100 ms later, is only the last line of defence)
         assert sent[-1] == 0.0 and max(abs(i) for i in sent) > 0.05
         assert len(sent) == n, f"{len(sent) - n} frames after the command exited"
-        assert not any(_running(k) for k in kids), "the servo child outlived the command"
+        assert not any(running(k) for k in kids), "the servo child outlived the command"
         run = json.loads((out / "run.json").read_text())  # the partial run is kept, as after Ctrl-C
         assert run["stop_reason"] == "interrupted" and run["ticks"] > 1000
     finally:

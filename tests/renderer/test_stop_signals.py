@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from renderer import RendererConfig, run_in_process
+from tests.procs import kill
 from tests.renderer.fakes import make_recording_device, recorded_currents
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -49,13 +50,6 @@ def _gone(pid: int) -> bool:
             return fh.read().rsplit(")", 1)[1].split()[0] == "Z"
     except (FileNotFoundError, ProcessLookupError):
         return True
-
-
-def _kill(pid: int) -> None:
-    try:
-        os.kill(pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
 
 
 SEMANTICS = textwrap.dedent("""
@@ -155,7 +149,7 @@ def test_signal_to_an_in_process_run_zeroes_the_output(sig, tmp_path):
         p.send_signal(sig)
         out, err = p.communicate(timeout=60)
     finally:
-        _kill(p.pid)
+        kill(p.pid)
     cur = recorded_currents(path)
     assert np.count_nonzero(cur) > 1000  # it was pushing on the wall ...
     assert cur[-1] == 0.0  # ... and the last current sent is zero (before the fix: ~0.3 A, exit -15)
@@ -200,9 +194,9 @@ def test_servo_child_stops_with_zero_output_when_its_parent_is_signalled_or_dies
         time.sleep(0.5)
         cur = recorded_currents(path)
     finally:
-        _kill(p.pid)
+        kill(p.pid)
         if child is not None:
-            _kill(child)  # before the fix the orphan kept driving the device
+            kill(child)  # before the fix the orphan kept driving the device
     assert gone_s < 10.0, f"the servo child outlived its parent by {gone_s:.1f} s"
     assert p.returncode == (128 + sig if sig == signal.SIGTERM else -sig), err
     assert len(cur) == n  # nothing sent after it exited

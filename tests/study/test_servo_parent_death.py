@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from tests.emulated import recording_emulator
+from tests.procs import kill, running
 
 ROOT = Path(__file__).resolve().parents[2]
 START_S = 120.0  # spawned interpreter start-up + device open on a loaded machine
@@ -52,21 +53,6 @@ PARENT = textwrap.dedent("""
 """)
 
 
-def _running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def _kill(pid: int) -> None:
-    try:
-        os.kill(pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-
-
 @pytest.mark.parametrize("pdeathsig", [True, False], ids=["PR_SET_PDEATHSIG", "getppid-polling-only"])
 def test_study_servo_child_zeroes_and_exits_when_its_parent_dies_while_holding(pdeathsig, tmp_path):
     port, handle, sent = recording_emulator(0.03)
@@ -92,15 +78,15 @@ def test_study_servo_child_zeroes_and_exits_when_its_parent_dies_while_holding(p
         t0 = time.monotonic()
         parent.send_signal(signal.SIGKILL)
         parent.wait(timeout=60)
-        while _running(child) and time.monotonic() - t0 < GONE_S:
+        while running(child) and time.monotonic() - t0 < GONE_S:
             time.sleep(0.01)
         gone_s = time.monotonic() - t0
         n = len(sent)
         time.sleep(0.3)
     finally:
-        _kill(parent.pid)
+        kill(parent.pid)
         if child is not None:
-            _kill(child)  # before the fix (no PR_SET_PDEATHSIG) the orphan kept holding for 24 h
+            kill(child)  # before the fix (no PR_SET_PDEATHSIG) the orphan kept holding for 24 h
         handle.stop()
     assert holding_A < -0.1  # homing pushed the stylus down toward home
     assert gone_s < GONE_S, f"the study's servo process outlived its parent by {gone_s:.1f} s"
