@@ -71,7 +71,7 @@ def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict
 def _on_device(duration_s: float = 2.0) -> dict:
     port, handle = start_emulator("on-device", process=True, pace="realtime")
     try:
-        with SerialDevice(port, mode="on-device", telemetry_decimation=1) as dev:  # native-USB board: every tick
+        with SerialDevice(port, mode="on-device") as dev:  # native USB (INFO): a frame every tick
             dev.configure_rendering({"height_m": 0.0, "stiffness_N_m": 680.0, "damping_N_s_m": 0.0,
                                      "rearm_margin_m": 0.002},
                                     {"continuous_A": 1.26, "peak_A": 4.0, "amplifier_A": 4.0}, Pulse())

@@ -169,11 +169,6 @@ def _serve_emulator(args, timers: list) -> int:
     print(f"emulating {emu.wire.info.name} ({args.mode}, watchdog {args.watchdog_ms} ms"
           f"{', faults ' + faults.to_text() if faults.to_text() else ''}, {sched}) on {port}", file=sys.stderr,
           flush=True)
-    if args.mode == "on-device":
-        # the emulator stands for a native-USB board; the serial driver cannot tell and would fit the
-        # telemetry into the pty's nominal baud rate (every 5th tick at 10 kHz)
-        print(f"host: --device \"serial:{port}?mode=on-device&telemetry_decimation=1\" for a STATE frame every tick",
-              file=sys.stderr, flush=True)
     state["doing"] = f"serving {port}"
     timer = None
     if args.duration_s is not None:

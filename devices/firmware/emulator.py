@@ -160,7 +160,8 @@ class Emulator:
         sensors = getattr(getattr(physics, "params", None), "sensors", {}) or {}
         self.accel_scale = float(sensors.get("accel_resolution_m_s2", 0.015))
         self.grip_scale = float(sensors.get("grip_resolution_N", 0.01))
-        caps = P.CAP_STREAMING | P.CAP_PARAM_TRANSIENT | P.CAP_TABLE_TRANSIENT | P.CAP_REARM_TRANSIENT
+        # a Teensy-class board on native USB (the pty's nominal baud rate is not its link)
+        caps = P.CAP_STREAMING | P.CAP_PARAM_TRANSIENT | P.CAP_TABLE_TRANSIENT | P.CAP_REARM_TRANSIENT | P.CAP_NATIVE_USB
         if mode == "on-device":
             caps |= P.CAP_ON_DEVICE
         self.caps = caps

@@ -180,9 +180,9 @@ class ProtocolDevice(Device):
         On-device mode: one telemetry STATE frame every this many firmware ticks. None (default): the
         smallest that keeps the STATE frames within half the link (:func:`default_telemetry_decimation`,
         from INFO's servo rate, the frame size and the link's rate: a serial port's baud rate; a link
-        whose rate is unknown gets 2). A native-USB board ignores the baud rate and can carry a frame
-        every tick: set 1 explicitly there. The value used is ``telemetry_decimation`` once rendering
-        is configured.
+        whose rate is unknown gets 2); 1 when the board reports the ``native_usb`` capability (its link
+        is USB, not a UART: the baud rate means nothing there). The value used is
+        ``telemetry_decimation`` once rendering is configured.
     loss_timeout_s : float
         Streaming, once the link runs: a state frame not back this long after its command is a *lost*
         frame (dropped or corrupt). The device keeps applying the last command, ``read()`` returns the
@@ -858,6 +858,8 @@ class ProtocolDevice(Device):
         self._transient_name = getattr(transient, "name", "none") if transient is not None else "none"
         self._wall_height_m = w[0]
         dec = self.telemetry_decimation_option
+        if dec is None and self.wire_info.capability_bits & P.CAP_NATIVE_USB:
+            dec = 1  # the board says its link is native USB: a baud rate does not limit it
         if dec is None:
             dec = default_telemetry_decimation(info.servo_rate_hz, self.link_bytes_per_s())
         self.telemetry_decimation = dec

@@ -74,8 +74,11 @@ CAP_ON_DEVICE = 2
 CAP_PARAM_TRANSIENT = 4
 CAP_TABLE_TRANSIENT = 8
 CAP_REARM_TRANSIENT = 16
+# the link is native USB (CDC/HID), not a UART: its rate does not limit a telemetry frame every tick
+CAP_NATIVE_USB = 32
 CAPABILITY_NAMES = {CAP_STREAMING: "streaming", CAP_ON_DEVICE: "on_device", CAP_PARAM_TRANSIENT: "param_transient",
-                    CAP_TABLE_TRANSIENT: "table_transient", CAP_REARM_TRANSIENT: "rearm_transient"}
+                    CAP_TABLE_TRANSIENT: "table_transient", CAP_REARM_TRANSIENT: "rearm_transient",
+                    CAP_NATIVE_USB: "native_usb"}
 
 # transient kinds for TRANSIENT_PARAM / EVENT
 TRANSIENT_NONE = 0

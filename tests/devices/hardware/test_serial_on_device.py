@@ -21,8 +21,8 @@ DT = 1e-4
 @pytest.fixture
 def on_device():
     port, handle = start_emulator("on-device", pace="host", watchdog_ms=200)
-    # the emulator models a native-USB board (the baud rate is not its link): a frame every tick, as set here
-    dev = SerialDevice(port, mode="on-device", timeout_s=0.1, telemetry_decimation=1).open()
+    # the emulator reports a native-USB link: the driver's default is a frame every tick
+    dev = SerialDevice(port, mode="on-device", timeout_s=0.1).open()
     yield dev, handle
     dev.close()
     handle.stop()
