@@ -4,7 +4,6 @@ byte for byte as they were."""
 
 from __future__ import annotations
 
-import hashlib
 import os
 import subprocess
 import sys
@@ -12,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.files import sha256
 from tests.stimuli.conftest import minimum_phase_model
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -31,19 +31,15 @@ def _one_error_line(res, *words):
     return err
 
 
-def _sha(p: Path) -> str:
-    return hashlib.sha256(p.read_bytes()).hexdigest()
-
-
 def test_validate_plot_refuses_an_existing_file_before_measuring(tmp_path):
     model = minimum_phase_model(grip_N=2.0).save(tmp_path / "accel_g2N.json")
     fig = tmp_path / "myfig.png"
     fig.write_text("my figure\n")
-    before = _sha(fig)
+    before = sha256(fig)
     res = _devices(tmp_path, "validate", model, "--device", "sim", "--plot", "myfig.png")
     _one_error_line(res, "myfig.png", "--force")
     assert "time-domain validation" not in res.stdout          # refused before measuring
-    assert _sha(fig) == before
+    assert sha256(fig) == before
     res = _devices(tmp_path, "validate", model, "--device", "sim", "--plot", "myfig.png", "--force")
     assert res.returncode == 0, res.stderr
     assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -56,18 +52,18 @@ def test_validate_plot_refuses_an_existing_file_before_measuring(tmp_path):
 def test_record_checks_out_before_tapping(tmp_path, out, words):
     (tmp_path / "adir").mkdir()
     (tmp_path / "afile").write_text("my file\n")
-    before = _sha(tmp_path / "afile")
+    before = sha256(tmp_path / "afile")
     for force in ((), ("--force",)):
         res = _devices(tmp_path, "record", "--device", "sim", "--velocities-m-s", "0.05", "--out", out, *force)
         _one_error_line(res, *words)
         assert "tap 0" not in res.stdout
-    assert _sha(tmp_path / "afile") == before and not any((tmp_path / "adir").iterdir())
+    assert sha256(tmp_path / "afile") == before and not any((tmp_path / "adir").iterdir())
 
 
 def test_linearity_out_that_is_a_file_is_refused_before_measuring(tmp_path):
     (tmp_path / "afile").write_text("my file\n")
-    before = _sha(tmp_path / "afile")
+    before = sha256(tmp_path / "afile")
     res = _devices(tmp_path, "linearity", "--device", "sim", "--trials", "2", "--out", "afile")
     _one_error_line(res, "--out afile is a file, not a folder")
     assert "[1/7]" not in res.stdout                            # before the first condition
-    assert _sha(tmp_path / "afile") == before
+    assert sha256(tmp_path / "afile") == before

@@ -13,7 +13,13 @@ from devices.recording import record_taps, write_tap_recording
 from devices.sim import SimDevice
 from stimuli import HfamLibrary
 from stimuli.__main__ import main
-from tests.stimuli.conftest import minimum_phase_model, rhp_zero_model, synthetic_taps, write_taps_csv
+from tests.files import sha256
+from tests.stimuli.conftest import (
+    minimum_phase_model,
+    rhp_zero_model,
+    synthetic_taps,
+    write_taps_csv,
+)
 
 VELOCITIES = (0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.35)
 
@@ -230,12 +236,6 @@ def test_build_library_names_a_model_file_that_is_not_utf8(tmp_path, inputs):
         res.stderr
     assert not (tmp_path / "x.npz").exists()
 
-def _sha(path) -> str:
-    import hashlib
-
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, inputs):
     """Auditor: ``stimuli show wood.npz`` wrote wood.png/.svg and replaced the recording wood.csv with the plot's
     data. The plot's data is ``<stem>.plot.csv``; a second show refuses, naming every existing file, unless --force."""
@@ -245,7 +245,7 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
     lib = tmp_path / "wood.npz"
     assert main(["build-library", "--recordings", str(wood), "--model", str(m1), "--out", str(lib),
                  "--device", "none", "--force-per-amp", "2.35", "--peak-current-A", "50"]) == 0
-    before = _sha(wood)
+    before = sha256(wood)
 
     def show(*extra):
         return subprocess.run([sys.executable, "-m", "stimuli", "show", "wood.npz", *extra], cwd=tmp_path,
@@ -253,18 +253,18 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
 
     res = show()
     assert res.returncode == 0, res.stderr
-    assert _sha(wood) == before                                       # the recording survives
+    assert sha256(wood) == before                                       # the recording survives
     assert wood.read_text().startswith("tap,incoming_velocity_m_s,t_s,accel_m_s2")
     plot_csv = tmp_path / "wood.plot.csv"
     assert plot_csv.read_text().startswith("t_ms,")
-    sums = {p.name: _sha(p) for p in (tmp_path / "wood.png", tmp_path / "wood.svg", plot_csv)}
+    sums = {p.name: sha256(p) for p in (tmp_path / "wood.png", tmp_path / "wood.svg", plot_csv)}
     # a second show refuses before drawing, naming each file it would replace
     res = show()
     assert res.returncode == 2
     err = res.stderr.strip()
     assert err.startswith("error: ") and len(err.splitlines()) == 1
     assert "wood.png" in err and "wood.svg" in err and "wood.plot.csv" in err and "--force" in err
-    assert {n: _sha(tmp_path / n) for n in sums} == sums and _sha(wood) == before
+    assert {n: sha256(tmp_path / n) for n in sums} == sums and sha256(wood) == before
     # an existing data file alone is enough to refuse
     (tmp_path / "wood.png").unlink()
     (tmp_path / "wood.svg").unlink()
@@ -273,7 +273,7 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
     # --force replaces the figure's own files, still not the recording
     res = show("--force")
     assert res.returncode == 0, res.stderr
-    assert (tmp_path / "wood.png").exists() and _sha(wood) == before
+    assert (tmp_path / "wood.png").exists() and sha256(wood) == before
     # --out naming a folder: refused (it wrote <folder>.png/.svg/.plot.csv beside it and said "wrote <folder>")
     (tmp_path / "figs").mkdir()
     res = show("--out", "figs")

@@ -2,7 +2,6 @@
 last row that only lacks its newline is kept; a torn one is kept in ``trials.csv.torn`` with a note; only
 the atomic writes' own temporary files are removed, never a user's ``*.tmp``."""
 
-import hashlib
 import os
 import signal
 import subprocess
@@ -10,6 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from tests.files import sha256
 
 from .helpers import quick_args, read_rows
 
@@ -83,10 +84,10 @@ def test_resume_keeps_the_users_own_tmp_files(tmp_path, killed_after_second_row)
     draft.write_text("mine too\n")
     half = folder / "traces" / "testing_t001_a01.npz.k1ll3d_x.tmp"   # atomic_open's own, never renamed
     half.write_bytes(b"PK\x03\x04 half")
-    sums = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (notes, draft)}
+    sums = {p: sha256(p) for p in (notes, draft)}
     res = _study(tmp_path, "--subject", "S02", "--out", tmp_path / "DATA", "--resume", *SAMPLES)
     assert res.returncode == 0, res.stderr
-    assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (notes, draft)} == sums
+    assert {p: sha256(p) for p in (notes, draft)} == sums
     assert not half.exists()
     assert "removed 1 half-written temporary file(s) of the interrupted run (testing_t001_a01.npz.k1ll3d_x.tmp)" \
         in res.stdout

@@ -3,7 +3,6 @@ failure or Ctrl-C leaves them as they were (auditor: identify_force_ctrlc, ident
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import signal
@@ -13,6 +12,7 @@ import time
 from pathlib import Path
 
 from devices.__main__ import main as devices_main
+from tests.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[3]
 FAST = ["--device", "sim", "--grips-N", "2", "--trials", "2", "--duration-s", "0.5", "--workers", "1"]
@@ -27,12 +27,7 @@ def _earlier_results(out: Path) -> dict:
              "my_notes.txt": "the user's own notes\n"}
     for name, text in files.items():
         (out / name).write_text(text)
-    return _hashes(out)
-
-
-def _hashes(out: Path) -> dict:
-    return {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(out.rglob("*")) if p.is_file()}
+    return tree_hashes(out)
 
 
 def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
@@ -59,7 +54,7 @@ def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
     assert "Traceback" not in err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert lines[-1] == f"interrupted: identification stopped; nothing in {out} was replaced"
-    assert _hashes(out) == before                              # every earlier file, byte for byte
+    assert tree_hashes(out) == before                              # every earlier file, byte for byte
     assert not list(tmp_path.glob(".identA.identify-*"))       # the half-measured run is gone
 
 
@@ -77,7 +72,7 @@ def test_a_failed_forced_identify_keeps_the_earlier_results(tmp_path, monkeypatc
     monkeypatch.setattr(pipeline, "identify_device", failing)
     assert devices_main(["identify", *FAST, "--out", str(out), "--force"]) == 2
     assert "error: the sweep failed half way" in capsys.readouterr().err
-    assert _hashes(out) == before
+    assert tree_hashes(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["identA"]
 
 
@@ -86,7 +81,7 @@ def test_a_forced_identify_replaces_the_earlier_results_when_it_succeeds(tmp_pat
     before = _earlier_results(out)
     assert devices_main(["identify", *FAST, "--out", str(out), "--force"]) == 0
     assert f"wrote {out / 'model_set.json'}" in capsys.readouterr().out
-    after = _hashes(out)
+    after = tree_hashes(out)
     assert after["my_notes.txt"] == before["my_notes.txt"]     # not identify's: kept
     assert "accel_g10N.json" not in after and "recordings/g10N_t0.csv" not in after   # old and new never mix
     assert json.loads((out / "model_set.json").read_text())["grip_N"] == [2.0]

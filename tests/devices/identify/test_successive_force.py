@@ -4,13 +4,13 @@ midway leaves it byte for byte (as the comprehensive method, tests/devices/ident
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
 import devices.identify.successive.procedure as procedure
 from devices.__main__ import main as devices_main
 from devices.identify.successive import StageError
+from tests.files import tree_hashes
 
 QUICK = ["identify", "--method", "successive", "--device", "sim", "--stages", "timing,amplifier", "--no-figures"]
 
@@ -23,12 +23,7 @@ def _earlier_model(out: Path) -> dict:
              "my_notes.txt": "the user's own notes\n"}
     for name, text in files.items():
         (out / name).write_text(text)
-    return _hashes(out)
-
-
-def _hashes(out: Path) -> dict:
-    return {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(out.rglob("*")) if p.is_file()}
+    return tree_hashes(out)
 
 
 def test_successive_refuses_an_earlier_model_without_force_naming_it(tmp_path, capsys):
@@ -42,7 +37,7 @@ def test_successive_refuses_an_earlier_model_without_force_naming_it(tmp_path, c
     err = capsys.readouterr().err
     assert "report.json, report.txt, stage_1_timing.png, successive_state.json" in err and "--force" in err
     del before["model.json"]
-    assert _hashes(out) == before
+    assert tree_hashes(out) == before
 
 
 def test_a_forced_successive_run_that_fails_midway_keeps_the_earlier_model(tmp_path, monkeypatch, capsys):
@@ -59,17 +54,17 @@ def test_a_forced_successive_run_that_fails_midway_keeps_the_earlier_model(tmp_p
     kept = tmp_path / "ident.failed"
     assert "amplifier: the current sense reads 0 A" in err
     assert f"{out} keeps the earlier model" in err and f"--out {kept} --resume" in err
-    assert _hashes(out) == before                              # every earlier file, byte for byte
+    assert tree_hashes(out) == before                              # every earlier file, byte for byte
     state = json.loads((kept / "successive_state.json").read_text())
     assert [s["stage"] for s in state["stages"]] == ["timing"]  # the finished stage, kept to resume
     assert not (kept / "model.json").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ident", "ident.failed"]   # no temporary folder left
     # failing again: the first failed run's stages are not replaced; this one's go beside them
-    first = _hashes(kept)
+    first = tree_hashes(kept)
     assert devices_main([*QUICK, "--out", str(out), "--force"]) == 2
     kept2 = tmp_path / "ident.failed.2"
     assert f"--out {kept2} --resume" in capsys.readouterr().err
-    assert _hashes(kept) == first and _hashes(out) == before
+    assert tree_hashes(kept) == first and tree_hashes(out) == before
     assert (kept2 / "successive_state.json").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ident", "ident.failed", "ident.failed.2"]
 
@@ -79,7 +74,7 @@ def test_a_forced_successive_run_replaces_the_earlier_model_when_it_succeeds(tmp
     before = _earlier_model(out)
     assert devices_main([*QUICK, "--out", str(out), "--force"]) == 0
     assert f"wrote {out / 'model.json'} (use it as --device sim:{out / 'model.json'})" in capsys.readouterr().out
-    after = _hashes(out)
+    after = tree_hashes(out)
     assert after["my_notes.txt"] == before["my_notes.txt"]     # not identify's: kept
     assert "stage_1_timing.png" not in after                  # the old run's figure: old and new never mix
     model = json.loads((out / "model.json").read_text())
