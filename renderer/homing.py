@@ -42,7 +42,7 @@ runs away from home; both are stopped with zero current (docs/study.md, "Homing 
   ``U`` is the potential of ``clamp(kp (x_home - x), +-F_max)``. A PD that behaves like a spring and
   a damper keeps ``E`` near zero whatever the hand does (the hand's work is not counted: it moves
   ``x`` and ``U`` together); a limit cycle at the current limit generates energy every cycle. The
-  limit is ``instability_energy_frac * (F_max^2 / (2 kp) + F_max * 1 mm)`` (:func:`homing_energy_limit`).
+  limit is ``instability_energy_frac * (F_max^2 / (2 kp) + F_max * 1 mm)`` (:func:`renderer.passivity.energy_limit`).
 * ``"runaway"``: the observer assumes the commanded force is the force applied, which a reversed
   sign breaks (it then sees a spring). The second check: the handle moved more than
   ``runaway_distance_m`` away from home, faster than ``runaway_speed_m_s`` all the way, while
@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 from devices.validation import require_number, require_positive
 
-from .passivity import TRAVEL_M
+from .passivity import energy_limit, wall_energy
 from .safety import STATUS_DISCONNECTED, STATUS_SENSOR_INVALID, safety_bounds
 
 
@@ -90,7 +90,7 @@ class HomingConfig:
         Leak time constant (s) of the PD's passivity observer (module doc).
     instability_energy_frac : float
         Stop (``"unstable"``) once the observed energy exceeds this fraction of
-        :func:`homing_energy_limit`'s scale; inf turns the check off.
+        :func:`renderer.passivity.energy_limit`'s scale; inf turns the check off.
     runaway_distance_m : float
         Stop (``"runaway"``) once the handle moved this far (m) away from home at more than
         ``runaway_speed_m_s`` while homing pushed toward home at its current limit; inf turns it off.
@@ -146,57 +146,6 @@ class HomingResult:
 SAFETY_STOPS = ("sensor", "disconnected", "watchdog", "unstable", "runaway")
 
 
-def saturated_spring_energy(kp: float, f_max: float, e: float) -> float:
-    """Energy (J) the homing PD's saturated spring stores at distance ``e`` (m) from home.
-
-    The potential of ``clamp(kp e, +-f_max)``: ``kp e^2 / 2`` up to ``e_s = f_max / kp``, then
-    ``f_max`` more per metre. Same form as :func:`renderer.passivity.wall_energy` (two-sided).
-
-    Parameters
-    ----------
-    kp : float
-        Proportional gain (N/m, > 0).
-    f_max : float
-        Force limit (N).
-    e : float
-        Distance from home (m), either sign.
-
-    Returns
-    -------
-    float
-    """
-    a = abs(e)
-    if kp * a <= f_max:
-        return 0.5 * kp * a * a
-    e_s = f_max / kp
-    return 0.5 * f_max * e_s + f_max * (a - e_s)
-
-
-def homing_energy_limit(config: HomingConfig, f_max_N: float) -> float:
-    """Stop threshold (J) of the homing PD's passivity observer (module doc).
-
-    ``instability_energy_frac * (F_max^2 / (2 kp) + F_max * TRAVEL_M)``: the most energy the
-    saturated spring stores before the force limit, plus full force over
-    :data:`renderer.passivity.TRAVEL_M` (1 mm), as for the wall.
-
-    Parameters
-    ----------
-    config : HomingConfig
-    f_max_N : float
-        The homing force limit (N): its current limit times the force per amp.
-
-    Returns
-    -------
-    float
-        J (inf when ``instability_energy_frac`` is inf).
-    """
-    frac = float(config.instability_energy_frac)
-    if frac == math.inf:
-        return math.inf
-    f = float(f_max_N)
-    return frac * (f * f / (2.0 * config.kp_N_m) + f * TRAVEL_M)
-
-
 class HomingController:
     """Saturated PD homing through the Device API (see module doc)."""
 
@@ -214,7 +163,8 @@ class HomingController:
         wc = 2.0 * math.pi * self.config.velocity_cutoff_hz * self.dt_s
         self._alpha = wc / (1.0 + wc)
         self.force_limit_N = self.max_current_A * abs(self.force_per_amp_N_A)
-        self.energy_limit_J = homing_energy_limit(self.config, self.force_limit_N)
+        self.energy_limit_J = energy_limit(self.config.kp_N_m, self.force_limit_N,
+                                           float(self.config.instability_energy_frac))
 
     def run(self, duration_s: float, until_settled: bool = False, min_duration_s: float = 0.0,
             until=None, check_every: int = 200, realtime: bool = False, zero_at_end: bool = True) -> HomingResult:
@@ -256,7 +206,8 @@ class HomingController:
         if not (-plim <= x_prev <= plim):
             x_prev = home  # no plausible first sample: assume home (no velocity kick)
         e_po = e_peak = 0.0
-        u_prev = saturated_spring_energy(kp, fmax, home - x_prev)
+        # the PD's saturated spring stores what a wall of stiffness kp clamped at fmax stores (two-sided)
+        u_prev = wall_energy(kp, fmax, abs(home - x_prev), 1.0)
         f_prev = 0.0  # force commanded over the last period (N)
         away = away_max = 0.0  # distance run away from home under full current toward it (m)
         message = ""
@@ -296,7 +247,7 @@ class HomingController:
                 x_prev = x
                 # passivity observer: work of the force held over the last period + change of the stored energy
                 err = home - x
-                u = saturated_spring_energy(kp, fmax, err)
+                u = wall_energy(kp, fmax, abs(err), 1.0)
                 e_po = e_po * po_decay + f_prev * dx + u - u_prev
                 if e_po < 0.0:
                     e_po = 0.0  # dissipated energy is no credit for what an unstable loop generates later

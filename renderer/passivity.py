@@ -59,6 +59,18 @@ def wall_energy(k, f_c, d, nz):
 TRAVEL_M = 1e-3
 
 
+def energy_limit(k, f_c, frac):
+    """Stop threshold (J) of a passivity observer on a spring ``k`` (N/m) clamped at ``f_c`` (N).
+
+    ``frac * (f_c^2 / (2 k) + f_c TRAVEL_M)``: the most energy the spring stores before its clamp, plus
+    full force over :data:`TRAVEL_M`; inf without stiffness (nothing stored, never stopped) or with
+    ``frac`` inf (the check off). Used for the wall (:func:`passivity_constants`) and homing's PD.
+    """
+    if not k > 0.0:
+        return math.inf
+    return frac * (f_c * f_c / (2.0 * k) + f_c * TRAVEL_M)
+
+
 def passivity_constants(cfg, dt_s: float, wall_force_limit_N: float) -> tuple[float, float]:
     """Leak factor and stop threshold of the wall's passivity observer (module doc).
 
@@ -84,5 +96,5 @@ def passivity_constants(cfg, dt_s: float, wall_force_limit_N: float) -> tuple[fl
     """
     k = float(cfg.stiffness_N_m)
     f_c = float(wall_force_limit_N)
-    limit = cfg.instability_energy_frac * (f_c * f_c / (2.0 * k) + f_c * TRAVEL_M) if k > 0.0 else math.inf
+    limit = energy_limit(k, f_c, cfg.instability_energy_frac)
     return math.exp(-dt_s / cfg.instability_window_s), limit
