@@ -57,6 +57,7 @@ from .scene import SHAPE_CODES
 from .velocity import ImpactVelocityEstimator, ls_constants
 
 _STATUS_UNSTABLE = int(Status.UNSTABLE)  # an on-device wall stopped by the device's passivity observer
+_UNSTABLE_ADVICE = "Lower the stiffness or add damping (docs/renderer.md, 'Stopping an unstable wall')"
 
 # name, array typecode, numpy dtype, description (documented in docs/renderer.md)
 LOG_CHANNELS: tuple[tuple[str, str, str, str], ...] = (
@@ -748,18 +749,31 @@ class ServoLoop:
             return "unstable", (f"the wall generated {w[LAW.W_PO_E] * 1e3:.3g} mJ net over the last "
                                 f"~{self.cfg.instability_window_s:g} s at tick {n} (limit {c[LAW.C_PO_LIMIT] * 1e3:.3g} mJ "
                                 f"at stiffness_N_m={self.cfg.stiffness_N_m:g}): the loop is unstable; output zeroed. "
-                                "Lower the stiffness or add damping (docs/renderer.md, 'Stopping an unstable wall')")
+                                f"{_UNSTABLE_ADVICE}")
         return "sensor", (f"{int(w[LAW.W_NBAD])} invalid sensor samples in a row "
                           f"(flags {int(w[LAW.W_FLAGS])}) at tick {n}")
 
+    def _device_observer(self) -> tuple[float, float, float]:
+        """The on-device wall observer's limit (J, 0 = off), force limit (N) and leak per device tick.
+
+        The device runs it (protocol 1.1) at its own servo period, with its wall force limit: the
+        continuous current limit sent with LIMITS (:func:`renderer.passivity.passivity_constants`).
+        """
+        cfg = self.cfg
+        dt = 1.0 / float(self.info.servo_rate_hz)
+        f_c = self.limits["continuous_A"] * self.force_per_amp
+        _, limit = passivity_constants(cfg, dt, f_c)
+        leak = -math.expm1(-dt / cfg.instability_window_s)  # 1 - decay, exact for small leaks
+        return (limit if math.isfinite(limit) else 0.0), f_c, leak  # no stiffness: nothing to observe
+
     def _device_unstable_message(self, t: float) -> str:
         """The message of an on-device observer stop (the device reports the stop, not its energy)."""
-        limit, f_c = self._po_device
+        limit, f_c, _ = self._device_observer()
         cfg = self.cfg
         return (f"the device's passivity observer stopped its wall at t = {t:.3f} s: the wall generated more than "
                 f"the limit of {limit * 1e3:.3g} mJ net over the last ~{cfg.instability_window_s:g} s "
                 f"(stiffness_N_m={cfg.stiffness_N_m:g}, force limit {f_c:.3g} N): the loop is unstable; the device "
-                "zeroed its output. Lower the stiffness or add damping (docs/renderer.md, 'Stopping an unstable wall')")
+                f"zeroed its output. {_UNSTABLE_ADVICE}")
 
     def _run_compiled(self, limit, until, t0: int) -> str:
         """Law and simulated physics in ``renderer.law.run_sim``, in chunks of ``until_every`` ticks; an
@@ -833,16 +847,11 @@ class ServoLoop:
         """On-device rendering (docs/architecture.md): configure once, then only read, log and collect events."""
         cfg, dev, st = self.cfg, self.device, self._stats
         wall = self.scene.single_wall
-        # the wall's passivity observer runs on the device (protocol 1.1), at the device's own servo period and
-        # with its wall force limit: the continuous current limit sent with LIMITS (renderer.passivity)
-        po_fc = self.limits["continuous_A"] * self.force_per_amp
-        po_decay, po_limit = passivity_constants(cfg, 1.0 / float(self.info.servo_rate_hz), po_fc)
-        po_limit = po_limit if math.isfinite(po_limit) else 0.0  # no stiffness: nothing to observe (0 = off)
-        self._po_device = (po_limit, po_fc)
+        po_limit, _, po_leak = self._device_observer()
         dev.configure_rendering(
             {"height_m": wall.height_m, "stiffness_N_m": cfg.stiffness_N_m, "damping_N_s_m": cfg.damping_N_s_m,
              "rearm_margin_m": cfg.rearm_margin_m, "instability_limit_J": po_limit,
-             "instability_leak": -math.expm1(-1.0 / (float(self.info.servo_rate_hz) * cfg.instability_window_s))},
+             "instability_leak": po_leak},
             dict(self.limits), self.transient)
         read, pop = dev.read, dev.pop_events
         # a telemetry frame every ``per`` firmware ticks (a serial link's decimation): count device ticks, so
