@@ -1,10 +1,10 @@
 # Set-up and entry points. Needs only Python 3.11 on the machine. The system parts
 # the tests use (PortAudio, espeak-ng, Chromium, the AVR toolchain, simavr) are
-# provisioned by `make test` without root into .deps/ (devices/provision.py: apt
+# provisioned by `make test` without root into .deps/ (plumbing/provision.py: apt
 # download-only + dpkg-deb -x, else PyPI wheels; system copies are used where
 # present); `make system-deps` (root) installs them system-wide instead.
 # HFAM_DEPS=provision ignores system copies, HFAM_MISSING_DEPS=skip turns a
-# missing part's test failures into skips (see devices/sysdeps.py).
+# missing part's test failures into skips (see plumbing/sysdeps.py).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -32,7 +32,7 @@ $(STAMP): pyproject.toml
 	@# scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker, per study report)
 	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
 	$(PY) -m compileall -q -j 0 -x '$(LATER)|$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
-	    analysis devices renderer stimuli study benchmarks figstyle > /dev/null
+	    plumbing analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
 
 $(COMPILED): $(STAMP)
@@ -51,7 +51,7 @@ test: $(STAMP) $(COMPILED) deps
 
 # once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
 deps: $(STAMP)
-	@$(PY) -m devices.provision
+	@$(PY) -m plumbing.provision
 
 bench: $(STAMP) $(COMPILED)
 	$(PY) -m benchmarks

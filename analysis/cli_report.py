@@ -10,6 +10,8 @@ import warnings
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
+from plumbing.cliargs import add_renamed
+
 from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig, check_data_folder
 
 
@@ -137,17 +139,6 @@ def _end_with_parent(sentinel) -> None:
     os._exit(1)
 
 
-class _Renamed(argparse._StoreAction):
-    """Accepts the old spelling (second option string) with a deprecation notice (grammar: devices/cliargs.py;
-    analysis imports no other package, so this is its own copy)."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        if option_string is not None and option_string != self.option_strings[0]:
-            print(f"warning: {option_string} is deprecated; use {self.option_strings[0]} (the old spelling is "
-                  "accepted until the next release)", file=sys.stderr)
-        super().__call__(parser, namespace, values, option_string)
-
-
 def register(subparsers) -> None:
     """Add the ``report`` command.
 
@@ -170,8 +161,8 @@ def register(subparsers) -> None:
     p.add_argument("--group", default="both", choices=("both", "all", "experienced"),
                    help="subject groups to test: all subjects, experienced (experience != none) or both (default)")
     p.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")
-    p.add_argument("--velocity-m-s", "--velocity", type=float, default=None, metavar="V", dest="velocity",
-                   action=_Renamed, help="common incoming velocity for Figure 4.20 in m/s (default: median of all "
+    add_renamed(p, "--velocity-m-s", "--velocity", type=float, default=None, metavar="V", dest="velocity",
+                help="common incoming velocity for Figure 4.20 in m/s (default: median of all "
                                          "taps)")
     p.add_argument("--no-figures", action="store_true", help="tables and report without figures")
     p.epilog = "example: hfam-analysis report DATA --out REPORT --reference wood_on_foam --margin 0.5"

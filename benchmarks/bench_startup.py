@@ -38,10 +38,7 @@ def _commands(package: str) -> list[str]:
     import importlib  # deferred: the import is what this benchmark times
 
     main = importlib.import_module(f"{package}.__main__")
-    table = getattr(main, "COMMANDS", None)
-    if table is not None:
-        return [c.name for c in table]
-    return [c[0] for c in getattr(main, "COMMAND_TABLE", ())]
+    return [c.name for c in main.COMMANDS]
 
 
 def wall_times(argv: list[str], repeats: int, cwd: Path, **env_extra: str) -> list[float]:

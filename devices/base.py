@@ -29,7 +29,8 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
-from .stopsignals import holding
+from plumbing.errors import UserError
+from plumbing.stopsignals import holding
 
 
 class Status(enum.IntFlag):
@@ -146,7 +147,7 @@ class DeviceState:
         return DeviceState(self.t_s, self.position_m, self.accel_m_s2, self.grip_N, self.status, dict(self.extra))
 
 
-class DeviceError(RuntimeError):
+class DeviceError(UserError):
     """A device could not be opened, spoke garbage, timed out or disconnected."""
 
 
@@ -180,7 +181,7 @@ class Device(ABC):
     def close(self) -> None:
         """Command 0 A, then release the device (idempotent; the zero is sent even if closing fails).
 
-        A SIGTERM/SIGHUP arriving meanwhile (devices.stopsignals) is raised after it, not in the middle."""
+        A SIGTERM/SIGHUP arriving meanwhile (plumbing.stopsignals) is raised after it, not in the middle."""
         if self._is_open:
             with holding():
                 try:

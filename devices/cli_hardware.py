@@ -10,7 +10,7 @@ import sys
 import threading
 import time
 
-from .cliargs import with_examples
+from plumbing.cliargs import with_examples
 
 
 def _float_list(text: str) -> list[float]:

@@ -11,8 +11,8 @@ import tempfile
 from collections import OrderedDict
 from pathlib import Path
 
-from .cliargs import add_renamed, with_examples
-from .fileio import check_output_dir, clear_products, refuse_overwrite
+from plumbing.cliargs import add_renamed, with_examples
+from plumbing.fileio import check_output_dir, clear_products, refuse_overwrite
 
 
 def _floats(text: str) -> tuple[float, ...]:

@@ -39,7 +39,7 @@ def register(subparsers) -> None:
 
 def run_linearity(args) -> int:
     """Run ``linearity`` (see the parser's description); returns the exit code."""
-    from .fileio import atomic_write_text, check_output_dir  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from plumbing.fileio import atomic_write_text, check_output_dir  # deferred: keeps `--help` fast (a command loads only what it runs)
     from .identify.linearity import (  # deferred: keeps `--help` fast (a command loads only what it runs)
         default_conditions,
         format_linearity,

@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from .cliargs import add_renamed, with_examples
-from .fileio import check_output_file
+from plumbing.cliargs import add_renamed, with_examples
+from plumbing.fileio import check_output_file
 
 
 def _velocities(text: str) -> list[float]:

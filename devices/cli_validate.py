@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from .fileio import check_output_file
+from plumbing.fileio import check_output_file
 
 
 def _floats(text: str) -> tuple[float, ...]:

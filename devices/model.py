@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .fileio import atomic_write_text, read_json_file
-from .validation import is_finite_number
+from plumbing.fileio import atomic_write_text, read_json_file
+from plumbing.validation import is_finite_number
 
 INPUTS = ("current_A",)
 OUTPUTS = ("accel_m_s2", "position_m")

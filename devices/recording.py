@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import atomic_write_text, read_text_utf8
+from plumbing.fileio import atomic_write_text, read_text_utf8
 
 COLUMNS = ("tap", "incoming_velocity_m_s", "t_s", "accel_m_s2")
 # t_s steps may wobble by 1 % (timestamp rounding, e.g. 7 decimals at 10 kHz) before they count as

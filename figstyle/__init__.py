@@ -152,7 +152,7 @@ def check_outputs(path, formats=FORMATS, data: bool = True, force: bool = False,
     for t in targets:
         if t.is_dir():
             raise ValueError(f"{t} is a folder; a figure is written as files: choose another file name")
-    for parent in targets[0].parents:  # all of them live in one folder (figstyle imports nothing of devices.fileio)
+    for parent in targets[0].parents:  # all of them live in one folder (figstyle imports nothing of plumbing.fileio)
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"cannot write {targets[0]}: {parent} is a file, not a folder")
     found = [str(t) for t in targets if t.exists()]

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from devices.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, main as dispatch, run_as_script
 
 #: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
 COMMANDS = (
-    # the servo loop makes no BLAS call: no BLAS worker threads spinning on the other core (devices.dispatch)
+    # the servo loop makes no BLAS call: no BLAS worker threads spinning on the other core (plumbing.dispatch)
     Command("run", "renderer.cli_run", "render a virtual wall under a simulated or real user tapping",
             preload=("renderer.loop", "devices.registry"), blas_threads=1),
     Command("demo", "renderer.demo.cli_demo",

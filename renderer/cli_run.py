@@ -18,8 +18,8 @@ import argparse
 import math
 import sys
 
-from devices.cliargs import add_renamed, with_examples
-from devices.fileio import check_output_dir
+from plumbing.cliargs import add_renamed, with_examples
+from plumbing.fileio import check_output_dir
 
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
 
@@ -126,7 +126,7 @@ def run_command(args) -> int:
     SIGTERM and SIGHUP stop the run as Ctrl-C does (the output is zeroed, the partial run saved) and the
     command returns 128 + the signal's number (143, 129); Ctrl-C returns 130 (docs/renderer.md, Safety).
     """
-    from devices.stopsignals import stop_on_signals  # deferred: keeps `--help` fast
+    from plumbing.stopsignals import stop_on_signals  # deferred: keeps `--help` fast
 
     with stop_on_signals():  # from before the device is opened until its files are written
         return _run(args)
@@ -141,7 +141,7 @@ def _save_partial(result, out: str, why: str) -> None:
 
 def _run(args) -> int:
     from devices.registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from devices.stopsignals import Terminated  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from plumbing.stopsignals import Terminated  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     from .loop import ServoLoop  # deferred: keeps `--help` fast (a command loads only what it runs)
 
@@ -152,7 +152,7 @@ def _run(args) -> int:
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"
     if simulated:
-        from devices import provenance  # deferred: keeps `--help` fast (a command loads only what it runs)
+        from plumbing import provenance  # deferred: keeps `--help` fast (a command loads only what it runs)
         from devices.sim import TapTrajectory  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         provenance.prefetch()  # run.json's versions and git state, while the simulation runs

@@ -24,8 +24,8 @@ import tomllib
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from devices.fileio import read_text_utf8
-from devices.validation import require_int, require_number
+from plumbing.fileio import read_text_utf8
+from plumbing.validation import require_int, require_number
 
 from .scene import Scene, Wall, parse_scene
 

@@ -56,7 +56,7 @@ import math
 import time
 from dataclasses import dataclass
 
-from devices.validation import require_number, require_positive
+from plumbing.validation import require_number, require_positive
 
 from .passivity import energy_limit, wall_energy
 from .safety import STATUS_DISCONNECTED, STATUS_SENSOR_INVALID, safety_bounds

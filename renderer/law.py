@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 
-from devices.jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
+from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
 from devices.sim import kernel as SK
 

@@ -42,10 +42,10 @@ from typing import Callable
 
 import numpy as np
 
-from devices import provenance
+from plumbing import provenance
 from devices.base import Status
-from devices.fileio import save_npz
-from devices.stopsignals import Terminated, holding, stop_on_signals
+from plumbing.fileio import save_npz
+from plumbing.stopsignals import Terminated, holding, stop_on_signals
 
 from . import law_layout as LAW
 from . import sim_aot
@@ -449,7 +449,7 @@ class ServoLoop:
         commanded to zero on every exit path; exceptions (including
         KeyboardInterrupt) propagate after zeroing, with the partial result in
         ``self.result``. In the main thread SIGTERM and SIGHUP stop the run the
-        same way (``devices.stopsignals``: :class:`devices.stopsignals.Terminated`,
+        same way (``plumbing.stopsignals``: :class:`plumbing.stopsignals.Terminated`,
         a SystemExit with code 128 + the signal's number, propagates after the
         zero), unless the caller has its own handlers; the handlers in place
         before the call are back when it returns.

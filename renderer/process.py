@@ -13,11 +13,11 @@ in the parent sets a stop event, the child finishes the tick, zeroes the
 device and returns the partial result. The "spawn" start method is used
 because forking a process that runs audio/UI threads is unsafe.
 
-Every way out zeroes the output (``devices.stopsignals``):
+Every way out zeroes the output (``plumbing.stopsignals``):
 
 * SIGTERM or SIGHUP to the parent (main thread): it sets the stop event, waits
   for the child's zeroed partial result, then raises
-  :class:`devices.stopsignals.Terminated` (exit status 128 + the signal's number
+  :class:`plumbing.stopsignals.Terminated` (exit status 128 + the signal's number
   if uncaught) with the result as ``partial_result``.
 * SIGTERM to the child: an orderly stop (the loop's zeroing path), as for Ctrl-C.
 * The parent dies (even by SIGKILL): the kernel sends the child SIGTERM
@@ -37,7 +37,7 @@ from typing import Callable
 
 from devices.base import DeviceError
 from devices.registry import make_device
-from devices.stopsignals import ParentWatch, Terminated, die_with_parent, holding, stop_on_signals
+from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, holding, stop_on_signals
 
 from .config import RendererConfig
 from .loop import ServoLoop
@@ -141,7 +141,7 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
         that zeroes the device), and killed only as a last resort.
 
     SIGTERM and SIGHUP to this process (called in the main thread) stop the
-    child the same way and then raise :class:`devices.stopsignals.Terminated`
+    child the same way and then raise :class:`plumbing.stopsignals.Terminated`
     (module doc); the handlers in place before the call are back afterwards.
 
     Raises
@@ -150,7 +150,7 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
         If the child rejected the configuration (message preserved).
     RuntimeError
         If the child failed otherwise or died without a result.
-    devices.stopsignals.Terminated
+    plumbing.stopsignals.Terminated
         On SIGTERM/SIGHUP, after the child zeroed and stopped (``partial_result``: its result).
     """
     ctx = mp.get_context("spawn")

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 import devices.sim.layout
-from devices.fileio import user_cache_dir
+from plumbing.fileio import user_cache_dir
 
 MODULE = "_hfam_sim_loop"
 #: renderer.law.run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max) -> ticks run
@@ -56,7 +56,7 @@ SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "passi
 MODES = ("auto", "nobuild", "off")
 #: how the exported functions are built (part of the key): they release the GIL while they run, like the
 #: JIT ``run_sim`` (``nogil=True``), so other threads of the process keep running during a compiled run;
-#: and without numba's reference-counting runtime, like the JIT kernels (``_nrt=False``, devices/jitcache.py)
+#: and without numba's reference-counting runtime, like the JIT kernels (``_nrt=False``, plumbing/jitcache.py)
 BUILD_OPTIONS = "release_gil no_nrt"
 STALE_LOCK_S = 600.0        # a builder that has held the lock this long died: take over
 

@@ -13,7 +13,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from devices.fileio import read_text_utf8
+from plumbing.fileio import read_text_utf8
 
 from .library import HfamLibrary
 from .transients import DecayingSinusoid, NoTransient, Pulse

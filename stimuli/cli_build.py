@@ -5,8 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from devices.cliargs import add_renamed, with_examples
-from devices.fileio import check_output_file
+from plumbing.cliargs import add_renamed, with_examples
+from plumbing.fileio import check_output_file
 
 from .hfam.settings import BuildSettings
 from .recordings import read_tap_csv

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.cliargs import with_examples
+from plumbing.cliargs import with_examples
 
 from .library import HfamLibrary
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from devices.cliargs import with_examples
-from devices.fileio import check_output_file
+from plumbing.cliargs import with_examples
+from plumbing.fileio import check_output_file
 
 
 def register(subparsers) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.fileio import atomic_open, load_npz
+from plumbing.fileio import atomic_open, load_npz
 
 FORMAT = "hfam-library"
 FORMAT_VERSION = 1

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from devices.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, main as dispatch, run_as_script
 
 #: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
 COMMANDS = (

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import resample_poly
 
-from devices import sysdeps
+from plumbing import sysdeps
 
 
 class AudioUnavailable(ValueError):
@@ -35,7 +35,7 @@ class AudioUnavailable(ValueError):
 
 
 def load_sounddevice():
-    """Import sounddevice with PortAudio from an explicit path (see :func:`devices.sysdeps.import_sounddevice`).
+    """Import sounddevice with PortAudio from an explicit path (see :func:`plumbing.sysdeps.import_sounddevice`).
 
     The library provisioned in ``<repo>/.deps`` (``make test``) is used first, else
     the system's; a missing PortAudio becomes a clear :class:`AudioUnavailable`.
@@ -153,7 +153,7 @@ def speak(text: str, fs_hz: float, voice: str = "en", speed_wpm: int = 150, exe:
         espeak-ng ``-v`` voice and ``-s`` words per minute.
     exe : str, optional
         Path of the program; default: ``espeak-ng`` provisioned in ``<repo>/.deps/bin``, else on ``PATH``
-        (:func:`devices.sysdeps.tool`).
+        (:func:`plumbing.sysdeps.tool`).
 
     Returns
     -------

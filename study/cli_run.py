@@ -20,9 +20,9 @@ import sys
 import threading
 from dataclasses import asdict
 
-from devices.cliargs import add_renamed, with_examples
-from devices.progress import Progress
-from devices.stopsignals import Terminated, stop_on_signals
+from plumbing.cliargs import add_renamed, with_examples
+from plumbing.progress import Progress
+from plumbing.stopsignals import Terminated, stop_on_signals
 
 from .config import GENDERS, HANDEDNESS
 from .data import EXPERIENCE, SessionStore, release_all_locks
@@ -90,7 +90,7 @@ def run_command(args) -> int:
     """Run (or resume) one session; the subject lock is released on every way out.
 
     SIGTERM and SIGHUP end the session as Ctrl-C does (the output zeroed, the data so far kept for
-    ``--resume``) and the command returns 128 + the signal's number (devices.stopsignals).
+    ``--resume``) and the command returns 128 + the signal's number (plumbing.stopsignals).
     """
     try:
         with stop_on_signals():
@@ -250,7 +250,7 @@ def _trial_counts(schedule) -> tuple[int, int]:
 def _watch_progress(schedule, stop, subject: str, period_s: float = 0.5) -> None:
     """Report the session's progress on stderr until ``stop`` is set: phase, trial n of N, elapsed, time left.
 
-    A tqdm bar on a terminal, plain lines otherwise (devices.progress). Runs in its own thread and only reads
+    A tqdm bar on a terminal, plain lines otherwise (plumbing.progress). Runs in its own thread and only reads
     the schedule, so it never delays the session.
     """
     done, total = _trial_counts(schedule)

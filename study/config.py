@@ -15,8 +15,8 @@ import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from devices.fileio import read_text_utf8
-from devices.validation import require_int, require_positive
+from plumbing.fileio import read_text_utf8
+from plumbing.validation import require_int, require_positive
 
 from .data import EXPERIENCE, check_subject_id
 

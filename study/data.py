@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.fileio import atomic_write_bytes as _atomic_write_bytes
-from devices.fileio import atomic_temp_target, current_umask, fsync_dir
+from plumbing.fileio import atomic_write_bytes as _atomic_write_bytes
+from plumbing.fileio import atomic_temp_target, current_umask, fsync_dir
 
 TRIAL_COLUMNS = (
     "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
@@ -327,7 +327,7 @@ class SessionStore:
 
     def _remove_partial_writes(self) -> None:
         """Remove the temporary files of atomic writes that a killed runner left half written
-        (``devices.fileio.atomic_open``: ``<name>.<8 random characters>.tmp`` for a file the session
+        (``plumbing.fileio.atomic_open``: ``<name>.<8 random characters>.tmp`` for a file the session
         writes, never renamed into place, so never data). Only that pattern: a user's own ``*.tmp`` file
         is kept. Called with the subject's lock held: no other runner is writing them."""
         stale = [p for p in self.dir.rglob("*.tmp") if p.is_file() and _is_session_temp(p.name)]

@@ -16,9 +16,9 @@ loops and the homing controller live in a child process started with the
 
 The child zeroes and closes the device on every exit path (the Device base
 class guarantees it); SIGTERM and SIGHUP stop it the same way
-(devices.stopsignals). If the parent dies, the kernel sends the child SIGTERM
+(plumbing.stopsignals). If the parent dies, the kernel sends the child SIGTERM
 (Linux ``PR_SET_PDEATHSIG``); wherever that is missing or failed, the child
-also polls ``os.getppid()`` (:class:`devices.stopsignals.ParentWatch`, as the
+also polls ``os.getppid()`` (:class:`plumbing.stopsignals.ParentWatch`, as the
 renderer's and the demo's servo children do) in every homing, hold and tapping
 loop and between requests, and stops the same way (zero output, device closed,
 exit status 143); between requests it also sees the pipe close and exits. With a hardware
@@ -36,7 +36,7 @@ import signal
 from dataclasses import asdict
 
 from devices import make_device
-from devices.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
+from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 
 from .apparatus import Apparatus, ServoStopped
 from .rater import tap_features
@@ -122,7 +122,7 @@ class IsolatedApparatus:
     """Same interface as :class:`study.apparatus.Apparatus`, backed by a child process (see module doc).
 
     Create it in a thread that outlives it (the main thread): on Linux the child is sent SIGTERM when
-    the thread that started it ends (``PR_SET_PDEATHSIG``, devices.stopsignals)."""
+    the thread that started it ends (``PR_SET_PDEATHSIG``, plumbing.stopsignals)."""
 
     def __init__(self, spec: str, device_options: dict, catalog, protocol, library_dir=None,
                  sim_participant=None, realtime=None) -> None:

@@ -13,7 +13,7 @@ import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
-from devices import provenance
+from plumbing import provenance
 from devices.registry import check_device_spec
 from stimuli import load_catalog
 
@@ -107,7 +107,7 @@ def _check_same_catalog(before: list[dict], now: list[dict], where) -> None:
 
 
 def software_versions() -> dict:
-    """Python, every result-affecting dependency, the project's version and git commit (devices.provenance)."""
+    """Python, every result-affecting dependency, the project's version and git commit (plumbing.provenance)."""
     return provenance.software_versions()
 
 

@@ -4,11 +4,11 @@ import os
 
 import pytest
 
-from devices import sysdeps
+from plumbing import sysdeps
 
 
 def need(component: str) -> None:
-    """Fail the test unless ``component`` (a key of ``devices.sysdeps.COMPONENTS``) is available.
+    """Fail the test unless ``component`` (a key of ``plumbing.sysdeps.COMPONENTS``) is available.
 
     A missing part is a failure, never a silent skip; ``HFAM_MISSING_DEPS=skip`` (opt-in) skips with the reason.
     """

@@ -1,7 +1,9 @@
 """Package arrows and import cycles, read from the code (ast): the allowed arrows are written once, here.
 
-stimuli -> devices; renderer -> devices, stimuli; study -> renderer, devices, stimuli; analysis and devices
-import none of the others. The renderer core must not import its demo or teleoperation applications.
+plumbing (the foundation) imports none of the others; devices -> plumbing; stimuli -> devices; renderer ->
+devices, stimuli; study -> renderer, devices, stimuli; analysis -> plumbing only (it reads files). Every
+package may import plumbing. The renderer core must not import its demo or teleoperation applications, and
+devices holds no plumbing (the foundation's modules live in plumbing/ only).
 """
 
 import ast
@@ -10,13 +12,15 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("devices", "renderer", "stimuli", "study", "analysis")
+PACKAGES = ("plumbing", "devices", "renderer", "stimuli", "study", "analysis")
+FOUNDATION = "plumbing"
 ALLOWED = {
-    "devices": set(),
-    "stimuli": {"devices"},
-    "renderer": {"devices", "stimuli"},
-    "study": {"renderer", "devices", "stimuli"},
-    "analysis": set(),
+    "plumbing": set(),
+    "devices": {FOUNDATION},
+    "stimuli": {FOUNDATION, "devices"},
+    "renderer": {FOUNDATION, "devices", "stimuli"},
+    "study": {FOUNDATION, "renderer", "devices", "stimuli"},
+    "analysis": {FOUNDATION},
 }
 APPLICATIONS = ("renderer.demo", "renderer.teleop")  # the renderer core (renderer/*.py) must not import these
 
@@ -66,6 +70,18 @@ def test_packages_import_only_along_the_allowed_arrows():
             if top in PACKAGES and top != own and top not in ALLOWED[own]:
                 bad.append(f"{path.relative_to(ROOT)}:{line}: {own} imports {mod}")
     assert not bad, "imports against the package arrows:\n" + "\n".join(bad)
+
+
+def test_the_foundation_imports_no_domain_package_and_domain_packages_hold_no_plumbing():
+    domain = set(PACKAGES) - {FOUNDATION}
+    bad = [f"{path.relative_to(ROOT)}:{line}: imports {mod}"
+           for path in sorted((ROOT / FOUNDATION).rglob("*.py"))
+           for mod, line, _ in imports_of(path) if mod.split(".")[0] in domain]
+    assert not bad, "the foundation imports a domain package:\n" + "\n".join(bad)
+    plumbing_modules = {p.name for p in (ROOT / FOUNDATION).glob("*.py")} - {"__init__.py", "__main__.py"}
+    copies = [str(p.relative_to(ROOT)) for pkg in domain for p in sorted((ROOT / pkg).rglob("*.py"))
+              if p.name in plumbing_modules]
+    assert not copies, "plumbing modules outside plumbing/: " + ", ".join(copies)
 
 
 def test_renderer_core_does_not_import_its_applications():

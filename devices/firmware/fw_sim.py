@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import sysdeps
+from plumbing import sysdeps
 from ..base import DeviceError
 from ..hardware.serial_device import SerialDevice
 

@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from ..base import Device, DeviceError, DeviceInfo, DeviceState, Status
-from ..fileio import atomic_write_text, read_text_utf8
-from ..stopsignals import holding
-from ..validation import is_finite_number, shown_value
+from plumbing.fileio import atomic_write_text, read_text_utf8
+from plumbing.stopsignals import holding
+from plumbing.validation import is_finite_number, shown_value
 from . import wire_protocol as P
 from .calibration import Calibration
 from .transport import SerialTransport, Transport, TransportClosed
@@ -392,7 +392,7 @@ class ProtocolDevice(Device):
     def close(self) -> None:
         """Zero the output (confirmed by the device's reply when it answers), then release the port.
 
-        A SIGTERM/SIGHUP arriving meanwhile (devices.stopsignals) is raised after both, not in between."""
+        A SIGTERM/SIGHUP arriving meanwhile (plumbing.stopsignals) is raised after both, not in between."""
         with holding():
             if self._is_open and not self._disconnected:
                 try:

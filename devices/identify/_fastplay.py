@@ -4,7 +4,7 @@ in one compiled call."""
 
 from __future__ import annotations
 
-from ..jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
+from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
 from ..sim import kernel as K
 

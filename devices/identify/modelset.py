@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fileio import atomic_write_text, read_json_file
+from plumbing.fileio import atomic_write_text, read_json_file
 from ..model import OUTPUTS, ZpkModel, load_model
 from .fit import FitOptions, fit_frequency_response
 

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from ..base import Device
-from ..fileio import atomic_write_text
-from ..progress import Progress
+from plumbing.fileio import atomic_write_text
+from plumbing.progress import Progress
 from ..registry import make_device
-from ..validation import require_int
+from plumbing.validation import require_int
 from .etfe import Etfe, etfe
 from .figures import bode_plot, preload_figures
 from .fit import FitError, FitOptions, fit_etfes, load_solvers

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fileio import atomic_open, atomic_write_text, read_json_file
-from ..validation import is_finite_number, shown_value
+from plumbing.fileio import atomic_open, atomic_write_text, read_json_file
+from plumbing.validation import is_finite_number, shown_value
 from .sweep import SweepConfig
 
 COLUMNS = ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N")
@@ -109,7 +109,7 @@ def write_recording(path, rec: Recording) -> Path:
 def write_csv_columns(path, columns, arrays) -> Path:
     """Write equal-length 1-D ``arrays`` (one per name in ``columns``) as a CSV with a header line.
 
-    Atomic (see :func:`devices.fileio.atomic_open`); values as ``%.10g``.
+    Atomic (see :func:`plumbing.fileio.atomic_open`); values as ``%.10g``.
     The counterpart of :func:`read_csv_columns`.
     """
     data = [np.ascontiguousarray(a, dtype=float) for a in arrays]

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..validation import require_int, require_number, require_positive
+from plumbing.validation import require_int, require_number, require_positive
 
 
 @dataclass(frozen=True)

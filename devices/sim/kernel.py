@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ..jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
+from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
 # the arrays' layout and the amplifier's input rule (numba-free, shared with devices.sim.device)
 from .layout import *  # noqa: F401,F403 -- re-exported: kernel.P_*, kernel.S_*, kernel.command_rule

@@ -18,7 +18,7 @@ from pathlib import Path
 from types import MappingProxyType
 
 from ..base import DeviceInfo
-from ..validation import is_finite_number, shown_value
+from plumbing.validation import is_finite_number, shown_value
 
 _HERE = Path(__file__).parent
 DEFAULT_PARAMS_FILE = _HERE / "default_params.toml"

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from ..jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
+from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
 from .kernel import _friction, _xorshift_normal, hysteresis_step
 

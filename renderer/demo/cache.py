@@ -38,7 +38,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from devices.fileio import user_cache_dir
+from plumbing.fileio import user_cache_dir
 from devices.registry import make_device
 from stimuli import HfamLibrary
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
@@ -133,7 +133,7 @@ def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, re
     ----------
     settings : PipelineSettings
     cache_base : Path or None
-        Cache folder (default :func:`devices.fileio.user_cache_dir`).
+        Cache folder (default :func:`plumbing.fileio.user_cache_dir`).
     rebuild : bool
         Ignore and replace an existing cache entry.
     progress : Progress or None

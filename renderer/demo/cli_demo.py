@@ -7,7 +7,7 @@ import math
 import time
 from pathlib import Path
 
-from devices.fileio import check_output_dir, user_cache_dir
+from plumbing.fileio import check_output_dir, user_cache_dir
 from stimuli.hfam.pipeline import PipelineSettings
 
 from . import runs

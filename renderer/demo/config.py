@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 from stimuli.hfam.pipeline import PipelineSettings
-from devices.validation import require_int
+from plumbing.validation import require_int
 
 from . import runs
 from .cache import Pipeline

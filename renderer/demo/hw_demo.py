@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from devices.registry import make_device
-from devices.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
+from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 from stimuli import HfamLibrary
 
 from ..config import RendererConfig
@@ -184,7 +184,7 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
 
     The servo loop runs in a spawned child; the parent only reads the shared
     ring for the scope. Ctrl-C stops the run cleanly (the child zeroes the device); so do SIGTERM and
-    SIGHUP, after which :class:`devices.stopsignals.Terminated` is raised (``partial_result``: the run).
+    SIGHUP, after which :class:`plumbing.stopsignals.Terminated` is raised (``partial_result``: the run).
     """
     ctx = mp.get_context("spawn")
     ring = ctx.RawArray("d", 3 * RING)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.fileio import check_output_dir
+from plumbing.fileio import check_output_dir
 
 from . import runs
 from .config import DemoResult

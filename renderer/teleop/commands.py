@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.fileio import atomic_write_text, check_output_dir
+from plumbing.fileio import atomic_write_text, check_output_dir
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import CimmModel, Testbed, get_environment
@@ -194,11 +194,11 @@ def run_teleop_master(args) -> int:
     int
         0; 1 if the link was lost or the loop faulted (the output was zeroed either way).
 
-    SIGTERM/SIGHUP stop the session like Ctrl-C: :class:`devices.stopsignals.Terminated` propagates (exit
+    SIGTERM/SIGHUP stop the session like Ctrl-C: :class:`plumbing.stopsignals.Terminated` propagates (exit
     status 128 + the signal's number) after closing the master has zeroed its output.
     """
     from devices.registry import make_device  # deferred: load only the driver asked for
-    from devices.stopsignals import stop_on_signals  # deferred: the real-master session only
+    from plumbing.stopsignals import stop_on_signals  # deferred: the real-master session only
 
     from .serial_master import run_serial_session  # deferred: the real-master loop only when asked for
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from devices.fileio import user_cache_dir
+from plumbing.fileio import user_cache_dir
 from devices.sim.params import DEFAULT_PARAMS_FILE, SimParams, default_params, load_sim_params
 
 # relative errors of the stand-in model (until successive isolation is merged): name -> factor

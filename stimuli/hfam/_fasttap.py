@@ -5,7 +5,7 @@ device's input rule and one period of output delay), in one compiled call over t
 
 from __future__ import annotations
 
-from devices.jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
+from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
 from devices.sim import kernel as SK
 from devices.sim import layout as L

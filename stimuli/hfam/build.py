@@ -49,7 +49,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy import signal
 
-from devices import provenance
+from plumbing import provenance
 
 from ..library import HfamLibrary
 from ..recordings import Tap

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from devices.validation import require_int, require_number, require_positive
+from plumbing.validation import require_int, require_number, require_positive
 
 
 MAX_SMOOTH_HZ = 1000.0  # bandwidth of human vibrotactile perception (section 4.4.1)

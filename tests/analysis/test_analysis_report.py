@@ -98,8 +98,8 @@ def test_figure_process_is_a_second_process_only_when_forking_is_safe():
     from analysis.cli_report import figure_process
     # a new interpreter runs one thread when it starts the command (one BLAS thread, as main() sets it): the
     # pool's process is another process
-    code = ("import os\nfrom analysis.__main__ import _one_blas_thread\n"
-            "from analysis.cli_report import figure_process\n_one_blas_thread()\n"
+    code = ("import os\nos.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n"
+            "from analysis.cli_report import figure_process\n"
             "with figure_process() as pool:\n"
             "    print(pool is not None and pool.submit(os.getpid).result() != os.getpid())\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)

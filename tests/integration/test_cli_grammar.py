@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-#: (command module, sub-command) pairs that follow the grammar (devices/cliargs.py)
+#: (command module, sub-command) pairs that follow the grammar (plumbing/cliargs.py)
 COMMANDS = [("devices.cli_record", "record"), ("devices.cli_identify", "identify"), ("devices.cli_identify", "fit"),
             ("devices.cli_hardware", "emulate"), ("devices.cli_hardware", "latency"), ("renderer.cli_run", "run"),
             ("stimuli.cli_build", "build-library"), ("stimuli.cli_show", "show"), ("study.cli_run", "run"),

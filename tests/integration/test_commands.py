@@ -15,8 +15,7 @@ PACKAGES = ("devices", "renderer", "stimuli", "study", "analysis")
 
 def _table(package):
     main = importlib.import_module(f"{package}.__main__")
-    table = getattr(main, "COMMANDS", None)
-    return [(c.name, c.module, c.help) for c in table] if table is not None else list(main.COMMAND_TABLE)
+    return [(c.name, c.module, c.help) for c in main.COMMANDS]
 
 
 @pytest.mark.parametrize("package", PACKAGES)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from devices.fileio import clear_products, refuse_overwrite
+from plumbing.fileio import clear_products, refuse_overwrite
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -1,4 +1,4 @@
-"""SIGTERM, SIGHUP and the parent's death stop a servo loop with the output zeroed (devices.stopsignals).
+"""SIGTERM, SIGHUP and the parent's death stop a servo loop with the output zeroed (plumbing.stopsignals).
 
 Real processes, real signals: a :class:`tests.renderer.fakes.RecordingMassDevice` pressed into the wall
 (a steady ~0.3 A) appends every current it is sent to a file, so the tests read what reached the
@@ -54,7 +54,7 @@ def _gone(pid: int) -> bool:
 
 SEMANTICS = textwrap.dedent("""
     import os, signal, time
-    from devices.stopsignals import Terminated, holding, stop_on_signals
+    from plumbing.stopsignals import Terminated, holding, stop_on_signals
     signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as under a terminal, whatever the test runner's
     # a signal raises Terminated at once; the previous handlers are back afterwards
     try:
@@ -107,7 +107,7 @@ def test_stop_signals_in_a_real_process():
 
 
 def test_handlers_only_in_the_main_thread_and_restored():
-    from devices.stopsignals import stop_on_signals
+    from plumbing.stopsignals import stop_on_signals
 
     before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
     with stop_on_signals() as block:
@@ -208,7 +208,7 @@ def test_parent_watch_notices_the_parent_is_gone(tmp_path):
     out = tmp_path / "watch.txt"
     grandchild = textwrap.dedent("""
         import os, sys, time
-        from devices.stopsignals import ParentWatch
+        from plumbing.stopsignals import ParentWatch
         watch = ParentWatch(os.getppid(), every=10)
         print("ready", flush=True)
         t_end = time.monotonic() + 60

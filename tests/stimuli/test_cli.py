@@ -224,7 +224,7 @@ def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, 
 
 def test_build_library_names_a_model_file_that_is_not_utf8(tmp_path, inputs):
     """Audit model_nonutf8.txt: a model file that is not UTF-8 gave the codec's message without the file; now
-    one ``error:`` line naming the file and line (devices.fileio.read_json_file, every JSON model/index reader)."""
+    one ``error:`` line naming the file and line (plumbing.fileio.read_json_file, every JSON model/index reader)."""
     rec, m1, _ = inputs
     m1.write_bytes(m1.read_bytes().replace(b"{", b"{\n\"note\": \"\xff\",", 1))
     res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",

@@ -13,7 +13,7 @@ import pytest
 from scipy import signal
 from scipy.io import wavfile
 
-from devices import sysdeps
+from plumbing import sysdeps
 
 from ..needs import need
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_study_kill import KillHarness
-from devices.fileio import atomic_write_text, load_npz
+from plumbing.fileio import atomic_write_text, load_npz
 from study.data import SessionStore
 
 from .helpers import quick_args, read_rows, run_study

@@ -6,7 +6,7 @@ process (:class:`study.isolated.IsolatedApparatus`) on ``serial:<pty>`` and asks
 the subject rates (never, here), while the emulated hand holds the stylus 20 mm above home so homing
 pushes with a steady current. The parent is then SIGKILLed. With Linux's ``PR_SET_PDEATHSIG`` the
 kernel stops the child; the second case takes that away (as on a platform without prctl, or where it
-failed), so only the child's own ``getppid`` polling (devices.stopsignals.ParentWatch) can stop it.
+failed), so only the child's own ``getppid`` polling (plumbing.stopsignals.ParentWatch) can stop it.
 Every wait is for an observed state with a generous bound (a loaded 2-core machine can take seconds to
 start a spawned interpreter).
 """
@@ -33,7 +33,7 @@ PARENT = textwrap.dedent("""
     import os, sys
     if os.environ.get("HFAM_TEST_NO_PDEATHSIG") == "1":
         import study.isolated as iso
-        from devices.stopsignals import Terminated
+        from plumbing.stopsignals import Terminated
         import signal
 
         def no_pdeathsig(parent_pid):  # a platform without prctl: nothing armed, the early check kept

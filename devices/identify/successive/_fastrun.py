@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from ...jitcache import njit  # numba.njit; its cache and _nrt=False: devices/jitcache.py
+from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
 from ...sim import kernel as K
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...base import Device
-from ...fileio import atomic_write_text
+from plumbing.fileio import atomic_write_text
 from ...registry import make_device
 from ...sim.params import SimParams, load_sim_params
 from .amplifier import identify_amplifier

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from devices import sysdeps
+from plumbing import sysdeps
 from devices.hardware import wire_protocol as P
 
 from ...needs import need

@@ -1,4 +1,4 @@
-"""devices.jitcache: the kernels' numba cache follows edits of every source compiled in; kernels are NRT-free."""
+"""plumbing.jitcache: the kernels' numba cache follows edits of every source compiled in; kernels are NRT-free."""
 
 import ast
 import os
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from devices import jitcache
+from plumbing import jitcache
 
 ROOT = Path(jitcache.__file__).resolve().parent.parent
 KERNEL_MODULES = ("devices.sim.kernel", "devices.sim.teleop_kernel", "devices.identify._fastplay",
@@ -77,7 +77,7 @@ def test_an_edited_dependency_recompiles_a_cached_caller(tmp_path):
     dep.write_text("from numba import njit\n\n@njit(cache=True)\ndef f():\n    return 1.0\n")
     (pkg / "user.py").write_text(textwrap.dedent("""\
         from numba import njit
-        from devices.jitcache import njit as stamped_njit
+        from plumbing.jitcache import njit as stamped_njit
         from .dep import f
 
         @stamped_njit(cache=True, _nrt=False)

@@ -1,4 +1,4 @@
-"""The ``python -m <package> <command>`` dispatcher shared by devices, renderer, stimuli and study.
+"""The ``python -m <package> <command>`` dispatcher shared by devices, renderer, stimuli, study and analysis.
 
 Each package's ``__main__`` lists its commands once, as a table of
 :class:`Command` (name, module, one-line help). ``--help`` of the package
@@ -8,7 +8,7 @@ runs (or whose ``--help`` is asked) is imported, and its module's
 does not pay for numba, scipy.signal or matplotlib.
 
 Errors the user can fix (:class:`ValueError`, :class:`FileNotFoundError`,
-:class:`devices.base.DeviceError`) print one ``error: ...`` line and exit 2;
+:class:`plumbing.errors.UserError`, which ``devices.DeviceError`` derives from) print one ``error: ...`` line and exit 2;
 a reader that goes away (``| head``) exits 1 without a traceback.
 
 A command whose parser sets ``fast_exit=True`` (``set_defaults``) declares that it has closed every
@@ -33,7 +33,7 @@ import os
 import sys
 from typing import NamedTuple, Sequence
 
-from .base import DeviceError
+from .errors import UserError
 
 
 #: set by :func:`main` when the command that ran declared ``fast_exit`` and returned
@@ -125,7 +125,7 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
         code = int(args.func(args) or 0)
         _fast_exit_ok = bool(getattr(args, "fast_exit", False))
         return code
-    except (ValueError, FileNotFoundError, DeviceError) as exc:  # DeviceError: a port that is absent or mute
+    except (ValueError, FileNotFoundError, UserError) as exc:  # UserError: e.g. devices.DeviceError, a port that is absent or mute
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

@@ -4,7 +4,7 @@ The project uses a few non-Python parts: PortAudio (masking audio), espeak-ng
 (spoken cues), Chromium (browser tests), the AVR toolchain (firmware build),
 simavr (running the firmware) and a host C compiler. ``make test`` provisions
 the missing ones without root into ``<repo>/.deps`` (``python -m
-devices.provision``: Debian packages fetched with apt's download-only mode and
+plumbing.provision``: Debian packages fetched with apt's download-only mode and
 unpacked with ``dpkg-deb -x`` into ``.deps/root``, wrappers in ``.deps/bin``);
 ``make system-deps`` (root) installs them system-wide instead. Code that needs
 one of them asks this module, which looks in ``.deps`` first, then the system.
@@ -348,7 +348,7 @@ def import_sounddevice():
     if path is None:
         if mode() == "provision":
             raise OSError(f"PortAudio library not found in {root_dir()} (HFAM_DEPS=provision; run 'make test' "
-                          "or 'python -m devices.provision' to provision it)")
+                          "or 'python -m plumbing.provision' to provision it)")
         import sounddevice  # deferred: its own search, its own error
 
         return sounddevice

@@ -1,9 +1,9 @@
-"""Where system parts are looked up (devices/sysdeps.py), in each HFAM_DEPS mode."""
+"""Where system parts are looked up (plumbing/sysdeps.py), in each HFAM_DEPS mode."""
 
 import shutil
 from pathlib import Path
 
-from devices import sysdeps
+from plumbing import sysdeps
 
 
 def test_provision_mode_takes_the_machine_compiler_but_no_system_copy_of_a_provisioned_part(monkeypatch):

@@ -1,9 +1,9 @@
-"""The shared checks of the config dataclasses (devices/validation.py) and their messages in use."""
+"""The shared checks of the config dataclasses (plumbing/validation.py) and their messages in use."""
 
 import pytest
 
 from devices.identify.sweep import SweepConfig
-from devices.validation import is_finite_number, require_int, require_number, require_positive, shown_value
+from plumbing.validation import is_finite_number, require_int, require_number, require_positive, shown_value
 from renderer.config import RendererConfig
 from renderer.homing import HomingConfig
 from stimuli.hfam.settings import BuildSettings

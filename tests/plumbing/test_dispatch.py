@@ -1,4 +1,4 @@
-"""devices.dispatch: preloaded command modules and the fast exit, in processes of their own."""
+"""plumbing.dispatch: preloaded command modules and the fast exit, in processes of their own."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def run(args):
 '''
 MAIN = '''
 import sys
-from devices.dispatch import Command, main, run_as_script
+from plumbing.dispatch import Command, main, run_as_script
 run_as_script(lambda: main("fake", "fake", (Command("go", "fakecmd", "go", preload=("fakecmd_pre",)),)))
 '''
 
@@ -65,7 +65,7 @@ def test_no_fast_exit_while_a_thread_of_the_command_still_runs(tmp_path):
 
 BLAS = '''
 import os, sys
-from devices.dispatch import Command, main, run_as_script
+from plumbing.dispatch import Command, main, run_as_script
 
 def register(sub):
     sub.add_parser("blas").set_defaults(func=run)

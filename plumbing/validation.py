@@ -5,8 +5,7 @@ from TOML/JSON and validated at the boundary, in ``__post_init__``. These helper
 one of them the same rule and the same message: the field, what it must be, and the value
 found, with a prefix naming the config (``"homing."``, ``"sweep "``, ``"BuildSettings."``) so
 the user can find it in the file. ``bool`` is never accepted as a number (``True`` as a
-duration is a typo, not a value). ``analysis`` may not import ``devices`` and keeps its own
-two checks.
+duration is a typo, not a value).
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
-"""devices.progress: plain progress lines when not on a terminal, with elapsed time and an estimate of what is left."""
+"""plumbing.progress: plain progress lines when not on a terminal, with elapsed time and an estimate of what is left."""
 
 import io
 import time
 
-from devices.progress import Progress, format_s
+from plumbing.progress import Progress, format_s
 
 
 def test_plain_lines_with_elapsed_and_time_left():

@@ -1,10 +1,10 @@
-"""devices.provenance: the versions recorded with every result."""
+"""plumbing.provenance: the versions recorded with every result."""
 
 import importlib.metadata
 import subprocess
 from pathlib import Path
 
-from devices import provenance
+from plumbing import provenance
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -1,4 +1,4 @@
-"""devices.fileio: the servo log's .npz writer against numpy's."""
+"""plumbing.fileio: the servo log's .npz writer against numpy's."""
 
 import io
 import zipfile
@@ -6,8 +6,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from devices import fileio
-from devices.fileio import save_npz
+from plumbing import fileio
+from plumbing.fileio import save_npz
 
 
 def _arrays():

