@@ -32,7 +32,7 @@ from scipy.special import entr
 from plumbing.validation import require_int, require_number
 
 from .adaptive import AdaptiveMethod
-from .psychometric import check_function, psi
+from .psychometric import check_function, psi, sigmoid
 
 #: grid spacings of a ``{"min", "max", "n", "spacing"}`` grid
 SPACINGS = ("log10", "linear")
@@ -276,19 +276,20 @@ class Psi(_GridPosterior):
     name = "psi"
 
     def _prepare(self) -> None:
-        n_ts = self.shape[0] * self.shape[1]
-        # per lapse rate, a contiguous (stimulus x threshold-slope) table: the lapse is summed out by a short
-        # loop of whole-table multiply-adds (faster than one einsum over a strided axis)
-        pc3 = self.p_correct.reshape(len(self.x), n_ts, self.shape[2])
-        self._pc_by_lapse = [np.ascontiguousarray(pc3[:, :, i]) for i in range(self.shape[2])]
+        # psi = gamma + (1 - gamma - lambda) F(x; t, s): summed over the lapse rates with the posterior,
+        # P(correct, t, s | x) = gamma m(t, s) + F(x; t, s) w(t, s) with m the (t, s) marginal and
+        # w = sum_l (1 - gamma - lambda_l) post(t, s, l), so the choice costs one (stimulus x t-s) table
+        # whatever the number of lapse rates
+        f = sigmoid(self.x[:, None, None], self.t[None, :, None], self.s[None, None, :], self.function)
+        self._sigmoid = np.ascontiguousarray(f.reshape(len(self.x), -1))
+        self._lapse_scale = 1.0 - self.guess - self.lam
 
     def expected_entropy(self) -> np.ndarray:
         """Expected entropy (nats) of the threshold x slope posterior after a trial at each intensity."""
         post = self.posterior.reshape(-1, self.shape[2])
-        joint_c = self._pc_by_lapse[0] * post[:, 0]              # P(correct, t, s | stimulus)
-        for i in range(1, self.shape[2]):
-            joint_c += self._pc_by_lapse[i] * post[:, i]
-        joint_w = np.clip(post.sum(axis=1)[None, :] - joint_c, 0.0, None)
+        marginal = post.sum(axis=1)
+        joint_c = self.guess * marginal + self._sigmoid * (post @ self._lapse_scale)   # P(correct, t, s | x)
+        joint_w = np.clip(marginal - joint_c, 0.0, None)
         p_c = joint_c.sum(axis=1)
         p_w = joint_w.sum(axis=1)
         # P * H(J / P) = -sum_j J_j log J_j + P log P

@@ -89,3 +89,29 @@ def test_expected_entropy_equals_questplus_formula():
             eh += pk * -(q * np.log(q)).sum()
         direct.append(eh)
     np.testing.assert_allclose(ours.expected_entropy(), direct, rtol=1e-10)
+
+
+def test_psi_marginal_expected_entropy_equals_brute_force():
+    """Psi with several lapse rates (psi-marginal): the expected entropy of the threshold x slope posterior, from
+    the factorised sum over lapses, equals summing the lapse out of each outcome's joint posterior directly."""
+    ours, _ = _pair(Psi, (0.0, 0.02, 0.05))
+    obs = SimulatedObserver(ObserverParams(0.5, 1.5, 0.02, GUESS, "normal"), seed=8)
+    for _ in range(15):
+        x = ours.next_intensity()
+        ours.update(x, obs.respond(x))
+    post = ours.posterior
+    direct = []
+    for i in range(len(INTENSITIES)):
+        eh = 0.0
+        for like in (ours.p_correct[i], ours.p_wrong[i]):
+            joint = (post * like).reshape(-1, 3).sum(axis=1)     # lapse summed out
+            pk = joint.sum()
+            q = joint / pk
+            q = q[q > 0]
+            eh += pk * -(q * np.log(q)).sum()
+        direct.append(eh)
+    np.testing.assert_allclose(ours.expected_entropy(), direct, rtol=1e-10)
+    # and it is not QUEST+'s joint entropy (the lapse is not what Psi spends trials on)
+    joint_h, _ = _pair(QuestPlus, (0.0, 0.02, 0.05))
+    joint_h.posterior = post.copy()
+    assert not np.allclose(joint_h.expected_entropy(), direct, rtol=1e-3)
