@@ -39,8 +39,8 @@ from plumbing.validation import require_int, require_number
 
 from .adaptive import AdaptiveMethod
 from .methods import METHODS
-from .psyfigures import plot_precision, plot_track
 from .observer import ObserverParams, SimulatedObserver, check_observer
+from .psyfigures import plot_precision, plot_track
 from .quest import Psi, QuestPlus
 from .staircase import UpDown, WeightedUpDown
 
