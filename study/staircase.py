@@ -6,7 +6,8 @@ reversal convention are those of :class:`study.adaptive.AdaptiveMethod`.
 Steps are in the staircase's ``step_scale``: ``"linear"`` adds and subtracts them, ``"log10"`` multiplies
 and divides the intensity by ``10**step`` (a step of 0.1 is a factor 1.26, about 1 dB of amplitude
 x 2). A step may be a list: the step after ``k`` reversals is ``steps[min(k, len - 1)]`` (PsychoPy's
-``stepSizes``), e.g. large steps to find the threshold region, then small ones to track it.
+``stepSizes``; the move that makes the k-th reversal already takes ``steps[k]``, as in PsychoPy), e.g.
+large steps to find the threshold region, then small ones to track it.
 """
 
 from __future__ import annotations
@@ -142,7 +143,9 @@ class UpDown(AdaptiveMethod):
         return x
 
     def _step(self, x: float, steps: list[float], sign: int) -> float:
-        s = steps[min(len(self.reversal_intensities), len(steps) - 1)]
+        # a move that turns the track already takes the next step size (PsychoPy's StairHandler does the same)
+        k = len(self.reversal_intensities) + (1 if self._direction not in (0, sign) else 0)
+        s = steps[min(k, len(steps) - 1)]
         return x * 10.0 ** (sign * s) if self.step_scale == "log10" else x + sign * s
 
     def _apply(self, intensity: float, correct: bool) -> None:
