@@ -92,8 +92,8 @@ class AdaptiveMethod:
         if self.finished:
             raise ValueError(f"{self.name}: the method finished after {len(self.history)} trials; no more updates")
         intensity, correct = float(intensity), bool(correct)
+        self._apply(intensity, correct)          # first: a response it refuses leaves no trace
         self.history.append([intensity, correct])
-        self._apply(intensity, correct)
         self._track_reversal(intensity, float(self._proposal()))
 
     @property
@@ -170,7 +170,7 @@ class AdaptiveMethod:
         raise NotImplementedError
 
     def _apply(self, intensity: float, correct: bool) -> None:
-        """Adapt to one response (history already appended)."""
+        """Adapt to one response (before it joins the history; raise ValueError to refuse it)."""
         raise NotImplementedError
 
     def _proposal(self) -> float:

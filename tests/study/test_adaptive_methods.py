@@ -272,6 +272,11 @@ def test_method_from_table_builds_every_method_and_names_bad_keys():
         make_grid("thresholds", {"min": 1, "max": 2}, prefix="s.")
     with pytest.raises(ValueError, match="not on the stimulus grid"):
         method_from_table({"method": "psi", **tables["psi"]}).update(0.123, True)
+    yes_no = QuestPlus(intensities=[0.0, 5.0], thresholds=[2.0, 3.0], slopes=[40.0], lapses=[0.0], guess=0.0,
+                       function="logistic", threshold_scale="linear", max_trials=5)
+    with pytest.raises(ValueError, match="impossible under every psychometric function of the grid"):
+        yes_no.update(5.0, False)
+    assert yes_no.trials == 0 and np.all(np.isfinite(yes_no.posterior))
     with pytest.raises(ValueError, match="must be correct \\(1\\) or not \\(0\\), got 2"):
         UpDown(start=1.0, step_down=0.1, max_trials=3).update(1.0, 2)
 
