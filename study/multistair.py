@@ -157,6 +157,10 @@ class Interleaved:
         self.history.append([trial.label, trial.intensity, trial.is_catch, bool(correct)])
         self._pending = None
 
+    def estimates(self) -> dict:
+        """Each staircase's :meth:`~study.adaptive.AdaptiveMethod.estimate`, by label."""
+        return {label: m.estimate() for label, m in self.methods.items()}
+
     def state(self) -> dict:
         """JSON-serialisable state: configuration, the staircases' initial states, every trial, and each
         staircase's current state (for a human reader; :meth:`from_state` replays the trials)."""

@@ -227,6 +227,8 @@ def test_interleaved_staircases_with_catch_trials_resume_exactly():
         t = part.next_trial()
         part.update(t, bool(draws[t.number - 1] < obs.params.p_correct(t.intensity)))
     assert part.history == full.history and part.state() == full.state()
+    assert part.estimates() == full.estimates() and set(full.estimates()) == {"from_above", "from_below", "weighted"}
+    assert full.estimates()["weighted"] == full.methods["weighted"].estimate()
 
 
 def test_fixed_order_and_pending_trial():
