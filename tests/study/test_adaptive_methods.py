@@ -189,6 +189,10 @@ def test_transformed_rule_and_unequal_steps_move_as_specified():
         sched.update(sched.next_intensity(), correct)
         assert sched.next_intensity() == pytest.approx(expected_next, abs=1e-12)
     assert sched.reversal_intensities == pytest.approx([0.2, 0.6], abs=1e-12) and sched.last_trial_reversal
+    runaway = UpDown(start=1e300, step_down=10.0, max_trials=5)           # no max_intensity, a wrong answer
+    with pytest.raises(ValueError, match=r"is inf \(the track ran off the number range\); set max_intensity"):
+        runaway.update(1e300, False)
+    assert runaway.trials == 0 and runaway.next_intensity() == 1e300
     log = UpDown(start=2.0, step_down=[0.3, 0.1], n_down=1, max_trials=5, min_intensity=1.5)
     log.update(2.0, True)
     assert log.next_intensity() == 1.5      # 2 / 10**0.3 = 1.002, clipped to the minimum
