@@ -170,6 +170,11 @@ def _run_command(args) -> int:
             apparatus = Apparatus(device, catalog, protocol, library_dir=library_dir,
                                   sim_participant=sim_participant, realtime=True if args.realtime else None)
         participant = sim_participant if args.participant == "simulated" else _KeyboardParticipant()
+        if plan.experiment is not None:  # issue 34: a psychophysics session (2-interval forced choice)
+            from .psysession import run_experiment  # deferred: keeps `--help` fast
+
+            return run_experiment(plan, args, apparatus, participant, audio, audio_info, device_info, isolate,
+                                  sim_participant, say)
         schedule = Schedule([s.name for s in catalog], protocol.repetitions, seed,
                             protocol.familiarization_sample or None, subject)
         rows, fam_ended = start_session(plan, args, schedule, device_info, isolate, sim_participant, audio_info,
