@@ -54,8 +54,8 @@ class SimParticipantConfig:
     jnd_force_frac, jnd_compliance_frac : float
         Psychophysics sessions: the 2-interval JNDs (75 % point, fractions) of force (7 %) and compliance
         (15 %) that set the stiffness percept's Weber noise (:mod:`study.perception`).
-    detection_threshold_m_s2 : float
-        Psychophysics: a click is felt when the transient's 20-1000 Hz acceleration RMS exceeds this.
+    jnd_vibration_frac : float
+        Psychophysics: the vibrotactile amplitude JND (20 %) that sets the transient percept's noise.
     realness_noise_sd : float
         Psychophysics: SD of the noise added to an interval's spectral similarity to the real sample (0-1).
     lapse : float
@@ -80,8 +80,8 @@ class SimParticipantConfig:
     hard_tap_factor: float = 3.0
     jnd_force_frac: float = 0.07
     jnd_compliance_frac: float = 0.15
-    detection_threshold_m_s2: float = 0.5
-    realness_noise_sd: float = 0.05
+    jnd_vibration_frac: float = 0.2
+    realness_noise_sd: float = 0.15
     lapse: float = 0.02
 
     def __post_init__(self) -> None:

@@ -16,17 +16,22 @@ Per interval of a trial the participant forms one percept (its own taps, full-ra
   using active pinch grasp: the roles of force and work cues", Perception & Psychophysics 57: 495-510;
   Jones & Hunter 1990, "A perceptual analysis of stiffness", Exp Brain Res 79: 150-156, found 23 % for
   stiffness). The stiffness Weber fraction they imply is :func:`stiffness_weber_fraction` (16.8 %).
-* **Transient strength** (``discrimination`` with a varied amplitude or gain, ``detection``): the 20-1000 Hz
-  band-passed handle acceleration RMS of the 100 ms after each impact (:func:`study.rater.tap_features`), the
-  median over the interval's taps, times ``exp(sigma_F e)`` (a vibration amplitude judged like a force).
-  Detection is a high-threshold observer: a click is felt in an interval when the percept exceeds
-  ``detection_threshold_m_s2``; the answer is the interval where it was felt, a guess when both or neither.
+* **Vibration strength** (``discrimination`` with a varied amplitude or gain, ``detection``): per tap the
+  20-1000 Hz band-passed handle acceleration RMS of the 100 ms after the impact (:func:`study.rater.tap_features`)
+  divided by the tap's incoming velocity (the contact's own vibration and every transient of eqs. 4.7/4.8
+  scale with it, so taps at different speeds compare), the median over the interval's taps, times
+  ``exp(sigma_V e)`` with ``sigma_V`` from the vibrotactile amplitude JND ``jnd_vibration_frac`` (20 %:
+  intensity difference limens of 1.5-2 dB, Gescheider, Bolanowski, Verrillo, Arpajian & Ryan 1990,
+  "Vibrotactile intensity discrimination measured by three methods", J Acoust Soc Am 87: 330-338). In
+  detection both intervals hold the wall's own contact vibration; the click is felt where the percept is
+  larger, so the detection threshold (75 % correct) is the transient that adds one JND to the contact's
+  vibration.
 * **Realness** (``real-virtual-2afc``): per interval the rater's spectral similarity to the real sample's own
   taps (:func:`study.rater.realism_score`: acceleration amplitude and spectral centroid against the real
   sample at the same velocity), plus ``N(0, realness_noise_sd)``; the interval more similar is "real".
 
-With probability ``lapse`` an answer is a coin flip instead. Choices are "harder", "click" and "real" for the
-interval with the larger percept (ties: interval 1).
+The answer ("harder", "had the click", "real") is the interval with the larger percept (ties: interval 1);
+with probability ``lapse`` it is a coin flip instead.
 """
 
 from __future__ import annotations
@@ -88,10 +93,17 @@ def tap_stiffness_N_m(trace: dict, force_per_amp_N_A: float) -> np.ndarray:
     return out
 
 
-def transient_rms_m_s2(trace: dict) -> np.ndarray:
-    """20-1000 Hz handle-acceleration RMS of the 100 ms after each impact (m/s^2, shape (n_taps,))."""
+def vibration_per_velocity(trace: dict) -> np.ndarray:
+    """20-1000 Hz handle-acceleration RMS of the 100 ms after each impact over the tap's incoming velocity.
+
+    Returns
+    -------
+    ndarray, shape (n_taps,)
+        (m/s^2) / (m/s) = 1/s; NaN for an impact whose window is incomplete.
+    """
     feats = tap_features(trace["t_s"], trace["accel_m_s2"], trace["event_t_s"], float(trace["fs_hz"]))
-    return feats[:, 0]
+    v = np.maximum(np.asarray(trace["event_incoming_velocity_m_s"], float), 1e-3)
+    return feats[:, 0] / v
 
 
 def realness(trace: dict, reference: Reference) -> float:
@@ -119,7 +131,7 @@ def measured(kind: str, vary: str, trace: dict, force_per_amp_N_A: float, refere
     if kind == "real-virtual-2afc":
         return realness(trace, reference)
     values = tap_stiffness_N_m(trace, force_per_amp_N_A) if (kind == "discrimination" and vary == "stiffness_N_m") \
-        else transient_rms_m_s2(trace)
+        else vibration_per_velocity(trace)
     values = values[np.isfinite(values)]
     return float(np.median(values)) if len(values) else math.nan
 
@@ -133,8 +145,7 @@ def choose(kind: str, vary: str, values: tuple, config, rng: np.random.Generator
     values : (float, float)
         :func:`measured` of interval 1 and 2.
     config : study.participants.SimParticipantConfig
-        ``jnd_force_frac``, ``jnd_compliance_frac``, ``detection_threshold_m_s2``, ``realness_noise_sd``,
-        ``lapse``.
+        ``jnd_force_frac``, ``jnd_compliance_frac``, ``jnd_vibration_frac``, ``realness_noise_sd``, ``lapse``.
     rng : numpy.random.Generator
         The trial's generator (seeded by seed, subject, trial, attempt).
 
@@ -153,13 +164,8 @@ def choose(kind: str, vary: str, values: tuple, config, rng: np.random.Generator
         sf, sx = sigma_of_jnd(config.jnd_force_frac), sigma_of_jnd(config.jnd_compliance_frac)
         percepts = tuple(v[j] * math.exp(sf * e[j, 0] - sx * e[j, 1]) for j in range(2))
     else:
-        sf = sigma_of_jnd(config.jnd_force_frac)
-        percepts = tuple(v[j] * math.exp(sf * e[j, 0]) for j in range(2))
+        sv = sigma_of_jnd(config.jnd_vibration_frac)
+        percepts = tuple(v[j] * math.exp(sv * e[j, 0]) for j in range(2))
     if lapse:
-        return coin, percepts
-    if kind == "detection":
-        felt = [p > config.detection_threshold_m_s2 for p in percepts]
-        if felt[0] != felt[1]:
-            return (1 if felt[0] else 2), percepts
         return coin, percepts
     return (1 if percepts[0] >= percepts[1] else 2), percepts

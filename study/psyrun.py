@@ -246,10 +246,21 @@ class ForcedChoiceRunner:
                 self.done += 1
                 self.next_attempt = 1
             if self.ui is not None:
-                self.ui.set_operator(last_attempt=dict(last), **self._status())
+                self.ui.set_operator(last_attempt=operator_view(intervals, response, reason), **self._status())
         self._subject("done")
         if self.ui is not None:
-            self.ui.set_operator(phase="done", awaiting_confirm=False, **self._status())
+            self.ui.set_operator(awaiting_confirm=False, **{**self._status(), "phase": "done"})
+
+
+def operator_view(intervals: list, response: str, reason: str) -> dict:
+    """The operator page's "last attempt" (the realism study's fields): both intervals' samples, taps,
+    velocities and depths, saturation, overpowering and the answer."""
+    return {"sample": " | ".join(iv.sample for iv in intervals), "kind": f"{len(intervals)} intervals",
+            "n_taps": sum(iv.n_taps for iv in intervals),
+            "incoming_velocities_m_s": [v for iv in intervals for v in iv.tap.velocities],
+            "penetration_depths_m": [p for iv in intervals for p in iv.tap.penetrations],
+            "saturated": reason == "saturated", "overpowered": reason == "overpowered",
+            "rejected": reason == "rejected", "rating": response or None, "reason": reason}
 
 
 def plan_events(trials: list) -> list:
