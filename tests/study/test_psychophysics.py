@@ -19,7 +19,8 @@ from scipy import signal as sps
 from benchmarks.bench_psy_session import QUICK, REAL_VIRTUAL, PsyKillHarness
 from devices.sim import SimDevice
 from study.__main__ import main
-from study.experiment import ExperimentConfig, plan_trials
+from stimuli import load_catalog
+from study.experiment import ExperimentConfig, load_protocol_file, plan_trials, stimulus_catalog
 from study.participants import SimParticipantConfig
 from study.perception import Z75_SQRT2, choose, sigma_of_jnd, stiffness_weber_fraction, tap_stiffness_N_m
 from study.uistate import UiState
@@ -240,3 +241,15 @@ def test_sigkill_at_every_trial_then_resume_loses_nothing(tmp_path):
         events = [json.loads(ln) for ln in (folder / "schedule.jsonl").read_text().splitlines()]
         assert [e["event"] for e in events].count("resume") == 1
         assert read_session(folder)["finished_at"] is not None
+
+
+@pytest.mark.parametrize("name, kind, n_samples, n_trials", [
+    ("psy_real_virtual.toml", "real-virtual-2afc", 5, 80),
+    ("psy_discrimination.toml", "discrimination", 7, 140),
+    ("psy_detection.toml", "detection", 8, 140),
+])
+def test_the_examples_load_and_plan(name, kind, n_samples, n_trials):
+    protocol, exp = load_protocol_file(ROOT / "examples" / name)
+    assert exp.kind == kind and protocol.familiarization_sample == "" and protocol.tap_window_s == 3.0
+    assert len(stimulus_catalog(load_catalog(None), exp)) == n_samples
+    assert len(plan_trials(exp, 1, "S01")) == n_trials
