@@ -46,6 +46,25 @@ levels = {levels}
 trials_per_level = {n}
 intensity_scale = "log10"
 """
+ADAPTIVE_DETECTION = QUICK + """
+[experiment]
+kind = "detection"
+sample = "pulse_firm"
+method = "updown"
+intensity_scale = "log10"
+catch_rate = 0.2
+catch_intensity = 0.0
+
+[experiment.staircases.A]
+start = 4.0
+step_down = [0.3, 0.15]
+max_trials = {n}
+
+[experiment.staircases.B]
+start = 0.5
+step_down = [0.3, 0.15]
+max_trials = {n}
+"""
 REAL_VIRTUAL = QUICK + """
 [experiment]
 kind = "real-virtual-2afc"
@@ -55,8 +74,8 @@ trials_per_level = {n}
 """
 LEVELS = [500.0, 580.0, 650.0, 700.0, 750.0, 840.0, 980.0]
 TRIALS_PER_LEVEL = 30
-KEY = ("trial", "attempt", "condition", "intensity", "target_interval", "sample_1", "sample_2", "response",
-       "correct", "n_taps_1", "n_taps_2")  # the percepts differ in the last digits after a resume (device state)
+KEY = ("trial", "attempt", "condition", "staircase", "intensity", "is_catch", "target_interval", "sample_1",
+       "sample_2", "response", "correct", "n_taps_1", "n_taps_2")  # the percepts differ in the last digits after a resume (device state)
 
 
 def session_args(protocol: Path, out: Path, subject: str, seed: int, resume: bool = False, *extra) -> list:
@@ -111,6 +130,12 @@ def jnd_recovery(work: Path, subjects: int = 4, n: int = TRIALS_PER_LEVEL) -> li
     return out
 
 
+def _states(folder: Path) -> list:
+    """The staircase state lines of a subject folder (``[]`` for constant stimuli)."""
+    path = folder / "staircase_state.jsonl"
+    return [json.loads(ln) for ln in path.read_text().splitlines()] if path.exists() else []
+
+
 class PsyKillHarness:
     """A warm process, an uninterrupted reference session and kill/resume cases at chosen durable steps."""
 
@@ -130,6 +155,7 @@ class PsyKillHarness:
             raise RuntimeError(f"the reference session failed with {code}")
         self.steps = log.read_text().splitlines()
         self.reference = [tuple(r[k] for k in KEY) for r in read_rows(self.work / "ref" / "K")]
+        self.reference_states = _states(self.work / "ref" / "K")
 
     def step_of(self, name: str) -> int:
         """The 1-based number of the durable step called ``name`` (e.g. ``row written: trial 2/1``)."""
@@ -162,6 +188,8 @@ class PsyKillHarness:
         rows = [tuple(r[k] for k in KEY) for r in read_rows(folder)]
         if rows != self.reference:
             result["error"] = f"{len(rows)} rows differ from the reference's {len(self.reference)}"
+        if _states(folder) != self.reference_states:
+            result["error"] = "staircase_state.jsonl differs from the reference's"
         if list(folder.rglob("*.tmp")):
             result["error"] = "temporary files left"
         result["folder"] = folder

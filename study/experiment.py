@@ -26,7 +26,7 @@ import json
 import math
 import tomllib
 import zlib
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,10 +37,9 @@ from plumbing.validation import require_int
 from .config import ProtocolConfig, load_dataclass_file
 
 KINDS = ("real-virtual-2afc", "discrimination", "detection")
-METHODS = ("constant",)
-#: adaptive methods of issue 34 item 2 (study/ of branch psy-engine): named so a protocol asking for them gets
-#: a clear refusal instead of "unknown method"
+#: adaptive methods (:mod:`study.methods`: Levitt 1971, Kaernbach 1991, Watson 2017, Kontsevich & Tyler 1999)
 ADAPTIVE_METHODS = ("updown", "weighted", "quest+", "psi")
+METHODS = ("constant", *ADAPTIVE_METHODS)
 VARIED = {"discrimination": ("stiffness_N_m", "amplitude_Ns_m", "gain"),
           "detection": ("amplitude_Ns_m", "gain")}
 UNITS = {"stiffness_N_m": "N/m", "amplitude_Ns_m": "N*s/m", "gain": "1", "rendering": "1"}
@@ -58,7 +57,10 @@ class ExperimentConfig:
     kind : str
         ``real-virtual-2afc``, ``discrimination`` or ``detection``.
     method : str
-        ``constant`` (method of constant stimuli: every level ``trials_per_level`` times, random order).
+        ``constant`` (method of constant stimuli: every level ``trials_per_level`` times, random order) or an
+        adaptive method, ``updown`` (transformed up-down, Levitt 1971), ``weighted`` (weighted up-down,
+        Kaernbach 1991), ``quest+`` (Watson 2017) or ``psi`` (Kontsevich & Tyler 1999), run by the
+        ``staircases`` (discrimination and detection only).
     real_sample : str
         real-virtual-2afc: catalog name of the real sample the operator places (default ``wood``).
     renderings : list of str
@@ -80,8 +82,17 @@ class ExperimentConfig:
         always holds the physical value).
     alternatives : int
         Intervals per trial (2: two-interval forced choice).
-    interval_gap_s : float
-        Homing between the two intervals of a trial, s (beyond the homing before each interval).
+    staircases : dict
+        Adaptive methods: label -> the staircase's table (the method's parameters, :mod:`study.methods`:
+        ``start``, ``step_down``, ``max_trials``, ``max_reversals``, ... for up-down; ``intensities``,
+        ``thresholds``, ``slopes`` for QUEST+/Psi), in physical units of ``vary``; a table may name its own
+        ``method``. Several labels are interleaved (:class:`study.multistair.Interleaved`).
+    order : str
+        Interleaving of the staircases: ``random`` (shuffled per round) or ``fixed``.
+    catch_rate : float
+        Probability of a catch trial before a staircase trial (adaptive only; excluded from fits).
+    catch_intensity : float or None
+        The catch trials' value of ``vary`` (detection: 0 presents no transient in either interval).
     """
 
     kind: str = ""
@@ -95,25 +106,24 @@ class ExperimentConfig:
     trials_per_level: int = 10
     intensity_scale: str = "linear"
     alternatives: int = 2
-    interval_gap_s: float = 0.3
+    staircases: dict = field(default_factory=dict)
+    order: str = "random"
+    catch_rate: float = 0.0
+    catch_intensity: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderings", _str_tuple("renderings", self.renderings))
         object.__setattr__(self, "levels", _float_tuple("levels", self.levels))
         if self.kind not in KINDS:
             raise ValueError(f"kind must be one of {list(KINDS)}, got {self.kind!r}")
-        if self.method in ADAPTIVE_METHODS:
-            raise ValueError(f"method {self.method!r}: adaptive methods are not in this build yet (issue 34 item 2); "
-                             f"use method = \"constant\"")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {list(METHODS)}, got {self.method!r}")
         require_int("trials_per_level", self.trials_per_level, minimum=1)
         require_int("alternatives", self.alternatives, minimum=2, maximum=2)
         if self.intensity_scale not in ("linear", "log10"):
             raise ValueError(f"intensity_scale must be \"linear\" or \"log10\", got {self.intensity_scale!r}")
-        if not (isinstance(self.interval_gap_s, (int, float)) and math.isfinite(self.interval_gap_s)
-                and 0 <= self.interval_gap_s <= 60):
-            raise ValueError(f"interval_gap_s must be 0-60 s, got {self.interval_gap_s!r}")
+        if not isinstance(self.staircases, dict):
+            raise ValueError(f"staircases must be a table of labelled staircase tables, got {self.staircases!r}")
         if self.kind == "real-virtual-2afc":
             self._check_real_virtual()
         else:
@@ -133,6 +143,9 @@ class ExperimentConfig:
             raise ValueError("reference is not used by kind real-virtual-2afc")
         if self.intensity_scale != "linear":
             raise ValueError("intensity_scale must be \"linear\" for real-virtual-2afc (no intensity is varied)")
+        if self.adaptive:
+            raise ValueError(f"method {self.method!r}: real-virtual-2afc varies no intensity; use method = "
+                             "\"constant\"")
 
     def _check_varied(self) -> None:
         if not self.sample:
@@ -143,8 +156,13 @@ class ExperimentConfig:
         object.__setattr__(self, "vary", vary)
         if vary not in VARIED[self.kind]:
             raise ValueError(f"vary must be one of {list(VARIED[self.kind])} for kind {self.kind}, got {vary!r}")
-        if len(self.levels) < 2:
+        if self.adaptive:
+            self._check_adaptive()
+        elif len(self.levels) < 2:
             raise ValueError(f"levels must list at least 2 values of {vary}, got {list(self.levels)}")
+        elif self.staircases or self.catch_rate:
+            raise ValueError("staircases, catch_rate and catch_intensity are for adaptive methods; method "
+                             "\"constant\" presents the levels")
         if len(set(self.levels)) != len(self.levels):
             raise ValueError(f"levels lists a value twice: {list(self.levels)}")
         if any(x <= 0 for x in self.levels):
@@ -158,6 +176,42 @@ class ExperimentConfig:
             object.__setattr__(self, "reference", float(self.reference))
         elif self.reference is not None:
             raise ValueError("reference is only for kind discrimination (detection compares with no transient)")
+
+    def _check_adaptive(self) -> None:
+        if self.levels:
+            raise ValueError(f"levels are for method \"constant\"; method {self.method!r} chooses the intensities "
+                             "(give its staircases)")
+        if not self.staircases:
+            raise ValueError(f"method {self.method!r} needs at least one staircase table, e.g. "
+                             "[experiment.staircases.A]")
+        if self.catch_rate and self.kind == "discrimination" and not (
+                isinstance(self.catch_intensity, (int, float)) and self.catch_intensity > 0):
+            raise ValueError(f"catch_intensity must be > 0 ({self.vary}) for discrimination, "
+                             f"got {self.catch_intensity!r}")
+        if self.catch_rate and isinstance(self.catch_intensity, (int, float)) and self.catch_intensity < 0:
+            raise ValueError(f"catch_intensity must be >= 0, got {self.catch_intensity!r}")
+        handler = self.handler(0)   # every staircase key checked now, named
+        for label, m in handler.methods.items():
+            low = m.next_intensity()
+            if not low > 0:
+                raise ValueError(f"staircases.{label}: the first intensity must be > 0 ({self.vary}), got {low!r}")
+
+    @property
+    def adaptive(self) -> bool:
+        """True for an adaptive method (staircases), False for constant stimuli."""
+        return self.method in ADAPTIVE_METHODS
+
+    def handler(self, seed: int):
+        """The session's interleaved staircases (:class:`study.multistair.Interleaved`), seeded by ``seed``."""
+        from .multistair import Interleaved  # deferred: QUEST+/Psi load scipy; the command's parser imports this module
+
+        stairs = {}
+        for label, table in self.staircases.items():
+            if not isinstance(table, dict):
+                raise ValueError(f"staircases.{label} must be a table of the method's parameters, got {table!r}")
+            stairs[label] = {"method": self.method, **table}
+        return Interleaved.from_table({"order": self.order, "seed": int(seed), "catch_rate": self.catch_rate,
+                                       "catch_intensity": self.catch_intensity, "staircases": stairs})
 
     # -- what the contract records ------------------------------------------
     @property
@@ -182,6 +236,7 @@ class ExperimentConfig:
         """The table as plain data (lists for tuples), re-readable by :func:`experiment_from_dict`."""
         d = asdict(self)
         d["renderings"], d["levels"] = list(self.renderings), list(self.levels)
+        d["staircases"] = {k: dict(v) for k, v in self.staircases.items()}
         return d
 
 
@@ -257,7 +312,7 @@ def load_protocol_file(path, where: str = "command line", **overrides):
 
 def level_name(base: str, vary: str, value: float | None) -> str:
     """Catalog name of a derived stimulus: ``<base>@<vary>=<value>`` (``none`` for no transient)."""
-    return f"{base}@{vary}={'none' if value is None else format(value, 'g')}"
+    return f"{base}@{vary}={'none' if value is None else format(value, '.10g')}"
 
 
 def stimulus_catalog(catalog, exp: ExperimentConfig) -> list:
@@ -299,18 +354,46 @@ def stimulus_catalog(catalog, exp: ExperimentConfig) -> list:
     if exp.vary == "gain" and base.transient == "none":
         raise ValueError(f"[experiment] vary = \"gain\": sample {base.name!r} has no transient")
     values = list(exp.levels) + ([exp.reference] if exp.kind == "discrimination" else [])
-    out = []
-    for value in sorted(set(values)):
-        if exp.vary == "stiffness_N_m":
-            s = replace(base, stiffness_N_m=value)
-        else:
-            s = replace(base, params={**base.params, exp.vary: value})
-        out.append(replace(s, name=level_name(base.name, exp.vary, value),
-                           label=f"{base.label or base.name}, {exp.vary} {value:g}"))
+    out = [derive_sample(base, exp, value) for value in sorted(set(values))]
     if exp.kind == "detection":
-        out.append(replace(base, name=level_name(base.name, exp.vary, None), transient="none", params={},
-                           library=None, library_ref=None, label=f"{base.label or base.name}, no transient"))
+        out.append(derive_sample(base, exp, None))
     return out
+
+
+def base_sample(catalog, exp: ExperimentConfig):
+    """The catalog sample whose ``vary`` a discrimination or detection session varies."""
+    return next(s for s in catalog if s.name == exp.sample)
+
+
+def derive_sample(base, exp: ExperimentConfig, value: float | None):
+    """``base`` with ``exp.vary`` set to ``value`` (physical units), named by :func:`level_name`.
+
+    ``value`` None (or, for detection, <= 0: a catch trial without a click) gives the same wall without a
+    transient.
+    """
+    if value is None or (exp.kind == "detection" and value <= 0):
+        return replace(base, name=level_name(base.name, exp.vary, None), transient="none", params={},
+                       library=None, library_ref=None, label=f"{base.label or base.name}, no transient")
+    value = float(value)
+    if exp.vary == "stiffness_N_m":
+        s = replace(base, stiffness_N_m=value)
+    else:
+        s = replace(base, params={**base.params, exp.vary: value})
+    return replace(s, name=level_name(base.name, exp.vary, value), label=f"{base.label or base.name}, "
+                                                                          f"{exp.vary} {value:g}")
+
+
+def adaptive_trial(exp: ExperimentConfig, number: int, staircase: str, value: float, seed: int,
+                   subject: str) -> PlannedTrial:
+    """An adaptive method's trial as a :class:`PlannedTrial`: the target interval is balanced in pairs of
+    trials (a seeded random permutation of (1, 2) for trials 2j - 1 and 2j), the samples derived from
+    ``exp.sample`` at ``value`` (and the reference, or the wall without the click)."""
+    pair = np.random.default_rng(np.random.SeedSequence(_rng_words(seed, subject, 1000 + (number - 1) // 2)))
+    target = int(pair.permutation([1, 2])[(number - 1) % 2])
+    shown = level_name(exp.sample, exp.vary, value if (exp.kind != "detection" or value > 0) else None)
+    other = level_name(exp.sample, exp.vary, exp.reference if exp.kind == "discrimination" else None)
+    return PlannedTrial(number, exp.sample, float(value), target, (shown, other) if target == 1 else (other, shown),
+                        staircase)
 
 
 # -- the trial plan -----------------------------------------------------------
@@ -331,6 +414,8 @@ class PlannedTrial:
         1 or 2: the interval with the real sample, the comparison, or the click.
     samples : tuple of str
         The catalog names presented in interval 1 and 2.
+    staircase : str
+        The adaptive method's staircase label ("" for constant stimuli).
     """
 
     trial: int
@@ -338,6 +423,7 @@ class PlannedTrial:
     intensity_physical: float
     target_interval: int
     samples: tuple
+    staircase: str = ""
 
 
 def _rng_words(seed: int, subject: str, purpose: int) -> list:
@@ -376,6 +462,14 @@ def plan_trials(exp: ExperimentConfig, seed: int, subject: str) -> list[PlannedT
     return [PlannedTrial(k + 1, *items[i]) for k, i in enumerate(order)]
 
 
+def handler_seed(seed: int, subject: str) -> int:
+    """The staircases' seed (interleaving order, catch draws) from the session's seed and subject id."""
+    return int(np.random.SeedSequence(_rng_words(seed, subject, 2)).generate_state(1)[0] & 0x7FFFFFFF)
+
+
 def intensity_of(exp: ExperimentConfig, physical: float) -> float:
-    """trials.csv's ``intensity``: the physical value, or its log10 when ``intensity_scale = "log10"``."""
-    return math.log10(physical) if exp.intensity_scale == "log10" else float(physical)
+    """trials.csv's ``intensity``: the physical value, or its log10 when ``intensity_scale = "log10"``
+    (a catch trial's 0 stays 0 then: it is excluded from fits)."""
+    if exp.intensity_scale == "log10" and physical > 0:
+        return math.log10(physical)
+    return float(physical)

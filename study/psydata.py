@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 
@@ -127,3 +128,50 @@ def append_psy_trial(store, row: dict) -> None:
         fh.flush()
         os.fsync(fh.fileno())
     crash_point(f"row written: trial {row['trial']}/{row['attempt']}")
+
+
+def state_path(store):
+    """``DATA/<subject>/staircase_state.jsonl``: one line per trial of an adaptive session."""
+    return store.dir / "staircase_state.jsonl"
+
+
+def append_state(store, line: dict) -> None:
+    """Append one trial's staircase state (a JSON line), flush and fsync it."""
+    with open(state_path(store), "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(line) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    crash_point(f"staircase state written: trial {line['trial']}")
+
+
+def repair_states(store) -> int:
+    """Count the whole state lines on disk (``--resume``); a last line torn by a crash is moved to
+    ``staircase_state.jsonl.torn`` (the resumed session rewrites it from the trials), with a note.
+
+    Returns
+    -------
+    int
+        Whole lines (trials whose state is on disk).
+    """
+    path = state_path(store)
+    if not path.exists():
+        return 0
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    whole = 0
+    for line in lines[:-1]:
+        try:
+            json.loads(line)
+        except ValueError:
+            break
+        whole += 1
+    keep = b"".join(ln + b"\n" for ln in lines[:whole])
+    if keep != data:
+        _append_durably(path.with_name(path.name + ".torn"), data[len(keep):].rstrip(b"\n") + b"\n")
+        with open(path, "r+b") as fh:
+            fh.truncate(len(keep))
+            fh.flush()
+            os.fsync(fh.fileno())
+        print(f"note: {path} line {whole + 1} was torn by a crash while it was written; kept it in "
+              f"{path}.torn and write it again from trials.csv")
+    return whole

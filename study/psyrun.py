@@ -9,6 +9,13 @@ impact; the stylus is homed again (a tap now overpowered the homing). After the 
 answers the question with 1 or 2 (or x to reject the trial); "Stop. Please rate." is spoken and the screen
 asks the question. The masking noise runs for the whole session.
 
+Adaptive methods (``method`` ``updown``, ``weighted``, ``quest+``, ``psi``): the interleaved staircases
+(:class:`study.multistair.Interleaved`, seeded from the session's seed and subject) choose each trial's
+intensity; its stimulus is derived from the experiment's sample at that value and its servo loop made when
+first needed. After each valid trial its row, then the staircase's state after the update
+(``staircase_state.jsonl``), are on disk before the next trial starts; ``--resume`` replays the rows through
+fresh staircases (refusing a row they would not have asked for) and writes any state line the kill lost.
+
 An attempt is invalid -- logged in ``schedule.jsonl`` as ``invalid_attempt`` with its reason, its traces kept,
 and the same trial run again at once -- when an interval had no tap, was saturated or overpowered, or the
 subject rejected it. A valid attempt becomes the trial's one row in ``trials.csv`` (fsynced before the next
@@ -25,10 +32,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .data import utc_now
-from .experiment import QUESTIONS, ExperimentConfig, PlannedTrial, intensity_of, plan_trials
+from .experiment import QUESTIONS, ExperimentConfig, PlannedTrial, adaptive_trial, derive_sample, intensity_of
 from .perception import choose, measured
 from .protocol import PHASE_CODES
-from .psydata import append_psy_trial, read_psy_trials
+from .psydata import append_psy_trial, append_state, repair_states, read_psy_trials
 from .runner import Placement
 from .uistate import Aborted
 
@@ -78,13 +85,22 @@ class ForcedChoiceRunner:
         Catalog name -> "real" | "virtual".
     force_per_amp_N_A : float
         The device's force per ampere (the simulated participant's stiffness percept).
+    handler : study.multistair.Interleaved or None
+        The adaptive method's staircases (``trials`` is then empty).
+    base : stimuli.CatalogSample or None
+        The varied sample, from which an adaptive trial's stimuli are derived.
+    seed : int
+        The session's seed (an adaptive trial's target interval).
     """
 
     def __init__(self, *, store, exp: ExperimentConfig, trials: list, apparatus, participant, audio, ui, protocol,
-                 kinds: dict, force_per_amp_N_A: float) -> None:
+                 kinds: dict, force_per_amp_N_A: float, handler=None, base=None, seed: int = 0) -> None:
         self.store = store
         self.exp = exp
         self.trials = trials
+        self.handler = handler
+        self.base = base
+        self.seed = int(seed)
         self.apparatus = apparatus
         self.participant = participant
         self.audio = audio
@@ -106,7 +122,9 @@ class ForcedChoiceRunner:
         ValueError
             A row that is not the planned trial (another seed, an edited file).
         """
-        for i, row in enumerate(rows):
+        if self.handler is not None:
+            self._replay(rows)
+        for i, row in enumerate(rows if self.handler is None else ()):
             if i >= len(self.trials):
                 raise ValueError(f"{self.store.trials_path} line {i + 2}: the plan has only {len(self.trials)} "
                                  "trials")
@@ -120,17 +138,68 @@ class ForcedChoiceRunner:
         self.invalid = [e for e in events if e.get("event") == "invalid_attempt"]
         self.next_attempt = 1 + sum(1 for e in self.invalid if e.get("trial") == self.done + 1)
 
+    def _replay(self, rows: list) -> None:
+        """Feed the recorded trials to fresh staircases; write the state lines a kill lost."""
+        have = repair_states(self.store)
+        for i, row in enumerate(rows):
+            trial = self.handler.next_trial()
+            want = (trial.label, trial.intensity, int(trial.is_catch))
+            got = (row["staircase"], row["intensity_physical"], row["is_catch"])
+            if got != want:
+                raise ValueError(f"{self.store.trials_path} line {i + 2}: trial {i + 1} is (staircase, intensity, "
+                                 f"catch) {got}, but the staircases of this session ask for {want}; the file does "
+                                 "not belong to this session")
+            self.handler.update(trial, bool(row["correct"]))
+            if i + 1 > have:
+                append_state(self.store, self._state_line(trial, bool(row["correct"])))
+
+    def _state_line(self, trial, correct: bool) -> dict:
+        method = self.handler.methods[trial.label]
+        return {"trial": trial.number, "staircase": trial.label, "is_catch": bool(trial.is_catch),
+                "intensity_physical": trial.intensity, "correct": int(correct), "state": method.state(),
+                "estimate": method.estimate(), "finished": self.handler.finished}
+
+    @property
+    def finished(self) -> bool:
+        """True when the plan is done (constant stimuli) or every staircase has finished."""
+        if self.handler is not None:
+            return self.handler.finished
+        return self.done >= len(self.trials)
+
+    @property
+    def total(self) -> int | None:
+        """Trials planned (constant stimuli), or the staircases' ``max_trials`` summed (None when a staircase
+        stops by reversals only)."""
+        if self.handler is None:
+            return len(self.trials)
+        caps = [m.max_trials for m in self.handler.methods.values()]
+        return None if None in caps else sum(caps)
+
+    def next_trial(self) -> tuple[PlannedTrial, int, object]:
+        """The next trial to run: ``(planned trial, is_catch, the staircases' trial or None)``; an adaptive
+        trial's stimuli get their servo loops here."""
+        if self.handler is None:
+            return self.trials[self.done], 0, None
+        trial = self.handler.next_trial()
+        pt = adaptive_trial(self.exp, trial.number, trial.label, trial.intensity, self.seed, self.store.subject)
+        for value in (trial.intensity, self.exp.reference if self.exp.kind == "discrimination" else None):
+            sample = derive_sample(self.base, self.exp, value)
+            self.apparatus.add_sample(sample)
+            self.kinds[sample.name] = sample.kind
+        return pt, int(trial.is_catch), trial
+
     # -- views -----------------------------------------------------------------
     def _subject(self, key: str, prompt: str = "wait", **fmt) -> None:
         if self.ui is not None:
             self.ui.set_subject(TEXT[key].format(**fmt), prompt)
 
     def _status(self, **extra) -> dict:
+        total = self.total
         return {"subject": self.store.subject, "phase": self.exp.kind, "trials_valid": self.done,
-                "trials_total": len(self.trials), "trial_n": min(len(self.trials), self.done + 1),
-                "progress": {"trials": {"total": len(self.trials), "attempts": self.done + len(self.invalid),
-                                        "valid": self.done}},
-                "link": self.apparatus.link_status(), "finished": self.done >= len(self.trials), **extra}
+                "trials_total": total, "trial_n": self.done + 1 if total is None else min(total, self.done + 1),
+                "progress": {"trials": {"total": "?" if total is None else total,
+                                        "attempts": self.done + len(self.invalid), "valid": self.done}},
+                "link": self.apparatus.link_status(), "finished": self.finished, **extra}
 
     def _wait_operator(self, place: str, pt: PlannedTrial, attempt: int, interval: int) -> None:
         if self.ui is None:
@@ -206,12 +275,12 @@ class ForcedChoiceRunner:
         return intervals, response, percepts, reason
 
     def row(self, pt: PlannedTrial, attempt: int, intervals: list, response: str, percepts: tuple,
-            started_at: str, duration_s: float) -> dict:
+            started_at: str, duration_s: float, is_catch: int = 0) -> dict:
         """The trial's trials.csv row (docs/study.md, "Psychophysics sessions")."""
         out = {"subject": self.store.subject, "trial": pt.trial, "attempt": attempt, "condition": pt.condition,
-               "staircase": "", "intensity": intensity_of(self.exp, pt.intensity_physical),
+               "staircase": pt.staircase, "intensity": intensity_of(self.exp, pt.intensity_physical),
                "intensity_physical": pt.intensity_physical, "correct": int(response == str(pt.target_interval)),
-               "is_catch": 0, "response": response, "target_interval": pt.target_interval,
+               "is_catch": is_catch, "response": response, "target_interval": pt.target_interval,
                "started_at": started_at, "duration_s": duration_s}
         for k, iv in enumerate(intervals, start=1):
             out[f"sample_{k}"] = iv.sample
@@ -224,10 +293,10 @@ class ForcedChoiceRunner:
     # -- the session ---------------------------------------------------------------
     def run(self) -> None:
         """Run trials until the plan is done; :class:`study.uistate.Aborted` when the operator aborts."""
-        while self.done < len(self.trials):
+        while not self.finished:
             if self.ui is not None and self.ui.snapshot("operator")["aborted"]:
                 raise Aborted("the operator aborted the session")
-            pt, attempt = self.trials[self.done], self.next_attempt
+            (pt, is_catch, trial), attempt = self.next_trial(), self.next_attempt
             started_at, t0 = utc_now(), time.monotonic()
             intervals, response, percepts, reason = self.run_attempt(pt, attempt)
             for k, iv in enumerate(intervals, start=1):
@@ -239,10 +308,13 @@ class ForcedChoiceRunner:
                 self.store.log_event(event)
                 self.invalid.append(event)
                 self.next_attempt += 1
-                last = event
             else:
-                last = self.row(pt, attempt, intervals, response, percepts, started_at, time.monotonic() - t0)
-                append_psy_trial(self.store, last)
+                row = self.row(pt, attempt, intervals, response, percepts, started_at, time.monotonic() - t0,
+                               is_catch)
+                append_psy_trial(self.store, row)
+                if trial is not None:   # the staircase's state after this trial, before the next one starts
+                    self.handler.update(trial, bool(row["correct"]))
+                    append_state(self.store, self._state_line(trial, bool(row["correct"])))
                 self.done += 1
                 self.next_attempt = 1
             if self.ui is not None:
@@ -268,13 +340,17 @@ def plan_events(trials: list) -> list:
     return [{"event": "plan", "phase": "trials", "trials": [asdict(t) for t in trials]}]
 
 
-def summary(store, exp: ExperimentConfig, say) -> None:
-    """Print the finished session's proportion correct per condition and level."""
+def summary(store, exp: ExperimentConfig, say, handler=None) -> None:
+    """Print the finished session's proportion correct per condition and level, and each staircase's
+    threshold estimate (adaptive methods)."""
     rows = read_psy_trials(store)
     print(f"session {store.subject} complete ({exp.kind}): {store.dir}")
     cells = {}
     for r in rows:
-        cells.setdefault((r["condition"], r["intensity_physical"]), []).append(r["correct"])
+        cells.setdefault((r["condition"], float(f"{r['intensity_physical']:.4g}")), []).append(r["correct"])
     label = "comparison harder" if exp.kind == "discrimination" else "correct"
     for (cond, x), c in sorted(cells.items()):
         say(f"  {cond:24s} {x:10.4g} {exp.unit:6s} trials {len(c):3d}  {label} {np.mean(c):.2f}")
+    for name, method in (handler.methods.items() if handler is not None else ()):
+        est = method.estimate()
+        say(f"  staircase {name}: {method.trials} trials, threshold estimate {est['threshold']:.4g} {exp.unit}")

@@ -8,7 +8,9 @@ up exactly as for a realism session; this part writes the session's record (``se
 
 from __future__ import annotations
 
-from .experiment import plan_trials
+from stimuli import load_catalog
+
+from .experiment import base_sample, handler_seed, plan_trials
 from .psydata import read_psy_trials
 from .psyrun import ForcedChoiceRunner, plan_events, summary
 from .session import start_session
@@ -37,9 +39,18 @@ def run_experiment(plan, args, apparatus, participant, audio, audio_info: dict, 
         Prints unless ``--quiet``.
     """
     exp, store = plan.experiment, plan.store
-    trials = plan_trials(exp, plan.seed, plan.subject)
+    handler = base = None
+    if exp.adaptive:
+        trials = []
+        handler = exp.handler(handler_seed(plan.seed, plan.subject))
+        base = base_sample(load_catalog(plan.catalog_file, library_dir=plan.library_dir), exp)
+        events = [{"event": "plan", "phase": "trials", "adaptive": exp.method,
+                   "staircases": {label: m.state() for label, m in handler.methods.items()}}]
+    else:
+        trials = plan_trials(exp, plan.seed, plan.subject)
+        events = plan_events(trials)
     rows, _ = start_session(plan, args, None, device_info, isolate, sim_participant, audio_info,
-                            apparatus.real_saturation_detection, experiment_events=plan_events(trials),
+                            apparatus.real_saturation_detection, experiment_events=events,
                             read_rows=read_psy_trials)
     web = ui = None
     try:
@@ -54,10 +65,11 @@ def run_experiment(plan, args, apparatus, participant, audio, audio_info: dict, 
                                     participant=participant, audio=audio, ui=ui, protocol=plan.protocol,
                                     kinds={s.name: s.kind for s in plan.catalog},
                                     force_per_amp_N_A=device_info["gear_ratio"] * device_info["torque_constant_Nm_A"]
-                                    / device_info["handle_length_m"])  # eq. 3.17, as DeviceInfo.force_per_amp_N_A
+                                    / device_info["handle_length_m"],  # eq. 3.17, as DeviceInfo.force_per_amp_N_A
+                                    handler=handler, base=base, seed=plan.seed)
         if rows or plan.previous is not None:
             runner.restore(rows, store.read_events())
-            say(f"resuming {plan.subject}: {len(rows)} of {len(trials)} trials on disk")
+            say(f"resuming {plan.subject}: {len(rows)} trials on disk")
         if sim_participant is not None and exp.kind == "real-virtual-2afc":
             # the simulated participant knows the real sample's own taps (motor off), as the rater knows wood on foam
             real = next(s for s in plan.catalog if s.name == exp.real_sample)
@@ -74,5 +86,5 @@ def run_experiment(plan, args, apparatus, participant, audio, audio_info: dict, 
     finally:
         if web is not None:
             web.stop()
-    summary(store, exp, say)
+    summary(store, exp, say, handler)
     return 0

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from benchmarks.bench_psy_session import QUICK, REAL_VIRTUAL, PsyKillHarness
+from benchmarks.bench_psy_session import ADAPTIVE_DETECTION, QUICK, REAL_VIRTUAL, PsyKillHarness
 from devices.sim import SimDevice
 from study.__main__ import main
 from stimuli import load_catalog
@@ -63,7 +63,13 @@ def run(tmp: Path, subject: str, protocol: str, *extra, seed: int = 2) -> int:
      "unknown [experiment] key(s) ['levles']"),
     ('kind = "staircase"', "[experiment] kind must be one of ['real-virtual-2afc', 'discrimination', 'detection']"),
     ('kind = "detection"\nsample = "pulse_firm"\nlevels = [1.0, 2.0]\nmethod = "quest+"',
-     "[experiment] method 'quest+': adaptive methods are not in this build yet"),
+     "[experiment] levels are for method \"constant\"; method 'quest+' chooses the intensities"),
+    ('kind = "detection"\nsample = "pulse_firm"\nmethod = "updown"',
+     "[experiment] method 'updown' needs at least one staircase table"),
+    ('kind = "detection"\nsample = "pulse_firm"\nmethod = "updown"\n[experiment.staircases.A]\nstart = 2.0\n'
+     'step_down = [0.1]\nmax_trial = 30', "[experiment] staircases.A.max_trial is not a parameter of method 'updown'"),
+    ('kind = "real-virtual-2afc"\nrenderings = ["firm"]\nmethod = "psi"',
+     "[experiment] method 'psi': real-virtual-2afc varies no intensity"),
     ('kind = "discrimination"\nsample = "firm"\nlevels = [600.0, 800.0]',
      "[experiment] reference (the reference's stiffness_N_m) is required"),
     ('kind = "discrimination"\nsample = "firm"\nreference = 700.0\nlevels = [600.0, -800.0]',
@@ -253,3 +259,30 @@ def test_the_examples_load_and_plan(name, kind, n_samples, n_trials):
     assert exp.kind == kind and protocol.familiarization_sample == "" and protocol.tap_window_s == 3.0
     assert len(stimulus_catalog(load_catalog(None), exp)) == n_samples
     assert len(plan_trials(exp, 1, "S01")) == n_trials
+
+
+def test_adaptive_session_killed_at_any_trial_resumes_the_staircases_exactly(tmp_path):
+    harness = PsyKillHarness(tmp_path, ADAPTIVE_DETECTION.format(n=3))
+    ref = read_rows(tmp_path / "ref" / "K")
+    states = harness.reference_states
+    # two staircases of 3 trials each, catch trials between them: every trial's row and state line
+    assert sum(r["is_catch"] == "0" for r in ref) == 6 and len(states) == len(ref)
+    assert {r["staircase"] for r in ref} == {"A", "B"}
+    first = {lb: next(float(r["intensity_physical"]) for r in ref if r["staircase"] == lb and r["is_catch"] == "0")
+             for lb in "AB"}
+    assert first == {"A": 4.0, "B": 0.5}                     # the first intensity is recorded
+    for r, st in zip(ref, states):
+        assert (st["trial"], st["staircase"], int(st["is_catch"])) == (int(r["trial"]), r["staircase"],
+                                                                       int(r["is_catch"]))
+        if r["is_catch"] == "1":                              # a catch trial: no click in either interval
+            assert r["intensity"] == "0.0" and r["sample_1"] == r["sample_2"] == "pulse_firm@amplitude_Ns_m=none"
+        else:
+            assert st["state"]["history"][-1] == [float(r["intensity_physical"]), r["correct"] == "1"]
+            assert float(r["intensity"]) == pytest.approx(math.log10(float(r["intensity_physical"])))
+    where = [s.split(" ", 1)[1] for s in harness.steps]
+    rows = [i + 1 for i, w in enumerate(where) if w.startswith("row written")]
+    # killed after a row but before its state line, after a state line, and mid-trial
+    picks = [rows[1], rows[2] + 1, rows[3] - 1]
+    results = [harness.case(step, i) for i, step in enumerate(picks)]
+    assert [r.get("error") for r in results] == [None] * 3, results
+    assert [r["rows_before"] for r in results] == [2, 3, 3]
