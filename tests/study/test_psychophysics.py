@@ -7,9 +7,13 @@ Short sessions (a few trials, 0.6-1 s tapping windows); the long ones (JND recov
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
+import time
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -286,3 +290,63 @@ def test_adaptive_session_killed_at_any_trial_resumes_the_staircases_exactly(tmp
     results = [harness.case(step, i) for i, step in enumerate(picks)]
     assert [r.get("error") for r in results] == [None] * 3, results
     assert [r["rows_before"] for r in results] == [2, 3, 3]
+
+
+def _http(method: str, url: str, body=None, headers=None):
+    req = urllib.request.Request(url, method=method, headers=headers or {},
+                                 data=None if body is None else json.dumps(body).encode())
+    with urllib.request.urlopen(req, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def test_a_person_answers_through_the_subject_view_and_the_operator_places_every_interval(tmp_path):
+    proto = write(tmp_path / "p.toml", DISCRIMINATION.replace("levels = [500.0, 700.0, 950.0]",
+                                                              "levels = [500.0, 950.0]")
+                  .replace("trials_per_level = 2", "trials_per_level = 1"))
+    cmd = [sys.executable, "-m", "study", "run", "--device", "sim", "--participant", "keyboard", "--subject", "P1",
+           "--seed", "4", "--out", str(tmp_path / "DATA"), "--protocol", str(proto), "--age", "30", "--gender",
+           "female", "--handedness", "left", "--experience", "none", "--token", "tok"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    hdr = {"X-Study-Token": "tok", "Content-Type": "application/json"}
+    keys, sent, places, messages, hints = iter("3x21"), [], [], set(), []
+    try:
+        port = None
+        while port is None:
+            line = proc.stdout.readline()
+            assert line, proc.stderr.read()
+            port = (m := re.match(r"operator view:\s+http://127.0.0.1:(\d+)/", line)) and int(m.group(1))
+        api = f"http://127.0.0.1:{port}"
+        while proc.poll() is None:
+            try:
+                op = _http("GET", api + "/api/operator", headers=hdr)
+                subj = _http("GET", api + "/api/subject")
+                messages.add(subj["message"])
+                if op["awaiting_confirm"]:
+                    places.append(op["place"])
+                    _http("POST", api + "/api/operator/confirm", {}, hdr)
+                elif subj["prompt"] == "choice":
+                    key = next(keys)
+                    answer = _http("POST", api + "/api/key", {"key": key}, {"Content-Type": "application/json"})
+                    sent.append((key, answer["accepted"]))
+                    hints.append(answer["hint"])
+                time.sleep(0.02)   # polling, as the views do (the session waits for us, not for time)
+            except (urllib.error.URLError, ConnectionError):
+                break   # the session ended and stopped its server
+        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert sent == [("3", False), ("x", True), ("2", True), ("1", True)]
+    assert hints[0] == "Please press 1 for the first interval or 2 for the second, or x to reject this trial."
+    folder = tmp_path / "DATA" / "P1"
+    rows = read_rows(folder)
+    assert [(r["trial"], r["attempt"], r["response"]) for r in rows] == [("1", "2", "2"), ("2", "1", "1")]
+    assert all(int(r["correct"]) == int(r["response"] == r["target_interval"]) for r in rows)
+    events = [json.loads(ln) for ln in (folder / "schedule.jsonl").read_text().splitlines()]
+    assert [(e["trial"], e["attempt"], e["reason"]) for e in events if e["event"] == "invalid_attempt"] == \
+        [(1, 1, "rejected")]
+    # the operator placed an item for every interval (3 attempts x 2), alternating placeholders
+    assert places == ["placeholder A", "placeholder B"] * 3
+    assert "Which surface was harder?\nPress 1 for the first interval, 2 for the second, or x to reject the " \
+           "trial." in messages
+    assert not any(s in m for m in messages for s in ("firm", "700", "500", "950"))
