@@ -65,6 +65,30 @@ start = 0.5
 step_down = [0.3, 0.15]
 max_trials = {n}
 """
+DETECTION_CONSTANT = QUICK + """
+[experiment]
+kind = "detection"
+sample = "pulse_firm"
+levels = [0.15, 0.3, 0.6, 1.2, 2.4, 4.8, 9.6]
+trials_per_level = {n}
+intensity_scale = "log10"
+"""
+DETECTION_QUEST = QUICK + """
+[experiment]
+kind = "detection"
+sample = "pulse_firm"
+method = "quest+"
+intensity_scale = "log10"
+
+[experiment.staircases.Q]
+intensities = {{min = 0.1, max = 10.0, n = 31, spacing = "log10"}}
+thresholds = {{min = 0.1, max = 10.0, n = 31, spacing = "log10"}}
+slopes = [1.0, 2.0, 3.5, 6.0]
+lapses = [0.0, 0.02, 0.05]
+guess = 0.5
+function = "weibull"
+max_trials = {n}
+"""
 REAL_VIRTUAL = QUICK + """
 [experiment]
 kind = "real-virtual-2afc"
@@ -73,7 +97,7 @@ renderings = ["firm", "sinusoid_firm"]
 trials_per_level = {n}
 """
 LEVELS = [500.0, 580.0, 650.0, 700.0, 750.0, 840.0, 980.0]
-TRIALS_PER_LEVEL = 30
+TRIALS_PER_LEVEL = 60
 KEY = ("trial", "attempt", "condition", "staircase", "intensity", "is_catch", "target_interval", "sample_1",
        "sample_2", "response", "correct", "n_taps_1", "n_taps_2")  # the percepts differ in the last digits after a resume (device state)
 
@@ -101,6 +125,31 @@ def fit_probit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(-b0 / b1), float(b1)
 
 
+def fit_probit_lapse(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Maximum likelihood of ``P = lapse / 2 + (1 - lapse) Phi(beta (x - alpha))``, lapse in [0, 0.2]: the
+    simulated participant's own model (a lapse is a coin flip, so it lowers the top and lifts the bottom).
+
+    Returns
+    -------
+    (alpha, beta, lapse)
+    """
+    from scipy.optimize import minimize  # deferred: only this benchmark fits with a free lapse
+    from scipy.stats import norm  # deferred: as above
+
+    a0, b0 = fit_probit(x, y)
+
+    def nll(p):
+        a, log_b, lam = p
+        q = lam / 2 + (1 - lam) * norm.cdf(np.exp(log_b) * (x - a))
+        q = np.clip(q, 1e-12, 1 - 1e-12)
+        return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
+
+    res = minimize(nll, [a0, math.log(max(b0, 1e-3)), 0.02], method="L-BFGS-B",
+                   bounds=[(None, None), (None, None), (0.0, 0.2)])
+    a, log_b, lam = res.x
+    return float(a), float(math.exp(log_b)), float(lam)
+
+
 def weber_from_log10_fit(alpha: float, beta: float) -> tuple[float, float]:
     """PSE (physical) and Weber fraction from a probit fit on log10 intensity (JND = x75 - x50, eq. of the
     contract; Weber fraction = JND / PSE)."""
@@ -126,7 +175,10 @@ def jnd_recovery(work: Path, subjects: int = 4, n: int = TRIALS_PER_LEVEL) -> li
         y = np.array([int(r["correct"]) for r in rows])
         alpha, beta = fit_probit(x, y)
         pse, weber = weber_from_log10_fit(alpha, beta)
-        out.append({"subject": subject, "trials": len(rows), "pse_N_m": pse, "weber": weber, "wall_s": wall})
+        a2, b2, lapse = fit_probit_lapse(x, y)
+        pse2, weber2 = weber_from_log10_fit(a2, b2)
+        out.append({"subject": subject, "trials": len(rows), "pse_N_m": pse, "weber": weber, "wall_s": wall,
+                    "pse_lapse_N_m": pse2, "weber_lapse": weber2, "lapse": lapse})
     return out
 
 
@@ -134,6 +186,48 @@ def _states(folder: Path) -> list:
     """The staircase state lines of a subject folder (``[]`` for constant stimuli)."""
     path = folder / "staircase_state.jsonl"
     return [json.loads(ln) for ln in path.read_text().splitlines()] if path.exists() else []
+
+
+def fit_2afc_threshold(x: np.ndarray, y: np.ndarray) -> float:
+    """Maximum likelihood of ``P = 0.5 + (0.5 - lapse) Phi(beta (x - alpha))`` (2AFC, lapse in [0, 0.1]) on
+    ``x`` = log10 intensity; returns the threshold ``10**alpha`` (F = 0.5, the contract's convention)."""
+    from scipy.optimize import minimize  # deferred: only this benchmark fits
+    from scipy.stats import norm  # deferred: as above
+
+    def nll(p):
+        a, log_b, lam = p
+        q = np.clip(0.5 + (0.5 - lam) * norm.cdf(np.exp(log_b) * (x - a)), 1e-12, 1 - 1e-12)
+        return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
+
+    res = minimize(nll, [float(np.median(x)), math.log(3.0), 0.02], method="L-BFGS-B",
+                   bounds=[(None, None), (None, None), (0.0, 0.1)])
+    return float(10 ** res.x[0])
+
+
+def detection_and_real_virtual(work: Path, n_constant: int = 40, n_quest: int = 80, n_rv: int = 20) -> dict:
+    """A simulated subject's transient-detection threshold by constant stimuli (7 levels) and by QUEST+
+    (``n_quest`` trials), and proportion correct per rendering in a real-vs-virtual session."""
+    out = {}
+    for name, text, n in (("constant", DETECTION_CONSTANT, n_constant), ("quest", DETECTION_QUEST, n_quest),
+                          ("rv", REAL_VIRTUAL.replace('["firm", "sinusoid_firm"]',
+                                                      '["firm", "pulse_firm", "sinusoid_firm", "hfam_firm"]'), n_rv)):
+        proto = work / f"{name}.toml"
+        proto.write_text(text.format(n=n))
+        t0 = time.perf_counter()
+        if study_main(session_args(proto, work / "DATA2", name, 7)) != 0:
+            raise RuntimeError(f"session {name} failed")
+        out[f"{name}_s"] = time.perf_counter() - t0
+        rows = read_rows(work / "DATA2" / name)
+        if name == "constant":
+            x = np.array([float(r["intensity"]) for r in rows])
+            out["constant"] = fit_2afc_threshold(x, np.array([int(r["correct"]) for r in rows]))
+        elif name == "quest":
+            last = _states(work / "DATA2" / name)[-1]["estimate"]
+            out["quest"], out["quest_ci"] = last["threshold"], last["threshold_ci"]
+        else:
+            out["rv"] = {c: (float(np.mean([int(r["correct"]) for r in rows if r["condition"] == c])),
+                             sum(r["condition"] == c for r in rows)) for c in sorted({r["condition"] for r in rows})}
+    return out
 
 
 class PsyKillHarness:
@@ -207,10 +301,21 @@ def main(subjects: int = 4) -> None:
               f"force JND {cfg.jnd_force_frac:.0%}, compliance JND {cfg.jnd_compliance_frac:.0%}, lapse "
               f"{cfg.lapse:.0%} -> Weber fraction {true_w:.3f}")
         for r in res:
-            print(f"   {r['subject']}: {r['trials']} trials, PSE {r['pse_N_m']:.0f} N/m, Weber fraction "
-                  f"{r['weber']:.3f} ({(r['weber'] / true_w - 1):+.0%} vs the participant's)")
+            print(f"   {r['subject']}: {r['trials']} trials; lapse 0: PSE {r['pse_N_m']:.0f} N/m, Weber fraction "
+                  f"{r['weber']:.3f} ({(r['weber'] / true_w - 1):+.0%}); lapse free: PSE {r['pse_lapse_N_m']:.0f} "
+                  f"N/m, Weber {r['weber_lapse']:.3f} ({(r['weber_lapse'] / true_w - 1):+.0%}), lapse "
+                  f"{r['lapse']:.3f}")
         ws = np.array([r["weber"] for r in res])
-        print(f"   median Weber fraction {np.median(ws):.3f}; median {per_trial * 1e3:.0f} ms per trial (wall)")
+        wl = np.array([r["weber_lapse"] for r in res])
+        print(f"   median Weber fraction {np.median(ws):.3f} (lapse 0), {np.median(wl):.3f} (lapse free) vs "
+              f"{true_w:.3f}; median {per_trial * 1e3:.0f} ms per trial (wall)")
+        d = detection_and_real_virtual(Path(tmp))
+        print(f"   detection of pulse_firm's pulse (N*s/m): constant stimuli 7 x 40 -> threshold "
+              f"{d['constant']:.3f} ({d['constant_s']:.0f} s); QUEST+ 80 trials -> {d['quest']:.3f}, 95 % CI "
+              f"[{d['quest_ci'][0]:.3f}, {d['quest_ci'][1]:.3f}] ({d['quest_s']:.0f} s); ratio "
+              f"{d['quest'] / d['constant']:.2f}")
+        print("   real vs virtual (wood_on_foam), proportion correct per rendering: " +
+              ", ".join(f"{c} {p:.2f} (n {n})" for c, (p, n) in d["rv"].items()))
         harness = PsyKillHarness(Path(tmp), REAL_VIRTUAL.format(n=2))
         rows = [harness.step_of(f"row written: trial {k}/1") for k in range(1, len(harness.reference) + 1)
                 if any(s.endswith(f"row written: trial {k}/1") for s in harness.steps)]
