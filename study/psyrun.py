@@ -6,8 +6,8 @@ what to place (the real sample, or placeholder A/B alternating for a rendering, 
 interval whatever is presented) and the operator confirms; the subject is told to tap ("Interval N: tap now."
 and the spoken "Tap now."); the servo loop renders the interval's sample for ``tap_window_s`` from the first
 impact; the stylus is homed again (a tap now overpowered the homing). After the second interval the subject
-answers the question with 1 or 2 (or x to reject the trial); "Stop. Please rate." is spoken and the screen
-asks the question. The masking noise runs for the whole session.
+answers the question with 1 or 2 (or x to reject the trial); "Stop. Which one?" is spoken (the audio's
+``rate`` cue of :data:`study.audio.CHOICE_PHRASES`) and the screen asks the question. The masking noise runs for the whole session.
 
 Adaptive methods (``method`` ``updown``, ``weighted``, ``quest+``, ``psi``): the interleaved staircases
 (:class:`study.multistair.Interleaved`, seeded from the session's seed and subject) choose each trial's
@@ -236,23 +236,24 @@ class ForcedChoiceRunner:
         contacts = self.apparatus.after_window(self.protocol.homing_after_s) if tap.velocities else 0
         return Interval(sample, tap, contacts)
 
-    def answer(self, pt: PlannedTrial, attempt: int, intervals: list) -> tuple[str, tuple]:
-        """The subject's answer ("1", "2" or "x") and the simulated participant's percepts (NaN for a person)."""
+    def answer(self, pt: PlannedTrial, attempt: int, intervals: list) -> tuple[str, tuple, int]:
+        """The subject's answer ("1", "2" or "x"), the simulated participant's percepts (NaN for a person) and
+        the surface contacts while a person answered (the homing holds the stylus: a tap overpowered it)."""
         self._subject("choice", "choice", question=QUESTIONS[self.exp.kind])
-        self.audio.wait_cues(2.0)  # "Stop. Please rate." never talks over "Tap now." (docs/study.md)
+        self.audio.wait_cues(2.0)  # "Stop. Which one?" never talks over "Tap now." (docs/study.md)
         self.audio.cue_rate()
         if self.participant.kind == "simulated":
             sim = self.participant
             tap_plan = sim.plan("testing", pt.trial, 2 * (attempt - 1) + 2, self.protocol.tap_window_s)
             if tap_plan.reject:
-                return "x", (math.nan, math.nan)
+                return "x", (math.nan, math.nan), 0
             values = tuple(measured(self.exp.kind, self.exp.vary, iv.tap.trace, self.force_per_amp_N_A,
                                     self.apparatus.reference) for iv in intervals)
             rng = sim._rng(PHASE_CODES["testing"], pt.trial, attempt, 34)
             choice, percepts = choose(self.exp.kind, self.exp.vary, values, sim.config, rng)
-            return str(choice), percepts
-        self.apparatus.hold(until=lambda: self.ui.rating() is not None)
-        return self.ui.rating(), (math.nan, math.nan)
+            return str(choice), percepts, 0
+        contacts = self.apparatus.hold(until=lambda: self.ui.rating() is not None)
+        return self.ui.rating(), (math.nan, math.nan), contacts
 
     def run_attempt(self, pt: PlannedTrial, attempt: int) -> tuple[list, str, tuple, str]:
         """Both intervals and the answer: ``(intervals, response, percepts, invalid reason or "")``."""
@@ -263,13 +264,13 @@ class ForcedChoiceRunner:
             if iv.n_taps == 0:
                 self._subject("no_tap")
                 return intervals, "", (math.nan, math.nan), "no_tap"
+        response, percepts, contacts = self.answer(pt, attempt, intervals)
         if any(iv.tap.saturated for iv in intervals):
             reason = "saturated"
-        elif any(iv.contacts > 0 for iv in intervals):
+        elif contacts > 0 or any(iv.contacts > 0 for iv in intervals):
             reason = "overpowered"
         else:
             reason = ""
-        response, percepts = self.answer(pt, attempt, intervals)
         if response == "x" and not reason:
             reason = "rejected"
         return intervals, response, percepts, reason

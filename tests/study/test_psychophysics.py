@@ -230,6 +230,9 @@ def test_real_virtual_session_is_masked_with_spoken_cues(tmp_path):
     # 2 trials x 2 intervals ask for 4 "Tap now."; the null sink has no clock (see test_audio): at least one
     # clean one, never more than asked for
     assert rho.max() > 0.8 and 1 <= len(peaks) <= 4
+    # the question's cue after each trial's second interval is "Stop. Which one?", not the rating prompt
+    assert find_cue(x, espeak_reference("Stop. Which one?")).max() > 0.7
+    assert find_cue(x, espeak_reference("Stop. Please rate.")).max() < 0.5
 
 
 def test_sigkill_at_every_trial_then_resume_loses_nothing(tmp_path):
