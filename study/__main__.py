@@ -7,7 +7,8 @@ from plumbing.dispatch import Command, main as dispatch, run_as_script
 #: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
 COMMANDS = (
     Command("run", "study.cli_run", "run a blind realism session (sim rehearsal or real subjects)"),
-    Command("simulate-observer", "study.cli_simulate_observer", "run an adaptive method against a simulated observer"),
+    Command("simulate-observer", "study.cli_simulate_observer", "run an adaptive method against a simulated observer",
+            blas_threads=1),
 )
 
 

@@ -32,7 +32,7 @@ from scipy.special import entr
 from plumbing.validation import require_int, require_number
 
 from .adaptive import AdaptiveMethod
-from .psychometric import check_function, psi
+from .psychometric import check_function, psi, sigmoid
 
 #: grid spacings of a ``{"min", "max", "n", "spacing"}`` grid
 SPACINGS = ("log10", "linear")
@@ -207,15 +207,35 @@ class _GridPosterior(AdaptiveMethod):
         hi = self.t[min(int(np.searchsorted(cdf, 0.975)), len(self.t) - 1)]
         it, is_, il = np.unravel_index(int(np.argmax(self.posterior)), self.shape)
         return {"threshold": 10.0 ** m if self.threshold_scale == "log10" else m, "threshold_sd": sd,
+                "threshold_mode": self._marginal_mode(pt),
                 "threshold_ci": [float(lo), float(hi)], "slope": float(ps @ self.s), "lapse": float(pl @ self.lam),
                 "guess": self.guess,
                 "map": {"threshold": float(self.t[it]), "slope": float(self.s[is_]), "lapse": float(self.lam[il])},
                 "trials": self.trials, "reversals": len(self.reversal_intensities)}
 
 
+    def _marginal_mode(self, pt: np.ndarray) -> float:
+        """Mode of the threshold marginal ``pt``, refined between grid points (log-parabola; in log10 units on
+        a log10 scale); the grid point itself at the grid's ends or on an uneven grid."""
+        j = int(np.argmax(pt))
+        tt = np.log10(self.t) if self.threshold_scale == "log10" else self.t
+        if 0 < j < len(pt) - 1 and np.isclose(tt[j + 1] - tt[j], tt[j] - tt[j - 1], rtol=1e-6):
+            a, b, c = np.log(np.maximum(pt[j - 1:j + 2], 1e-300))
+            curv = a - 2.0 * b + c
+            shift = 0.5 * (a - c) / curv if curv < 0 else 0.0
+            t = tt[j] + float(np.clip(shift, -0.5, 0.5)) * (tt[j + 1] - tt[j])
+            return 10.0 ** t if self.threshold_scale == "log10" else t
+        return float(self.t[j])
+
+
 def _binary_entropy(p: np.ndarray) -> np.ndarray:
     """Entropy (nats) of a Bernoulli(p), 0 at p = 0 and 1."""
     return entr(p) + entr(1.0 - p)
+
+
+def _neg_xlogx_sum(a: np.ndarray) -> np.ndarray:
+    """``-sum(a * log(a))`` over the last axis, with ``0 log 0 = 0`` (faster than ``scipy.special.entr``)."""
+    return -np.einsum("ij,ij->i", a, np.log(np.maximum(a, 1e-300)))
 
 
 class QuestPlus(_GridPosterior):
@@ -256,20 +276,24 @@ class Psi(_GridPosterior):
     name = "psi"
 
     def _prepare(self) -> None:
-        n_ts = self.shape[0] * self.shape[1]
-        self._pc3 = self.p_correct.reshape(len(self.x), n_ts, self.shape[2])
+        # psi = gamma + (1 - gamma - lambda) F(x; t, s): summed over the lapse rates with the posterior,
+        # P(correct, t, s | x) = gamma m(t, s) + F(x; t, s) w(t, s) with m the (t, s) marginal and
+        # w = sum_l (1 - gamma - lambda_l) post(t, s, l), so the choice costs one (stimulus x t-s) table
+        # whatever the number of lapse rates
+        f = sigmoid(self.x[:, None, None], self.t[None, :, None], self.s[None, None, :], self.function)
+        self._sigmoid = np.ascontiguousarray(f.reshape(len(self.x), -1))
+        self._lapse_scale = 1.0 - self.guess - self.lam
 
     def expected_entropy(self) -> np.ndarray:
         """Expected entropy (nats) of the threshold x slope posterior after a trial at each intensity."""
         post = self.posterior.reshape(-1, self.shape[2])
-        joint_c = np.einsum("sjl,jl->sj", self._pc3, post)        # P(correct, t, s | stimulus)
-        joint_w = post.sum(axis=1)[None, :] - joint_c
+        marginal = post.sum(axis=1)
+        joint_c = self.guess * marginal + self._sigmoid * (post @ self._lapse_scale)   # P(correct, t, s | x)
+        joint_w = np.clip(marginal - joint_c, 0.0, None)
         p_c = joint_c.sum(axis=1)
         p_w = joint_w.sum(axis=1)
-        # sum_j (J_j / P) log(J_j / P) times P = sum_j J_j log J_j - P log P
-        h_c = np.sum(entr(joint_c), axis=1) - entr(p_c)
-        h_w = np.sum(entr(np.clip(joint_w, 0.0, None)), axis=1) - entr(p_w)
-        return h_c + h_w
+        # P * H(J / P) = -sum_j J_j log J_j + P log P
+        return _neg_xlogx_sum(joint_c) - entr(p_c) + _neg_xlogx_sum(joint_w) - entr(p_w)
 
     def _choose(self) -> int:
         return int(np.argmin(self.expected_entropy()))

@@ -13,7 +13,8 @@ Defaults when the user gives only the threshold ``T`` (docs/psychophysics.md):
 * staircases start at the top of the range (the easy end) with log10 steps 0.4, 0.2, then 0.1 after the
   second reversal; ``updown`` is 1-up-2-down (tracks the 70.7 % point), ``weighted`` tracks the point
   midway between chance and 1 (0.75 in 2AFC);
-* QUEST+ and Psi: thresholds on the stimulus grid, Weibull slopes 1..10 (10 log-spaced), lapses
+* QUEST+ and Psi: thresholds on the stimulus grid, Weibull slopes 1.5..8 (10 log-spaced: the range of
+  2AFC detection and discrimination slopes, wide enough not to presume the observer's), lapses
   0, 0.01, ..., 0.05 (Psi marginalises the lapse);
 * 80 trials.
 
@@ -38,8 +39,8 @@ from plumbing.validation import require_int, require_number
 
 from .adaptive import AdaptiveMethod
 from .methods import METHODS
-from .psyfigures import plot_precision, plot_track
 from .observer import ObserverParams, SimulatedObserver, check_observer
+from .psyfigures import plot_precision, plot_track
 from .quest import Psi, QuestPlus
 from .staircase import UpDown, WeightedUpDown
 
@@ -51,7 +52,7 @@ DEFAULT_TRIALS = 80
 RANGE_FACTOR = 10.0
 LEVELS = 41
 STAIR_STEPS_LOG10 = [0.4, 0.2, 0.1]
-SLOPE_GRID = {"min": 1.0, "max": 10.0, "n": 10, "spacing": "log10"}
+SLOPE_GRID = {"min": 1.5, "max": 8.0, "n": 10, "spacing": "log10"}
 LAPSE_GRID = [0.0, 0.01, 0.02, 0.03, 0.04, 0.05]
 #: the command's flags, named in messages about the observer
 FLAGS = {"threshold": "--threshold", "slope": "--slope", "lapse": "--lapse", "guess": "--alternatives",
