@@ -260,12 +260,16 @@ def test_sigkill_at_every_trial_then_resume_loses_nothing(tmp_path):
     ("psy_real_virtual.toml", "real-virtual-2afc", 5, 80),
     ("psy_discrimination.toml", "discrimination", 7, 140),
     ("psy_detection.toml", "detection", 8, 140),
+    ("psy_detection_quest.toml", "detection", 1, 0),
 ])
 def test_the_examples_load_and_plan(name, kind, n_samples, n_trials):
     protocol, exp = load_protocol_file(ROOT / "examples" / name)
     assert exp.kind == kind and protocol.familiarization_sample == "" and protocol.tap_window_s == 3.0
     assert len(stimulus_catalog(load_catalog(None), exp)) == n_samples
-    assert len(plan_trials(exp, 1, "S01")) == n_trials
+    if exp.adaptive:   # the staircases' first trial, at QUEST+'s most informative intensity on the grid
+        assert exp.method == "quest+" and 0.1 <= exp.handler(1).next_trial().intensity <= 10.0
+    else:
+        assert len(plan_trials(exp, 1, "S01")) == n_trials
 
 
 def test_adaptive_session_killed_at_any_trial_resumes_the_staircases_exactly(tmp_path):
