@@ -357,3 +357,36 @@ def test_a_person_answers_through_the_subject_view_and_the_operator_places_every
     assert "Which surface was harder?\nPress 1 for the first interval, 2 for the second, or x to reject the " \
            "trial." in messages
     assert not any(s in m for m in messages for s in ("firm", "700", "500", "950"))
+
+
+def test_adaptive_discrimination_in_the_servo_process(tmp_path):
+    """On hardware the device and servo loops run in their own process: a staircase's new stimuli are made
+    there (``IsolatedApparatus.add_sample``) as it asks for them."""
+    protocol = QUICK + """
+[experiment]
+kind = "discrimination"
+sample = "firm"
+reference = 700.0
+method = "updown"
+
+[experiment.staircases.S]
+start = 1000.0
+step_down = [0.1]
+n_down = 1
+max_trials = 4
+"""
+    assert run(tmp_path, "I1", protocol, "--servo-process", "on") == 0
+    folder = tmp_path / "DATA" / "I1"
+    rows = read_rows(folder)
+    states = [json.loads(ln) for ln in (folder / "staircase_state.jsonl").read_text().splitlines()]
+    assert len(rows) == len(states) == 4 and read_session(folder)["device"]["servo_process"] is True
+    # 1-up-1-down in 0.1 log10 steps from 1000 N/m: each next stiffness follows the previous answer
+    x = [float(r["intensity_physical"]) for r in rows]
+    assert x[0] == 1000.0
+    for a, b, r in zip(x, x[1:], rows):
+        assert b == pytest.approx(a * 10 ** (-0.1 if r["correct"] == "1" else 0.1))
+    for r in rows:   # the comparison the staircase asked for was rendered (the sim's force over penetration)
+        k = 1 + (r["sample_2"] != "firm@stiffness_N_m=700")
+        trace = dict(np.load(folder / "traces" / f"interval{k}_t{int(r['trial']):03d}_a{int(r['attempt']):02d}.npz"))
+        np.testing.assert_allclose(tap_stiffness_N_m(trace, SimDevice().info.force_per_amp_N_A),
+                                   float(r["intensity_physical"]), rtol=0.01)
