@@ -1,7 +1,8 @@
 """Psychophysics sessions on the sim device (issue 34): JND recovered vs the simulated participant, SIGKILL/resume.
 
 1. **JND recovery.** Simulated subjects run a stiffness-discrimination session (method of constant stimuli,
-   7 comparison stiffnesses around a 700 N/m reference, ``TRIALS_PER_LEVEL`` trials each) on the sim device;
+   7 comparison stiffnesses from 400 to 1225 N/m around a 700 N/m reference, ``TRIALS_PER_LEVEL`` trials
+   each) on the sim device;
    their answers come from what the device rendered (:mod:`study.perception`: force and penetration of their
    own taps with the force and compliance JNDs). A cumulative normal is fitted by maximum likelihood to
    P("comparison harder") against log10 stiffness (lapse fixed at 0: statsmodels' binomial GLM with a probit
@@ -96,10 +97,11 @@ real_sample = "wood_on_foam"
 renderings = ["firm", "sinusoid_firm"]
 trials_per_level = {n}
 """
-LEVELS = [500.0, 580.0, 650.0, 700.0, 750.0, 840.0, 980.0]
+LEVELS = [400.0, 500.0, 600.0, 700.0, 820.0, 980.0, 1225.0]   # to 0.57 and 1.75 x: the lapses show
 TRIALS_PER_LEVEL = 60
 KEY = ("trial", "attempt", "condition", "staircase", "intensity", "is_catch", "target_interval", "sample_1",
-       "sample_2", "response", "correct", "n_taps_1", "n_taps_2")  # the percepts differ in the last digits after a resume (device state)
+       "sample_2", "response", "correct", "n_taps_1", "n_taps_2")
+# (not the percepts: they differ in the last digits after a resume, the sim device's state after a restart)
 
 
 def session_args(protocol: Path, out: Path, subject: str, seed: int, resume: bool = False, *extra) -> list:
@@ -126,7 +128,7 @@ def fit_probit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 
 
 def fit_probit_lapse(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Maximum likelihood of ``P = lapse / 2 + (1 - lapse) Phi(beta (x - alpha))``, lapse in [0, 0.2]: the
+    """Maximum likelihood of ``P = lapse / 2 + (1 - lapse) Phi(beta (x - alpha))``, lapse in [0, 0.1]: the
     simulated participant's own model (a lapse is a coin flip, so it lowers the top and lifts the bottom).
 
     Returns
@@ -145,7 +147,7 @@ def fit_probit_lapse(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]
         return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
 
     res = minimize(nll, [a0, math.log(max(b0, 1e-3)), 0.02], method="L-BFGS-B",
-                   bounds=[(None, None), (None, None), (0.0, 0.2)])
+                   bounds=[(None, None), (None, None), (0.0, 0.1)])
     a, log_b, lam = res.x
     return float(a), float(math.exp(log_b)), float(lam)
 

@@ -7,7 +7,8 @@ interval whatever is presented) and the operator confirms; the subject is told t
 and the spoken "Tap now."); the servo loop renders the interval's sample for ``tap_window_s`` from the first
 impact; the stylus is homed again (a tap now overpowered the homing). After the second interval the subject
 answers the question with 1 or 2 (or x to reject the trial); "Stop. Which one?" is spoken (the audio's
-``rate`` cue of :data:`study.audio.CHOICE_PHRASES`) and the screen asks the question. The masking noise runs for the whole session.
+``rate`` cue of :data:`study.audio.CHOICE_PHRASES`) and the screen asks the question. The masking noise runs
+for the whole session.
 
 Adaptive methods (``method`` ``updown``, ``weighted``, ``quest+``, ``psi``): the interleaved staircases
 (:class:`study.multistair.Interleaved`, seeded from the session's seed and subject) choose each trial's

@@ -172,7 +172,8 @@ def test_discrimination_session_follows_the_contract_and_stays_blind(tmp_path, m
         assert int(r["correct"]) == int(r["response"] == r["target_interval"])
         for k in (1, 2):
             # what the participant judged: the stiffness the device rendered, from its own taps' force and depth
-            trace = dict(np.load(folder / "traces" / f"interval{k}_t{int(r['trial']):03d}_a{int(r['attempt']):02d}.npz"))
+            name = f"interval{k}_t{int(r['trial']):03d}_a{int(r['attempt']):02d}.npz"
+            trace = dict(np.load(folder / "traces" / name))
             rendered = float(r[f"sample_{k}"].split("=")[1])
             k_taps = tap_stiffness_N_m(trace, info.force_per_amp_N_A)
             assert len(k_taps) == int(r[f"n_taps_{k}"]) >= 1
