@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from benchmarks.bench_psy_session import ADAPTIVE_DETECTION, QUICK, REAL_VIRTUAL, PsyKillHarness
+from benchmarks.bench_psy_session import ADAPTIVE_DETECTION, QUICK, REAL_VIRTUAL, PsyKillHarness, _forked, session_args
 from devices.sim import SimDevice
 from study.__main__ import main
 from stimuli import load_catalog
@@ -391,3 +391,22 @@ max_trials = 4
         trace = dict(np.load(folder / "traces" / f"interval{k}_t{int(r['trial']):03d}_a{int(r['attempt']):02d}.npz"))
         np.testing.assert_allclose(tap_stiffness_N_m(trace, SimDevice().info.force_per_amp_N_A),
                                    float(r["intensity_physical"]), rtol=0.01)
+
+
+def test_a_torn_state_line_is_kept_aside_and_written_again(tmp_path, capsys):
+    """The kill's torn last state line goes to staircase_state.jsonl.torn; the replay writes it again."""
+    harness = PsyKillHarness(tmp_path, ADAPTIVE_DETECTION.format(n=2))
+    where = [s.split(" ", 1)[1] for s in harness.steps]
+    third = where.index("staircase state written: trial 3") + 1
+    # a session killed just after trial 3's state line, which is then torn by hand (a kill mid-write)
+    out = tmp_path / "torn"
+    assert _forked(session_args(harness.protocol, out, "K", harness.seed), {"STUDY_CRASH_AT": str(third)}) \
+        == -signal.SIGKILL
+    states = out / "K" / "staircase_state.jsonl"
+    data = states.read_bytes()
+    whole = data[:data[:-1].rfind(b"\n") + 1]
+    states.write_bytes(whole + data[len(whole):len(whole) + 40])      # the third line, torn after 40 bytes
+    assert _forked(session_args(harness.protocol, out, "K", harness.seed, resume=True), {}) == 0
+    assert (out / "K" / "staircase_state.jsonl.torn").read_bytes() == data[len(whole):len(whole) + 40] + b"\n"
+    lines = [json.loads(ln) for ln in states.read_text().splitlines()]
+    assert lines == harness.reference_states
