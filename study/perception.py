@@ -31,7 +31,7 @@ Per interval of a trial the participant forms one percept (its own taps, full-ra
   sample at the same velocity), plus ``N(0, realness_noise_sd)``; the interval more similar is "real".
 
 The answer ("harder", "had the click", "real") is the interval with the larger percept (ties: interval 1);
-with probability ``lapse`` it is a coin flip instead.
+with probability ``lapse``, or when an interval gave nothing to judge, it is a coin flip instead.
 """
 
 from __future__ import annotations
@@ -157,7 +157,9 @@ def choose(kind: str, vary: str, values: tuple, config, rng: np.random.Generator
     e = rng.standard_normal((2, 2))
     lapse = rng.random() < config.lapse
     coin = int(rng.integers(1, 3))
-    v = [0.0 if not math.isfinite(x) else x for x in values]
+    if not all(math.isfinite(x) for x in values):
+        return coin, (math.nan, math.nan)   # an interval gave nothing to judge (no tap deep enough): a guess
+    v = list(values)
     if kind == "real-virtual-2afc":
         percepts = tuple(v[j] + config.realness_noise_sd * e[j, 0] for j in range(2))
     elif vary == "stiffness_N_m":
