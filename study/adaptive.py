@@ -24,6 +24,7 @@ direction (the next intensity moves opposite to the last move); its intensity is
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import numpy as np
@@ -91,8 +92,8 @@ class AdaptiveMethod:
         if self.finished:
             raise ValueError(f"{self.name}: the method finished after {len(self.history)} trials; no more updates")
         intensity, correct = float(intensity), bool(correct)
+        self._apply(intensity, correct)          # first: a response it refuses leaves no trace
         self.history.append([intensity, correct])
-        self._apply(intensity, correct)
         self._track_reversal(intensity, float(self._proposal()))
 
     @property
@@ -100,6 +101,11 @@ class AdaptiveMethod:
         """True once ``max_trials`` trials or ``max_reversals`` reversals are reached."""
         return ((self.max_trials is not None and len(self.history) >= self.max_trials)
                 or (self.max_reversals is not None and len(self.reversal_intensities) >= self.max_reversals))
+
+    @property
+    def last_trial_reversal(self) -> bool:
+        """True when the last trial so far was a reversal (for a trials.csv ``reversal`` column)."""
+        return bool(self.reversal_trials) and self.reversal_trials[-1] == len(self.history)
 
     @property
     def trials(self) -> int:
@@ -139,7 +145,7 @@ class AdaptiveMethod:
                              f"got {type(state).__name__}")
         if state.get("method") != cls.name:
             raise ValueError(f"state is of method {state.get('method')!r}, not {cls.name!r}")
-        method = cls(**state["config"])
+        method = build(cls, state["config"], f"{cls.name} state config.")
         history = state.get("history", [])
         if not isinstance(history, list):
             raise ValueError(f"{cls.name} state: 'history' must be a list of [intensity, correct]")
@@ -164,7 +170,7 @@ class AdaptiveMethod:
         raise NotImplementedError
 
     def _apply(self, intensity: float, correct: bool) -> None:
-        """Adapt to one response (history already appended)."""
+        """Adapt to one response (before it joins the history; raise ValueError to refuse it)."""
         raise NotImplementedError
 
     def _proposal(self) -> float:
@@ -184,6 +190,21 @@ class AdaptiveMethod:
             self.reversal_intensities.append(intensity)
             self.reversal_trials.append(len(self.history))
         self._direction = move
+
+
+def build(cls, kwargs: dict, prefix: str = "") -> AdaptiveMethod:
+    """``cls(**kwargs)`` after checking the keys against its constructor: an unknown or missing key is one
+    ``ValueError`` naming it with ``prefix`` (a protocol table's place, or a state's), never a ``TypeError``."""
+    params = inspect.signature(cls.__init__).parameters
+    allowed = [p for p in params if p not in ("self", "prefix")]
+    unknown = sorted(set(kwargs) - set(allowed))
+    if unknown:
+        raise ValueError(f"{prefix}{unknown[0]} is not a parameter of method {cls.name!r} "
+                         f"(its parameters: {', '.join(allowed)})")
+    missing = [p for p in allowed if params[p].default is inspect.Parameter.empty and p not in kwargs]
+    if missing:
+        raise ValueError(f"{prefix}{missing[0]} is missing (method {cls.name!r} requires it)")
+    return cls(**kwargs, prefix=prefix)
 
 
 def mean_sd(values, log10: bool) -> tuple[float, float]:

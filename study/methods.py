@@ -14,9 +14,7 @@ Every error names the key, with the table's name as prefix (``"staircase.A.step_
 
 from __future__ import annotations
 
-import inspect
-
-from .adaptive import AdaptiveMethod
+from .adaptive import AdaptiveMethod, build
 from .quest import Psi, QuestPlus
 from .staircase import UpDown, WeightedUpDown
 
@@ -54,17 +52,7 @@ def method_from_table(table: dict, prefix: str = "") -> AdaptiveMethod:
     if "method" not in table:
         raise ValueError(f"{prefix}method is missing (one of {', '.join(METHODS)})")
     cls = _class(table["method"], prefix)
-    params = inspect.signature(cls.__init__).parameters
-    allowed = [p for p in params if p not in ("self", "prefix")]
-    kwargs = {k: v for k, v in table.items() if k != "method"}
-    unknown = sorted(set(kwargs) - set(allowed))
-    if unknown:
-        raise ValueError(f"{prefix}{unknown[0]} is not a parameter of method {cls.name!r} "
-                         f"(its parameters: {', '.join(allowed)})")
-    missing = [p for p in allowed if params[p].default is inspect.Parameter.empty and p not in kwargs]
-    if missing:
-        raise ValueError(f"{prefix}{missing[0]} is missing (method {cls.name!r} requires it)")
-    return cls(**kwargs, prefix=prefix)
+    return build(cls, {k: v for k, v in table.items() if k != "method"}, prefix)
 
 
 def method_from_state(state: dict) -> AdaptiveMethod:

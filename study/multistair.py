@@ -150,10 +150,16 @@ class Interleaved:
         """
         if self._pending is None or tuple(trial) != tuple(self._pending):
             raise ValueError(f"trial {tuple(trial)!r} is not the pending trial {self._pending!r}")
+        if not (isinstance(correct, (bool, np.bool_)) or (isinstance(correct, int) and correct in (0, 1))):
+            raise ValueError(f"a response must be correct (1) or not (0), got {correct!r}")
         if not trial.is_catch:
             self.methods[trial.label].update(trial.intensity, correct)
         self.history.append([trial.label, trial.intensity, trial.is_catch, bool(correct)])
         self._pending = None
+
+    def estimates(self) -> dict:
+        """Each staircase's :meth:`~study.adaptive.AdaptiveMethod.estimate`, by label."""
+        return {label: m.estimate() for label, m in self.methods.items()}
 
     def state(self) -> dict:
         """JSON-serialisable state: configuration, the staircases' initial states, every trial, and each

@@ -7,11 +7,21 @@ with :func:`figstyle.save` as PNG, SVG and the plotted numbers (``.plot.csv``).
 
 from __future__ import annotations
 
+import math
+
 import figstyle
 
 #: axis labels (every numeric axis names its unit, docs/figures.md)
 TRIAL_LABEL = "trial (number)"
 INTENSITY_LABEL = "intensity (stimulus units)"
+
+
+def _minor_label(value: float, _pos=None) -> str:
+    """A log axis's minor tick label: only at 2 and 5 times a power of ten (the others stay unlabelled)."""
+    if value <= 0:
+        return ""
+    lead = value / 10.0 ** math.floor(math.log10(value))
+    return f"{value:g}" if any(abs(lead - d) < 1e-6 for d in (2.0, 5.0)) else ""
 
 
 def plot_track(track: list[dict], path, reference: float | None = None, estimate: float | None = None,
@@ -59,9 +69,8 @@ def plot_track(track: list[dict], path, reference: float | None = None, estimate
             ax.axhline(estimate, color=series[5], lw=1.0, ls="--", label="estimate")
         if log_axis:
             ax.set_yscale("log")
-            plain = plt.FuncFormatter(lambda v, _pos: f"{v:g}")   # 0.5, not 5 x 10^-1
-            ax.yaxis.set_major_formatter(plain)
-            ax.yaxis.set_minor_formatter(plain)
+            ax.yaxis.set_major_formatter(plt.FuncFormatter(lambda v, _pos: f"{v:g}"))   # 0.5, not 5 x 10^-1
+            ax.yaxis.set_minor_formatter(plt.FuncFormatter(_minor_label))
         ax.set_xlabel(TRIAL_LABEL)
         ax.set_ylabel(INTENSITY_LABEL)
         if title:

@@ -176,7 +176,14 @@ class _GridPosterior(AdaptiveMethod):
     def _apply(self, intensity: float, correct: bool) -> None:
         i = self._index(intensity)
         post = self.posterior * (self.p_correct[i] if correct else self.p_wrong[i])
-        self.posterior = post / post.sum()
+        total = post.sum()
+        if not total > 0.0:
+            # every function of the grid gives this response probability 0 (no lapse, no guessing): the posterior
+            # would be 0/0, NaN, and the next intensity garbage
+            raise ValueError(f"{self.name}: a {'correct' if correct else 'wrong'} response at {intensity!r} is "
+                             "impossible under every psychometric function of the grid; give the lapse grid a "
+                             "value > 0 (or a guess rate > 0)")
+        self.posterior = post / total
         self._next_index = self._choose()
 
     def _proposal(self) -> float:

@@ -165,7 +165,7 @@ def run_once(s: SimulationSettings, seed: int, checkpoints=()) -> dict:
         method.update(x, correct)
         track.append({"trial": method.trials, "intensity": x, "correct": int(correct),
                       "p_correct_true": float(s.observer.p_correct(x)),
-                      "reversal": int(bool(method.reversal_trials) and method.reversal_trials[-1] == method.trials)})
+                      "reversal": int(method.last_trial_reversal)})
         if method.trials in want:
             at[method.trials] = method.estimate()["threshold"]
     return {"method": method, "track": track, "estimate": method.estimate(), "at": at}

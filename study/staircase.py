@@ -6,10 +6,13 @@ reversal convention are those of :class:`study.adaptive.AdaptiveMethod`.
 Steps are in the staircase's ``step_scale``: ``"linear"`` adds and subtracts them, ``"log10"`` multiplies
 and divides the intensity by ``10**step`` (a step of 0.1 is a factor 1.26, about 1 dB of amplitude
 x 2). A step may be a list: the step after ``k`` reversals is ``steps[min(k, len - 1)]`` (PsychoPy's
-``stepSizes``), e.g. large steps to find the threshold region, then small ones to track it.
+``stepSizes``; the move that makes the k-th reversal already takes ``steps[k]``, as in PsychoPy), e.g.
+large steps to find the threshold region, then small ones to track it.
 """
 
 from __future__ import annotations
+
+import math
 
 from plumbing.validation import require_int, require_number
 
@@ -142,22 +145,31 @@ class UpDown(AdaptiveMethod):
         return x
 
     def _step(self, x: float, steps: list[float], sign: int) -> float:
-        s = steps[min(len(self.reversal_intensities), len(steps) - 1)]
+        # a move that turns the track already takes the next step size (PsychoPy's StairHandler does the same)
+        k = len(self.reversal_intensities) + (1 if self._direction not in (0, sign) else 0)
+        s = steps[min(k, len(steps) - 1)]
         return x * 10.0 ** (sign * s) if self.step_scale == "log10" else x + sign * s
 
     def _apply(self, intensity: float, correct: bool) -> None:
+        # counts of the current runs, committed only when the step is accepted (a refused update changes nothing)
         nxt = intensity
         if correct:
-            self._run_correct, self._run_wrong = self._run_correct + 1, 0
-            if self._run_correct >= self.n_down:
-                self._run_correct = 0
+            run_correct, run_wrong = self._run_correct + 1, 0
+            if run_correct >= self.n_down:
+                run_correct = 0
                 nxt = self._step(intensity, self.steps_down, -1)
         else:
-            self._run_correct, self._run_wrong = 0, self._run_wrong + 1
-            if self._run_wrong >= self.n_up:
-                self._run_wrong = 0
+            run_correct, run_wrong = 0, self._run_wrong + 1
+            if run_wrong >= self.n_up:
+                run_wrong = 0
                 nxt = self._step(intensity, self.steps_up, +1)
-        self._next = self._clip(nxt)
+        nxt = self._clip(nxt)
+        if not math.isfinite(nxt):
+            # only without max_intensity: e.g. hundreds of wrong answers in a row on a log scale
+            raise ValueError(f"{self.name}: the next intensity is {nxt!r} (the track ran off the number range); "
+                             "set max_intensity (and min_intensity) to the stimulus range")
+        self._run_correct, self._run_wrong = run_correct, run_wrong
+        self._next = nxt
 
     def _proposal(self) -> float:
         return self._next

@@ -156,6 +156,8 @@ def test_state_refuses_a_different_method_or_a_state_that_does_not_replay():
         method_from_state(st)
     with pytest.raises(ValueError, match="history trial 1"):
         method_from_state({**m.state(), "history": [[4.0]]})
+    with pytest.raises(ValueError, match=r"^updown state config\.stepsize is not a parameter of method 'updown'"):
+        method_from_state({**m.state(), "config": {**m.state()["config"], "stepsize": 1}})
 
 
 # -- stopping rules, first intensity, unequal steps -------------------------------------------------------------
@@ -181,6 +183,16 @@ def test_transformed_rule_and_unequal_steps_move_as_specified():
     # down, then up: a reversal at the trial whose response turned the track (trial 4, at 0.5)
     assert m.reversal_intensities == [0.5] and m.reversal_trials == [4]
     assert m.target_probability() == pytest.approx((0.25 / 0.75) ** (1 / 3))
+    # a list of steps: the move that makes the k-th reversal already takes steps[k] (PsychoPy's StairHandler)
+    sched = UpDown(start=1.0, step_down=[0.4, 0.2, 0.1], n_down=1, step_scale="linear", max_trials=9)
+    for correct, expected_next in [(True, 0.6), (True, 0.2), (False, 0.4), (False, 0.6), (True, 0.5)]:
+        sched.update(sched.next_intensity(), correct)
+        assert sched.next_intensity() == pytest.approx(expected_next, abs=1e-12)
+    assert sched.reversal_intensities == pytest.approx([0.2, 0.6], abs=1e-12) and sched.last_trial_reversal
+    runaway = UpDown(start=1e300, step_down=10.0, max_trials=5)           # no max_intensity, a wrong answer
+    with pytest.raises(ValueError, match=r"is inf \(the track ran off the number range\); set max_intensity"):
+        runaway.update(1e300, False)
+    assert runaway.trials == 0 and runaway.next_intensity() == 1e300
     log = UpDown(start=2.0, step_down=[0.3, 0.1], n_down=1, max_trials=5, min_intensity=1.5)
     log.update(2.0, True)
     assert log.next_intensity() == 1.5      # 2 / 10**0.3 = 1.002, clipped to the minimum
@@ -219,6 +231,8 @@ def test_interleaved_staircases_with_catch_trials_resume_exactly():
         t = part.next_trial()
         part.update(t, bool(draws[t.number - 1] < obs.params.p_correct(t.intensity)))
     assert part.history == full.history and part.state() == full.state()
+    assert part.estimates() == full.estimates() and set(full.estimates()) == {"from_above", "from_below", "weighted"}
+    assert full.estimates()["weighted"] == full.methods["weighted"].estimate()
 
 
 def test_fixed_order_and_pending_trial():
@@ -233,6 +247,9 @@ def test_fixed_order_and_pending_trial():
     assert labels == ["a", "b", "a", "b", "b"]
     with pytest.raises(ValueError, match="no next trial"):
         h.next_trial()
+    h2 = Interleaved({"a": UpDown(start=1.0, step_down=0.1, max_trials=2)})
+    with pytest.raises(ValueError, match="must be correct \\(1\\) or not \\(0\\), got 'yes'"):
+        h2.update(h2.next_trial(), "yes")
 
 
 # -- the factory and the observer's errors -----------------------------------------------------------------------
@@ -261,6 +278,11 @@ def test_method_from_table_builds_every_method_and_names_bad_keys():
         make_grid("thresholds", {"min": 1, "max": 2}, prefix="s.")
     with pytest.raises(ValueError, match="not on the stimulus grid"):
         method_from_table({"method": "psi", **tables["psi"]}).update(0.123, True)
+    yes_no = QuestPlus(intensities=[0.0, 5.0], thresholds=[2.0, 3.0], slopes=[40.0], lapses=[0.0], guess=0.0,
+                       function="logistic", threshold_scale="linear", max_trials=5)
+    with pytest.raises(ValueError, match="impossible under every psychometric function of the grid"):
+        yes_no.update(5.0, False)
+    assert yes_no.trials == 0 and np.all(np.isfinite(yes_no.posterior))
     with pytest.raises(ValueError, match="must be correct \\(1\\) or not \\(0\\), got 2"):
         UpDown(start=1.0, step_down=0.1, max_trials=3).update(1.0, 2)
 
