@@ -131,17 +131,11 @@ class Apparatus:
         self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m))
         # the log ring keeps the last window + 1 s: enough for 50 ms before the first impact, and a 16 s
         # ring (timeout + window) per attempt would only cost allocation time
-        capacity_s = max(protocol.tap_window_s, protocol.familiarization_window_s) + 1.0
+        self._capacity_s = max(protocol.tap_window_s, protocol.familiarization_window_s) + 1.0
+        self.library_dir = library_dir
         self.loops = {}
         for s in catalog:
-            transient = s.make_transient(library_dir=library_dir) if s.kind == "virtual" else None
-            cfg = RendererConfig(stiffness_N_m=s.stiffness_N_m if s.kind == "virtual" else 0.0,
-                                 motor_enabled=s.kind == "virtual", log_capacity_s=capacity_s,
-                                 until_every=4 if s.kind == "real" else 16,
-                                 watchdog_overrun_s=protocol.servo_watchdog_s)
-            loop = ServoLoop(device, cfg, transient)
-            loop.prepare()  # raises ValueError now (e.g. a library unusable on this device), not mid-session
-            self.loops[s.name] = loop
+            self.add_sample(s)
         self.temp_rise_K = 0.0
         self.current = None
         self.reference: Reference | None = None
@@ -153,6 +147,31 @@ class Apparatus:
         else:
             self.real_saturation_detection = ("device extra['contact_force_N']" if "contact_force_N" in
                                               getattr(device.read(), "extra", {}) else "none (no force sensor)")
+
+    def add_sample(self, sample) -> None:
+        """Make the servo loop of a catalog sample (once per name; an adaptive psychophysics session adds the
+        stimuli its staircases ask for as they come).
+
+        Parameters
+        ----------
+        sample : stimuli.CatalogSample
+
+        Raises
+        ------
+        ValueError
+            The sample cannot be rendered on this device (raised now, not mid-window).
+        """
+        if sample.name in self.loops:
+            return
+        transient = sample.make_transient(library_dir=self.library_dir) if sample.kind == "virtual" else None
+        cfg = RendererConfig(stiffness_N_m=sample.stiffness_N_m if sample.kind == "virtual" else 0.0,
+                             motor_enabled=sample.kind == "virtual", log_capacity_s=self._capacity_s,
+                             until_every=4 if sample.kind == "real" else 16,
+                             watchdog_overrun_s=self.protocol.servo_watchdog_s)
+        loop = ServoLoop(self.device, cfg, transient)
+        loop.prepare()  # raises ValueError now (e.g. a library unusable on this device), not mid-session
+        self.samples[sample.name] = sample
+        self.loops[sample.name] = loop
 
     def link_status(self) -> str:
         """One line on the device link's health for the operator page.

@@ -81,6 +81,8 @@ def low_tone(fs_hz: float, amplitude: float = 0.5) -> np.ndarray:
 #: has confirmed (section 4.5.3, "a recorded voice in the headphones") and the
 #: rating prompt when the tap window ends (taps after it count as overpowering).
 CUE_PHRASES = {"tap": "Tap now.", "rate": "Stop. Please rate."}
+#: a two-interval forced-choice session (issue 34) asks "which one?" instead of a rating
+CHOICE_PHRASES = {"tap": "Tap now.", "rate": "Stop. Which one?"}
 
 
 class SpeechUnavailable(RuntimeError):
@@ -264,6 +266,9 @@ class MaskingAudio:
     cue_level_db : float
         Active RMS of the spoken cues (or the fallback chimes) relative to the
         noise RMS, dB (0: as loud as the noise).
+    phrases : dict, optional
+        Cue name -> phrase (:data:`CUE_PHRASES`, or :data:`CHOICE_PHRASES` for a forced-choice session);
+        the names ``tap`` and ``rate`` are required.
 
     Attributes
     ----------
@@ -276,7 +281,8 @@ class MaskingAudio:
     """
 
     def __init__(self, level_dbfs: float = -20.0, fs_hz: float = 44100.0, seed: int = 0, device=None,
-                 channels: int = 1, blocksize: int = 1024, cue_level_db: float = 0.0) -> None:
+                 channels: int = 1, blocksize: int = 1024, cue_level_db: float = 0.0,
+                 phrases: dict | None = None) -> None:
         if not (math.isfinite(level_dbfs) and level_dbfs <= -3.0):
             raise ValueError(f"masking level_dbfs must be finite and <= -3 dBFS (headroom for cues), got {level_dbfs}")
         if not math.isfinite(cue_level_db):
@@ -298,7 +304,8 @@ class MaskingAudio:
         self.frames_played = 0
         self.status_flags = 0
         # synthesized once here (session start), never in the callback
-        self.cues, self.cue_source, self.cue_spoken = make_cues(self.fs_hz, self.rms * 10.0 ** (cue_level_db / 20.0))
+        self.cues, self.cue_source, self.cue_spoken = make_cues(self.fs_hz, self.rms * 10.0 ** (cue_level_db / 20.0),
+                                                                phrases)
         self.tap_cue = self.cues["tap"]
         self.low_tone = low_tone(self.fs_hz)
 

@@ -107,6 +107,7 @@ def _run_command(args) -> int:
 
     # masking audio: required on hardware, silent in sim unless asked
     from .audio import (  # deferred: keeps `--help` fast (a command loads only what it runs)
+        CHOICE_PHRASES,
         MaskingAudio,
         SilentAudio,
         check_output_device,
@@ -116,7 +117,8 @@ def _run_command(args) -> int:
     if want_audio:
         device_name = check_output_device(_audio_device(args.audio_device))
         audio = MaskingAudio(level_dbfs=protocol.masking_level_dbfs, fs_hz=protocol.audio_fs_hz,
-                             seed=seed, device=_audio_device(args.audio_device), cue_level_db=protocol.cue_level_db)
+                             seed=seed, device=_audio_device(args.audio_device), cue_level_db=protocol.cue_level_db,
+                             phrases=CHOICE_PHRASES if plan.experiment is not None else None)
         audio_info = {"output": device_name, "level_dbfs": protocol.masking_level_dbfs,
                       "cue_source": audio.cue_source, "cue_spoken": audio.cue_spoken,
                       "cue_level_db": protocol.cue_level_db}
@@ -170,6 +172,11 @@ def _run_command(args) -> int:
             apparatus = Apparatus(device, catalog, protocol, library_dir=library_dir,
                                   sim_participant=sim_participant, realtime=True if args.realtime else None)
         participant = sim_participant if args.participant == "simulated" else _KeyboardParticipant()
+        if plan.experiment is not None:  # issue 34: a psychophysics session (2-interval forced choice)
+            from .psysession import run_experiment  # deferred: keeps `--help` fast
+
+            return run_experiment(plan, args, apparatus, participant, audio, audio_info, device_info, isolate,
+                                  sim_participant, say)
         schedule = Schedule([s.name for s in catalog], protocol.repetitions, seed,
                             protocol.familiarization_sample or None, subject)
         rows, fam_ended = start_session(plan, args, schedule, device_info, isolate, sim_participant, audio_info,

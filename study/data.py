@@ -271,6 +271,9 @@ class SessionStore:
         Open an existing, unfinished session instead of creating a new one.
     """
 
+    #: the header ``create`` writes to trials.csv (a psychophysics session's store has its own columns)
+    trial_columns = TRIAL_COLUMNS
+
     def __init__(self, root, subject: str, resume: bool = False) -> None:
         self.subject = check_subject_id(subject)
         self.root = Path(root)
@@ -410,7 +413,7 @@ class SessionStore:
             atomic_write_bytes(tmp / "session.json", (json.dumps(self.session, indent=2) + "\n").encode())
             crash_point("startup: session.json written")
             buf = io.StringIO()
-            csv.writer(buf, lineterminator="\n").writerow(TRIAL_COLUMNS)
+            csv.writer(buf, lineterminator="\n").writerow(self.trial_columns)
             atomic_write_bytes(tmp / "trials.csv", buf.getvalue().encode())
             crash_point("startup: trials.csv written")
             lines = "".join(json.dumps({"at": utc_now(), **e}) + "\n" for e in events)

@@ -183,6 +183,10 @@ class IsolatedApparatus:
         """Select the sample in the servo process (see ``Apparatus.set_sample``)."""
         self._call("set_sample", name)
 
+    def add_sample(self, sample) -> None:
+        """Make a catalog sample's servo loop in the servo process (see ``Apparatus.add_sample``)."""
+        self._call("add_sample", sample)
+
     def start_hand(self, plan, window_s: float) -> None:
         """Start the simulated hand's plan for a window of ``window_s`` s (servo process)."""
         self._call("start_hand", plan, window_s)

@@ -51,7 +51,16 @@ class SimParticipantConfig:
     p_hard_tap : float
         Probability per attempt of one hard tap at ``hard_tap_factor`` times the velocity.
     hard_tap_factor : float
-    """
+    jnd_force_frac, jnd_compliance_frac : float
+        Psychophysics sessions: the 2-interval JNDs (75 % point, fractions) of force (7 %) and compliance
+        (15 %) that set the stiffness percept's Weber noise (:mod:`study.perception`).
+    jnd_vibration_frac : float
+        Psychophysics: the vibrotactile amplitude JND (20 %) that sets the transient percept's noise.
+    realness_noise_sd : float
+        Psychophysics: SD of the noise added to an interval's spectral similarity to the real sample (0-1).
+    lapse : float
+        Psychophysics: probability that an answer is a coin flip (below 0.5).
+"""
 
     velocity_mean_m_s: float = 0.10
     velocity_sd_m_s: float = 0.04
@@ -69,6 +78,11 @@ class SimParticipantConfig:
     overpower_press_depth_m: float = 0.03
     p_hard_tap: float = 0.03
     hard_tap_factor: float = 3.0
+    jnd_force_frac: float = 0.07
+    jnd_compliance_frac: float = 0.15
+    jnd_vibration_frac: float = 0.2
+    realness_noise_sd: float = 0.15
+    lapse: float = 0.02
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -78,6 +92,8 @@ class SimParticipantConfig:
         for key in ("p_reject", "p_overpower", "p_hard_tap"):
             if getattr(self, key) > 1:
                 raise ValueError(f"participant.{key} is a probability (0-1), got {getattr(self, key)}")
+        if self.lapse >= 0.5:
+            raise ValueError(f"participant.lapse must be below 0.5 (at 0.5 every answer is a guess), got {self.lapse}")
         if not 0 < self.velocity_min_m_s < self.velocity_max_m_s:
             raise ValueError("participant velocity range must satisfy 0 < velocity_min_m_s < velocity_max_m_s")
         if not 0 < self.grip_min_N <= self.grip_max_N:

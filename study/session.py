@@ -19,6 +19,8 @@ from stimuli import load_catalog
 
 from .config import ProtocolConfig, SubjectInfo, load_protocol
 from .data import SessionStore, check_subject_id, utc_now
+from .psydata import PSY_COLUMNS
+from .experiment import ExperimentConfig, experiment_from_dict, load_protocol_file, stimulus_catalog
 
 
 @dataclass
@@ -35,6 +37,7 @@ class SessionPlan:
     library_dir: str | None
     catalog_file: str | None
     catalog: list
+    experiment: ExperimentConfig | None = None   # a psychophysics session (issue 34), else None
 
 
 def _sha256(path: Path) -> str:
@@ -196,6 +199,7 @@ def plan_session(args) -> SessionPlan:
     if previous is not None:
         # the settings come from session.json, not from the command line
         protocol = load_protocol(None, where=f"{store.session_path}: protocol", **previous["protocol"])
+        experiment = _resumed_experiment(previous, store.session_path)
         if args.seed is not None and args.seed != previous["seed"]:
             raise ValueError(f"--seed {args.seed} differs from the session's seed {previous['seed']} "
                              f"({store.session_path}); omit --seed when resuming")
@@ -206,7 +210,10 @@ def plan_session(args) -> SessionPlan:
         except ValueError as exc:
             raise ValueError(f"{store.session_path}: {exc}") from None
     else:
-        protocol = load_protocol(args.protocol, **protocol_overrides)
+        protocol, experiment = load_protocol_file(args.protocol, **protocol_overrides)
+        if experiment is not None and args.samples:
+            raise ValueError(f"--samples: a psychophysics session presents the samples its protocol's [experiment] "
+                             f"names ({args.protocol}); omit --samples")
         seed = args.seed if args.seed is not None else secrets.randbelow(2 ** 31)
         if args.participant == "keyboard" and None in (args.age, args.gender, args.handedness, args.experience):
             raise ValueError("a session with a person needs --age, --gender, --handedness and --experience "
@@ -219,18 +226,46 @@ def plan_session(args) -> SessionPlan:
         else previous.get("library_dir")
     catalog_file = (str(Path(args.catalog).resolve()) if args.catalog else None) if previous is None \
         else previous.get("catalog_file")
-    catalog = load_study_catalog(catalog_file, library_dir,
-                                 args.samples if previous is None else ",".join(s["name"] for s in previous["catalog"]),
-                                 is_sim, protocol.familiarization_sample)
+    if experiment is not None:
+        # the samples it presents are derived from the catalog's (levels of a varied parameter)
+        base = load_study_catalog(catalog_file, library_dir, None, is_sim, "")
+        where = args.protocol if previous is None else f"{store.session_path}: experiment"
+        try:
+            catalog = stimulus_catalog(base, experiment)
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+    else:
+        catalog = load_study_catalog(catalog_file, library_dir,
+                                     args.samples if previous is None else
+                                     ",".join(s["name"] for s in previous["catalog"]),
+                                     is_sim, protocol.familiarization_sample)
     if previous is not None:
         _check_same_catalog(previous["catalog"], _catalog_entries(catalog), store.session_path)
 
-    return SessionPlan(subject, store, previous, is_sim, protocol, seed, info, library_dir, catalog_file, catalog)
+    if experiment is not None:
+        store.trial_columns = PSY_COLUMNS
+    return SessionPlan(subject, store, previous, is_sim, protocol, seed, info, library_dir, catalog_file, catalog,
+                       experiment)
+
+
+def _resumed_experiment(previous: dict, where) -> ExperimentConfig | None:
+    """The experiment of a resumed psychophysics session (``session.json["experiment"]["config"]``), or None."""
+    if "experiment" not in previous:
+        return None
+    exp = previous["experiment"]
+    if not isinstance(exp, dict) or not isinstance(exp.get("config"), dict):
+        raise ValueError(f"{where}: experiment must be an object with the [experiment] settings under \"config\"")
+    return experiment_from_dict(exp["config"], f"{where}: experiment.config")
 
 
 def start_session(plan: SessionPlan, args, schedule, device_info: dict, servo_process: bool, sim_participant,
-                  audio_info: dict, real_saturation_detection) -> tuple[list, bool]:
+                  audio_info: dict, real_saturation_detection, experiment_events: list | None = None,
+                  read_rows=None) -> tuple[list, bool]:
     """Write a new session's ``session.json`` and plan, or log the resumption of a previous one.
+
+    A psychophysics session (``plan.experiment``) passes ``schedule=None``, its plan as ``experiment_events``
+    (schedule.jsonl's first lines) and its trials.csv reader as ``read_rows``; its session.json also holds
+    ``"experiment"`` (:meth:`study.experiment.ExperimentConfig.to_session`).
 
     Returns
     -------
@@ -255,17 +290,24 @@ def start_session(plan: SessionPlan, args, schedule, device_info: dict, servo_pr
                                         if args.participant_config else None),
             "audio": audio_info, "real_saturation_detection": real_saturation_detection,
             "software_version": software_versions(), "started_at": utc_now(), "finished_at": None,
-            "resumed_at": [], "planned_order": {k: v.summary()["planned"] for k, v in schedule.phases.items()},
+            "resumed_at": [],
         }
+        if plan.experiment is not None:
+            session["experiment"] = plan.experiment.to_session()
+            events = experiment_events
+        else:
+            session["planned_order"] = {k: v.summary()["planned"] for k, v in schedule.phases.items()}
+            events = [{"event": "plan", "phase": name, "order": phase.summary()["planned"],
+                       "trials": phase.summary()["planned_trials"]} for name, phase in schedule.phases.items()]
         # one atomic step: session.json, the trials.csv header and the plan appear together or not at all
-        store.create(session, events=[{"event": "plan", "phase": name, "order": phase.summary()["planned"],
-                                       "trials": phase.summary()["planned_trials"]}
-                                      for name, phase in schedule.phases.items()])
+        store.create(session, events=events)
         rows, fam_ended = [], False
     else:
         store.session = previous
-        rows = store.read_trials()
-        if store.legacy_columns:  # written before rows carried ends_familiarization
+        rows = store.read_trials() if read_rows is None else read_rows(store)
+        if plan.experiment is not None:
+            fam_ended = True  # no familiarization in a psychophysics session
+        elif store.legacy_columns:  # written before rows carried ends_familiarization
             fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
         else:  # the transition is in the row itself (same durable step as the attempt)
             fam_ended = any(r["ends_familiarization"] for r in rows)

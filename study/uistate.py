@@ -13,6 +13,8 @@ import time
 
 RATING_KEYS = ("1", "2", "3", "4", "5", "6", "7", "x")
 KEY_HINT = "Please use the keys 1 to 7 to rate, or x to reject this trial."
+CHOICE_KEYS = ("1", "2", "x")
+CHOICE_HINT = "Please press 1 for the first interval or 2 for the second, or x to reject this trial."
 FAM_HINT = "Keep tapping on the wood. Press Enter when you are done."
 
 
@@ -51,7 +53,7 @@ class UiState:
         with self._cond:
             self.subject.update(message=message, prompt=prompt, hint="")
             self.subject["seq"] += 1
-            if prompt == "rate":
+            if prompt in ("rate", "choice"):
                 self._rating = None
             self._cond.notify_all()
 
@@ -110,7 +112,8 @@ class UiState:
         with self._cond:
             prompt = self.subject["prompt"]
             accepted = False
-            if prompt == "rate" and key in RATING_KEYS and self._rating is None:
+            if ((prompt == "rate" and key in RATING_KEYS) or (prompt == "choice" and key in CHOICE_KEYS)) \
+                    and self._rating is None:
                 self._rating = key
                 accepted = True
                 self.subject.update(message="Thank you.", prompt="wait", hint="")
@@ -121,7 +124,7 @@ class UiState:
                                     hint="")
             else:
                 self.keys_ignored += 1
-                self.subject["hint"] = KEY_HINT if prompt == "rate" else (
+                self.subject["hint"] = KEY_HINT if prompt == "rate" else CHOICE_HINT if prompt == "choice" else (
                     FAM_HINT if prompt == "familiarization" else "No key is needed now; please wait.")
             self.subject["seq"] += 1
             self._cond.notify_all()

@@ -1,0 +1,336 @@
+"""Psychophysics sessions on the sim device (issue 34): JND recovered vs the simulated participant, SIGKILL/resume.
+
+1. **JND recovery.** Simulated subjects run a stiffness-discrimination session (method of constant stimuli,
+   7 comparison stiffnesses from 400 to 1225 N/m around a 700 N/m reference, ``TRIALS_PER_LEVEL`` trials
+   each) on the sim device;
+   their answers come from what the device rendered (:mod:`study.perception`: force and penetration of their
+   own taps with the force and compliance JNDs). A cumulative normal is fitted by maximum likelihood to
+   P("comparison harder") against log10 stiffness (lapse fixed at 0: statsmodels' binomial GLM with a probit
+   link); its JND = x(F = 0.75) - x(F = 0.5) gives the Weber fraction, printed against the participant's
+   (16.8 % from 7 % force and 15 % compliance JNDs).
+2. **SIGKILL at every trial.** A warm process forks a session killed by SIGKILL at a durable step
+   (:func:`study.data.crash_point`) and a ``--resume`` to the end; the finished trials.csv must equal an
+   uninterrupted run's trial by trial (the :mod:`benchmarks.bench_study_kill` harness' forking).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import study.data as data
+from study.__main__ import main as study_main
+from study.participants import SimParticipantConfig
+from study.perception import stiffness_weber_fraction
+
+from .bench_study_kill import _forked, read_rows
+
+QUICK = """
+tap_window_s = 0.6
+homing_after_s = 0.3
+homing_before_max_s = 0.1
+"""
+DISCRIMINATION = QUICK + """
+[experiment]
+kind = "discrimination"
+sample = "firm"
+vary = "stiffness_N_m"
+reference = 700.0
+levels = {levels}
+trials_per_level = {n}
+intensity_scale = "log10"
+"""
+ADAPTIVE_DETECTION = QUICK + """
+[experiment]
+kind = "detection"
+sample = "pulse_firm"
+method = "updown"
+intensity_scale = "log10"
+catch_rate = 0.2
+catch_intensity = 0.0
+
+[experiment.staircases.A]
+start = 4.0
+step_down = [0.3, 0.15]
+max_trials = {n}
+
+[experiment.staircases.B]
+start = 0.5
+step_down = [0.3, 0.15]
+max_trials = {n}
+"""
+DETECTION_CONSTANT = QUICK + """
+[experiment]
+kind = "detection"
+sample = "pulse_firm"
+levels = [0.15, 0.3, 0.6, 1.2, 2.4, 4.8, 9.6]
+trials_per_level = {n}
+intensity_scale = "log10"
+"""
+DETECTION_QUEST = QUICK + """
+[experiment]
+kind = "detection"
+sample = "pulse_firm"
+method = "quest+"
+intensity_scale = "log10"
+
+[experiment.staircases.Q]
+intensities = {{min = 0.1, max = 10.0, n = 31, spacing = "log10"}}
+thresholds = {{min = 0.1, max = 10.0, n = 31, spacing = "log10"}}
+slopes = [1.0, 2.0, 3.5, 6.0]
+lapses = [0.0, 0.02, 0.05]
+guess = 0.5
+function = "weibull"
+max_trials = {n}
+"""
+REAL_VIRTUAL = QUICK + """
+[experiment]
+kind = "real-virtual-2afc"
+real_sample = "wood_on_foam"
+renderings = ["firm", "sinusoid_firm"]
+trials_per_level = {n}
+"""
+LEVELS = [400.0, 500.0, 600.0, 700.0, 820.0, 980.0, 1225.0]   # to 0.57 and 1.75 x: the lapses show
+TRIALS_PER_LEVEL = 60
+KEY = ("trial", "attempt", "condition", "staircase", "intensity", "is_catch", "target_interval", "sample_1",
+       "sample_2", "response", "correct", "n_taps_1", "n_taps_2")
+# (not the percepts: they differ in the last digits after a resume, the sim device's state after a restart)
+
+
+def session_args(protocol: Path, out: Path, subject: str, seed: int, resume: bool = False, *extra) -> list:
+    """``python -m study run`` arguments of a simulated psychophysics session (or its ``--resume``)."""
+    if resume:
+        return ["run", "--quiet", "--subject", subject, "--out", str(out), "--resume"]
+    return ["run", "--quiet", "--device", "sim", "--participant", "simulated", "--subject", subject,
+            "--seed", str(seed), "--out", str(out), "--protocol", str(protocol), *extra]
+
+
+def fit_probit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Maximum-likelihood cumulative normal ``P = Phi(beta (x - alpha))`` (guess and lapse 0).
+
+    Returns
+    -------
+    (alpha, beta)
+        PSE (F = 0.5) and slope, in the units of ``x``.
+    """
+    import statsmodels.api as sm  # deferred: only this benchmark needs statsmodels
+
+    res = sm.GLM(y, sm.add_constant(x), family=sm.families.Binomial(link=sm.families.links.Probit())).fit()
+    b0, b1 = res.params
+    return float(-b0 / b1), float(b1)
+
+
+def fit_probit_lapse(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Maximum likelihood of ``P = lapse / 2 + (1 - lapse) Phi(beta (x - alpha))``, lapse in [0, 0.1]: the
+    simulated participant's own model (a lapse is a coin flip, so it lowers the top and lifts the bottom).
+
+    Returns
+    -------
+    (alpha, beta, lapse)
+    """
+    from scipy.optimize import minimize  # deferred: only this benchmark fits with a free lapse
+    from scipy.stats import norm  # deferred: as above
+
+    a0, b0 = fit_probit(x, y)
+
+    def nll(p):
+        a, log_b, lam = p
+        q = lam / 2 + (1 - lam) * norm.cdf(np.exp(log_b) * (x - a))
+        q = np.clip(q, 1e-12, 1 - 1e-12)
+        return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
+
+    res = minimize(nll, [a0, math.log(max(b0, 1e-3)), 0.02], method="L-BFGS-B",
+                   bounds=[(None, None), (None, None), (0.0, 0.1)])
+    a, log_b, lam = res.x
+    return float(a), float(math.exp(log_b)), float(lam)
+
+
+def weber_from_log10_fit(alpha: float, beta: float) -> tuple[float, float]:
+    """PSE (physical) and Weber fraction from a probit fit on log10 intensity (JND = x75 - x50, eq. of the
+    contract; Weber fraction = JND / PSE)."""
+    x50 = 10 ** alpha
+    x75 = 10 ** (alpha + 0.6744897501960817 / beta)
+    return x50, (x75 - x50) / x50
+
+
+def jnd_recovery(work: Path, subjects: int = 4, n: int = TRIALS_PER_LEVEL) -> list[dict]:
+    """Run ``subjects`` discrimination sessions and fit each; returns per subject PSE, Weber fraction, time."""
+    proto = work / "discrimination.toml"
+    proto.write_text(DISCRIMINATION.format(levels=LEVELS, n=n))
+    out = []
+    for k in range(subjects):
+        subject = f"J{k + 1}"
+        t0 = time.perf_counter()
+        code = study_main(session_args(proto, work / "DATA", subject, 100 + k))
+        wall = time.perf_counter() - t0
+        if code != 0:
+            raise RuntimeError(f"session {subject} exited {code}")
+        rows = read_rows(work / "DATA" / subject)
+        x = np.array([float(r["intensity"]) for r in rows])
+        y = np.array([int(r["correct"]) for r in rows])
+        alpha, beta = fit_probit(x, y)
+        pse, weber = weber_from_log10_fit(alpha, beta)
+        a2, b2, lapse = fit_probit_lapse(x, y)
+        pse2, weber2 = weber_from_log10_fit(a2, b2)
+        out.append({"subject": subject, "trials": len(rows), "pse_N_m": pse, "weber": weber, "wall_s": wall,
+                    "pse_lapse_N_m": pse2, "weber_lapse": weber2, "lapse": lapse})
+    return out
+
+
+def _states(folder: Path) -> list:
+    """The staircase state lines of a subject folder (``[]`` for constant stimuli)."""
+    path = folder / "staircase_state.jsonl"
+    return [json.loads(ln) for ln in path.read_text().splitlines()] if path.exists() else []
+
+
+def fit_2afc_threshold(x: np.ndarray, y: np.ndarray) -> float:
+    """Maximum likelihood of ``P = 0.5 + (0.5 - lapse) Phi(beta (x - alpha))`` (2AFC, lapse in [0, 0.1]) on
+    ``x`` = log10 intensity; returns the threshold ``10**alpha`` (F = 0.5, the contract's convention)."""
+    from scipy.optimize import minimize  # deferred: only this benchmark fits
+    from scipy.stats import norm  # deferred: as above
+
+    def nll(p):
+        a, log_b, lam = p
+        q = np.clip(0.5 + (0.5 - lam) * norm.cdf(np.exp(log_b) * (x - a)), 1e-12, 1 - 1e-12)
+        return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
+
+    res = minimize(nll, [float(np.median(x)), math.log(3.0), 0.02], method="L-BFGS-B",
+                   bounds=[(None, None), (None, None), (0.0, 0.1)])
+    return float(10 ** res.x[0])
+
+
+def detection_and_real_virtual(work: Path, n_constant: int = 40, n_quest: int = 80, n_rv: int = 20) -> dict:
+    """A simulated subject's transient-detection threshold by constant stimuli (7 levels) and by QUEST+
+    (``n_quest`` trials), and proportion correct per rendering in a real-vs-virtual session."""
+    out = {}
+    for name, text, n in (("constant", DETECTION_CONSTANT, n_constant), ("quest", DETECTION_QUEST, n_quest),
+                          ("rv", REAL_VIRTUAL.replace('["firm", "sinusoid_firm"]',
+                                                      '["firm", "pulse_firm", "sinusoid_firm", "hfam_firm"]'), n_rv)):
+        proto = work / f"{name}.toml"
+        proto.write_text(text.format(n=n))
+        t0 = time.perf_counter()
+        if study_main(session_args(proto, work / "DATA2", name, 7)) != 0:
+            raise RuntimeError(f"session {name} failed")
+        out[f"{name}_s"] = time.perf_counter() - t0
+        rows = read_rows(work / "DATA2" / name)
+        if name == "constant":
+            x = np.array([float(r["intensity"]) for r in rows])
+            out["constant"] = fit_2afc_threshold(x, np.array([int(r["correct"]) for r in rows]))
+        elif name == "quest":
+            last = _states(work / "DATA2" / name)[-1]["estimate"]
+            out["quest"], out["quest_ci"] = last["threshold"], last["threshold_ci"]
+        else:
+            out["rv"] = {c: (float(np.mean([int(r["correct"]) for r in rows if r["condition"] == c])),
+                             sum(r["condition"] == c for r in rows)) for c in sorted({r["condition"] for r in rows})}
+    return out
+
+
+class PsyKillHarness:
+    """A warm process, an uninterrupted reference session and kill/resume cases at chosen durable steps."""
+
+    def __init__(self, work: Path, protocol_text: str, seed: int = 4) -> None:
+        self.work = Path(work)
+        self.protocol = self.work / "protocol.toml"
+        self.protocol.write_text(protocol_text)
+        self.seed = seed
+        log = self.work / "steps.log"
+        data._CRASH_COUNT = 0
+        os.environ["STUDY_CRASH_LOG"] = str(log)
+        try:
+            code = study_main(session_args(self.protocol, self.work / "ref", "K", seed))
+        finally:
+            os.environ.pop("STUDY_CRASH_LOG", None)
+        if code != 0:
+            raise RuntimeError(f"the reference session failed with {code}")
+        self.steps = log.read_text().splitlines()
+        self.reference = [tuple(r[k] for k in KEY) for r in read_rows(self.work / "ref" / "K")]
+        self.reference_states = _states(self.work / "ref" / "K")
+
+    def step_of(self, name: str) -> int:
+        """The 1-based number of the durable step called ``name`` (e.g. ``row written: trial 2/1``)."""
+        return next(int(n) for n, w in (s.split(" ", 1) for s in self.steps) if w == name)
+
+    def case(self, step: int, index: int) -> dict:
+        """Kill a fresh session at durable step ``step``, resume it, compare with the reference."""
+        out = self.work / f"case{index:03d}"
+        folder = out / "K"
+        killed = _forked(session_args(self.protocol, out, "K", self.seed), {"STUDY_CRASH_AT": str(step)})
+        result = {"step": step, "where": self.steps[step - 1].split(" ", 1)[1], "killed": killed}
+        if killed != -signal.SIGKILL:
+            result["error"] = f"the session was not killed (exit {killed})"
+            return result
+        before = (folder / "trials.csv").read_bytes() if folder.exists() else b""
+        result["rows_before"] = max(0, before.count(b"\n") - 1)
+        if not folder.exists():
+            resumed = _forked(session_args(self.protocol, out, "K", self.seed), {})
+        elif json.loads((folder / "session.json").read_text())["finished_at"]:
+            resumed = 0
+        else:
+            resumed = _forked(session_args(self.protocol, out, "K", self.seed, resume=True), {})
+        result["resumed"] = resumed
+        if resumed != 0:
+            result["error"] = f"--resume exited {resumed}"
+            return result
+        after = (folder / "trials.csv").read_bytes()
+        if not after.startswith(before[:before.rfind(b"\n") + 1]):
+            result["error"] = "rows on disk before the kill changed"
+        rows = [tuple(r[k] for k in KEY) for r in read_rows(folder)]
+        if rows != self.reference:
+            result["error"] = f"{len(rows)} rows differ from the reference's {len(self.reference)}"
+        if _states(folder) != self.reference_states:
+            result["error"] = "staircase_state.jsonl differs from the reference's"
+        if list(folder.rglob("*.tmp")):
+            result["error"] = "temporary files left"
+        result["folder"] = folder
+        return result
+
+
+def main(subjects: int = 4) -> None:
+    """Print the JND recovery per simulated subject and the kill/resume cases' outcome."""
+    cfg = SimParticipantConfig()
+    true_w = stiffness_weber_fraction(cfg.jnd_force_frac, cfg.jnd_compliance_frac)
+    with tempfile.TemporaryDirectory() as tmp:
+        res = jnd_recovery(Path(tmp), subjects)
+        per_trial = np.median([r["wall_s"] / r["trials"] for r in res])
+        print(f"   stiffness discrimination, 7 levels x {TRIALS_PER_LEVEL} trials, reference 700 N/m; participant: "
+              f"force JND {cfg.jnd_force_frac:.0%}, compliance JND {cfg.jnd_compliance_frac:.0%}, lapse "
+              f"{cfg.lapse:.0%} -> Weber fraction {true_w:.3f}")
+        for r in res:
+            print(f"   {r['subject']}: {r['trials']} trials; lapse 0: PSE {r['pse_N_m']:.0f} N/m, Weber fraction "
+                  f"{r['weber']:.3f} ({(r['weber'] / true_w - 1):+.0%}); lapse free: PSE {r['pse_lapse_N_m']:.0f} "
+                  f"N/m, Weber {r['weber_lapse']:.3f} ({(r['weber_lapse'] / true_w - 1):+.0%}), lapse "
+                  f"{r['lapse']:.3f}")
+        ws = np.array([r["weber"] for r in res])
+        wl = np.array([r["weber_lapse"] for r in res])
+        print(f"   median Weber fraction {np.median(ws):.3f} (lapse 0), {np.median(wl):.3f} (lapse free) vs "
+              f"{true_w:.3f}; median {per_trial * 1e3:.0f} ms per trial (wall)")
+        d = detection_and_real_virtual(Path(tmp))
+        print(f"   detection of pulse_firm's pulse (N*s/m): constant stimuli 7 x 40 -> threshold "
+              f"{d['constant']:.3f} ({d['constant_s']:.0f} s); QUEST+ 80 trials -> {d['quest']:.3f}, 95 % CI "
+              f"[{d['quest_ci'][0]:.3f}, {d['quest_ci'][1]:.3f}] ({d['quest_s']:.0f} s); ratio "
+              f"{d['quest'] / d['constant']:.2f}")
+        print("   real vs virtual (wood_on_foam), proportion correct per rendering: " +
+              ", ".join(f"{c} {p:.2f} (n {n})" for c, (p, n) in d["rv"].items()))
+        harness = PsyKillHarness(Path(tmp), REAL_VIRTUAL.format(n=2))
+        rows = [harness.step_of(f"row written: trial {k}/1") for k in range(1, len(harness.reference) + 1)
+                if any(s.endswith(f"row written: trial {k}/1") for s in harness.steps)]
+        picks = sorted(set(rows + [2, len(harness.steps)] + [r - 1 for r in rows]))
+        results = [harness.case(s, i) for i, s in enumerate(picks)]
+        bad = [r for r in results if "error" in r]
+        print(f"   real-virtual 2AFC, {len(harness.reference)} trials, {len(harness.steps)} durable steps: "
+              f"{len(results)} SIGKILL/resume cases, {len(bad)} differing from the uninterrupted run")
+        for r in bad[:5]:
+            print(f"     step {r['step']} ({r['where']}): {r['error']}")
+        if bad or not all(math.isfinite(w) for w in ws):
+            raise AssertionError("psychophysics session benchmark failed")
+
+
+if __name__ == "__main__":
+    main()
