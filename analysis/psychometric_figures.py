@@ -16,7 +16,7 @@ import numpy as np
 
 import figstyle
 from analysis.psychometric import aggregate, psychometric, reversals
-from analysis.psychophysics import ALL, POOLED, GroupFit, Trials
+from analysis.psychophysics import ALL, POOLED, GroupFit, Proportion, Trials
 
 #: the most tracks drawn in one staircase figure (the rest are listed in its title)
 MAX_TRACKS = 12
@@ -155,4 +155,44 @@ def build_tracks(trials: Trials, intensity_label: str = "intensity"):
 def fig_tracks(trials: Trials, path: Path, intensity_label: str = "intensity") -> dict:
     """Write :func:`build_tracks` as PNG, SVG and CSV into the command's own output folder; returns the paths."""
     fig, data = build_tracks(trials, intensity_label)
+    return figstyle.save(fig, path, data, force=True)
+
+
+def build_proportions(props: list[Proportion], chance: float = 0.5):
+    """Real-vs-virtual 2AFC: proportion correct per rendering (pooled over subjects) with its exact interval.
+
+    Parameters
+    ----------
+    props : list of Proportion
+        From :func:`analysis.psychophysics.proportions_correct`; the pooled rows are drawn.
+    chance : float
+        Drawn as a dashed line: a rendering at chance cannot be told from the real sample.
+
+    Returns
+    -------
+    fig : Figure
+    data : dict of columns
+    """
+    pooled = [p for p in props if p.subject == POOLED]
+    rows = {"condition": [p.condition for p in pooled], "n_trials": [p.n_trials for p in pooled],
+            "proportion_correct": [p.proportion for p in pooled], "ci_low": [p.ci_low for p in pooled],
+            "ci_high": [p.ci_high for p in pooled], "p_vs_chance": [p.p_vs_chance for p in pooled]}
+    with figstyle.style() as plt:
+        fig, ax = plt.subplots(figsize=figstyle.figsize("column", height_in=0.3 * len(pooled) + 1.2))
+        for i, p in enumerate(pooled):
+            st = figstyle.sample_style(p.condition)
+            ax.errorbar(p.proportion, i, xerr=[[p.proportion - p.ci_low], [p.ci_high - p.proportion]],
+                        fmt=st["marker"], color=st["color"], capsize=2, elinewidth=0.8)
+        ax.axvline(chance, color="0.4", linestyle="--", linewidth=0.8)
+        ax.set_yticks(range(len(pooled)), [_label(p.condition) for p in pooled])
+        ax.set_ylim(len(pooled) - 0.5, -0.5)
+        ax.set_xlim(0.0, 1.02)
+        ax.set_xlabel("proportion correct, 'which was real?' (1)")
+        ax.set_title("Real vs virtual (dashed: chance)", loc="left")
+    return fig, rows
+
+
+def fig_proportions(props: list[Proportion], path: Path, chance: float = 0.5) -> dict:
+    """Write :func:`build_proportions` as PNG, SVG and CSV into the command's own output folder; returns the paths."""
+    fig, data = build_proportions(props, chance)
     return figstyle.save(fig, path, data, force=True)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import binomtest
 
 from analysis.psychometric import Fit, fit
 
@@ -229,8 +230,42 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
     return out
 
 
-def fits_table(fits: list[GroupFit]) -> tuple[list[str], list[list]]:
-    """``fits.csv``'s header and rows: one row per group, intervals as ``*_ci_low``/``*_ci_high``."""
+def physical_summary(f: Fit, reference=None) -> dict:
+    """Threshold, PSE, JND and Weber fraction in physical units of a fit on a log10 intensity axis.
+
+    Parameters
+    ----------
+    f : Fit
+        Fitted on ``log10`` of the physical stimulus (a session with ``intensity_scale = "log10"``).
+    reference : float, optional
+        The reference stimulus in physical units.
+
+    Returns
+    -------
+    dict
+        ``threshold_physical`` (= 10**threshold) and its interval, ``jnd_physical`` = 10**x(F=0.75) -
+        10**x(F=0.5), and ``weber_physical``: ``jnd_physical / reference`` for a yes/no task, ``(10**threshold
+        - reference) / reference`` for an n-AFC task (None without a reference).
+    """
+    thr = 10.0 ** f.threshold
+    x75 = 10.0 ** (f.threshold + f.jnd)
+    jnd = x75 - thr
+    weber = None
+    if reference is not None and math.isfinite(reference) and reference > 0:
+        weber = jnd / reference if f.guess == 0.0 else (thr - reference) / reference
+    lo, hi = f.threshold_ci
+    return {"threshold_physical": thr, "pse_physical": thr, "jnd_physical": jnd, "weber_physical": weber,
+            "reference_physical": reference,
+            "threshold_ci_physical": [10.0 ** lo if math.isfinite(lo) else None,
+                                      10.0 ** hi if math.isfinite(hi) else None]}
+
+
+def fits_table(fits: list[GroupFit], reference_physical=None) -> tuple[list[str], list[list]]:
+    """``fits.csv``'s header and rows: one row per group, intervals as ``*_ci_low``/``*_ci_high``.
+
+    With ``reference_physical`` (a fit on a log10 axis), the physical threshold, JND and Weber fraction
+    (:func:`physical_summary`) follow as extra columns.
+    """
     header = ["subject", "condition", "function", "alternatives", "n_trials", "n_levels", "threshold",
               "threshold_ci_low", "threshold_ci_high", "slope", "slope_ci_low", "slope_ci_high", "lapse",
               "lapse_ci_low", "lapse_ci_high", "pse", "jnd", "jnd_ci_low", "jnd_ci_high", "weber", "weber_ci_low",
@@ -241,4 +276,62 @@ def fits_table(fits: list[GroupFit]) -> tuple[list[str], list[list]]:
         rows.append([g.subject, g.condition, f.function, f.alternatives, f.n_trials, f.n_levels, f.threshold,
                      *f.threshold_ci, f.slope, *f.slope_ci, f.lapse, *f.lapse_ci, f.pse, f.jnd, *f.jnd_ci, f.weber,
                      *f.weber_ci, f.deviance, f.deviance_p_bootstrap, f.deviance_p_chi2])
+        if reference_physical is not None:
+            ph = physical_summary(f, reference_physical)
+            rows[-1] += [ph["threshold_physical"], ph["jnd_physical"],
+                         math.nan if ph["weber_physical"] is None else ph["weber_physical"]]
+    if reference_physical is not None:
+        header += ["threshold_physical", "jnd_physical", "weber_physical"]
     return header, rows
+
+
+@dataclass(frozen=True)
+class Proportion:
+    """Proportion correct of one group of real-vs-virtual 2AFC trials ("which was real?"), against chance."""
+
+    subject: str
+    condition: str
+    n_trials: int
+    n_correct: int
+    proportion: float
+    ci_low: float
+    ci_high: float
+    p_vs_chance: float
+
+
+def proportions_correct(trials: Trials, chance: float = 0.5, ci_level: float = 0.95) -> list[Proportion]:
+    """Proportion correct per condition (rendering), pooled and per subject, with its interval and a test.
+
+    The interval is Clopper-Pearson's exact binomial interval; the test is the exact two-sided binomial
+    test of the proportion against ``chance`` (scipy.stats.binomtest): a rendering that people cannot tell
+    from the real sample gives about 0.5; one they always tell apart, 1.0.
+
+    Parameters
+    ----------
+    trials : Trials
+        Real-vs-virtual 2AFC trials (catch trials left out).
+    chance : float
+        The proportion correct of guessing (0.5 for two intervals).
+    ci_level : float
+
+    Returns
+    -------
+    list of Proportion
+        Each condition pooled over subjects first, then each subject x condition (with more than one subject).
+    """
+    keep = ~trials.is_catch
+    subjects = sorted(set(trials.subject[keep]))
+    conditions = sorted(set(trials.condition[keep]))
+    groups = [(POOLED, c, keep & (trials.condition == c)) for c in conditions]
+    if len(subjects) > 1:
+        groups += [(s, c, keep & (trials.subject == s) & (trials.condition == c)) for c in conditions for s in subjects]
+    out = []
+    for subject, condition, mask in groups:
+        n = int(mask.sum())
+        if n == 0:
+            continue
+        k = int(trials.correct[mask].sum())
+        test = binomtest(k, n, chance)
+        ci = test.proportion_ci(confidence_level=ci_level, method="exact")
+        out.append(Proportion(subject, condition, n, k, k / n, float(ci.low), float(ci.high), float(test.pvalue)))
+    return out
