@@ -242,12 +242,11 @@ def _compile(out_dir: Path) -> None:
         # numba.pycc is "pending deprecation" (numba 0.57+) but is numba's supported AOT path today
         warnings.simplefilter("ignore")
         from numba.pycc import CC  # deferred: numba's compiler, build only
+        from numba.pycc import compiler as pycc_compiler  # deferred: build only
 
         from devices.sim import kernel  # deferred: the JIT kernel whose source is compiled, build only
 
         from . import law  # deferred: the JIT law whose source is compiled, build only
-
-        from numba.pycc import compiler as pycc_compiler  # deferred: build only
 
         cc = CC(MODULE)
         cc.output_dir = str(out_dir)
@@ -291,17 +290,6 @@ def _check_loads(path: Path) -> None:
     if proc.returncode != 0:
         last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
         raise RuntimeError(f"the build {path} does not load: {last}")
-
-
-def register(subparsers) -> None:
-    """Add the ``compile-sim`` command to ``python -m renderer``."""
-    p = subparsers.add_parser("compile-sim", help="compile the simulated closed loop ahead of time (fast sim runs)",
-                              description="Compile renderer.law.run_sim (servo law + simulated physics) and the "
-                                          "device's physics step into an extension module, so simulated runs "
-                                          "start without numba. Runs by itself in the background after the "
-                                          "first simulated run that finds none (HFAM_SIM_AOT=auto).")
-    p.add_argument("--force", action="store_true", help="rebuild even if a build for these sources exists")
-    p.set_defaults(func=compile_command)
 
 
 def compile_command(args) -> int:
