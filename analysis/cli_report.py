@@ -16,8 +16,6 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 from analysis.config import AnalysisConfig, check_data_folder
-from analysis.load import AnalysisWarning, submit_sessions
-from analysis.pipeline import analyse
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,27 +38,28 @@ def run(args: argparse.Namespace) -> int:
         try:
             # the drawing process, idle until the study is loaded, reads the session files while this one
             # imports the statistics and reads the trials files
+            # imported after the fork (figure_process; a thread of pyarrow's would forbid it), while the drawing
+            # process imports matplotlib
+            from analysis.load import AnalysisWarning, submit_sessions  # deferred: pandas, 1.9 s CPU, after the fork
+
             sessions = submit_sessions(args.data, pool)
-            from analysis.report import (  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
-                list_traces,
-                start_accelerations,
-                write_report,
-            )
+            # the statistics are imported while the drawing process reads the session files
+            from analysis import pipeline, report  # deferred: statsmodels + scipy, 3.0 s CPU, during the session reads
 
             # then it lists the subject folders holding traces while this one loads the study, and draws
             # Figure 4.20 (its taps read here from the traces once the study is loaded) while this one
             # computes the statistics
-            traced = list_traces(sessions[1], pool)
+            traced = report.list_traces(sessions[1], pool)
             started = []
 
             def loaded(study):
                 if pool is not None:
-                    started.append(start_accelerations(study, out, args.velocity, pool, traced))
+                    started.append(report.start_accelerations(study, out, args.velocity, pool, traced))
 
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", AnalysisWarning)
-                res = analyse(args.data, cfg, sessions=sessions, loaded=loaded)
-                written = write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
+                res = pipeline.analyse(args.data, cfg, sessions=sessions, loaded=loaded)
+                written = report.write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
                                        pool=pool, accelerations=started[0] if started else None)
         finally:
             if collecting:
@@ -93,7 +92,7 @@ def figure_process():
     """
     # imported before the fork, so that both processes have it for the cost of one import (it starts no
     # thread; pandas would: pyarrow's allocator runs one)
-    import matplotlib.pyplot  # deferred: only a report with figures needs matplotlib (~0.35 s)  # noqa: F401
+    import matplotlib.pyplot  # deferred: only a report with figures needs it (0.46 s CPU)  # noqa: F401
 
     pool = None
     if _single_threaded():
@@ -129,7 +128,7 @@ def _start_drawing() -> None:
     sentinel = multiprocessing.parent_process().sentinel       # readable once the main process has ended
     threading.Thread(target=_end_with_parent, args=(sentinel,), daemon=True).start()
 
-    import analysis.figures  # deferred: the drawing process's imports (pandas, figstyle), while the study is read  # noqa: F401
+    import analysis.figures  # deferred: the drawing process's imports (2.1 s CPU), while the study is read  # noqa: F401
 
 
 def _end_with_parent(sentinel) -> None:

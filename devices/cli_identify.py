@@ -13,10 +13,11 @@ from pathlib import Path
 import figstyle
 from plumbing.fileio import check_output_dir, clear_products, refuse_overwrite
 
+from .identify import pipeline as identify_pipeline  # identify_pipeline.identify_device: replaceable in tests
 from .identify.etfe import etfe
 from .identify.figures import bode_plot
 from .identify.fit import FitOptions, fit_etfes
-from .identify.pipeline import IdentifyConfig, format_report, identify_device
+from .identify.pipeline import IdentifyConfig, format_report
 from .identify.recording import read_recording
 from .identify.successive import STAGE_NAMES, format_result, identify_successive, save_result
 from .identify.successive.procedure import STATE_FILE
@@ -152,7 +153,7 @@ def _measure(args, out: Path) -> dict:
                              detrend=args.detrend, reverse_half=not args.no_reverse,
                              amplitudes_A=tuple(args.amplitude) if len(args.amplitude) > 1 else (),
                              purpose=args.purpose, workers=max(1, workers))
-        return identify_device(dev, cfg, out, device_spec=args.device, seed=args.seed)
+        return identify_pipeline.identify_device(dev, cfg, out, device_spec=args.device, seed=args.seed)
 
 
 def run_successive(args) -> int:

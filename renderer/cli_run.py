@@ -23,11 +23,10 @@ from plumbing import provenance
 from plumbing.fileio import check_output_dir
 from plumbing.stopsignals import Terminated, stop_on_signals
 
-from . import sim_aot
+from . import process, sim_aot  # process.run_in_process: replaceable in tests
 from .cli_run_parser import TRANSIENTS
 from .config import RendererConfig, load_config
 from .loop import ServoLoop
-from .process import run_in_process
 
 
 def make_transient(kind: str, library: str | None = None, gain: float | None = None):
@@ -127,7 +126,7 @@ def _run(args) -> int:
             return exc.code
     else:
         try:
-            result = run_in_process(args.device, cfg, transient, duration_s=args.duration)
+            result = process.run_in_process(args.device, cfg, transient, duration_s=args.duration)
         except RuntimeError as exc:  # the servo process failed: keep what it logged before failing
             partial = getattr(exc, "partial_result", None)
             if partial is not None:

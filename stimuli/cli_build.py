@@ -5,9 +5,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from devices.model import load_model
+from devices import registry  # registry.make_device: replaceable in tests
 from devices.identify.modelset import read_model_set_index
-from devices.registry import make_device
+from devices.model import load_model
 from plumbing.fileio import check_output_file
 
 from .hfam.build import build_library, format_verification, source_entry
@@ -21,7 +21,7 @@ def _device_limits(args) -> tuple[float, float | None, float | None, tuple | Non
     fpa, peak, rate, grips = args.force_per_amp, args.peak_current_A, None, None
     if args.device.lower() != "none":
         # a hardware device learns its info in the hello handshake, so open it (zero current) to read it
-        with make_device(args.device) as dev:
+        with registry.make_device(args.device) as dev:
             info = dev.info
         fpa = info.force_per_amp_N_A if fpa is None else fpa
         peak = info.current_peak_A if peak is None else peak
@@ -104,7 +104,7 @@ def run(args) -> int:
                              f"one (on hardware refinement needs repeated taps by a person, see docs/hfam_library.md)")
 
 
-        library, _ = refine_library(library, models, lambda: make_device(args.device, seed=0),
+        library, _ = refine_library(library, models, lambda: registry.make_device(args.device, seed=0),
                                     RefineSettings(iterations=args.refine, wall_N_m=args.refine_wall,
                                                    gain=args.refine_gain, max_lag_s=args.refine_max_lag,
                                                    recording_iterations=args.refine_recordings), settings,

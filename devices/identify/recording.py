@@ -15,9 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from plumbing.fileio import atomic_open, atomic_write_text, read_json_file
 from plumbing.validation import is_finite_number, shown_value
+
 from .sweep import SweepConfig
 
 COLUMNS = ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N")
@@ -181,7 +183,6 @@ def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
         Naming the file for an unparsable CSV or missing column(s), and file,
         line and column of the first non-numeric or NaN/inf value.
     """
-    import pandas as pd  # deferred: pandas costs ~0.3 s to import and only reading needs it (identify only writes)
 
     try:
         df = pd.read_csv(path)

@@ -7,7 +7,7 @@ import math
 import time
 
 from plumbing.fileio import check_output_dir
-from stimuli.hfam.pipeline import PipelineSettings
+from stimuli.hfam.settings import PipelineSettings
 
 from .config import DemoConfig
 from .hw_demo import run_hardware_demo
