@@ -14,7 +14,6 @@ numbers converted), e.g. ``serial:/dev/pts/3?mode=on-device&timeout_s=0.05``.
 from __future__ import annotations
 
 from .base import Device
-from .sim import SimDevice
 
 DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>", "fw-sim")
 
@@ -62,6 +61,7 @@ def make_device(spec: str, **options) -> Device:
     kind, rest, spec_options = _split(spec)
     options = {**spec_options, **options}
     if kind == "sim":
+        from .sim import SimDevice  # deferred: with numpy, 0.12 s CPU that every devices --help would pay
 
         return SimDevice.from_spec(rest or None, **options)
     if kind == "fw-sim":
