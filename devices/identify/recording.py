@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from plumbing.fileio import atomic_open, atomic_write_text, read_json_file
 from plumbing.validation import is_finite_number, shown_value
@@ -183,6 +182,7 @@ def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
         Naming the file for an unparsable CSV or missing column(s), and file,
         line and column of the first non-numeric or NaN/inf value.
     """
+    import pandas as pd  # deferred: 1.35 s CPU; only reading a recording needs it (identify, the demo only write)
 
     try:
         df = pd.read_csv(path)
