@@ -23,7 +23,7 @@ from plumbing import provenance
 from plumbing.fileio import check_output_dir
 from plumbing.stopsignals import Terminated, stop_on_signals
 
-from . import process, sim_aot  # process.run_in_process: replaceable in tests
+from . import sim_aot
 from .cli_run_parser import TRANSIENTS
 from .config import RendererConfig, load_config
 from .loop import ServoLoop
@@ -126,6 +126,8 @@ def _run(args) -> int:
             return exc.code
     else:
         try:
+            from . import process  # deferred: multiprocessing, 16 ms CPU of every simulated run; hardware only
+
             result = process.run_in_process(args.device, cfg, transient, duration_s=args.duration)
         except RuntimeError as exc:  # the servo process failed: keep what it logged before failing
             partial = getattr(exc, "partial_result", None)

@@ -18,6 +18,12 @@ import time
 
 import serial
 
+try:  # hidapi is optional: without it, opening a HID device is one error (below), importing this is not
+    import hid
+except ImportError as _exc:  # pragma: no cover - hidapi is a dependency
+    hid = None
+    _HID_MISSING = str(_exc)
+
 HID_REPORT_SIZE = 64
 HID_DATA_PER_REPORT = HID_REPORT_SIZE - 1
 
@@ -142,10 +148,8 @@ class HidTransport(Transport):
         TransportClosed
             hidapi is missing, or no such device can be opened (the message names the device).
         """
-        try:
-            import hid  # deferred: hidapi is optional (absent: one error here, not at import); 2 ms CPU
-        except ImportError as exc:  # pragma: no cover - hidapi is a dependency
-            raise TransportClosed(f"hidapi is not installed: {exc}") from None
+        if hid is None:  # pragma: no cover - hidapi is a dependency
+            raise TransportClosed(f"hidapi is not installed: {_HID_MISSING}")
         name = f"hid:{vid:04x}:{pid:04x}"
         if not hasattr(hid, "device"):
             raise TransportClosed("the installed 'hid' module is not hidapi (pip install hidapi, not hid)")
