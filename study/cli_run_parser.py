@@ -23,8 +23,7 @@ import argparse
 from plumbing.cliargs import add_renamed, with_examples
 from plumbing.dispatch import Body
 
-from .config import GENDERS, HANDEDNESS
-from .data import EXPERIENCE
+from .choices import EXPERIENCE, GENDERS, HANDEDNESS
 
 
 def register(subparsers) -> None:

@@ -14,10 +14,8 @@ from dataclasses import asdict, dataclass
 
 from plumbing.validation import load_dataclass_file, require_int, require_positive
 
-from .data import EXPERIENCE, check_subject_id
-
-GENDERS = ("female", "male", "other", "unspecified")
-HANDEDNESS = ("right", "left", "ambidextrous", "unspecified")
+from .choices import EXPERIENCE, GENDERS, HANDEDNESS
+from .data import check_subject_id
 
 
 @dataclass(frozen=True)
