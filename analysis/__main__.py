@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
-from plumbing.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, run_as_script
+from plumbing.dispatch import main as dispatch
 
-#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``.
+#: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
+#: whose parser names the body that runs (plumbing.dispatch.Body).
 #: One BLAS thread: the analysis' matrix products are small (vectors of attempts, 12 x 12 covariances); a second
 #: BLAS thread waiting for a busy core cost up to a scheduler slice (~8 ms) per call, 0.6 s per report on a loaded
 #: two-core machine
 COMMANDS = (
-    Command("report", "analysis.cli_report", "analyse a study folder: tables, figures, report.md/.html", blas_threads=1),
-    Command("psychometric", "analysis.cli_psychometric",
+    Command("report", "analysis.cli_report_parser", "analyse a study folder: tables, figures, report.md/.html", blas_threads=1),
+    Command("psychometric", "analysis.cli_psychometric_parser",
             "psychometric fits (threshold, slope, lapse, PSE, JND) of forced-choice data", blas_threads=1),
-    Command("synthetic", "analysis.cli_synthetic", "write a synthetic study folder in the study's data format",
+    Command("synthetic", "analysis.cli_synthetic_parser", "write a synthetic study folder in the study's data format",
             blas_threads=1),
 )
 

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import argparse
 import gc
+import multiprocessing
 import os
+import signal
 import sys
+import threading
 import warnings
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager, nullcontext
+from multiprocessing.connection import wait
 from pathlib import Path
 
-from plumbing.cliargs import add_renamed
-
-from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig, check_data_folder
+from analysis.config import AnalysisConfig, check_data_folder
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,28 +36,30 @@ def run(args: argparse.Namespace) -> int:
         collecting = gc.isenabled()
         gc.disable()
         try:
-            from analysis.load import AnalysisWarning, submit_sessions  # deferred: keeps `--help` fast (a command loads what it runs)
-
             # the drawing process, idle until the study is loaded, reads the session files while this one
             # imports the statistics and reads the trials files
+            # imported after the fork (figure_process; a thread of pyarrow's would forbid it), while the drawing
+            # process imports matplotlib
+            from analysis.load import AnalysisWarning, submit_sessions  # deferred: pandas, 1.9 s CPU, after the fork
+
             sessions = submit_sessions(args.data, pool)
-            from analysis.pipeline import analyse  # deferred: keeps `--help` fast (a command loads what it runs)
-            from analysis.report import list_traces, start_accelerations, write_report  # deferred: pandas, matplotlib and statsmodels behind it (~2 s)
+            # the statistics are imported while the drawing process reads the session files
+            from analysis import pipeline, report  # deferred: statsmodels + scipy, 3.0 s CPU, during the session reads
 
             # then it lists the subject folders holding traces while this one loads the study, and draws
             # Figure 4.20 (its taps read here from the traces once the study is loaded) while this one
             # computes the statistics
-            traced = list_traces(sessions[1], pool)
+            traced = report.list_traces(sessions[1], pool)
             started = []
 
             def loaded(study):
                 if pool is not None:
-                    started.append(start_accelerations(study, out, args.velocity, pool, traced))
+                    started.append(report.start_accelerations(study, out, args.velocity, pool, traced))
 
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", AnalysisWarning)
-                res = analyse(args.data, cfg, sessions=sessions, loaded=loaded)
-                written = write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
+                res = pipeline.analyse(args.data, cfg, sessions=sessions, loaded=loaded)
+                written = report.write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
                                        pool=pool, accelerations=started[0] if started else None)
         finally:
             if collecting:
@@ -87,12 +92,10 @@ def figure_process():
     """
     # imported before the fork, so that both processes have it for the cost of one import (it starts no
     # thread; pandas would: pyarrow's allocator runs one)
-    import matplotlib.pyplot  # deferred: only a report with figures needs matplotlib (~0.35 s)  # noqa: F401
+    import matplotlib.pyplot  # deferred: only a report with figures needs it (0.46 s CPU)  # noqa: F401
 
     pool = None
     if _single_threaded():
-        import multiprocessing  # deferred: only the report with figures starts a process
-        from concurrent.futures import ProcessPoolExecutor  # deferred: only the report with figures starts a process
 
         pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
                                    initializer=_start_drawing)
@@ -120,50 +123,18 @@ def _start_drawing() -> None:
     """Initializer of the drawing process: it leaves Ctrl-C to the main process (which stops it after the
     figure at hand), ends when the main process is gone (killed: a pool process would otherwise wait for
     its next task for ever), and does the figures' imports while the main process imports the statistics."""
-    import multiprocessing  # deferred: the drawing process's own start-up
-    import signal  # deferred: the drawing process's own start-up
-    import threading  # deferred: the drawing process's own start-up
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     sentinel = multiprocessing.parent_process().sentinel       # readable once the main process has ended
     threading.Thread(target=_end_with_parent, args=(sentinel,), daemon=True).start()
 
-    import analysis.figures  # deferred: the drawing process's imports (pandas, figstyle), while the study is read  # noqa: F401
+    import analysis.figures  # deferred: the drawing process's imports (2.1 s CPU), while the study is read  # noqa: F401
 
 
 def _end_with_parent(sentinel) -> None:
     """Thread of the drawing process: ends the process once ``sentinel`` (the main process's) is readable."""
-    from multiprocessing.connection import wait  # deferred: the drawing process only
 
     wait([sentinel])
     os._exit(1)
 
 
-def register(subparsers) -> None:
-    """Add the ``report`` command.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-        The ``python -m analysis`` sub-command parsers.
-    """
-    p = subparsers.add_parser("report", help="analyse a study folder: tables, figures, report.md/.html",
-                              description="Analyse DATA (folder of subject folders with session.json and "
-                                          "trials.csv) and write tables, figures, report.md and report.html "
-                                          "into REPORT.")
-    p.add_argument("data", metavar="DATA", help="study data folder (one subfolder per subject)")
-    p.add_argument("--out", required=True, metavar="REPORT", help="output folder (created; new or empty)")
-    p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier report")
-    p.add_argument("--reference", default=DEFAULT_REFERENCE,
-                   help=f"reference sample of the equivalence tests (default {DEFAULT_REFERENCE})")
-    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
-                   help=f"equivalence margin in rating points, set before looking (default {DEFAULT_MARGIN})")
-    p.add_argument("--group", default="both", choices=("both", "all", "experienced"),
-                   help="subject groups to test: all subjects, experienced (experience != none) or both (default)")
-    p.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")
-    add_renamed(p, "--velocity-m-s", "--velocity", type=float, default=None, metavar="V", dest="velocity",
-                help="common incoming velocity for Figure 4.20 in m/s (default: median of all "
-                                         "taps)")
-    p.add_argument("--no-figures", action="store_true", help="tables and report without figures")
-    p.epilog = "example: hfam-analysis report DATA --out REPORT --reference wood_on_foam --margin 0.5"
-    p.set_defaults(func=run)

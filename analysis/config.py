@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from plumbing.validation import require_choice, require_number
+
 DEFAULT_REFERENCE = "wood_on_foam"
 DEFAULT_MARGIN = 0.5
 GROUPS = ("both", "all", "experienced")
@@ -32,12 +34,9 @@ class AnalysisConfig:
     alpha: float = 0.05
 
     def __post_init__(self):
-        if self.group not in GROUPS:
-            raise ValueError(f"--group must be all, experienced or both, not {self.group!r}")
-        if not (self.margin > 0):
-            raise ValueError(f"--margin must be > 0 rating points, got {self.margin}")
-        if not (0 < self.alpha < 1):
-            raise ValueError(f"--alpha must be in (0, 1), got {self.alpha}")
+        require_choice("--group", self.group, GROUPS)
+        require_number("--margin", self.margin, minimum=0.0, strict=True)   # rating points
+        require_number("--alpha", self.alpha, minimum=0.0, strict=True, maximum=1.0, strict_maximum=True)
 
 
 def check_data_folder(data_dir) -> Path:

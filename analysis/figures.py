@@ -12,6 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.collections import PathCollection
+from matplotlib.colors import TwoSlopeNorm
+from matplotlib.patches import Rectangle
+from matplotlib.textpath import TextPath
+from matplotlib.transforms import Affine2D, IdentityTransform
 
 import figstyle
 
@@ -127,7 +132,6 @@ def _matrices(pairwise: pd.DataFrame, samples) -> tuple[np.ndarray, np.ndarray]:
 
 def p_norm(alpha: float = 0.05):
     """Colour normalisation of Figure 4.18: log10 of the Holm p, diverging at log10(alpha)."""
-    from matplotlib.colors import TwoSlopeNorm  # deferred: matplotlib costs ~0.3 s; figures only
 
     return TwoSlopeNorm(vcenter=float(np.log10(alpha)), vmin=LOG_P_FLOOR, vmax=0.0)
 
@@ -140,9 +144,6 @@ def _star_marks(ax, st: np.ndarray, white: np.ndarray, group: str, fontsize: flo
     collections: as Text artists each mark was laid out and measured in every draw (four per saved
     figure), the figure's largest cost.
     """
-    from matplotlib.collections import PathCollection  # deferred: matplotlib costs ~0.3 s; figures only
-    from matplotlib.textpath import TextPath  # deferred: matplotlib costs ~0.3 s; figures only
-    from matplotlib.transforms import Affine2D, IdentityTransform  # deferred: matplotlib costs ~0.3 s; figures only
 
     for n in (1, 2, 3):
         i, j = np.nonzero(st == "*" * n)
@@ -176,7 +177,6 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
         One row per plotted cell: ``group, row, col, sample_row, sample_col, p_holm, log10_p_holm,
         stars, cohen_dz`` (row minus column).
     """
-    from matplotlib.patches import Rectangle  # deferred: matplotlib costs ~0.3 s; figures only
 
     groups = list(dict.fromkeys(pairwise["group"]))
     k = len(samples)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from scipy import stats
+from statsmodels.stats.anova import AnovaRM
 from statsmodels.stats.multitest import multipletests
 from statsmodels.stats.weightstats import ttost_paired
 
@@ -299,7 +300,6 @@ def omnibus(matrix: RatingMatrix, group: str) -> pd.DataFrame:
                                 "df2_gg": nan, "p_gg": nan})
         return pd.DataFrame(rows, columns=list(ANOVA_COLUMNS))
     if n <= ANOVARM_MAX_SUBJECTS:
-        from statsmodels.stats.anova import AnovaRM  # deferred: ~0.15 s to import; used up to 150 subjects only
         long = pd.DataFrame({"subject": np.repeat(np.arange(n), k), "sample": np.tile(np.arange(k), n),
                              "rating": y.reshape(-1)})
         table = AnovaRM(long, "rating", "subject", within=["sample"]).fit().anova_table

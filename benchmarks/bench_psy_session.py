@@ -5,8 +5,8 @@
    each) on the sim device;
    their answers come from what the device rendered (:mod:`study.perception`: force and penetration of their
    own taps with the force and compliance JNDs). A cumulative normal is fitted by maximum likelihood to
-   P("comparison harder") against log10 stiffness (lapse fixed at 0: statsmodels' binomial GLM with a probit
-   link); its JND = x(F = 0.75) - x(F = 0.5) gives the Weber fraction, printed against the participant's
+   P("comparison harder") against log10 stiffness (``analysis.psychometric.fit``, lapse fixed at 0 and free);
+   its JND = x(F = 0.75) - x(F = 0.5) gives the Weber fraction, printed against the participant's
    (16.8 % from 7 % force and 15 % compliance JNDs).
 2. **SIGKILL at every trial.** A warm process forks a session killed by SIGKILL at a durable step
    (:func:`study.data.crash_point`) and a ``--resume`` to the end; the finished trials.csv must equal an
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 import study.data as data
+from analysis import psychometric
 from study.__main__ import main as study_main
 from study.participants import SimParticipantConfig
 from study.perception import stiffness_weber_fraction
@@ -113,43 +114,28 @@ def session_args(protocol: Path, out: Path, subject: str, seed: int, resume: boo
 
 
 def fit_probit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Maximum-likelihood cumulative normal ``P = Phi(beta (x - alpha))`` (guess and lapse 0).
+    """Maximum-likelihood cumulative normal ``P = Phi(beta (x - alpha))`` (guess and lapse 0), by
+    ``analysis psychometric``'s fit (which equals statsmodels' probit GLM, tests/analysis/test_psychometric.py).
 
     Returns
     -------
     (alpha, beta)
         PSE (F = 0.5) and slope, in the units of ``x``.
     """
-    import statsmodels.api as sm  # deferred: only this benchmark needs statsmodels
-
-    res = sm.GLM(y, sm.add_constant(x), family=sm.families.Binomial(link=sm.families.links.Probit())).fit()
-    b0, b1 = res.params
-    return float(-b0 / b1), float(b1)
+    f = psychometric.fit(x, y, alternatives=1, function="normal", lapse=0.0, bootstrap=0)
+    return f.threshold, f.slope
 
 
 def fit_probit_lapse(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Maximum likelihood of ``P = lapse / 2 + (1 - lapse) Phi(beta (x - alpha))``, lapse in [0, 0.1]: the
-    simulated participant's own model (a lapse is a coin flip, so it lowers the top and lifts the bottom).
+    """The same with the lapse rate fitted in [0, 0.1] (``analysis psychometric --lapse free``: the lapse lowers
+    the upper asymptote only; the simulated participant's coin-flip lapse also lifts the lower one by lapse/2).
 
     Returns
     -------
     (alpha, beta, lapse)
     """
-    from scipy.optimize import minimize  # deferred: only this benchmark fits with a free lapse
-    from scipy.stats import norm  # deferred: as above
-
-    a0, b0 = fit_probit(x, y)
-
-    def nll(p):
-        a, log_b, lam = p
-        q = lam / 2 + (1 - lam) * norm.cdf(np.exp(log_b) * (x - a))
-        q = np.clip(q, 1e-12, 1 - 1e-12)
-        return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
-
-    res = minimize(nll, [a0, math.log(max(b0, 1e-3)), 0.02], method="L-BFGS-B",
-                   bounds=[(None, None), (None, None), (0.0, 0.1)])
-    a, log_b, lam = res.x
-    return float(a), float(math.exp(log_b)), float(lam)
+    f = psychometric.fit(x, y, alternatives=1, function="normal", bootstrap=0)
+    return f.threshold, f.slope, f.lapse
 
 
 def weber_from_log10_fit(alpha: float, beta: float) -> tuple[float, float]:
@@ -192,18 +178,8 @@ def _states(folder: Path) -> list:
 
 def fit_2afc_threshold(x: np.ndarray, y: np.ndarray) -> float:
     """Maximum likelihood of ``P = 0.5 + (0.5 - lapse) Phi(beta (x - alpha))`` (2AFC, lapse in [0, 0.1]) on
-    ``x`` = log10 intensity; returns the threshold ``10**alpha`` (F = 0.5, the contract's convention)."""
-    from scipy.optimize import minimize  # deferred: only this benchmark fits
-    from scipy.stats import norm  # deferred: as above
-
-    def nll(p):
-        a, log_b, lam = p
-        q = np.clip(0.5 + (0.5 - lam) * norm.cdf(np.exp(log_b) * (x - a)), 1e-12, 1 - 1e-12)
-        return -np.sum(y * np.log(q) + (1 - y) * np.log1p(-q))
-
-    res = minimize(nll, [float(np.median(x)), math.log(3.0), 0.02], method="L-BFGS-B",
-                   bounds=[(None, None), (None, None), (0.0, 0.1)])
-    return float(10 ** res.x[0])
+    ``x`` = log10 intensity, by ``analysis psychometric``'s fit; returns the threshold ``10**alpha`` (F = 0.5)."""
+    return float(10 ** psychometric.fit(x, y, alternatives=2, function="normal", bootstrap=0).threshold)
 
 
 def detection_and_real_virtual(work: Path, n_constant: int = 40, n_quest: int = 80, n_rv: int = 20) -> dict:

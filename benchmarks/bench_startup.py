@@ -19,6 +19,7 @@ breakdown does not depend on it as much.
 
 from __future__ import annotations
 
+import importlib
 import os
 import statistics
 import subprocess
@@ -35,7 +36,6 @@ PACKAGES = ("devices", "renderer", "stimuli", "study", "analysis")
 
 def _commands(package: str) -> list[str]:
     """The subcommands a package's ``__main__`` lists (from its table, without importing them)."""
-    import importlib  # deferred: the import is what this benchmark times
 
     main = importlib.import_module(f"{package}.__main__")
     return [c.name for c in main.COMMANDS]

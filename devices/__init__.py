@@ -1,5 +1,7 @@
 """Haptic devices: the interface, the simulated device, hardware drivers, identification, models."""
 
+import importlib
+
 from .base import Device, DeviceError, DeviceInfo, DeviceState, Status
 from .registry import DEVICE_KINDS, check_device_spec, make_device, open_device
 
@@ -7,8 +9,11 @@ __all__ = ["Device", "DeviceError", "DeviceInfo", "DeviceState", "Status", "DEVI
            "load_model"]
 
 
-def load_model(path):
-    """Load a device model JSON file (see docs/models.md); lazy so ``import devices`` stays light."""
-    from .model import load_model as _load  # deferred: keeps `import devices` light
-
-    return _load(path)
+def __getattr__(name):
+    """``load_model`` (devices.model: a model JSON file, docs/models.md), loaded on first use (PEP 562): every
+    ``python -m devices`` parser imports this package."""
+    if name != "load_model":
+        raise AttributeError(f"module 'devices' has no attribute {name!r}")
+    value = importlib.import_module(".model", __name__).load_model
+    globals()[name] = value
+    return value

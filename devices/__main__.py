@@ -2,23 +2,25 @@
 
 from __future__ import annotations
 
-from plumbing.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, run_as_script
+from plumbing.dispatch import main as dispatch
 
-#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+#: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
+#: whose parser names the body that runs (plumbing.dispatch.Body)
 COMMANDS = (
-    Command("record", "devices.cli_record", "tap a sample and record 100 ms of handle acceleration per tap (CSV)"),
-    Command("identify", "devices.cli_identify",
+    Command("record", "devices.cli_record_parser", "tap a sample and record 100 ms of handle acceleration per tap (CSV)"),
+    Command("identify", "devices.cli_identify_parser",
             "identify a device: comprehensive evaluation (LTI model set) or successive isolation (nonlinear physical model)"),
-    Command("fit", "devices.cli_identify", "fit a model to swept-sine recordings made anywhere"),
-    Command("validate", "devices.cli_validate", "validate an identified model against the device (ETFEs, held transients)"),
-    Command("linearity", "devices.cli_linearity",
+    Command("fit", "devices.cli_identify_parser", "fit a model to swept-sine recordings made anywhere"),
+    Command("validate", "devices.cli_validate_parser", "validate an identified model against the device (ETFEs, held transients)"),
+    Command("linearity", "devices.cli_linearity_parser",
             "linearity and time-invariance report: ETFEs at several amplitudes, grips, positions"),
-    Command("emulate", "devices.cli_hardware",
+    Command("emulate", "devices.cli_hardware_parser",
             "firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)"),
-    Command("latency", "devices.cli_hardware", "measure command->state round trip and achieved update rate of a device"),
-    Command("firmware-report", "devices.cli_firmware",
+    Command("latency", "devices.cli_hardware_parser", "measure command->state round trip and achieved update rate of a device"),
+    Command("firmware-report", "devices.cli_firmware_parser",
             "timing of the real AVR firmware on simavr (tick cycles, ISRs, RAM, encoder)"),
-    Command("fw-sim", "devices.cli_firmware", "run the real firmware on simavr behind a pty (connect with serial:<pty>)"),
+    Command("fw-sim", "devices.cli_firmware_parser", "run the real firmware on simavr behind a pty (connect with serial:<pty>)"),
 )
 
 

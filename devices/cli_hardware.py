@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import gc
 import os
 import signal
@@ -10,69 +9,11 @@ import sys
 import threading
 import time
 
-from plumbing.cliargs import with_examples
+import numpy as np
 
-
-def _float_list(text: str) -> list[float]:
-    if text.strip().lower() == "none":
-        return []
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if any(not v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"tap velocities must be > 0 m/s, got {text!r}")
-    return values
-
-
-def register(subparsers) -> None:
-    """Add the ``emulate`` and ``latency`` commands.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-        The ``python -m devices`` sub-command parsers.
-    """
-    p = subparsers.add_parser(
-        "emulate", help="firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)",
-        description="Open a pty pair, print 'PORT <slave path>', and emulate the reference firmware on it, "
-                    "driven by the simulated device's physics. Stop with Ctrl-C / SIGTERM.")
-    p.add_argument("--pty", action="store_true", help="use a pseudo-terminal pair (the only transport; default)")
-    p.add_argument("--mode", choices=("streaming", "on-device"), default="streaming",
-                   help="streaming: host commands every tick; on-device: also offers on-board rendering")
-    p.add_argument("--fault", default="", metavar="SPEC",
-                   help="fault injection, e.g. drop=0.01,corrupt=0.01,delay=0.01,delay_s=0.005,duplicate=0.01,"
-                        "garbage=0.01,disconnect_after_s=5,silent=1,protocol_major=2")
-    p.add_argument("--watchdog-ms", type=int, default=100, help="device watchdog period (default 100 ms)")
-    p.add_argument("--pace", choices=("realtime", "host"), default="realtime",
-                   help="on-device tick pacing: wall clock, or as fast as the host reads telemetry")
-    p.add_argument("--sim", default=None, help="sim parameters: omitted (Table 3.1), 'lti', or a TOML/JSON file")
-    p.add_argument("--taps", type=_float_list, default=[0.05, 0.1, 0.2],
-                   help="velocities (m/s) the simulated hand taps with, cycled forever (default 0.05,0.1,0.2); "
-                        "'none': the hand holds the handle still 1 cm above the surface (identify, calibration)")
-    p.add_argument("--grip-N", type=float, default=2.0, help="simulated grip force (N)")
-    p.add_argument("--sample", default="placeholder", help="real sample under the stylus (sim sample name)")
-    p.add_argument("--rate-hz", type=float, default=None,
-                   help="firmware servo rate (default: 1000 in streaming mode, the sim's 10000 on-device)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--t0-us", type=int, default=0, help="device clock at power-up (us), e.g. near 2**32 to test wrap")
-    p.add_argument("--duration-s", type=float, default=None, help="exit after this long (default: run until killed)")
-    p.add_argument("--rt-priority", type=int, default=None, metavar="N",
-                   help="run under SCHED_FIFO priority N (1-99; needs root or CAP_SYS_NICE), as a firmware would")
-    with_examples(p, 'hfam-devices emulate --pty --mode on-device        # prints PORT /dev/pts/N')
-    p.set_defaults(func=run_emulate)
-
-    q = subparsers.add_parser(
-        "latency", help="measure command->state round trip and achieved update rate of a device",
-        description="Stream N zero-current commands (each answered by a state frame) as fast as the link allows "
-                    "and report round-trip percentiles and the achieved rate; then N pings (no physics).")
-    q.add_argument("--device", required=True, help="device string, e.g. serial:/dev/ttyACM0 or hid:16c0:0486")
-    q.add_argument("--n", type=int, default=2000, help="number of round trips (default 2000)")
-    q.add_argument("--warmup", type=int, default=100)
-    q.add_argument("--rt-priority", type=int, default=None, metavar="N",
-                   help="measure under SCHED_FIFO priority N (1-99; needs root or CAP_SYS_NICE)")
-    with_examples(q, 'hfam-devices latency --device serial:/dev/pts/3 --n 2000')
-    q.set_defaults(func=run_latency)
+from .base import DeviceError
+from .firmware.emulator import FaultSpec, build_emulator
+from .registry import open_device
 
 
 def set_realtime_priority(priority: int | None) -> str:
@@ -117,10 +58,6 @@ def run_emulate(args) -> int:
 
 def _serve_emulator(args, timers: list) -> int:
     """The body of :func:`run_emulate`; forced-exit timers it starts are appended to ``timers``."""
-    from .firmware.emulator import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        FaultSpec,
-        build_emulator,
-    )
 
     stop = threading.Event()
     started = time.monotonic()
@@ -189,7 +126,6 @@ def _serve_emulator(args, timers: list) -> int:
 
 def percentiles_us(samples_s) -> dict:
     """Median, p90, p99 and maximum of ``samples_s`` (s), in microseconds, as a dict."""
-    import numpy as np  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     a = np.asarray(samples_s) * 1e6
     return {"median_us": float(np.median(a)), "p90_us": float(np.percentile(a, 90)),
@@ -224,7 +160,6 @@ def measure_latency(dev, n: int = 2000, warmup: int = 100) -> dict:
 
 def run_latency(args) -> int:
     """The ``latency`` command: round trips over the link; a device error becomes a clear error line (exit 2)."""
-    from .base import DeviceError  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     try:
         return _run_latency(args)
@@ -233,8 +168,6 @@ def run_latency(args) -> int:
 
 
 def _run_latency(args) -> int:
-    from .registry import open_device  # deferred: keeps `--help` fast (a command loads only what it runs)
-
     with open_device(args.device) as dev:
         if getattr(dev, "on_device_rendering", False):
             raise ValueError("latency measures streaming round trips; open the device in streaming mode")

@@ -2,54 +2,17 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
+from plumbing.fileio import atomic_write_text, check_output_dir
 
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
-
-def register(subparsers) -> None:
-    """Add the ``linearity`` command to ``python -m devices``."""
-    p = subparsers.add_parser(
-        "linearity", help="linearity and time-invariance report: ETFEs at several amplitudes, grips, positions",
-        description="Measure handle-acceleration ETFEs (with coherence) at several current magnitudes, grips and "
-                    "workspace positions, and the first condition again at the end; judge every pair of "
-                    "conditions that differ in one factor (dB and degree distance, and over which band) and "
-                    "conclude in plain language whether an LTI model suffices (sec. 3.4.3).")
-    p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, ...)")
-    p.add_argument("--amplitudes", type=_floats, default=None,
-                   help="sweep amplitudes in A (default: 8, 40 and 95 %% of the continuous current)")
-    p.add_argument("--grips", type=_floats, default=(1.0, 2.0, 3.0), help="grips in N (default 1,2,3)")
-    p.add_argument("--positions", type=_floats, default=(0.0, 0.02),
-                   help="workspace positions in m, handle space (default 0,0.02)")
-    p.add_argument("--band", type=float, nargs=2, default=(20.0, 500.0), metavar=("LO", "HI"),
-                   help="judged band in Hz (default 20 500)")
-    p.add_argument("--trials", type=int, default=2, help="trials per condition (coherence needs >= 2)")
-    p.add_argument("--seed", type=int, default=0, help="sim noise seed")
-    p.add_argument("--out", default=None, help="folder for linearity.txt, linearity.json and linearity.png")
-    p.add_argument("--force", action="store_true", help="replace an existing report in --out")
-    p.set_defaults(func=run_linearity)
+from .identify.linearity import default_conditions, format_linearity, linearity_figure, linearity_report
+from .registry import check_device_spec, make_device
 
 
 def run_linearity(args) -> int:
     """Run ``linearity`` (see the parser's description); returns the exit code."""
-    from plumbing.fileio import atomic_write_text, check_output_dir  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from .identify.linearity import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        default_conditions,
-        format_linearity,
-        linearity_figure,
-        linearity_report,
-    )
-    from .registry import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        check_device_spec,
-        make_device,
-    )
 
     check_device_spec(args.device)
     if args.trials < 2:

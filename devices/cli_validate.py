@@ -3,55 +3,26 @@ ETFE agreement at several current magnitudes and the held-handle response to con
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 from plumbing.fileio import check_output_file
 
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
-
-def register(subparsers) -> None:
-    """Add the ``validate`` command to ``python -m devices``."""
-    p = subparsers.add_parser(
-        "validate", help="validate an identified model against the device (ETFEs, held transients)",
-        description="MODEL is a nonlinear model file from 'identify --method successive' (model.json, a sim "
-                    "parameter file), a zpk model JSON from comprehensive evaluation, or a folder holding either "
-                    "(model.json or the accel model nearest --grip of model_set.json). Plays contact-like "
-                    "transients while the (simulated) user holds at --grip and reports the normalized RMS error "
-                    "of the model's predicted handle acceleration per transient; for a nonlinear model also "
-                    "compares the ETFEs of device and model at each --amplitudes (20-500 Hz).")
-    p.add_argument("model", help="model.json (nonlinear), a zpk JSON, or a model folder")
-    p.add_argument("--device", default="sim", help="device string of the device to validate against")
-    p.add_argument("--grip", type=float, default=2.0, help="grip of the holding user in N (default 2)")
-    p.add_argument("--amplitude", type=float, default=1.0, help="transient amplitude in A (default 1)")
-    p.add_argument("--amplitudes", type=_floats, default=(0.2, 0.75, 1.25),
-                   help="sweep amplitudes for the ETFE comparison (nonlinear models; default 0.2,0.75,1.25)")
-    p.add_argument("--seed", type=int, default=0, help="sim noise seed")
-    p.add_argument("--plot", default=None, help="write the time-domain figure (Figure 3.10 style) here")
-    p.add_argument("--force", action="store_true", help="overwrite --plot if it exists")
-    p.set_defaults(func=run_validate)
+from .identify.modelset import load_model_set
+from .identify.validate_td import etfe_agreement, time_domain_figure, time_domain_validation
+from .model import load_model
+from .registry import check_device_spec, make_device
+from .sim.device import SimDevice
+from .sim.params import load_sim_params
 
 
 def _load(path: Path, grip: float):
     """('nonlinear', SimParams) or ('zpk', ZpkModel) from a file or folder."""
-    from .model import load_model  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from .sim.params import load_sim_params  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     if path.is_dir():
         if (path / "model.json").is_file():
             path = path / "model.json"
         elif (path / "model_set.json").is_file():
-            from .identify.modelset import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-                load_model_set,
-            )
-
             return "zpk", load_model_set(path).model_at(grip, "accel_m_s2"), str(path)
         else:
             raise FileNotFoundError(f"{path}: no model.json or model_set.json in this folder")
@@ -68,15 +39,6 @@ def _load(path: Path, grip: float):
 
 def run_validate(args) -> int:
     """Run ``validate`` (see the parser's description); returns the exit code."""
-    from .identify.validate_td import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        etfe_agreement,
-        time_domain_figure,
-        time_domain_validation,
-    )
-    from .registry import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        check_device_spec,
-        make_device,
-    )
 
     check_device_spec(args.device)
     if args.plot:
@@ -85,8 +47,6 @@ def run_validate(args) -> int:
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:
         if kind == "nonlinear":
-            from .sim.device import SimDevice  # deferred: keeps `--help` fast (a command loads only what it runs)
-
             model_dev = SimDevice(model.replace(sensors={"accel_noise_m_s2": 0.0}), seed=args.seed + 1)
             for row in etfe_agreement(dev, model_dev, args.amplitudes, args.grip):
                 print(f"ETFE {row['amplitude_A']:g} A, grip {args.grip:g} N, 20-500 Hz: RMS {row['rms_db']:.2f} dB "

@@ -202,10 +202,8 @@ class ZpkModel:
         k : float
             Discrete gain.
         """
-        from scipy import signal  # deferred: scipy.signal costs ~0.7 s; loading a model (e.g. the demo's cached model set) must not pay it
-
         fs = _check_fs(fs_hz)
-        zd, pd, kd = signal.bilinear_zpk(self.zeros_rad_s, self.poles_rad_s, self.gain, fs)
+        zd, pd, kd = _signal().bilinear_zpk(self.zeros_rad_s, self.poles_rad_s, self.gain, fs)
         return np.asarray(zd, dtype=complex), np.asarray(pd, dtype=complex), float(np.real(kd))
 
     def delay_samples(self, fs_hz: float) -> int:
@@ -242,10 +240,8 @@ class ZpkModel:
         if pd.size == 0:
             y = kd * u
         else:
-            from scipy import signal  # deferred: as in to_discrete
-
-            sos = signal.zpk2sos(zd, pd, kd)
-            y = signal.sosfilt(sos, u)
+            signal = _signal()
+            y = signal.sosfilt(signal.zpk2sos(zd, pd, kd), u)
         n = self.delay_samples(fs_hz)
         if n > 0:
             y = np.concatenate([np.zeros(min(n, y.size)), y[: max(y.size - n, 0)]])
@@ -385,3 +381,10 @@ def _jsonable(value, key: str):
     if value is None or isinstance(value, str):
         return value
     raise ValueError(f"{key}: cannot store {type(value).__name__} in JSON")
+
+
+def _signal():
+    """:mod:`scipy.signal`, loaded on first use: loading a model (e.g. the demo's cached model set) does not need it."""
+    from scipy import signal  # deferred: 1.2 s CPU; loading a model file (the demo's cached model set) needs none of it
+
+    return signal

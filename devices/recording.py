@@ -30,6 +30,8 @@ import numpy as np
 
 from plumbing.fileio import atomic_write_text, read_text_utf8
 
+from .sim import TapTrajectory
+
 COLUMNS = ("tap", "incoming_velocity_m_s", "t_s", "accel_m_s2")
 # t_s steps may wobble by 1 % (timestamp rounding, e.g. 7 decimals at 10 kHz) before they count as
 # non-uniform or as a different sampling rate
@@ -279,9 +281,6 @@ def record_taps(device, velocities_m_s, grip_N: float = 2.0, window_s: float = 0
     try:
         for i, v in enumerate(vels):
             if is_sim:
-                from .sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-                    TapTrajectory,
-                )
 
                 traj = TapTrajectory(v, 1, approach_height_m=approach_height_m, **(trajectory_options or {}))
                 device.set_user(traj, grip_N=grip_N)

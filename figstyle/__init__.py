@@ -19,8 +19,14 @@ import csv
 import hashlib
 import json
 import os
+import re
 from functools import lru_cache
 from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+from matplotlib.legend import Legend
+from matplotlib.transforms import Bbox
 
 HERE = Path(__file__).resolve().parent
 STYLE_PATH = HERE / "project.mplstyle"
@@ -86,12 +92,8 @@ def style(size: str = "paper"):
     Selects matplotlib's Agg backend when no backend was chosen yet (figures are written to
     files; nothing is shown).
     """
-    import matplotlib  # deferred: matplotlib costs ~0.3 s to import and only figure code needs it
-
     if "MPLBACKEND" not in os.environ:
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+        matplotlib.use("Agg")  # pyplot chooses its backend on the first figure: still free to be set here
     extra = {}
     if size == "slide":
         base = matplotlib.rc_params_from_file(str(STYLE_PATH), use_default_template=False)
@@ -192,7 +194,6 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True, force: bool 
     dict
         Format (``png``, ``svg``, ``csv``) -> Path written.
     """
-    import matplotlib.pyplot as plt  # deferred: see style()
 
     targets = check_outputs(path, formats, data is not None, force)
     stem = _stem(path)
@@ -221,8 +222,6 @@ CONTAINERS = ("Figure", "SubFigure", "Axes", "XAxis", "YAxis", "Tick", "XTick", 
 
 
 def _legends(fig) -> list:
-    from matplotlib.legend import Legend
-
     return [a for a in fig.findobj(Legend)]
 
 
@@ -234,7 +233,6 @@ def legend_overlaps(fig) -> list[str]:
     collections, tick labels, other legends), excluding the legend's own children and the
     figure background.
     """
-    from matplotlib.transforms import Bbox
 
     fig.draw_without_rendering()
     renderer = fig.canvas.get_renderer()
@@ -287,7 +285,6 @@ def unlabelled_axes(fig) -> list[str]:
     empty label of a shared axis are not checked. Dimensionless quantities name their scale,
     e.g. ``rating (1–7)`` or ``Cohen's d_z (1)``.
     """
-    import re
 
     fig.draw_without_rendering()
     bad = []

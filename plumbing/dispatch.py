@@ -1,11 +1,12 @@
 """The ``python -m <package> <command>`` dispatcher shared by devices, renderer, stimuli, study and analysis.
 
 Each package's ``__main__`` lists its commands once, as a table of
-:class:`Command` (name, module, one-line help). ``--help`` of the package
-lists them without importing a single command module; only the command that
-runs (or whose ``--help`` is asked) is imported, and its module's
-``register(subparsers)`` builds its parser. So ``python -m renderer --help``
-does not pay for numba, scipy.signal or matplotlib.
+:class:`Command` (name, parser module, one-line help). A command is two modules: its parser
+(``cli_<x>_parser.py``: ``register(subparsers)``, light) and its body (``cli_<x>.py``, its imports at the
+top). ``--help`` of the package lists the commands without importing a single parser module; only the
+parser of the command that runs (or whose ``--help`` is asked) is imported. The parser names the body as
+a :class:`Body` (``set_defaults(func=Body("pkg.cli_x", "run"))``), which :func:`main` imports only when
+the command runs. So ``python -m renderer run --help`` does not pay for numba, scipy.signal or matplotlib.
 
 Errors the user can fix (:class:`ValueError`, :class:`FileNotFoundError`,
 :class:`plumbing.errors.UserError`, which ``devices.DeviceError`` derives from) print one ``error: ...`` line and exit 2;
@@ -35,15 +36,43 @@ from typing import NamedTuple, Sequence
 
 from .errors import UserError
 
-
 #: set by :func:`main` when the command that ran declared ``fast_exit`` and returned
 _fast_exit_ok = False
 #: set by :func:`run_as_script`: the process is the command's own
 _as_script = False
 
 
+class Body:
+    """A command's body named by module and function, imported on the first call (``--help`` never calls it).
+
+    Parameters
+    ----------
+    module : str
+        Dotted name of the body's module, e.g. ``"renderer.cli_run"``.
+    function : str
+        The function in it that takes the parsed ``argparse.Namespace`` and returns the exit code.
+    """
+
+    __slots__ = ("module", "function")
+
+    def __init__(self, module: str, function: str):
+        self.module = module
+        self.function = function
+
+    def resolve(self):
+        """Import the body's module and return the function."""
+        return getattr(importlib.import_module(self.module), self.function)
+
+    def __call__(self, args):
+        """Run the body with the parsed arguments ``args``; returns its exit code."""
+        return self.resolve()(args)
+
+    def __repr__(self) -> str:
+        return f"Body({self.module!r}, {self.function!r})"
+
+
 class Command(NamedTuple):
-    """One subcommand: its name, the module that implements it (``register(subparsers)``), its help line,
+    """One subcommand: its name, its parser module (``register(subparsers)``), its help line,
     the modules it imports when it runs (imported by :func:`main` before it runs, see there) and the BLAS
     threads its process should have (None: the library's default; module doc)."""
 
@@ -111,6 +140,9 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
     gc.disable()
     try:
         args = build_parser(console_prog(prog), description, commands, argv).parse_args(argv)
+        func = getattr(args, "func", None)
+        if isinstance(func, Body):
+            args.func = func.resolve()  # the command's body, imported now that it runs
         for c in commands:
             if c.name == getattr(args, "command", None):
                 for name in c.preload:

@@ -21,6 +21,7 @@ the output, and, uncaught, the process exits with the conventional status 128 + 
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import sys
@@ -189,7 +190,6 @@ def die_with_parent(parent_pid: int) -> bool:
     """
     armed = False
     if sys.platform.startswith("linux"):
-        import ctypes  # deferred: servo children only
 
         try:
             libc = ctypes.CDLL(None, use_errno=True)

@@ -345,22 +345,20 @@ def import_sounddevice():
         return sys.modules["sounddevice"]
 
     path = portaudio_library()
-    if path is None:
-        if mode() == "provision":
-            raise OSError(f"PortAudio library not found in {root_dir()} (HFAM_DEPS=provision; run 'make test' "
-                          "or 'python -m plumbing.provision' to provision it)")
-        import sounddevice  # deferred: its own search, its own error
-
-        return sounddevice
-    load_library(path)
+    if path is None and mode() == "provision":
+        raise OSError(f"PortAudio library not found in {root_dir()} (HFAM_DEPS=provision; run 'make test' "
+                      "or 'python -m plumbing.provision' to provision it)")
     original = ctypes.util.find_library
+    if path is not None:  # else sounddevice searches the system itself, with its own error
+        load_library(path)
 
-    def find_library(name):
-        return path if name == "portaudio" else original(name)
+        def find_library(name):
+            return path if name == "portaudio" else original(name)
 
-    ctypes.util.find_library = find_library
+        ctypes.util.find_library = find_library
     try:
-        import sounddevice  # deferred: PortAudio is a system library that may be missing; only audio output needs it
+        # sounddevice finds PortAudio only while find_library is patched above
+        import sounddevice  # deferred: PortAudio may be missing (OSError here, not at import); ~10 ms once found
     finally:
         ctypes.util.find_library = original
     return sounddevice

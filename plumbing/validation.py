@@ -10,7 +10,13 @@ duration is a typo, not a value).
 
 from __future__ import annotations
 
+import json
 import math
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+
+from .fileio import read_text_utf8
 
 
 def is_finite_number(value) -> bool:
@@ -35,7 +41,8 @@ _is_number = is_finite_number
 
 
 def require_number(name: str, value, *, minimum: float | None = None, strict: bool = False,
-                   maximum: float | None = None, optional: bool = False, prefix: str = ""):
+                   maximum: float | None = None, optional: bool = False, prefix: str = "",
+                   strict_maximum: bool = False):
     """Check one finite number, optionally bounded; return it.
 
     Parameters
@@ -48,6 +55,8 @@ def require_number(name: str, value, *, minimum: float | None = None, strict: bo
         Inclusive bounds (``minimum`` exclusive when ``strict``).
     strict : bool
         Require ``value > minimum`` instead of ``>=``.
+    strict_maximum : bool
+        Require ``value < maximum`` instead of ``<=``.
     optional : bool
         Accept ``None`` (returned as is).
     prefix : str
@@ -69,8 +78,21 @@ def require_number(name: str, value, *, minimum: float | None = None, strict: bo
         raise ValueError(f"{prefix}{name} must be a finite number, got {shown_value(value)}")
     if minimum is not None and (value <= minimum if strict else value < minimum):
         raise ValueError(f"{prefix}{name} must be {'>' if strict else '>='} {minimum}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise ValueError(f"{prefix}{name} must be <= {maximum}, got {value!r}")
+    if maximum is not None and (value >= maximum if strict_maximum else value > maximum):
+        raise ValueError(f"{prefix}{name} must be {'<' if strict_maximum else '<='} {maximum}, got {value!r}")
+    return value
+
+
+def require_choice(name: str, value, choices, *, prefix: str = ""):
+    """Check that ``value`` is one of ``choices``; return it.
+
+    Raises
+    ------
+    ValueError
+        ``"<prefix><name> must be one of a, b, c, got <value>"``.
+    """
+    if value not in choices:
+        raise ValueError(f"{prefix}{name} must be one of {', '.join(map(str, choices))}, got {value!r}")
     return value
 
 
@@ -119,3 +141,86 @@ def require_int(name: str, value, *, minimum: int | None = None, maximum: int | 
             rule = "an integer"
         raise ValueError(f"{prefix}{name} must be {rule}, got {value!r}")
     return value
+
+
+def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, where: str = "command line"):
+    """Build the frozen dataclass ``cls`` from a TOML (``.toml``) or JSON file: the config files' one loader.
+
+    Every error names the file (or ``where``) and the key: a parse error, unknown key(s) (listing the valid
+    ones), or a value the dataclass's ``__post_init__`` refuses (its checks use the helpers above).
+
+    Parameters
+    ----------
+    path : str, Path or None
+        The file; None: only ``overrides`` (and the dataclass defaults).
+    cls : type
+        Frozen dataclass whose field names are the valid keys.
+    what : str
+        What the file is, for messages ("protocol", "participant").
+    overrides : dict or None
+        Values that win over the file's (entries that are None are ignored).
+    where : str
+        Where the values come from without a file, for messages (e.g. a resumed session's
+        ``session.json: protocol``).
+
+    Returns
+    -------
+    cls
+        The validated instance.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        Naming the file for a parse error, unknown key(s) (listing the valid
+        ones) or a value ``cls`` refuses.
+    """
+    data: dict = {}
+    if path is not None:
+        p = Path(path)
+        where = str(p)
+        if not p.is_file():
+            raise FileNotFoundError(f"{what} file {p} not found")
+        text = read_text_utf8(p, f"{what} file")
+        try:
+            data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{p}: cannot parse ({exc})") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{p}: a {what} file must hold a table/object of settings, got {type(data).__name__}")
+    return dataclass_from_dict(cls, {**data, **{k: v for k, v in (overrides or {}).items() if v is not None}},
+                               what, where)
+
+
+def dataclass_from_dict(cls, data: dict, what: str, where: str):
+    """Build the frozen dataclass ``cls`` from ``data`` (e.g. a section of a file); errors name ``where``.
+
+    Parameters
+    ----------
+    cls : type
+        Frozen dataclass whose field names are the valid keys.
+    data : dict
+        The values.
+    what : str
+        What they are, for messages ("protocol", "homing").
+    where : str
+        Where they come from (a file, ``"session.json: protocol"``, ``"command line"``).
+
+    Returns
+    -------
+    cls
+
+    Raises
+    ------
+    ValueError
+        ``"<where>: unknown <what> key(s) [...]; valid keys: [...]"`` or ``"<where>: <the dataclass's message>"``.
+    """
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"{where}: unknown {what} key(s) {unknown}; valid keys: {sorted(known)}")
+    try:
+        return cls(**data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: {exc}") from None

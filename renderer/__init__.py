@@ -13,6 +13,7 @@ import importlib
 _EXPORTS = {
     "RendererConfig": "config", "config_from_dict": "config", "load_config": "config", "load_scene": "config",
     "LOG_CHANNELS": "loop", "ContactEvent": "loop", "RunResult": "loop", "ServoLoop": "loop",
+    "run_in_process": "process",
     "Box": "scene", "Plane": "scene", "Scene": "scene", "Sphere": "scene", "Wall": "scene", "parse_scene": "scene",
 }
 
@@ -25,13 +26,7 @@ def __getattr__(name):
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'renderer' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)  # deferred: keeps --help fast
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
 
-
-def run_in_process(*args, **kwargs):
-    """Run a servo loop in its own process (see :func:`renderer.process.run_in_process`)."""
-    from .process import run_in_process as _run  # deferred: multiprocessing set-up only when used
-
-    return _run(*args, **kwargs)

@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
-from plumbing.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, run_as_script
+from plumbing.dispatch import main as dispatch
 
-#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+#: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
+#: whose parser names the body that runs (plumbing.dispatch.Body)
 COMMANDS = (
     # the servo loop makes no BLAS call: no BLAS worker threads spinning on the other core (plumbing.dispatch)
-    Command("run", "renderer.cli_run", "render a virtual wall under a simulated or real user tapping",
+    Command("run", "renderer.cli_run_parser", "render a virtual wall under a simulated or real user tapping",
             preload=("renderer.loop", "devices.registry"), blas_threads=1),
-    Command("demo", "renderer.demo.cli_demo",
+    Command("demo", "renderer.demo.cli_demo_parser",
             "virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample"),
     Command("teleop", "renderer.teleop.cli_teleop", "run a simulated teleoperation session (thesis ch. 5)"),
     Command("teleop-sweep", "renderer.teleop.cli_teleop",
             "lambda sweep with/without cancellation and stabilisers (Fig. 5.11)"),
-    Command("compile-sim", "renderer.sim_aot", "compile the simulated closed loop ahead of time (fast sim runs)"),
+    Command("compile-sim", "renderer.cli_compile_sim_parser", "compile the simulated closed loop ahead of time (fast sim runs)"),
 )
 
 

@@ -14,14 +14,19 @@ On a sim device the simulated hand taps ``--taps`` times at ``--velocity``
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
 
-from plumbing.cliargs import add_renamed, with_examples
+import stimuli
+from devices.registry import make_device
+from devices.sim import TapTrajectory
+from plumbing import provenance
 from plumbing.fileio import check_output_dir
+from plumbing.stopsignals import Terminated, stop_on_signals
 
-TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
+from . import sim_aot
+from .cli_run_parser import TRANSIENTS
+from .config import RendererConfig, load_config
+from .loop import ServoLoop
 
 
 def make_transient(kind: str, library: str | None = None, gain: float | None = None):
@@ -36,7 +41,6 @@ def make_transient(kind: str, library: str | None = None, gain: float | None = N
         raise ValueError(f"--transient must be one of {', '.join(TRANSIENTS)}, got {kind!r}")
     if kind == "none":
         return None
-    import stimuli  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     kwargs = {} if gain is None else {"gain": float(gain)}
     if kind == "pulse":
@@ -48,65 +52,7 @@ def make_transient(kind: str, library: str | None = None, gain: float | None = N
     return stimuli.HfamLibrary.load(library, **kwargs)
 
 
-def _positive(name):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
-        return value
-    return parse
-
-
-def _velocities(text: str) -> list[float]:
-    out = []
-    for part in text.split(","):
-        out.append(_positive("--velocity")(part.strip()))
-    return out
-
-
-def register(subparsers) -> None:
-    """Add the ``run`` command.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-        The ``python -m renderer`` sub-command parsers.
-    """
-    p = subparsers.add_parser("run", help="render a virtual wall under a simulated or real user tapping",
-                              description=__doc__.split("\n\n")[0] + " Outputs: events.csv, run.json, log.npz.")
-    p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
-    p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient (default none)")
-    p.add_argument("--library", help="HFAM library file (needed for --transient hfam)")
-    p.add_argument("--transient-gain", type=float, default=None,
-                   help="gain of the transient (stimuli gain; default: Table 4.1 / the library's own)")
-    add_renamed(p, "--stiffness-N-m", "--stiffness", dest="stiffness", type=float, default=None,
-                   help="proportional stiffness k (N/m); default 680 or the config file's")
-    add_renamed(p, "--damping-N-s-m", "--damping", dest="damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
-    p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md); default: built-in settings")
-    p.add_argument("--taps", type=int, default=10, help="sim: number of taps (default 10)")
-    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=_velocities, default=[0.1],
-                   help="sim: tap speed in m/s (comma list: one per tap, cycled; default 0.1)")
-    add_renamed(p, "--grip-N", "--grip", dest="grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
-    p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
-    p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
-    add_renamed(p, "--duration-s", "--duration", dest="duration", type=_positive("--duration"), default=None,
-                   help="run length in s (hardware default: until Ctrl-C; sim default: until the taps are done)")
-    p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
-    p.add_argument("--in-process", action="store_true",
-                   help="hardware: run the servo loop in this process instead of its own")
-    p.add_argument("--out", required=True, help="output directory (new or empty)")
-    p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier run")
-    with_examples(p, 'hfam-renderer run --device sim --transient pulse --stiffness-N-m 680 --taps 10 --velocities-m-s 0.1 --out runs/pulse', 'hfam-renderer run --device serial:/dev/ttyACM0 --transient hfam --library LIB.npz --duration-s 60 --out runs/hw')
-    # run_command closes the device and every file and joins its threads before it returns
-    p.set_defaults(func=run_command, fast_exit=True)
-
-
 def _build_config(args):
-    from .config import RendererConfig, load_config  # deferred: keeps `--help` fast (a command loads only what it runs)
-
     overrides = {}
     if args.stiffness is not None:
         overrides["stiffness_N_m"] = float(args.stiffness)
@@ -126,7 +72,6 @@ def run_command(args) -> int:
     SIGTERM and SIGHUP stop the run as Ctrl-C does (the output is zeroed, the partial run saved) and the
     command returns 128 + the signal's number (143, 129); Ctrl-C returns 130 (docs/renderer.md, Safety).
     """
-    from plumbing.stopsignals import stop_on_signals  # deferred: keeps `--help` fast
 
     with stop_on_signals():  # from before the device is opened until its files are written
         return _run(args)
@@ -140,11 +85,6 @@ def _save_partial(result, out: str, why: str) -> None:
 
 
 def _run(args) -> int:
-    from devices.registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from plumbing.stopsignals import Terminated  # deferred: keeps `--help` fast (a command loads only what it runs)
-
-    from .loop import ServoLoop  # deferred: keeps `--help` fast (a command loads only what it runs)
-
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
     check_output_dir(args.out, args.force)   # a file, a path below one or earlier results: refused before the run
@@ -152,9 +92,6 @@ def _run(args) -> int:
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"
     if simulated:
-        from plumbing import provenance  # deferred: keeps `--help` fast (a command loads only what it runs)
-        from devices.sim import TapTrajectory  # deferred: keeps `--help` fast (a command loads only what it runs)
-
         provenance.prefetch()  # run.json's versions and git state, while the simulation runs
 
         dev = make_device(args.device, seed=args.seed)
@@ -188,10 +125,10 @@ def _run(args) -> int:
             _save_partial(loop.result if loop is not None else None, args.out, str(exc))
             return exc.code
     else:
-        from .process import run_in_process  # deferred: keeps `--help` fast (a command loads only what it runs)
-
         try:
-            result = run_in_process(args.device, cfg, transient, duration_s=args.duration)
+            from . import process  # deferred: multiprocessing, 16 ms CPU of every simulated run; hardware only
+
+            result = process.run_in_process(args.device, cfg, transient, duration_s=args.duration)
         except RuntimeError as exc:  # the servo process failed: keep what it logged before failing
             partial = getattr(exc, "partial_result", None)
             if partial is not None:
@@ -205,8 +142,6 @@ def _run(args) -> int:
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")
     if simulated and not result.timing.get("aot"):
-        from . import sim_aot  # deferred: keeps `--help` fast (a command loads only what it runs)
-
         if sim_aot.schedule_build():
             print("compiling the simulated loop ahead of time in the background (once, ~5 s): later simulated "
                   "runs start without numba (docs/renderer.md, 'Compiled ahead of time')", file=sys.stderr)

@@ -58,8 +58,8 @@ from dataclasses import dataclass
 
 from plumbing.validation import require_number, require_positive
 
-from .passivity import energy_limit, wall_energy
-from .safety import STATUS_DISCONNECTED, STATUS_SENSOR_INVALID, safety_bounds
+from .passivity import PassivityObserver, energy_limit, wall_energy
+from .safety import SafetyPath, safety_bounds, zero_on_error
 
 
 @dataclass(frozen=True)
@@ -192,12 +192,8 @@ class HomingController:
         n = max(1, int(round(duration_s * inv_dt)))
         n_min = int(round(min_duration_s * inv_dt))
         tol, vtol = cfg.settle_tolerance_m, cfg.settle_speed_m_s
-        plim, alim, max_bad = b.position_limit_m, b.accel_limit_m_s2, b.max_bad_samples
-        heat, t_alpha, wd_ns = b.heat_K_A2, b.alpha, b.watchdog_period_ns
+        plim = b.position_limit_m
         temp = float(self.temp_rise_K)
-        # the passivity observer (module doc): leak, limit, the spring's force limit; its state
-        po_decay = math.exp(-self.dt_s / cfg.instability_window_s)
-        po_limit = self.energy_limit_J
         fmax = self.force_limit_N
         fpa = self.force_per_amp_N_A
         run_dist, run_speed = cfg.runaway_distance_m, cfg.runaway_speed_m_s
@@ -205,9 +201,10 @@ class HomingController:
         x_prev = state.position_m
         if not (-plim <= x_prev <= plim):
             x_prev = home  # no plausible first sample: assume home (no velocity kick)
-        e_po = e_peak = 0.0
-        # the PD's saturated spring stores what a wall of stiffness kp clamped at fmax stores (two-sided)
-        u_prev = wall_energy(kp, fmax, abs(home - x_prev), 1.0)
+        # the passivity observer (module doc): leak, limit; the PD's saturated spring stores what a wall of
+        # stiffness kp clamped at fmax stores (two-sided)
+        observer = PassivityObserver(math.exp(-self.dt_s / cfg.instability_window_s), self.energy_limit_J,
+                                     wall_energy(kp, fmax, abs(home - x_prev), 1.0))
         f_prev = 0.0  # force commanded over the last period (N)
         away = away_max = 0.0  # distance run away from home under full current toward it (m)
         message = ""
@@ -216,118 +213,89 @@ class HomingController:
         contacts = 0
         settled = False
         reason = "duration"
-        nbad = bad_total = 0
         tick = 0
         wall0 = time.perf_counter()
-        prev_ns = time.perf_counter_ns()
         check_dt = check_every * self.dt_s
         x = x_prev
+        # the renderer's safety path (renderer.safety): sensor plausibility, current limit, winding heat,
+        # watchdog, and zero output when anything raises
+        safety = SafetyPath(b, imax)
         try:
-            for tick in range(1, n + 1):
-                # (1) read and validate: the renderer's safety path (renderer.safety)
-                x = state.position_m
-                bad = False
-                if state.status & STATUS_DISCONNECTED:
-                    reason = "disconnected"
-                    break
-                if state.status & STATUS_SENSOR_INVALID or not (-plim <= x <= plim) \
-                        or not (-alim <= state.accel_m_s2 <= alim):
-                    bad = True
-                    x = x_prev  # NaN or implausible: hold the last good value
-                if bad:
-                    nbad += 1
-                    bad_total += 1
-                    if nbad >= max_bad:
-                        reason = "sensor"
+            with zero_on_error(dev):
+                for tick in range(1, n + 1):
+                    # (1) read and validate
+                    x, stop = safety.sample(state, x_prev)
+                    if stop is not None:
+                        reason = stop
                         break
-                else:
-                    nbad = 0
-                dx = x - x_prev
-                v += alpha * (dx * inv_dt - v)
-                x_prev = x
-                # passivity observer: work of the force held over the last period + change of the stored energy
-                err = home - x
-                u = wall_energy(kp, fmax, abs(err), 1.0)
-                e_po = e_po * po_decay + f_prev * dx + u - u_prev
-                if e_po < 0.0:
-                    e_po = 0.0  # dissipated energy is no credit for what an unstable loop generates later
-                u_prev = u
-                if e_po > e_peak:
-                    e_peak = e_po
-                    if e_po > po_limit:
+                    dx = x - x_prev
+                    v += alpha * (dx * inv_dt - v)
+                    x_prev = x
+                    # passivity observer: work of the force held over the last period + change of stored energy
+                    err = home - x
+                    if observer.update(f_prev, dx, wall_energy(kp, fmax, abs(err), 1.0)):
                         reason = "unstable"
-                        message = (f"homing generated {e_po * 1e3:.3g} mJ net over the last "
-                                   f"~{cfg.instability_window_s:g} s (limit {po_limit * 1e3:.3g} mJ) at "
+                        message = (f"homing generated {observer.energy_J * 1e3:.3g} mJ net over the last "
+                                   f"~{cfg.instability_window_s:g} s (limit {observer.limit_J * 1e3:.3g} mJ) at "
                                    f"kp_N_m={kp:g}, kd_N_s_m={kd:g}: the homing PD oscillates on this device; "
                                    "output zeroed. Lower homing kp_N_m or kd_N_s_m (docs/study.md, 'Homing "
                                    "controller')")
                         break
-                if armed:
-                    if x < surface:
-                        contacts += 1
-                        armed = False
-                elif x > armed_level:
-                    armed = True
-                # (2) the homing law, (3) saturated at the thermally safe continuous current
-                i = (kp * (home - x) - kd * v) * inv_fpa
-                if i > imax:
-                    i = imax
-                elif i < -imax:
-                    i = -imax
-                elif i != i:
-                    i = 0.0
-                # run-away: moving away from home, fast, while homing pushes toward it at full current
-                if (i == imax if err > 0.0 else i == -imax) and v * err < 0.0 and abs(v) > run_speed:
-                    away += abs(dx)
-                    if away > away_max:
-                        away_max = away
-                    if away > run_dist:
-                        reason = "runaway"
-                        message = (f"the handle ran {away * 1e3:.0f} mm away from home (at {abs(v):.2f} m/s, "
-                                   f"now {abs(err) * 1e3:.0f} mm from it) while homing pushed toward home at its "
-                                   f"current limit {imax:g} A (kp_N_m={kp:g}, kd_N_s_m={kd:g}): the motor's or the "
-                                   "encoder's sign is probably reversed; output zeroed. Check the device's "
-                                   "calibration and wiring (docs/study.md, 'Homing controller')")
-                        break
-                else:
-                    away = 0.0
-                f_prev = i * fpa
-                temp += (heat * i * i - temp) * t_alpha
-                # (4) command
-                dev.command(i)
-                state = dev.read()
-                if wd_ns is not None:  # hardware: a stalled loop must not leave a current on
-                    now_ns = time.perf_counter_ns()
-                    if now_ns - prev_ns > wd_ns:
+                    if armed:
+                        if x < surface:
+                            contacts += 1
+                            armed = False
+                    elif x > armed_level:
+                        armed = True
+                    # (2) the homing law, (3) saturated at the thermally safe continuous current
+                    i = safety.current((kp * (home - x) - kd * v) * inv_fpa)
+                    # run-away: moving away from home, fast, while homing pushes toward it at full current
+                    if (i == imax if err > 0.0 else i == -imax) and v * err < 0.0 and abs(v) > run_speed:
+                        away += abs(dx)
+                        if away > away_max:
+                            away_max = away
+                        if away > run_dist:
+                            reason = "runaway"
+                            message = (f"the handle ran {away * 1e3:.0f} mm away from home (at {abs(v):.2f} m/s, "
+                                       f"now {abs(err) * 1e3:.0f} mm from it) while homing pushed toward home at "
+                                       f"its current limit {imax:g} A (kp_N_m={kp:g}, kd_N_s_m={kd:g}): the motor's "
+                                       "or the encoder's sign is probably reversed; output zeroed. Check the "
+                                       "device's calibration and wiring (docs/study.md, 'Homing controller')")
+                            break
+                    else:
+                        away = 0.0
+                    f_prev = i * fpa
+                    temp = safety.heat(temp, i)
+                    # (4) command
+                    dev.command(i)
+                    state = dev.read()
+                    if safety.watchdog():  # hardware: a stalled loop must not leave a current on
                         reason = "watchdog"
                         break
-                    prev_ns = now_ns
-                if tick % check_every == 0:
-                    if until is not None and until():
-                        reason = "until"
+                    if tick % check_every == 0:
+                        if until is not None and until():
+                            reason = "until"
+                            break
+                        if realtime:
+                            ahead = tick * self.dt_s - (time.perf_counter() - wall0)
+                            if ahead > 0:
+                                time.sleep(min(ahead, check_dt))
+                        safety.pause_watchdog()  # the pause above is not a stall
+                    if until_settled and tick >= n_min and abs(x - home) < tol and abs(v) < vtol:
+                        settled = True
+                        reason = "settled"
                         break
-                    if realtime:
-                        ahead = tick * self.dt_s - (time.perf_counter() - wall0)
-                        if ahead > 0:
-                            time.sleep(min(ahead, check_dt))
-                    prev_ns = time.perf_counter_ns()  # the pause above is not a stall
-                if until_settled and tick >= n_min and abs(x - home) < tol and abs(v) < vtol:
-                    settled = True
-                    reason = "settled"
-                    break
-        except BaseException:
-            dev.command(0.0)
+        finally:
             self.temp_rise_K = temp
-            raise
-        self.temp_rise_K = temp
         if zero_at_end or reason in SAFETY_STOPS:
             dev.command(0.0)
         common = dict(duration_s=tick * self.dt_s, ticks=tick, contacts=contacts, stop_reason=reason,
-                      bad_samples=bad_total, temp_rise_K=temp, peak_energy_J=e_peak, energy_limit_J=po_limit,
+                      bad_samples=safety.bad_total, temp_rise_K=temp, peak_energy_J=observer.peak_J,
+                      energy_limit_J=observer.limit_J,
                       max_runaway_m=away_max)
         if reason in SAFETY_STOPS:
             if not message:
-                message = {"sensor": f"{nbad} implausible sensor samples in a row",
+                message = {"sensor": f"{safety.bad_in_row} implausible sensor samples in a row",
                            "disconnected": "the device reported a disconnect",
                            "watchdog": "a servo period beyond the watchdog bound"}[reason] + "; output zeroed"
             return HomingResult(settled=False, final_position_m=x, message=message, **common)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import array
 import csv
+import ctypes
 import dataclasses
 import json
 import math
@@ -42,8 +43,8 @@ from typing import Callable
 
 import numpy as np
 
-from plumbing import provenance
 from devices.base import Status
+from plumbing import provenance
 from plumbing.fileio import save_npz
 from plumbing.stopsignals import Terminated, holding, stop_on_signals
 
@@ -52,8 +53,8 @@ from . import sim_aot
 from .config import RendererConfig
 from .passivity import passivity_constants, wall_energy
 from .safety import safety_bounds
-from .thermal import safe_continuous_current
 from .scene import SHAPE_CODES
+from .thermal import safe_continuous_current
 from .velocity import ImpactVelocityEstimator, ls_constants
 
 _STATUS_UNSTABLE = int(Status.UNSTABLE)  # an on-device wall stopped by the device's passivity observer
@@ -235,7 +236,6 @@ def transient_name(transient) -> str:
 
 def _set_timer_slack_ns(ns: int) -> int | None:
     """Set this thread's timer slack (Linux prctl) so short sleeps wake on time; returns the old value."""
-    import ctypes  # deferred: paced loops only (~1.5 ms of a simulated run's start-up)
 
     try:
         libc = ctypes.CDLL(None, use_errno=True)
@@ -272,7 +272,7 @@ COMPILED_POLL_TICKS = 10_000
 
 def _law():
     """``renderer.law``: the JIT-compiled law, imported by the first loop that runs it per tick or JIT."""
-    from . import law  # deferred: numba (~0.3 s); a simulated run compiled ahead of time never needs it
+    from . import law  # deferred: numba and the JIT law, 0.7 s CPU; a run compiled ahead of time never needs it
 
     return law
 

@@ -98,3 +98,50 @@ def passivity_constants(cfg, dt_s: float, wall_force_limit_N: float) -> tuple[fl
     f_c = float(wall_force_limit_N)
     limit = energy_limit(k, f_c, cfg.instability_energy_frac)
     return math.exp(-dt_s / cfg.instability_window_s), limit
+
+
+class PassivityObserver:
+    """The energy observer of a plain-Python servo law (Hannaford & Ryu 2002; the wall's, inlined in the
+    compiled law, follows the same update): every tick
+
+        E <- max(0, decay E + F_{k-1} (x_k - x_{k-1}) + U(x_k) - U(x_{k-1}))
+
+    with ``U`` the energy the law's (saturated) spring stores; the law is unstable once ``E`` exceeds
+    ``limit_J``.
+
+    Parameters
+    ----------
+    decay : float
+        Leak per tick, ``exp(-T / window)``.
+    limit_J : float
+        Energy limit (J), e.g. :func:`energy_limit`.
+    stored_J : float
+        The spring's stored energy at the start (J).
+
+    Attributes
+    ----------
+    energy_J, peak_J : float
+        The observed energy now and its largest value (J).
+    """
+
+    __slots__ = ("decay", "limit_J", "energy_J", "peak_J", "_stored_J")
+
+    def __init__(self, decay: float, limit_J: float, stored_J: float = 0.0):
+        self.decay = float(decay)
+        self.limit_J = float(limit_J)
+        self.energy_J = 0.0
+        self.peak_J = 0.0
+        self._stored_J = float(stored_J)
+
+    def update(self, force_N: float, dx_m: float, stored_J: float) -> bool:
+        """Add one tick: ``force_N`` held over the last period, the displacement ``dx_m`` (m) and the spring's
+        stored energy now (J). Returns True when the energy exceeds the limit (unstable)."""
+        e = self.energy_J * self.decay + force_N * dx_m + stored_J - self._stored_J
+        if e < 0.0:
+            e = 0.0  # dissipated energy is no credit for what an unstable loop generates later
+        self.energy_J = e
+        self._stored_J = stored_J
+        if e > self.peak_J:
+            self.peak_J = e
+            return e > self.limit_J
+        return False

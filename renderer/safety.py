@@ -16,6 +16,8 @@ transient law, inlined per tick for speed) and :class:`renderer.homing.HomingCon
 
 from __future__ import annotations
 
+import contextlib
+import time
 from dataclasses import dataclass
 
 from .config import RendererConfig
@@ -95,3 +97,100 @@ def safety_bounds(info, fs_hz: float, cfg: RendererConfig | None = None,
         # a stalled simulation endangers nothing: the watchdog guards real motors only
         watchdog_period_ns=None if info.simulated else period_ns + int(cfg.watchdog_overrun_s * 1e9))
 
+
+class SafetyPath:
+    """The per-tick rules of the module doc for a servo law written in plain Python (homing): one instance per
+    run, its methods called in the order read -> :meth:`sample` -> law -> :meth:`current` -> :meth:`heat` ->
+    command -> :meth:`watchdog`. (:class:`renderer.loop.ServoLoop` inlines the same rules, with the same
+    :class:`SafetyBounds`, into its compiled law.)
+
+    Parameters
+    ----------
+    bounds : SafetyBounds
+        From :func:`safety_bounds`.
+    current_limit_A : float
+        Largest |current| commanded (A); a NaN current becomes 0 A.
+
+    Attributes
+    ----------
+    bad_in_row, bad_total : int
+        Implausible samples held: in a row now, and in all.
+    """
+
+    __slots__ = ("bounds", "current_limit_A", "bad_in_row", "bad_total", "_prev_ns")
+
+    def __init__(self, bounds: SafetyBounds, current_limit_A: float):
+        self.bounds = bounds
+        self.current_limit_A = float(current_limit_A)
+        self.bad_in_row = 0
+        self.bad_total = 0
+        self._prev_ns = time.perf_counter_ns()
+
+    def sample(self, state, x_prev_m: float) -> tuple[float, str | None]:
+        """The position to use this tick and the stop reason, if any.
+
+        Parameters
+        ----------
+        state : devices.base.DeviceState
+            What ``read()`` returned.
+        x_prev_m : float
+            The last good position (m): held when this sample is implausible or NaN (a disconnect returns
+            the sample's own position).
+
+        Returns
+        -------
+        (position_m, reason) : (float, str or None)
+            ``reason`` is ``"disconnected"`` (status bit), ``"sensor"`` (``max_bad_samples`` implausible
+            samples in a row) or None.
+        """
+        b = self.bounds
+        if state.status & STATUS_DISCONNECTED:
+            return state.position_m, "disconnected"
+        x = state.position_m
+        if state.status & STATUS_SENSOR_INVALID or not (-b.position_limit_m <= x <= b.position_limit_m) \
+                or not (-b.accel_limit_m_s2 <= state.accel_m_s2 <= b.accel_limit_m_s2):
+            self.bad_in_row += 1
+            self.bad_total += 1
+            return x_prev_m, ("sensor" if self.bad_in_row >= b.max_bad_samples else None)
+        self.bad_in_row = 0
+        return x, None
+
+    def current(self, i_A: float) -> float:
+        """``i_A`` clamped to +-``current_limit_A``; NaN -> 0 A."""
+        limit = self.current_limit_A
+        if i_A > limit:
+            return limit
+        if i_A < -limit:
+            return -limit
+        if i_A != i_A:
+            return 0.0
+        return i_A
+
+    def heat(self, temp_rise_K: float, i_A: float) -> float:
+        """The winding temperature rise (K) after one tick at ``i_A`` (section 4.4.2, :mod:`renderer.thermal`)."""
+        b = self.bounds
+        return temp_rise_K + (b.heat_K_A2 * i_A * i_A - temp_rise_K) * b.alpha
+
+    def watchdog(self) -> bool:
+        """True if the servo period that just ended exceeded the bound (hardware only; never on a sim)."""
+        if self.bounds.watchdog_period_ns is None:
+            return False
+        now = time.perf_counter_ns()
+        stalled = now - self._prev_ns > self.bounds.watchdog_period_ns
+        self._prev_ns = now
+        return stalled
+
+    def pause_watchdog(self) -> None:
+        """Restart the watchdog's period after a deliberate pause (pacing, a check): it was not a stall."""
+        self._prev_ns = time.perf_counter_ns()
+
+
+@contextlib.contextmanager
+def zero_on_error(device):
+    """Command 0 A to ``device`` when the block raises (anything, Ctrl-C included), then re-raise: the
+    output is never left on by an error (the servo loop's rule, for laws written in plain Python)."""
+    try:
+        yield device
+    except BaseException:
+        device.command(0.0)
+        raise

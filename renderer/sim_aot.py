@@ -135,7 +135,7 @@ def run_sim_function():
     module = load()
     if module is not None:
         return module.run_sim, module.tick
-    from . import law  # deferred: numba (~0.3 s), needed only without an ahead-of-time build
+    from . import law  # deferred: numba and the JIT law, 0.7 s CPU; a run with an ahead-of-time build needs none of it
 
     return law.run_sim, None
 
@@ -184,8 +184,6 @@ def build(base: Path | None = None, background: bool = False) -> Path:
     Path
         The extension module.
     """
-    import hashlib  # deferred: the manifest's SHA-256 only; OpenSSL costs ~7 ms at a run's start-up
-
     base = cache_dir() if base is None else Path(base)
     key = source_key()
     dest = extension_path(key, base)
@@ -206,11 +204,11 @@ def build(base: Path | None = None, background: bool = False) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f"{key}.build", dir=base))
     try:
         t0 = time.perf_counter()
-        _compile(tmp)
+        sources = _compile(tmp)
         seconds = time.perf_counter() - t0
         _check_loads(tmp / dest.name)
         (tmp / "manifest.json").write_text(json.dumps({
-            "key": key, "sources": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in SOURCES},
+            "key": key, "sources": sources,
             "python": sys.version, "numpy": np.__version__, "machine": platform.machine(), "options": BUILD_OPTIONS,
             "compile_s": round(seconds, 2)}, indent=2) + "\n", encoding="utf-8")
         try:
@@ -233,45 +231,18 @@ def build(base: Path | None = None, background: bool = False) -> Path:
     return dest
 
 
-def _compile(out_dir: Path) -> None:
-    """numba.pycc: ``renderer.law.run_sim`` (and everything it calls, inlined) for ``SIGNATURE`` and the
-    device's physics step ``devices.sim.kernel.tick`` for ``TICK_SIGNATURE``."""
-    import warnings  # deferred: build only
+def _compile(out_dir: Path) -> dict:
+    """Compile the extension into ``out_dir`` (:func:`renderer.sim_aot_build.compile_extension`).
 
-    with warnings.catch_warnings():
-        # numba.pycc is "pending deprecation" (numba 0.57+) but is numba's supported AOT path today
-        warnings.simplefilter("ignore")
-        from numba.pycc import CC  # deferred: numba's compiler, build only
+    Returns
+    -------
+    dict
+        Source file name -> SHA-256 (hex) of each of :data:`SOURCES`, for the build's manifest.
+    """
+    from . import sim_aot_build  # deferred: numba's compiler and the JIT sources, 1.1 s CPU; a run never builds
 
-        from devices.sim import kernel  # deferred: the JIT kernel whose source is compiled, build only
-
-        from . import law  # deferred: the JIT law whose source is compiled, build only
-
-        from numba.pycc import compiler as pycc_compiler  # deferred: build only
-
-        cc = CC(MODULE)
-        cc.output_dir = str(out_dir)
-        cc.verbose = False
-        # the kernels never allocate (each is compiled with _nrt=False): no runtime to link in, and a kernel
-        # that did need it would make the build fail to load (an undefined NRT symbol), not run slower
-        cc.use_nrt = False
-        cc.export("run_sim", SIGNATURE)(law.run_sim.py_func)
-        cc.export("tick", TICK_SIGNATURE)(kernel.tick.py_func)
-        # numba.pycc has no switch for numba's ``release_gil`` flag (what ``nogil=True`` sets for the JIT):
-        # its compiler makes its flags with ``Flags()``, so it gets a subclass that sets it, for this build
-        # only. tests/renderer/test_sim_aot.py checks that a build's run_sim lets another thread run.
-        pycc_flags = pycc_compiler.Flags
-
-        class _ReleaseGilFlags(pycc_flags):
-            def __init__(self, *args, **kwargs):
-                super().__init__(*args, **kwargs)
-                self.release_gil = True
-
-        pycc_compiler.Flags = _ReleaseGilFlags
-        try:
-            cc.compile()
-        finally:
-            pycc_compiler.Flags = pycc_flags
+    sim_aot_build.compile_extension(out_dir, MODULE, SIGNATURE, TICK_SIGNATURE)
+    return {p.name: sim_aot_build.sha256_hex(p) for p in SOURCES}
 
 
 def _check_loads(path: Path) -> None:
@@ -291,17 +262,6 @@ def _check_loads(path: Path) -> None:
     if proc.returncode != 0:
         last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
         raise RuntimeError(f"the build {path} does not load: {last}")
-
-
-def register(subparsers) -> None:
-    """Add the ``compile-sim`` command to ``python -m renderer``."""
-    p = subparsers.add_parser("compile-sim", help="compile the simulated closed loop ahead of time (fast sim runs)",
-                              description="Compile renderer.law.run_sim (servo law + simulated physics) and the "
-                                          "device's physics step into an extension module, so simulated runs "
-                                          "start without numba. Runs by itself in the background after the "
-                                          "first simulated run that finds none (HFAM_SIM_AOT=auto).")
-    p.add_argument("--force", action="store_true", help="rebuild even if a build for these sources exists")
-    p.set_defaults(func=compile_command)
 
 
 def compile_command(args) -> int:

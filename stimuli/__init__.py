@@ -17,6 +17,6 @@ def __getattr__(name):
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'stimuli' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)  # deferred: keeps --help fast
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value

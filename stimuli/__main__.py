@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from plumbing.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, run_as_script
+from plumbing.dispatch import main as dispatch
 
-#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+#: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
+#: whose parser names the body that runs (plumbing.dispatch.Body)
 COMMANDS = (
-    Command("build-library", "stimuli.cli_build", "build an HFAM transient library (section 4.4.1)"),
-    Command("show", "stimuli.cli_show", "plot an HFAM library (accelerations and currents per velocity/grip) to a PNG"),
-    Command("sim-library", "stimuli.cli_sim_library",
+    Command("build-library", "stimuli.cli_build_parser", "build an HFAM transient library (section 4.4.1)"),
+    Command("show", "stimuli.cli_show_parser", "plot an HFAM library (accelerations and currents per velocity/grip) to a PNG"),
+    Command("sim-library", "stimuli.cli_sim_library_parser",
             "record simulated taps and build the shipped default library through the sim's LTI models"),
 )
 

@@ -5,31 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from matplotlib import colormaps
 
-from plumbing.cliargs import with_examples
+import figstyle
 
 from .library import HfamLibrary
-
-
-def register(subparsers) -> None:
-    """Add the ``show`` command.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-        The ``python -m stimuli`` sub-command parsers.
-    """
-    p = subparsers.add_parser(
-        "show",
-        help="plot an HFAM library (accelerations and currents per velocity/grip) to a PNG",
-        description="Print a summary of an HFAM library and plot its desired accelerations and current "
-                    "transients per velocity and grip level (like thesis Figure 4.8).",
-    )
-    p.add_argument("library", type=Path, help="library file (.npz)")
-    p.add_argument("--out", type=Path, default=None, help="PNG to write (default: next to the library, .png)")
-    p.add_argument("--force", action="store_true", help="overwrite the PNG, SVG and .plot.csv if they exist")
-    with_examples(p, 'hfam-stimuli show LIB.npz --out LIB.png')
-    p.set_defaults(func=run)
 
 
 def summary(lib: HfamLibrary) -> str:
@@ -71,14 +51,12 @@ def plot_library(lib: HfamLibrary, out: Path, force: bool = False) -> Path:
     Path
         The PNG.
     """
-    import figstyle  # deferred: with matplotlib behind it: only this command draws
 
     figstyle.check_outputs(out, force=force)   # before drawing: the PNG, SVG and .plot.csv
     n_g = len(lib.grips_N)
     t_ms = (np.arange(lib.n_samples) + 1) / lib.fs_hz * 1e3
     data = {"t_ms": t_ms}
     with figstyle.style() as plt:
-        from matplotlib import colormaps  # deferred: matplotlib costs ~0.3 s; figures only
 
         fig, axes = plt.subplots(2, n_g, figsize=figstyle.figsize("page", height_in=4.6), sharex=True,
                                  squeeze=False, layout="constrained")

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from plumbing.dispatch import Command, main as dispatch, run_as_script
+from plumbing.dispatch import Command, run_as_script
+from plumbing.dispatch import main as dispatch
 
-#: the commands, registered without importing them (``--help`` stays fast); each module has ``register(subparsers)``
+#: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
+#: whose parser names the body that runs (plumbing.dispatch.Body)
 COMMANDS = (
-    Command("run", "study.cli_run", "run a blind realism session (sim rehearsal or real subjects)"),
-    Command("simulate-observer", "study.cli_simulate_observer", "run an adaptive method against a simulated observer",
-            blas_threads=1),
+    Command("run", "study.cli_run_parser", "run a blind realism or psychophysics session (sim rehearsal or real subjects)"),
+    Command("simulate-observer", "study.cli_simulate_observer_parser",
+            "run an adaptive method against a simulated observer", blas_threads=1),
 )
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from devices.sim import ScriptedTrajectory, TapTrajectory
+from devices.sim import DEFAULT_PERSON, ScriptedTrajectory, TapTrajectory
 from renderer import RendererConfig, ServoLoop
 from renderer.homing import SAFETY_STOPS, HomingConfig, HomingController
 
@@ -233,7 +233,6 @@ class Apparatus:
                 self.device.params.model == "nonlinear":
             # a determined push: the simulated person co-contracts (stiff, damped muscles), so the
             # homing force cannot hold the late tap back (issue 16: the default person is compliant)
-            from devices.sim import DEFAULT_PERSON  # deferred: devices.sim loads the numba kernel
 
             hand = DEFAULT_PERSON.replace(muscle_stiffness_N_m=1500.0, muscle_damping_Ns_m=12.0)
         self.device.set_user(traj, grip, hand=hand)

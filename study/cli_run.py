@@ -20,70 +20,21 @@ import sys
 import threading
 from dataclasses import asdict
 
-from plumbing.cliargs import add_renamed, with_examples
+from devices import DeviceError, make_device
 from plumbing.progress import Progress
 from plumbing.stopsignals import Terminated, stop_on_signals
 
-from .config import GENDERS, HANDEDNESS
-from .data import EXPERIENCE, SessionStore, release_all_locks
+from .apparatus import Apparatus, ServoStopped
+from .audio import CHOICE_PHRASES, MaskingAudio, SilentAudio, check_output_device
+from .data import SessionStore, release_all_locks
+from .isolated import IsolatedApparatus
+from .participants import SimulatedParticipant, load_participant_config
 from .protocol import Schedule
+from .psysession import run_experiment
+from .runner import StudyRunner
 from .session import plan_session, start_session
-
-
-def register(subparsers) -> None:
-    """Add the ``run`` command (the blind realism session).
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-        The ``python -m study`` sub-command parsers.
-    """
-    p = subparsers.add_parser("run", help="run a blind realism session (sim rehearsal or real subjects)",
-                              description=__doc__, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
-    p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
-                                                 "hid:<vid>:<pid> (default: sim, or the resumed session's)")
-    p.add_argument("--participant", choices=("simulated", "keyboard"), default=None,
-                   help="simulated (sim devices only: simulated hand and synthetic rater) or keyboard (a person "
-                        "using the subject view; with a sim device the simulated hand still taps); default: "
-                        "simulated, or the resumed session's")
-    p.add_argument("--subject", required=True, help="subject id (letters, digits, _ and -)")
-    p.add_argument("--out", required=True, help="data folder; the session goes to OUT/<subject>/")
-    p.add_argument("--seed", type=int, default=None, help="randomization seed (default: random, stored)")
-    p.add_argument("--resume", action="store_true", help="continue an unfinished session of this subject")
-    p.add_argument("--catalog", default=None, help="sample catalog TOML (default: the 12 samples of Table 4.1)")
-    p.add_argument("--library-dir", default=None, help="directory for relative HFAM library paths")
-    p.add_argument("--samples", default=None, help="comma-separated subset of catalog sample names")
-    p.add_argument("--repetitions", type=int, default=None, help="testing presentations per sample (default 3)")
-    add_renamed(p, "--tap-window-s", "--tap-window", type=float, default=None, dest="tap_window_s",
-                   help="tapping time from the first impact, s (default 5)")
-    p.add_argument("--protocol", default=None, help="TOML/JSON file with protocol settings (docs/study.md)")
-    p.add_argument("--participant-config", default=None, help="TOML/JSON simulated-participant settings")
-    p.add_argument("--age", type=int, default=None)
-    p.add_argument("--gender", choices=GENDERS, default=None)
-    p.add_argument("--handedness", choices=HANDEDNESS, default=None)
-    p.add_argument("--experience", choices=EXPERIENCE, default=None,
-                   help="prior haptic experience: none (never), few (a few times), regular")
-    p.add_argument("--audio", choices=("auto", "on", "off"), default="auto",
-                   help="masking audio: auto = on for hardware (required: refuses to start without an output "
-                        "device), off for sim; on = also in sim; off = also on hardware (bench tests without a "
-                        "subject; recorded in session.json)")
-    p.add_argument("--audio-device", default=None, help="PortAudio output device (name or index)")
-    add_renamed(p, "--masking-level-dbfs", "--masking-level", type=float, default=None, dest="masking_level_dbfs",
-                   help="white-noise RMS level in dBFS (default -20)")
-    add_renamed(p, "--cue-level-db", "--cue-level", type=float, default=None, dest="cue_level_db",
-                   help="spoken cues' active RMS level in dB re the noise (default 0)")
-    p.add_argument("--servo-process", choices=("auto", "on", "off"), default="auto",
-                   help="run device, servo loop and homing in a child process so UI and audio threads never delay "
-                        "them (auto: on for hardware, off for sim)")
-    p.add_argument("--realtime", action="store_true",
-                   help="pace a sim device's tapping windows to wall-clock time (hardware is always paced)")
-    p.add_argument("--serve", action="store_true", help="serve the views also for a simulated participant")
-    p.add_argument("--host", default="127.0.0.1", help="bind address of the views (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
-    p.add_argument("--token", default=None, help="operator token (default: random, printed)")
-    p.add_argument("--quiet", action="store_true", help="print only the summary")
-    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA')
-    p.set_defaults(func=run_command)
+from .uistate import Aborted, UiState
+from .webui import WebUI
 
 
 def run_command(args) -> int:
@@ -106,12 +57,6 @@ def _run_command(args) -> int:
     protocol, seed, info, catalog, library_dir = plan.protocol, plan.seed, plan.info, plan.catalog, plan.library_dir
 
     # masking audio: required on hardware, silent in sim unless asked
-    from .audio import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        CHOICE_PHRASES,
-        MaskingAudio,
-        SilentAudio,
-        check_output_device,
-    )
 
     want_audio = args.audio == "on" or (args.audio == "auto" and not is_sim)
     if want_audio:
@@ -135,13 +80,7 @@ def _run_command(args) -> int:
         audio_info = {"output": None, "level_dbfs": None, "cue_source": audio.cue_source, "cue_spoken": False,
                       "cue_level_db": None}
 
-    from devices import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
-    from .apparatus import Apparatus  # deferred: keeps `--help` fast (a command loads only what it runs)
-    from .participants import (  # deferred: keeps `--help` fast (a command loads only what it runs)
-        SimulatedParticipant,
-        load_participant_config,
-    )
 
     sim_participant = None
     if is_sim:
@@ -153,14 +92,10 @@ def _run_command(args) -> int:
     device = apparatus = None
     ui = web = None
     if isolate:
-        from .isolated import IsolatedApparatus  # deferred: keeps `--help` fast (a command loads only what it runs)
-
         apparatus = IsolatedApparatus(args.device, device_options, catalog, protocol, library_dir,
                                       sim_participant, realtime=True if args.realtime else None)
         device_info = apparatus.device_info
     else:
-        from devices import DeviceError  # deferred: keeps `--help` fast (a command loads only what it runs)
-
         try:
             device = make_device(args.device, **device_options)
             device.open()
@@ -173,8 +108,6 @@ def _run_command(args) -> int:
                                   sim_participant=sim_participant, realtime=True if args.realtime else None)
         participant = sim_participant if args.participant == "simulated" else _KeyboardParticipant()
         if plan.experiment is not None:  # issue 34: a psychophysics session (2-interval forced choice)
-            from .psysession import run_experiment  # deferred: keeps `--help` fast
-
             return run_experiment(plan, args, apparatus, participant, audio, audio_info, device_info, isolate,
                                   sim_participant, say)
         schedule = Schedule([s.name for s in catalog], protocol.repetitions, seed,
@@ -182,9 +115,6 @@ def _run_command(args) -> int:
         rows, fam_ended = start_session(plan, args, schedule, device_info, isolate, sim_participant, audio_info,
                                         apparatus.real_saturation_detection)
 
-        from .runner import StudyRunner  # deferred: keeps `--help` fast (a command loads only what it runs)
-        from .uistate import UiState  # deferred: keeps `--help` fast (a command loads only what it runs)
-        from .webui import WebUI  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         if args.participant == "keyboard" or args.serve:
             ui = UiState()
@@ -224,9 +154,6 @@ def _run_command(args) -> int:
         print(f"{exc}: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
         return exc.code
     except Exception as exc:
-        from .apparatus import ServoStopped  # deferred: keeps `--help` fast (a command loads only what it runs)
-        from .uistate import Aborted  # deferred: keeps `--help` fast (a command loads only what it runs)
-
         if isinstance(exc, Aborted):
             print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
             return 3

@@ -9,19 +9,13 @@ are refused with the key and file named.
 
 from __future__ import annotations
 
-import json
 import math
-import tomllib
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import asdict, dataclass
 
-from plumbing.fileio import read_text_utf8
-from plumbing.validation import require_int, require_positive
+from plumbing.validation import load_dataclass_file, require_int, require_positive
 
-from .data import EXPERIENCE, check_subject_id
-
-GENDERS = ("female", "male", "other", "unspecified")
-HANDEDNESS = ("right", "left", "ambidextrous", "unspecified")
+from .choices import EXPERIENCE, GENDERS, HANDEDNESS
+from .data import check_subject_id
 
 
 @dataclass(frozen=True)
@@ -89,55 +83,6 @@ class ProtocolConfig:
     def to_dict(self) -> dict:
         """The protocol as plain data (recorded in session.json)."""
         return asdict(self)
-
-
-def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, where: str = "command line"):
-    """Build the frozen dataclass ``cls`` from a TOML (``.toml``) or JSON file.
-
-    Parameters
-    ----------
-    path : str, Path or None
-        The file; None: only ``overrides`` (and the dataclass defaults).
-    cls : type
-        Frozen dataclass whose field names are the valid keys.
-    what : str
-        What the file is, for messages ("protocol", "participant").
-    overrides : dict or None
-        Values that win over the file's (entries that are None are ignored).
-    where : str
-        Where the values come from without a file, for messages (e.g. a resumed session's
-        ``session.json: protocol``).
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    ValueError
-        Naming the file for a parse error, unknown key(s) (listing the valid
-        ones) or a value ``cls`` refuses.
-    """
-    data: dict = {}
-    if path is not None:
-        p = Path(path)
-        where = str(p)
-        if not p.is_file():
-            raise FileNotFoundError(f"{what} file {p} not found")
-        text = read_text_utf8(p, f"{what} file")
-        try:
-            data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
-        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{p}: cannot parse ({exc})") from None
-        if not isinstance(data, dict):
-            raise ValueError(f"{p}: a {what} file must hold a table/object of settings, got {type(data).__name__}")
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{where}: unknown {what} key(s) {unknown}; valid keys: {sorted(known)}")
-    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    try:
-        return cls(**data)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: {exc}") from None
 
 
 def load_protocol(path, where: str = "command line", **overrides) -> ProtocolConfig:

@@ -39,8 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from plumbing.fileio import atomic_write_bytes as _atomic_write_bytes
 from plumbing.fileio import atomic_temp_target, current_umask, fsync_dir
+from plumbing.fileio import atomic_write_bytes as _atomic_write_bytes
+
+from .choices import EXPERIENCE  # noqa: F401 (study.data.EXPERIENCE, as before: the choices live in study.choices)
 
 TRIAL_COLUMNS = (
     "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
@@ -150,7 +152,6 @@ class SubjectLock:
         _HELD_LOCKS.discard(self)
 
 SUBJECT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
-EXPERIENCE = ("none", "few", "regular")
 
 
 def utc_now() -> str:

@@ -35,6 +35,7 @@ from plumbing.fileio import read_text_utf8
 from plumbing.validation import require_int
 
 from .config import ProtocolConfig, load_dataclass_file
+from .multistair import Interleaved
 
 KINDS = ("real-virtual-2afc", "discrimination", "detection")
 #: adaptive methods (:mod:`study.methods`: Levitt 1971, Kaernbach 1991, Watson 2017, Kontsevich & Tyler 1999)
@@ -203,8 +204,6 @@ class ExperimentConfig:
 
     def handler(self, seed: int):
         """The session's interleaved staircases (:class:`study.multistair.Interleaved`), seeded by ``seed``."""
-        from .multistair import Interleaved  # deferred: QUEST+/Psi load scipy; the command's parser imports this module
-
         stairs = {}
         for label, table in self.staircases.items():
             if not isinstance(table, dict):

@@ -17,7 +17,8 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from .config import load_dataclass_file
+from plumbing.validation import load_dataclass_file
+
 from .protocol import PHASE_CODES, stable_code
 from .rater import RaterProfile, rate, realism_score
 

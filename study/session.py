@@ -13,8 +13,9 @@ import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
-from plumbing import provenance
 from devices.registry import check_device_spec
+from devices.sim import SAMPLES
+from plumbing import provenance
 from stimuli import load_catalog
 
 from .config import ProtocolConfig, SubjectInfo, load_protocol
@@ -71,9 +72,6 @@ def load_study_catalog(catalog_path, library_dir, samples_arg, is_sim: bool, fam
             raise ValueError(f"--samples: unknown sample(s) {unknown}; the catalog has {names}")
         catalog = [s for s in catalog if s.name in wanted]
     if is_sim:
-        from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-            SAMPLES,
-        )
 
         for s in catalog:
             if s.kind == "real" and s.real_sample not in SAMPLES:

@@ -7,6 +7,7 @@ devices holds no plumbing (the foundation's modules live in plumbing/ only).
 """
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -185,6 +186,50 @@ def test_imports_sit_at_the_top_unless_deferred_with_a_reason():
     bad = [hit for path in all_modules() + sorted((ROOT / "benchmarks").rglob("*.py"))
            for hit in _unmarked_function_imports(path)]
     assert not bad, f"{len(bad)} function-level imports without '# deferred: <why>':\n" + "\n".join(bad)
+
+
+#: the most imports inside functions the source may hold (issue 33): each one a measured start-up figure
+MAX_DEFERRED = 20
+#: a deferred import's comment states its measured cost: a number with its unit (``0.3 s``, ``19 ms``)
+MEASURED = re.compile(r"\d+(\.\d+)?\s*(ms|s)\b")
+
+
+def deferred_imports(path: Path, root: Path = ROOT) -> list[tuple[str, str]]:
+    """(``file:line``, its ``# deferred:`` comment) of every import inside a function of ``path``."""
+    src = path.read_text(encoding="utf-8")
+    lines = src.splitlines()
+    out = []
+
+    def visit(node, in_function):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.Import, ast.ImportFrom)) and in_function:
+                ends = [lines[child.lineno - 1].partition("#")[2], lines[child.end_lineno - 1].partition("#")[2]]
+                why = next((c.strip() for c in ends if c.strip().startswith("deferred:")), "")
+                out.append((f"{path.relative_to(root)}:{child.lineno}", why))
+            visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
+
+    visit(ast.parse(src), False)
+    return out
+
+
+def test_at_most_twenty_deferred_imports_each_with_its_measured_cost():
+    """A command's body imports at its top (its parser module is apart: plumbing.dispatch.Body); an import
+    inside a function is left only where a measured start-up figure needs it, and its comment says how much."""
+    found = [hit for path in all_modules() + sorted((ROOT / "benchmarks").rglob("*.py"))
+             for hit in deferred_imports(path)]
+    assert len(found) <= MAX_DEFERRED, f"{len(found)} imports inside functions (at most {MAX_DEFERRED}):\n" + \
+        "\n".join(where for where, _ in found)
+    unmeasured = [f"{where}: {why}" for where, why in found if not MEASURED.search(why)]
+    assert not unmeasured, "deferred imports without their measured cost (e.g. '0.3 s', '19 ms'):\n" + \
+        "\n".join(unmeasured)
+
+
+def test_the_deferred_import_count_reads_comments_and_costs(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import os\n\ndef f():\n    import json  # deferred: 12 ms CPU\n    import y  # deferred: heavy\n")
+    found = deferred_imports(f, tmp_path)
+    assert [where for where, _ in found] == ["m.py:4", "m.py:5"]
+    assert [bool(MEASURED.search(why)) for _, why in found] == [True, False]
 
 
 def test_the_deferred_import_check_finds_an_unmarked_import(tmp_path):

@@ -16,6 +16,14 @@ import os
 import select
 import time
 
+import serial
+
+try:  # hidapi is optional: without it, opening a HID device is one error (below), importing this is not
+    import hid
+except ImportError as _exc:  # pragma: no cover - hidapi is a dependency
+    hid = None
+    _HID_MISSING = str(_exc)
+
 HID_REPORT_SIZE = 64
 HID_DATA_PER_REPORT = HID_REPORT_SIZE - 1
 
@@ -47,8 +55,6 @@ class SerialTransport(Transport):
     (pyserial's per-call timeout setter reconfigures the tty, which costs more than a servo tick)."""
 
     def __init__(self, port: str, baudrate: int = 921600) -> None:
-        import serial  # deferred: pyserial
-
         self.name = port
         try:
             self._ser = serial.Serial(port, baudrate, timeout=0, write_timeout=1.0)
@@ -142,10 +148,8 @@ class HidTransport(Transport):
         TransportClosed
             hidapi is missing, or no such device can be opened (the message names the device).
         """
-        try:
-            import hid  # deferred: optional: its absence is handled here
-        except ImportError as exc:  # pragma: no cover - hidapi is a dependency
-            raise TransportClosed(f"hidapi is not installed: {exc}") from None
+        if hid is None:  # pragma: no cover - hidapi is a dependency
+            raise TransportClosed(f"hidapi is not installed: {_HID_MISSING}")
         name = f"hid:{vid:04x}:{pid:04x}"
         if not hasattr(hid, "device"):
             raise TransportClosed("the installed 'hid' module is not hidapi (pip install hidapi, not hid)")

@@ -13,22 +13,12 @@ Command line: ``python -m devices identify`` and ``python -m devices fit`` (see 
 
 from .etfe import Etfe, detrend_ramp, etfe
 from .fit import FitError, FitOptions, FitResult, combine_curves, fit_errors, fit_etfes, fit_frequency_response
+from .modelset import ModelSet, load_model_set
 from .pipeline import IdentifyConfig, identify_device
 from .record import record_condition, record_trial
 from .recording import COLUMNS, Recording, read_recording, write_recording
 from .sweep import SweepConfig, swept_sine
 from .validate import nrmse, validate_model
-
-
-def __getattr__(name: str):
-    # ModelSet and load_model_set load on first use (PEP 562): devices.model behind them loads scipy.signal
-    # (~1 s), which `python -m devices identify` must not wait for before it starts recording (see pipeline)
-    if name in ("ModelSet", "load_model_set"):
-        from . import modelset  # deferred: see above
-
-        return getattr(modelset, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
 
 __all__ = ["Etfe", "detrend_ramp", "etfe", "FitError", "FitOptions", "FitResult", "combine_curves", "fit_errors",
            "fit_etfes", "fit_frequency_response", "ModelSet", "load_model_set", "IdentifyConfig",

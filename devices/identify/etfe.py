@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from .recording import Recording, analysed_slice
 
@@ -99,7 +100,6 @@ def boxcar(x: np.ndarray, width: int) -> np.ndarray:
         return np.asarray(x, dtype=float)
     # deferred: scipy.ndimage takes ~0.3 s to import, and `python -m devices identify` imports this module
     # before it forks its recording process, which must not wait for scipy (see pipeline.identify_device)
-    from scipy.ndimage import uniform_filter1d  # deferred: ~0.3 s, not before the recorder's fork (above)
 
     return uniform_filter1d(np.asarray(x, dtype=float), size=width, mode="nearest")
 

@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.lines import Line2D
 
 import figstyle
 
@@ -112,7 +114,6 @@ def bode_plot(curves: list[Etfe], models: list[ZpkModel | None], path, title: st
         ax_p.set_xlabel("frequency (Hz)")
         for ax in (ax_m, ax_p):
             ax.grid(True, which="both", alpha=0.3)
-        from matplotlib.lines import Line2D  # deferred: matplotlib costs ~0.3 s; figures only
 
         handles, labels = ax_m.get_legend_handles_labels()
         handles += [Line2D([], [], color="0.3", lw=1.2, label="ETFE (coherence ≥ %.1f)" % COHERENCE_MIN),
@@ -135,8 +136,6 @@ def preload_figures() -> None:
 
 
 def _grip_colors(n: int) -> list:
-    from matplotlib import colormaps  # deferred: matplotlib costs ~0.3 s; figures only
-
     return [colormaps[figstyle.palette()["sequential"]](x) for x in np.linspace(0.0, 0.85, max(n, 1))]
 
 

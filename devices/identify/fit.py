@@ -17,6 +17,10 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.optimize import minimize_scalar
+
+from ..model import ZpkModel
+from . import vfit
 
 if TYPE_CHECKING:  # annotations only: at run time they load on first use (see load_solvers)
     from ..model import ZpkModel
@@ -35,10 +39,6 @@ def load_solvers():
     (the recording process that :func:`devices.identify.pipeline.identify_device` forks must not spend
     that second). Call it to load them ahead, e.g. before forking processes that fit.
     """
-    from scipy.optimize import minimize_scalar  # deferred: see the docstring
-
-    from ..model import ZpkModel  # deferred: see the docstring (scipy.signal)
-    from . import vfit  # deferred: see the docstring (scipy.linalg)
 
     return minimize_scalar, ZpkModel, vfit
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from ..base import Device
@@ -212,10 +214,8 @@ def format_linearity(report: dict) -> str:
 def linearity_figure(report: dict, path, min_coherence: float = MIN_COHERENCE) -> str:
     """Bode overlay of all conditions (Figure 3.8 style): low-coherence bins masked (gaps, no spikes), phase
     unwrapped over the coherent bins and shifted by whole turns to start within +-180 deg."""
-    import matplotlib  # deferred: heavy: figures only
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     lo, hi = report["band_hz"]
     fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)

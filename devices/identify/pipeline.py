@@ -10,15 +10,19 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg  # noqa: F401 (loaded once, before the fork, for the recorder and the fitting processes)
+from scipy.signal import find_peaks
 
-from ..base import Device
 from plumbing.fileio import atomic_write_text
 from plumbing.progress import Progress
-from ..registry import make_device
 from plumbing.validation import require_int
+
+from ..base import Device
+from ..registry import make_device
 from .etfe import Etfe, etfe
 from .figures import bode_plot, preload_figures
 from .fit import FitError, FitOptions, fit_etfes, load_solvers
+from .modelset import ModelSet
 from .record import record_condition
 from .recording import write_recording
 from .sweep import SweepConfig
@@ -185,7 +189,6 @@ def identify_device(dev: Device, cfg: IdentifyConfig, out_dir, log=print, device
     if ok:
         # deferred: devices.model loads scipy.signal (~1 s), which importing this module must not (the
         # recording process is forked before it is loaded, see above)
-        from .modelset import ModelSet  # deferred: scipy.signal behind it, not before the fork (above)
 
         models = {o: [fits[o][i].model if fits[o][i] is not None else None for i in ok] for o in outputs}
         models = {o: ms for o, ms in models.items() if any(m is not None for m in ms)}
@@ -264,7 +267,6 @@ def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, l
     validate the grips as their recordings arrive (fork: the processes inherit the imported and
     numba-compiled modules, so they start at once). Returns the results in the order of ``jobs``."""
     # before the fork: the recorder's first numba call loads scipy.linalg, and so does fitting here
-    import scipy.linalg  # deferred: loaded once for both processes, see above  # noqa: F401
 
     ctx = multiprocessing.get_context("fork")
     results = [None] * len(jobs)
@@ -433,7 +435,6 @@ def main_resonance(curve: Etfe, band_hz) -> tuple[float, float]:
     A peak is a local maximum standing at least 1 dB above its surroundings;
     without one, the band's maximum.
     """
-    from scipy.signal import find_peaks  # deferred: scipy costs up to ~1 s; only this step needs it
 
     sel = (curve.f_hz >= band_hz[0]) & (curve.f_hz <= band_hz[1])
     f, db = curve.f_hz[sel], 20 * np.log10(np.abs(curve.H[sel]))

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from ..base import Device, DeviceError, Status
+from ._fastplay import play_open
 from .recording import Recording, check_recording
 from .sweep import SweepConfig, swept_sine
 
@@ -93,7 +94,6 @@ def play(dev: Device, current_A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
 def _play_sim(dev, u: np.ndarray):
     """:func:`play` on a ``SimDevice`` in one numba call: the same ticks, clamp, delay and final state as the
     Python loop (tested tick for tick), about 4x faster."""
-    from ._fastplay import play_open  # deferred: numba-compiled: imported on first use
 
     n = u.size
     x, a, g = np.empty(n), np.empty(n), np.empty(n)

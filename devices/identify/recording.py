@@ -18,6 +18,7 @@ import numpy as np
 
 from plumbing.fileio import atomic_open, atomic_write_text, read_json_file
 from plumbing.validation import is_finite_number, shown_value
+
 from .sweep import SweepConfig
 
 COLUMNS = ("t_s", "current_A", "accel_m_s2", "position_m", "grip_N")
@@ -181,7 +182,7 @@ def read_csv_columns(path: Path, columns) -> dict[str, np.ndarray]:
         Naming the file for an unparsable CSV or missing column(s), and file,
         line and column of the first non-numeric or NaN/inf value.
     """
-    import pandas as pd  # deferred: pandas costs ~0.3 s to import and only reading needs it (identify only writes)
+    import pandas as pd  # deferred: 1.35 s CPU; only reading a recording needs it (identify, the demo only write)
 
     try:
         df = pd.read_csv(path)

@@ -5,6 +5,8 @@ model (comprehensive evaluation)."""
 
 from __future__ import annotations
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from ..base import Device
@@ -111,10 +113,8 @@ def time_domain_validation(dev: Device, models: dict, grip_N: float = 2.0, ampli
 
 def time_domain_figure(result: dict, path, title: str = "") -> str:
     """Figure 3.10 style: current and measured/predicted acceleration per transient, residuals below."""
-    import matplotlib  # deferred: heavy: figures only
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     wins = result["windows"]
     fs = result["fs_hz"]

@@ -31,7 +31,7 @@ def _kernel_tick():
     Imported at a device's first :meth:`SimDevice.command`, not with this module: a simulated run whose
     servo loop was compiled ahead of time (``renderer.sim_aot``) never calls it and starts without numba.
     """
-    from . import kernel  # deferred: numba and the cached kernels cost ~0.3 s that an AOT-compiled run never needs
+    from . import kernel  # deferred: numba and the cached kernels, 0.3 s CPU; a run compiled ahead of time never needs it
 
     return kernel.tick
 
@@ -133,15 +133,8 @@ class SimDevice(Device):
                 p[idx] = m[key]
             p[K.P_HYST] = 1.0 if m["hysteresis"] else 0.0
         else:
-            from .linear import (  # deferred: scipy.signal behind it costs ~1 s; only sim:lti and linear models need it
-                lti_transmission_ss,
-            )
-
             p[K.P_MH] = pr.lti["handle_mass_kg"]
-            a, b, c, d = lti_transmission_ss(pr.lti)
-            from scipy.signal import cont2discrete  # deferred: ~1 s import, only the sim:lti branch needs it
-
-            ad, bd, cd, dd, _ = cont2discrete((a, b, c, d), dt, method="zoh")
+            ad, bd, cd, dd = _linear().lti_transmission_zoh(pr.lti, dt)
             n = ad.shape[0]
             if n > K.LTI_MAX_ORDER:
                 raise ValueError(f"{pr.source}: LTI transmission order {n} exceeds {K.LTI_MAX_ORDER}")
@@ -438,8 +431,11 @@ class SimDevice(Device):
         (one servo period plus half a period for the zero-order hold) as
         ``delay_s``. Returns a :class:`devices.model.ZpkModel`.
         """
-        from .linear import (  # deferred: scipy.signal behind it costs ~1 s; only sim:lti and linear models need it
-            linear_model,
-        )
+        return _linear().linear_model(self.params, grip_N, output, linkage)
 
-        return linear_model(self.params, grip_N, output, linkage)
+
+def _linear():
+    """:mod:`devices.sim.linear` (the LTI transmission and the linearized models), loaded on first use."""
+    from . import linear  # deferred: scipy.signal behind it, 1.2 s CPU; only sim:lti and linear models need it
+
+    return linear

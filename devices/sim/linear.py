@@ -85,6 +85,25 @@ def lti_transmission_ss(lti):
     return total
 
 
+def lti_transmission_zoh(lti, dt_s: float):
+    """The LTI transmission of :func:`lti_transmission_ss` discretized with a zero-order hold.
+
+    Parameters
+    ----------
+    lti : dict
+        The ``[lti]`` section of the sim parameters.
+    dt_s : float
+        Sample period (s): one servo period.
+
+    Returns
+    -------
+    (ad, bd, cd, dd) : ndarrays
+        Discrete state-space matrices (``scipy.signal.cont2discrete``, method ``zoh``).
+    """
+    ad, bd, cd, dd, _ = signal.cont2discrete(lti_transmission_ss(lti), dt_s, method="zoh")
+    return ad, bd, cd, dd
+
+
 def _user_impedance(params, grip_N: float) -> tuple[float, float]:
     u = params.user
     return u["k_u_N_m"] * grip_N / u["nominal_grip_N"], u["b_u_Ns_m"] * grip_N / u["nominal_grip_N"]

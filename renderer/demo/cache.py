@@ -38,8 +38,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from plumbing.fileio import user_cache_dir
+from devices.identify.modelset import load_model_set
 from devices.registry import make_device
+from plumbing.fileio import user_cache_dir
 from stimuli import HfamLibrary
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
 from stimuli.recordings import read_tap_csv
@@ -167,10 +168,6 @@ def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, re
 
 
 def _load(entry: Path, settings: PipelineSettings) -> Pipeline:
-    from devices.identify.modelset import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
-        load_model_set,
-    )
-
     manifest = json.loads((entry / "manifest.json").read_text())
     if manifest.get("settings") != settings.to_dict():
         raise ValueError("settings in manifest.json differ from the requested ones")

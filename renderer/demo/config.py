@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from stimuli.hfam.pipeline import PipelineSettings
-from plumbing.validation import require_int
+from plumbing.validation import require_int, require_number
+from stimuli.hfam.settings import PipelineSettings
 
-from . import runs
-from .cache import Pipeline
+from .renderings import RENDERINGS
+
+if TYPE_CHECKING:  # annotations only: the cached pipeline loads the identification (scipy.signal)
+    from .cache import Pipeline
 
 
 @dataclass(frozen=True)
@@ -42,13 +44,15 @@ class DemoConfig:
     figure_velocity_m_s: float = 0.11
     grid_velocities_m_s: tuple = (0.05, 0.08, 0.11)
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
-    renderings: tuple = runs.RENDERINGS
+    renderings: tuple = RENDERINGS
 
     def __post_init__(self) -> None:
         for key in ("velocities_m_s", "grips_N"):
             vals = getattr(self, key)
-            if not vals or any(not (math.isfinite(x) and x > 0) for x in vals):
+            if not vals:
                 raise ValueError(f"demo {key} must be positive numbers, got {vals!r}")
+            for k, x in enumerate(vals):
+                require_number(f"{key}[{k}]", x, minimum=0.0, strict=True, prefix="demo ")
         require_int("taps", self.taps, minimum=1, prefix="demo ")
         if self.figure_velocity_m_s not in self.velocities_m_s:
             raise ValueError(f"figure velocity {self.figure_velocity_m_s} must be one of the demo velocities")

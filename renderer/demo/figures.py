@@ -17,6 +17,7 @@ import contextlib
 from pathlib import Path
 
 import numpy as np
+from matplotlib import colormaps
 
 import figstyle
 from devices.identify.etfe import Etfe
@@ -104,7 +105,6 @@ def hfam_grid_figure(cells: dict, references: dict, currents: dict, fixed: dict,
                              squeeze=False, layout="constrained")
     n = len(next(iter(references.values())))
     t = _t_ms(n, fs_hz, pre_s)
-    from matplotlib import colormaps  # deferred: matplotlib costs ~0.3 s; figures only
 
     colors = colormaps[figstyle.palette()["sequential"]](np.linspace(0.0, 0.8, ng))
     hfam_color, fixed_color = figstyle.color("hfam_firm"), figstyle.color("hfam_fixed_grip_firm")

@@ -22,6 +22,8 @@ import signal
 import sys
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from devices.registry import make_device
@@ -121,8 +123,6 @@ class WindowScope:
     """A matplotlib window with the last ~0.4 s of handle acceleration and position."""
 
     def __init__(self):
-        import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
-
         plt.ion()
         self.plt = plt
         self.fig, (self.ax_a, self.ax_x) = plt.subplots(2, 1, sharex=True, figsize=(7, 4.5))
@@ -159,7 +159,6 @@ def make_scope(kind: str):
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     if kind in ("window", "auto") and has_display:
         try:
-            import matplotlib  # deferred: matplotlib costs ~0.3 s; figures only
 
             if matplotlib.get_backend().lower() == "agg":
                 matplotlib.use("TkAgg")

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from scipy import signal
 
 #: Band of human vibrotactile perception used for every comparison (section 4.4.1).
 BAND_HZ = (20.0, 1000.0)
@@ -34,10 +35,8 @@ def _band_sos(fs_hz: float, lo_hz: float, hi_hz: float, order: int) -> np.ndarra
         raise ValueError(f"band must satisfy 0 < lo < hi, got ({lo_hz}, {hi_hz}) Hz")
     if hi_hz >= nyq:
         # the upper edge is at or above Nyquist: only the high-pass side is meaningful
-        from scipy import signal  # deferred: scipy.signal costs ~1 s; `renderer demo --help` must not pay it
 
         return signal.butter(order, lo_hz, btype="highpass", fs=fs_hz, output="sos")
-    from scipy import signal  # deferred: scipy.signal costs ~1 s at start-up
 
     return signal.butter(order, [lo_hz, hi_hz], btype="bandpass", fs=fs_hz, output="sos")
 
@@ -63,7 +62,6 @@ def bandpass(x: np.ndarray, fs_hz: float, band_hz: tuple[float, float] = BAND_HZ
     x = np.asarray(x, dtype=float)
     sos = _band_sos(float(fs_hz), float(band_hz[0]), float(band_hz[1]), int(order))
     padlen = min(3 * (2 * len(sos) + 1), x.shape[-1] - 1)
-    from scipy import signal  # deferred: scipy.signal costs ~1 s at start-up
 
     return signal.sosfiltfilt(sos, x, axis=-1, padlen=max(padlen, 0))
 
@@ -100,7 +98,6 @@ def dominant_frequency(x: np.ndarray, fs_hz: float, band_hz: tuple[float, float]
     x = np.asarray(x, dtype=float)
     if x.size < 8:
         raise ValueError(f"dominant_frequency needs at least 8 samples, got {x.size}")
-    from scipy import signal  # deferred: scipy.signal costs ~1 s at start-up
 
     f, pxx = signal.periodogram(x, fs=fs_hz, window="hann", nfft=max(nfft, x.size), detrend="constant")
     inside = (f >= band_hz[0]) & (f <= band_hz[1])

@@ -16,10 +16,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from devices.sim import TapTrajectory
 from stimuli import DecayingSinusoid, Pulse
 from stimuli.hfam.pipeline import TAP_STOP_TIME_S, tap_approach_height_m, tap_trajectory_options
 
+from ..config import RendererConfig
+from ..loop import ServoLoop
 from . import metrics as dm
+from .renderings import REAL, RENDERINGS, Rendering  # noqa: F401 (re-exported: runs.REAL, runs.RENDERINGS)
 
 PRE_S = 0.01    # contact window before impact (s)
 POST_S = 0.1    # ... and after it: the HFAM transient's 100 ms (section 4.4.2)
@@ -34,55 +38,6 @@ def approach_height_m(velocity_m_s: float) -> float:
     long free flights; the recordings use the same height.
     """
     return tap_approach_height_m(velocity_m_s)
-
-
-@dataclass(frozen=True)
-class Rendering:
-    """One surface the user taps.
-
-    Attributes
-    ----------
-    name : str
-        Row name in the table and ``summary.csv``.
-    label : str
-        Human-readable description.
-    stiffness_N_m : float
-        Proportional wall stiffness (0 for the real sample).
-    transient : str
-        ``none``, ``pulse``, ``sinusoid``, ``hfam`` or ``hfam_fixed_grip`` (the
-        library's transient for ``fixed_grip_N`` whatever the grip: no grip
-        compensation, the Figure 4.13 discussion).
-    sample : str
-        Sim sample under the stylus (``placeholder`` for virtual walls).
-    """
-
-    name: str
-    label: str
-    stiffness_N_m: float
-    transient: str = "none"
-    sample: str = "placeholder"
-
-    @property
-    def is_real(self) -> bool:
-        """True for a real sample under the stylus (motor off), not a virtual rendering."""
-        return self.sample != "placeholder"
-
-
-REAL = Rendering("real_wood_on_foam", "real wood on foam (motor off)", 0.0, "none", "wood_on_foam")
-
-#: the renderings of issue 9, in table order
-RENDERINGS: tuple[Rendering, ...] = (
-    Rendering("soft", "soft proportional wall, 340 N/m", 340.0),
-    Rendering("firm", "firm proportional wall, 680 N/m", 680.0),
-    Rendering("very_firm", "very firm proportional wall, 1020 N/m", 1020.0),
-    Rendering("pulse_firm", "pulse (4.55 N s/m, 20 ms) over firm", 680.0, "pulse"),
-    Rendering("sinusoid_firm", "decaying sinusoid (15.9 N s/m, 55 Hz, 55 ms) over firm", 680.0, "sinusoid"),
-    Rendering("hfam_firm", "HFAM over firm", 680.0, "hfam"),
-    Rendering("hfam_soft", "HFAM over soft", 340.0, "hfam"),
-    Rendering("hfam_fixed_grip_firm", "HFAM over firm, medium-grip transient at every grip (no grip compensation)",
-              680.0, "hfam_fixed_grip"),
-    REAL,
-)
 
 
 class FixedGripTransient:
@@ -192,16 +147,6 @@ def tap_sim(device, rendering: Rendering, transient, velocity_m_s: float, grip_N
         None: the default simulated hand (tied to its trajectory); a
         ``ReactiveHand``: hand mass, muscle impedance and contact reflex.
     """
-    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-        TapTrajectory,
-    )
-
-    from ..config import (  # deferred: with the servo loop (numba, ~0.3 s), which `renderer demo --help` must not load
-        RendererConfig,
-    )
-    from ..loop import (  # deferred: the servo loop loads numba (~0.3 s); `renderer demo --help` imports this module
-        ServoLoop,
-    )
 
     device.set_sample(rendering.sample)
     traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=approach_height_m(velocity_m_s),

@@ -25,11 +25,14 @@ import threading
 import time
 from pathlib import Path
 
+import matplotlib.pyplot  # noqa: F401 (before the HFAM grid's drawing process is forked)
 import numpy as np
 
 from devices.registry import make_device
+from devices.sim import ReactiveHand
 from stimuli.hfam.pipeline import Progress
 
+from . import figures as figs
 from . import runs
 from .cache import Pipeline, build_or_load, keep_figures, restore_figures
 from .config import DemoConfig, DemoResult
@@ -252,9 +255,6 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
         penetration, m) and ``cuts`` (``pulse_firm``/``hfam_firm`` -> 1 -
         pen/pen_firm).
     """
-    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-        ReactiveHand,
-    )
 
     lo, hi = REACTIVE_VELOCITY_RANGE_M_S
     vels = tuple(v for v in cfg.velocities_m_s if lo <= v <= hi)
@@ -286,9 +286,6 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
                  parallel: bool = True) -> dict:
     """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``); with
     ``parallel`` the HFAM grid is drawn in a forked process beside the others (two cores or more)."""
-    from . import (  # deferred: the figures load matplotlib (~0.3 s); `renderer demo --help` imports this module
-        figures as figs,
-    )
 
     fs, pre = result.fs_hz, runs.PRE_S
     g_mid = cfg.medium_grip_N if cfg.medium_grip_N in cfg.grips_N else cfg.grips_N[len(cfg.grips_N) // 2]
@@ -313,7 +310,6 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
     if grid is not None and parallel:
         # the grid and the contact figure take about as long each: draw the grid in a second process,
         # forked after pyplot is imported so the child does not import it again
-        import matplotlib.pyplot  # deferred: ~0.3 s, figures only (`renderer demo --help`)  # noqa: F401
         side = _draw_aside(figs.hfam_grid_figure, grid)
     out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}
     pen = {}
@@ -334,9 +330,6 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
 def _pipeline_figures(pipe: Pipeline, cfg: DemoConfig, out: Path) -> dict:
     """The figures that depend only on the cached pipeline: the library (Fig. 4.8) and the Bode plot; drawn
     once per cache entry and drawing code, then copied from the cache (``cache.keep_figures``)."""
-    from . import (  # deferred: the figures load matplotlib (~0.3 s); `renderer demo --help` imports this module
-        figures as figs,
-    )
 
     drawn = {"library": figs.library_figure(pipe.library, cfg.medium_grip_N, Path(out) / "fig_library.png"),
              "bode": figs.bode_figure(pipe.etfe_npz, pipe.model_set, Path(out) / "fig_bode.png")}
@@ -364,11 +357,9 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
     aside: dict = {}
 
     def meanwhile():
-        # this process waits for the tap workers: tap the reactive hand here, and load pyplot for the
-        # figures (the HFAM grid's drawing process is forked from it)
+        # this process waits for the tap workers: tap the reactive hand here (pyplot, which the HFAM grid's
+        # drawing process needs, is imported with this module, before that process is forked)
         aside["reactive"] = reactive_hand_cuts(cfg, pipe)
-        if figures:
-            import matplotlib.pyplot  # deferred: ~0.3 s, figures only (`renderer demo --help`)  # noqa: F401
 
     traces, refs = simulate(cfg, pipe, progress, meanwhile=meanwhile)
     reactive = aside["reactive"]

@@ -1,11 +1,13 @@
 """``python -m renderer teleop`` / ``teleop-sweep``: the argument parsers, light enough for a fast ``--help``.
 
-The commands themselves are in :mod:`renderer.teleop.commands`, imported when one runs: it needs the
-numba-compiled testbed (``devices.sim``), whose import alone takes ~0.3 s. The choice lists below are
+The commands themselves are in :mod:`renderer.teleop.commands` (named as a ``plumbing.dispatch.Body``,
+imported when one runs): it needs the numba-compiled testbed (``devices.sim``), ~0.3 s to import. The choice lists below are
 the testbed's and the controllers' names, kept here as plain tuples (a test checks they match).
 """
 
 from __future__ import annotations
+
+from plumbing.dispatch import Body
 
 from .options import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS, parse_lambdas  # noqa: F401
 
@@ -52,7 +54,7 @@ def register(sub) -> None:
                    help="with --master DEVICE: session length in s (default 10); the simulated operator's "
                         "session lasts as long as its --taps")
     _add_common(p)
-    p.set_defaults(func=run_teleop)
+    p.set_defaults(func=Body("renderer.teleop.commands", "run_teleop"))
     q = sub.add_parser("teleop-sweep", help="lambda sweep with/without cancellation and stabilisers (Fig. 5.11)")
     q.add_argument("--lambda", dest="lam", default="1:15", help="lambda values: a:b, a:b:step or a,b,c")
     q.add_argument("--taps", type=int, default=2, help="taps per condition and lambda (speeds 0.08-0.12 m/s)")
@@ -62,18 +64,5 @@ def register(sub) -> None:
     q.add_argument("--robustness", action="store_true",
                    help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
     _add_common(q)
-    q.set_defaults(func=run_sweep)
+    q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))
 
-
-def run_teleop(args) -> int:
-    """The ``teleop`` command (:func:`renderer.teleop.commands.run_teleop`); returns the exit code."""
-    from . import commands  # deferred: the numba testbed costs ~0.3 s, --help needs none of it
-
-    return commands.run_teleop(args)
-
-
-def run_sweep(args) -> int:
-    """The ``teleop-sweep`` command (:func:`renderer.teleop.commands.run_sweep`); returns the exit code."""
-    from . import commands  # deferred: the numba testbed costs ~0.3 s, --help needs none of it
-
-    return commands.run_sweep(args)

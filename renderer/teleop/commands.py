@@ -19,15 +19,24 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+import scipy
+from tqdm import tqdm
 
-from plumbing.fileio import atomic_write_text, check_output_dir
+from devices.model import load_model
+from devices.registry import make_device
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import CimmModel, Testbed, get_environment
+from plumbing.fileio import atomic_write_text, check_output_dir
+from plumbing.stopsignals import stop_on_signals
 
+from .hfam import accel_match, design_hfam, figure_45, identify_master_hha
 from .models import cimm_params, underestimation_check
 from .options import SWEEP_CONDITIONS, parse_lambdas
+from .serial_master import run_serial_session
 from .session import TeleopConfig, default_path, run_session, session_metrics
 
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
@@ -40,7 +49,6 @@ HFAM_MASTER_PD_HZ = 150.0   # pd+hfam: low-pass on the master PD force (PD = pow
 
 def software_versions() -> dict:
     """Versions written into run.json."""
-    import scipy  # deferred: only the run metadata needs it
 
     try:
         version = importlib.metadata.version("hfam-haptics")
@@ -68,9 +76,6 @@ def build_testbed(args) -> Testbed:
 
 def build_hfam(args, tb: Testbed, out: Path):
     """HFAM filter from H_ha: ``--hha-model FILE`` or the comprehensive identification of the master."""
-    from devices.model import load_model  # deferred: keeps `--help` fast (a command loads only what it runs)
-
-    from .hfam import design_hfam, identify_master_hha  # deferred: scipy / identification only for pd+hfam
 
     if args.hha_model:
         model = load_model(args.hha_model)
@@ -160,7 +165,6 @@ def run_teleop(args) -> int:
            "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
            "unstable_taps": unstable, "taps": taps}
     if cfg.controller.startswith("pd"):
-        from .hfam import accel_match, figure_45  # deferred: scipy-based analysis, PD controllers only
         match = accel_match(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
         run["accel_match_22_1000Hz"] = match
         if hfam is not None:
@@ -197,10 +201,6 @@ def run_teleop_master(args) -> int:
     SIGTERM/SIGHUP stop the session like Ctrl-C: :class:`plumbing.stopsignals.Terminated` propagates (exit
     status 128 + the signal's number) after closing the master has zeroed its output.
     """
-    from devices.registry import make_device  # deferred: load only the driver asked for
-    from plumbing.stopsignals import stop_on_signals  # deferred: the real-master session only
-
-    from .serial_master import run_serial_session  # deferred: the real-master loop only when asked for
 
     if args.controller not in ("pf", "pf+cimm"):
         raise ValueError(f"--master {args.master}: only the position-force controllers (pf, pf+cimm) run "
@@ -256,9 +256,7 @@ def run_teleop_master(args) -> int:
 
 def figure_510(res, path: Path, title: str) -> None:
     """Figure 5.10-style plot of the first tap: F_f and x_c (and x_m, x_hat_mi,hf with cancellation)."""
-    import matplotlib  # deferred: plotting only
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     tr = res.traces if not res.fault else res.traces[:res.fault_tick + 1]
     fe = tr[:, K.O_FE]
@@ -367,7 +365,6 @@ def run_sweep(args) -> int:
         print(check["warning"])
     out = _new_dir(Path(args.out))
     try:
-        from tqdm import tqdm  # deferred: progress display only
         bar = tqdm(total=len(conds) * len(lambdas) * args.taps, unit="tap", file=sys.stderr)
 
         def progress(i, n):
@@ -414,9 +411,7 @@ def run_sweep(args) -> int:
 
 def figure_511(rows, conds, path: Path) -> None:
     """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps."""
-    import matplotlib  # deferred: plotting only
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for c in conds:

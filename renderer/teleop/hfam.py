@@ -14,7 +14,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from scipy import signal
+from scipy.signal import windows
 
 from devices.identify.etfe import etfe
 from devices.identify.fit import FitOptions, fit_etfes
@@ -67,7 +71,6 @@ def bartlett_hann_fir(n: int = FIR_TAPS) -> np.ndarray:
     300 / 400 / 500 Hz against -4.4 / -8.2 / -13.8 dB), and a third of a wood tap's 22-1000 Hz energy lies at
     300-600 Hz: even an exact inverse after it leaves a normalised RMS error of 0.57 (0.49 after this one).
     """
-    from scipy.signal import windows  # deferred: scipy.signal is heavy
 
     w = windows.barthann(n)
     return w / w.sum()
@@ -92,7 +95,6 @@ def design_hfam(model: ZpkModel, fs_hz: float, *, max_current_A: float = 2.0, ad
     -------
     HfamFilter
     """
-    from scipy import signal  # deferred: scipy.signal is heavy
 
     z = np.asarray(model.zeros_rad_s, complex)
     p = np.asarray(model.poles_rad_s, complex)
@@ -210,7 +212,6 @@ def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_h
     dict: ``correlation``, ``nrmse`` (RMS error / RMS of the tip), ``delay_s``, ``rms_ratio``
     (master / tip RMS), ``delay_samples``.
     """
-    from scipy import signal  # deferred: scipy.signal is heavy
 
     sos = signal.butter(4, [band_hz[0], min(band_hz[1], 0.45 * fs_hz)], btype="bandpass", fs=fs_hz, output="sos")
     a = signal.sosfilt(sos, np.asarray(slave_tip_m_s2, float))
@@ -232,10 +233,7 @@ def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_h
 
 def figure_45(slave_tip_m_s2, master_handle_m_s2, fs_hz: float, delay_samples: int, path, title: str = "") -> None:
     """Figure 4.5-style plot: slave tip vs master handle acceleration (22-1000 Hz, delay removed), first impact."""
-    import matplotlib  # deferred: plotting only
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
-    from scipy import signal  # deferred: scipy.signal is heavy
 
     sos = signal.butter(4, [HIGHPASS_HZ, min(1000.0, 0.45 * fs_hz)], btype="bandpass", fs=fs_hz, output="sos")
     a = signal.sosfilt(sos, np.asarray(slave_tip_m_s2, float))

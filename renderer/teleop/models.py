@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from plumbing.fileio import user_cache_dir
+from devices.identify.successive import identify_successive, save_result
 from devices.sim.params import DEFAULT_PARAMS_FILE, SimParams, default_params, load_sim_params
+from plumbing.fileio import user_cache_dir
 
 # relative errors of the stand-in model (until successive isolation is merged): name -> factor
 STAND_IN_ERRORS = {"m_m_kg": 1.08, "m_d_kg": 0.92, "m_h_kg": 1.10, "k_c_N_m": 0.90, "b_c_Ns_m": 1.20,
@@ -38,7 +39,6 @@ def identified_params(log=print) -> tuple[SimParams, str]:
         Loaded from the saved ``model.json``.
     source : str
     """
-    from devices.identify.successive import identify_successive, save_result  # deferred: heavy, first run only
 
     key = hashlib.sha256(Path(DEFAULT_PARAMS_FILE).read_bytes()).hexdigest()[:16]
     base = user_cache_dir() / "teleop" / key

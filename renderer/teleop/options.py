@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 #: ``devices.sim.teleop.ENVIRONMENTS`` (sorted names) and ``renderer.teleop.session.CONTROLLERS``
 ENVIRONMENT_NAMES = ("foam", "hard", "texture", "wood", "wood_on_foam")
 CONTROLLER_NAMES = ("pd", "pd+hfam", "pf", "pf+cimm")
@@ -48,7 +46,8 @@ def parse_lambdas(text: str) -> list[float]:
             step = parts[2] if len(parts) > 2 else 1.0
             if step <= 0 or b < a:
                 raise ValueError
-            vals = list(np.round(np.arange(a, b + step / 2, step), 6))
+            # numpy.arange(a, b + step / 2, step) rounded to 6 decimals, without numpy (a --help imports this)
+            vals = [round(a + k * step, 6) for k in range(math.ceil((b + step / 2 - a) / step))]
         else:
             vals = [float(x) for x in text.split(",")]
     except (ValueError, IndexError):

@@ -12,9 +12,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 from devices.sim import teleop_kernel as K
 from devices.sim.teleop import CimmModel, Testbed, tap_path
+from plumbing.validation import require_choice, require_number, require_positive
 
 CONTROLLERS = ("pd", "pd+hfam", "pf", "pf+cimm")
 
@@ -86,23 +88,17 @@ class TeleopConfig:
     divergence_m_s: float = 3.0
 
     def __post_init__(self) -> None:
-        if self.controller not in CONTROLLERS:
-            raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        require_choice("controller", self.controller, CONTROLLERS)
         kp, kd = SLAVE_PD_DEFAULTS["pd" if self.controller.startswith("pd") else "pf"]
         # frozen dataclass: resolve the architecture's default gains once, so run.json records the numbers
         if self.kp_s_N_m is None:
             object.__setattr__(self, "kp_s_N_m", kp)
         if self.kd_s_Ns_m is None:
             object.__setattr__(self, "kd_s_Ns_m", kd)
-        for name in ("mu", "kp_s_N_m", "divergence_m", "divergence_m_s", "velocity_hz"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        require_positive(self, "mu", "kp_s_N_m", "divergence_m", "divergence_m_s", "velocity_hz")
         for name in ("lam", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m", "b_Ns_m", "k_mu_hz", "k_lambda_hz",
                      "master_pd_lowpass_hz"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+            require_number(name, getattr(self, name), minimum=0.0)
 
 
 @dataclass
@@ -304,7 +300,6 @@ def tap_metrics(force_N: np.ndarray, ff_N: np.ndarray, fs_hz: float, start: int,
 def quasi_static(force_N: np.ndarray, fs_hz: float) -> np.ndarray:
     """Quasi-static force: zero-phase 2nd-order Butterworth low-pass at ``QS_CUTOFF_HZ`` (the user's
     voluntary bandwidth, section 5.6.2); the contact transient is what lies outside it."""
-    from scipy.signal import butter, sosfiltfilt  # deferred: scipy.signal is heavy, only analysis needs it
     if len(force_N) < 30:
         return np.asarray(force_N, dtype=float)
     sos = butter(2, QS_CUTOFF_HZ, fs=fs_hz, output="sos")

@@ -27,6 +27,6 @@ def __getattr__(name):
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'stimuli.hfam' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)  # deferred: scipy.signal is ~1 s
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value

@@ -19,21 +19,24 @@ code itself needs only ``devices.model``.
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from devices.identify.modelset import load_model_set
+from devices.identify.pipeline import IdentifyConfig, identify_device
+from devices.identify.sweep import SweepConfig
 from devices.recording import record_taps, write_tap_recording
 from devices.registry import make_device
+from devices.sim import SimDevice, TapTrajectory
 from stimuli.recordings import read_tap_csv
 
 from ..recordings import Tap
-from .settings import BuildSettings
+from .build import build_library, format_verification
+from .refine import RefineSettings, recording_targets, refine_library
+from .settings import TAP_STOP_TIME_S, BuildSettings, PipelineSettings  # noqa: F401 (re-exported: the pipeline's settings)
 
 DEFAULT_VELOCITIES_M_S = (0.03, 0.05, 0.07, 0.09, 0.11, 0.14, 0.17, 0.2, 0.25, 0.3)
 DEFAULT_GRIPS_N = (0.0, 2.5, 5.0, 7.5, 10.0)
@@ -51,10 +54,6 @@ def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_o
         the first in-contact sample (t = 0 there), tagged with the true
         incoming handle speed.
     """
-    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-        SimDevice,
-        TapTrajectory,
-    )
 
     dev = device if device is not None else SimDevice(seed=seed)
     dev.set_sample(sample)
@@ -85,11 +84,6 @@ def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_o
 def build_sim_library(out=None, velocities_m_s=DEFAULT_VELOCITIES_M_S, grips_N=DEFAULT_GRIPS_N,
                       settings: BuildSettings | None = None, log=print):
     """Record sim taps and build (and optionally save) a library through the sim's LTI models."""
-    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-        SimDevice,
-    )
-
-    from .build import build_library, format_verification  # deferred: scipy.signal costs ~1 s at start-up
 
     dev = SimDevice()
     fs, taps = record_sim_taps(velocities_m_s, device=dev)
@@ -105,12 +99,6 @@ def build_sim_library(out=None, velocities_m_s=DEFAULT_VELOCITIES_M_S, grips_N=D
     if out is not None:
         lib.save(out)
     return lib, report
-
-
-#: the simulated user's desired hand comes to rest this long after crossing the surface (s): a tap, not a
-#: press (docs/demo.md, "The simulated tap")
-TAP_STOP_TIME_S = 0.045
-
 
 
 def tap_press_depth_m(velocity_m_s: float, stop_time_s: float = TAP_STOP_TIME_S) -> float:
@@ -139,97 +127,6 @@ def tap_approach_height_m(velocity_m_s: float) -> float:
 def tap_trajectory_options(velocity_m_s: float, stop_time_s: float = TAP_STOP_TIME_S) -> dict:
     """Keyword arguments of the simulated hand's :class:`devices.sim.TapTrajectory` for one tap."""
     return {"press_depth_m": tap_press_depth_m(velocity_m_s, stop_time_s)}
-
-
-@dataclass(frozen=True)
-class PipelineSettings:
-    """Parameters of the offline pipeline (all part of the cache key).
-
-    Attributes
-    ----------
-    device : str
-        Sim device string (``sim``, ``sim:lti``, ``sim:<params file>``).
-    identify_grips_N : tuple of float
-        Grip levels identified (strictly increasing, N).
-    identify_trials : int
-        Swept-sine trials per grip level.
-    sweep_amplitude_A, sweep_duration_s : float
-        Swept-sine current amplitude (<= continuous limit) and length of one sweep.
-    sweep_band_hz : (float, float)
-        Start and end frequency of the sweep.
-    record_velocities_m_s : tuple of float
-        Incoming velocities of the recorded real taps (m/s).
-    record_grip_N : float
-        Grip of the simulated hand while recording (the thesis's recordings
-        do not vary grip, section 4.4.1).
-    tap_stop_time_s : float
-        How long after crossing the surface the simulated hand's desired
-        position comes to rest, s (:func:`tap_press_depth_m`). The same hand taps the recordings and
-        every rendering (see ``docs/demo.md``, "The simulated tap").
-    sample : str
-        Real sample tapped for the recordings.
-    library_velocities : int
-        Number of velocities the builder picks for the library.
-    smooth_hz : float
-        Zero-phase smoothing bandwidth of the builder (<= 1000 Hz).
-    refine_iterations : int
-        Playback-and-correction passes over every library transient on the sim
-        (``stimuli.hfam.refine``, over the firm wall; 0: off). Issue 16. On hardware the same procedure
-        needs repeated taps by a person (``python -m stimuli build-library --refine`` runs it on a sim).
-    refine_gain : float
-        Learning gain of each correction, (0, 1].
-    refine_recording_iterations : int
-        Second-stage passes of the refinement towards the unsmoothed recordings (``RefineSettings.
-        recording_iterations``; 0: none). Issue 16: with it demo median NRMSE 0.268 -> 0.210 (docs/demo.md).
-    seed : int
-        Sensor-noise seed of the sim device.
-    """
-
-    device: str = "sim"
-    identify_grips_N: tuple = (0.0, 1.0, 2.0, 3.0, 5.0, 10.0)
-    identify_trials: int = 2
-    sweep_amplitude_A: float = 0.25
-    sweep_duration_s: float = 1.0
-    sweep_band_hz: tuple = (5.0, 1000.0)
-    # 12 taps over 0.03-0.3 m/s (issue 16; the last one a little above 0.3: the measured incoming speed comes out
-    # ~1 % below the planned one, and the demo's 0.3 m/s taps must lie inside the library's range)
-    record_velocities_m_s: tuple = (0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12, 0.14, 0.17, 0.2, 0.25, 0.305)
-    record_grip_N: float = 2.0
-    tap_stop_time_s: float = TAP_STOP_TIME_S
-    sample: str = "wood_on_foam"
-    library_velocities: int = 12
-    smooth_hz: float = 500.0
-    # playback-and-correction on the sim (issue 16): 6 passes at gain 0.3 (docs/demo.md, "Refinement")
-    refine_iterations: int = 6
-    refine_gain: float = 0.3
-    # then 4 line-searched passes towards the recordings themselves (issue 16, docs/demo.md "Refinement")
-    refine_recording_iterations: int = 4
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if not self.device.startswith("sim"):
-            raise ValueError(f"the offline demo pipeline runs on a sim device, got device {self.device!r}")
-        g = [float(x) for x in self.identify_grips_N]
-        if not g or any(b <= a for a, b in zip(g, g[1:])) or g[0] < 0:
-            raise ValueError(f"identify_grips_N must be >= 0 and strictly increasing, got {self.identify_grips_N!r}")
-        v = [float(x) for x in self.record_velocities_m_s]
-        if len(v) < 2 or any(x <= 0 for x in v):
-            raise ValueError(f"record_velocities_m_s needs >= 2 positive velocities, got {self.record_velocities_m_s!r}")
-        if not (math.isfinite(self.sweep_amplitude_A) and self.sweep_amplitude_A > 0):
-            raise ValueError(f"sweep_amplitude_A must be > 0 A, got {self.sweep_amplitude_A!r}")
-        if not (math.isfinite(self.tap_stop_time_s) and 0.003 <= self.tap_stop_time_s <= 1.0):
-            raise ValueError(f"tap_stop_time_s must be in [0.003, 1] s, got {self.tap_stop_time_s!r}")
-        if int(self.refine_recording_iterations) != self.refine_recording_iterations or \
-                self.refine_recording_iterations < 0:
-            raise ValueError(f"refine_recording_iterations must be >= 0, got {self.refine_recording_iterations!r}")
-        if not (math.isfinite(self.refine_gain) and 0 < self.refine_gain <= 1):
-            raise ValueError(f"refine_gain must be in (0, 1], got {self.refine_gain!r}")
-        if not self.record_grip_N >= 0:
-            raise ValueError(f"record_grip_N must be >= 0 N, got {self.record_grip_N!r}")
-
-    def to_dict(self) -> dict:
-        """The settings as plain JSON-able data (tuples as lists)."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
 
 
 class Progress:
@@ -271,7 +168,6 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
     dict
         Wall time of each step (s): ``identify``, ``record``, ``library``.
     """
-    from .build import build_library, format_verification  # deferred: scipy.signal costs ~1 s at start-up
 
     timings = {}
     dev = make_device(s.device, seed=s.seed)
@@ -296,9 +192,6 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                           f"{max(np.max(np.abs(a)) for _, _, a in taps):.0f} m/s^2")
 
     progress.start("building the HFAM library (select, smooth, invert per grip, high-pass, taper, verify)")
-    from devices.identify.modelset import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
-        load_model_set,
-    )
 
     mset = load_model_set(out / "identify")
     models = [(f"identify/accel_g{g:g}N.json", m) for g, m in zip(mset.grip_N, mset.models["accel_m_s2"])]
@@ -313,11 +206,6 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                                    "device": s.device, "built_by": "python -m renderer demo"})
     refine_note = ""
     if s.refine_iterations > 0:
-        from .refine import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
-            RefineSettings,
-            recording_targets,
-            refine_library,
-        )
 
         lines = []
 
@@ -375,13 +263,6 @@ def identify_grips(dev, s: PipelineSettings, out: Path, say) -> str:
     str
         A one-line summary of the fits.
     """
-    from devices.identify.pipeline import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
-        IdentifyConfig,
-        identify_device,
-    )
-    from devices.identify.sweep import (  # deferred: scipy.signal behind it (~1 s); `renderer demo --help` imports this module
-        SweepConfig,
-    )
 
     sweep = SweepConfig(amplitude_A=s.sweep_amplitude_A, f_start_hz=s.sweep_band_hz[0],
                         f_end_hz=s.sweep_band_hz[1], duration_s=s.sweep_duration_s, fs_hz=dev.info.servo_rate_hz)

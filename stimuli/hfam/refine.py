@@ -43,8 +43,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import signal
+
+from devices.sim import TapTrajectory
 
 from ..library import HfamLibrary
+from ._fasttap import tap_on_wall
 from .inversion import band_sos, forward_simulate, invert, nrmse_corr
 from .settings import MAX_SMOOTH_HZ, BuildSettings
 
@@ -201,9 +205,6 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     v_in_m_s : float
         Incoming speed (least-squares slope of the encoder over the 5 ms before the crossing, m/s).
     """
-    from devices.sim import (  # deferred: devices.sim loads the numba kernels (~0.3 s); a command parser imports this module
-        TapTrajectory,
-    )
 
     fs = device.info.servo_rate_hz
     kf = device.info.force_per_amp_N_A
@@ -218,7 +219,6 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     limit = int(math.ceil(traj.duration_s * fs))
     if callable(getattr(device, "fused_arrays", None)):
         # the same ticks in one compiled call (~15x faster: the refinement plays ~900 taps per demo build)
-        from ._fasttap import tap_on_wall  # deferred: numba-compiled kernel, loaded on the first tap
 
         dv = device.fused_state()
         ring = np.empty(n_hist)
@@ -312,7 +312,6 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
         "target"}`` with ``cells`` a list of ``(velocity_m_s, grip_N, nrmse, corr)`` and ``target``
         ``smoothed`` (first stage) or ``recording`` (second stage, errors against the recordings).
     """
-    from scipy import signal  # deferred: only the refinement needs scipy.signal
 
     if library.desired_accel_m_s2 is None:
         raise ValueError("refine_library: the library has no desired_accel_m_s2 (targets)")
@@ -437,7 +436,6 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
     the current limit) play the constrained step :func:`box_step` and keep it if it lowers the error
     (else their gain is halved).
     """
-    from scipy import signal  # deferred: only the refinement needs scipy.signal
 
     fs = library.fs_hz
     n_t = cur.shape[2]
@@ -561,7 +559,6 @@ def _normal_equations(model, fs_hz: float, n_t: int, sos: np.ndarray, regularisa
         Step bound, ``max QK``.
     n_fft : int
     """
-    from scipy import signal  # deferred: only the refinement needs scipy.signal
 
     n_fft = 1 << int(math.ceil(math.log2(8 * n_t)))
     impulse = np.zeros(n_fft)

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-#: (command module, sub-command) pairs that follow the grammar (plumbing/cliargs.py)
-COMMANDS = [("devices.cli_record", "record"), ("devices.cli_identify", "identify"), ("devices.cli_identify", "fit"),
-            ("devices.cli_hardware", "emulate"), ("devices.cli_hardware", "latency"), ("renderer.cli_run", "run"),
-            ("stimuli.cli_build", "build-library"), ("stimuli.cli_show", "show"), ("study.cli_run", "run"),
-            ("analysis.cli_report", "report"), ("analysis.cli_synthetic", "synthetic")]
+#: (parser module, sub-command) pairs that follow the grammar (plumbing/cliargs.py)
+COMMANDS = [("devices.cli_record_parser", "record"), ("devices.cli_identify_parser", "identify"), ("devices.cli_identify_parser", "fit"),
+            ("devices.cli_hardware_parser", "emulate"), ("devices.cli_hardware_parser", "latency"), ("renderer.cli_run_parser", "run"),
+            ("stimuli.cli_build_parser", "build-library"), ("stimuli.cli_show_parser", "show"), ("study.cli_run_parser", "run"),
+            ("analysis.cli_report_parser", "report"), ("analysis.cli_synthetic_parser", "synthetic")]
 #: a help text saying "in <unit>" means the flag must end in the unit's suffix
 UNITS = [(r"\bin m/s\b", "-m-s"), (r"\bin N/m\b", "-N-m"), (r"\bin Hz\b", "-hz"), (r"\bin A\b", "-A"),
          (r"\bin N\b(?!/)", "-N"), (r"\bin s\b", "-s")]
@@ -43,14 +43,14 @@ def test_help_has_an_example_and_unit_suffixes(module, command):
 
 
 def test_old_spellings_still_work_with_a_notice(capsys):
-    p = parser_of("renderer.cli_run", "run")
+    p = parser_of("renderer.cli_run_parser", "run")
     new = p.parse_args(["--velocities-m-s", "0.1,0.2", "--grip-N", "3", "--out", "o"])
     assert capsys.readouterr().err == ""
     old = p.parse_args(["--velocity", "0.1,0.2", "--grip", "3", "--out", "o"])
     err = capsys.readouterr().err
     assert (old.velocity, old.grip) == (new.velocity, new.grip) == ([0.1, 0.2], 3.0)
     assert "warning: --velocity is deprecated; use --velocities-m-s" in err and "--grip-N" in err
-    p = parser_of("devices.cli_identify", "identify")
+    p = parser_of("devices.cli_identify_parser", "identify")
     assert p.parse_args(["--grip", "0,10", "--out", "o"]).grip == p.parse_args(["--grips-N", "0,10", "--out", "o"]).grip
     assert "use --grips-N" in capsys.readouterr().err
     assert "--grip " not in p.format_help() and "--grips-N" in p.format_help()   # old spellings are not advertised

@@ -1,5 +1,6 @@
-"""The command tables of every package's ``__main__``: each entry is the module's own command, and
-``python -m <package> --help`` lists them without importing any command module or heavy library."""
+"""The command tables of every package's ``__main__``: each entry is its parser module's own command,
+``python -m <package> --help`` lists them without importing any command module or heavy library, and a
+command's ``--help`` imports its parser but not its body (``plumbing.dispatch.Body``)."""
 
 import argparse
 import importlib
@@ -8,6 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from plumbing.dispatch import Body
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("devices", "renderer", "stimuli", "study", "analysis")
@@ -45,6 +48,16 @@ def test_help_imports_no_command_module(package):
 COMMAND_HELPS = [(package, name) for package in PACKAGES for name, _, _ in _table(package)]
 
 
+def _body(package, command) -> str:
+    """The module of the body that ``command``'s parser names (a :class:`plumbing.dispatch.Body`)."""
+    module = next(m for name, m, _ in _table(package) if name == command)
+    sub = argparse.ArgumentParser().add_subparsers()
+    importlib.import_module(module).register(sub)
+    func = sub.choices[command].get_default("func")
+    assert isinstance(func, Body), f"{package} {command}: its parser names {func!r}, not a Body"
+    return func.module
+
+
 @pytest.mark.parametrize(("package", "command"), COMMAND_HELPS)
 def test_command_help_loads_no_heavy_library(package, command):
     """``python -m <package> <command> --help`` builds its parser without numba, scipy, pandas, statsmodels or
@@ -60,3 +73,5 @@ def test_command_help_loads_no_heavy_library(package, command):
     assert "argparse" in loaded and len(loaded) > 50  # the module list was read
     heavy = sorted(m for m in loaded if m.split(".")[0] in {"numba", "scipy", "pandas", "statsmodels", "matplotlib"})
     assert not heavy, f"{package} {command} --help imports {heavy[:5]}"
+    body = _body(package, command)
+    assert body not in loaded, f"{package} {command} --help imports its body {body}"

@@ -103,3 +103,44 @@ def test_blas_threads_keep_the_blas_from_starting_worker_threads(tmp_path):
     # a user's own setting is kept
     var, tasks = _blas(tmp_path, 1, OPENBLAS_NUM_THREADS="2")
     assert (var, tasks) == ("2", 2)
+
+
+# a command split in two: the parser module (imported for --help) names its body, a module that fails to
+# import (as a heavy library would cost time): --help must not import it; running the command must
+PARSER = '''
+from plumbing.dispatch import Body
+
+def register(sub):
+    sub.add_parser("go").set_defaults(func=Body("fakebody", "run"))
+'''
+BODY = '''
+import sys
+if "FAKE_BODY_BROKEN" in __import__("os").environ:
+    raise ImportError("the body was imported")
+
+def run(args):
+    print("BODY RAN", "fakebody" in sys.modules, flush=True)
+    return 5
+'''
+SPLIT_MAIN = '''
+import sys
+from plumbing.dispatch import Command, main, run_as_script
+run_as_script(lambda: main("fake", "fake", (Command("go", "fakeparser", "go"),)))
+'''
+
+
+def _run_split(tmp_path, *argv, **env):
+    (tmp_path / "fakeparser.py").write_text(textwrap.dedent(PARSER))
+    (tmp_path / "fakebody.py").write_text(textwrap.dedent(BODY))
+    return subprocess.run([sys.executable, "-c", SPLIT_MAIN, *argv], cwd=ROOT, capture_output=True, text=True,
+                          env={"PYTHONPATH": f"{ROOT}:{tmp_path}", "PATH": "/usr/bin:/bin", **env}, timeout=60)
+
+
+def test_a_commands_body_is_imported_only_when_it_runs(tmp_path):
+    helped = _run_split(tmp_path, "go", "--help", FAKE_BODY_BROKEN="1")
+    assert helped.returncode == 0 and "usage:" in helped.stdout, helped.stderr   # the body was never imported
+    ran = _run_split(tmp_path, "go")
+    assert ran.returncode == 5, ran.stderr
+    assert "BODY RAN True" in ran.stdout
+    broken = _run_split(tmp_path, "go", FAKE_BODY_BROKEN="1")
+    assert broken.returncode != 0 and "the body was imported" in broken.stderr

@@ -3,10 +3,14 @@
 import pytest
 
 from devices.identify.sweep import SweepConfig
-from plumbing.validation import is_finite_number, require_int, require_number, require_positive, shown_value
+from analysis.config import AnalysisConfig
+from plumbing.validation import (dataclass_from_dict, is_finite_number, load_dataclass_file, require_choice,
+                                 require_int, require_number, require_positive, shown_value)
 from renderer.config import RendererConfig
+from renderer.demo.config import DemoConfig
 from renderer.homing import HomingConfig
-from stimuli.hfam.settings import BuildSettings
+from renderer.teleop.session import TeleopConfig
+from stimuli.hfam.settings import BuildSettings, PipelineSettings
 from study.config import ProtocolConfig
 
 
@@ -78,3 +82,48 @@ def test_require_int_rejects_bools_and_floats():
 def test_config_classes_use_the_shared_checks(make, message):
     with pytest.raises(ValueError, match=message):
         make()
+
+
+def test_strict_maximum_and_choices():
+    assert require_number("alpha", 0.999, minimum=0.0, strict=True, maximum=1.0, strict_maximum=True) == 0.999
+    with pytest.raises(ValueError, match=r"^alpha must be < 1.0, got 1.0$"):
+        require_number("alpha", 1.0, maximum=1.0, strict_maximum=True)
+    assert require_number("gain", 1.0, maximum=1.0) == 1.0
+    assert require_choice("group", "all", ("both", "all")) == "all"
+    with pytest.raises(ValueError, match=r"^cfg.group must be one of both, all, got 'none'$"):
+        require_choice("group", "none", ("both", "all"), prefix="cfg.")
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: AnalysisConfig(alpha=1.0), r"--alpha must be < 1.0, got 1.0"),
+    (lambda: AnalysisConfig(margin=float("nan")), r"--margin must be a finite number, got nan"),
+    (lambda: AnalysisConfig(group="some"), r"--group must be one of both, all, experienced, got 'some'"),
+    (lambda: TeleopConfig(mu=0.0), r"mu must be a positive finite number, got 0.0"),
+    (lambda: TeleopConfig(lam=float("inf")), r"lam must be a finite number, got inf"),
+    (lambda: TeleopConfig(controller="p"), r"controller must be one of .*, got 'p'"),
+    (lambda: PipelineSettings(refine_gain=1.5), r"refine_gain must be <= 1.0, got 1.5"),
+    (lambda: PipelineSettings(record_velocities_m_s=(0.1, float("nan"))),
+     r"record_velocities_m_s\[1\] must be a finite number, got nan"),
+    (lambda: DemoConfig(grips_N=(1.0, -2.0)), r"demo grips_N\[1\] must be > 0.0, got -2.0"),
+])
+def test_more_config_classes_use_the_shared_checks(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_a_config_file_error_names_the_file_and_the_key(tmp_path):
+    f = tmp_path / "protocol.toml"
+    f.write_text("repetitions = 0\n", encoding="utf-8")
+    with pytest.raises(ValueError, match=rf"^{f}: .*repetitions.*0"):
+        load_dataclass_file(f, ProtocolConfig, "protocol")
+    f.write_text("repetitons = 3\n", encoding="utf-8")
+    with pytest.raises(ValueError, match=rf"^{f}: unknown protocol key\(s\) \['repetitons'\]; valid keys: .*'repetitions'"):
+        load_dataclass_file(f, ProtocolConfig, "protocol")
+    f.write_text("repetitions = [", encoding="utf-8")
+    with pytest.raises(ValueError, match=rf"^{f}: cannot parse"):
+        load_dataclass_file(f, ProtocolConfig, "protocol")
+    with pytest.raises(FileNotFoundError, match="protocol file .*missing.toml not found"):
+        load_dataclass_file(tmp_path / "missing.toml", ProtocolConfig, "protocol")
+    assert load_dataclass_file(None, ProtocolConfig, "protocol", {"repetitions": 2, "seed": None}).repetitions == 2
+    with pytest.raises(ValueError, match=r"^session.json: protocol: .*repetitions"):
+        dataclass_from_dict(ProtocolConfig, {"repetitions": -1}, "protocol", "session.json: protocol")

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from ...sim import kernel as K
 from ...sim.device import SimDevice
@@ -208,7 +209,6 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
     -------
     values, nrmse, model_traces
     """
-    from scipy.optimize import least_squares  # deferred: heavy: only the fitting stages need it
 
     fixed = dict(fixed or {})
     if quantized is None:

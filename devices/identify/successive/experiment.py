@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...base import Device
+from ._fastrun import run_pd
 
 
 @dataclass(frozen=True)
@@ -155,7 +156,6 @@ def run_on_sim_fast(dev, exp: Experiment, hand=None) -> Trace:
     """
     global _RUN
     if _RUN is None:
-        from ._fastrun import run_pd  # deferred: numba-compiled: imported on first use
 
         _RUN = run_pd
     if hand is None:

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 
 def _plt():
-    import matplotlib  # deferred: heavy: figures only
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # deferred: matplotlib costs ~0.3 s; figures only
 
     return plt
 

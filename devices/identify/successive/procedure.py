@@ -9,8 +9,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ...base import Device
 from plumbing.fileio import atomic_write_text
+
+from ...base import Device
 from ...registry import make_device
 from ...sim.params import SimParams, load_sim_params
 from .amplifier import identify_amplifier
@@ -18,6 +19,7 @@ from .bench import Bench
 from .cables import identify_cables
 from .common import UNITS, ModelBuilder, StageResult, base_params_dict
 from .drum import identify_drum
+from .figures import stage_figures
 from .handle import identify_handle
 from .linkage import identify_linkage
 from .motor import identify_motor
@@ -202,7 +204,6 @@ def save_result(result: SuccessiveResult, out_dir, overwrite: bool = False, figu
     atomic_write_text(out / "report.json", json.dumps(report, indent=2, default=float) + "\n")
     atomic_write_text(out / "report.txt", format_result(result))
     if figures:
-        from .figures import stage_figures  # deferred: matplotlib: only when figures are written
 
         stage_figures(result, out)
     return model

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 from .bench import Bench
 from .common import ModelBuilder, StageError, StageResult, default_person, fit_on_model, nrmse
@@ -17,7 +18,6 @@ NOMINAL_GRIP_N = 2.0
 
 def _regression_init(tr, kf: float, mass: float, c: float, b_dev: float) -> tuple[float, float]:
     """Rigid-body estimate: kf i = M a + (b_dev + b_u) v + c sgn(v) + k_u x, solved for k_u, b_u."""
-    from scipy.signal import savgol_filter  # deferred: heavy: only this estimate needs it
 
     fs = tr.fs_hz
     x = savgol_filter(tr.x_m, 101, 3)

@@ -1,0 +1,66 @@
+"""Building the ahead-of-time extension of :mod:`renderer.sim_aot` (numba.pycc): imported by a build only.
+
+A module of its own so that its imports (numba's compiler, the JIT law and kernel whose sources are
+compiled: ~1.1 s CPU) sit at its top and a simulated run, which only loads a finished build, never pays them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from pathlib import Path
+
+with warnings.catch_warnings():
+    # numba.pycc is "pending deprecation" (numba 0.57+) but is numba's supported AOT path today
+    warnings.simplefilter("ignore")
+    from numba.pycc import CC
+    from numba.pycc import compiler as pycc_compiler
+
+from devices.sim import kernel
+
+from . import law
+
+
+def sha256_hex(path: Path) -> str:
+    """SHA-256 of the file at ``path`` (hex), for the build's manifest."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def compile_extension(out_dir: Path, module: str, signature: str, tick_signature: str) -> None:
+    """numba.pycc: ``renderer.law.run_sim`` (and everything it calls, inlined) and the device's physics step
+    ``devices.sim.kernel.tick``, compiled into the extension module ``module`` in ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : Path
+        Folder the extension is written to.
+    module : str
+        The extension's module name (:data:`renderer.sim_aot.MODULE`).
+    signature, tick_signature : str
+        numba signatures of ``run_sim`` and ``tick`` (:data:`renderer.sim_aot.SIGNATURE`, ``TICK_SIGNATURE``).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's pending deprecation, also when it is used
+        cc = CC(module)
+        cc.output_dir = str(out_dir)
+        cc.verbose = False
+        # the kernels never allocate (each is compiled with _nrt=False): no runtime to link in, and a kernel
+        # that did need it would make the build fail to load (an undefined NRT symbol), not run slower
+        cc.use_nrt = False
+        cc.export("run_sim", signature)(law.run_sim.py_func)
+        cc.export("tick", tick_signature)(kernel.tick.py_func)
+        # numba.pycc has no switch for numba's ``release_gil`` flag (what ``nogil=True`` sets for the JIT):
+        # its compiler makes its flags with ``Flags()``, so it gets a subclass that sets it, for this build
+        # only. tests/renderer/test_sim_aot.py checks that a build's run_sim lets another thread run.
+        pycc_flags = pycc_compiler.Flags
+
+        class _ReleaseGilFlags(pycc_flags):
+            def __init__(self, *args, **kwargs):
+                super().__init__(*args, **kwargs)
+                self.release_gil = True
+
+        pycc_compiler.Flags = _ReleaseGilFlags
+        try:
+            cc.compile()
+        finally:
+            pycc_compiler.Flags = pycc_flags
