@@ -91,7 +91,8 @@ def link_summary(device) -> str:
     if stats_fn is None:
         return "sim (no link)" if device.info.simulated else f"{type(device).__name__} (no link counters)"
     st = stats_fn()
-    faults = {"lost": st.get("losses", 0), "CRC": st.get("crc_errors", 0), "timeouts": st.get("timeouts", 0),
+    faults = {"lost": st.get("losses", 0), "CRC": st.get("crc_errors", 0),
+              "malformed": st.get("malformed_frames", 0), "timeouts": st.get("timeouts", 0),
               "watchdog": st.get("watchdog_trips", 0)}
     p99 = st.get("rtt_p99_s")
     rtt = "rtt p99 -" if p99 is None else f"rtt p99 {p99 * 1e3:.1f} ms"

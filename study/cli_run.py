@@ -25,7 +25,7 @@ from plumbing.progress import Progress
 from plumbing.stopsignals import Terminated, stop_on_signals
 
 from .config import GENDERS, HANDEDNESS
-from .data import EXPERIENCE, SessionStore, release_all_locks
+from .data import EXPERIENCE, DataFileChanged, SessionStore, release_all_locks
 from .protocol import Schedule
 from .session import plan_session, start_session
 
@@ -223,6 +223,9 @@ def _run_command(args) -> int:
         if isinstance(exc, Aborted):
             print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
             return 3
+        if isinstance(exc, DataFileChanged):
+            print(f"error: {exc}", file=sys.stderr)
+            return 5
         if isinstance(exc, ServoStopped):
             print(f"error: {exc}; the output was zeroed, the attempt in progress is not recorded; data so far is "
                   f"in {store.dir}; continue with --resume", file=sys.stderr)

@@ -261,10 +261,12 @@ def start_session(plan: SessionPlan, args, schedule, device_info: dict, servo_pr
         store.create(session, events=[{"event": "plan", "phase": name, "order": phase.summary()["planned"],
                                        "trials": phase.summary()["planned_trials"]}
                                       for name, phase in schedule.phases.items()])
+        store.hold_trials()  # held from now to the end: a file moved or replaced meanwhile stops the session
         rows, fam_ended = [], False
     else:
         store.session = previous
-        rows = store.read_trials()
+        rows = store.read_trials()  # every row checked: a damaged file is refused, naming the line
+        store.hold_trials()
         if store.legacy_columns:  # written before rows carried ends_familiarization
             fam_ended = any(e.get("event") == "familiarization_ended" for e in store.read_events())
         else:  # the transition is in the row itself (same durable step as the attempt)
