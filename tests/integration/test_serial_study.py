@@ -43,7 +43,7 @@ def _play_operator_and_subject(base: str, stop: threading.Event, seen: dict) -> 
                 seen["confirms"] += 1
             sub = json.load(urllib.request.urlopen(base + "/api/subject", timeout=2))
             if sub.get("prompt") == "rate":
-                post("/api/key", {"key": "5"})
+                post("/api/key", {"key": "5", "trial_id": sub["trial_id"]})
                 seen["ratings"] += 1
         except (OSError, http.client.HTTPException):  # server not up yet, or gone at the end (mid-reply:
             pass                                        # IncompleteRead when the study process exits)
