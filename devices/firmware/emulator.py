@@ -60,7 +60,9 @@ class FaultSpec:
     long, ``bad_type_every=N`` sends every N-th STATE as a host-to-device type (CURRENT), both with a
     correct CRC. A broken device: ``clock_back_at=N`` turns the clock 1 s back at the N-th STATE,
     ``clock_freeze_at=N`` stops it there; ``info_servo_rate_hz=X`` claims servo rate X in INFO (the
-    physics keeps its own).
+    physics keeps its own). ``stall_s=X`` with ``stall_at=N``: the device stalls X s before sending its N-th
+    frame (a busy firmware or a USB stall: it answers nothing meanwhile, then works off the commands that
+    queued up).
     """
 
     drop: float = 0.0
@@ -82,6 +84,8 @@ class FaultSpec:
     clock_back_at: int = 0
     clock_freeze_at: int = 0
     info_servo_rate_hz: float = 0.0
+    stall_at: int = 0
+    stall_s: float = 0.0
 
     @classmethod
     def parse(cls, text: str | None) -> "FaultSpec":
@@ -111,7 +115,7 @@ class FaultSpec:
             if key == "silent":
                 value = bool(value)
             elif key in ("protocol_major", "protocol_minor", "drop_every", "corrupt_every", "drop_burst_at", "drop_burst",
-                         "bad_length_every", "bad_type_every", "clock_back_at", "clock_freeze_at"):
+                         "bad_length_every", "bad_type_every", "clock_back_at", "clock_freeze_at", "stall_at"):
                 value = int(value)
             values[key] = value
         return cls(**values)
@@ -129,7 +133,7 @@ class FaultSpec:
     def any_frame_faults(self) -> bool:
         """True when any fault acts on whole device -> host frames (drop, corrupt, duplicate, garbage, delay)."""
         return bool(self.drop or self.corrupt or self.duplicate or self.garbage or self.delay or self.drop_every
-                    or self.corrupt_every or self.drop_burst)
+                    or self.corrupt_every or self.drop_burst or (self.stall_at and self.stall_s))
 
 
 class Emulator:
@@ -287,6 +291,10 @@ class Emulator:
                 k = rng.randrange(2, len(buf))
                 buf[k] ^= 1 << rng.randrange(8)
                 frame = bytes(buf)
+            if f.stall_at and k == f.stall_at and f.stall_s:
+                self.stats["stalled_s"] = f.stall_s
+                self.stall_started = time.monotonic()
+                time.sleep(f.stall_s)
             if f.delay and rng.random() < f.delay:
                 self.stats["delayed"] += 1
                 time.sleep(f.delay_s)

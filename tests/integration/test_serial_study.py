@@ -50,9 +50,12 @@ def _play_operator_and_subject(base: str, stop: threading.Event, seen: dict) -> 
         time.sleep(0.03)
 
 
-@pytest.mark.parametrize("mode", ["streaming", "on-device"])
-def test_short_study_run_over_the_emulated_serial_port(mode, tmp_path):
-    port, handle = start_emulator(mode, process=True)
+@pytest.mark.parametrize("mode, faults", [("streaming", None), ("on-device", None),
+                                          # issue 38: a CRC-valid STATE one byte too long, every 200th frame
+                                          # (before: a traceback and exit 1 at the first one)
+                                          ("streaming", "bad_length_every=200")])
+def test_short_study_run_over_the_emulated_serial_port(mode, faults, tmp_path):
+    port, handle = start_emulator(mode, faults, process=True)
     web_port = _free_port()
     proto = tmp_path / "protocol.toml"
     proto.write_text('familiarization_sample = ""\ntap_window_s = 1.5\nfirst_tap_timeout_s = 3.0\n'
