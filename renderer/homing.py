@@ -229,6 +229,8 @@ class HomingController:
                 bad = False
                 if state.status & STATUS_DISCONNECTED:
                     reason = "disconnected"
+                    # the driver's own words (a lost link, a device fault), as the servo loop reports them
+                    message = str(state.extra.get("error") or "") if hasattr(state, "extra") else ""
                     break
                 if state.status & STATUS_SENSOR_INVALID or not (-plim <= x <= plim) \
                         or not (-alim <= state.accel_m_s2 <= alim):
@@ -330,6 +332,8 @@ class HomingController:
                 message = {"sensor": f"{nbad} implausible sensor samples in a row",
                            "disconnected": "the device reported a disconnect",
                            "watchdog": "a servo period beyond the watchdog bound"}[reason] + "; output zeroed"
+            elif reason == "disconnected" and "output zeroed" not in message:
+                message += "; output zeroed"
             return HomingResult(settled=False, final_position_m=x, message=message, **common)
         x = state.position_m if -plim <= state.position_m <= plim else x
         if not settled:
