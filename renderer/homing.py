@@ -149,14 +149,18 @@ SAFETY_STOPS = ("sensor", "disconnected", "watchdog", "unstable", "runaway")
 class HomingController:
     """Saturated PD homing through the Device API (see module doc)."""
 
-    def __init__(self, device, config: HomingConfig | None = None, surface_height_m: float = 0.0) -> None:
+    def __init__(self, device, config: HomingConfig | None = None, surface_height_m: float = 0.0,
+                 safety_config=None) -> None:
+        """``safety_config``: the :class:`renderer.RendererConfig` whose safety settings (the watchdog's
+        ``watchdog_overrun_s``, position and sensor limits) homing shares with the servo loops it sits
+        between (default: the renderer's defaults)."""
         self.device = device
         self.config = config or HomingConfig()
         info = device.info
         self.force_per_amp_N_A = info.force_per_amp_N_A
         limit = self.config.max_current_A if self.config.max_current_A is not None else info.current_continuous_A
         self.dt_s = 1.0 / info.servo_rate_hz
-        self.bounds = safety_bounds(info, info.servo_rate_hz, continuous_A=limit)
+        self.bounds = safety_bounds(info, info.servo_rate_hz, safety_config, continuous_A=limit)
         self.max_current_A = self.bounds.continuous_safe_A
         self.temp_rise_K = 0.0  # winding temperature rise (K); the owner sets and reads it between calls
         self.surface_height_m = surface_height_m

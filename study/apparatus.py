@@ -129,7 +129,9 @@ class Apparatus:
         self.is_sim = bool(self.info.simulated) and hasattr(device, "set_sample")
         self.fs_hz = float(self.info.servo_rate_hz)
         self.force_limit_N = self.info.force_per_amp_N_A * self.info.current_amplifier_A
-        self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m))
+        # homing runs under the same host watchdog as the tapping windows (servo_watchdog_s), not a stricter one
+        self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m),
+                                       safety_config=RendererConfig(watchdog_overrun_s=protocol.servo_watchdog_s))
         # the log ring keeps the last window + 1 s: enough for 50 ms before the first impact, and a 16 s
         # ring (timeout + window) per attempt would only cost allocation time
         capacity_s = max(protocol.tap_window_s, protocol.familiarization_window_s) + 1.0
