@@ -497,6 +497,11 @@ def _check_consistency(t: pd.DataFrame, kinds: dict) -> None:
         bad = t[col].to_numpy() < low
         if bad.any():
             _fail(t, bad, col, f"must be >= {low}")
+    for col in FLOAT_COLUMNS:  # empty (NaN) when there is none; never inf or negative
+        v = t[col].to_numpy()
+        bad = np.isinf(v) | (v < 0)
+        if bad.any():
+            _fail(t, bad, col, "is not a finite number >= 0 (leave it empty when there is none)")
     flagged = t["rejected"].to_numpy() | t["saturated"].to_numpy() | t["overpowered"].to_numpy()
     bad = t["valid"].to_numpy() & flagged
     if bad.any():
@@ -513,6 +518,18 @@ def _check_consistency(t: pd.DataFrame, kinds: dict) -> None:
             i = int(np.flatnonzero(bad)[0])
             name = t["sample"].iat[i]
             _fail(t, bad, "kind", f"differs from the catalog's kind {kinds[name]!r} of sample {name!r}")
+
+
+def _check_tap_values(numbers: np.ndarray, row: np.ndarray, files, lines, column: str) -> None:
+    """Every listed velocity (m/s, a magnitude) and penetration (m) is a finite number >= 0 (issue 38:
+    inf, nan or a negative value flowed into sample_summary.csv); ValueError names file, line and value."""
+    bad = ~(np.isfinite(numbers) & (numbers >= 0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        r = int(row[i])
+        more = int(bad.sum()) - 1
+        raise ValueError(f"{files[r]}:{lines[r]}: column {column!r}: value {float(numbers[i])!r} is not a finite "
+                         f"number >= 0" + (f" ({more} more like it)" if more else ""))
 
 
 def _check_duplicates(t: pd.DataFrame) -> None:
@@ -838,6 +855,7 @@ def load_study(data_dir, sessions: tuple | None = None) -> Study:
         for col in LIST_COLUMNS:
             parsed = split[col].result() if col in split else None
             numbers, row, counts = parsed if parsed is not None else parse_lists(trials[col], files, lines, col)
+            _check_tap_values(numbers, row, files, lines, col)
             taps[col] = (numbers, row)
             mism = testing_valid & (counts != n_taps)
             if mism.any():

@@ -6,6 +6,7 @@ import base64
 import html
 import os
 import platform
+import re
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -45,6 +46,41 @@ FIGURES = {
 }
 
 
+# a name from the data (sample, subject) in a summary line: kept as a marked field until the line is
+# written, then escaped for its format (markdown: md_escape; HTML: html.escape), so a name cannot add
+# emphasis, links, table cells or tags to report.md (issue 38)
+_NAME_OPEN, _NAME_CLOSE = "\x02", "\x03"
+_NAME_RE = re.compile("\x02([^\x02\x03]*)\x03")
+_MD_SPECIAL = re.compile(r"([\\`*\[\]<>|#!~])")
+
+
+def md_escape(text: str) -> str:
+    """``text`` as literal markdown: line breaks to spaces, backslash before every character markdown could
+    read as markup (emphasis, code, links, HTML, table cells, headings), ``_`` too except inside a word."""
+    text = " ".join(str(text).splitlines())
+    text = _MD_SPECIAL.sub(r"\\\1", text)
+    return re.sub(r"(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])", r"\\_", text)
+
+
+def _name(value) -> str:
+    """Mark a name from the data inside a summary line (escaped when the line is written)."""
+    return f"{_NAME_OPEN}{value}{_NAME_CLOSE}"
+
+
+def _names_md(line: str) -> str:
+    return _NAME_RE.sub(lambda m: md_escape(m.group(1)), line)
+
+
+def _names_plain(line: str) -> str:
+    return _NAME_RE.sub(lambda m: m.group(1), line)
+
+
+def _html_line(line: str) -> str:
+    """A summary line as HTML: escaped, ``**x**`` as bold, a name's own ``*`` never read as bold."""
+    text = _NAME_RE.sub(lambda m: m.group(1).replace("*", "\x04"), line)
+    return _strong(html.escape(text)).replace("\x04", "&#42;")
+
+
 def _fmt(v) -> str:
     if isinstance(v, (bool, np.bool_)):
         return "yes" if v else "no"
@@ -58,9 +94,9 @@ def _fmt(v) -> str:
 
 def markdown_table(df: pd.DataFrame) -> str:
     """A GitHub-flavoured markdown table of ``df`` (numbers to 3 significant digits)."""
-    head = "| " + " | ".join(map(str, df.columns)) + " |"
+    head = "| " + " | ".join(md_escape(c) for c in df.columns) + " |"
     sep = "|" + "|".join("---" for _ in df.columns) + "|"
-    body = ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    body = ["| " + " | ".join(md_escape(_fmt(v)) for v in row) + " |" for row in df.itertuples(index=False)]
     return "\n".join([head, sep, *body])
 
 
@@ -95,7 +131,7 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
     for g, sub in res.equivalence.groupby("group", sort=False):
         eq = sub[sub["equivalent"]]["sample"].tolist()
         out.append(f"**{g} subjects**: equivalent to {cfg.reference} within ±{cfg.margin:g} rating points "
-                   f"(paired TOST, p < {cfg.alpha}): {', '.join(eq) if eq else 'none'}. Samples not shown "
+                   f"(paired TOST, p < {cfg.alpha}): {', '.join(map(_name, eq)) if eq else 'none'}. Samples not shown "
                    "equivalent are not thereby shown different; that may just be too few subjects.")
     for g, sub in res.pairwise.groupby("group", sort=False):
         sig = sub[sub["p_holm"] < cfg.alpha]
@@ -103,7 +139,8 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
                    f"(paired t-test, Holm-adjusted p < {cfg.alpha}; listed under 'Significantly different pairs').")
         pairs[g] = []
         for r in sig.itertuples():
-            hi, lo = (r.sample_a, r.sample_b) if r.mean_diff > 0 else (r.sample_b, r.sample_a)
+            hi, lo = (_name(r.sample_a), _name(r.sample_b)) if r.mean_diff > 0 else (_name(r.sample_b),
+                                                                                   _name(r.sample_a))
             # SD of the differences 0 (up to rounding of the per-subject means): t is infinite or ~1e15
             degenerate = "" if np.isfinite(r.cohen_dz) and abs(r.cohen_dz) < 1e6 else \
                 " — every subject gave the same difference, so the t-test is degenerate (SD 0); treat with care"
@@ -114,7 +151,7 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
     vr = res.velocity[res.velocity["sample"] != "(all)"]
     sig_v = vr[vr["p"] < cfg.alpha]["sample"].tolist()
     out.append("Incoming velocity vs rating within each sample (Pearson, uncorrected): "
-               + (f"significant for {', '.join(sig_v)}." if sig_v else "no significant correlation.")
+               + (f"significant for {', '.join(map(_name, sig_v))}." if sig_v else "no significant correlation.")
                + " Repeated-measures correlation over all samples: "
                + (f"r = {res.velocity.iloc[-1]['r_rm']:.2f}, {_p(res.velocity.iloc[-1]['p_rm'])}."
                   if np.isfinite(res.velocity.iloc[-1]["r_rm"]) else "not computable."))
@@ -126,7 +163,8 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
                "its sample was rated again later.")
     if len(res.exclusions):
         out.append("**Excluded subjects**: " + "; ".join(
-            f"{r.subject} misses {r.missing_samples.replace(';', ', ')} and is left out of the RM-ANOVA/Friedman "
+            f"{_name(r.subject)} misses {', '.join(map(_name, r.missing_samples.split(';')))} and is left out of "
+            "the RM-ANOVA/Friedman "
             f"tests and of the pairwise/equivalence tests with those samples" for r in res.exclusions.itertuples())
                    + ".")
     else:
@@ -315,11 +353,11 @@ def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Pa
     body = [f"<h1>Realism study analysis</h1><p>reference <code>{html.escape(cfg.reference)}</code> · margin "
             f"±{cfg.margin:g} · groups <code>{html.escape(cfg.group)}</code> · α = {cfg.alpha}</p><h2>Summary</h2><ul>"]
     for ln in lines:
-        body.append(f"<li>{_strong(html.escape(ln))}</li>")
+        body.append(f"<li>{_html_line(ln)}</li>")
     body.append("</ul><h2>Significantly different pairs</h2>")
     for g, items in pairs.items():
         body.append(f"<details><summary>{html.escape(g)} subjects: {len(items)} pairs</summary><ul>"
-                    + "".join(f"<li>{html.escape(it)}</li>" for it in items) + "</ul></details>")
+                    + "".join(f"<li>{_html_line(it)}</li>" for it in items) + "</ul></details>")
     if fig_paths:
         body.append("<h2>Figures</h2>")
     for p in fig_paths:
@@ -372,10 +410,10 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
           f"Data: `{res.study.subjects['folder'].iloc[0].rsplit('/', 1)[0] if len(res.study.subjects) else ''}` · "
           f"reference `{cfg.reference}` · equivalence margin ±{cfg.margin:g} · groups `{cfg.group}` · "
           f"α = {cfg.alpha}", "", "## Summary", ""]
-    md += [f"- {ln}" for ln in lines]
+    md += [f"- {_names_md(ln)}" for ln in lines]
     md += ["", "## Significantly different pairs", ""]
     for g, items in pairs.items():
-        md += [f"**{g} subjects** ({len(items)}):", ""] + [f"- {it}" for it in items] + [""]
+        md += [f"**{md_escape(g)} subjects** ({len(items)}):", ""] + [f"- {_names_md(it)}" for it in items] + [""]
     for p in fig_paths:
         md += [f"![{FIGURES[p.name].split(':')[0]}]({p.name})", "", f"*{FIGURES[p.name]}*", ""]
     for title, attr in TABLE_TITLES:
@@ -384,7 +422,8 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
         md += [f"## {title}", "", markdown_table(shown) if len(df) else "(none)", ""] + ([note, ""] if note else [])
     md_path = out / "report.md"
     prov = provenance(res, out)
-    md += ["## Provenance", "", "| item | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in prov] + [""]
+    md += ["## Provenance", "", "| item | value |", "|---|---|"] + [f"| {md_escape(k)} | {md_escape(v)} |"
+                                                                    for k, v in prov] + [""]
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
     html_path = out / "report.html"
     html_path.write_text(report_html(res, lines, pairs, fig_paths, prov), encoding="utf-8")

@@ -41,7 +41,9 @@ def register(subparsers) -> None:
                    help="streaming: host commands every tick; on-device: also offers on-board rendering")
     p.add_argument("--fault", default="", metavar="SPEC",
                    help="fault injection, e.g. drop=0.01,corrupt=0.01,delay=0.01,delay_s=0.005,duplicate=0.01,"
-                        "garbage=0.01,disconnect_after_s=5,silent=1,protocol_major=2")
+                        "garbage=0.01,disconnect_after_s=5,silent=1,protocol_major=2; a broken device: "
+                        "bad_length_every=100, bad_type_every=100, clock_back_at=N, clock_freeze_at=N, "
+                        "info_servo_rate_hz=1e9, stall_at=N,stall_s=0.05 (devices.firmware.emulator.FaultSpec)")
     p.add_argument("--watchdog-ms", type=int, default=100, help="device watchdog period (default 100 ms)")
     p.add_argument("--pace", choices=("realtime", "host"), default="realtime",
                    help="on-device tick pacing: wall clock, or as fast as the host reads telemetry")

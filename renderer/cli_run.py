@@ -171,7 +171,7 @@ def format_table(result) -> str:
     if link:
         ms = (lambda v: "-" if v is None else f"{1000 * v:.2f}")
         lines.append(f"link: {link['frames_tx']} frames sent, {link['frames_rx']} received, {link['crc_errors']} CRC "
-                     f"errors, {link['losses']} lost (longest run {link['max_consecutive_losses']}), longest gap "
+                     f"errors, {link.get('malformed_frames', 0)} malformed, {link['losses']} lost (longest run {link['max_consecutive_losses']}), longest gap "
                      f"{ms(link['longest_gap_s'])} ms, round trip median/p99/max {ms(link['rtt_median_s'])}/"
                      f"{ms(link['rtt_p99_s'])}/{ms(link['rtt_max_s'])} ms")
     return "\n".join(lines)

@@ -149,14 +149,18 @@ SAFETY_STOPS = ("sensor", "disconnected", "watchdog", "unstable", "runaway")
 class HomingController:
     """Saturated PD homing through the Device API (see module doc)."""
 
-    def __init__(self, device, config: HomingConfig | None = None, surface_height_m: float = 0.0) -> None:
+    def __init__(self, device, config: HomingConfig | None = None, surface_height_m: float = 0.0,
+                 safety_config=None) -> None:
+        """``safety_config``: the :class:`renderer.RendererConfig` whose safety settings (the watchdog's
+        ``watchdog_overrun_s``, position and sensor limits) homing shares with the servo loops it sits
+        between (default: the renderer's defaults)."""
         self.device = device
         self.config = config or HomingConfig()
         info = device.info
         self.force_per_amp_N_A = info.force_per_amp_N_A
         limit = self.config.max_current_A if self.config.max_current_A is not None else info.current_continuous_A
         self.dt_s = 1.0 / info.servo_rate_hz
-        self.bounds = safety_bounds(info, info.servo_rate_hz, continuous_A=limit)
+        self.bounds = safety_bounds(info, info.servo_rate_hz, safety_config, continuous_A=limit)
         self.max_current_A = self.bounds.continuous_safe_A
         self.temp_rise_K = 0.0  # winding temperature rise (K); the owner sets and reads it between calls
         self.surface_height_m = surface_height_m
@@ -227,6 +231,9 @@ class HomingController:
                     x, stop = safety.sample(state, x_prev)
                     if stop is not None:
                         reason = stop
+                        if stop == "disconnected":
+                            # the driver's own words (a lost link, a device fault), as the servo loop reports them
+                            message = str(state.extra.get("error") or "") if hasattr(state, "extra") else ""
                         break
                     dx = x - x_prev
                     v += alpha * (dx * inv_dt - v)
@@ -298,6 +305,8 @@ class HomingController:
                 message = {"sensor": f"{safety.bad_in_row} implausible sensor samples in a row",
                            "disconnected": "the device reported a disconnect",
                            "watchdog": "a servo period beyond the watchdog bound"}[reason] + "; output zeroed"
+            elif reason == "disconnected" and "output zeroed" not in message:
+                message += "; output zeroed"
             return HomingResult(settled=False, final_position_m=x, message=message, **common)
         x = state.position_m if -plim <= state.position_m <= plim else x
         if not settled:

@@ -91,7 +91,8 @@ def link_summary(device) -> str:
     if stats_fn is None:
         return "sim (no link)" if device.info.simulated else f"{type(device).__name__} (no link counters)"
     st = stats_fn()
-    faults = {"lost": st.get("losses", 0), "CRC": st.get("crc_errors", 0), "timeouts": st.get("timeouts", 0),
+    faults = {"lost": st.get("losses", 0), "CRC": st.get("crc_errors", 0),
+              "malformed": st.get("malformed_frames", 0), "timeouts": st.get("timeouts", 0),
               "watchdog": st.get("watchdog_trips", 0)}
     p99 = st.get("rtt_p99_s")
     rtt = "rtt p99 -" if p99 is None else f"rtt p99 {p99 * 1e3:.1f} ms"
@@ -128,7 +129,9 @@ class Apparatus:
         self.is_sim = bool(self.info.simulated) and hasattr(device, "set_sample")
         self.fs_hz = float(self.info.servo_rate_hz)
         self.force_limit_N = self.info.force_per_amp_N_A * self.info.current_amplifier_A
-        self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m))
+        # homing runs under the same host watchdog as the tapping windows (servo_watchdog_s), not a stricter one
+        self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m),
+                                       safety_config=RendererConfig(watchdog_overrun_s=protocol.servo_watchdog_s))
         # the log ring keeps the last window + 1 s: enough for 50 ms before the first impact, and a 16 s
         # ring (timeout + window) per attempt would only cost allocation time
         self._capacity_s = max(protocol.tap_window_s, protocol.familiarization_window_s) + 1.0

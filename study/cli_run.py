@@ -26,7 +26,7 @@ from plumbing.stopsignals import Terminated, stop_on_signals
 
 from .apparatus import Apparatus, ServoStopped
 from .audio import CHOICE_PHRASES, MaskingAudio, SilentAudio, check_output_device
-from .data import SessionStore, release_all_locks
+from .data import DataFileChanged, SessionStore, release_all_locks
 from .isolated import IsolatedApparatus
 from .participants import SimulatedParticipant, load_participant_config
 from .protocol import Schedule
@@ -157,6 +157,9 @@ def _run_command(args) -> int:
         if isinstance(exc, Aborted):
             print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
             return 3
+        if isinstance(exc, DataFileChanged):
+            print(f"error: {exc}", file=sys.stderr)
+            return 5
         if isinstance(exc, ServoStopped):
             print(f"error: {exc}; the output was zeroed, the attempt in progress is not recorded; data so far is "
                   f"in {store.dir}; continue with --resume", file=sys.stderr)

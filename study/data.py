@@ -29,6 +29,7 @@ import errno
 import fcntl
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -81,10 +82,14 @@ def crash_point(name: str) -> None:
 
 
 _HELD_LOCKS: set = set()
+_HELD_STORES: set = set()
 
 
 def release_all_locks() -> None:
-    """Drop every subject lock this process holds (the end of a run inside a longer-lived process, e.g. tests)."""
+    """Drop every subject lock and held trials.csv this process has (the end of a run inside a longer-lived
+    process, e.g. tests)."""
+    for store in list(_HELD_STORES):
+        store.close_trials()
     for lock in list(_HELD_LOCKS):
         lock.release()
 
@@ -152,6 +157,20 @@ class SubjectLock:
         _HELD_LOCKS.discard(self)
 
 SUBJECT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+#: names Windows reserves for devices, in any case (a folder ``DATA/CON`` cannot be created or copied there)
+RESERVED_NAMES = re.compile(r"^(CON|PRN|AUX|NUL|COM[0-9]|LPT[0-9])$", re.IGNORECASE)
+PHASES = ("familiarization", "demonstration", "testing")
+KINDS = ("real", "virtual")
+RATING_MIN, RATING_MAX = 1, 7
+#: what to do about a damaged trials.csv (docs/study.md, "A damaged trials.csv")
+REPAIR_HINT = ("trials.csv is damaged; nothing was changed. Repair (docs/study.md, \"A damaged trials.csv\"): "
+               "restore it from a backup, or keep a copy and move this line and every line after it to "
+               "trials.csv.damaged; --resume then runs those attempts again")
+
+
+class DataFileChanged(ValueError):
+    """The session's trials.csv was moved, replaced, truncated or appended to by something else while the
+    runner held it; the session stopped before writing anything more."""
 
 
 def utc_now() -> str:
@@ -164,6 +183,9 @@ def check_subject_id(subject: str) -> str:
     if not isinstance(subject, str) or not SUBJECT_RE.match(subject):
         raise ValueError(f"subject id {subject!r} is not allowed: use 1-64 letters, digits, '_' or '-' "
                          "(no path characters such as '/', '\\\\', '..', spaces)")
+    if RESERVED_NAMES.match(subject):
+        raise ValueError(f"subject id {subject!r} is not allowed: Windows reserves it for a device (CON, PRN, "
+                         "AUX, NUL, COM1-9, LPT1-9), so its folder could not be copied there; choose another id")
     return subject
 
 
@@ -203,8 +225,63 @@ def format_row(row: dict) -> dict:
     return out
 
 
+def _number(text: str, key: str, empty_ok: bool) -> float | None:
+    """A finite number >= 0 written by :func:`format_row` (``None`` for an empty cell when ``empty_ok``)."""
+    if text == "" and empty_ok:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{key}={text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{key}={text!r} must be a finite number >= 0")
+    return value
+
+
+def _check_values(raw: dict, row: dict) -> None:
+    """Ranges and consistency of one parsed row (what :func:`format_row` can write); ValueError otherwise."""
+    if row["phase"] not in PHASES:
+        raise ValueError(f"phase={raw['phase']!r} is not one of {'|'.join(PHASES)}")
+    if row["kind"] not in KINDS:
+        raise ValueError(f"kind={raw['kind']!r} is not one of {'|'.join(KINDS)}")
+    if not row["sample"]:
+        raise ValueError("sample is empty")
+    for key, low in (("trial", 1), ("attempt", 1), ("n_taps", 0)):
+        if row[key] < low:
+            raise ValueError(f"{key}={raw[key]!r} must be >= {low}")
+    rating = row["rating"]
+    if rating is not None and not RATING_MIN <= rating <= RATING_MAX:
+        raise ValueError(f"rating={raw['rating']!r} is not {RATING_MIN}-{RATING_MAX} (or empty)")
+    if rating is not None and (row["rejected"] or row["phase"] == "familiarization"):
+        raise ValueError(f"rating={raw['rating']!r} on a {'rejected' if row['rejected'] else 'familiarization'} "
+                         "attempt, which has none")
+    if row["valid"] and (row["saturated"] or row["overpowered"] or row["rejected"]):
+        raise ValueError("valid=true on an attempt marked rejected, saturated or overpowered")
+    if row["valid"] and row["phase"] != "familiarization" and (rating is None or not row["n_taps"]):
+        raise ValueError("valid=true on a rated phase's attempt without a rating or without taps")
+    if row["ends_familiarization"] and row["phase"] != "familiarization":
+        raise ValueError(f"ends_familiarization=true on a {row['phase']} attempt")
+    for key in ("incoming_velocity_mean_m_s", "penetration_mean_m"):
+        _number(raw[key], key, empty_ok=True)
+    _number(raw["duration_s"], "duration_s", empty_ok=True)
+    for key in ("incoming_velocities_m_s", "penetration_depths_m"):
+        values = [_number(x, key, empty_ok=False) for x in raw[key].split(";")] if raw[key] else []
+        if len(values) != row["n_taps"]:
+            raise ValueError(f"{key} lists {len(values)} values but n_taps={row['n_taps']}")
+    try:
+        _dt.datetime.fromisoformat(raw["started_at"])
+    except (TypeError, ValueError):
+        raise ValueError(f"started_at={raw['started_at']!r} is not an ISO 8601 time") from None
+
+
 def parse_row(raw: dict, where: str) -> dict:
-    """Inverse of :func:`format_row`; errors name ``where`` (file and line)."""
+    """Inverse of :func:`format_row`, checking every field (count, type, range, consistency: what the
+    runner can write); errors name ``where`` (file and line)."""
+    if None in raw:  # csv.DictReader puts the fields beyond the header under the key None
+        raise ValueError(f"{where}: {len(raw) - 1 + len(raw[None])} fields, the header has {len(raw) - 1}")
+    if any(value is None for value in raw.values()):  # ... and fills a short row's missing fields with None
+        n = sum(value is not None for value in raw.values())
+        raise ValueError(f"{where}: {n} fields, the header has {len(raw)}")
     row = dict(raw)
     row.setdefault("ends_familiarization", None)  # legacy file: the transition is in schedule.jsonl
     try:
@@ -220,9 +297,35 @@ def parse_row(raw: dict, where: str) -> dict:
         row["attempt"] = int(raw["attempt"])
         row["rating"] = int(raw["rating"]) if raw["rating"] else None
         row["n_taps"] = int(raw["n_taps"])
+        _check_values(raw, row)
     except (KeyError, ValueError) as exc:
         raise ValueError(f"{where}: bad value ({exc})") from None
     return row
+
+
+def _check_sequence(row: dict, where: str, seen: set, attempts: dict, phase_at: int) -> None:
+    """The row continues the file's sequence: phases in order (familiarization, demonstration, testing),
+    each ``(phase, trial, attempt)`` once, and a trial's attempts numbered 1, 2, ... as they were run."""
+    key = (row["phase"], row["trial"], row["attempt"])
+    if key in seen:
+        raise ValueError(f"{where}: {row['phase']} trial {row['trial']} attempt {row['attempt']} is recorded twice")
+    if PHASES.index(row["phase"]) < phase_at:
+        raise ValueError(f"{where}: a {row['phase']} attempt after the {PHASES[phase_at]} phase began")
+    expected = attempts.get(key[:2], 0) + 1
+    if row["attempt"] != expected:
+        raise ValueError(f"{where}: {row['phase']} trial {row['trial']} attempt {row['attempt']}, expected attempt "
+                         f"{expected} (attempts are numbered 1, 2, ... as they run)")
+    seen.add(key)
+    attempts[key[:2]] = expected
+
+
+def _fd_path(fd: int) -> str:
+    """Where the file open as ``fd`` is now (Linux ``/proc``; "" when unknown or deleted)."""
+    try:
+        path = os.readlink(f"/proc/self/fd/{fd}")
+    except OSError:
+        return ""
+    return "" if path.endswith(" (deleted)") else path
 
 
 def _whole_last_row(head: bytes, last: bytes, where: str) -> bool:
@@ -287,6 +390,9 @@ class SessionStore:
         self.session: dict | None = None
         self.lock: SubjectLock | None = None
         self.legacy_columns = False
+        self._trials_fd: int | None = None   # trials.csv, held open from the session's start to its end
+        self._trials_id: tuple | None = None  # its (device, inode)
+        self._trials_size = 0                 # its size as this runner left it
 
     # -- checks before anything starts -----------------------------------
     def check(self) -> None:
@@ -368,10 +474,69 @@ class SessionStore:
         return True
 
     def release(self) -> None:
-        """Drop the subject lock (also dropped by the OS when the process dies)."""
+        """Drop the subject lock and close trials.csv (both also done by the OS when the process dies)."""
+        self.close_trials()
         if self.lock is not None:
             self.lock.release()
             self.lock = None
+
+    # -- the data file, held --------------------------------------------------
+    def hold_trials(self) -> None:
+        """Open trials.csv once for the whole session (appending) and remember which file it is and its size.
+
+        Every later write first checks (:meth:`check_trials`) that the path still names this file with
+        the size this runner left: a file moved away, replaced, truncated or appended to by something else
+        stops the session before anything more is written (issue 38)."""
+        if self._trials_fd is not None:
+            return
+        fd = os.open(self.trials_path, os.O_WRONLY | os.O_APPEND | os.O_CLOEXEC)
+        st = os.fstat(fd)
+        self._trials_fd, self._trials_id, self._trials_size = fd, (st.st_dev, st.st_ino), st.st_size
+        _HELD_STORES.add(self)
+
+    def close_trials(self) -> None:
+        """Close the held trials.csv (harmless when not held)."""
+        if self._trials_fd is not None:
+            os.close(self._trials_fd)
+            self._trials_fd = None
+        _HELD_STORES.discard(self)
+
+    def check_trials(self) -> None:
+        """Raise :class:`DataFileChanged` unless trials.csv is still the file this runner holds, unchanged."""
+        fd = self._trials_fd
+        if fd is None:
+            return
+        held = os.fstat(fd)
+        try:
+            now = os.stat(self.trials_path)
+        except FileNotFoundError:
+            now = None
+        if now is None or (now.st_dev, now.st_ino) != self._trials_id:
+            where = _fd_path(fd)
+            what = ("was moved away or deleted" if now is None else "was replaced by another file")
+            raise DataFileChanged(
+                f"{self.trials_path} {what} while the session ran"
+                + (f" (the runner's file is now {where})" if where else "")
+                + f"; the session stopped and wrote nothing more ({self._rows_note()}). Put the runner's file "
+                f"back as {self.trials_path} and continue with --resume")
+        if held.st_size != self._trials_size:
+            change = "truncated" if held.st_size < self._trials_size else "appended to by another program"
+            raise DataFileChanged(
+                f"{self.trials_path} was {change} while the session ran ({held.st_size} bytes, the runner "
+                f"wrote {self._trials_size}); the session stopped and wrote nothing more. Check the file "
+                "(docs/study.md, \"A damaged trials.csv\") and continue with --resume")
+
+    def _rows_note(self) -> str:
+        return f"{self._trials_size} bytes of rows were written to it"
+
+    def _append_held(self, data: bytes) -> None:
+        """Append ``data`` through the held descriptor, fsync it, and account for its size."""
+        view = memoryview(data)
+        while view:
+            n = os.write(self._trials_fd, view)
+            view = view[n:]
+        os.fsync(self._trials_fd)
+        self._trials_size += len(data)
 
     # -- session.json ----------------------------------------------------
     def load_session(self) -> dict:
@@ -439,6 +604,7 @@ class SessionStore:
 
     def write_session(self) -> None:
         """Rewrite session.json atomically (a crash leaves the old or the new file, never half)."""
+        self.check_trials()
         atomic_write_bytes(self.session_path, (json.dumps(self.session, indent=2) + "\n").encode())
         crash_point("session.json rewritten")
 
@@ -476,25 +642,50 @@ class SessionStore:
             raise ValueError(f"{self.trials_path} line {line}: not UTF-8 text (byte {exc.start}: "
                              f"{data[exc.start:exc.start + 1]!r}); trials.csv is damaged") from None
         reader = csv.DictReader(io.StringIO(text))
-        header = tuple(reader.fieldnames or ())
+        try:
+            header = tuple(reader.fieldnames or ())
+        except csv.Error as exc:
+            raise ValueError(f"{self.trials_path} line 1: not CSV ({exc}); {REPAIR_HINT}") from None
         self.legacy_columns = header == LEGACY_TRIAL_COLUMNS
         if header != TRIAL_COLUMNS and not self.legacy_columns:
             raise ValueError(f"{self.trials_path}: header {reader.fieldnames} is not {list(TRIAL_COLUMNS)}")
-        return [parse_row(raw, f"{self.trials_path} line {i + 2}") for i, raw in enumerate(reader)]
+        rows, seen, attempts, phase_at = [], set(), {}, 0
+        try:
+            for raw in reader:
+                where = f"{self.trials_path} line {reader.line_num}"
+                row = parse_row(raw, where)
+                if row["subject"] != self.subject:
+                    raise ValueError(f"{where}: subject={row['subject']!r}, but the session is {self.subject!r}")
+                _check_sequence(row, where, seen, attempts, phase_at)
+                phase_at = PHASES.index(row["phase"])
+                rows.append(row)
+        except csv.Error as exc:
+            raise ValueError(f"{self.trials_path} line {reader.line_num}: not CSV ({exc}); {REPAIR_HINT}") from None
+        except ValueError as exc:
+            raise ValueError(f"{exc}; {REPAIR_HINT}") from None
+        return rows
 
     def append_trial(self, row: dict) -> None:
-        """Append one attempt row, then flush and fsync (the row is on disk when this returns)."""
+        """Append one attempt row through the held trials.csv, then fsync (the row is on disk when this
+        returns); :class:`DataFileChanged` first if the file changed under the runner."""
         formatted = format_row(row)
         columns = LEGACY_TRIAL_COLUMNS if self.legacy_columns else TRIAL_COLUMNS
-        with open(self.trials_path, "a", newline="") as fh:
-            csv.DictWriter(fh, columns, lineterminator="\n", extrasaction="ignore").writerow(formatted)
-            fh.flush()
-            os.fsync(fh.fileno())
+        buf = io.StringIO()
+        csv.DictWriter(buf, columns, lineterminator="\n", extrasaction="ignore").writerow(formatted)
+        self.append_trial_text(buf.getvalue())
         crash_point(f"row written: {row['phase']} {row['trial']}/{row['attempt']}")
+
+    def append_trial_text(self, text: str) -> None:
+        """Append formatted CSV line(s) through the held trials.csv and fsync them; :class:`DataFileChanged`
+        first if the file changed under the runner (every kind of session writes its rows through this)."""
+        self.hold_trials()
+        self.check_trials()
+        self._append_held(text.encode("utf-8"))
 
     # -- schedule.jsonl ----------------------------------------------------
     def log_event(self, event: dict) -> None:
         """Append one event (with its UTC time) to the schedule log and fsync it."""
+        self.check_trials()
         with open(self.schedule_path, "a") as fh:
             fh.write(json.dumps({"at": utc_now(), **event}) + "\n")
             fh.flush()
@@ -520,6 +711,7 @@ class SessionStore:
 
     def write_trace(self, phase: str, trial: int, attempt: int, arrays: dict) -> Path:
         """Write one attempt's arrays (``np.savez``) atomically; returns the path."""
+        self.check_trials()  # a session whose trials.csv is gone writes no trace either
         path = self.trace_path(phase, trial, attempt)
         buf = io.BytesIO()
         np.savez(buf, **arrays)

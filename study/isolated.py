@@ -148,28 +148,51 @@ class IsolatedApparatus:
     def _recv(self, on_wait=None):
         while not self._conn.poll(0.02):
             if not self._proc.is_alive():
-                raise RuntimeError(f"the servo process died (exit code {self._proc.exitcode})")
+                self._child_ended()
             if on_wait is not None:
                 on_wait()
         status, payload = self._conn.recv()
         if status != "ok":
-            kind, message = payload
-            # user errors keep their type so the command reports them as such (exit code 2)
-            if kind in ("ValueError", "FileNotFoundError"):
-                raise {"ValueError": ValueError, "FileNotFoundError": FileNotFoundError}[kind](message)
-            if kind == "DeviceError":
-                raise ValueError(f"device: {message}")
-            if kind == "ServoStopped":
-                raise ServoStopped(message)
-            raise RuntimeError(f"servo process: {kind}: {message}")
+            self._raise(payload)
         return payload
 
+    @staticmethod
+    def _raise(payload) -> None:
+        """Raise the child's error ``(kind, message)`` as the command reports it."""
+        kind, message = payload
+        # user errors keep their type so the command reports them as such (exit code 2)
+        if kind in ("ValueError", "FileNotFoundError"):
+            raise {"ValueError": ValueError, "FileNotFoundError": FileNotFoundError}[kind](message)
+        if kind == "DeviceError":
+            raise ValueError(f"device: {message}")
+        if kind == "ServoStopped":
+            raise ServoStopped(message)
+        raise RuntimeError(f"servo process: {kind}: {message}")
+
     def _call(self, method: str, *args, on_wait=None):
-        self._conn.send((method, args))
+        try:
+            self._conn.send((method, args))
+        except OSError:  # BrokenPipeError: the child stopped between requests (its homing stopped itself)
+            self._child_ended()
         self._pending = True
         result = self._recv(on_wait)
         self._pending = False
         return result
+
+    def _child_ended(self) -> None:
+        """The servo process ended on its own: raise the error it sent before it closed the pipe (a homing
+        stop between requests is a ServoStopped, exit 4), else a ServoStopped naming its exit code. Before,
+        the parent's next request failed with a BrokenPipeError, which ended the command with exit 1 and
+        no message."""
+        try:
+            if self._conn.poll(0):
+                status, payload = self._conn.recv()
+                if status != "ok":
+                    self._raise(payload)
+        except (OSError, EOFError):
+            pass
+        self._proc.join(timeout=10)
+        raise ServoStopped(f"the servo process ended (exit code {self._proc.exitcode}); output zeroed")
 
     def link_status(self) -> str:
         """The device link's health line, from the servo process (see ``Apparatus.link_status``)."""

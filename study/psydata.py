@@ -123,10 +123,9 @@ def read_psy_trials(store) -> list[dict]:
 
 def append_psy_trial(store, row: dict) -> None:
     """Append one trial row to the subject's trials.csv, flush and fsync it (on disk when this returns)."""
-    with open(store.trials_path, "a", newline="") as fh:
-        csv.DictWriter(fh, PSY_COLUMNS, lineterminator="\n").writerow(format_psy_row(row))
-        fh.flush()
-        os.fsync(fh.fileno())
+    buf = io.StringIO()
+    csv.DictWriter(buf, PSY_COLUMNS, lineterminator="\n").writerow(format_psy_row(row))
+    store.append_trial_text(buf.getvalue())   # through the held file: a moved or replaced file stops the session
     crash_point(f"row written: trial {row['trial']}/{row['attempt']}")
 
 

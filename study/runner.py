@@ -133,9 +133,10 @@ class StudyRunner:
         self.last_rating = None
 
     # -- helpers -------------------------------------------------------------
-    def _subject(self, key: str, prompt: str = "wait") -> None:
+    def _subject(self, key: str, prompt: str = "wait", trial: Trial | None = None, attempt: int = 0) -> None:
         if self.ui is not None:
-            self.ui.set_subject(SUBJECT_TEXT[key], prompt)
+            self.ui.set_subject(SUBJECT_TEXT[key], prompt,
+                                None if trial is None else f"{trial.phase}:{trial.trial}:{attempt}")
 
     def _progress(self) -> dict:
         out = {}
@@ -209,7 +210,7 @@ class StudyRunner:
         started_at = utc_now()
         t0 = self.apparatus.now_s()
         if fam:
-            self._subject("familiarization", "familiarization")
+            self._subject("familiarization", "familiarization", trial, attempt)
         else:
             self._subject("tap")
         self.audio.cue_tap()
@@ -227,7 +228,7 @@ class StudyRunner:
             self._subject("no_tap")
             contacts = 0
         else:
-            self._subject("rate", "rate")
+            self._subject("rate", "rate", trial, attempt)
             # "Stop. Please rate." never talks over "Tap now.": a person's window (1 s) outlasts the tap cue
             # (~0.7 s), but a simulated participant's window runs faster than real time
             self.audio.wait_cues(2.0)

@@ -299,10 +299,13 @@ def start_session(plan: SessionPlan, args, schedule, device_info: dict, servo_pr
                        "trials": phase.summary()["planned_trials"]} for name, phase in schedule.phases.items()]
         # one atomic step: session.json, the trials.csv header and the plan appear together or not at all
         store.create(session, events=events)
+        store.hold_trials()  # held from now to the end: a file moved or replaced meanwhile stops the session
         rows, fam_ended = [], False
     else:
         store.session = previous
+        # every row checked: a damaged file is refused, naming the line
         rows = store.read_trials() if read_rows is None else read_rows(store)
+        store.hold_trials()
         if plan.experiment is not None:
             fam_ended = True  # no familiarization in a psychophysics session
         elif store.legacy_columns:  # written before rows carried ends_familiarization

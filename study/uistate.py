@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import secrets
 import threading
 import time
 
@@ -20,6 +21,11 @@ FAM_HINT = "Keep tapping on the wood. Press Enter when you are done."
 
 class Aborted(RuntimeError):
     """The operator aborted the session (data written so far is kept; resume with --resume)."""
+
+
+def _new_id(trial: str | None) -> str:
+    """A presentation's id: what it presents (``phase:trial:attempt``, or ``view``) and 8 random hex digits."""
+    return f"{trial or 'view'}:{secrets.token_hex(4)}"
 
 
 def _json_safe(obj):
@@ -38,20 +44,28 @@ class UiState:
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self.subject = {"message": "Please wait.", "prompt": "wait", "hint": "", "seq": 0}
+        self.subject = {"message": "Please wait.", "prompt": "wait", "hint": "", "seq": 0,
+                        "trial_id": _new_id(None)}
         self.operator = {"phase": "", "trial": None, "attempt": None, "place": "", "awaiting_confirm": False,
                          "progress": {}, "last_attempt": None, "paused": False, "aborted": False,
                          "message": "", "redraws": [], "seq": 0}
         self._rating = None
         self._end_familiarization = False
         self._confirmed = False
+        self._answered: str | None = None  # the trial id whose key was taken
         self.keys_ignored = 0
+        self.keys_refused = 0  # keys for another presentation than the current one (stale or replayed)
 
     # -- runner side ---------------------------------------------------------
-    def set_subject(self, message: str, prompt: str) -> None:
-        """Show ``message`` on the subject view with ``prompt`` (``rate`` clears the last rating)."""
+    def set_subject(self, message: str, prompt: str, trial: str | None = None) -> None:
+        """Show ``message`` on the subject view with ``prompt`` (``rate`` clears the last rating).
+
+        Every call starts a new presentation with a new ``trial_id`` (``trial``, e.g. ``"testing:3:1"``
+        for phase, trial and attempt, plus a random part): a key counts only if it carries the id of the
+        presentation it answers, and only once (:meth:`subject_key`)."""
         with self._cond:
-            self.subject.update(message=message, prompt=prompt, hint="")
+            self.subject.update(message=message, prompt=prompt, hint="", trial_id=_new_id(trial))
+            self._answered = None
             self.subject["seq"] += 1
             if prompt in ("rate", "choice"):
                 self._rating = None
@@ -107,18 +121,42 @@ class UiState:
             raise Aborted("the operator aborted the session")
 
     # -- handler side --------------------------------------------------------
-    def subject_key(self, key: str) -> dict:
-        """Handle a key from the subject view (a rating 1-7/x, or Enter in familiarization); returns the view state with ``accepted``."""
+    def subject_key(self, key: str, trial_id: str) -> dict:
+        """Handle a key from the subject view (a rating 1-7/x, or Enter in familiarization).
+
+        Parameters
+        ----------
+        key : str
+            The key pressed.
+        trial_id : str
+            The ``trial_id`` of the presentation the key answers (the subject view sends the one it shows).
+
+        Returns
+        -------
+        dict
+            The view state with ``accepted``; with ``refused`` (a reason) when the key is for another
+            presentation than the current one, or for one whose key was already taken: a replayed or late
+            request never becomes the current trial's rating.
+        """
         with self._cond:
+            if trial_id != self.subject["trial_id"]:
+                self.keys_refused += 1
+                return {"accepted": False, "refused": "not the current trial (a late or replayed key)",
+                        **self.subject}
+            if self._answered == trial_id:
+                self.keys_ignored += 1
+                return {"accepted": False, "refused": "this trial's key was already taken", **self.subject}
             prompt = self.subject["prompt"]
             accepted = False
             if ((prompt == "rate" and key in RATING_KEYS) or (prompt == "choice" and key in CHOICE_KEYS)) \
                     and self._rating is None:
                 self._rating = key
+                self._answered = trial_id
                 accepted = True
                 self.subject.update(message="Thank you.", prompt="wait", hint="")
             elif prompt == "familiarization" and key == "Enter":
                 self._end_familiarization = True
+                self._answered = trial_id
                 accepted = True
                 self.subject.update(message="Familiarization ends after this round. Please wait.", prompt="wait",
                                     hint="")

@@ -23,7 +23,12 @@ anything on the lab network):
   get 503), bodies are at most ``MAX_BODY_BYTES`` (a larger declared length
   gets 413, a negative or non-numeric one 400, both without reading);
 * malformed JSON, a body that is not an object, wrong types and missing
-  fields get 400 with a one-line JSON error, never a traceback;
+  fields get 400 with a one-line JSON error, never a traceback; two
+  ``Content-Length`` headers that differ get 400;
+* a key (``/api/key``) carries the ``trial_id`` of the presentation it answers
+  (the subject view sends the one it shows): a key for another presentation
+  (late, or replayed from an earlier trial) or for one already answered gets
+  409 and is never taken as the current trial's rating;
 * ``Host`` must name this server (an IP literal, ``localhost`` or the bound
   name, with our port: DNS rebinding is refused with 400); a POST whose
   ``Origin`` (or, without it, ``Referer``) is another origin is refused with
@@ -195,6 +200,9 @@ class _Handler(BaseHTTPRequestHandler):
     def _read_json(self) -> dict:
         if self.headers.get("Transfer-Encoding"):
             raise BadRequest(400, "Transfer-Encoding is not supported; send Content-Length")
+        given = self.headers.get_all("Content-Length") or []
+        if len({v.strip() for v in given}) > 1:  # which one would the body follow? (request smuggling)
+            raise BadRequest(400, "conflicting Content-Length headers")
         raw = self.headers.get("Content-Length")
         if raw is None:
             length = 0
@@ -260,10 +268,13 @@ class _Handler(BaseHTTPRequestHandler):
             body = self._read_json()
             if "key" not in body:
                 raise BadRequest(400, "missing field 'key'")
-            key = body["key"]
+            key, trial_id = body["key"], body.get("trial_id")
             if not isinstance(key, str) or len(key) > 16:
                 raise BadRequest(400, "key must be a short string")
-            return self._json(ui.subject_key(key))
+            if not isinstance(trial_id, str) or len(trial_id) > 64:
+                raise BadRequest(400, "trial_id must be the trial_id the subject view shows (a short string)")
+            result = ui.subject_key(key, trial_id)
+            return self._json(result, 409 if "refused" in result else 200)
         if url.path.startswith("/api/operator/"):
             if not self._token_ok(query):
                 return self._json({"error": "operator token required"}, 403)

@@ -31,7 +31,7 @@ import termios
 import threading
 import time
 import tty
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from ..base import DeviceInfo, Status
 from ..hardware import wire_protocol as P
@@ -56,6 +56,13 @@ class FaultSpec:
     protocol 1.0 firmware, which takes only the 16-byte WALL, without the passivity observer). Scripted (deterministic, counted over the frames sent):
     ``drop_every=N`` drops every N-th frame, ``corrupt_every=N`` flips a bit in every N-th,
     ``drop_burst=K`` with ``drop_burst_at=N`` drops K frames in a row from the N-th on.
+    Malformed but CRC-valid frames (issue 38): ``bad_length_every=N`` sends every N-th STATE one byte too
+    long, ``bad_type_every=N`` sends every N-th STATE as a host-to-device type (CURRENT), both with a
+    correct CRC. A broken device: ``clock_back_at=N`` turns the clock 1 s back at the N-th STATE,
+    ``clock_freeze_at=N`` stops it there; ``info_servo_rate_hz=X`` claims servo rate X in INFO (the
+    physics keeps its own). ``stall_s=X`` with ``stall_at=N``: the device stalls X s before sending its N-th
+    frame (a busy firmware or a USB stall: it answers nothing meanwhile, then works off the commands that
+    queued up).
     """
 
     drop: float = 0.0
@@ -72,6 +79,13 @@ class FaultSpec:
     corrupt_every: int = 0
     drop_burst_at: int = 0
     drop_burst: int = 0
+    bad_length_every: int = 0
+    bad_type_every: int = 0
+    clock_back_at: int = 0
+    clock_freeze_at: int = 0
+    info_servo_rate_hz: float = 0.0
+    stall_at: int = 0
+    stall_s: float = 0.0
 
     @classmethod
     def parse(cls, text: str | None) -> "FaultSpec":
@@ -100,7 +114,8 @@ class FaultSpec:
                 raise ValueError(f"--fault: {key}={raw} is a probability and must be <= 1")
             if key == "silent":
                 value = bool(value)
-            elif key in ("protocol_major", "protocol_minor", "drop_every", "corrupt_every", "drop_burst_at", "drop_burst"):
+            elif key in ("protocol_major", "protocol_minor", "drop_every", "corrupt_every", "drop_burst_at", "drop_burst",
+                         "bad_length_every", "bad_type_every", "clock_back_at", "clock_freeze_at", "stall_at"):
                 value = int(value)
             values[key] = value
         return cls(**values)
@@ -118,7 +133,7 @@ class FaultSpec:
     def any_frame_faults(self) -> bool:
         """True when any fault acts on whole device -> host frames (drop, corrupt, duplicate, garbage, delay)."""
         return bool(self.drop or self.corrupt or self.duplicate or self.garbage or self.delay or self.drop_every
-                    or self.corrupt_every or self.drop_burst)
+                    or self.corrupt_every or self.drop_burst or (self.stall_at and self.stall_s))
 
 
 class Emulator:
@@ -177,6 +192,8 @@ class Emulator:
             grip_range_N=sim_info.grip_range_N, capabilities=P.capability_names(caps), simulated=False)
         major = self.faults.protocol_major if self.faults.protocol_major is not None else P.PROTOCOL_VERSION[0]
         minor = self.faults.protocol_minor if self.faults.protocol_minor is not None else P.PROTOCOL_VERSION[1]
+        if self.faults.info_servo_rate_hz:  # a broken INFO: the rate the device claims, not the one it runs
+            info = replace(info, servo_rate_hz=float(self.faults.info_servo_rate_hz))
         self.wire = P.WireInfo(info, (major, minor), FIRMWARE_VERSION, serial_number,
                                self.accel_scale, 0, self.grip_scale, 0, self.watchdog_ms, caps, MAX_TABLE_SAMPLES)
         self.fw = FirmwareRenderer(self.res, info.force_per_amp_N_A, self.fs, info.current_amplifier_A,
@@ -204,8 +221,11 @@ class Emulator:
         self.disconnected = False
         self.burst_started = None
         self.last_cmd_after_burst = None
+        self.states_sent = 0
+        self.frozen_t_us = None
         self.stats = {"frames_in": 0, "frames_out": 0, "dropped": 0, "corrupted": 0, "duplicated": 0, "garbage": 0,
-                      "delayed": 0, "naks": 0, "watchdog_trips": 0, "write_overflows": 0, "ticks": 0}
+                      "delayed": 0, "naks": 0, "watchdog_trips": 0, "write_overflows": 0, "ticks": 0,
+                      "malformed": 0}
 
     # -- pty ---------------------------------------------------------------------
     def open_pty(self) -> str:
@@ -271,6 +291,10 @@ class Emulator:
                 k = rng.randrange(2, len(buf))
                 buf[k] ^= 1 << rng.randrange(8)
                 frame = bytes(buf)
+            if f.stall_at and k == f.stall_at and f.stall_s:
+                self.stats["stalled_s"] = f.stall_s
+                self.stall_started = time.monotonic()
+                time.sleep(f.stall_s)
             if f.delay and rng.random() < f.delay:
                 self.stats["delayed"] += 1
                 time.sleep(f.delay_s)
@@ -332,8 +356,31 @@ class Emulator:
     def _send_state(self, st) -> None:
         t_us, enc, a, g = self._raw(st)
         mA = int(round(self.applied_A * 1000.0))
-        self.send(P.STATE, P.encode_state(t_us, enc, a, g, self._status(st.status), self.cmd_seq, mA))
+        payload = P.encode_state(self._fault_clock(t_us), enc, a, g, self._status(st.status), self.cmd_seq, mA)
+        f = self.faults
+        self.states_sent += 1
+        k = self.states_sent
+        if f.bad_length_every and k % f.bad_length_every == 0:
+            self.stats["malformed"] += 1
+            self.send(P.STATE, payload + b"\0")  # 17 bytes, CRC correct: a firmware bug, not line noise
+        elif f.bad_type_every and k % f.bad_type_every == 0:
+            self.stats["malformed"] += 1
+            self.send(P.CURRENT, payload)  # a host-to-device type from the device
+        else:
+            self.send(P.STATE, payload)
         self.trip_report = False
+
+    def _fault_clock(self, t_us: int) -> int:
+        """The clock a broken device reports (``clock_back_at``, ``clock_freeze_at``); ``t_us`` otherwise."""
+        f = self.faults
+        k = self.states_sent + 1
+        if f.clock_freeze_at and k >= f.clock_freeze_at:
+            if self.frozen_t_us is None:
+                self.frozen_t_us = t_us
+            return self.frozen_t_us
+        if f.clock_back_at and k >= f.clock_back_at:
+            return (t_us - 1_000_000) & 0xFFFFFFFF
+        return t_us
 
     # -- input ------------------------------------------------------------------------
     def handle(self, frame: P.Frame) -> None:

@@ -83,6 +83,10 @@ def default_telemetry_decimation(servo_rate_hz: float, link_bytes_per_s: float |
     need = frame_bytes * float(servo_rate_hz) / (budget * float(link_bytes_per_s))
     return max(1, math.ceil(need - 1e-9))
 RTT_RING = 65536  # round-trip samples kept for the link statistics (preallocated)
+#: fresh state frames in a row with the same device time after which the device's clock counts as frozen
+#: (a device fault). One repeat can be honest (a watchdog's unsolicited STATE before the next reply);
+#: a STATE frame takes >= 100 us on a 1 Mbaud link, far beyond a clock tick
+CLOCK_FREEZE_STATES = 3
 CALIBRATION_ENV = "HFAM_CALIBRATION"
 
 
@@ -262,7 +266,10 @@ class ProtocolDevice(Device):
         self._wall_height_m = 0.0
         self.stats = {"crc_errors": 0, "garbage_bytes": 0, "seq_gaps": 0, "duplicates": 0, "timeouts": 0,
                       "retransmits": 0, "stale_states": 0, "frames_rx": 0, "frames_tx": 0, "naks": 0,
-                      "watchdog_trips": 0, "losses": 0, "max_consecutive_losses": 0, "rearms": 0}
+                      "watchdog_trips": 0, "losses": 0, "max_consecutive_losses": 0, "rearms": 0,
+                      "malformed_frames": 0}
+        self._newer_minor = False  # the device speaks a newer minor version: fixed payloads may grow
+        self._clock_repeats = 0
         if not (isinstance(loss_timeout_s, (int, float)) and 0 < loss_timeout_s < 1):
             raise ValueError(f"loss_timeout_s must be within (0, 1) s, got {loss_timeout_s!r}")
         if not (0 < float(max_loss_rate) <= 1) or int(loss_window) < 1 or int(max_consecutive_losses) < 0:
@@ -330,6 +337,8 @@ class ProtocolDevice(Device):
         self._state.extra.pop("error", None)
         self._t_wraps = 0
         self._t_last_us = None
+        self._newer_minor = False
+        self._clock_repeats = 0
 
     def _open(self) -> None:
         self._reset_link()
@@ -374,6 +383,7 @@ class ProtocolDevice(Device):
                               f"{wire.info.capabilities}")
         self.wire_info = wire
         self._info = wire.info
+        self._newer_minor = wire.protocol_version[1] > P.PROTOCOL_VERSION[1]
         defaults = Calibration(0, 1, wire.accel_scale_m_s2_per_count, wire.accel_offset_counts,
                                wire.grip_scale_N_per_count, wire.grip_offset_counts)
         self.cal = (load_calibration(self.calibration_path, wire.device_id, defaults)
@@ -414,6 +424,21 @@ class ProtocolDevice(Device):
         self._state.extra["error"] = self.last_error
         return DeviceError(self.last_error)
 
+    def _fault(self, why: str) -> DeviceError:
+        """The device misbehaves although the link works (its clock ran backwards or froze): zero its output
+        now (streaming: a zero CURRENT; on board: RENDER_STOP, which zeroes it), then stop as for a dead link
+        (``Status.DISCONNECTED`` with ``Status.FAULT``; the error says ``device fault``)."""
+        for msg_type, payload in ((P.RENDER_STOP, b""), (P.CURRENT, P.encode_current(0.0))) if self._rendering \
+                else ((P.CURRENT, P.encode_current(0.0)),):
+            try:
+                self._tx(msg_type, payload)
+            except DeviceError:
+                break
+        err = self._fail(f"device fault: {why}; output zeroed")
+        self._state.status |= Status.FAULT
+        self._state.extra["fault"] = True
+        return err
+
     def _tx(self, msg_type: int, payload: bytes = b"") -> int:
         if self._disconnected or self._t is None:
             raise DeviceError(f"{self.name}: link is closed or disconnected")
@@ -439,6 +464,11 @@ class ProtocolDevice(Device):
             self.stats["garbage_bytes"] = self._parser.garbage_bytes
 
     def _dispatch(self, frame: P.Frame) -> None:
+        if P.check_frame_size(frame.type, len(frame.payload), self._newer_minor):
+            # CRC intact but the wrong size or type: dropped and counted, as a frame with a bad CRC is
+            # (a STATE lost this way is a counted loss: the next tick goes on with the last state)
+            self.stats["malformed_frames"] += 1
+            return
         last = self._rx_seq
         if last is not None:
             if frame.seq == last:
@@ -453,9 +483,9 @@ class ProtocolDevice(Device):
         self.stats["frames_rx"] += 1
         t = frame.type
         if t == P.STATE:
-            self._states.append(frame.payload)
+            self._states.append(frame.payload[:P.STATE_STRUCT.size])  # a newer minor's appended fields ignored
         elif t == P.EVENT:
-            self._on_event(frame.payload)
+            self._on_event(frame.payload[:P.EVENT_STRUCT.size])
         elif t == P.ACK:
             if len(frame.payload) == 2:
                 if tuple(frame.payload) == self._upload_key:
@@ -683,10 +713,27 @@ class ProtocolDevice(Device):
 
     def _unwrap_us(self, t_us: int) -> float:
         last = self._t_last_us
+        if last is not None:
+            self._check_clock(last, t_us)
         if last is not None and t_us < last and last - t_us > 0x80000000:
             self._t_wraps += 1
         self._t_last_us = t_us
         return (self._t_wraps * 4294967296 + t_us) * 1e-6
+
+    def _check_clock(self, last: int, t_us: int) -> None:
+        """A fresh state's device clock must advance: backwards (by less than half the 2^32 us wrap, beyond
+        which it is the wrap) or unchanged for :data:`CLOCK_FREEZE_STATES` states in a row is a device fault
+        (issue 38): events would get wrong times and every velocity estimate divides by the clock."""
+        delta = ((t_us - last + 0x80000000) & 0xFFFFFFFF) - 0x80000000
+        if delta < 0:
+            raise self._fault(f"its clock went backwards from t_us={last} to t_us={t_us} ({delta} us)")
+        if delta == 0:
+            self._clock_repeats += 1
+            if self._clock_repeats >= CLOCK_FREEZE_STATES:
+                raise self._fault(f"its clock is frozen at t_us={t_us} ({self._clock_repeats + 1} state frames "
+                                  "with the same time)")
+        else:
+            self._clock_repeats = 0
 
     def _apply(self, raw: P.RawState) -> DeviceState:
         cal = self.cal
@@ -943,10 +990,10 @@ class ProtocolDevice(Device):
             self._upload_rearm(self._transient, -v, st.grip_N, wait=False)
 
     def _on_event(self, payload: bytes) -> None:
-        try:
-            ev = P.decode_event(payload)
-        except P.ProtocolError:
-            self.stats["naks"] += 1
+        ev = P.decode_event(payload)  # its size was checked in _dispatch
+        if not all(math.isfinite(ev[k]) for k in ("incoming_velocity_m_s", "grip_N", "max_penetration_m",
+                                                  "peak_accel_m_s2")):
+            self.stats["malformed_frames"] += 1  # NaN/inf never reaches an event
             return
         last = self._t_last_us if self._t_last_us is not None else ev["t_us"]
         delta = ((ev["t_us"] - last + 0x80000000) & 0xFFFFFFFF) - 0x80000000

@@ -134,6 +134,66 @@ DATA_OFFSET_STRUCT = struct.Struct("<I")
 INFO_STRUCT = struct.Struct("<5BI9fhfh6f2HIH")
 
 
+#: payload sizes of the device -> host frames at this host's protocol version: (exact size, or None for a
+#: variable one, minimum size). A frame of another size, or of a type a device never sends, is malformed:
+#: the host drops and counts it like a frame with a bad CRC (issue 38: one malformed frame is a loss)
+DEVICE_FRAME_SIZES = {INFO: (None, INFO_STRUCT.size + 2), STATE: (STATE_STRUCT.size, STATE_STRUCT.size),
+                      EVENT: (EVENT_STRUCT.size, EVENT_STRUCT.size), ACK: (ACK_STRUCT.size, ACK_STRUCT.size),
+                      NAK: (None, NAK_STRUCT.size), PONG: (None, 0)}
+
+#: the physical range of each INFO value (inclusive; unit in the name). A device reporting a value outside
+#: is refused at the handshake (issue 38: a servo rate of 1e9 Hz hung the renderer's set-up). The bounds
+#: are generous: the simulated testbed (devices/sim/default_params.toml: 10 kHz, 2000 lines, rho 15,
+#: h 0.15 m, k_t 0.0235 N m/A, 1.26-4 A), the AVR board (4 kHz) and any desktop haptic interface lie
+#: well inside them.
+INFO_RANGES = {
+    "servo_rate_hz": (100.0, 100_000.0),
+    "encoder_lines": (1, 1 << 24),
+    "gear_ratio": (0.01, 1000.0),
+    "handle_length_m": (1e-3, 2.0),
+    "torque_constant_Nm_A": (1e-5, 10.0),
+    "current_continuous_A": (1e-3, 100.0),
+    "current_peak_A": (1e-3, 100.0),
+    "current_amplifier_A": (1e-3, 100.0),
+    "accel_range_m_s2": (1.0, 1e5),
+    "grip_range_N": (-1e4, 1e4),
+    "winding_resistance_ohm": (1e-3, 1e4),
+    "thermal_resistance_K_W": (1e-3, 1e4),
+    "thermal_time_constant_s": (1e-2, 1e6),
+    "winding_max_temp_rise_K": (1.0, 1000.0),
+    "watchdog_ms": (1, 60_000),
+    "max_table_samples": (0, 1 << 26),
+}
+
+
+def check_frame_size(frame_type: int, size: int, newer_minor: bool = False) -> str:
+    """Why a device -> host frame of ``frame_type`` with a ``size``-byte payload is malformed ("" if it is not).
+
+    Parameters
+    ----------
+    frame_type : int
+        The frame's message type.
+    size : int
+        Its payload length in bytes.
+    newer_minor : bool
+        The device speaks a newer minor version than this host: it may append fields to a fixed-size payload,
+        which the host ignores (docs/protocol.md, Versioning).
+
+    Returns
+    -------
+    str
+        Empty for a well-formed frame, else what is wrong (for the link counters' message).
+    """
+    sizes = DEVICE_FRAME_SIZES.get(frame_type)
+    if sizes is None:
+        return f"type {TYPE_NAMES.get(frame_type, f'0x{frame_type:02x}')} is not sent by a device"
+    exact, minimum = sizes
+    if size < minimum or (exact is not None and size != exact and not newer_minor):
+        want = f"{exact}" if exact is not None else f"at least {minimum}"
+        return f"{TYPE_NAMES[frame_type]} payload of {size} bytes, expected {want}"
+    return ""
+
+
 class ProtocolError(ValueError):
     """A frame or payload that cannot be decoded (names the message type and what is wrong)."""
 
@@ -430,6 +490,11 @@ def decode_info(payload: bytes) -> WireInfo:
     for key, value in {"accel scale": ascale, "grip scale": gscale}.items():
         if not (math.isfinite(value) and value > 0):
             raise ProtocolError(f"INFO {key} must be positive and finite, got {value!r}")
+    _check_info_ranges({"servo_rate_hz": rate, "encoder_lines": lines, "gear_ratio": rho, "handle_length_m": h,
+                        "torque_constant_Nm_A": kt, "current_continuous_A": cont, "current_peak_A": peak,
+                        "current_amplifier_A": amp, "accel_range_m_s2": arange, "grip_range_N": (gmin, gmax),
+                        "winding_resistance_ohm": rw, "thermal_resistance_K_W": rth, "thermal_time_constant_s": tau,
+                        "winding_max_temp_rise_K": trise, "watchdog_ms": wd_ms, "max_table_samples": max_table})
     # float32 on the wire: round to its ~7 significant digits so 0.15 stays 0.15
     rho, h, kt, cont, peak, amp, rate, arange, gmin, gmax, rw, rth, tau, trise = (
         float(f"{x:.7g}") for x in (rho, h, kt, cont, peak, amp, rate, arange, gmin, gmax, rw, rth, tau, trise))
@@ -445,6 +510,19 @@ def decode_info(payload: bytes) -> WireInfo:
         raise ProtocolError(f"INFO describes an impossible device: {exc}") from None
     return WireInfo(info, (pmaj, pmin), (fmaj, fmin, fpat), strings[1], ascale, aoff, gscale, goff, wd_ms, caps,
                     max_table)
+
+
+def _check_info_ranges(values: dict) -> None:
+    """ProtocolError naming the first INFO value outside :data:`INFO_RANGES` (or not finite)."""
+    for key, value in values.items():
+        low, high = INFO_RANGES[key]
+        for v in (value if isinstance(value, tuple) else (value,)):
+            if not (math.isfinite(v) and low <= v <= high):
+                raise ProtocolError(f"INFO {key} = {v:g} is outside the physical range {low:g}..{high:g}; "
+                                    "the device's INFO is wrong (firmware constants or a damaged reply)")
+    gmin, gmax = values["grip_range_N"]
+    if not gmin < gmax:
+        raise ProtocolError(f"INFO grip_range_N ({gmin:g}, {gmax:g}) is empty: the minimum must be below the maximum")
 
 
 def encode_table_begin(velocities_m_s, grips_N, n_samples: int, fs_hz: float, gain: float = 1.0,

@@ -1,10 +1,12 @@
 "use strict";
 let prompt = "wait";
 let seq = -1;
+let trialId = "";  // the presentation a key answers: the runner takes a key only for the one it shows now
 function show(state) {
   if (state.seq === seq) return;
   seq = state.seq;
   prompt = state.prompt;
+  trialId = state.trial_id || "";
   document.getElementById("message").textContent = state.message;
   document.getElementById("scale").hidden = prompt !== "rate";
   document.getElementById("hint").textContent = state.hint || "";
@@ -19,10 +21,10 @@ async function poll() {
 // Keys go to the runner one at a time, in the order pressed: concurrent requests may arrive out of
 // order, and the first rating key pressed (not the first to arrive) must be the one recorded.
 let sending = Promise.resolve();
-async function sendKey(key) {
+async function sendKey(key, trial_id) {
   try {
     const r = await fetch("/api/key", {method: "POST", headers: {"Content-Type": "application/json"},
-                                        body: JSON.stringify({key})});
+                                        body: JSON.stringify({key, trial_id})});
     if (r.ok) show(await r.json());
   } catch (e) { /* runner gone: keep the last message */ }
 }
@@ -31,6 +33,7 @@ document.addEventListener("keydown", (ev) => {
   if (["Shift", "Control", "Alt", "Meta", "CapsLock", "Tab"].includes(ev.key)) return;
   ev.preventDefault();
   const key = ev.key.length === 1 ? ev.key.toLowerCase() : ev.key;
-  sending = sending.then(() => sendKey(key));
+  const id = trialId;  // the presentation on screen when the key was pressed
+  sending = sending.then(() => sendKey(key, id));
 });
 poll();

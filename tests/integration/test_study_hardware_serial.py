@@ -53,7 +53,7 @@ def test_keyboard_session_over_the_emulated_serial_device(tmp_path):
                 if op["awaiting_confirm"]:
                     call("/api/operator/confirm", {}, hdr)
                 elif subj["prompt"] == "rate":
-                    call("/api/key", {"key": "5"}, {"Content-Type": "application/json"})
+                    call("/api/key", {"key": "5", "trial_id": subj["trial_id"]}, {"Content-Type": "application/json"})
             except OSError:
                 break  # the session finished and stopped its server
             time.sleep(0.05)

@@ -32,14 +32,14 @@ def test_trials_appended_and_torn_last_line_dropped(tmp_path):
     store = SessionStore(tmp_path, "S01")
     store.check()
     store.create({"subject": "S01", "finished_at": None})
-    store.append_trial(row(trial=1, attempt=1))
-    store.append_trial(row(trial=2, attempt=1, rating=5, rejected=False, valid=True))
+    store.append_trial(row(subject="S01", trial=1, attempt=1))
+    store.append_trial(row(subject="S01", trial=2, attempt=1, rating=5, rejected=False, valid=True))
     with open(store.trials_path, "a") as fh:                 # a crash in the middle of a write
         fh.write("S01,testing,3,1,fi")
     rows = store.read_trials()
     assert [(r["trial"], r["rating"], r["valid"]) for r in rows] == [(1, None, False), (2, 5, True)]
     assert store.trials_path.read_text().endswith("\n")       # the torn line was truncated away
-    store.append_trial(row(trial=3, attempt=1))
+    store.append_trial(row(subject="S01", trial=3, attempt=1))
     assert len(store.read_trials()) == 3
 
 

@@ -228,7 +228,8 @@ def test_operator_abort_keeps_data_and_resume_continues(tmp_path):
             if op["awaiting_confirm"]:
                 http("POST", api + "/api/operator/confirm", {}, hdr)
             elif subj["prompt"] == "rate":
-                assert json.loads(http("POST", api + "/api/key", {"key": "4"}, {"Content-Type": "application/json"})[1])["accepted"]
+                assert json.loads(http("POST", api + "/api/key", {"key": "4", "trial_id": subj["trial_id"]},
+                                              {"Content-Type": "application/json"})[1])["accepted"]
                 done += 1
             time.sleep(0.03)
         while not json.loads(http("GET", api + "/api/operator", headers=hdr)[1])["awaiting_confirm"]:
@@ -268,7 +269,8 @@ def test_operator_abort_keeps_data_and_resume_continues(tmp_path):
             if op["awaiting_confirm"]:
                 http("POST", api + "/api/operator/confirm", {}, hdr)
             elif subj["prompt"] == "rate":
-                http("POST", api + "/api/key", {"key": "6"}, {"Content-Type": "application/json"})
+                http("POST", api + "/api/key", {"key": "6", "trial_id": subj["trial_id"]},
+                     {"Content-Type": "application/json"})
             time.sleep(0.03)
         assert proc.wait(timeout=30) == 0, proc.stderr.read()
     finally:
