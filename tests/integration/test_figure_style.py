@@ -19,6 +19,7 @@ def checked(monkeypatch):
 
     def spy(fig, path, data=None, **kw):
         seen.append({"path": path, "overlaps": figstyle.legend_overlaps(fig), "units": figstyle.unlabelled_axes(fig),
+                     "texts": figstyle.text_problems(fig),
                      "legends": len([a for a in fig.findobj() if type(a).__name__ == "Legend"]), "fig": fig})
         return orig(fig, path, data, **kw)
 
@@ -46,6 +47,7 @@ def test_demo_figures(tmp_path, checked):
     assert len(checked) == 2
     for rec in checked:
         assert rec["overlaps"] == [] and rec["units"] == [] and rec["legends"] >= 1, rec["path"]
+        assert rec["texts"] == [], (rec["path"], rec["texts"])
     for stem in ("fig_contact", "fig_hfam_grid"):
         assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 1000 for ext in ("png", "svg", "plot.csv"))
     d = pd.read_csv(tmp_path / "fig_contact.plot.csv")
@@ -65,9 +67,42 @@ def test_library_figure(tmp_path, checked):
     lib = HfamLibrary(v, g, cur, 10000.0, 3.0, desired_accel_m_s2=acc, source="test.npz")
     plot_library(lib, tmp_path / "lib.png")
     (rec,) = checked
-    assert rec["overlaps"] == [] and rec["units"] == []
+    assert rec["overlaps"] == [] and rec["units"] == [] and rec["texts"] == []
     d = pd.read_csv(tmp_path / "lib.plot.csv")
     np.testing.assert_allclose(d["current 0.08 m/s grip 3 N (A)"], cur[1, 1])
+
+
+def test_library_figure_of_five_grips_keeps_its_labels_apart(tmp_path, checked):
+    """The demo's library (five grips across a page): one x label, not five overlapping ones; the title names
+    the library once ("HFAM library library.npz" before)."""
+    from stimuli.cli_show import plot_library
+    from stimuli.library import HfamLibrary
+    v, g = np.array([0.03, 0.1, 0.2, 0.3]), np.array([0.5, 1.0, 2.0, 3.0, 4.0])
+    cur = np.stack([np.stack([_ring(200, vi * gi, n=1100)[100:] for gi in g]) for vi in v])
+    acc = np.stack([_ring(300, 400 * vi, n=1100)[100:] for vi in v])
+    lib = HfamLibrary(v, g, cur, 10000.0, 3.0, desired_accel_m_s2=acc, source="/tmp/cache/library.npz")
+    plot_library(lib, tmp_path / "lib.png")
+    (rec,) = checked
+    assert rec["texts"] == [] and rec["overlaps"] == [] and rec["units"] == []
+    title = rec["fig"].get_suptitle()
+    assert title.lower().count("library") == 1, title
+
+
+def test_text_problems_sees_overlapping_and_clipped_labels():
+    """The check itself: two panels' long x labels that run into each other, and a title off the figure."""
+    with figstyle.style() as plt:
+        fig, axes = plt.subplots(1, 4, figsize=(3.0, 1.5))
+        for ax in axes:
+            ax.set_xlabel("a rather long time axis label (ms)")
+        problems = figstyle.text_problems(fig)
+        assert any("overlaps" in p for p in problems)
+        fig2, ax2 = plt.subplots(figsize=(2.0, 1.5), layout="constrained")
+        ax2.set_title("a title far too long for a two-inch figure, so it runs past both edges")
+        assert figstyle.text_problems(fig2, tight=False) == [
+            "text 'a title far too long for a two-inch figure, so it runs past both edges' is clipped by the "
+            "figure's edge"]
+        assert figstyle.text_problems(fig2, tight=True) == []
+        plt.close("all")
 
 
 def test_bode_plot_wraps_phase_masks_low_coherence_and_marks_resonance(tmp_path, checked):
