@@ -7,6 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
+import figstyle
 from plumbing.fileio import check_output_file
 
 
@@ -81,6 +82,7 @@ def run_validate(args) -> int:
     check_device_spec(args.device)
     if args.plot:
         check_output_file(args.plot, args.force, what="--plot")   # before measuring
+        figstyle.check_outputs(args.plot, force=args.force)        # and the figure's SVG and .plot.csv
     kind, model, src = _load(Path(args.model), args.grip)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:
@@ -99,5 +101,5 @@ def run_validate(args) -> int:
         print(f"time-domain validation ({name}, {args.amplitude:g} A transients, grip {args.grip:g} N): NRMSE "
               f"{m['nrmse']:.3f}; per transient " + ", ".join(f"{x:.3f}" for x in m["nrmse_per_transient"]))
     if args.plot:
-        print(f"wrote {time_domain_figure(res, args.plot, title=f'{src} on {args.device}')}")
+        print(f"wrote {time_domain_figure(res, args.plot, title=f'{src} on {args.device}', force=True)}")
     return 0

@@ -135,3 +135,36 @@ def test_bode_plot_wraps_phase_masks_low_coherence_and_marks_resonance(tmp_path,
     # the model is drawn on the curve's branch: its phase meets the data's at the band's start
     mod = d[d["kind"] == "model"]
     assert abs(mod["phase_deg"].iloc[0] - etfe["phase_deg"].iloc[0]) < 5
+
+
+def test_linearity_and_validation_figures(tmp_path, checked):
+    """`devices linearity` and `devices validate --plot` in the project style: PNG + SVG + CSV, no text overlapping
+    or cut off (the linearity conclusion ran off the figure), legends beside the data, units on every axis."""
+    from devices.identify.etfe import Etfe
+    from devices.identify.linearity import linearity_figure
+    from devices.identify.validate_td import time_domain_figure
+    f = np.geomspace(5, 1000, 300)
+    H = 30.0 * (2j * np.pi * f) ** 2 / ((2j * np.pi * f) ** 2 + 2 * 0.1 * 500 * 2j * np.pi * f + 500.0 ** 2)
+    curves = [Etfe(f, H * s, H * s, np.full(f.size, 0.95), "accel_m_s2", 3, 2.0, f"{a:g} A, grip 2 N")
+              for a, s in ((0.5, 1.0), (1.0, 1.05), (2.0, 1.2))]
+    conclusion = ("the device is not linear: the ETFE at 2 A differs from the one at 0.5 A by more than the "
+                  "trial-to-trial spread over 40-200 Hz; identify at the amplitude the rendering uses, or use "
+                  "the successive-isolation model, which holds the amplitude dependence")
+    report = {"band_hz": (20.0, 500.0), "curves": curves, "device": "sim", "conclusion": conclusion}
+    png = linearity_figure(report, tmp_path / "linearity.png")
+    fs, n = 10000.0, 400
+    wins = [(0, n), (n, 2 * n), (2 * n, 3 * n)]
+    meas = np.concatenate([_ring(120, 20, n=n, pre=0.0) for _ in wins])
+    res = {"windows": wins, "fs_hz": fs, "grip_N": 2.0, "current_A": np.concatenate([_ring(120, 1, n=n, pre=0.0)] * 3),
+           "measured": meas, "models": {"zpk model": {"predicted": 0.9 * meas, "nrmse_per_transient": [0.1] * 3}}}
+    time_domain_figure(res, tmp_path / "td.png", title="model_set.json on sim")
+    assert len(checked) == 2
+    for rec in checked:
+        assert rec["texts"] == [] and rec["overlaps"] == [] and rec["units"] == [], rec
+    lin = checked[0]["fig"]
+    assert "identify at the amplitude the rendering uses" in lin.get_suptitle().replace("\n", " ")
+    assert png == str(tmp_path / "linearity.png")
+    for stem in ("linearity", "td"):
+        assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 1000 for ext in ("png", "svg", "plot.csv"))
+    d = pd.read_csv(tmp_path / "td.plot.csv")
+    np.testing.assert_allclose(d["measured_m_s2"], meas)
