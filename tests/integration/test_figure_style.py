@@ -168,3 +168,37 @@ def test_linearity_and_validation_figures(tmp_path, checked):
         assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 1000 for ext in ("png", "svg", "plot.csv"))
     d = pd.read_csv(tmp_path / "td.plot.csv")
     np.testing.assert_allclose(d["measured_m_s2"], meas)
+
+
+def test_teleoperation_figures(tmp_path, checked):
+    """Figures 5.10, 5.11 and 4.5 of teleoperation in the project style; Figure 5.11 draws each condition's
+    unstable taps on its own row (they piled up at 320 ms), and its CSV holds every row."""
+    import types
+
+    from devices.sim import teleop_kernel as K
+    from renderer.teleop.commands import figure_510, figure_511
+    from renderer.teleop.hfam import figure_45
+    conds = ["pf", "pf+cimm", "pp", "pp+cimm"]
+    rows = [{"condition": c, "lambda": lam, "settling_s": 0.05 + 0.02 * lam + 0.01 * k, "stable": lam < 2 + 0.5 * k}
+            for k, c in enumerate(conds) for lam in (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)]
+    figure_511(rows, conds, tmp_path / "figure_5_11.png")
+    n, fs = 3000, 2000.0
+    tr = np.zeros((n, max(v for k, v in vars(K).items() if k.startswith("O_") and isinstance(v, int)) + 1))
+    tr[:, K.O_T] = np.arange(n) / fs
+    tr[1000:, K.O_FE] = 1.0
+    tr[:, K.O_FF] = np.where(np.arange(n) >= 1000, 2.0, 0.0)
+    tr[:, K.O_XC] = 1e-3 * np.sin(np.arange(n) / 50)
+    tr[:, K.O_XM], tr[:, K.O_XHAT] = tr[:, K.O_XC] * 0.9, tr[:, K.O_XC] * 0.1
+    figure_510(types.SimpleNamespace(traces=tr, fault=False, fs_hz=fs), tmp_path / "figure_5_10.png",
+               "pf+cimm, lambda = 1, mu = 1")
+    x = _ring(200, 30, n=4000)
+    figure_45(x, 0.8 * np.roll(x, 20), 10000.0, 20, tmp_path / "figure_4_5.png", title="HFAM teleoperation")
+    assert len(checked) == 3
+    for rec in checked:
+        assert rec["texts"] == [] and rec["overlaps"] == [] and rec["units"] == [], rec
+    top = checked[0]["fig"].axes[0]
+    ys = sorted({float(y) for ln in top.lines for y in ln.get_ydata()})
+    assert ys == [0.0, 1.0, 2.0, 3.0]                      # one row per condition with unstable taps
+    assert len(pd.read_csv(tmp_path / "figure_5_11.plot.csv")) == len(rows)
+    for stem in ("figure_5_11", "figure_5_10", "figure_4_5"):
+        assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 500 for ext in ("png", "svg", "plot.csv"))
