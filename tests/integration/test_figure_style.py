@@ -129,6 +129,13 @@ def test_bode_plot_wraps_phase_masks_low_coherence_and_marks_resonance(tmp_path,
     assert np.nanmax(np.abs(np.diff(ph))) < 30                          # no wrap jumps inside the curve
     f_pk, pk, f3 = resonance_and_3db(f, model.frequency_response(f))
     assert f_pk == pytest.approx(80.0, rel=0.05) and f3 > f_pk
+    # a position response (x/i ~ accel / (2 pi f)^2) is largest at the band's low edge: its resonance is still
+    # the interior peak near 80 Hz, not 5 Hz
+    hx = model.frequency_response(f) / (2j * np.pi * f) ** 2 * (5.0 / f) ** 2
+    f_x, pk_x, _ = resonance_and_3db(f, hx)
+    assert np.argmax(np.abs(hx)) == 0                                   # largest at the low edge ...
+    assert f_x == pytest.approx(80.0, rel=0.1)                         # ... the resonance marked at its peak
+    assert np.isnan(resonance_and_3db(f, 1.0 / (1j * f))[0])           # no interior peak: no marker
     marks = d[d["kind"].isin(["resonance", "minus_3db"])]
     assert list(marks["kind"]) == ["resonance", "minus_3db"]
     assert marks["f_hz"].iloc[0] == pytest.approx(f_pk) and marks["magnitude_db"].iloc[1] == pytest.approx(pk - 3)
