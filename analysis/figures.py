@@ -75,7 +75,9 @@ def build_ratings(summary: pd.DataFrame):
     -------
     fig : Figure
     data : DataFrame
-        One row per sample in plotted order: ``y`` (row position, 0 at the top), mean, CI, median.
+        One row per sample in plotted order: ``y`` (row position, 0 at the top), mean, CI, median, and
+        ``ci_cut_at_scale`` (the CI runs past 1 or 7: drawn to the scale's end with an arrowhead, and said in
+        the legend).
     """
     s = summary.sort_values("mean_rating", ascending=False, kind="stable").reset_index(drop=True)
     k = len(s)
@@ -83,6 +85,7 @@ def build_ratings(summary: pd.DataFrame):
     data = pd.DataFrame({"sample": s["sample"], "y": y, "mean_rating": s["mean_rating"],
                          "ci95_low_rating": s["ci95_low_rating"], "ci95_high_rating": s["ci95_high_rating"],
                          "median_rating": s["median_rating"], "n_subjects": s["n_subjects"]})
+    data["ci_cut_at_scale"] = (data["ci95_high_rating"] > 7.0) | (data["ci95_low_rating"] < 1.0)
     with figstyle.style() as plt:
         fig, ax = plt.subplots(figsize=figstyle.figsize("column", height_in=0.22 * k + 1.1))
         for i, r in data.iterrows():
@@ -92,6 +95,13 @@ def build_ratings(summary: pd.DataFrame):
                         fmt=st["marker"], color=st["color"], ms=5, lw=1.2, capsize=2.5,
                         label="mean, 95 % CI" if i == 0 else None)
         ax.plot(data["median_rating"], y, "|", color="0.35", ms=7, mew=1.2, label="median")
+        # a t-interval of a few subjects can run past the 1-7 scale: the axis stops at the scale, so say where
+        # an interval is cut (an arrowhead at the edge, and in the legend) instead of cutting it silently
+        for edge, marker, side in ((7.0, ">", data["ci95_high_rating"] > 7.0), (1.0, "<", data["ci95_low_rating"] < 1.0)):
+            if side.any():
+                ax.plot(np.full(int(side.sum()), edge), y[side.to_numpy()], marker, color="0.2", ms=4, clip_on=False,
+                        label="CI cut at the scale's end" if "CI cut at the scale's end" not in
+                        ax.get_legend_handles_labels()[1] else None)
         ax.set_yticks(y, [_label(v) for v in data["sample"]])
         ax.invert_yaxis()
         ax.set_xlim(1, 7)
