@@ -209,3 +209,25 @@ def test_teleoperation_figures(tmp_path, checked):
     assert len(pd.read_csv(tmp_path / "figure_5_11.plot.csv")) == len(rows)
     for stem in ("figure_5_11", "figure_5_10", "figure_4_5"):
         assert all((tmp_path / f"{stem}.{ext}").stat().st_size > 500 for ext in ("png", "svg", "plot.csv"))
+
+
+def test_penetration_figure_whiskers_show_on_every_bar(tmp_path, checked):
+    """Every bar's whisker is drawn above the bars in black and every bar is light enough to show it (the real
+    sample's black bar hid its black whisker)."""
+    from matplotlib.colors import to_rgba
+
+    from renderer.demo.figures import penetration_figure
+    pen = {"real_wood": [0.001, 0.0015, 0.002], "hfam_firm": [0.002, 0.0025, 0.003], "wall_firm": [0.003, 0.0032]}
+    labels = {"real_wood": "real wood on foam", "hfam_firm": "HFAM over firm", "wall_firm": "firm wall"}
+    penetration_figure(pen, labels, tmp_path / "fig_penetration.png")
+    (rec,) = checked
+    assert rec["texts"] == [] and rec["units"] == []
+    ax = rec["fig"].axes[0]
+    bars = [p for p in ax.patches]
+    (err,) = ax.containers[1:] or [None]
+    whiskers = err.lines[2][0]
+    assert whiskers.get_zorder() > max(b.get_zorder() for b in bars)
+    assert all(tuple(c) == (0.0, 0.0, 0.0, 1.0) for c in whiskers.get_colors())
+    assert all(to_rgba(b.get_facecolor())[3] <= 0.5 for b in bars)
+    np.testing.assert_allclose([s[1][0] - s[0][0] for s in whiskers.get_segments()],
+                               [2e3 * np.std(pen[n]) for n in labels])
