@@ -231,3 +231,18 @@ def test_penetration_figure_whiskers_show_on_every_bar(tmp_path, checked):
     assert all(to_rgba(b.get_facecolor())[3] <= 0.5 for b in bars)
     np.testing.assert_allclose([s[1][0] - s[0][0] for s in whiskers.get_segments()],
                                [2e3 * np.std(pen[n]) for n in labels])
+
+
+def test_the_committed_gallery_is_current():
+    """docs/gallery was drawn by today's figure code: `make gallery` records the digest of every source that
+    draws its figures (figstyle.gallery.FIGURE_SOURCES) beside it; a change to one of them without `make
+    gallery` fails here (the gallery had gone stale: `make gallery` rewrote fig_hfam_grid). Cheap: no figure is
+    drawn."""
+    from pathlib import Path
+
+    from figstyle import gallery
+    root = Path(__file__).resolve().parents[2]
+    recorded = (root / "docs" / "gallery" / gallery.SOURCES_FILE).read_text(encoding="utf-8")
+    assert recorded == gallery.sources_digest(root), (
+        "docs/gallery is stale: a figure's drawing code changed since it was generated; run `make gallery` "
+        "and commit docs/gallery")
