@@ -38,7 +38,7 @@ def test_tables_written_with_issue_columns(report):
     out, _ = report
     pw = pd.read_csv(out / "pairwise_ttests.csv")
     assert list(pw.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                                "ci_low", "ci_high", "cohen_dz"]
+                                "ci_low", "ci_high", "cohen_dz", "not_testable"]
     assert len(pw) == 2 * 66 and set(pw["group"]) == {"all", "experienced"}
     eq = pd.read_csv(out / "equivalence.csv")
     assert list(eq.columns) == ["group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
@@ -63,7 +63,7 @@ def test_warnings_printed_and_in_report(report):
     assert "warning: 1 subject(s) miss sample(s)" in proc.stderr and "S005 (foam, pulse_soft)" in proc.stderr
     md = (out / "report.md").read_text()
     assert "S005 misses foam, pulse_soft" in md and "S006 is not finished" in md
-    assert re.search(r"\*\*all subjects\*\*: \d+ of 66 sample pairs differ significantly", md)
+    assert re.search(r"\*\*all subjects\*\*: \d+ of 66 testable sample pairs differ significantly", md)
     assert "## Significantly different pairs" in md and "- wood rated higher than foam by" in md
     assert "equivalent to wood_on_foam within ±0.5" in md
     assert "invalid testing attempts were left out (saturated" in md
