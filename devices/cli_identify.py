@@ -270,6 +270,7 @@ def _measure(args, out: Path) -> dict:
         identify_device,
     )
     from .identify.sweep import SweepConfig  # deferred: keeps `--help` fast (a command loads only what it runs)
+    from .limits import check_grips  # deferred: keeps `--help` fast (a command loads only what it runs)
     from .registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
@@ -278,6 +279,7 @@ def _measure(args, out: Path) -> dict:
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
         band = tuple(args.band) if args.band else None
         grips = args.grip if args.grip is not None else default_grip_levels(dev.info.grip_range_N)
+        check_grips(dev.info, grips, "--grips-N")   # 200 N on a 0-10 N sensor: refused before measuring
         workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
         cfg = IdentifyConfig(grips_N=grips, trials=args.trials, sweep=sweep,
                              accel_options=_fit_options(args, band, "mean"),

@@ -57,6 +57,7 @@ def run(args) -> int:
         record_taps,
         write_tap_recording,
     )
+    from .limits import check_grips, check_tap_speeds  # deferred: keeps `--help` fast (a command loads only what it runs)
     from .registry import make_device  # deferred: keeps `--help` fast (a command loads only what it runs)
 
     check_output_file(args.out, args.force)   # a folder, a path below a file, an existing file: before tapping
@@ -66,6 +67,8 @@ def run(args) -> int:
     options = {"seed": args.seed} if args.device.split(":")[0] == "sim" else {}
     dev = make_device(args.device, **options)
     with dev:
+        check_grips(dev.info, [args.grip], "--grip-N")
+        check_tap_speeds(vels, "--velocities-m-s")   # 3 m/s saved a saturated tap
         if hasattr(dev, "set_sample"):
             dev.set_sample(args.sample)
         taps = record_taps(dev, vels, grip_N=args.grip, window_s=args.window_s, pre_s=args.pre_s)

@@ -153,6 +153,7 @@ def _run(args) -> int:
     simulated = args.device.split(":", 1)[0] == "sim"
     if simulated:
         from plumbing import provenance  # deferred: keeps `--help` fast (a command loads only what it runs)
+        from devices.limits import check_grips, check_tap_speeds  # deferred: keeps `--help` fast (a command loads only what it runs)
         from devices.sim import TapTrajectory  # deferred: keeps `--help` fast (a command loads only what it runs)
 
         provenance.prefetch()  # run.json's versions and git state, while the simulation runs
@@ -161,6 +162,8 @@ def _run(args) -> int:
         with dev:
             if args.sample != "placeholder":
                 dev.set_sample(args.sample)
+            check_grips(dev.info, [args.grip], "--grip-N")       # 500 N on a 0-10 N sensor: refused
+            check_tap_speeds(args.velocity, "--velocities-m-s")  # 5 m/s: not a hand's tap
             traj = TapTrajectory(args.velocity, n_taps=args.taps)
             dev.set_user(traj, grip_N=args.grip)
             loop = ServoLoop(dev, cfg, transient)

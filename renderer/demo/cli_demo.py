@@ -86,6 +86,10 @@ def run(args) -> int:
         return run_hardware_demo(args)
     t0 = time.perf_counter()
     vels = _floats(args.velocities, "--velocities")
+    if vels:
+        from devices.limits import check_tap_speeds  # deferred: keeps `--help` fast (a command loads only what it runs)
+
+        check_tap_speeds(vels, "--velocities")   # 5 m/s (a 6.2 m/s tap, 57.5 mm in): refused
     grips = _floats(args.grips, "--grips")
     pipe_changes = {"device": args.device}
     if args.tap_stop_time is not None:
