@@ -74,3 +74,21 @@ def test_commands_refuse_implausible_inputs_with_one_line(tmp_path, args, messag
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr and message in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []        # nothing written
+
+
+def test_renderer_run_warns_about_a_speed_outside_the_hfam_library(tmp_path):
+    """HFAM at 0.18 m/s on a library recorded up to 0.12 m/s: the run goes on, with one warning line saying the
+    transient is extrapolated."""
+    import numpy as np
+
+    from stimuli.library import HfamLibrary
+    lib = HfamLibrary.load(ROOT / "stimuli" / "libraries" / "wood_on_foam_sim.npz")
+    small = HfamLibrary(lib.velocities_m_s[lib.velocities_m_s <= 0.12], lib.grips_N,
+                        lib.currents_A[lib.velocities_m_s <= 0.12], lib.fs_hz, lib.force_per_amp_N_A)
+    small.save(tmp_path / "lib.npz")
+    hi = float(np.max(small.velocities_m_s))
+    res = _cli("-m", "renderer", "run", "--device", "sim", "--transient", "hfam", "--library",
+               str(tmp_path / "lib.npz"), "--velocities-m-s", "0.18", "--taps", "1", "--out", "r", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert (f"warning: --velocities-m-s 0.18 m/s outside the HFAM library's {small.velocities_m_s[0]:g}-{hi:g} m/s"
+            in res.stderr)
