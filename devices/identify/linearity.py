@@ -4,6 +4,7 @@ several current magnitudes, grips and workspace positions, with coherence; a ver
 
 from __future__ import annotations
 
+import textwrap
 import time
 from dataclasses import dataclass
 
@@ -214,8 +215,6 @@ def linearity_figure(report: dict, path, min_coherence: float = MIN_COHERENCE) -
     numbers as ``.plot.csv``): low-coherence bins masked (gaps, no spikes), phase unwrapped over the coherent bins
     and shifted by whole turns to start within +-180 deg; the conclusion in full under the title (it was cut off
     at the figure's edge)."""
-    import textwrap
-
     import figstyle  # deferred: with matplotlib behind it: figures only
 
     lo, hi = report["band_hz"]
