@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 import devices.sim.layout
+from plumbing.cliargs import with_examples
 from plumbing.fileio import user_cache_dir
 
 MODULE = "_hfam_sim_loop"
@@ -301,6 +302,7 @@ def register(subparsers) -> None:
                                           "start without numba. Runs by itself in the background after the "
                                           "first simulated run that finds none (HFAM_SIM_AOT=auto).")
     p.add_argument("--force", action="store_true", help="rebuild even if a build for these sources exists")
+    with_examples(p, "hfam-renderer compile-sim", "hfam-renderer compile-sim --force")
     p.set_defaults(func=compile_command)
 
 

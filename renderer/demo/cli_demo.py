@@ -7,6 +7,7 @@ import math
 import time
 from pathlib import Path
 
+from plumbing.cliargs import add_renamed, with_examples
 from plumbing.fileio import check_output_dir, user_cache_dir
 from stimuli.hfam.pipeline import PipelineSettings
 
@@ -40,9 +41,9 @@ def register(subparsers) -> None:
     p.add_argument("--cache-dir", type=Path, default=None,
                    help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {user_cache_dir()})")
     p.add_argument("--rebuild", action="store_true", help="rebuild the cached identification/recordings/library")
-    p.add_argument("--velocities", default=None, help="comma-separated tap speeds in m/s (sim; default "
+    add_renamed(p, "--velocities-m-s", "--velocities", dest="velocities", default=None, help="comma-separated tap speeds in m/s (sim; default "
                                                        + ",".join(f"{v:g}" for v in DemoConfig.velocities_m_s) + ")")
-    p.add_argument("--grips", default=None, help="comma-separated grips in N (sim; default "
+    add_renamed(p, "--grips-N", "--grips", dest="grips", default=None, help="comma-separated grips in N (sim; default "
                                                   + ",".join(f"{g:g}" for g in DemoConfig.grips_N) + ")")
     p.add_argument("--tap-stop-time", type=float, default=None, metavar="S",
                    help="sim: seconds after contact at which the simulated hand's aim comes to rest (default "
@@ -63,6 +64,8 @@ def register(subparsers) -> None:
     p.add_argument("--timeout", type=float, default=120.0, help="hardware mode: seconds allowed per rendering")
     p.add_argument("--scope", choices=("auto", "window", "text", "none"), default="auto",
                    help="hardware mode live scope: a matplotlib window if a display is available, else text")
+    with_examples(p, "hfam-renderer demo", "hfam-renderer demo --device sim:lti --out out/demo_lti --force",
+                  "hfam-renderer demo --device serial:/dev/ttyACM0 --library LIB.npz --out out/hw")
     p.set_defaults(func=run)
 
 
@@ -85,12 +88,12 @@ def run(args) -> int:
 
         return run_hardware_demo(args)
     t0 = time.perf_counter()
-    vels = _floats(args.velocities, "--velocities")
+    vels = _floats(args.velocities, "--velocities-m-s")
     if vels:
         from devices.limits import check_tap_speeds  # deferred: keeps `--help` fast (a command loads only what it runs)
 
-        check_tap_speeds(vels, "--velocities")   # 5 m/s (a 6.2 m/s tap, 57.5 mm in): refused
-    grips = _floats(args.grips, "--grips")
+        check_tap_speeds(vels, "--velocities-m-s")   # 5 m/s (a 6.2 m/s tap, 57.5 mm in): refused
+    grips = _floats(args.grips, "--grips-N")
     pipe_changes = {"device": args.device}
     if args.tap_stop_time is not None:
         pipe_changes["tap_stop_time_s"] = args.tap_stop_time
