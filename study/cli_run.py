@@ -39,7 +39,10 @@ def register(subparsers) -> None:
         The ``python -m study`` sub-command parsers.
     """
     p = subparsers.add_parser("run", help="run a blind realism session (sim rehearsal or real subjects)",
-                              description=__doc__, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+                              description="Run a blind realism session (thesis section 4.5.3): a simulated participant rehearses "
+                                          "it unattended in seconds; a person gets the views (a subject page and a "
+                                          "token-protected operator page). --resume continues a killed or aborted "
+                                          "session exactly where it stopped.")
     p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
                                                  "hid:<vid>:<pid> (default: sim, or the resumed session's)")
     p.add_argument("--participant", choices=("simulated", "keyboard"), default=None,
@@ -82,7 +85,7 @@ def register(subparsers) -> None:
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
     p.add_argument("--token", default=None, help="operator token (default: random, printed)")
     p.add_argument("--quiet", action="store_true", help="print only the summary")
-    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA')
+    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --out DATA --resume')
     p.set_defaults(func=run_command)
 
 

@@ -56,6 +56,12 @@ def test_every_subcommand_help_ends_with_an_example(module, command):
     """Every sub-command of every package (not only the listed ones): --help ends with examples of itself, and
     a flag whose help says "in <unit>" carries the unit's suffix."""
     test_help_has_an_example_and_unit_suffixes(module, command)
+    p = parser_of(module, command)
+    text = p.format_help()
+    assert "``" not in text and "::" not in text and ":func:" not in text, f"{command}: reStructuredText in --help"
+    n = len(re.findall(r"^examples?:", text, re.M)) + len(re.findall(r"(hfam-\w+|python -m \w+) " + re.escape(command)
+                                                                   + r" .*::", text))
+    assert n == 1, f"{command}: examples printed {n} times"
 
 
 def test_linearity_and_validate_follow_the_grammar(capsys):
