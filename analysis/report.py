@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from analysis import figures, workers
+from analysis.load import catalog_labels
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
 from analysis.traces import folders_with_traces, typical_taps
@@ -157,9 +158,10 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None,
     by :func:`start_accelerations` (with ``pool``, once the study was loaded), else begun here.
     """
     alpha = res.config.alpha
-    ratings = (figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png")
-    pvalues = (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha)
-    penetration = (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png")
+    labels = catalog_labels(res.study)   # the catalog's own labels ("HFAM, my library, firm"), not "hfam mine"
+    ratings = (figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png", labels)
+    pvalues = (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha, labels)
+    penetration = (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png", labels)
     if pool is None:
         written = [fn(*args) for fn, *args in (ratings, pvalues, penetration)]
         acc, notes = start_accelerations(res.study, out, target_v_m_s)
@@ -226,7 +228,7 @@ def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = No
         return None, notes
     if why:
         notes.append("Figure 4.20 lacks some samples: " + "; ".join(why[:12]))
-    job = (figures.fig_accelerations, taps, study.catalog, v, out / "fig_4_20_accelerations.png")
+    job = (figures.fig_accelerations, taps, study.catalog, v, out / "fig_4_20_accelerations.png", catalog_labels(study))
     return (workers.submit(pool, *job), job), notes
 
 

@@ -293,3 +293,28 @@ def test_truncated_traces_are_skipped_with_a_note_naming_them(tmp_path, capsys):
     assert re.search(re.escape(str(data / "S001" / "traces")) + r"/testing_t\d+_a\d+\.npz: unreadable trace "
                      r"\(BadZipFile: ", err), err
     assert (tmp_path / "rep" / "report.html").is_file()
+
+
+def test_report_figures_use_the_catalog_labels(tmp_path):
+    """A sample's label in session.json's catalog ("HFAM, my library, firm") is what the report's figures show,
+    not the sample name made readable ("hfam mine")."""
+    import json as _json
+
+    from analysis.load import catalog_labels
+    from analysis.pipeline import analyse
+    from analysis.report import write_report
+    from analysis.synthetic import write_synthetic_study
+    data = tmp_path / "DATA"
+    write_synthetic_study(data, 3, seed=2, p_invalid=0.0)
+    for sess in data.glob("*/session.json"):
+        s = _json.loads(sess.read_text())
+        for item in s["catalog"]:
+            if item["name"] == "hfam_firm":
+                item["label"] = "HFAM, my library, firm"
+        sess.write_text(_json.dumps(s))
+    res = analyse(data)
+    assert catalog_labels(res.study)["hfam_firm"] == "HFAM, my library, firm"
+    write_report(res, tmp_path / "R")
+    for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration"):
+        svg = (tmp_path / "R" / f"{stem}.svg").read_text()
+        assert "HFAM, my library, firm" in svg, stem
