@@ -92,3 +92,20 @@ def test_renderer_run_warns_about_a_speed_outside_the_hfam_library(tmp_path):
     assert res.returncode == 0, res.stderr
     assert (f"warning: --velocities-m-s 0.18 m/s outside the HFAM library's {small.velocities_m_s[0]:g}-{hi:g} m/s"
             in res.stderr)
+
+
+def test_demo_explains_hfam_clipping_and_a_negative_cut():
+    """`renderer demo --device sim:lti` showed HFAM clipping 11/15 taps and a -12 % "cut" without a word: the
+    table now says why (the library's peak current against the device's limit; the limit taking the wall's
+    current)."""
+    import numpy as np
+
+    from renderer.demo.sim_demo import clipping_explanation
+    from stimuli.library import HfamLibrary
+    lib = HfamLibrary([0.05, 0.1], [1.0, 3.0], np.full((2, 2, 10), 0.5) * np.linspace(1, -1, 10), 1e4, 2.35)
+    rows = [{"rendering": "hfam_firm", "clipped": 11, "taps": 15}, {"rendering": "firm", "clipped": 0, "taps": 15}]
+    text = clipping_explanation(rows, {"pulse_firm": 0.4, "hfam_firm": -0.12}, lib)
+    assert len(text) == 2
+    assert text[0].startswith("Why hfam_firm clipped 11/15 taps: its transients ask up to 0.50 A")
+    assert text[1].startswith("A negative cut (hfam_firm -12 %)")
+    assert clipping_explanation([{"rendering": "hfam_firm", "clipped": 1, "taps": 15}], {"hfam_firm": 0.3}, lib) == []
