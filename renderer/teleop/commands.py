@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from plumbing.fileio import atomic_write_text, check_output_dir
+from plumbing.progress import Progress
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import CimmModel, Testbed, get_environment
@@ -367,22 +368,11 @@ def run_sweep(args) -> int:
     if check["warning"]:
         print(check["warning"])
     out = _new_dir(Path(args.out))
-    try:
-        from tqdm import tqdm  # deferred: progress display only
-        bar = tqdm(total=len(conds) * len(lambdas) * args.taps, unit="tap", file=sys.stderr)
-
-        def progress(i, n):
-            bar.update(1)
-    except ImportError:
-        bar = None
-
-        def progress(i, n):
-            print(f"\r{i}/{n} taps", end="", file=sys.stderr, flush=True)
-    rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed, progress=progress)
-    if bar is not None:
-        bar.close()
-    else:
-        print(file=sys.stderr)
+    # a bar on a terminal, plain lines in a log (a tqdm bar wrote \r-separated redraws into a file)
+    bar = Progress(len(conds) * len(lambdas) * args.taps, "teleop-sweep", unit="tap")
+    rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
+                 progress=lambda i, n: bar.update(i))
+    bar.close()
     lines = ["condition,lambda,speed_m_s,settling_s,stable,breaks,hf_energy_fraction"]
     for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
         lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['settling_s']:.4f},"
