@@ -480,6 +480,34 @@ def test_on_device_observer_leaves_the_study_walls_alone(k_N_m, bound):
     assert np.max(np.abs(e_c - e_py)) <= 0.005 * limit
 
 
+def test_a_repeated_render_start_does_not_restart_the_wall_mid_run():
+    """The host retries RENDER_START when its ACK comes late (a loaded machine): the firmware acknowledges the
+    repeats and changes nothing, so the Python firmware logic, started once, still replays every logged tick
+    (currents within 1 mA, energies within 0.5 % of the limit). Before, each repeat reset the observer energy,
+    velocity window and contact state mid-run (energies 0.9 % of the limit apart with eleven repeats)."""
+    import renderer.loop as L
+
+    orig = L.ServoLoop._stop_check
+    calls = [0]
+
+    def stop_check(self, until):
+        calls[0] += 1
+        if calls[0] % 30 == 0:   # every 480 frames of device time: a retried RENDER_START arrives
+            self.device._request(P.RENDER_START)
+        return orig(self, until)
+
+    L.ServoLoop._stop_check = stop_check
+    try:
+        res, log, _, fw = _observer_run(340.0, "taps=0.05,0.1,0.2,0.3", 6.0)
+    finally:
+        L.ServoLoop._stop_check = orig
+    assert res.stop_reason == "duration", res.error
+    assert calls[0] >= 300   # ten repeats or more went out while rendering
+    py_mA, e_py = _replay(fw, log)
+    assert np.max(np.abs(np.round(log["current_A"] * 1000.0) - py_mA)) <= 1
+    assert np.max(np.abs(log["po_e"] - e_py)) <= 0.005 * fw.instability_limit_q16
+
+
 def test_device_string_and_bad_options():
     dev = make_device("fw-sim?mode=on-device&pace=fast&taps=0.05,0.2")
     assert dev.on_device_rendering and dev.pace == "fast" and dev.taps_m_s == (0.05, 0.2)
