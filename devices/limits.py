@@ -124,6 +124,7 @@ def check_stiffness(info: DeviceInfo, stiffness_N_m: float, continuous_A: float 
         raise ValueError(f"{name}={k:g} N/m: far beyond what the device can render ({why}); a wall this stiff "
                          "only chatters between zero and the limit. Use at most a few times that")
     if k > k1:
-        warnings.warn(f"{name}={k:g} N/m: {why}: the wall will chatter, and the passivity observer will likely "
-                      "stop it ('unstable')", RuntimeWarning, stacklevel=2)
+        warnings.warn(f"{name}={k:g} N/m: {why}: beyond it the wall is a switch between zero and the limit, not "
+                      "a spring; if it chatters the passivity observer stops the run ('unstable')", RuntimeWarning,
+                      stacklevel=2)
     return k
