@@ -27,7 +27,10 @@ LOG_P_FLOOR = -4.0
 DZ_LIMIT = 2.0   # |d_z| at the ends of the effect-size colour scale
 
 
-def _label(sample: str) -> str:
+def _label(sample: str, labels: dict | None = None) -> str:
+    """The sample's label: the catalog's (``labels``, from session.json) if it has one, else the palette's."""
+    if labels and sample in labels:
+        return labels[sample]
     return figstyle.sample_style(sample)["label"]
 
 
@@ -67,7 +70,7 @@ def _fix_layout(fig) -> None:
 
 
 # ------------------------------------------------------------------------------------ Figure 4.17
-def build_ratings(summary: pd.DataFrame):
+def build_ratings(summary: pd.DataFrame, labels: dict | None = None):
     """Figure 4.17: mean realism per sample with 95 % CIs, sorted by mean (highest on top).
 
     Parameters
@@ -80,7 +83,9 @@ def build_ratings(summary: pd.DataFrame):
     -------
     fig : Figure
     data : DataFrame
-        One row per sample in plotted order: ``y`` (row position, 0 at the top), mean, CI, median.
+        One row per sample in plotted order: ``y`` (row position, 0 at the top), mean, CI, median, and
+        ``ci_cut_at_scale`` (the CI runs past 1 or 7: drawn to the scale's end with an arrowhead, and said in
+        the legend).
     """
     s = summary.sort_values("mean_rating", ascending=False, kind="stable").reset_index(drop=True)
     k = len(s)
@@ -88,6 +93,7 @@ def build_ratings(summary: pd.DataFrame):
     data = pd.DataFrame({"sample": s["sample"], "y": y, "mean_rating": s["mean_rating"],
                          "ci95_low_rating": s["ci95_low_rating"], "ci95_high_rating": s["ci95_high_rating"],
                          "median_rating": s["median_rating"], "n_subjects": s["n_subjects"]})
+    data["ci_cut_at_scale"] = (data["ci95_high_rating"] > 7.0) | (data["ci95_low_rating"] < 1.0)
     with figstyle.style() as plt:
         fig, ax = plt.subplots(figsize=figstyle.figsize("column", height_in=0.22 * k + 1.1))
         for i, r in data.iterrows():
@@ -97,7 +103,14 @@ def build_ratings(summary: pd.DataFrame):
                         fmt=st["marker"], color=st["color"], ms=5, lw=1.2, capsize=2.5,
                         label="mean, 95 % CI" if i == 0 else None)
         ax.plot(data["median_rating"], y, "|", color="0.35", ms=7, mew=1.2, label="median")
-        ax.set_yticks(y, [_label(v) for v in data["sample"]])
+        # a t-interval of a few subjects can run past the 1-7 scale: the axis stops at the scale, so say where
+        # an interval is cut (an arrowhead at the edge, and in the legend) instead of cutting it silently
+        for edge, marker, side in ((7.0, ">", data["ci95_high_rating"] > 7.0), (1.0, "<", data["ci95_low_rating"] < 1.0)):
+            if side.any():
+                ax.plot(np.full(int(side.sum()), edge), y[side.to_numpy()], marker, color="0.2", ms=4, clip_on=False,
+                        label="CI cut at the scale's end" if "CI cut at the scale's end" not in
+                        ax.get_legend_handles_labels()[1] else None)
+        ax.set_yticks(y, [_label(v, labels) for v in data["sample"]])
         ax.invert_yaxis()
         ax.set_xlim(1, 7)
         ax.set_xlabel("realism rating (1–7)")
@@ -109,9 +122,9 @@ def build_ratings(summary: pd.DataFrame):
     return fig, data
 
 
-def fig_ratings(summary: pd.DataFrame, path: Path) -> dict:
+def fig_ratings(summary: pd.DataFrame, path: Path, labels: dict | None = None) -> dict:
     """Write Figure 4.17 (:func:`build_ratings`) as PNG, SVG and CSV; returns the paths."""
-    fig, data = build_ratings(summary)
+    fig, data = build_ratings(summary, labels)
     return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
@@ -161,7 +174,7 @@ def _star_marks(ax, st: np.ndarray, white: np.ndarray, group: str, fontsize: flo
                                          gid=f"stars_{group}_{n}", in_layout=False), autolim=False)
 
 
-def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
+def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05, labels: dict | None = None):
     """Figure 4.18: Holm-adjusted p of the paired t-tests (colour and stars) and Cohen's d_z.
 
     One row of panels per group: left the Holm-adjusted p-values on a log scale that diverges at
@@ -180,7 +193,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
 
     groups = list(dict.fromkeys(pairwise["group"]))
     k = len(samples)
-    labels = [_label(s) for s in samples]
+    labels = [_label(s, labels) for s in samples]
     rows = []
     norm = p_norm(alpha)
     with figstyle.style() as plt:
@@ -230,14 +243,14 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05):
     return fig, pd.DataFrame(rows)
 
 
-def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path, alpha: float = 0.05) -> dict:
+def fig_pvalues(pairwise: pd.DataFrame, samples, path: Path, alpha: float = 0.05, labels: dict | None = None) -> dict:
     """Write Figure 4.18 (:func:`build_pvalues`) as PNG, SVG and CSV; returns the paths."""
-    fig, data = build_pvalues(pairwise, samples, alpha)
+    fig, data = build_pvalues(pairwise, samples, alpha, labels)
     return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
 # ------------------------------------------------------------------------------------ Figure 4.19
-def build_penetration(summary: pd.DataFrame):
+def build_penetration(summary: pd.DataFrame, labels: dict | None = None):
     """Figure 4.19: mean penetration depth vs mean realism rating, error bars ±1 SD.
 
     Vertical bars: SD of the penetration depths of the individual taps; horizontal bars: SD of
@@ -259,7 +272,7 @@ def build_penetration(summary: pd.DataFrame):
             st = figstyle.sample_style(r.sample)
             ax.errorbar(r.mean_rating, r.penetration_mean_mm, xerr=r.sd_rating, yerr=r.penetration_sd_mm,
                         fmt=st["marker"], color=st["color"], ms=6, elinewidth=0.8, capsize=2,
-                        label=st["label"])
+                        label=_label(r.sample, labels))
         ax.set_xlabel("mean realism rating (1–7)")
         ax.set_ylabel("mean penetration depth (mm)")
         ax.set_ylim(bottom=0)
@@ -268,9 +281,9 @@ def build_penetration(summary: pd.DataFrame):
     return fig, data
 
 
-def fig_penetration(summary: pd.DataFrame, path: Path) -> dict:
+def fig_penetration(summary: pd.DataFrame, path: Path, labels: dict | None = None) -> dict:
     """Write Figure 4.19 (:func:`build_penetration`) as PNG, SVG and CSV; returns the paths."""
-    fig, data = build_penetration(summary)
+    fig, data = build_penetration(summary, labels)
     return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
@@ -278,7 +291,7 @@ def fig_penetration(summary: pd.DataFrame, path: Path) -> dict:
 WINDOW_MS = (-10.0, 60.0)   # the same time window in every panel
 
 
-def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3):
+def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3, labels: dict | None = None):
     """Figure 4.20: one small panel per sample, own y scale, same window, contact at t = 0 marked.
 
     Parameters
@@ -317,7 +330,7 @@ def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3
             ax.set_xlim(*WINDOW_MS)
             # y=1.0 where the automatic placement puts it (ticks below; no offset text on the y axis for
             # limits between 1e-4 and 1e5), without its measuring all tick labels in each layout pass
-            ax.set_title(f"{st['label']}  (v = {tap.v_in_m_s:.3f} m/s)", loc="left", fontsize=7,
+            ax.set_title(f"{_label(s, labels)}  (v = {tap.v_in_m_s:.3f} m/s)", loc="left", fontsize=7,
                          y=1.0 if 1e-4 <= lim < 1e5 else None)
             parts.append(pd.DataFrame({"sample": s, "panel": p, "v_in_m_s": tap.v_in_m_s, "t_ms": t_ms[sel],
                                        "accel_m_s2": tap.accel_m_s2[sel]}))
@@ -337,7 +350,7 @@ def build_accelerations(taps: dict, samples, target_v_m_s: float, ncols: int = 3
     return fig, data
 
 
-def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path) -> dict:
+def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path, labels: dict | None = None) -> dict:
     """Write Figure 4.20 (:func:`build_accelerations`) as PNG, SVG and CSV; returns the paths."""
-    fig, data = build_accelerations(taps, samples, target_v_m_s)
+    fig, data = build_accelerations(taps, samples, target_v_m_s, labels=labels)
     return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns

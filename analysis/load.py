@@ -866,3 +866,24 @@ def load_study(data_dir, sessions: tuple | None = None) -> Study:
         raise ValueError(f"{data_dir}: the trials.csv files hold no attempts")
     return Study(trials=trials, subjects=subjects, catalog=tuple(catalog), kinds=kinds, warnings=tuple(messages),
                  taps=taps)
+
+
+def catalog_labels(study: Study) -> dict:
+    """Sample name -> its label in the catalog the subjects ran (``session.json``'s ``catalog`` objects with a
+    ``label``, e.g. ``hfam_mine`` -> "HFAM, my library, firm"); the first subject naming a label wins. Samples
+    without one are absent (the figures then use the project palette's label or the name)."""
+    labels: dict = {}
+    for folder in study.subjects["folder"] if "folder" in study.subjects else ():
+        path = os.path.join(str(folder), "session.json")
+        try:
+            with open(path, encoding="utf-8") as f:
+                raw = json.load(f).get("catalog")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(raw, dict):
+            raw = raw.get("samples", raw.get("catalog"))
+        for item in raw if isinstance(raw, list) else ():
+            if isinstance(item, dict) and isinstance(item.get("name"), str) and isinstance(item.get("label"), str):
+                labels.setdefault(item["name"], item["label"])
+    return labels
+

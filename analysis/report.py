@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from analysis import figures, workers
+from analysis.load import catalog_labels
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
 from analysis.traces import folders_with_traces, typical_taps
@@ -34,7 +35,8 @@ FIGURES = {
                             "coloured on a log scale that turns from orange to purple at p = α; the stars come from "
                             "the same Holm-adjusted values (* < α, ** < 0.01, *** < 0.001), so every purple cell "
                             "has a star. Right: the effect size Cohen's d_z of row minus column (red: the row's "
-                            "sample rated higher). Hatched cells have no test.",
+                            "sample rated higher). Hatched cells have no test: a sample missing, fewer than 3 subjects, or every "
+                            "subject giving the same difference (SD 0, not testable).",
     "fig_4_19_penetration.png": "Figure 4.19: mean penetration depth of the taps versus mean realism rating per "
                                 "sample; error bars ±1 standard deviation (taps vertically, attempts' ratings "
                                 "horizontally). Look for samples that penetrate little yet rate low: stiffness "
@@ -135,19 +137,21 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
                    "equivalent are not thereby shown different; that may just be too few subjects.")
     for g, sub in res.pairwise.groupby("group", sort=False):
         sig = sub[sub["p_holm"] < cfg.alpha]
-        out.append(f"**{g} subjects**: {len(sig)} of {len(sub)} sample pairs differ significantly "
-                   f"(paired t-test, Holm-adjusted p < {cfg.alpha}; listed under 'Significantly different pairs').")
+        untestable = sub[sub["not_testable"].astype(bool)] if "not_testable" in sub else sub.iloc[:0]
+        out.append(f"**{g} subjects**: {len(sig)} of {len(sub) - len(untestable)} testable sample pairs differ "
+                   f"significantly (paired t-test, Holm-adjusted p < {cfg.alpha}; listed under 'Significantly "
+                   "different pairs')."
+                   + (f" {len(untestable)} pair(s) not testable (fewer than 3 subjects rated both, or every "
+                      "subject gave the same difference, SD 0): never counted as significant; hatched in "
+                      "Figure 4.18." if len(untestable) else ""))
         pairs[g] = []
         for r in sig.itertuples():
             hi, lo = (_name(r.sample_a), _name(r.sample_b)) if r.mean_diff > 0 else (_name(r.sample_b),
                                                                                    _name(r.sample_a))
-            # SD of the differences 0 (up to rounding of the per-subject means): t is infinite or ~1e15
-            degenerate = "" if np.isfinite(r.cohen_dz) and abs(r.cohen_dz) < 1e6 else \
-                " — every subject gave the same difference, so the t-test is degenerate (SD 0); treat with care"
             pairs[g].append(f"{hi} rated higher than {lo} by {abs(r.mean_diff):.2f} points "
                             f"(95 % CI {abs(r.ci_low if r.mean_diff > 0 else r.ci_high):.2f}–"
                             f"{abs(r.ci_high if r.mean_diff > 0 else r.ci_low):.2f}, n = {r.n}, "
-                            f"Holm {_p(r.p_holm)})" + degenerate)
+                            f"Holm {_p(r.p_holm)})")
     vr = res.velocity[res.velocity["sample"] != "(all)"]
     sig_v = vr[vr["p"] < cfg.alpha]["sample"].tolist()
     out.append("Incoming velocity vs rating within each sample (Pearson, uncorrected): "
@@ -192,9 +196,10 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None,
     by :func:`start_accelerations` (with ``pool``, once the study was loaded), else begun here.
     """
     alpha = res.config.alpha
-    ratings = (figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png")
-    pvalues = (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha)
-    penetration = (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png")
+    labels = catalog_labels(res.study)   # the catalog's own labels ("HFAM, my library, firm"), not "hfam mine"
+    ratings = (figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png", labels)
+    pvalues = (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha, labels)
+    penetration = (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png", labels)
     if pool is None:
         written = [fn(*args) for fn, *args in (ratings, pvalues, penetration)]
         acc, notes = start_accelerations(res.study, out, target_v_m_s)
@@ -261,7 +266,7 @@ def start_accelerations(study: Study, out: Path, target_v_m_s: float | None = No
         return None, notes
     if why:
         notes.append("Figure 4.20 lacks some samples: " + "; ".join(why[:12]))
-    job = (figures.fig_accelerations, taps, study.catalog, v, out / "fig_4_20_accelerations.png")
+    job = (figures.fig_accelerations, taps, study.catalog, v, out / "fig_4_20_accelerations.png", catalog_labels(study))
     return (workers.submit(pool, *job), job), notes
 
 

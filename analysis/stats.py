@@ -22,7 +22,9 @@ from statsmodels.stats.weightstats import ttost_paired
 from analysis.load import Study
 
 PAIRWISE_COLUMNS = ("group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                    "ci_low", "ci_high", "cohen_dz")
+                    "ci_low", "ci_high", "cohen_dz", "not_testable")
+# a paired t-test needs at least this many subjects with both samples (n = 2 leaves one degree of freedom)
+MIN_PAIRED_N = 3
 EQUIVALENCE_COLUMNS = ("group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
                        "p_tost", "equivalent")
 ANOVA_COLUMNS = ("group", "test", "method", "n_subjects", "k_samples", "statistic", "df1", "df2", "p",
@@ -215,6 +217,11 @@ def pairwise_ttests(matrix: RatingMatrix, group: str) -> pd.DataFrame:
     ``t``, ``p`` (two-sided) and the 95 % CI from :func:`scipy.stats.ttest_rel`, ``p_holm`` Holm
     across the pairs of the group (statsmodels ``multipletests``), ``cohen_dz`` = mean/SD of the
     differences (eq. of Cohen's d_z).
+
+    A pair is not testable (``not_testable`` names why; ``t``, ``p``, ``p_holm``, CI and ``cohen_dz`` NaN, so
+    it is never counted among the significant pairs and Figure 4.18 hatches its cell) when fewer than
+    :data:`MIN_PAIRED_N` subjects rated both, or when every subject gave the same difference (SD 0 up to
+    the rounding of the per-subject means: scipy then returns t = +-inf or ~1e15 and p = 0).
     """
     m = matrix.means
     ia, ib = _pair_indices(m.shape[1])
@@ -245,11 +252,33 @@ def pairwise_ttests(matrix: RatingMatrix, group: str) -> pd.DataFrame:
             md[cols] = d.mean(axis=0)
             dz[cols] = md[cols] / d.std(axis=0, ddof=1)
         t[cols], p[cols], lo[cols], hi[cols] = res.statistic, res.pvalue, ci.low, ci.high
+    why = _not_testable(a, b, ok, n)
+    bad = why != ""
+    t[bad] = p[bad] = lo[bad] = hi[bad] = dz[bad] = np.nan
     samples = np.array(matrix.samples, dtype=object)
     return pd.DataFrame({
         "group": group, "sample_a": samples[ia], "sample_b": samples[ib], "n": n, "mean_diff": md,
         "t": t, "df": n - 1, "p": p, "p_holm": _holm(p), "ci_low": lo, "ci_high": hi, "cohen_dz": dz,
+        "not_testable": why,
     }, columns=list(PAIRWISE_COLUMNS))
+
+
+def _not_testable(a: np.ndarray, b: np.ndarray, ok: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Why each pair's paired t-test cannot be made ("" if it can): too few subjects, or differences all equal.
+
+    ``a``, ``b``: (subjects, pairs) per-subject means; ``ok``: both present; ``n``: ``ok.sum(axis=0)``.
+    "All equal" allows the rounding of means of a few ratings: SD <= 1e-9 x (1 + |mean difference|).
+    """
+    d = np.where(ok, a - b, np.nan)
+    with warnings.catch_warnings(), np.errstate(invalid="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sd = np.nanstd(d, axis=0, ddof=1) if d.size else np.full(n.shape, np.nan)
+        mean = np.nanmean(d, axis=0) if d.size else np.full(n.shape, np.nan)
+    why = np.full(n.shape, "", dtype=object)
+    flat = (n >= MIN_PAIRED_N) & ~(sd > 1e-9 * (1.0 + np.abs(mean)))
+    why[flat] = "not testable: every subject gave the same difference (SD 0)"
+    why[n < MIN_PAIRED_N] = f"not testable: fewer than {MIN_PAIRED_N} subjects rated both"
+    return why
 
 
 def greenhouse_geisser_epsilon(y: np.ndarray) -> float:

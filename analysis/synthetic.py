@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+import figstyle
+
 from analysis.load import TRIAL_COLUMNS
 
 
@@ -137,7 +139,8 @@ def write_synthetic_study(out_dir, n_subjects: int = 16, *, samples=DEFAULT_SAMP
         session = {
             "subject": subject, "age": int(rng.integers(19, 34)), "gender": ["female", "male"][k % 2],
             "handedness": "right", "experience": exp, "seed": int(seed * 100003 + k),
-            "catalog": [{"name": s.name, "label": s.name.replace("_", " ").capitalize(), "kind": s.kind}
+            # the project palette's labels, as the study's catalog gives its samples (the report draws these)
+            "catalog": [{"name": s.name, "label": figstyle.sample_style(s.name)["label"], "kind": s.kind}
                         for s in samples], "repetitions": repetitions,
             "device": "synthetic", "software_version": "synthetic", "started_at": "2026-01-01T00:00:00Z",
             "finished_at": None if subject in unfinished else "2026-01-01T00:10:00Z",

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from plumbing.cliargs import with_examples
 from plumbing.dispatch import Body
 
 
@@ -42,6 +43,7 @@ def register(subparsers) -> None:
                    help="telemetry every N servo ticks (default 2: a STATE every 250 us tick needs 92 %% of the "
                         "1 Mbaud link; with 1 the report shows the frames the link could not carry)")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON")
+    with_examples(p, "hfam-devices firmware-report", "hfam-devices firmware-report --speeds 0.5,4 --json")
     p.set_defaults(func=Body('devices.cli_firmware', 'run_report'))
 
     q = subparsers.add_parser(
@@ -54,5 +56,7 @@ def register(subparsers) -> None:
     q.add_argument("--taps", default="0.05,0.1,0.2", help="tap speeds, m/s, cycled ('' : hold at 10 mm)")
     q.add_argument("--fault", default=None, help="device->host faults: drop=P,corrupt=P,garbage=P,duplicate=P,"
                                                  "disconnect_after_s=T")
+    with_examples(q, "hfam-devices fw-sim --taps 0.05,0.1   # prints PORT /dev/pts/N",
+                  "hfam-renderer run --device serial:/dev/pts/N --duration-s 10 --out runs/fw")
     q.set_defaults(func=Body('devices.cli_firmware', 'run_fw_sim'))
 

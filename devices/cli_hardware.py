@@ -190,5 +190,6 @@ def _run_latency(args) -> int:
     if "link" in res:
         bad = {k: v for k, v in res["link"].items() if v and k not in ("frames_rx", "frames_tx")}
         print(f"  link: {res['link']['frames_tx']} frames out, {res['link']['frames_rx']} in"
-              + (f", faults {bad}" if bad else ", no faults"))
+              + (", faults: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in bad.items()) if bad
+                 else ", no faults"))
     return 0

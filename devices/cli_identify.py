@@ -13,16 +13,24 @@ from pathlib import Path
 import figstyle
 from plumbing.fileio import check_output_dir, clear_products, refuse_overwrite
 
-from .identify import pipeline as identify_pipeline  # identify_pipeline.identify_device: replaceable in tests
+from .identify import (
+    pipeline as identify_pipeline,  # identify_pipeline.identify_device: replaceable in tests
+)
 from .identify.etfe import etfe
 from .identify.figures import bode_plot
 from .identify.fit import FitOptions, fit_etfes
 from .identify.pipeline import IdentifyConfig, format_report
 from .identify.recording import read_recording
-from .identify.successive import STAGE_NAMES, format_result, identify_successive, save_result
+from .identify.successive import (
+    STAGE_NAMES,
+    format_result,
+    identify_successive,
+    save_result,
+)
 from .identify.successive.procedure import STATE_FILE
 from .identify.sweep import SweepConfig
 from .identify.validate import read_transient_recording, validate_model
+from .limits import check_grips
 from .registry import check_device_spec, make_device
 
 
@@ -146,6 +154,7 @@ def _measure(args, out: Path) -> dict:
                             duration_s=args.duration, fs_hz=dev.info.servo_rate_hz, repetitions=args.repetitions)
         band = tuple(args.band) if args.band else None
         grips = args.grip if args.grip is not None else default_grip_levels(dev.info.grip_range_N)
+        check_grips(dev.info, grips, "--grips-N")   # 200 N on a 0-10 N sensor: refused before measuring
         workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
         cfg = IdentifyConfig(grips_N=grips, trials=args.trials, sweep=sweep,
                              accel_options=_fit_options(args, band, "mean"),

@@ -8,6 +8,7 @@ import numpy as np
 
 from plumbing.fileio import check_output_file
 
+from .limits import check_grips, check_tap_speeds
 from .recording import record_taps, write_tap_recording
 from .registry import make_device
 
@@ -32,6 +33,8 @@ def run(args) -> int:
     options = {"seed": args.seed} if args.device.split(":")[0] == "sim" else {}
     dev = make_device(args.device, **options)
     with dev:
+        check_grips(dev.info, [args.grip], "--grip-N")
+        check_tap_speeds(vels, "--velocities-m-s")   # 3 m/s saved a saturated tap
         if hasattr(dev, "set_sample"):
             dev.set_sample(args.sample)
         taps = record_taps(dev, vels, grip_N=args.grip, window_s=args.window_s, pre_s=args.pre_s)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import figstyle
 from plumbing.fileio import check_output_file
 
 from .identify.modelset import load_model_set
@@ -43,6 +44,7 @@ def run_validate(args) -> int:
     check_device_spec(args.device)
     if args.plot:
         check_output_file(args.plot, args.force, what="--plot")   # before measuring
+        figstyle.check_outputs(args.plot, force=args.force)        # and the figure's SVG and .plot.csv
     kind, model, src = _load(Path(args.model), args.grip)
     dev = make_device(args.device, seed=args.seed) if args.device.startswith("sim") else make_device(args.device)
     with dev:
@@ -59,5 +61,5 @@ def run_validate(args) -> int:
         print(f"time-domain validation ({name}, {args.amplitude:g} A transients, grip {args.grip:g} N): NRMSE "
               f"{m['nrmse']:.3f}; per transient " + ", ".join(f"{x:.3f}" for x in m["nrmse_per_transient"]))
     if args.plot:
-        print(f"wrote {time_domain_figure(res, args.plot, title=f'{src} on {args.device}')}")
+        print(f"wrote {time_domain_figure(res, args.plot, title=f'{src} on {args.device}', force=True)}")
     return 0

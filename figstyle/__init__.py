@@ -266,6 +266,84 @@ def legend_overlaps(fig) -> list[str]:
     return problems
 
 
+def _drawn_texts(fig) -> list:
+    """The figure's visible, non-empty texts as drawn: titles, axis and tick labels (only the ticks inside the
+    view), annotations and figure texts; legends' own texts are left to :func:`legend_overlaps`."""
+    from matplotlib.legend import Legend
+    from matplotlib.text import Text
+
+    in_legend = {id(a) for leg in fig.findobj(Legend) for a in leg.findobj()}
+    ticks_all, ticks_drawn = set(), set()
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            for tick in axis.get_major_ticks() + axis.get_minor_ticks():
+                ticks_all.update((id(tick.label1), id(tick.label2)))
+            if not (axis.get_visible() and ax.axison):
+                continue
+            # matplotlib keeps tick labels beyond the view limits (not drawn): only those inside count
+            lo, hi = sorted(axis.get_view_interval())
+            span = abs(hi - lo) * 1e-9
+            for tick in axis.get_major_ticks() + axis.get_minor_ticks():
+                loc = tick.get_loc()
+                if loc is not None and lo - span <= loc <= hi + span and tick.get_visible():
+                    ticks_drawn.update(id(lb) for lb in (tick.label1, tick.label2) if lb.get_visible())
+    out = []
+    for t in fig.findobj(Text):
+        if id(t) in in_legend or not t.get_visible() or not t.get_text().strip():
+            continue
+        if id(t) in ticks_all and id(t) not in ticks_drawn:
+            continue
+        if t.axes is not None and not t.axes.get_visible():
+            continue
+        out.append(t)
+    return out
+
+
+def text_problems(fig, tight: bool | None = None, tolerance_px: float = 1.0) -> list[str]:
+    """Texts that overlap each other or run off the figure (empty list: every label readable).
+
+    Draws the figure (without writing it) and compares the window extents (``Text.get_window_extent``, pixels)
+    of every drawn text (:func:`_drawn_texts`): two that share more than ``tolerance_px`` in both directions
+    overlap (e.g. the x labels of narrow neighbouring panels, or crowded tick labels); a text outside the
+    figure's box is clipped when the figure is saved without a tight box (``tight``: default from
+    ``savefig.bbox``; with ``tight`` the saved box grows to hold it).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    tight : bool or None
+        Whether the figure will be saved with a tight bounding box.
+    tolerance_px : float
+        Overlap (px, both directions) below which two boxes only touch.
+
+    Returns
+    -------
+    list of str
+        One line per problem, naming the texts.
+    """
+    import matplotlib as mpl
+    from matplotlib.transforms import Bbox
+
+    if tight is None:
+        tight = mpl.rcParams["savefig.bbox"] == "tight"
+    fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    boxes = [(t, t.get_window_extent(renderer)) for t in _drawn_texts(fig)]
+    problems = []
+    for i, (a, ba) in enumerate(boxes):
+        for b, bb in boxes[i + 1:]:
+            inter = Bbox.intersection(ba, bb)
+            if inter is not None and inter.width > tolerance_px and inter.height > tolerance_px:
+                problems.append(f"text {a.get_text()!r} overlaps text {b.get_text()!r}")
+    if not tight:
+        fb = fig.bbox
+        for t, bb in boxes:
+            if (bb.x0 < fb.x0 - tolerance_px or bb.y0 < fb.y0 - tolerance_px or bb.x1 > fb.x1 + tolerance_px
+                    or bb.y1 > fb.y1 + tolerance_px):
+                problems.append(f"text {t.get_text()!r} is clipped by the figure's edge")
+    return problems
+
+
 def _legend_name(leg) -> str:
     texts = [t.get_text() for t in leg.get_texts()]
     return ", ".join(texts[:3]) + (" ..." if len(texts) > 3 else "")

@@ -10,6 +10,7 @@ identification's Bode plot and the HFAM library). Copies every figure (PNG, SVG,
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import re
 import shutil
@@ -34,6 +35,25 @@ DEMO_CAPTIONS = {
                 "where the coherence is low) with the fitted models (dashed), resonance (▲) and the -3 dB point "
                 "above it (▽) marked; phase unwrapped from the low-frequency end in ±180°.",
 }
+# the code that draws the gallery's figures: their digest is written beside the gallery (SOURCES_FILE) and the
+# suite checks it (tests/integration/test_figure_style.py), so a change to how a figure is drawn without
+# `make gallery` fails the tests instead of leaving the committed gallery stale
+FIGURE_SOURCES = ("figstyle/__init__.py", "figstyle/project.mplstyle", "figstyle/palette.json", "figstyle/gallery.py",
+                  "analysis/figures.py", "renderer/demo/figures.py", "stimuli/cli_show.py",
+                  "devices/identify/figures.py")
+SOURCES_FILE = "sources.sha256"
+
+
+def sources_digest(root: Path) -> str:
+    """``sha256  path`` per file of :data:`FIGURE_SOURCES` under ``root`` (the repository), one line each, as
+    ``sha256sum`` prints them (line endings normalised, so a checkout's CRLF does not count as a change)."""
+    lines = []
+    for rel in FIGURE_SOURCES:
+        data = (Path(root) / rel).read_bytes().replace(b"\r\n", b"\n")
+        lines.append(f"{hashlib.sha256(data).hexdigest()}  {rel}")
+    return "\n".join(lines) + "\n"
+
+
 STUDY_ORDER = ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration", "fig_4_20_accelerations")
 
 
@@ -117,6 +137,7 @@ def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "
                    "Files: " + ", ".join(f"[{n.rsplit('.', 1)[1].upper()}](demo/{n})" for n in files), ""]
     readme = out / "README.md"
     readme.write_text("\n".join(md) + "\n", encoding="utf-8")
+    (out / SOURCES_FILE).write_text(sources_digest(root), encoding="utf-8")
     return readme
 
 

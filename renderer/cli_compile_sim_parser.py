@@ -6,6 +6,7 @@ The parser (light: imported for ``--help``); the body is :mod:`renderer.sim_aot`
 
 from __future__ import annotations
 
+from plumbing.cliargs import with_examples
 from plumbing.dispatch import Body
 
 
@@ -17,5 +18,6 @@ def register(subparsers) -> None:
                                           "start without numba. Runs by itself in the background after the "
                                           "first simulated run that finds none (HFAM_SIM_AOT=auto).")
     p.add_argument("--force", action="store_true", help="rebuild even if a build for these sources exists")
+    with_examples(p, "hfam-renderer compile-sim", "hfam-renderer compile-sim --force")
     p.set_defaults(func=Body('renderer.sim_aot', 'compile_command'))
 

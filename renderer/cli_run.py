@@ -17,6 +17,7 @@ from __future__ import annotations
 import sys
 
 import stimuli
+from devices.limits import check_grips, check_tap_speeds
 from devices.registry import make_device
 from devices.sim import TapTrajectory
 from plumbing import provenance
@@ -50,6 +51,21 @@ def make_transient(kind: str, library: str | None = None, gain: float | None = N
     if not library:
         raise ValueError("--transient hfam needs --library PATH (an HFAM library .npz, see `python -m stimuli`)")
     return stimuli.HfamLibrary.load(library, **kwargs)
+
+
+def _warn_outside_library(transient, velocities_m_s) -> None:
+    """Say so (one ``warning:`` line on stderr) when a tap speed lies outside an HFAM library's velocities: its
+    transient is then extrapolated from the nearest recordings (capped by the library's extrapolation limit), not
+    measured (thesis section 4.4)."""
+    vs = getattr(transient, "velocities_m_s", None)
+    if vs is None or not len(vs):
+        return
+    lo, hi = float(vs[0]), float(vs[-1])
+    out = [v for v in velocities_m_s if not lo <= v <= hi]
+    if out:
+        print(f"warning: --velocities-m-s {', '.join(f'{v:g}' for v in out)} m/s outside the HFAM library's "
+              f"{lo:g}-{hi:g} m/s: the transient is extrapolated (capped at {transient.max_extrapolation:g}x), not "
+              "from a recording", file=sys.stderr)
 
 
 def _build_config(args):
@@ -98,6 +114,9 @@ def _run(args) -> int:
         with dev:
             if args.sample != "placeholder":
                 dev.set_sample(args.sample)
+            check_grips(dev.info, [args.grip], "--grip-N")       # 500 N on a 0-10 N sensor: refused
+            check_tap_speeds(args.velocity, "--velocities-m-s")  # 5 m/s: not a hand's tap
+            _warn_outside_library(transient, args.velocity)
             traj = TapTrajectory(args.velocity, n_taps=args.taps)
             dev.set_user(traj, grip_N=args.grip)
             loop = ServoLoop(dev, cfg, transient)

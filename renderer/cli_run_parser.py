@@ -53,7 +53,10 @@ def register(subparsers) -> None:
         The ``python -m renderer`` sub-command parsers.
     """
     p = subparsers.add_parser("run", help="render a virtual wall under a simulated or real user tapping",
-                              description=__doc__.split("\n\n")[0] + " Outputs: events.csv, run.json, log.npz.")
+                              description="Render a virtual wall under a (simulated or real) user tapping. On a sim device the "
+                                          "simulated hand taps --taps times at --velocities-m-s and the run ends when "
+                                          "it is done; on hardware it lasts --duration-s (or until Ctrl-C). Outputs: "
+                                          "events.csv, run.json, log.npz.")
     p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
     p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient (default none)")
     p.add_argument("--library", help="HFAM library file (needed for --transient hfam)")

@@ -45,6 +45,7 @@ import numpy as np
 
 from devices.base import Status
 from plumbing import provenance
+from devices.limits import check_stiffness
 from plumbing.fileio import save_npz
 from plumbing.stopsignals import Terminated, holding, stop_on_signals
 
@@ -339,6 +340,7 @@ class ServoLoop:
         if not ic <= ipk <= iamp:
             raise ValueError(f"current limits must satisfy continuous <= peak <= amplifier, got {ic}, {ipk}, {iamp}")
         self.limits = {"continuous_A": ic, "peak_A": ipk, "amplifier_A": iamp}
+        check_stiffness(info, cfg.stiffness_N_m, ic)   # 1e9 N/m refused; beyond one count per limit, warned
         # the proportional channel alone must never be able to overheat the winding
         self.continuous_safe_A = safe_continuous_current(info, ic)
         self.force_per_amp = info.force_per_amp_N_A

@@ -33,6 +33,18 @@ def summary(lib: HfamLibrary) -> str:
     return "\n".join(lines)
 
 
+def library_title(lib: HfamLibrary) -> str:
+    """The library figure's title: the library's name once ("HFAM library library.npz" read badly).
+
+    A file named after what it is (``library.npz``, ``hfam_library.npz``) adds nothing to "HFAM library"; any
+    other name (``wood_on_foam_sim.npz``) is given in quotes.
+    """
+    stem = Path(str(lib.source or "")).stem
+    plain = stem.lower().replace("-", "_").replace("hfam", "").strip("_ ") in ("", "library", "lib")
+    name = "" if plain else f" \u201c{stem}\u201d"
+    return f"HFAM library{name} (cf. thesis Fig. 4.8)"
+
+
 def plot_library(lib: HfamLibrary, out: Path, force: bool = False) -> Path:
     """Figure 4.8: desired accelerations (top row) and current transients (bottom row), one column per grip.
 
@@ -73,7 +85,6 @@ def plot_library(lib: HfamLibrary, out: Path, force: bool = False) -> Path:
                 ax_i.plot(t_ms, lib.currents_A[i, j], color=colors[i], lw=0.8)
                 data[f"current {v:.4g} m/s grip {grip:g} N (A)"] = lib.currents_A[i, j]
             ax_a.set_title(f"grip {grip:g} N", loc="left")
-            ax_i.set_xlabel("time after impact (ms)")
             if j == 0:
                 ax_a.set_ylabel("desired acceleration (m/s²)")
                 ax_i.set_ylabel("current (A)")
@@ -81,7 +92,9 @@ def plot_library(lib: HfamLibrary, out: Path, force: bool = False) -> Path:
                 ax_a.text(0.5, 0.5, "no accelerations stored", ha="center", transform=ax_a.transAxes)
         if lib.desired_accel_m_s2 is not None:
             fig.legend(handles=axes[0, 0].lines, loc="outside right upper", title="incoming velocity")
-        fig.suptitle(f"HFAM library {Path(lib.source).name} (cf. thesis Fig. 4.8)")
+        # one x label for the row: a label per column ran into its neighbours with five grips on a page
+        fig.supxlabel("time after impact (ms)", fontsize=plt.rcParams["axes.labelsize"])
+        fig.suptitle(library_title(lib))
         paths = figstyle.save(fig, out, data, force=force)
     return paths["png"]
 

@@ -171,7 +171,10 @@ def _run_command(args) -> int:
         elif apparatus is not None:
             apparatus.close()
         if web is not None:
-            web.stop()
+            if store.session.get("finished_at"):
+                web.stop_when_seen()   # the operator page shows "session complete", not "runner stopped"
+            else:
+                web.stop()
     _summary(store, say)
     return 0
 

@@ -18,7 +18,6 @@ The parser (light: imported for ``--help``); the body is :mod:`study.cli_run`.
 
 from __future__ import annotations
 
-import argparse
 
 from plumbing.cliargs import add_renamed, with_examples
 from plumbing.dispatch import Body
@@ -35,7 +34,12 @@ def register(subparsers) -> None:
         The ``python -m study`` sub-command parsers.
     """
     p = subparsers.add_parser("run", help="run a blind realism or psychophysics session (sim rehearsal or real subjects)",
-                              description=__doc__.partition("\n\nThe parser (light")[0] + "\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+                              description="Run a blind realism session (thesis section 4.5.3) or a psychophysics session "
+                                          "(a protocol with an [experiment] table: real-vs-virtual 2AFC, stiffness "
+                                          "discrimination, detection; docs/study.md): a simulated participant "
+                                          "rehearses it unattended in seconds; a person gets the views (a subject page "
+                                          "and a token-protected operator page). --resume continues a killed or "
+                                          "aborted session exactly where it stopped.")
     p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
                                                  "hid:<vid>:<pid> (default: sim, or the resumed session's)")
     p.add_argument("--participant", choices=("simulated", "keyboard"), default=None,
@@ -78,6 +82,6 @@ def register(subparsers) -> None:
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
     p.add_argument("--token", default=None, help="operator token (default: random, printed)")
     p.add_argument("--quiet", action="store_true", help="print only the summary")
-    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA')
+    with_examples(p, 'hfam-study run --device sim --participant simulated --subject S01 --seed 1 --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --age 24 --gender female \\', '    --handedness right --experience few --out DATA', 'hfam-study run --device serial:/dev/ttyACM0 --participant keyboard --subject P07 --out DATA --resume')
     p.set_defaults(func=Body('study.cli_run', 'run_command'))
 

@@ -27,7 +27,7 @@ def register(subparsers) -> None:
         The ``python -m study`` sub-command parsers.
     """
     p = subparsers.add_parser("simulate-observer", help="run an adaptive method against a simulated observer",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                              description=__doc__.replace("``", ""), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--method", required=True, choices=METHOD_NAMES,
                    help="updown (1-up-2-down), weighted (Kaernbach), quest+ (Watson) or psi (Kontsevich & Tyler)")
     p.add_argument("--threshold", type=float, required=True,

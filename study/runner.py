@@ -298,4 +298,5 @@ class StudyRunner:
                                      **self._status())
         self._subject("done")
         if self.ui is not None:
-            self.ui.set_operator(phase="done", awaiting_confirm=False, **self._status())
+            self.ui.set_operator(phase="done", awaiting_confirm=False, place="", message="session complete",
+                                 **self._status())

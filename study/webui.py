@@ -256,7 +256,10 @@ class _Handler(BaseHTTPRequestHandler):
                                   "text/plain; charset=utf-8")
             if url.path == "/operator":
                 return self._send(200, _asset("operator.html"), "text/html; charset=utf-8")
-            return self._json(ui.snapshot("operator"))
+            snap = ui.snapshot("operator")
+            self._json(snap)
+            self.server.operator_served(snap.get("seq", 0))
+            return None
         self._send(404, b"not found", "text/plain")
 
     def _post(self) -> None:
@@ -294,6 +297,22 @@ class _Server(ThreadingHTTPServer):
         self.slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
         self.bound_name = str(address[0]).lower()
         self.refused_busy = 0
+        self._seen = threading.Condition()
+        self.operator_seq_served = None   # seq of the last operator state an operator page fetched (None: none yet)
+
+    def operator_served(self, seq: int) -> None:
+        """Record that an operator page fetched the operator state ``seq``."""
+        with self._seen:
+            self.operator_seq_served = max(seq, self.operator_seq_served or 0)
+            self._seen.notify_all()
+
+    def wait_operator_seen(self, seq: int, timeout_s: float) -> bool:
+        """Wait until an operator page has fetched state ``seq`` or later (False at once if no page ever asked;
+        False after ``timeout_s`` s: a page closed meanwhile must not hold the session's end)."""
+        with self._seen:
+            if self.operator_seq_served is None:
+                return False
+            return self._seen.wait_for(lambda: self.operator_seq_served >= seq, timeout=timeout_s)
 
     def process_request(self, request, client_address) -> None:
         if not self.slots.acquire(blocking=False):
@@ -351,6 +370,15 @@ class WebUI:
         """Serve in a background thread; returns self."""
         self._thread.start()
         return self
+
+    def stop_when_seen(self, timeout_s: float = 10.0) -> bool:
+        """At a normal finish: if an operator page is open, wait until it has fetched the final operator state
+        (the page then shows "session complete" and stops asking), at most ``timeout_s`` s; then stop. Without
+        this the server was gone before the page's next poll, and the page showed a red "RUNNER STOPPED: no
+        answer from the runner" over stale state. Returns True if the page saw the final state."""
+        seen = self.httpd.wait_operator_seen(self.ui.snapshot("operator").get("seq", 0), timeout_s)
+        self.stop()
+        return seen
 
     def stop(self) -> None:
         """Stop serving and close the socket (the pages then show the runner stopped)."""

@@ -492,7 +492,10 @@ class Emulator:
             self._nak(frame, P.NAK_BAD_STATE, "RENDER_START needs SET_MODE on-device first")
             return
         self._ack(frame)
-        self._start_render()
+        if not self.rendering:   # a repeat (the host retried a late ACK): nothing restarts mid-run (hfam_fw.c)
+            self._start_render()
+        else:
+            self.last_cmd = time.monotonic()
 
     def _on_wall(self, frame: P.Frame) -> None:
         if self.wire.protocol_version < (1, 1) and len(frame.payload) != P.WALL_STRUCT.size:

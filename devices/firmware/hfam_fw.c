@@ -1227,9 +1227,13 @@ static void handle_frame(void) {
         if (!mode_on_device) { nak(type, seq, NAK_BAD_STATE); break; }
         ack(type, seq);
         TICK_LOCK();
-        rendering = 1; watchdog_armed = 1; last_cmd_tick = tick_count;
-        armed = 0; in_event = 0; tr_k = tr_n = 0; vel_filled = 0;
-        po_e = 0; po_f = 0; po_fresh = 1; /* an UNSTABLE trip stays latched until CLEAR_FAULTS */
+        if (rendering) { /* a repeat (the host retried: our ACK was late or lost): nothing restarts mid-run */
+            last_cmd_tick = tick_count;
+        } else {
+            rendering = 1; watchdog_armed = 1; last_cmd_tick = tick_count;
+            armed = 0; in_event = 0; tr_k = tr_n = 0; vel_filled = 0;
+            po_e = 0; po_f = 0; po_fresh = 1; /* an UNSTABLE trip stays latched until CLEAR_FAULTS */
+        }
         TICK_UNLOCK();
         break;
     case MSG_RENDER_STOP:

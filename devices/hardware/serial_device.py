@@ -517,6 +517,10 @@ class ProtocolDevice(Device):
             while key not in self._replies:
                 left = deadline - time.monotonic()
                 if left <= 0:
+                    # a thread descheduled past its deadline (loaded machine) may find the ACK already in the
+                    # tty: take it. Sending the request again would run it twice on the device (a second
+                    # RENDER_START restarts the wall mid-run: observer energy, velocity window, contact state).
+                    self._poll(0.0)
                     break
                 self._poll(left)
             reply = self._replies.pop(key, None)

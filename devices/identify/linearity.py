@@ -4,12 +4,13 @@ several current magnitudes, grips and workspace positions, with coherence; a ver
 
 from __future__ import annotations
 
+import textwrap
 import time
 from dataclasses import dataclass
 
-import matplotlib
-import matplotlib.pyplot as plt
 import numpy as np
+
+import figstyle
 
 from ..base import Device
 from .etfe import Etfe, etfe
@@ -212,36 +213,40 @@ def format_linearity(report: dict) -> str:
 
 
 def linearity_figure(report: dict, path, min_coherence: float = MIN_COHERENCE) -> str:
-    """Bode overlay of all conditions (Figure 3.8 style): low-coherence bins masked (gaps, no spikes), phase
-    unwrapped over the coherent bins and shifted by whole turns to start within +-180 deg."""
-
-    matplotlib.use("Agg")
+    """Bode overlay of all conditions (Figure 3.8 style) in the project style (figstyle: PNG, SVG and the plotted
+    numbers as ``.plot.csv``): low-coherence bins masked (gaps, no spikes), phase unwrapped over the coherent bins
+    and shifted by whole turns to start within +-180 deg; the conclusion in full under the title (it was cut off
+    at the figure's edge)."""
 
     lo, hi = report["band_hz"]
-    fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
-    for c in report["curves"]:
-        sel = (c.f_hz >= lo / 2) & (c.f_hz <= min(hi * 2, c.f_hz[-1]))
-        f = c.f_hz[sel]
-        H = c.H[sel]
-        ok = c.coherence[sel] >= min_coherence
-        mag = np.where(ok, 20 * np.log10(np.abs(H)), np.nan)
-        ph = np.full(f.size, np.nan)
-        if ok.any():
-            u = np.degrees(np.unwrap(np.angle(H[ok])))
-            u -= 360.0 * np.round(u[0] / 360.0)
-            ph[ok] = u
-        am.semilogx(f, mag, lw=1, label=c.label)
-        ap.semilogx(f, ph, lw=1)
-    for ax in (am, ap):
-        ax.axvspan(lo, hi, color="0.93", zorder=0)
-        ax.grid(True, which="both", alpha=0.3)
-    am.set_ylabel("|a/i| (dB re 1 m/s^2/A)")
-    ap.set_ylabel("phase (deg)")
-    ap.set_xlabel("frequency (Hz)")
-    am.legend(fontsize=7)
-    am.set_title(f"{report['device']}: ETFEs per condition (coherence < {min_coherence:g} masked)", fontsize=9)
-    fig.text(0.01, 0.005, report["conclusion"].split("\n")[0][:160], fontsize=7)
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return str(path)
+    rows = []
+    with figstyle.style() as plt:
+        fig, (am, ap) = plt.subplots(2, 1, figsize=figstyle.figsize("page", height_in=5.6), sharex=True,
+                                     layout="constrained")
+        for c in report["curves"]:
+            sel = (c.f_hz >= lo / 2) & (c.f_hz <= min(hi * 2, c.f_hz[-1]))
+            f = c.f_hz[sel]
+            H = c.H[sel]
+            ok = c.coherence[sel] >= min_coherence
+            mag = np.where(ok, 20 * np.log10(np.abs(H)), np.nan)
+            ph = np.full(f.size, np.nan)
+            if ok.any():
+                u = np.degrees(np.unwrap(np.angle(H[ok])))
+                u -= 360.0 * np.round(u[0] / 360.0)
+                ph[ok] = u
+            am.semilogx(f, mag, lw=1, label=c.label)
+            ap.semilogx(f, ph, lw=1)
+            rows += [(c.label, fk, mk, pk, int(okk)) for fk, mk, pk, okk in zip(f, mag, ph, ok)]
+        for ax in (am, ap):
+            ax.axvspan(lo, hi, color="0.93", zorder=0)
+            ax.grid(True, which="both", alpha=0.3)
+        am.set_ylabel("|a/i| (dB re 1 m/s^2/A)")
+        ap.set_ylabel("phase (deg)")
+        ap.set_xlabel("frequency (Hz)")
+        am.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=6, borderaxespad=0.0)
+        conclusion = textwrap.fill("conclusion: " + " ".join(report["conclusion"].split()), 120)
+        fig.suptitle(f"{report['device']}: ETFEs per condition (coherence < {min_coherence:g} masked)\n"
+                     + conclusion, fontsize=7)
+        paths = figstyle.save(fig, path, (["condition", "f_hz", "magnitude_db", "phase_deg", "coherent"], rows),
+                              force=True)   # the command checked its --out (and --force) before measuring
+    return str(paths["png"])

@@ -5,9 +5,9 @@ model (comprehensive evaluation)."""
 
 from __future__ import annotations
 
-import matplotlib
-import matplotlib.pyplot as plt
 import numpy as np
+
+import figstyle
 
 from ..base import Device
 from ..model import ZpkModel
@@ -111,28 +111,36 @@ def time_domain_validation(dev: Device, models: dict, grip_N: float = 2.0, ampli
     return out
 
 
-def time_domain_figure(result: dict, path, title: str = "") -> str:
-    """Figure 3.10 style: current and measured/predicted acceleration per transient, residuals below."""
-
-    matplotlib.use("Agg")
+def time_domain_figure(result: dict, path, title: str = "", force: bool = False) -> str:
+    """Figure 3.10 style: current and measured/predicted acceleration per transient, residuals below; in the
+    project style (figstyle: PNG, SVG and the plotted numbers as ``.plot.csv``; ValueError if one of them exists,
+    unless ``force``)."""
 
     wins = result["windows"]
     fs = result["fs_hz"]
-    fig, axes = plt.subplots(3, len(wins), figsize=(3.2 * len(wins), 7), squeeze=False, sharex="col")
-    for c, (i, j) in enumerate(wins):
-        t = np.arange(j - i) / fs * 1e3
-        axes[0, c].plot(t, result["current_A"][i:j], "k")
-        axes[1, c].plot(t, result["measured"][i:j], "k", lw=1.5, label="measured")
-        for name, m in result["models"].items():
-            axes[1, c].plot(t, m["predicted"][i:j], lw=1, label=f"{name} ({m['nrmse_per_transient'][c]:.2f})")
-            axes[2, c].plot(t, result["measured"][i:j] - m["predicted"][i:j], lw=1, label=name)
-        axes[2, c].set_xlabel("time (ms)")
-        axes[1, c].legend(fontsize=7)
-    axes[0, 0].set_ylabel("current (A)")
-    axes[1, 0].set_ylabel("handle accel (m/s^2)")
-    axes[2, 0].set_ylabel("residual (m/s^2)")
-    fig.suptitle(title or f"time-domain validation, grip {result['grip_N']:g} N (NRMSE per transient)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return str(path)
+    names = list(result["models"])
+    rows = []
+    with figstyle.style() as plt:
+        width = "page" if len(wins) > 1 else "column"
+        fig, axes = plt.subplots(3, len(wins), figsize=figstyle.figsize(width, height_in=5.4), squeeze=False,
+                                 sharex="col", layout="constrained")
+        for c, (i, j) in enumerate(wins):
+            t = np.arange(j - i) / fs * 1e3
+            axes[0, c].plot(t, result["current_A"][i:j], "k")
+            axes[1, c].plot(t, result["measured"][i:j], "k", lw=1.5, label="measured")
+            for name, m in result["models"].items():
+                axes[1, c].plot(t, m["predicted"][i:j], lw=1, label=name)
+                axes[2, c].plot(t, result["measured"][i:j] - m["predicted"][i:j], lw=1, label=name)
+            axes[2, c].set_xlabel("time (ms)")
+            nr = ", ".join(f"{m['nrmse_per_transient'][c]:.2f}" for m in result["models"].values())
+            axes[0, c].set_title(f"transient {c + 1}: NRMSE {nr}", fontsize=7)
+            rows += [(c + 1, tk, result["current_A"][i + k], result["measured"][i + k],
+                      *(result["models"][n]["predicted"][i + k] for n in names)) for k, tk in enumerate(t)]
+        axes[0, 0].set_ylabel("current (A)")
+        axes[1, 0].set_ylabel("handle accel (m/s^2)")
+        axes[2, 0].set_ylabel("residual (m/s^2)")
+        fig.legend(handles=axes[1, -1].lines, loc="outside lower center", ncol=len(names) + 1, fontsize=6)
+        fig.suptitle(title or f"time-domain validation, grip {result['grip_N']:g} N", fontsize=8)
+        header = ["transient", "t_ms", "current_A", "measured_m_s2"] + [f"{n}_m_s2" for n in names]
+        paths = figstyle.save(fig, path, (header, rows), force=force)
+    return str(paths["png"])

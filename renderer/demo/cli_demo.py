@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import time
 
+from devices.limits import check_tap_speeds
 from plumbing.fileio import check_output_dir
 from stimuli.hfam.settings import PipelineSettings
 
@@ -32,8 +33,10 @@ def run(args) -> int:
     if not args.device.startswith("sim"):
         return run_hardware_demo(args)
     t0 = time.perf_counter()
-    vels = _floats(args.velocities, "--velocities")
-    grips = _floats(args.grips, "--grips")
+    vels = _floats(args.velocities, "--velocities-m-s")
+    if vels:
+        check_tap_speeds(vels, "--velocities-m-s")   # 5 m/s (a 6.2 m/s tap, 57.5 mm in): refused
+    grips = _floats(args.grips, "--grips-N")
     pipe_changes = {"device": args.device}
     if args.tap_stop_time is not None:
         pipe_changes["tap_stop_time_s"] = args.tap_stop_time

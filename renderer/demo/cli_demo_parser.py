@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from plumbing.cliargs import add_renamed, with_examples
 from plumbing.dispatch import Body
 from plumbing.fileio import user_cache_dir
 from stimuli.hfam.settings import PipelineSettings
@@ -39,9 +40,9 @@ def register(subparsers) -> None:
     p.add_argument("--cache-dir", type=Path, default=None,
                    help=f"cache folder (default $XDG_CACHE_HOME/hfam-haptics = {user_cache_dir()})")
     p.add_argument("--rebuild", action="store_true", help="rebuild the cached identification/recordings/library")
-    p.add_argument("--velocities", default=None, help="comma-separated tap speeds in m/s (sim; default "
+    add_renamed(p, "--velocities-m-s", "--velocities", dest="velocities", default=None, help="comma-separated tap speeds in m/s (sim; default "
                                                        + ",".join(f"{v:g}" for v in DemoConfig.velocities_m_s) + ")")
-    p.add_argument("--grips", default=None, help="comma-separated grips in N (sim; default "
+    add_renamed(p, "--grips-N", "--grips", dest="grips", default=None, help="comma-separated grips in N (sim; default "
                                                   + ",".join(f"{g:g}" for g in DemoConfig.grips_N) + ")")
     p.add_argument("--tap-stop-time", type=float, default=None, metavar="S",
                    help="sim: seconds after contact at which the simulated hand's aim comes to rest (default "
@@ -62,5 +63,7 @@ def register(subparsers) -> None:
     p.add_argument("--timeout", type=float, default=120.0, help="hardware mode: seconds allowed per rendering")
     p.add_argument("--scope", choices=("auto", "window", "text", "none"), default="auto",
                    help="hardware mode live scope: a matplotlib window if a display is available, else text")
+    with_examples(p, "hfam-renderer demo", "hfam-renderer demo --device sim:lti --out out/demo_lti --force",
+                  "hfam-renderer demo --device serial:/dev/ttyACM0 --library LIB.npz --out out/hw")
     p.set_defaults(func=Body('renderer.demo.cli_demo', 'run'))
 

@@ -185,7 +185,9 @@ def penetration_figure(penetration_m: dict, labels: dict, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=figstyle.figsize("page", height_in=3.8))
     y = np.arange(len(names))
     colors = [figstyle.color(n) for n in names]
-    ax.barh(y, mean, xerr=sd, color=colors, capsize=3)
+    # light bars, black whiskers on top: the real sample's black bar hid its own (black) whisker
+    ax.barh(y, mean, color=colors, alpha=0.5)
+    ax.errorbar(mean, y, xerr=sd, fmt="none", ecolor="black", elinewidth=1.0, capsize=3, zorder=3)
     ax.set_yticks(y, [labels[n] for n in names])
     ax.invert_yaxis()
     ax.set_xlabel("mean peak penetration (mm), bars: +/- 1 s.d. over velocities x grips")

@@ -217,6 +217,7 @@ def format_table(cfg: DemoConfig, rows: list[dict], library) -> str:
         lines.append("Mean penetration cut by the transient vs the same wall alone: "
                      + ", ".join(f"{name} {cut * 100:.0f} %" for name, cut in cuts.items())
                      + " (thesis 4.5.5: about a factor of two; docs/demo.md, 'The simulated tap')")
+    lines += clipping_explanation(rows, cuts, library)
     out_of_range = [v for v in cfg.velocities_m_s if not lib_lo <= v <= lib_hi]
     hf = [x for x in rows if x["rendering"] == "hfam_firm"]
     if out_of_range and hf:
@@ -228,6 +229,43 @@ def format_table(cfg: DemoConfig, rows: list[dict], library) -> str:
                          f"/{sum(x['taps'] for x in sel)}")
         lines.append("HFAM over firm beyond the library range (extrapolated transient): " + "; ".join(parts))
     return "\n".join(lines)
+
+
+def clipping_explanation(rows: list[dict], cuts: dict, library) -> list[str]:
+    """Plain-language lines where the table looks wrong: HFAM clipped on most taps, or a negative "cut".
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`summarize`'s rows (``rendering``, ``clipped``, ``taps``).
+    cuts : dict
+        :func:`penetration_cuts` (rendering -> fraction; negative: deeper than the wall alone).
+    library : stimuli.library.HfamLibrary
+        The library the HFAM renderings played (its peak current and force constant).
+
+    Returns
+    -------
+    list of str
+        Nothing when nothing looks wrong.
+    """
+    out = []
+    peak_lib = float(np.max(np.abs(library.currents_A)))
+    for name in sorted({x["rendering"] for x in rows if x["rendering"].startswith("hfam")}):
+        sel = [x for x in rows if x["rendering"] == name]
+        clipped, taps = sum(x["clipped"] for x in sel), sum(x["taps"] for x in sel)
+        if taps and clipped * 2 > taps:
+            out.append(f"Why {name} clipped {clipped}/{taps} taps: its transients ask up to {peak_lib:.2f} A (the "
+                       f"library's peak, built for a force constant of {library.force_per_amp_N_A:.3g} N/A); on this "
+                       "device the wall plus the transient exceeds the peak current limit, so the amplifier's limit "
+                       "cuts them (and the acceleration match). Build a library for this device (--rebuild, or "
+                       "`stimuli build-library --scale-to-limit`) to render it within its limits.")
+    deeper = {n: c for n, c in cuts.items() if c < 0}
+    if deeper:
+        out.append("A negative cut (" + ", ".join(f"{n} {c * 100:.0f} %" for n, c in deeper.items())
+                   + ") means those taps went deeper with the transient than on the wall alone: while a clipped "
+                   "transient plays, the peak limit also takes current from the wall's own spring, which then "
+                   "holds the handle less.")
+    return out
 
 
 #: tap speeds (m/s) of the reactive-hand penetration check: section 4.5.5's slow-to-moderate taps

@@ -7,6 +7,7 @@ the testbed's and the controllers' names, kept here as plain tuples (a test chec
 
 from __future__ import annotations
 
+from plumbing.cliargs import with_examples
 from plumbing.dispatch import Body
 
 from .options import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS, parse_lambdas  # noqa: F401
@@ -14,7 +15,8 @@ from .options import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS, pars
 
 def _add_common(p) -> None:
     p.add_argument("--mu", type=float, default=1.0, help="position scale mu (default 1)")
-    p.add_argument("--environment", default="hard", choices=ENVIRONMENT_NAMES)
+    p.add_argument("--environment", default="hard", choices=ENVIRONMENT_NAMES,
+                   help="the slave's environment (default hard)")
     p.add_argument("--rate-hz", type=float, default=5000.0, help="servo rate (default 5000, as the thesis)")
     p.add_argument("--speed", type=float, default=0.1, help="incoming tap speed of the slave, m/s")
     p.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: "
@@ -32,9 +34,10 @@ def register(sub) -> None:
         The ``python -m renderer`` sub-command parsers.
     """
     p = sub.add_parser("teleop", help="run a simulated teleoperation session (thesis ch. 5)")
-    p.add_argument("--controller", default="pf", choices=CONTROLLER_NAMES)
+    p.add_argument("--controller", default="pf", choices=CONTROLLER_NAMES,
+                   help="the teleoperation controller (thesis ch. 5; default pf: position-force)")
     p.add_argument("--lambda", dest="lam", type=float, default=1.0, help="force-feedback gain lambda")
-    p.add_argument("--taps", type=int, default=10)
+    p.add_argument("--taps", type=int, default=10, help="taps of the simulated operator (default 10)")
     p.add_argument("--b", type=float, default=0.0, help="master damping b, N s/m (eq. 5.9)")
     p.add_argument("--k-mu-hz", type=float, default=None,
                    help="position-command low-pass K_mu (eq. 5.10); default 0 (off), 40 Hz for pd+hfam, whose "
@@ -43,7 +46,7 @@ def register(sub) -> None:
                    help="pd, pd+hfam: low-pass on the master's PD force; default 0 (off), 150 Hz for pd+hfam "
                         "(the PD keeps the power band, HFAM the band above; section 4.3.1)")
     p.add_argument("--k-lambda-hz", type=float, default=0.0, help="force-feedback low-pass K_lambda (eq. 5.11)")
-    p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--no-figures", action="store_true", help="write the data only, no figures")
     p.add_argument("--hha-model", default=None, help="H_ha model file for pd+hfam (default: identify the master)")
     p.add_argument("--hfam-max-current", type=float, default=4.0, help="saturation of the HFAM channel, A")
     p.add_argument("--master", default="sim",
@@ -54,6 +57,8 @@ def register(sub) -> None:
                    help="with --master DEVICE: session length in s (default 10); the simulated operator's "
                         "session lasts as long as its --taps")
     _add_common(p)
+    with_examples(p, "hfam-renderer teleop --controller pf+cimm --lambda 4 --taps 5 --out teleop/",
+                  "hfam-renderer teleop --controller pf --master serial:/dev/ttyACM0 --duration-s 10 --out teleop_hw/")
     p.set_defaults(func=Body("renderer.teleop.commands", "run_teleop"))
     q = sub.add_parser("teleop-sweep", help="lambda sweep with/without cancellation and stabilisers (Fig. 5.11)")
     q.add_argument("--lambda", dest="lam", default="1:15", help="lambda values: a:b, a:b:step or a,b,c")
@@ -64,5 +69,7 @@ def register(sub) -> None:
     q.add_argument("--robustness", action="store_true",
                    help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
     _add_common(q)
+    with_examples(q, "hfam-renderer teleop-sweep --lambda 1:15 --taps 2 --out sweep/",
+                  "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/")
     q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))
 

@@ -19,18 +19,17 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
-import matplotlib.pyplot as plt
 import numpy as np
 import scipy
-from tqdm import tqdm
 
+import figstyle
 from devices.model import load_model
 from devices.registry import make_device
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import CimmModel, Testbed, get_environment
 from plumbing.fileio import atomic_write_text, check_output_dir
+from plumbing.progress import Progress
 from plumbing.stopsignals import stop_on_signals
 
 from .hfam import accel_match, design_hfam, figure_45, identify_master_hha
@@ -255,8 +254,8 @@ def run_teleop_master(args) -> int:
 
 
 def figure_510(res, path: Path, title: str) -> None:
-    """Figure 5.10-style plot of the first tap: F_f and x_c (and x_m, x_hat_mi,hf with cancellation)."""
-    matplotlib.use("Agg")
+    """Figure 5.10-style plot of the first tap: F_f and x_c (and x_m, x_hat_mi,hf with cancellation), in the
+    project style (figstyle: PNG, SVG and the plotted numbers as ``.plot.csv``, written into the run's folder)."""
 
     tr = res.traces if not res.fault else res.traces[:res.fault_tick + 1]
     fe = tr[:, K.O_FE]
@@ -264,20 +263,22 @@ def figure_510(res, path: Path, title: str) -> None:
     i0 = int(hit[0]) if len(hit) else 0
     a, b = max(0, i0 - int(0.02 * res.fs_hz)), min(len(tr), i0 + int(0.2 * res.fs_hz))
     t = (tr[a:b, K.O_T] - tr[i0, K.O_T]) * 1e3
-    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(6, 5))
-    ax1.plot(t, tr[a:b, K.O_FF], label="F_f")
-    ax1.set_ylabel("F_f (N)")
-    ax2.plot(t, tr[a:b, K.O_XC] * 1e3, label="x_c")
-    if np.any(tr[a:b, K.O_XHAT] != 0):
-        ax2.plot(t, tr[a:b, K.O_XM] * 1e3, label="x_m", alpha=0.7)
-        ax2.plot(t, tr[a:b, K.O_XHAT] * 1e3, label="x_hat_mi,hf", alpha=0.7)
-    ax2.set_ylabel("position (mm)")
-    ax2.set_xlabel("time after contact (ms)")
-    ax2.legend(fontsize=8)
-    ax1.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    data = {"t_ms": t, "F_f_N": tr[a:b, K.O_FF], "x_c_mm": tr[a:b, K.O_XC] * 1e3}
+    with figstyle.style() as plt:
+        fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=figstyle.figsize("column", height_in=3.8),
+                                       layout="constrained")
+        ax1.plot(t, tr[a:b, K.O_FF], label="F_f")
+        ax1.set_ylabel("F_f (N)")
+        ax2.plot(t, tr[a:b, K.O_XC] * 1e3, label="x_c")
+        if np.any(tr[a:b, K.O_XHAT] != 0):
+            ax2.plot(t, tr[a:b, K.O_XM] * 1e3, label="x_m", alpha=0.7)
+            ax2.plot(t, tr[a:b, K.O_XHAT] * 1e3, label="x_hat_mi,hf", alpha=0.7)
+            data.update(x_m_mm=tr[a:b, K.O_XM] * 1e3, x_hat_mi_hf_mm=tr[a:b, K.O_XHAT] * 1e3)
+        ax2.set_ylabel("position (mm)")
+        ax2.set_xlabel("time after contact (ms)")
+        fig.legend(handles=ax2.lines, loc="outside lower center", ncol=len(ax2.lines), fontsize=6)
+        fig.suptitle(title, fontsize=8)
+        figstyle.save(fig, path, data, force=True)   # the run's own folder (checked with --force before)
 
 
 def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, mu: float = 1.0,
@@ -364,21 +365,11 @@ def run_sweep(args) -> int:
     if check["warning"]:
         print(check["warning"])
     out = _new_dir(Path(args.out))
-    try:
-        bar = tqdm(total=len(conds) * len(lambdas) * args.taps, unit="tap", file=sys.stderr)
-
-        def progress(i, n):
-            bar.update(1)
-    except ImportError:
-        bar = None
-
-        def progress(i, n):
-            print(f"\r{i}/{n} taps", end="", file=sys.stderr, flush=True)
-    rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed, progress=progress)
-    if bar is not None:
-        bar.close()
-    else:
-        print(file=sys.stderr)
+    # a bar on a terminal, plain lines in a log (a tqdm bar wrote \r-separated redraws into a file)
+    bar = Progress(len(conds) * len(lambdas) * args.taps, "teleop-sweep", unit="tap")
+    rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
+                 progress=lambda i, n: bar.update(i))
+    bar.close()
     lines = ["condition,lambda,speed_m_s,settling_s,stable,breaks,hf_energy_fraction"]
     for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
         lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['settling_s']:.4f},"
@@ -410,25 +401,33 @@ def run_sweep(args) -> int:
 
 
 def figure_511(rows, conds, path: Path) -> None:
-    """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps."""
-    matplotlib.use("Agg")
+    """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps; the unstable
+    taps in a strip above, one row per condition (drawn at 320 ms in one pile, one could not tell whose they
+    were). Project style (figstyle: PNG, SVG, the rows as ``.plot.csv``)."""
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for c in conds:
-        rs = [r for r in rows if r["condition"] == c]
-        lam = np.array([r["lambda"] for r in rs])
-        st = np.array([r["settling_s"] * 1e3 for r in rs])
-        ok = np.array([r["stable"] for r in rs])
-        line = ax.plot(lam[ok], st[ok], "o", ms=4, label=f"{c}")[0]
-        ax.plot(lam[~ok], np.full((~ok).sum(), 320.0), "x", color=line.get_color(), ms=5)
-        if ok.sum() >= 3 and len(set(lam[ok])) >= 3:
-            co = np.polyfit(lam[ok], st[ok], 2)
-            xx = np.linspace(lam[ok].min(), lam[ok].max(), 50)
-            ax.plot(xx, np.polyval(co, xx), "-", color=line.get_color(), alpha=0.6)
-    ax.set_xlabel("force-feedback gain lambda (mu = 1)")
-    ax.set_ylabel("settling time of the contact force (ms)")
-    ax.set_title("Settling time vs lambda (x at 320 ms: unstable tap)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with figstyle.style() as plt:
+        fig, (top, ax) = plt.subplots(2, 1, sharex=True, figsize=figstyle.figsize("page", height_in=4.6),
+                                      height_ratios=(max(1, len(conds)) * 0.25, 3.0), layout="constrained")
+        for k, c in enumerate(conds):
+            rs = [r for r in rows if r["condition"] == c]
+            lam = np.array([r["lambda"] for r in rs], dtype=float)
+            st = np.array([r["settling_s"] * 1e3 for r in rs], dtype=float)
+            ok = np.array([r["stable"] for r in rs], dtype=bool)
+            line = ax.plot(lam[ok], st[ok], "o", ms=4, label=f"{c}")[0]
+            top.plot(lam[~ok], np.full((~ok).sum(), k), "x", color=line.get_color(), ms=5)
+            if ok.sum() >= 3 and len(set(lam[ok])) >= 3:
+                co = np.polyfit(lam[ok], st[ok], 2)
+                xx = np.linspace(lam[ok].min(), lam[ok].max(), 50)
+                ax.plot(xx, np.polyval(co, xx), "-", color=line.get_color(), alpha=0.6)
+        top.set_yticks(range(len(conds)), list(conds))
+        top.set_ylim(-0.6, len(conds) - 0.4)
+        top.invert_yaxis()
+        top.set_title("unstable taps (x), per condition", fontsize=7, loc="left")
+        ax.set_xlabel("force-feedback gain lambda (1; mu = 1)")
+        ax.set_ylabel("settling time of the contact force (ms)")
+        fig.legend(handles=[ln for ln in ax.lines if ln.get_label() in conds], loc="outside right upper",
+                   title="condition", fontsize=6, title_fontsize=6)
+        fig.suptitle("Settling time vs lambda (cf. thesis Figure 5.11)", fontsize=8)
+        header = ["condition", "lambda", "settling_ms", "stable"]
+        data = (header, [(r["condition"], r["lambda"], r["settling_s"] * 1e3, int(bool(r["stable"]))) for r in rows])
+        figstyle.save(fig, path, data, force=True)   # the sweep's own folder (checked with --force before)

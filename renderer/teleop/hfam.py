@@ -14,11 +14,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import matplotlib
-import matplotlib.pyplot as plt
 import numpy as np
 from scipy import signal
 from scipy.signal import windows
+
+import figstyle
 
 from devices.identify.etfe import etfe
 from devices.identify.fit import FitOptions, fit_etfes
@@ -232,8 +232,8 @@ def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_h
 
 
 def figure_45(slave_tip_m_s2, master_handle_m_s2, fs_hz: float, delay_samples: int, path, title: str = "") -> None:
-    """Figure 4.5-style plot: slave tip vs master handle acceleration (22-1000 Hz, delay removed), first impact."""
-    matplotlib.use("Agg")
+    """Figure 4.5-style plot: slave tip vs master handle acceleration (22-1000 Hz, delay removed), first impact;
+    project style (figstyle: PNG, SVG, the plotted numbers as ``.plot.csv``)."""
 
     sos = signal.butter(4, [HIGHPASS_HZ, min(1000.0, 0.45 * fs_hz)], btype="bandpass", fs=fs_hz, output="sos")
     a = signal.sosfilt(sos, np.asarray(slave_tip_m_s2, float))
@@ -241,13 +241,14 @@ def figure_45(slave_tip_m_s2, master_handle_m_s2, fs_hz: float, delay_samples: i
     i0 = int(np.argmax(np.abs(a) > 0.2 * np.max(np.abs(a))))
     lo, hi = max(0, i0 - int(0.01 * fs_hz)), min(len(a) - delay_samples, i0 + int(0.06 * fs_hz))
     t = (np.arange(lo, hi) - i0) / fs_hz * 1e3
-    fig, ax = plt.subplots(figsize=(6.5, 3.5))
-    ax.plot(t, a[lo:hi], label="slave tip")
-    ax.plot(t, b[lo + delay_samples:hi + delay_samples], label=f"master handle (delay {delay_samples / fs_hz * 1e3:.1f} ms removed)")
-    ax.set_xlabel("time (ms)")
-    ax.set_ylabel("acceleration 22-1000 Hz (m/s^2)")
-    ax.set_title(title)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with figstyle.style() as plt:
+        fig, ax = plt.subplots(figsize=figstyle.figsize("page", height_in=3.0), layout="constrained")
+        ax.plot(t, a[lo:hi], label="slave tip")
+        ax.plot(t, b[lo + delay_samples:hi + delay_samples],
+                label=f"master handle (delay {delay_samples / fs_hz * 1e3:.1f} ms removed)")
+        ax.set_xlabel("time (ms)")
+        ax.set_ylabel("acceleration 22-1000 Hz (m/s^2)")
+        ax.set_title(title, fontsize=8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=6, borderaxespad=0.0)
+        data = {"t_ms": t, "slave_tip_m_s2": a[lo:hi], "master_handle_m_s2": b[lo + delay_samples:hi + delay_samples]}
+        figstyle.save(fig, path, data, force=True)   # the command's own folder

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,8 @@ SUCCESSIVE_SOURCE = "successive isolation (devices.identify.successive) of the s
 
 
 def identified_params(log=print) -> tuple[SimParams, str]:
-    """Successive-isolation identification of the simulated master (about 40 s once, then cached).
+    """Successive-isolation identification of the simulated master (once, then cached; the time it took is
+    printed).
 
     Returns
     -------
@@ -44,8 +46,10 @@ def identified_params(log=print) -> tuple[SimParams, str]:
     base = user_cache_dir() / "teleop" / key
     model = base / "model.json"
     if not model.is_file():
-        log("identifying the master by successive isolation (about 40 s, cached afterwards)...")
+        log("identifying the master by successive isolation (once; cached afterwards)...")
+        t0 = time.monotonic()
         result = identify_successive("sim", log=lambda *a, **k: None)
+        log(f"identified the master in {time.monotonic() - t0:.1f} s")
         tmp = base.with_name(base.name + f".tmp{os.getpid()}")
         save_result(result, tmp, figures=False)
         tmp.mkdir(parents=True, exist_ok=True)

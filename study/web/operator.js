@@ -59,14 +59,24 @@ function runner(ok, why) {
   el.textContent = "RUNNER STOPPED: " + why + (lastOk ? " (last answer " + lastOk.toLocaleTimeString() + ")" : "");
   for (const id of ["confirm", "pause", "resume", "endfam", "abort"]) document.getElementById(id).disabled = true;
 }
+function complete(s) {
+  // a normal finish: the final state stays on the page, the runner then exits (no "runner stopped" alarm)
+  const el = document.getElementById("runner");
+  el.className = "complete";
+  el.textContent = "SESSION COMPLETE: " + (s.trials_valid ?? "-") + " of " + (s.trials_total ?? "-") +
+                   " trials valid; the data is saved. You can close this page.";
+  document.getElementById("place").textContent = "Session complete";
+  document.getElementById("place").className = "complete";
+  for (const id of ["confirm", "pause", "resume", "endfam", "abort"]) document.getElementById(id).disabled = true;
+}
 async function poll() {
   try {
     const r = await fetch("/api/operator?token=" + encodeURIComponent(token), {cache: "no-store"});
     if (r.ok) {
       const s = await r.json();
       show(s);
-      if (s.finished) runner(false, "the session is complete"); else if (s.aborted) runner(false, "aborted");
-      else runner(true);
+      if (s.finished) { complete(s); return; }          // final: stop asking
+      if (s.aborted) runner(false, "aborted"); else runner(true);
     } else runner(false, "server answered " + r.status);
   } catch (e) { runner(false, "no answer from the runner"); }
   setTimeout(poll, 500);

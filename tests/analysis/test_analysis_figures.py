@@ -242,3 +242,23 @@ def test_figstyle_is_a_leaf_package():
     assert figstyle.figsize("column")[0] == 3.5 and figstyle.figsize("slide")[0] == 10.0
     with figstyle.style("slide") as plt:
         assert plt.rcParams["font.size"] == pytest.approx(8 * figstyle.SLIDE_FONT_SCALE)
+
+
+def test_figure_4_17_says_where_a_ci_runs_past_the_scale():
+    """A t-interval of few subjects past 7 (or below 1) is drawn to the scale's end with an arrowhead and a
+    legend entry, and flagged in the CSV, instead of being cut at the axis silently."""
+    summary = pd.DataFrame({"sample": ["real_wood", "hfam_firm", "pulse_firm"], "mean_rating": [6.6, 4.0, 1.4],
+                            "median_rating": [7.0, 4.0, 1.0], "ci95_low_rating": [5.9, 3.1, 0.2],
+                            "ci95_high_rating": [7.6, 4.9, 2.6], "n_subjects": [3, 3, 3]})
+    fig, data = F.build_ratings(summary)
+    try:
+        assert list(data["ci_cut_at_scale"]) == [True, False, True]
+        ax = fig.axes[0]
+        cut = [ln for ln in ax.lines if ln.get_marker() in (">", "<")]
+        assert sorted((ln.get_marker(), tuple(ln.get_xdata())) for ln in cut) == [("<", (1.0,)), (">", (7.0,))]
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert "CI cut at the scale's end" in legend
+        assert figstyle.text_problems(fig, tight=True) == [] and figstyle.legend_overlaps(fig) == []
+    finally:
+        import matplotlib.pyplot as plt
+        plt.close(fig)

@@ -38,7 +38,7 @@ def test_tables_written_with_issue_columns(report):
     out, _ = report
     pw = pd.read_csv(out / "pairwise_ttests.csv")
     assert list(pw.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                                "ci_low", "ci_high", "cohen_dz"]
+                                "ci_low", "ci_high", "cohen_dz", "not_testable"]
     assert len(pw) == 2 * 66 and set(pw["group"]) == {"all", "experienced"}
     eq = pd.read_csv(out / "equivalence.csv")
     assert list(eq.columns) == ["group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
@@ -63,7 +63,7 @@ def test_warnings_printed_and_in_report(report):
     assert "warning: 1 subject(s) miss sample(s)" in proc.stderr and "S005 (foam, pulse_soft)" in proc.stderr
     md = (out / "report.md").read_text()
     assert "S005 misses foam, pulse_soft" in md and "S006 is not finished" in md
-    assert re.search(r"\*\*all subjects\*\*: \d+ of 66 sample pairs differ significantly", md)
+    assert re.search(r"\*\*all subjects\*\*: \d+ of 66 testable sample pairs differ significantly", md)
     assert "## Significantly different pairs" in md and "- wood rated higher than foam by" in md
     assert "equivalent to wood_on_foam within ±0.5" in md
     assert "invalid testing attempts were left out (saturated" in md
@@ -293,3 +293,28 @@ def test_truncated_traces_are_skipped_with_a_note_naming_them(tmp_path, capsys):
     assert re.search(re.escape(str(data / "S001" / "traces")) + r"/testing_t\d+_a\d+\.npz: unreadable trace "
                      r"\(BadZipFile: ", err), err
     assert (tmp_path / "rep" / "report.html").is_file()
+
+
+def test_report_figures_use_the_catalog_labels(tmp_path):
+    """A sample's label in session.json's catalog ("HFAM, my library, firm") is what the report's figures show,
+    not the sample name made readable ("hfam mine")."""
+    import json as _json
+
+    from analysis.load import catalog_labels
+    from analysis.pipeline import analyse
+    from analysis.report import write_report
+    from analysis.synthetic import write_synthetic_study
+    data = tmp_path / "DATA"
+    write_synthetic_study(data, 3, seed=2, p_invalid=0.0)
+    for sess in data.glob("*/session.json"):
+        s = _json.loads(sess.read_text())
+        for item in s["catalog"]:
+            if item["name"] == "hfam_firm":
+                item["label"] = "HFAM, my library, firm"
+        sess.write_text(_json.dumps(s))
+    res = analyse(data)
+    assert catalog_labels(res.study)["hfam_firm"] == "HFAM, my library, firm"
+    write_report(res, tmp_path / "R")
+    for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration"):
+        svg = (tmp_path / "R" / f"{stem}.svg").read_text()
+        assert "HFAM, my library, firm" in svg, stem

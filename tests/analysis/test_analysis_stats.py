@@ -55,7 +55,7 @@ def test_pairwise_equals_scipy_and_statsmodels_holm(study_dir, analysed):
     means, catalog, experience = _independent_means(study_dir)
     table = analysed.pairwise
     assert list(table.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                                   "ci_low", "ci_high", "cohen_dz"]
+                                   "ci_low", "ci_high", "cohen_dz", "not_testable"]
     for group, sel in (("all", means), ("experienced", means[[experience[s] != "none" for s in means.index]])):
         got = table[table["group"] == group].reset_index(drop=True)
         want = _expected_pairwise(sel, catalog, group)
@@ -209,3 +209,39 @@ def test_small_groups_and_degenerate_pairs_are_reported(tmp_path):
     lines, pairs = summary_text(res, [])
     assert any("experienced**: not enough complete subjects" in ln for ln in lines)
     assert set(pairs) == {"all", "experienced"} and pairs["experienced"] == []
+
+
+def test_pairs_with_sd_0_or_fewer_than_3_subjects_are_not_testable():
+    """SD 0 of the differences (scipy: t = inf or ~1e15, p = 0) and n < 3 are reported as not testable: no t, p
+    or d_z, never among the significant pairs (Holm over the testable ones only), hatched in Figure 4.18."""
+    from analysis.stats import RatingMatrix, pairwise_ttests
+    means = np.array([[5.0, 3.0, 4.0, 6.0], [6.0, 4.0, 4.5, np.nan], [4.0, 2.0, 6.0, np.nan],
+                      [5.5, 3.5, 3.0, 2.0]])
+    rm = RatingMatrix(np.array(["S1", "S2", "S3", "S4"]), ("a", "b", "c", "d"), means,
+                      np.where(np.isnan(means), 0, 3), np.array(["none"] * 4))
+    pw = pairwise_ttests(rm, "all").set_index(["sample_a", "sample_b"])
+    ab = pw.loc[("a", "b")]                                  # b = a - 2 for every subject: SD 0
+    assert ab["not_testable"].endswith("(SD 0)") and np.isnan(ab["t"]) and np.isnan(ab["p"])
+    assert np.isnan(ab["p_holm"]) and np.isnan(ab["cohen_dz"]) and ab["mean_diff"] == 2.0
+    ad = pw.loc[("a", "d")]                                  # d rated by 2 subjects only
+    assert ad["n"] == 2 and "fewer than 3" in ad["not_testable"] and np.isnan(ad["p"])
+    ac = pw.loc[("a", "c")]
+    assert ac["not_testable"] == "" and np.isfinite(ac["p"])
+    ref = stats.ttest_rel(means[:, 0], means[:, 2])
+    np.testing.assert_allclose([ac["t"], ac["p"]], [ref.statistic, ref.pvalue], rtol=1e-10)
+    # Holm over the testable pairs only (statsmodels)
+    testable = pw[pw["not_testable"] == ""]
+    np.testing.assert_allclose(testable["p_holm"], multipletests(testable["p"], method="holm")[1], rtol=1e-12)
+    # Figure 4.18 hatches the not-testable cells (no colour, no star)
+    import matplotlib.pyplot as plt
+
+    from analysis import figures as F
+    fig, data = F.build_pvalues(pw.reset_index(), ["a", "b", "c", "d"])
+    try:
+        cell = data[(data["sample_row"] == "a") & (data["sample_col"] == "b")].iloc[0]
+        assert np.isnan(cell["p_holm"]) and not (isinstance(cell["stars"], str) and cell["stars"].strip("*") == ""
+                                                 and cell["stars"])
+        hatched = {(round(p.get_x() + 0.5), round(p.get_y() + 0.5)) for p in fig.axes[0].patches if p.get_hatch()}
+        assert (1, 0) in hatched and (3, 0) in hatched and (2, 0) not in hatched   # (col, row): a-b, a-d; a-c tested
+    finally:
+        plt.close(fig)

@@ -42,6 +42,45 @@ def test_help_has_an_example_and_unit_suffixes(module, command):
     assert "usage" in text
 
 
+def _all_commands():
+    """(module, command) of every sub-command in every package's ``__main__.COMMANDS`` table."""
+    out = []
+    for pkg in ("devices", "stimuli", "renderer", "study", "analysis"):
+        for c in importlib.import_module(f"{pkg}.__main__").COMMANDS:
+            out.append((c.module, c.name))
+    return out
+
+
+@pytest.mark.parametrize("module,command", _all_commands())
+def test_every_subcommand_help_ends_with_an_example(module, command):
+    """Every sub-command of every package (not only the listed ones): --help ends with examples of itself, and
+    a flag whose help says "in <unit>" carries the unit's suffix."""
+    test_help_has_an_example_and_unit_suffixes(module, command)
+    p = parser_of(module, command)
+    text = p.format_help()
+    assert "``" not in text and "::" not in text and ":func:" not in text, f"{command}: reStructuredText in --help"
+    n = len(re.findall(r"^examples?:", text, re.M)) + len(re.findall(r"(hfam-\w+|python -m \w+) " + re.escape(command)
+                                                                   + r" .*::", text))
+    assert n == 1, f"{command}: examples printed {n} times"
+
+
+def test_linearity_and_validate_follow_the_grammar(capsys):
+    p = parser_of("devices.cli_linearity_parser", "linearity")
+    new = p.parse_args(["--amplitudes-A", "0.2,1", "--grips-N", "1,3", "--band-hz", "20", "400"])
+    assert capsys.readouterr().err == ""
+    old = p.parse_args(["--amplitudes", "0.2,1", "--grips", "1,3", "--band", "20", "400"])
+    err = capsys.readouterr().err
+    assert (old.amplitudes, old.grips, tuple(old.band)) == (new.amplitudes, new.grips, tuple(new.band)) == \
+        ((0.2, 1.0), (1.0, 3.0), (20.0, 400.0))
+    assert "use --amplitudes-A" in err and "use --grips-N" in err and "use --band-hz" in err
+    p = parser_of("devices.cli_validate_parser", "validate")
+    new = p.parse_args(["m", "--grip-N", "3", "--amplitude-A", "0.5", "--amplitudes-A", "0.2,0.7"])
+    old = p.parse_args(["m", "--grip", "3", "--amplitude", "0.5", "--amplitudes", "0.2,0.7"])
+    assert (old.grip, old.amplitude, old.amplitudes) == (new.grip, new.amplitude, new.amplitudes) == (3.0, 0.5, (0.2, 0.7))
+    assert "use --grip-N" in capsys.readouterr().err
+    assert "--grip " not in p.format_help() and "--amplitudes " not in p.format_help()
+
+
 def test_old_spellings_still_work_with_a_notice(capsys):
     p = parser_of("renderer.cli_run_parser", "run")
     new = p.parse_args(["--velocities-m-s", "0.1,0.2", "--grip-N", "3", "--out", "o"])

@@ -128,6 +128,28 @@ def test_operator_page_in_chromium(browser, served):
     page.close()
 
 
+def test_operator_page_fits_a_390_px_phone(browser, served):
+    """At 390 px (a phone) the operator page is no wider than the screen, with a long last attempt shown."""
+    ui, web = served
+    page = browser.new_page(viewport={"width": 390, "height": 844}, bypass_csp=True)
+    page.goto(web.operator_url)
+    ui.set_operator(subject="P07-long-subject-name", phase="testing", trial=12, attempt=3,
+                    progress={"demonstration": {"total": 12, "attempts": 14, "valid": 12},
+                              "testing": {"total": 36, "attempts": 15, "valid": 12}},
+                    last_attempt={"sample": "hfam_mine_with_a_long_name", "kind": "virtual", "n_taps": 6,
+                                  "incoming_velocities_m_s": [0.101, 0.122, 0.093, 0.154, 0.111, 0.131],
+                                  "penetration_depths_m": [0.0012, 0.0014, 0.0011, 0.0016, 0.0013, 0.0015],
+                                  "saturated": True, "overpowered": True, "rejected": False, "rating": 5},
+                    redraws=[{"phase": "testing", "trial": 4, "sample": "hfam_mine_with_a_long_name", "attempt": 2,
+                              "reason": "clipped transient (the amplifier's limit) and an overpowered homing"}])
+    ui.request_confirm("placeholder B (virtual samples alternate placeholders)")
+    page.wait_for_function("document.getElementById('place').textContent.startsWith('Place: placeholder B')")
+    page.wait_for_function("document.getElementById('last').rows.length > 0")
+    width = page.evaluate("document.documentElement.scrollWidth")
+    assert width <= 390, width
+    page.close()
+
+
 def step(op, subj, keys, places, typed):
     """One look at both views, acting like the operator and the subject would."""
     if op.is_enabled("#confirm"):
@@ -185,6 +207,12 @@ def test_keyboard_session_driven_through_both_views(browser, tmp_path):
                 break
             time.sleep(0.05)
         assert proc.wait(timeout=30) == 0, proc.stderr.read()
+        # a normal finish: the runner waited for the open operator page to fetch the final state, which it
+        # shows as complete (no red "RUNNER STOPPED: no answer from the runner" over stale state)
+        runner_text = op.inner_text("#runner")
+        assert runner_text.startswith("SESSION COMPLETE: ") and "trials valid" in runner_text, runner_text
+        assert op.inner_text("#place") == "Session complete"
+        assert all(op.is_disabled(f"#{b}") for b in ("confirm", "pause", "resume", "endfam", "abort"))
     finally:
         if proc.poll() is None:
             proc.kill()

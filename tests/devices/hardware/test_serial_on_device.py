@@ -1,12 +1,15 @@
 """On-device rendering over the pty: the firmware emulator renders wall + transient, the host only listens."""
 
 import math
+import select
+import time
 
 import numpy as np
 import pytest
 
 from devices import DeviceError, Status
 from devices.firmware.emulator import start_emulator
+from devices.hardware import wire_protocol as P
 from devices.hardware.serial_device import SerialDevice
 from renderer.config import RendererConfig
 from renderer.loop import ServoLoop
@@ -259,3 +262,35 @@ def test_a_protocol_1_0_device_gets_the_old_wall_and_a_warning():
             assert np.max(err) <= 0.0015
     finally:
         handle.stop()
+
+
+def test_an_ack_waiting_at_the_deadline_is_taken_and_the_request_not_sent_again(on_device):
+    """A host thread descheduled past a request's deadline (a loaded machine) finds the ACK in the tty: it takes
+    it rather than sending the request again. A second RENDER_START restarted the wall mid-run (observer energy,
+    velocity window, contact state): fw-sim's C currents then disagreed with the Python replay of its tick log
+    (test_fw_sim's study-walls test, under load). Driven by events: each wait returns only once the reply is in
+    the tty and the deadline has passed, without reading it."""
+    dev, handle = on_device
+    fd = dev._t._fd
+    sent = []
+    real_tx, real_poll = dev._tx, dev._poll
+
+    def tx(msg_type, payload=b""):
+        sent.append(msg_type)
+        return real_tx(msg_type, payload)
+
+    def descheduled(timeout_s):
+        if timeout_s <= 0.0:
+            return real_poll(timeout_s)
+        assert select.select([fd], [], [], 60.0)[0]  # the reply has arrived ...
+        time.sleep(timeout_s)  # ... and the thread wakes after its deadline (deadline = now + at most timeout_s)
+        return None
+
+    dev._tx, dev._poll = tx, descheduled
+    try:
+        dev.configure_rendering(WALL, LIMITS)
+    finally:
+        dev._tx, dev._poll = real_tx, real_poll
+    assert dev.stats["timeouts"] == 0
+    assert sent.count(P.RENDER_START) == 1 and sent.count(P.WALL) == 1 and sent.count(P.LIMITS) == 1
+    assert len(sent) == len(set(sent))  # no request went out twice

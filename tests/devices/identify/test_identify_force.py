@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 from devices.__main__ import main as devices_main
@@ -30,26 +29,44 @@ def _earlier_results(out: Path) -> dict:
     return tree_hashes(out)
 
 
+# The child is the real command with one gate: once a grip's recordings are on disk and before they are
+# analysed, it says so on stderr and waits for a line on stdin. Ctrl-C then lands in the middle of the run by
+# construction, however loaded the machine is (the run can neither finish first nor be caught before measuring).
+_GATED_IDENTIFY = """
+import sys
+import devices.identify.pipeline as pipeline
+from devices.__main__ import main
+
+_analyse = pipeline._analyse_grip
+
+def gated(*args, **kwargs):
+    print("GATE: recordings written", file=sys.stderr, flush=True)
+    sys.stdin.readline()
+    return _analyse(*args, **kwargs)
+
+pipeline._analyse_grip = gated
+sys.exit(main(sys.argv[1:]))
+"""
+
+
 def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
     out = tmp_path / "identA"
     before = _earlier_results(out)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "devices", "identify", *FAST, "--duration-s", "2",
-                             "--out", str(out), "--force"], cwd=tmp_path, env=env,
+    proc = subprocess.Popen([sys.executable, "-c", _GATED_IDENTIFY, "identify", *FAST, "--duration-s", "2",
+                             "--out", str(out), "--force"], cwd=tmp_path, env=env, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    # wait until the new run is measuring (its first recordings are on disk, wherever it writes them), then
-    # press Ctrl-C
-
-    def measuring():
-        return list(tmp_path.glob(".identA.identify-*/recordings/g2N*.csv")) + list(out.glob("recordings/g2N*.csv"))
-
-    deadline = time.monotonic() + 120
-    while not measuring() and time.monotonic() < deadline:
-        assert proc.poll() is None, proc.communicate()
-        time.sleep(0.02)
-    assert measuring(), "the run never started measuring"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    seen = []
+    for line in proc.stderr:                    # wait for the run's own announcement, however long it takes
+        seen.append(line)
+        if line.startswith("GATE:"):
+            break
+    assert seen and seen[-1].startswith("GATE:"), "".join(seen)
+    measuring = list(tmp_path.glob(".identA.identify-*/recordings/g2N*.csv"))
+    assert len(measuring) == 2                  # both trials of the grip recorded into the sibling folder
+    proc.send_signal(signal.SIGINT)             # the run is parked at the gate: Ctrl-C arrives mid-run
+    _, rest = proc.communicate(timeout=600)
+    err = "".join(seen) + rest
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     lines = [ln for ln in err.splitlines() if ln.strip()]

@@ -5,6 +5,7 @@ issue 17. The isolation runs once per device (module fixtures)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -298,3 +299,32 @@ def test_comprehensive_grips_in_parallel_processes(tmp_path):
     assert np.all(np.abs(err_db) < 1.0)
     assert all(r["validation"]["nrmse"] < 0.1 for r in report["grips"])
     assert any(m.startswith("grip 3 N accel: order") for m in logs)
+
+
+def test_stage_figures_in_the_project_style_with_readable_labels(default_run, tmp_path, monkeypatch):
+    """Every stage figure through figstyle (PNG + SVG), no text overlapping another or cut off, no legend over
+    the data, units on every numeric axis; stage 1's histogram is of the periods' deviation (a simulated clock:
+    one bar at 0 with its spread said), not of floating-point noise around 100 us."""
+    import figstyle
+    from devices.identify.successive.figures import stage_figures
+
+    result, _ = default_run
+    seen = []
+    save = figstyle.save
+
+    def spy(fig, path, data=None, **kw):
+        seen.append((Path(path).name, figstyle.text_problems(fig), figstyle.legend_overlaps(fig),
+                     figstyle.unlabelled_axes(fig), [t.get_text() for t in fig.axes[0].texts],
+                     fig.axes[0].get_xlabel()))
+        return save(fig, path, data, **kw)
+
+    monkeypatch.setattr(figstyle, "save", spy)
+    paths = stage_figures(result, tmp_path)
+    assert len(paths) == len(seen) == 8
+    bad = [(name, texts, legends, units) for name, texts, legends, units, _, _ in seen if texts or legends or units]
+    assert bad == [], "\n".join(map(str, bad))
+    for name, *_ in seen:
+        assert (tmp_path / name).with_suffix(".svg").stat().st_size > 1000
+    name, _, _, _, notes, xlabel = seen[0]
+    assert name == "stage_1_timing.png" and xlabel.startswith("servo period \u2212 median 100.000 us")
+    assert notes and notes[0].startswith("all ") and "periods equal" in notes[0]

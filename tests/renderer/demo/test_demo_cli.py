@@ -17,8 +17,8 @@ def test_help_lists_the_options(capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--velocities", "0.1,abc"], "--velocities"),
-    (["--grips", "-1"], "--grips"),
+    (["--velocities-m-s", "0.1,abc"], "--velocities-m-s"),
+    (["--grips-N", "-1"], "--grips-N"),
     (["--device", "bogus:thing"], "unknown device string"),
     (["--tap-stop-time", "0"], "tap_stop_time_s"),
     (["--record-velocities", "0.05"], "record_velocities_m_s"),
@@ -60,7 +60,7 @@ def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path):
 
     def demo(out, *extra):
         return subprocess.run([sys.executable, "-m", "renderer", "demo", "--device", "sim", "--out", out,
-                               "--cache-dir", "democache", "--velocities", "0.1", "--grips", "2", "--no-figures",
+                               "--cache-dir", "democache", "--velocities-m-s", "0.1", "--grips-N", "2", "--no-figures",
                                *extra], cwd=tmp_path, capture_output=True, text=True, timeout=600)
 
     res = demo("myresults")

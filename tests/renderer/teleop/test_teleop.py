@@ -168,6 +168,8 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
                  "--cimm-model", "stand-in", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["cimm_model"]["source"] == STAND_IN_SOURCE
     assert (out / "figure_5_11.png").exists() and "pf+cimm" in (out / "table.md").read_text()
+    err = capsys.readouterr().err          # not a terminal: plain progress lines, no bar redrawn with \r
+    assert "\r" not in err and "teleop-sweep: 4 of 4 taps done" in err
     assert main(["teleop-sweep", "--lambda", "5:1", "--out", str(tmp_path / "x")]) == 2
     assert "error: --lambda" in capsys.readouterr().err
     assert set(SWEEP_CONDITIONS) >= {"pf", "pf+cimm", "pf+b", "pf+K_mu", "pf+K_lambda"}
