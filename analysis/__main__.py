@@ -10,6 +10,8 @@ from plumbing.dispatch import Command, main as dispatch, run_as_script
 #: two-core machine
 COMMANDS = (
     Command("report", "analysis.cli_report", "analyse a study folder: tables, figures, report.md/.html", blas_threads=1),
+    Command("plan", "analysis.cli_plan", "number of subjects for the next study (difference and equivalence tests)",
+            blas_threads=1),
     Command("synthetic", "analysis.cli_synthetic", "write a synthetic study folder in the study's data format",
             blas_threads=1),
 )

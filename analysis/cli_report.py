@@ -17,7 +17,8 @@ from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig, c
 
 def run(args: argparse.Namespace) -> int:
     """The ``report`` command: analyse the study folder and write tables, figures and report.md/.html; returns the exit code."""
-    cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha)
+    cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha,
+                         models=not args.no_models)
     out = Path(args.out)
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")
@@ -165,5 +166,7 @@ def register(subparsers) -> None:
                 help="common incoming velocity for Figure 4.20 in m/s (default: median of all "
                                          "taps)")
     p.add_argument("--no-figures", action="store_true", help="tables and report without figures")
+    p.add_argument("--no-models", action="store_true",
+                   help="skip the mixed and ordinal models of every attempt (section Models says so)")
     p.epilog = "example: hfam-analysis report DATA --out REPORT --reference wood_on_foam --margin 0.5"
     p.set_defaults(func=run)
