@@ -16,9 +16,9 @@ JZS_R = 0.707
 
 # the integral over g is taken on u = ln g (its integrand is smooth and unimodal there): the
 # inverse-gamma(1/2, 1/2) prior of g vanishes like exp(-e^-u / 2) below u = -8 (< 1e-600) and the
-# integrand decays like e^-u above; a trapezoid on this grid is accurate to ~1e-10 relative
+# integrand decays like e^-u above; a trapezoid on this grid (step 0.057) is accurate to ~1e-11 relative
 # (checked against adaptive quadrature and pingouin in tests/analysis/test_analysis_models.py)
-_U = np.linspace(-8.0, 60.0, 6001)
+_U = np.linspace(-8.0, 60.0, 1201)
 
 
 def log_bf10_paired(t, n, r: float = JZS_R) -> np.ndarray:

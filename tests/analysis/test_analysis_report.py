@@ -38,11 +38,11 @@ def test_tables_written_with_issue_columns(report):
     out, _ = report
     pw = pd.read_csv(out / "pairwise_ttests.csv")
     assert list(pw.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                                "ci_low", "ci_high", "cohen_dz"]
+                                "bf10", "ci_low", "ci_high", "cohen_dz", "wilcoxon_w", "wilcoxon_p", "wilcoxon_p_holm"]
     assert len(pw) == 2 * 66 and set(pw["group"]) == {"all", "experienced"}
     eq = pd.read_csv(out / "equivalence.csv")
     assert list(eq.columns) == ["group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
-                                "p_tost", "equivalent"]
+                                "p_tost", "equivalent", "bf01"]
     an = pd.read_csv(out / "anova.csv")
     assert set(an["test"]) == {"rm_anova", "friedman"} and an["p_gg"].notna().sum() == 2
     summ = pd.read_csv(out / "sample_summary.csv")
