@@ -15,6 +15,11 @@ DEFAULT_PAIRS = 66
 DEFAULT_EQUIVALENCE = 11
 
 
+def _given(value, default):
+    """``value`` unless the flag was not given (None): 0 stays 0, so that the settings refuse it."""
+    return default if value is None else value
+
+
 def run(args: argparse.Namespace) -> int:
     """The ``plan`` command: write ``plan.csv`` and the power-curve figure into ``--out``, print one line per comparison."""
     from plumbing.fileio import check_output_dir  # deferred: keeps `--help` fast (a command loads what it runs)
@@ -44,8 +49,8 @@ def run(args: argparse.Namespace) -> int:
                              f"({', '.join(study.catalog)})")
         k = len(study.catalog)
         settings = PlanSettings(power=args.power, alpha=args.alpha, margin=args.margin,
-                                comparisons=args.comparisons or k * (k - 1) // 2,
-                                equivalence_comparisons=args.equivalence_comparisons or k - 1)
+                                comparisons=_given(args.comparisons, k * (k - 1) // 2),
+                                equivalence_comparisons=_given(args.equivalence_comparisons, k - 1))
         matrix = rating_matrix(study)
         if len(matrix.subjects) < 2:
             raise ValueError(f"--pilot {args.pilot}: {len(matrix.subjects)} subject(s); a pilot needs 2 or more to "
@@ -55,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.sd_diff > 0:
             raise ValueError(f"--sd-diff must be > 0 rating points, got {args.sd_diff}")
         settings = PlanSettings(power=args.power, alpha=args.alpha, margin=args.margin,
-                                comparisons=args.comparisons or DEFAULT_PAIRS,
-                                equivalence_comparisons=args.equivalence_comparisons or DEFAULT_EQUIVALENCE)
+                                comparisons=_given(args.comparisons, DEFAULT_PAIRS),
+                                equivalence_comparisons=_given(args.equivalence_comparisons, DEFAULT_EQUIVALENCE))
         plan = assumed_plan(args.dz, args.sd_diff, settings)
     from analysis.plan_report import write_plan  # deferred: matplotlib
 

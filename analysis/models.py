@@ -102,6 +102,10 @@ def attempt_data(study, max_subjects: int = MODELS_MAX_SUBJECTS) -> tuple[pd.Dat
     notes : list of str
         Why samples, covariates or the whole models were left out.
     """
+    if len(study.subjects) > max_subjects:      # before touching the (large) trials table
+        return None, [], [f"models skipped: {len(study.subjects)} subjects is above the models' limit of "
+                          f"{max_subjects} (the mixed model's cost grows with subjects and attempts; the paired tests "
+                          "above use every subject)"]
     t = study.trials
     sel = valid_testing_mask(t)
     rating = t["rating"].to_numpy(dtype=float)[sel]

@@ -95,10 +95,12 @@ def analyse(data_dir, config: AnalysisConfig | None = None, sessions: tuple | No
         eq_tables.append(stats.equivalence(m, name, config.reference, config.margin, config.alpha))
     pairwise = pd.concat(pair_tables, ignore_index=True)
     # the models use every subject (as the group 'all'); their directions are compared with its t-tests
-    all_pairs = pairwise[pairwise["group"] == "all"] if "all" in selected else \
-        stats.pairwise_ttests(matrix, "all")
-    fitted = models.fit_models(study, config.reference, all_pairs, config.alpha) if config.models else \
-        models.skipped("models not requested (--no-models)")
+    if config.models:
+        all_pairs = pairwise[pairwise["group"] == "all"] if "all" in selected else \
+            stats.pairwise_ttests(matrix, "all")
+        fitted = models.fit_models(study, config.reference, all_pairs, config.alpha)
+    else:
+        fitted = models.skipped("models not requested (--no-models)")
     return Analysis(
         study=study, config=config, matrix=matrix, summary=stats.sample_summary(study, matrix),
         pairwise=pairwise, anova=pd.concat(anova_tables, ignore_index=True),

@@ -77,10 +77,25 @@ def test_pilot_plan_uses_observed_effects(analysed):
     assert len(diff) == 66 and len(eq) == 11
     pw = analysed.pairwise[analysed.pairwise["group"] == "all"].reset_index(drop=True)
     np.testing.assert_allclose(diff["dz"].to_numpy(), pw["cohen_dz"].to_numpy(), rtol=1e-12)
+    exact = 0
+    a = 0.05 / 66
     for r in diff.dropna(subset=["n_required"]).itertuples():
-        want = SM.solve_power(effect_size=abs(r.dz), nobs=None, alpha=0.05 / 66, power=0.8)
-        assert r.n_required == math.ceil(want)
+        n = int(r.n_required)
         assert r.dz_ci_low < r.dz < r.dz_ci_high
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            want = math.ceil(SM.solve_power(effect_size=abs(r.dz), nobs=None, alpha=a, power=0.8))
+            sm_at = [SM.power(effect_size=abs(r.dz), nobs=k, alpha=a) for k in (want - 1, want)]
+        if np.all(np.isfinite(sm_at)) and sm_at[1] >= 0.8:
+            assert n == want
+            exact += 1
+        else:
+            # statsmodels' two-sided power is NaN near the answer (scipy's far tail; e.g. d_z 4.0: NaN at n = 4, 5),
+            # and its solve_power then returns a wrong n (3.5 where n = 5 has power 0.56): the smallest n by
+            # statsmodels' one-sided power at alpha/2 (what power_difference falls back to) is reported
+            near = [SM.power(effect_size=abs(r.dz), nobs=k, alpha=a / 2, alternative="larger") for k in (n - 1, n)]
+            assert near[1] >= 0.8 > near[0]
+    assert exact >= 30      # 37 of the 66 pairs of this pilot; the others are the NaN case above
     # a difference at least as large as the margin cannot be shown equivalent: no n, a reason
     far = eq[eq["mean_diff"].abs() >= 0.5]
     assert len(far) and far["n_required"].isna().all() and far["note"].str.contains("not inside the margin").all()
