@@ -78,9 +78,10 @@ def evidence_words(bf10: float) -> str:
     if bf10 is None or np.isnan(bf10):
         return "no Bayes factor (too few subjects)"
     for_diff = bf10 >= 1.0
-    b = bf10 if for_diff else 1.0 / bf10
+    b = bf10 if for_diff else (np.inf if bf10 == 0 else 1.0 / bf10)
     strength = ("anecdotal" if b < 3 else "moderate" if b < 10 else "strong" if b < 30
                 else "very strong" if b < 100 else "extreme")
     what = "a difference" if for_diff else "no difference"
-    label = f"BF10 = {bf10:.3g}" if for_diff else f"BF01 = {b:.3g}"
+    label = ("BF10 > 1e308" if np.isinf(b) else f"BF10 = {bf10:.3g}") if for_diff else \
+        ("BF01 > 1e308" if np.isinf(b) else f"BF01 = {b:.3g}")
     return f"{strength} evidence for {what} ({label})"

@@ -35,6 +35,11 @@ class Section:
     html_extra: str = ""
 
 
+def _inverse(bf: float) -> float:
+    """1/bf, with 1/0 = inf (a Bayes factor above ~1e308 is stored as inf, its inverse as 0)."""
+    return float("inf") if bf == 0 else 1.0 / bf
+
+
 def _p(p: float) -> str:
     return "p < 0.001" if p < 1e-3 else f"p = {p:.3f}"
 
@@ -148,7 +153,7 @@ def evidence_lines(res) -> list[str]:
                 continue
             tost = "equivalent" if r.equivalent else "not shown equivalent"
             parts.append(f"{r.sample}: {tost} within ±{r.margin:g} (TOST {_p(r.p_tost)}), "
-                         f"{evidence_words(1.0 / r.bf01)}")
+                         f"{evidence_words(_inverse(r.bf01))}")
         if parts:
             out.append(f"**{g} subjects, each sample vs {cfg.reference}**: " + "; ".join(parts) + ".")
     for g, sub in res.pairwise.groupby("group", sort=False):
@@ -158,7 +163,7 @@ def evidence_lines(res) -> list[str]:
         line = (f"**{g} subjects, all {len(sub)} pairs**: {len(null)} with at least moderate evidence for no "
                 f"difference (BF01 > 3)")
         if len(null):
-            line += ": " + ", ".join(f"{r.sample_a}–{r.sample_b} (BF01 = {1 / r.bf10:.1f})"
+            line += ": " + ", ".join(f"{r.sample_a}–{r.sample_b} (BF01 = {_inverse(r.bf10):.1f})"
                                      for r in null.sort_values("bf10").head(8).itertuples()) + \
                 ("; …" if len(null) > 8 else "")
         line += (f"; {len(unsure)} inconclusive (1/3 ≤ BF10 ≤ 3): for those, more subjects are needed "

@@ -7,6 +7,7 @@ References: pingouin (``bayesfactor_ttest``, test-only), scipy (``wilcoxon``), s
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import shutil
 import warnings
@@ -21,7 +22,7 @@ from statsmodels.miscmodels.ordinal_model import OrderedModel
 from statsmodels.tools.numdiff import approx_fprime
 
 from analysis import models
-from analysis.bayes import bf10_paired, evidence_words
+from analysis.bayes import bf10_paired, evidence_words, log_bf10_paired
 from analysis.load import load_study
 from analysis.ordinal import OrderedLogit
 from analysis.pipeline import analyse
@@ -75,6 +76,19 @@ def test_evidence_words():
     assert evidence_words(0.2) == "moderate evidence for no difference (BF01 = 5)"
     assert evidence_words(150.0).startswith("extreme evidence for a difference")
     assert evidence_words(float("nan")).startswith("no Bayes factor")
+    # 10,000 subjects: BF10 beyond the float range is stored as inf (its log is finite), BF01 as 0
+    assert float(bf10_paired(40.0, 10000)[0]) == np.inf and np.isfinite(log_bf10_paired(40.0, 10000)[0])
+    assert evidence_words(np.inf) == "extreme evidence for a difference (BF10 > 1e308)"
+
+
+def test_evidence_section_with_bayes_factors_beyond_the_float_range(analysed):
+    from analysis import report_models
+    eq = analysed.equivalence.copy()
+    pw = analysed.pairwise.copy()
+    eq.loc[eq.index[0], "bf01"] = 0.0
+    pw.loc[pw.index[0], "bf10"] = np.inf
+    lines = report_models.evidence_lines(dataclasses.replace(analysed, equivalence=eq, pairwise=pw))
+    assert "extreme evidence for a difference (BF10 > 1e308)" in " ".join(lines)
 
 
 # ------------------------------------------------------------------------------ Wilcoxon
@@ -158,6 +172,19 @@ def test_expected_ratings_match_a_large_generated_study(tmp_path):
         # SE of a sample's mean over 400 subjects ~0.04: 5 SE
         assert got[s] == pytest.approx(want[s], abs=0.2), s
     assert want["foam"] > DEFAULT_SAMPLES[2].mean_rating     # clipping at 1 lifts the low samples
+
+
+def test_grip_enters_where_recorded(analysed):
+    """A per-attempt grip column (the loader does not read one yet: added to the table here) enters both models."""
+    t = analysed.study.trials
+    grip = np.random.default_rng(1).uniform(1.0, 3.0, len(t))
+    study = dataclasses.replace(analysed.study, trials=t.assign(**{models.GRIP_COLUMN: grip}))
+    res = _quiet(models.fit_models, study, REF)
+    assert res.mixed["covariates"] == ["velocity_m_s", "grip_N"] and res.ordinal["covariates"] == res.mixed["covariates"]
+    g = res.fixed[(res.fixed["model"] == "mixed") & (res.fixed["term"] == "grip_N")].iloc[0]
+    assert g["ci_low"] < 0 < g["ci_high"]           # the generator's ratings do not depend on this random grip
+    assert not any("grip" in n for n in res.notes)
+    assert any("grip not in the models" in n for n in analysed.models.notes)
 
 
 def test_velocity_effect_recovered(tmp_path):
@@ -300,3 +327,22 @@ def test_no_models_flag_skips_them(study_dir, tmp_path):
     assert "models not requested (--no-models)" in md
     assert pd.read_csv(tmp_path / "r" / "models_fixed_effects.csv").empty
     shutil.rmtree(tmp_path / "r")
+
+
+def test_new_figures_follow_the_figure_style(analysed):
+    import matplotlib.pyplot as plt
+
+    import figstyle
+    from analysis import figures
+    from analysis.power import PlanSettings, assumed_plan, power_curves
+    fig, data = figures.build_ordinal_probs(analysed.models.probabilities)
+    assert figstyle.unlabelled_axes(fig) == [] and figstyle.legend_overlaps(fig) == []
+    # each bar's segments add up to 1 and start where the previous one ended
+    ends = data.assign(end=data["left"] + data["p_model"]).groupby("sample")["end"].max()
+    np.testing.assert_allclose(ends.to_numpy(), 1.0, atol=1e-9)
+    plt.close(fig)
+    plan = assumed_plan(0.5, 1.0, PlanSettings())
+    fig, data = figures.build_power_curves(power_curves(plan), plan)
+    assert figstyle.unlabelled_axes(fig) == [] and figstyle.legend_overlaps(fig) == []
+    assert set(data["test"]) == {"difference", "equivalence"} and data["power"].between(0, 1).all()
+    plt.close(fig)
