@@ -440,14 +440,14 @@ def build_power_curves(curves: pd.DataFrame, plan: pd.DataFrame):
             rows = list(dict.fromkeys(sub["row"]))
             for c, row in enumerate(rows):
                 line = sub[sub["row"] == row]
-                ax.plot(line["n"], line["power"], color=cmap(c / max(len(rows) - 1, 1)), linewidth=0.9,
-                        label=line["label"].iloc[0] if len(rows) <= 6 else None)
+                ax.plot(line["n"], line["power"], color=cmap(c / max(len(rows) - 1, 1)), linewidth=0.9)
             ax.axhline(target, color="0.3", linestyle="--", linewidth=0.8)
             ax.set_xlabel("subjects (1)")
-            ax.set_title(title + (f", {len(rows)} comparisons" if len(rows) > 6 else ""), loc="left", fontsize=8)
+            # no legend inside the data: one comparison is named in the title, many are counted (their
+            # labels are in the CSV)
+            which = sub["label"].iloc[0] if len(rows) == 1 else f"{len(rows)} comparisons"
+            ax.set_title(f"{title}\n{which}" if rows else title, loc="left", fontsize=8)
             ax.set_ylim(0, 1.02)
-            if 0 < len(rows) <= 6:
-                ax.legend(loc="lower right", fontsize=6)
             if not rows:
                 ax.text(0.5, 0.5, "no comparison to plan", transform=ax.transAxes, ha="center", va="center")
         axes[0].set_ylabel(f"power (1); dashed: target {target:g}")
