@@ -12,6 +12,8 @@ from plumbing.dispatch import main as dispatch
 #: two-core machine
 COMMANDS = (
     Command("report", "analysis.cli_report_parser", "analyse a study folder: tables, figures, report.md/.html", blas_threads=1),
+    Command("plan", "analysis.cli_plan_parser",
+            "number of subjects for the next study (difference and equivalence tests)", blas_threads=1),
     Command("psychometric", "analysis.cli_psychometric_parser",
             "psychometric fits (threshold, slope, lapse, PSE, JND) of forced-choice data", blas_threads=1),
     Command("synthetic", "analysis.cli_synthetic_parser", "write a synthetic study folder in the study's data format",

@@ -20,7 +20,8 @@ from analysis.config import AnalysisConfig, check_data_folder
 
 def run(args: argparse.Namespace) -> int:
     """The ``report`` command: analyse the study folder and write tables, figures and report.md/.html; returns the exit code."""
-    cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha)
+    cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha,
+                         models=not args.no_models)
     out = Path(args.out)
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")

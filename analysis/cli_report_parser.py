@@ -36,6 +36,8 @@ def register(subparsers) -> None:
                 help="common incoming velocity for Figure 4.20 in m/s (default: median of all "
                                          "taps)")
     p.add_argument("--no-figures", action="store_true", help="tables and report without figures")
+    p.add_argument("--no-models", action="store_true",
+                   help="skip the mixed and ordinal models of every attempt (section Models says so)")
     p.epilog = "example: hfam-analysis report DATA --out REPORT --reference wood_on_foam --margin 0.5"
     p.set_defaults(func=Body('analysis.cli_report', 'run'))
 

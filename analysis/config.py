@@ -26,12 +26,16 @@ class AnalysisConfig:
         ``both`` | ``all`` | ``experienced``: subject groups the tests are run for.
     alpha : float
         Significance level of the summary and of ``equivalent``.
+    models : bool
+        Fit the mixed and ordinal models of every attempt (issue 35; skipped above
+        ``analysis.models.MODELS_MAX_SUBJECTS`` subjects with a note).
     """
 
     reference: str = DEFAULT_REFERENCE
     margin: float = DEFAULT_MARGIN
     group: str = "both"
     alpha: float = 0.05
+    models: bool = True
 
     def __post_init__(self):
         require_choice("--group", self.group, GROUPS)

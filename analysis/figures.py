@@ -143,6 +143,18 @@ def _matrices(pairwise: pd.DataFrame, samples) -> tuple[np.ndarray, np.ndarray]:
     return holm, dz
 
 
+def _bf10_matrix(pairwise: pd.DataFrame, samples) -> np.ndarray:
+    """Symmetric matrix (k, k) of the pairs' JZS BF10 (issue 35), NaN where untested or without the column."""
+    k = len(samples)
+    bf = np.full((k, k), np.nan)
+    if "bf10" in pairwise:
+        index = {s: i for i, s in enumerate(samples)}
+        ia = pairwise["sample_a"].map(index).to_numpy()
+        ib = pairwise["sample_b"].map(index).to_numpy()
+        bf[ia, ib] = bf[ib, ia] = pairwise["bf10"].to_numpy(dtype=float)
+    return bf
+
+
 def p_norm(alpha: float = 0.05):
     """Colour normalisation of Figure 4.18: log10 of the Holm p, diverging at log10(alpha)."""
 
@@ -188,7 +200,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05, labels: 
     fig : Figure
     data : DataFrame
         One row per plotted cell: ``group, row, col, sample_row, sample_col, p_holm, log10_p_holm,
-        stars, cohen_dz`` (row minus column).
+        stars, cohen_dz`` (row minus column) and ``bf10`` (JZS Bayes factor of the pair's t-test).
     """
 
     groups = list(dict.fromkeys(pairwise["group"]))
@@ -203,6 +215,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05, labels: 
         for r, g in enumerate(groups):
             sub = pairwise[pairwise["group"] == g]
             holm, dz = _matrices(sub, samples)
+            bf = _bf10_matrix(sub, samples)
             with np.errstate(divide="ignore"):
                 logp = np.log10(holm)
             st = stars(holm, alpha)
@@ -228,7 +241,7 @@ def build_pvalues(pairwise: pd.DataFrame, samples, alpha: float = 0.05, labels: 
                 for j in range(k):
                     rows.append({"group": g, "row": i, "col": j, "sample_row": samples[i], "sample_col": samples[j],
                                  "p_holm": holm[i, j], "log10_p_holm": logp[i, j], "stars": st[i, j],
-                                 "cohen_dz": dz[i, j]})
+                                 "cohen_dz": dz[i, j], "bf10": bf[i, j]})
         if im_p is not None:
             ticks = [t for t in (-4, -3, -2, np.log10(alpha), -1, 0) if LOG_P_FLOOR <= t <= 0]
             cb = fig.colorbar(im_p, ax=axes[:, 0].tolist(), location="bottom", shrink=0.85, extend="min",
@@ -354,3 +367,108 @@ def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path, labe
     """Write Figure 4.20 (:func:`build_accelerations`) as PNG, SVG and CSV; returns the paths."""
     fig, data = build_accelerations(taps, samples, target_v_m_s, labels=labels)
     return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
+
+
+# ------------------------------------------------------------------ issue 35: ordinal model, planning
+def build_ordinal_probs(probabilities: pd.DataFrame):
+    """Probability of each rating 1-7 per sample from the proportional-odds model, as stacked bars.
+
+    One horizontal bar per sample (sorted by the model's expected rating, highest on top), split
+    into the probabilities of the ratings 1..7 (the sequential, colour-blind-safe ``cividis`` map:
+    the ratings are ordered); the observed share of each rating is in the CSV beside it.
+
+    Parameters
+    ----------
+    probabilities : DataFrame
+        :attr:`analysis.models.ModelResults.probabilities` (``sample, rating, p_model, p_observed, n_attempts``).
+
+    Returns
+    -------
+    fig : Figure
+    data : DataFrame
+        ``sample, y, rating, p_model, p_observed, left, expected_rating`` (``left``: where the segment starts).
+    """
+    wide = probabilities.pivot(index="sample", columns="rating", values="p_model")
+    ratings = [int(c) for c in wide.columns]
+    expected = (wide * np.array(ratings)[None, :]).sum(axis=1)
+    order = expected.sort_values(ascending=False, kind="stable").index.tolist()
+    rows = []
+    with figstyle.style() as plt:
+        cmap = plt.get_cmap("cividis")
+        fig, ax = plt.subplots(figsize=figstyle.figsize("page", height_in=0.25 * len(order) + 1.4),
+                               layout="constrained")
+        for y, sample in enumerate(order):
+            left = 0.0
+            for c, r in enumerate(ratings):
+                p = float(wide.loc[sample, r])
+                ax.barh(y, p, left=left, color=cmap(c / max(len(ratings) - 1, 1)), edgecolor="white",
+                        linewidth=0.4, label=str(r) if y == 0 else None)
+                obs = probabilities[(probabilities["sample"] == sample) & (probabilities["rating"] == r)]
+                rows.append({"sample": sample, "y": y, "rating": r, "p_model": p,
+                             "p_observed": float(obs["p_observed"].iloc[0]) if len(obs) else np.nan,
+                             "left": left, "expected_rating": float(expected[sample])})
+                left += p
+        ax.set_yticks(range(len(order)), [_label(s) for s in order])
+        ax.invert_yaxis()
+        ax.set_xlim(0, 1)
+        ax.set_xlabel("probability of each rating (1), at the mean incoming velocity")
+        ax.set_title("Ordinal (proportional-odds) model: P(rating) per sample", loc="left")
+        ax.legend(title="rating", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        ax.grid(False)
+        _fix_layout(fig)
+    return fig, pd.DataFrame(rows)
+
+
+def fig_ordinal_probs(probabilities: pd.DataFrame, path: Path) -> dict:
+    """Write the ordinal model's P(rating) figure (:func:`build_ordinal_probs`) as PNG, SVG and CSV."""
+    fig, data = build_ordinal_probs(probabilities)
+    return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
+
+
+def build_power_curves(curves: pd.DataFrame, plan: pd.DataFrame):
+    """Power against the number of subjects, difference tests left and equivalence (TOST) right.
+
+    Parameters
+    ----------
+    curves : DataFrame
+        :func:`analysis.power.power_curves` (``row, test, label, n, power``).
+    plan : DataFrame
+        ``plan.csv`` (``power_target``, ``n_required`` per row): the target line and each row's n.
+
+    Returns
+    -------
+    fig : Figure
+    data : DataFrame
+        ``curves`` with ``n_required`` of each row.
+    """
+    data = curves.merge(plan["n_required"].rename_axis("row").reset_index(), on="row", how="left")
+    target = float(plan["power_target"].iloc[0]) if len(plan) else 0.8
+    with figstyle.style() as plt:
+        cmap = plt.get_cmap("cividis")
+        fig, axes = plt.subplots(1, 2, figsize=figstyle.figsize("page", height_in=3.0), sharey=True,
+                                 layout="constrained")
+        for ax, test, title in ((axes[0], "difference", "difference (two-sided paired t-test)"),
+                                (axes[1], "equivalence", "equivalence (paired TOST)")):
+            sub = data[data["test"] == test]
+            rows = list(dict.fromkeys(sub["row"]))
+            for c, row in enumerate(rows):
+                line = sub[sub["row"] == row]
+                ax.plot(line["n"], line["power"], color=cmap(c / max(len(rows) - 1, 1)), linewidth=0.9)
+            ax.axhline(target, color="0.3", linestyle="--", linewidth=0.8)
+            ax.set_xlabel("subjects (1)")
+            # no legend inside the data: one comparison is named in the title, many are counted (their
+            # labels are in the CSV)
+            which = sub["label"].iloc[0] if len(rows) == 1 else f"{len(rows)} comparisons"
+            ax.set_title(f"{title}\n{which}" if rows else title, loc="left", fontsize=8)
+            ax.set_ylim(0, 1.02)
+            if not rows:
+                ax.text(0.5, 0.5, "no comparison to plan", transform=ax.transAxes, ha="center", va="center")
+        axes[0].set_ylabel(f"power (1); dashed: target {target:g}")
+        _fix_layout(fig)
+    return fig, data
+
+
+def fig_power_curves(curves: pd.DataFrame, plan: pd.DataFrame, path: Path, force: bool = True) -> dict:
+    """Write the power-curve figure (:func:`build_power_curves`) as PNG, SVG and CSV; returns the paths."""
+    fig, data = build_power_curves(curves, plan)
+    return figstyle.save(fig, path, data, force=force)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from analysis import stats
+from analysis import models, stats
 from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig  # noqa: F401 (re-export)
 from analysis.load import AnalysisWarning, Study, load_study
 
@@ -27,6 +27,7 @@ class Analysis:
     attempts: pd.DataFrame
     exclusions: pd.DataFrame
     warnings: tuple
+    models: models.ModelResults | None = None   # issue 35: mixed and ordinal models of every attempt
 
 
 def _exclusion_table(matrix: stats.RatingMatrix, group_names) -> pd.DataFrame:
@@ -92,11 +93,19 @@ def analyse(data_dir, config: AnalysisConfig | None = None, sessions: tuple | No
         pair_tables.append(stats.pairwise_ttests(m, name))
         anova_tables.append(stats.omnibus(m, name))
         eq_tables.append(stats.equivalence(m, name, config.reference, config.margin, config.alpha))
+    pairwise = pd.concat(pair_tables, ignore_index=True)
+    # the models use every subject (as the group 'all'); their directions are compared with its t-tests
+    if config.models:
+        all_pairs = pairwise[pairwise["group"] == "all"] if "all" in selected else \
+            stats.pairwise_ttests(matrix, "all")
+        fitted = models.fit_models(study, config.reference, all_pairs, config.alpha)
+    else:
+        fitted = models.skipped("models not requested (--no-models)")
     return Analysis(
         study=study, config=config, matrix=matrix, summary=stats.sample_summary(study, matrix),
-        pairwise=pd.concat(pair_tables, ignore_index=True), anova=pd.concat(anova_tables, ignore_index=True),
+        pairwise=pairwise, anova=pd.concat(anova_tables, ignore_index=True),
         equivalence=pd.concat(eq_tables, ignore_index=True), velocity=stats.velocity_rating(study),
-        attempts=stats.attempt_counts(study), exclusions=exclusions, warnings=tuple(messages))
+        attempts=stats.attempt_counts(study), exclusions=exclusions, warnings=tuple(messages), models=fitted)
 
 
 TABLE_FILES = {
@@ -106,13 +115,29 @@ TABLE_FILES = {
 }
 
 
+#: the models' tables (issue 35): attribute of :class:`analysis.models.ModelResults` per file
+MODEL_TABLE_FILES = {
+    "models_fixed_effects.csv": "fixed", "models_emm.csv": "emm", "models_contrasts.csv": "contrasts",
+    "models_ordinal_probabilities.csv": "probabilities",
+}
+
+
 def write_tables(result: Analysis, out_dir) -> list[Path]:
-    """Write every table as CSV into ``out_dir`` (created); returns the paths."""
+    """Write every table as CSV into ``out_dir`` (created); returns the paths.
+
+    The models' tables are written (with their header only when a model was not fitted, so that a
+    stale table of an earlier report never stands beside a new report).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     for filename, attr in TABLE_FILES.items():
         path = out / filename
         getattr(result, attr).to_csv(path, index=False, float_format="%.6g")
+        paths.append(path)
+    fitted = result.models or models.skipped("models not run")
+    for filename, attr in MODEL_TABLE_FILES.items():
+        path = out / filename
+        getattr(fitted, attr).to_csv(path, index=False, float_format="%.6g")
         paths.append(path)
     return paths

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis import figures, workers
+from analysis import figures, report_models, workers
 from analysis.load import catalog_labels
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
@@ -36,7 +36,10 @@ FIGURES = {
                             "the same Holm-adjusted values (* < α, ** < 0.01, *** < 0.001), so every purple cell "
                             "has a star. Right: the effect size Cohen's d_z of row minus column (red: the row's "
                             "sample rated higher). Hatched cells have no test: a sample missing, fewer than 3 subjects, or every "
-                            "subject giving the same difference (SD 0, not testable).",
+                            "subject giving the same difference (SD 0, not testable). The JZS Bayes factor BF10 of each "
+                            "pair (Rouder et al. 2009, r = 0.707: above 3 evidence for a difference, below 1/3 "
+                            "for none) is in the figure's CSV, in pairwise_ttests.csv beside p, and in the BF10 "
+                            "matrix of 'Evidence for no difference' (hover a cell).",
     "fig_4_19_penetration.png": "Figure 4.19: mean penetration depth of the taps versus mean realism rating per "
                                 "sample; error bars ±1 standard deviation (taps vertically, attempts' ratings "
                                 "horizontally). Look for samples that penetrate little yet rate low: stiffness "
@@ -351,9 +354,11 @@ def _table_html(df, csv_name: str = "") -> str:
 
 
 def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Path],
-                prov: list[tuple[str, str]]) -> str:
-    """The self-contained ``report.html``: summary, pairs, captioned figures (embedded PNG), tables,
-    provenance; responsive (tables scroll inside their box, never the page) with a print stylesheet."""
+                prov: list[tuple[str, str]], sections: list | None = None) -> str:
+    """The self-contained ``report.html``: summary, pairs, the sections of issue 35 (``sections``:
+    :func:`analysis.report_models.sections`, "Models" and "Evidence for no difference"), captioned figures
+    (embedded PNG), tables, provenance; responsive (tables scroll inside their box, never the page) with a
+    print stylesheet."""
     cfg = res.config
     body = [f"<h1>Realism study analysis</h1><p>reference <code>{html.escape(cfg.reference)}</code> · margin "
             f"±{cfg.margin:g} · groups <code>{html.escape(cfg.group)}</code> · α = {cfg.alpha}</p><h2>Summary</h2><ul>"]
@@ -363,6 +368,8 @@ def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Pa
     for g, items in pairs.items():
         body.append(f"<details><summary>{html.escape(g)} subjects: {len(items)} pairs</summary><ul>"
                     + "".join(f"<li>{_html_line(it)}</li>" for it in items) + "</ul></details>")
+    for sec in sections or ():
+        body.append(_section_html(sec))
     if fig_paths:
         body.append("<h2>Figures</h2>")
     for p in fig_paths:
@@ -381,6 +388,32 @@ def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Pa
             "<meta name='viewport' content='width=device-width, initial-scale=1'>"
             f"<title>Realism study analysis</title><style>{REPORT_CSS}</style></head><body>{''.join(body)}"
             "</body></html>\n")
+
+
+def _section_html(sec) -> str:
+    """One :class:`analysis.report_models.Section` as HTML: its lines, figures (embedded PNG), tables, extra HTML."""
+    parts = [f"<h2>{html.escape(sec.title)}</h2><ul>"] + [f"<li>{_strong(html.escape(ln))}</li>" for ln in sec.lines]
+    parts.append("</ul>")
+    for path, caption in sec.figures:
+        data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+        parts.append(f"<figure><img alt='{html.escape(caption.split(':')[0])}' src='data:image/png;base64,{data}'>"
+                     f"<figcaption>{html.escape(caption)} Data: <code>{html.escape(Path(path).with_suffix('.plot.csv').name)}"
+                     "</code>.</figcaption></figure>")
+    parts.append(sec.html_extra)
+    for title, df in sec.tables:
+        parts.append(f"<h3>{html.escape(title)}</h3>" + _table_html(df, _csv_name(title)))
+    return "".join(parts)
+
+
+def _section_md(sec) -> list[str]:
+    """One :class:`analysis.report_models.Section` as markdown lines (figures linked, tables in full up to the cap)."""
+    md = [f"## {sec.title}", ""] + [f"- {ln}" for ln in sec.lines] + [""]
+    for path, caption in sec.figures:
+        md += [f"![{caption.split(':')[0]}]({Path(path).name})", "", f"*{caption}*", ""]
+    for title, df in sec.tables:
+        shown, note = _shown(df, _csv_name(title))
+        md += [f"### {title}", "", markdown_table(shown) if len(df) else "(none)", ""] + ([note, ""] if note else [])
+    return md
 
 
 def _csv_name(title: str) -> str:
@@ -410,6 +443,7 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     fig_paths, notes = make_figures(res, out, target_v_m_s, pool, accelerations) if figures else \
         ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
+    sections = report_models.sections(res, out, draw=figures)
     cfg = res.config
     md = ["# Realism study analysis", "",
           f"Data: `{res.study.subjects['folder'].iloc[0].rsplit('/', 1)[0] if len(res.study.subjects) else ''}` · "
@@ -419,6 +453,8 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     md += ["", "## Significantly different pairs", ""]
     for g, items in pairs.items():
         md += [f"**{md_escape(g)} subjects** ({len(items)}):", ""] + [f"- {_names_md(it)}" for it in items] + [""]
+    for sec in sections:
+        md += _section_md(sec)
     for p in fig_paths:
         md += [f"![{FIGURES[p.name].split(':')[0]}]({p.name})", "", f"*{FIGURES[p.name]}*", ""]
     for title, attr in TABLE_TITLES:
@@ -431,5 +467,5 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
                                                                     for k, v in prov] + [""]
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
     html_path = out / "report.html"
-    html_path.write_text(report_html(res, lines, pairs, fig_paths, prov), encoding="utf-8")
+    html_path.write_text(report_html(res, lines, pairs, fig_paths, prov, sections), encoding="utf-8")
     return {"tables": tables, "figures": fig_paths, "notes": notes, "md": md_path, "html": html_path}

@@ -19,14 +19,15 @@ from statsmodels.stats.anova import AnovaRM
 from statsmodels.stats.multitest import multipletests
 from statsmodels.stats.weightstats import ttost_paired
 
+from analysis.bayes import bf10_paired
 from analysis.load import Study
 
-PAIRWISE_COLUMNS = ("group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                    "ci_low", "ci_high", "cohen_dz", "not_testable")
+PAIRWISE_COLUMNS = ("group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm", "bf10",
+                    "ci_low", "ci_high", "cohen_dz", "wilcoxon_w", "wilcoxon_p", "wilcoxon_p_holm", "not_testable")
 # a paired t-test needs at least this many subjects with both samples (n = 2 leaves one degree of freedom)
 MIN_PAIRED_N = 3
 EQUIVALENCE_COLUMNS = ("group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
-                       "p_tost", "equivalent")
+                       "p_tost", "equivalent", "bf01")
 ANOVA_COLUMNS = ("group", "test", "method", "n_subjects", "k_samples", "statistic", "df1", "df2", "p",
                  "epsilon_gg", "df1_gg", "df2_gg", "p_gg")
 # above this many subjects AnovaRM (an OLS with one dummy column per subject) takes seconds;
@@ -229,7 +230,7 @@ def pairwise_ttests(matrix: RatingMatrix, group: str) -> pd.DataFrame:
     ok = ~(np.isnan(a) | np.isnan(b))
     n = ok.sum(axis=0)
     t = np.full(ia.size, np.nan)
-    p, lo, hi, md, dz = t.copy(), t.copy(), t.copy(), t.copy(), t.copy()
+    p, lo, hi, md, dz, w, pw = t.copy(), t.copy(), t.copy(), t.copy(), t.copy(), t.copy(), t.copy()
     # one vectorised ttest_rel per distinct subject set (usually a single call for all pairs); the
     # sets are told apart by their bit-packed masks as byte strings: linear in the number of subjects
     # (np.unique(ok.T, axis=0) sorts rows of n booleans, worse than linear)
@@ -252,15 +253,33 @@ def pairwise_ttests(matrix: RatingMatrix, group: str) -> pd.DataFrame:
             md[cols] = d.mean(axis=0)
             dz[cols] = md[cols] / d.std(axis=0, ddof=1)
         t[cols], p[cols], lo[cols], hi[cols] = res.statistic, res.pvalue, ci.low, ci.high
+        w[cols], pw[cols] = _wilcoxon(d)
     why = _not_testable(a, b, ok, n)
     bad = why != ""
-    t[bad] = p[bad] = lo[bad] = hi[bad] = dz[bad] = np.nan
+    t[bad] = p[bad] = lo[bad] = hi[bad] = dz[bad] = w[bad] = pw[bad] = np.nan
     samples = np.array(matrix.samples, dtype=object)
     return pd.DataFrame({
         "group": group, "sample_a": samples[ia], "sample_b": samples[ib], "n": n, "mean_diff": md,
-        "t": t, "df": n - 1, "p": p, "p_holm": _holm(p), "ci_low": lo, "ci_high": hi, "cohen_dz": dz,
+        "t": t, "df": n - 1, "p": p, "p_holm": _holm(p), "bf10": bf10_paired(t, n), "ci_low": lo, "ci_high": hi,
+        "cohen_dz": dz, "wilcoxon_w": w, "wilcoxon_p": pw, "wilcoxon_p_holm": _holm(pw),
         "not_testable": why,
     }, columns=list(PAIRWISE_COLUMNS))
+
+
+def _wilcoxon(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Wilcoxon signed-rank statistic and two-sided p of each column of differences ``d`` (n, m).
+
+    Columns whose differences are all zero have no test (NaN): scipy would divide by zero.
+    """
+    w, p = np.full(d.shape[1], np.nan), np.full(d.shape[1], np.nan)
+    some = np.any(d != 0, axis=0)
+    if some.any():
+        with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+            warnings.simplefilter("ignore", UserWarning)     # "exact p not available with ties": it says so itself
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = stats.wilcoxon(d[:, some], axis=0, zero_method="wilcox")
+        w[some], p[some] = res.statistic, res.pvalue
+    return w, p
 
 
 def _not_testable(a: np.ndarray, b: np.ndarray, ok: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -356,7 +375,9 @@ def equivalence(matrix: RatingMatrix, group: str, reference: str, margin: float,
 
     ``mean_diff`` = mean(sample - reference); ``p_lower`` tests H0: diff <= -margin, ``p_upper``
     H0: diff >= +margin (statsmodels ``ttost_paired``); ``p_tost`` = max of the two;
-    ``equivalent`` = p_tost < alpha.
+    ``equivalent`` = p_tost < alpha. ``bf01`` = 1 / BF10 of the paired t-test of the same differences
+    (JZS prior, Rouder et al. 2009, r = 0.707): the evidence for no difference at all (> 3: moderate,
+    > 10: strong), the Bayesian companion of the TOST's bounded question.
     """
     if reference not in matrix.samples:
         raise ValueError(f"--reference {reference!r} is not a sample of the catalog ({', '.join(matrix.samples)})")
@@ -374,14 +395,15 @@ def equivalence(matrix: RatingMatrix, group: str, reference: str, margin: float,
         row = {"group": group, "sample": name, "reference": reference, "n": n, "margin": margin}
         if n < 2:
             rows.append(row | {"mean_diff": float(np.mean(x[ok] - ref[ok])) if n else np.nan, "p_lower": np.nan,
-                               "p_upper": np.nan, "p_tost": np.nan, "equivalent": False})
+                               "p_upper": np.nan, "p_tost": np.nan, "equivalent": False, "bf01": np.nan})
             continue
         with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
             warnings.simplefilter("ignore", RuntimeWarning)
             p_tost, lower, upper = ttost_paired(x[ok], ref[ok], -margin, margin)
+            t_diff = stats.ttest_rel(x[ok], ref[ok]).statistic
         rows.append(row | {"mean_diff": float(np.mean(x[ok] - ref[ok])), "p_lower": float(lower[1]),
                            "p_upper": float(upper[1]), "p_tost": float(p_tost),
-                           "equivalent": bool(p_tost < alpha)})
+                           "equivalent": bool(p_tost < alpha), "bf01": float(1.0 / bf10_paired(t_diff, n)[0])})
     return pd.DataFrame(rows, columns=list(EQUIVALENCE_COLUMNS))
 
 

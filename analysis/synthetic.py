@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import norm
 
 import figstyle
-
 from analysis.load import TRIAL_COLUMNS
 
 
@@ -85,10 +85,42 @@ def synthetic_trace(sample: SyntheticSample, v_in_m_s: float, fs_hz: float = 100
             "sample": np.array(sample.name)}
 
 
+#: the generator's subject bias SD and per-attempt noise SDs (novices noisier), rating points
+SUBJECT_BIAS_SD = 0.4
+NOISE_SD = {"none": 1.2, "few": 0.5, "regular": 0.5}
+EXPERIENCE_CYCLE = ("none",) * 7 + ("few",) * 7 + ("regular",) * 2
+
+
+def expected_ratings(n_subjects: int, samples=DEFAULT_SAMPLES, effect_scale: float = 1.0, experience=None) -> dict:
+    """The generator's true mean rating per sample, on the 1-7 scale it writes (the models' target).
+
+    A rating is ``clip(rint(mu + b + e), 1, 7)`` with ``b ~ N(0, 0.4^2)`` per subject and
+    ``e ~ N(0, s^2)`` per attempt (s by experience), so its expectation is not ``mu``: with
+    ``x ~ N(mu, 0.4^2 + s^2)``, ``E = 1 + sum_(c=1.5..6.5) P(x > c)`` (exact; rint's ties have
+    probability 0). Averaged over the subjects' experience as :func:`write_synthetic_study` assigns it
+    (with ``velocity_effect`` 0).
+
+    Returns
+    -------
+    dict
+        ``{sample: expected rating}``.
+    """
+    means = np.array([s.mean_rating for s in samples])
+    means = means.mean() + effect_scale * (means - means.mean())
+    exp = [experience[k] if experience is not None else EXPERIENCE_CYCLE[k % len(EXPERIENCE_CYCLE)]
+           for k in range(n_subjects)]
+    cuts = np.arange(1.5, 7.0, 1.0)
+    total = np.zeros(means.size)
+    for e in exp:
+        sd = np.hypot(SUBJECT_BIAS_SD, NOISE_SD[e])
+        total += 1.0 + norm.sf((cuts[None, :] - means[:, None]) / sd).sum(axis=1)
+    return {s.name: float(v) for s, v in zip(samples, total / len(exp))}
+
+
 def write_synthetic_study(out_dir, n_subjects: int = 16, *, samples=DEFAULT_SAMPLES, repetitions: int = 3,
                           seed: int = 0, experience=None, p_invalid: float = 0.1, missing=None,
                           unfinished=(), traces: bool | int = False, fs_hz: float = 10000.0,
-                          effect_scale: float = 1.0) -> list[Path]:
+                          effect_scale: float = 1.0, velocity_effect: float = 0.0) -> list[Path]:
     """Write ``n_subjects`` subject folders (``session.json`` + ``trials.csv``) into ``out_dir``.
 
     Parameters
@@ -114,6 +146,10 @@ def write_synthetic_study(out_dir, n_subjects: int = 16, *, samples=DEFAULT_SAMP
         only for that many first subjects).
     effect_scale : float
         Multiplies the deviation of each sample's true mean from the grand mean (0: no effect).
+    velocity_effect : float
+        Rating points per m/s of the attempt's mean incoming velocity above 0.10 m/s, added before
+        rounding (0: ratings do not depend on velocity; draws no random numbers, so the default keeps
+        every earlier data set identical).
 
     Returns
     -------
@@ -126,13 +162,13 @@ def write_synthetic_study(out_dir, n_subjects: int = 16, *, samples=DEFAULT_SAMP
     missing = missing or {}
     means = np.array([s.mean_rating for s in samples])
     means = means.mean() + effect_scale * (means - means.mean())
-    cycle = ["none"] * 7 + ["few"] * 7 + ["regular"] * 2
+    cycle = EXPERIENCE_CYCLE
     folders = []
     for k in range(n_subjects):
         subject = f"S{k + 1:03d}"
         exp = experience[k] if experience is not None else cycle[k % len(cycle)]
-        bias = rng.normal(0.0, 0.4)
-        noise = 1.2 if exp == "none" else 0.5
+        bias = rng.normal(0.0, SUBJECT_BIAS_SD)
+        noise = NOISE_SD.get(exp, 0.5)
         grip = float(rng.uniform(0.7, 1.3))
         folder = out / subject
         (folder / "traces").mkdir(parents=True, exist_ok=True)
@@ -174,7 +210,8 @@ def write_synthetic_study(out_dir, n_subjects: int = 16, *, samples=DEFAULT_SAMP
                     invalid = rng.random() < p_invalid
                     kind = int(rng.integers(3)) if invalid else -1
                     rejected, saturated, overpowered = kind == 0, kind == 1, kind == 2
-                    rating = None if rejected else int(np.clip(np.rint(means[j] + bias + rng.normal(0.0, noise)), 1, 7))
+                    rating = None if rejected else int(np.clip(np.rint(
+                        means[j] + bias + velocity_effect * (v.mean() - 0.10) + rng.normal(0.0, noise)), 1, 7))
                     row(phase, trial, attempt, j, rating, rejected, saturated, overpowered, v, pen)
                     if phase == "testing" and (traces is True or (traces is not False and k < int(traces))):
                         tr = synthetic_trace(samples[j], float(v[0]), fs_hz=fs_hz, rng=rng)

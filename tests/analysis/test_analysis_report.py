@@ -38,11 +38,12 @@ def test_tables_written_with_issue_columns(report):
     out, _ = report
     pw = pd.read_csv(out / "pairwise_ttests.csv")
     assert list(pw.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                                "ci_low", "ci_high", "cohen_dz", "not_testable"]
+                                "bf10", "ci_low", "ci_high", "cohen_dz", "wilcoxon_w", "wilcoxon_p", "wilcoxon_p_holm",
+                                "not_testable"]
     assert len(pw) == 2 * 66 and set(pw["group"]) == {"all", "experienced"}
     eq = pd.read_csv(out / "equivalence.csv")
     assert list(eq.columns) == ["group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
-                                "p_tost", "equivalent"]
+                                "p_tost", "equivalent", "bf01"]
     an = pd.read_csv(out / "anova.csv")
     assert set(an["test"]) == {"rm_anova", "friedman"} and an["p_gg"].notna().sum() == 2
     summ = pd.read_csv(out / "sample_summary.csv")
@@ -74,7 +75,8 @@ def test_html_is_self_contained(report):
     out, _ = report
     html = (out / "report.html").read_text()
     srcs = re.findall(r"src='([^']*)'", html)
-    assert len(srcs) == 4 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    # Figures 4.17-4.20 and the ordinal model's P(rating) (issue 35)
+    assert len(srcs) == 5 and all(s.startswith("data:image/png;base64,") for s in srcs)
     png = base64.b64decode(srcs[0].split(",", 1)[1])
     img = mpimg.imread(io.BytesIO(png), format="png")
     assert img[..., :3].std() > 0.05
@@ -249,7 +251,8 @@ def test_report_html_renders_in_chromium(report):
             headings = page.eval_on_selector_all("h2", "hs => hs.map(h => h.textContent)")
         finally:
             browser.close()
-    assert len(widths) == 4 and min(widths) > 300
+    assert len(widths) == 5 and min(widths) > 300          # 4.17-4.20 and the ordinal model's (issue 35)
+    assert "Models" in headings and "Evidence for no difference" in headings
     assert "Summary" in headings and any("pairwise_ttests.csv" in h for h in headings)
     assert [u for u in requests if not u.startswith(("file:", "data:"))] == []   # nothing fetched from outside
 

@@ -55,7 +55,8 @@ def test_pairwise_equals_scipy_and_statsmodels_holm(study_dir, analysed):
     means, catalog, experience = _independent_means(study_dir)
     table = analysed.pairwise
     assert list(table.columns) == ["group", "sample_a", "sample_b", "n", "mean_diff", "t", "df", "p", "p_holm",
-                                   "ci_low", "ci_high", "cohen_dz", "not_testable"]
+                                   "bf10", "ci_low", "ci_high", "cohen_dz", "wilcoxon_w", "wilcoxon_p", "wilcoxon_p_holm",
+                                   "not_testable"]
     for group, sel in (("all", means), ("experienced", means[[experience[s] != "none" for s in means.index]])):
         got = table[table["group"] == group].reset_index(drop=True)
         want = _expected_pairwise(sel, catalog, group)
@@ -78,7 +79,7 @@ def test_tost_equals_statsmodels_ttost_paired(study_dir, analysed):
     means, catalog, experience = _independent_means(study_dir)
     eq = analysed.equivalence
     assert list(eq.columns) == ["group", "sample", "reference", "n", "mean_diff", "margin", "p_lower", "p_upper",
-                                "p_tost", "equivalent"]
+                                "p_tost", "equivalent", "bf01"]
     got = eq[eq["group"] == "all"].set_index("sample")
     assert list(got.index) == [s for s in catalog if s != "wood_on_foam"]
     for sample in got.index:

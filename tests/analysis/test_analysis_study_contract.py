@@ -85,3 +85,10 @@ def test_files_written_by_the_study_store_are_analysed(tmp_path):
     assert all(abs(tap.v_in_m_s - 0.1) < 0.02 for tap in taps.values())
     out = write_report(res, tmp_path / "report")
     assert [p.name for p in out["figures"]][-1] == "fig_4_20_accelerations.png"
+    # issue 35: the models fit the study's own files; every attempt enters, velocity as the covariate
+    assert res.models.mixed["fitted"] and res.models.ordinal["fitted"], res.models.notes
+    assert res.models.mixed["n_attempts"] == 96 and res.models.mixed["covariates"] == ["velocity_m_s"]
+    emm = res.models.emm.set_index("sample")["emm"]
+    assert emm["wood"] > emm["foam"] + 2          # profile 6.1 vs 2.3, noise SD 0.5
+    md = out["md"].read_text()
+    assert "## Models" in md and "## Evidence for no difference" in md

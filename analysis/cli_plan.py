@@ -1,0 +1,70 @@
+"""``python -m analysis plan --dz D | --pilot DATA --out PLAN``: how many subjects the next study needs.
+
+The body; the parser is :mod:`analysis.cli_plan_parser`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+from pathlib import Path
+
+from plumbing.fileio import check_output_dir
+
+from analysis.cli_plan_parser import DEFAULT_EQUIVALENCE, DEFAULT_PAIRS
+from analysis.config import check_data_folder
+from analysis.load import AnalysisWarning, load_study
+from analysis.plan_report import write_plan
+from analysis.power import PlanSettings, assumed_plan, pilot_plan, plan_line
+from analysis.stats import rating_matrix
+
+def _given(value, default):
+    """``value`` unless the flag was not given (None): 0 stays 0, so that the settings refuse it."""
+    return default if value is None else value
+
+
+def run(args: argparse.Namespace) -> int:
+    """The ``plan`` command: write ``plan.csv`` and the power-curve figure into ``--out``, print one line per comparison."""
+
+    if (args.dz is None) == (args.pilot is None):
+        raise ValueError("give either --dz (an assumed effect) or --pilot DATA (a pilot study folder), not both "
+                         "and not neither")
+    out = check_output_dir(args.out, args.force)
+    if args.pilot is not None:
+        check_data_folder(args.pilot)
+    if args.dz is not None and args.dz == 0:
+        raise ValueError("--dz must not be 0: there is no effect to detect")
+
+    if args.pilot is not None:
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", AnalysisWarning)
+            study = load_study(Path(args.pilot))
+        for w in caught:
+            if issubclass(w.category, AnalysisWarning):
+                print(f"warning: {w.message}")
+        if args.reference not in study.catalog:
+            raise ValueError(f"--reference {args.reference!r} is not a sample of the pilot's catalog "
+                             f"({', '.join(study.catalog)})")
+        k = len(study.catalog)
+        settings = PlanSettings(power=args.power, alpha=args.alpha, margin=args.margin,
+                                comparisons=_given(args.comparisons, k * (k - 1) // 2),
+                                equivalence_comparisons=_given(args.equivalence_comparisons, k - 1))
+        matrix = rating_matrix(study)
+        if len(matrix.subjects) < 2:
+            raise ValueError(f"--pilot {args.pilot}: {len(matrix.subjects)} subject(s); a pilot needs 2 or more to "
+                             "estimate d_z")
+        plan = pilot_plan(matrix, args.reference, settings)
+    else:
+        if not args.sd_diff > 0:
+            raise ValueError(f"--sd-diff must be > 0 rating points, got {args.sd_diff}")
+        settings = PlanSettings(power=args.power, alpha=args.alpha, margin=args.margin,
+                                comparisons=_given(args.comparisons, DEFAULT_PAIRS),
+                                equivalence_comparisons=_given(args.equivalence_comparisons, DEFAULT_EQUIVALENCE))
+        plan = assumed_plan(args.dz, args.sd_diff, settings)
+
+    written = write_plan(plan, out)
+    for r in plan.itertuples():
+        print(plan_line(r))
+    print(f"wrote {', '.join(p.name for p in written)} into {out}")
+    return 0
