@@ -9,7 +9,8 @@ does not pay for numba, scipy.signal or matplotlib.
 
 Errors the user can fix (:class:`ValueError`, :class:`FileNotFoundError`,
 :class:`plumbing.errors.UserError`, which ``devices.DeviceError`` derives from) print one ``error: ...`` line and exit 2;
-a reader that goes away (``| head``) exits 1 without a traceback.
+a reader that goes away (``| head``) exits 1 without a traceback; Ctrl-C that a command does not handle
+itself prints ``interrupted`` and exits 130 (no traceback).
 
 A command whose parser sets ``fast_exit=True`` (``set_defaults``) declares that it has closed every
 file and joined every thread it started when it returns; run as a script (:func:`run_as_script`),
@@ -128,6 +129,9 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
     except (ValueError, FileNotFoundError, UserError) as exc:  # UserError: e.g. devices.DeviceError, a port that is absent or mute
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C in a command that does not say more itself: one line, the shell's 130
+        print("\ninterrupted", file=sys.stderr)
+        return 130
 
 
 def console_prog(prog: str) -> str:
