@@ -17,6 +17,9 @@ the output, and, uncaught, the process exits with the conventional status 128 + 
   partial result): a signal that arrives inside it is raised when the section ends.
 * :func:`die_with_parent` stops a servo child process the same way when its parent dies (Linux:
   ``prctl(PR_SET_PDEATHSIG, SIGTERM)``); :class:`ParentWatch` is the portable fallback a loop polls.
+* :func:`worker_pool` is a process pool whose workers hold no output and nothing to zero: they are
+  killed (SIGKILL) when the parent dies of any signal, and stopped at once, not awaited, when the
+  parent leaves the pool with an exception (Ctrl-C, SIGTERM, an error).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import os
 import signal
 import sys
 import threading
+from contextlib import contextmanager
 
 #: the signals turned into :class:`Terminated` (those this platform has)
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
@@ -224,3 +228,83 @@ class ParentWatch:
             if os.getppid() != self.parent_pid:
                 self.gone = True
         return self.gone
+
+
+def _prctl_pdeathsig(sig: int) -> bool:
+    """``prctl(PR_SET_PDEATHSIG, sig)`` (Linux; False elsewhere or when refused)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes  # deferred: child processes only
+
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def worker_dies_with_parent(parent_pid: int, initializer=None, initargs=()) -> None:
+    """Initializer of a worker process (pool worker, recording process) that holds nothing to save or zero.
+
+    The worker is killed (SIGKILL) when its parent dies, however it dies (Linux ``PR_SET_PDEATHSIG``; a
+    worker of a parent already gone ends at once); it ignores Ctrl-C (the terminal sends it to the whole
+    process group: the parent stops the workers, which then print no traceback of their own) and takes
+    SIGTERM/SIGHUP with their default action (a fork inherits the parent's :class:`stop_on_signals`
+    handlers). Then runs ``initializer(*initargs)``.
+
+    Parameters
+    ----------
+    parent_pid : int
+        ``os.getpid()`` of the parent, taken there before the fork.
+    """
+    global _active
+    _active = None
+    if hasattr(signal, "SIGINT"):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_DFL)
+    _prctl_pdeathsig(signal.SIGKILL)
+    if os.getppid() != parent_pid:  # the parent died before the request took effect
+        os._exit(1)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+@contextmanager
+def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
+    """A :class:`concurrent.futures.ProcessPoolExecutor` whose workers die with this process (module doc).
+
+    Leaving the block normally waits for the workers as the executor does; leaving it with an exception
+    (an error, Ctrl-C, :class:`Terminated`) cancels what is queued and kills the workers at once instead
+    of waiting for their tasks, so that no worker outlives the command. Start the workers from the
+    thread that lives as long as the pool (the kernel's parent-death signal follows the thread that
+    forked them): submit from the main thread.
+
+    Parameters
+    ----------
+    max_workers : int
+    mp_context : multiprocessing context
+        e.g. ``multiprocessing.get_context("fork")``.
+    initializer, initargs
+        Run in each worker after :func:`worker_dies_with_parent`.
+
+    Yields
+    ------
+    ProcessPoolExecutor
+    """
+    from concurrent.futures import ProcessPoolExecutor  # deferred: multiprocessing only where a pool starts
+
+    pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context, initializer=worker_dies_with_parent,
+                               initargs=(os.getpid(), initializer, tuple(initargs)))
+    try:
+        yield pool
+    except BaseException:
+        procs = list((getattr(pool, "_processes", None) or {}).values())  # the executor offers no public kill
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            if proc.is_alive():
+                proc.kill()
+        for proc in procs:
+            proc.join()
+        raise
+    else:
+        pool.shutdown(wait=True)
