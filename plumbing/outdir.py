@@ -204,8 +204,9 @@ class OutputFolder:
     """
 
     def __init__(self, out, force: bool, products=None, flag: str = "--force", what: str = "--out",
-                 in_place: bool = False) -> None:
+                 in_place: bool = False, results: str = "earlier results") -> None:
         self.out = Path(out)
+        self.results = results
         self.in_place = bool(in_place)
         self.force = bool(force)
         self.products = tuple(products) if products is not None else None
@@ -236,7 +237,7 @@ class OutputFolder:
             earlier = self.earlier_results()
             if earlier and not self.force and not self.in_place:
                 shown = ", ".join(earlier[:4]) + (f", ... ({len(earlier)} entries)" if len(earlier) > 4 else "")
-                raise ValueError(f"{self.what} {out} already holds earlier results ({shown}); not overwriting "
+                raise ValueError(f"{self.what} {out} already holds {self.results} ({shown}); not overwriting "
                                  f"them: choose another {self.what} or pass {self.flag} to replace them")
             self.replacing = bool(earlier)
             self.reclaimed = reclaim_staging(out)
@@ -340,7 +341,7 @@ class OutputFolder:
 
 
 def output_folder(out, force: bool, products=None, flag: str = "--force", what: str = "--out",
-                  in_place: bool = False) -> OutputFolder:
+                  in_place: bool = False, results: str = "earlier results") -> OutputFolder:
     """The output folder ``out`` of a command, written beside and swapped in whole (module doc).
 
     Parameters
@@ -357,6 +358,8 @@ def output_folder(out, force: bool, products=None, flag: str = "--force", what: 
     in_place : bool
         Write into ``out`` itself, under its lock (continuing an interrupted run there: ``--resume``);
         nothing is refused or swapped.
+    results : str
+        What the earlier results are, in the refusal ("a demo's results").
 
     Returns
     -------
@@ -371,7 +374,8 @@ def output_folder(out, force: bool, products=None, flag: str = "--force", what: 
     OutputBusy
         Another process writes ``out`` now.
     """
-    return OutputFolder(out, force, products=products, flag=flag, what=what, in_place=in_place)
+    return OutputFolder(out, force, products=products, flag=flag, what=what, in_place=in_place,
+                        results=results)
 
 
 def reclaim_staging(out) -> list[Path]:
