@@ -41,7 +41,7 @@ def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
     # press Ctrl-C
 
     def measuring():
-        return list(tmp_path.glob(".identA.identify-*/recordings/g2N*.csv")) + list(out.glob("recordings/g2N*.csv"))
+        return list(tmp_path.glob(".identA.staging-*/recordings/g2N*.csv")) + list(out.glob("recordings/g2N*.csv"))
 
     deadline = time.monotonic() + 120
     while not measuring() and time.monotonic() < deadline:
@@ -55,7 +55,7 @@ def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert lines[-1] == f"interrupted: identification stopped; nothing in {out} was replaced"
     assert tree_hashes(out) == before                              # every earlier file, byte for byte
-    assert not list(tmp_path.glob(".identA.identify-*"))       # the half-measured run is gone
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["identA"]   # the half-measured run is gone, no lock left
 
 
 def test_a_failed_forced_identify_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):
