@@ -36,21 +36,17 @@ import fnmatch
 import json
 import os
 import shutil
-import signal
 import socket
 import sys
 import tempfile
 from pathlib import Path
 
 from .errors import UserError
-from .fileio import check_output_dir, current_umask, fsync_dir
-from .stopsignals import stop_on_signals
+from .fileio import check_output_dir, check_output_file, current_umask, fsync_dir
+from .stopsignals import signals_blocked, stop_on_signals
 
 #: the prefixes of the staging folders of ``out``: this module's, and ``devices identify``'s before it
 STAGING_TAGS = ("staging", "identify")
-
-_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
-
 
 class OutputBusy(UserError):
     """Another process is writing the same output (its pid and host are in the message)."""
@@ -137,25 +133,6 @@ class FileLock:
         self.fd = None
 
 
-class signals_blocked:
-    """Context manager: SIGINT, SIGTERM and SIGHUP wait (are blocked) inside, then are delivered.
-
-    For the few system calls that must not be cut in two: the swap of an output folder, the removal
-    of a staging folder. Main thread only (elsewhere a no-op).
-    """
-
-    def __enter__(self) -> "signals_blocked":
-        self._old = None
-        if hasattr(signal, "pthread_sigmask"):
-            self._old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-        return self
-
-    def __exit__(self, *exc) -> bool:
-        if self._old is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, self._old)
-        return False
-
-
 def _exchange(a: Path, b: Path) -> bool:
     """Swap the names of ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
     if not sys.platform.startswith("linux"):
@@ -220,7 +197,7 @@ class OutputFolder:
     # -- opening ---------------------------------------------------------------------------------------
     def open(self) -> "OutputFolder":
         """Check ``out``, take the lock, refuse earlier results without ``force``, reclaim debris, make the staging folder."""
-        out = check_output_dir(self.out, what=self.what)
+        out = self._check()
         if out.name in ("", ".", ".."):
             out = Path(os.path.abspath(out))
             self.out = out
@@ -252,6 +229,10 @@ class OutputFolder:
             self._close()
             raise
         return self
+
+    def _check(self) -> Path:
+        """``out``, refused (ValueError) if it is a file or below one."""
+        return check_output_dir(self.out, what=self.what)
 
     def earlier_results(self) -> list[str]:
         """The entries of ``out`` that a new run replaces: all of them, or those matching ``products``
@@ -338,6 +319,67 @@ class OutputFolder:
         else:
             self.discard()
         return False
+
+
+class OutputFile(OutputFolder):
+    """One output file written the same way (:func:`output_file`): ``path`` is ``<staging>/<name>``, renamed
+    over ``out`` when the block ends without an exception (``os.replace``: atomic for a file)."""
+
+    def _check(self) -> Path:
+        """``out``, refused (ValueError) if it is a folder or below a file, or exists and not ``force``."""
+        out = check_output_file(self.out, True, what=self.what)
+        if out.exists() and not self.force:
+            raise ValueError(f"{self.what} {out} exists; not overwriting it: choose another {self.what} or pass "
+                             f"{self.flag} to replace it")
+        return out
+
+    def open(self) -> "OutputFile":
+        """As :meth:`OutputFolder.open`; ``path`` is then the file to write."""
+        super().open()
+        self._staging_dir, self.path = self.path, self.path / self.out.name
+        return self
+
+    def earlier_results(self) -> list[str]:
+        """``[name]`` when the file exists (it is replaced), else empty."""
+        return [self.out.name] if self.out.is_file() else []
+
+    def commit(self) -> Path:
+        """Rename the file written over ``out``; returns ``out``. Idempotent."""
+        if not self.done:
+            with signals_blocked():
+                os.replace(self.path, self.out)
+                fsync_dir(self.out.parent)
+                shutil.rmtree(self._staging_dir, ignore_errors=True)
+                self.done = True
+        self._close()
+        return self.out
+
+    def discard(self) -> None:
+        """Delete what was written; ``out`` stays as it was. Idempotent."""
+        if not self.done and self.path is not None:
+            with signals_blocked():
+                shutil.rmtree(self._staging_dir, ignore_errors=True)
+                self.done = True
+        self._close()
+
+    def set_aside(self, label: str) -> Path:
+        """Not offered for a file: use :meth:`discard`."""
+        raise NotImplementedError("an output file is written whole or not at all")
+
+
+def output_file(out, force: bool, flag: str = "--force", what: str = "--out") -> OutputFile:
+    """One output file, written beside and renamed into place, one writer at a time (module doc).
+
+    ``with output_file(path, force) as w:`` write ``w.path`` (a file of the same name in a staging folder
+    beside ``out``). Refused (ValueError): ``out`` is a folder, is below a file, or exists and not ``force``;
+    :class:`OutputBusy` while another process writes it. An error, Ctrl-C or SIGTERM/SIGHUP leaves the
+    earlier file as it was and nothing beside it.
+
+    Returns
+    -------
+    OutputFile
+    """
+    return OutputFile(out, force, flag=flag, what=what)
 
 
 def output_folder(out, force: bool, products=None, flag: str = "--force", what: str = "--out",

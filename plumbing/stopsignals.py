@@ -17,6 +17,8 @@ the output, and, uncaught, the process exits with the conventional status 128 + 
   partial result): a signal that arrives inside it is raised when the section ends.
 * :func:`die_with_parent` stops a servo child process the same way when its parent dies (Linux:
   ``prctl(PR_SET_PDEATHSIG, SIGTERM)``); :class:`ParentWatch` is the portable fallback a loop polls.
+* :class:`signals_blocked` holds SIGINT, SIGTERM and SIGHUP back over a few system calls that must not
+  be cut in two (a folder swap, a fork: a signal raised in a fork's after-fork hooks is dropped).
 * :func:`worker_pool` is a process pool whose workers hold no output and nothing to zero: they are
   killed (SIGKILL) when the parent dies of any signal, and stopped at once, not awaited, when the
   parent leaves the pool with an exception (Ctrl-C, SIGTERM, an error).
@@ -34,6 +36,8 @@ from contextlib import contextmanager
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
+#: what :class:`signals_blocked` holds back: Ctrl-C and the stop signals
+_BLOCKED = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
 
 
 def signal_name(signum: int) -> str:
@@ -142,6 +146,27 @@ class stop_on_signals:
         if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
             self.raised = True
             raise Terminated(self.signum)
+
+
+class signals_blocked:
+    """Context manager: SIGINT, SIGTERM and SIGHUP wait (are blocked) inside, then are delivered.
+
+    For the few system calls that must not be cut in two: the swap of an output folder, the removal
+    of a staging folder, a fork (a child forked inside starts with them blocked:
+    :func:`worker_dies_with_parent` unblocks them). Blocks them in the calling thread (the kernel then
+    delivers them to another thread or when the block ends; Python runs the handlers in the main thread).
+    """
+
+    def __enter__(self) -> "signals_blocked":
+        self._old = None
+        if hasattr(signal, "pthread_sigmask"):
+            self._old = signal.pthread_sigmask(signal.SIG_BLOCK, _BLOCKED)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self._old)
+        return False
 
 
 class holding:
@@ -258,6 +283,8 @@ def worker_dies_with_parent(parent_pid: int, initializer=None, initargs=()) -> N
     """
     global _active
     _active = None
+    if hasattr(signal, "pthread_sigmask"):  # forked inside signals_blocked (see worker_pool): take them again
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _BLOCKED)
     if hasattr(signal, "SIGINT"):
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     for sig in STOP_SIGNALS:
@@ -293,8 +320,15 @@ def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
     """
     from concurrent.futures import ProcessPoolExecutor  # deferred: multiprocessing only where a pool starts
 
-    pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context, initializer=worker_dies_with_parent,
-                               initargs=(os.getpid(), initializer, tuple(initargs)))
+    class Pool(ProcessPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):
+            # the executor forks its workers in submit: a stop signal then would be raised in the fork's
+            # after-fork hooks, where Python prints and drops it; held back over the fork, it is raised here
+            with signals_blocked():
+                return super().submit(fn, *args, **kwargs)
+
+    pool = Pool(max_workers=max_workers, mp_context=mp_context, initializer=worker_dies_with_parent,
+                initargs=(os.getpid(), initializer, tuple(initargs)))
     try:
         yield pool
     except BaseException:

@@ -15,7 +15,7 @@ import numpy as np
 from ..base import Device
 from plumbing.fileio import atomic_write_text
 from plumbing.progress import Progress
-from plumbing.stopsignals import worker_dies_with_parent, worker_pool
+from plumbing.stopsignals import signals_blocked, worker_dies_with_parent, worker_pool
 from ..registry import make_device
 from plumbing.validation import require_int
 from .etfe import Etfe, etfe
@@ -272,7 +272,8 @@ def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, l
     results = [None] * len(jobs)
     inbox, outbox = ctx.Pipe(duplex=False)
     recorder = ctx.Process(target=_recorder, args=(outbox, jobs, spec, seed, cfg, out, os.getpid()), daemon=True)
-    recorder.start()
+    with signals_blocked():  # a stop signal during the fork would be dropped in its after-fork hooks
+        recorder.start()
     outbox.close()
     n_recorded = 0
     try:

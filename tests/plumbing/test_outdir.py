@@ -161,3 +161,22 @@ def test_the_lock_file_survives_no_race_with_its_removal(tmp_path):
     assert not third.try_acquire()                           # the file the second holds is the one named
     os.close(stale)
     second.release()
+
+
+def test_an_output_file_is_renamed_into_place_or_left_alone(tmp_path):
+    from plumbing.outdir import output_file
+
+    lib = tmp_path / "LIB.npz"
+    with output_file(lib, False) as w:
+        assert w.path.name == "LIB.npz" and w.path.parent.name.startswith(".LIB.npz.staging-")
+        w.path.write_bytes(b"first")
+    assert lib.read_bytes() == b"first" and _debris(tmp_path) == []
+    with pytest.raises(ValueError, match=r"--out .*LIB.npz exists; not overwriting it: .* --force"):
+        output_file(lib, False).open()
+    with pytest.raises(KeyboardInterrupt):
+        with output_file(lib, True) as w:
+            w.path.write_bytes(b"half")
+            raise KeyboardInterrupt
+    assert lib.read_bytes() == b"first" and _debris(tmp_path) == []
+    with pytest.raises(ValueError, match="is a folder"):
+        output_file(tmp_path, True).open()
