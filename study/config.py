@@ -16,11 +16,21 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from plumbing.fileio import read_text_utf8
-from plumbing.validation import require_int, require_positive
+from plumbing.validation import require_int, require_number, require_positive
 
 from .data import EXPERIENCE, check_subject_id
 
 GENDERS = ("female", "male", "other", "unspecified")
+
+#: upper bounds of the protocol's numbers, so that a session's time, memory and traces stay bounded
+#: (``repetitions = 1e6`` planned millions of trials; a servo log is preallocated for the longest window)
+#: and the homing target stays within the handle's reach (the renderer's position limit is 0.25 m).
+#: The thesis's values (section 4.5.3) are far inside them: 3 repetitions, 5 s windows, 1 cm.
+MAX_REPETITIONS = 100
+MAX_FAMILIARIZATION_WINDOWS = 1000
+PROTOCOL_LIMITS = {"tap_window_s": 60.0, "familiarization_window_s": 60.0, "first_tap_timeout_s": 600.0,
+                   "homing_after_s": 60.0, "homing_before_max_s": 60.0, "home_height_m": 0.1,
+                   "audio_fs_hz": 192000.0, "servo_watchdog_s": 1.0}
 HANDEDNESS = ("right", "left", "ambidextrous", "unspecified")
 
 
@@ -75,10 +85,13 @@ class ProtocolConfig:
     servo_watchdog_s: float = 0.02
 
     def __post_init__(self) -> None:
-        require_int("repetitions", self.repetitions, minimum=1)
+        require_int("repetitions", self.repetitions, minimum=1, maximum=MAX_REPETITIONS)
         require_positive(self, "tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s",
                          "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s")
-        require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1)
+        for name, limit in PROTOCOL_LIMITS.items():  # time, memory and reach bounded (issue 38, items 4 and 12)
+            require_number(name, getattr(self, name), maximum=limit)
+        require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1,
+                    maximum=MAX_FAMILIARIZATION_WINDOWS)
         if not (isinstance(self.masking_level_dbfs, (int, float)) and not isinstance(self.masking_level_dbfs, bool)
                 and math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
             raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")
@@ -120,6 +133,9 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, whe
     if path is not None:
         p = Path(path)
         where = str(p)
+        if p.exists() and not p.is_file():  # e.g. --protocol /dev/null: it is there, but holds no settings
+            raise ValueError(f"{what} file {p} is not a regular file ({'a folder' if p.is_dir() else 'a device or pipe'}"
+                             "); give a TOML or JSON file")
         if not p.is_file():
             raise FileNotFoundError(f"{what} file {p} not found")
         text = read_text_utf8(p, f"{what} file")
