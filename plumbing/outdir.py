@@ -317,8 +317,20 @@ class OutputFolder:
         if exc_type is None:
             self.commit()
         else:
+            if isinstance(exc, OSError) and self.path is not None:  # a full disk: name the output, not the staging
+                exc.filename = self.shown(exc.filename) if exc.filename else str(self.out)
             self.discard()
         return False
+
+    def shown(self, path) -> str:
+        """``path`` inside the staging folder, named as it would be in ``out`` (for messages)."""
+        if isinstance(self, OutputFile):
+            return str(self.out) if Path(path).parent == self._staging_dir else str(path)
+        try:
+            rel = Path(path).relative_to(self.path)
+        except ValueError:
+            return str(path)
+        return str(self.out / rel) if str(rel) != "." else str(self.out)
 
 
 class OutputFile(OutputFolder):
