@@ -257,7 +257,7 @@ def _run_session(args, plan, say, web) -> int:
             print(f"aborted by the operator: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
             return 3
         if isinstance(exc, ServoStopped):
-            print(f"error: {exc}; the output was zeroed, the attempt in progress is not recorded; data so far is "
+            print(f"error: {servo_stopped_message(exc)}; the attempt in progress is not recorded; data so far is "
                   f"in {store.dir}; continue with --resume", file=sys.stderr)
             return 4
         raise
@@ -270,6 +270,13 @@ def _run_session(args, plan, say, web) -> int:
             web.stop()
     _summary(store, say)
     return 0
+
+
+def servo_stopped_message(exc) -> str:
+    """What stopped the servo, saying once that the output was zeroed (the device's or the loop's own
+    message often says so already: "disconnected (...); output zeroed by the device watchdog")."""
+    text = str(exc)
+    return text if "zeroed" in text else f"{text}; the output was zeroed"
 
 
 def _trial_counts(schedule) -> tuple[int, int]:

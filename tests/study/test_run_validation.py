@@ -68,3 +68,13 @@ def test_protocol_dev_null_is_not_called_missing(tmp_path, capsys):
     assert code == 2
     assert err.strip() == ("error: protocol file /dev/null is not a regular file (a device or pipe); give a TOML or "
                            "JSON file")
+
+
+def test_the_disconnect_message_says_output_zeroed_once():
+    from study.apparatus import ServoStopped
+    from study.cli_run import servo_stopped_message
+
+    told = ServoStopped("serial:/dev/ttyACM0: disconnected (read failed); output zeroed by the device watchdog")
+    assert servo_stopped_message(told) == str(told)
+    assert servo_stopped_message(ServoStopped("watchdog: a servo period of 30 ms")) == \
+        "watchdog: a servo period of 30 ms; the output was zeroed"
