@@ -22,10 +22,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")
-    check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
     # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted or
-    # failed report leaves the earlier one as it was
-    with output_folder(out, args.force) as folder:
+    # failed report leaves the earlier one as it was; an earlier report without --force is refused first
+    folder = output_folder(out, args.force).open()
+    with folder:
+        check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
         written = _report(args, cfg, folder.path, out)
     warning_type = written.pop("warning_type")
     for w in written.pop("caught"):

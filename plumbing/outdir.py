@@ -317,7 +317,8 @@ class OutputFolder:
         if exc_type is None:
             self.commit()
         else:
-            if isinstance(exc, OSError) and self.path is not None:  # a full disk: name the output, not the staging
+            if isinstance(exc, OSError) and exc.errno is not None and self.path is not None:
+                # a write that failed (a full disk): name the output, not the staging folder
                 exc.filename = self.shown(exc.filename) if exc.filename else str(self.out)
             self.discard()
         return False
