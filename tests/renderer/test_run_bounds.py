@@ -3,6 +3,7 @@ writer at a time (item 1)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ from renderer.__main__ import main
 from tests.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[2]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))   # the code of this tree, not another installed copy
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -33,14 +35,15 @@ def test_a_second_run_into_the_same_out_is_refused_while_the_first_writes(tmp_pa
     """The first run holds --out's lock from before the device opens until its files are swapped in."""
     out = tmp_path / "X"
     first = subprocess.Popen([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1",
-                              "--realtime", "--duration-s", "60", "--out", str(out)], cwd=tmp_path,
+                              "--realtime", "--duration-s", "60", "--out", str(out)], cwd=tmp_path, env=ENV,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         lock = tmp_path / ".X.lock"
         while not (lock.is_file() and lock.read_text().startswith("{")):    # the first run holds the lock
             assert first.poll() is None, first.communicate()
         second = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1",
-                                 "--out", str(out), "--force"], cwd=tmp_path, capture_output=True, text=True)
+                                 "--out", str(out), "--force"], cwd=tmp_path, env=ENV, capture_output=True,
+                                text=True)
         assert second.returncode == 2, second.stderr
         assert second.stderr.startswith(f"error: {out} is being written by another run: pid {first.pid} on host")
     finally:
@@ -57,7 +60,7 @@ def test_a_stopped_forced_run_keeps_the_earlier_run_exactly(tmp_path):
     assert main(["run", "--device", "sim", "--taps", "1", "--out", str(out)]) == 0
     before = tree_hashes(out)
     proc = subprocess.Popen([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1", "--realtime",
-                             "--duration-s", "60", "--out", str(out), "--force"], cwd=tmp_path,
+                             "--duration-s", "60", "--out", str(out), "--force"], cwd=tmp_path, env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         while not list(tmp_path.glob(".X.staging-*")):        # the run is under way (its staging folder exists)
