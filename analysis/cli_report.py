@@ -15,6 +15,8 @@ from contextlib import contextmanager, nullcontext
 from multiprocessing.connection import wait
 from pathlib import Path
 
+from plumbing.outdir import output_folder
+
 from analysis.config import AnalysisConfig, check_data_folder
 
 
@@ -25,10 +27,31 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.resolve() == Path(args.data).resolve():
         raise ValueError(f"--out {out} must not be the data folder {args.data}")
-    if out.is_file() or (out.is_dir() and any(out.iterdir()) and not args.force):
-        raise ValueError(f"{out} exists and is not empty; not overwriting an earlier report: choose another --out "
-                         "or pass --force to replace it")
-    check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted or
+    # failed report leaves the earlier one as it was; an earlier report without --force is refused first
+    folder = output_folder(out, args.force).open()
+    with folder:
+        check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
+        written = _report(args, cfg, folder.path, out)
+    warning_type = written.pop("warning_type")
+    for w in written.pop("caught"):
+        if issubclass(w.category, warning_type):
+            print(f"warning: {w.message}", file=sys.stderr)
+    for note in written["notes"]:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"wrote {len(written['tables'])} tables, {len(written['figures'])} figures, "
+          f"{_moved(written['md'], folder)} and {_moved(written['html'], folder)}")
+    return 0
+
+
+def _moved(path, folder) -> Path:
+    """Where ``path``, written into the staging folder of ``folder``, is now that it was swapped in."""
+    return folder.out / Path(path).relative_to(folder.path)
+
+
+def _report(args: argparse.Namespace, cfg: AnalysisConfig, out: Path, final: Path) -> dict:
+    """Analyse ``args.data`` and write the report into ``out`` (swapped in later as ``final``); returns :func:`analysis.report.write_report`'s
+    dict plus the warnings caught (``caught``, ``warning_type``)."""
     # the drawing process starts first, so that its imports overlap the ones below
     with (nullcontext() if args.no_figures else figure_process()) as pool:
         # the cyclic garbage collector pauses for the command: the modules and tables it creates live until
@@ -61,18 +84,12 @@ def run(args: argparse.Namespace) -> int:
                 warnings.simplefilter("always", AnalysisWarning)
                 res = pipeline.analyse(args.data, cfg, sessions=sessions, loaded=loaded)
                 written = report.write_report(res, out, figures=not args.no_figures, target_v_m_s=args.velocity,
-                                       pool=pool, accelerations=started[0] if started else None)
+                                              pool=pool, accelerations=started[0] if started else None,
+                                              final_dir=final)
         finally:
             if collecting:
                 gc.enable()
-    for w in caught:
-        if issubclass(w.category, AnalysisWarning):
-            print(f"warning: {w.message}", file=sys.stderr)
-    for note in written["notes"]:
-        print(f"note: {note}", file=sys.stderr)
-    print(f"wrote {len(written['tables'])} tables, {len(written['figures'])} figures, "
-          f"{written['md']} and {written['html']}")
-    return 0
+    return dict(written, caught=caught, warning_type=AnalysisWarning)
 
 
 @contextmanager

@@ -664,6 +664,60 @@ def _bad_list_cell(cells, files, lines, column) -> None:
     raise ValueError(f"column {column!r}: a cell is not a semicolon-separated list of numbers")
 
 
+def _string_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
+    """Every trials.csv as text columns (Arrow-backed strings, no Python object per cell), or None.
+
+    The error path of plain files (issue 38, item 4: a 367 MB trials.csv with one bad cell peaked at
+    9.3 GB in the exact reader, which holds every cell as a Python string, twice): pyarrow reads the
+    cells untyped, so a value the typed read refused is kept as written for the checks and their message,
+    at about the file's size in memory. Plain as for :func:`_fast_trials` (a file at a time); anything
+    else (quotes, blank or torn lines, a wrong field count, a BOM, another header) returns None: the exact
+    reader, whose errors name the line. Returns the table (columns of :data:`TRIAL_COLUMNS` as
+    :data:`STR_DTYPE`, ``file``, ``line``) and ``[(trials path, rows)]``.
+    """
+    tables, file_of_row, counts = [], [], []
+    for folder in folders:
+        path = os.path.join(folder, "trials.csv")
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read()
+        except OSError:
+            return None
+        first = data.find(b"\n")
+        if (first < 0 or data[-1:] != b"\n" or data.startswith(_BOM) or b'"' in data or b"\r" in data
+                or b"\n\n" in data):
+            return None
+        try:
+            names = [h.strip() for h in data[:first].decode("utf-8").split(",")]
+        except UnicodeDecodeError:
+            return None
+        if not set(TRIAL_COLUMNS) <= set(names) or len(set(names)) != len(names):
+            return None
+        read, parse, _ = _arrow_options(names)
+        convert = pa_csv.ConvertOptions(column_types={c: pa.string() for c in names},
+                                        include_columns=list(TRIAL_COLUMNS), strings_can_be_null=False)
+        try:
+            table = pa_csv.read_csv(pa.py_buffer(memoryview(data)[first + 1:]), read, parse, convert,
+                                    memory_pool=_POOL)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
+            return None
+        del data
+        n = table.num_rows
+        tables.append(table)
+        file_of_row.append((path, n))
+        counts.append(n)
+    if not tables or not sum(counts):
+        return None
+    table = pa.concat_tables(tables) if len(tables) != 1 else tables[0]
+    del tables
+    t = pd.DataFrame({col: table.column(col).to_pandas(types_mapper={pa.string(): STR_DTYPE}.get)
+                      for col in TRIAL_COLUMNS})
+    del table
+    t["file"] = _file_column(file_of_row)
+    t["line"] = _line_numbers(counts)
+    return t, file_of_row
+
+
 def _exact_trials(folders: list, messages: list) -> tuple[pd.DataFrame, list]:
     """Every trials.csv read with the exact per-file reader (quotes, blank lines, torn last lines...)."""
     columns: list[list[str]] = [[] for _ in TRIAL_COLUMNS]
@@ -835,7 +889,10 @@ def load_study(data_dir, sessions: tuple | None = None) -> Study:
             except ValueError:
                 fast, split = None, {}    # read again exactly, so the error names the raw value as written
         if fast is None:
-            trials, file_of_row = _exact_trials(folders, messages)
+            # plain files as untyped Arrow text (the file's size in memory), others cell by cell
+            text = _string_trials(folders)
+            trials, file_of_row = text if text is not None else _exact_trials(folders, messages)
+            del text
             raw_rating = trials["rating"].to_numpy(dtype=object)
             trials = _parse_columns(trials)
             for col in NAME_COLUMNS:                     # the fast reader's dtypes

@@ -432,10 +432,11 @@ TABLE_TITLES = (
 
 
 def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: float | None = None,
-                 pool=None, accelerations=None) -> dict:
+                 pool=None, accelerations=None, final_dir=None) -> dict:
     """Write tables, figures, ``report.md`` and a self-contained ``report.html`` into ``out_dir``.
 
-    ``pool``, ``accelerations``: see :func:`make_figures`. Returns a dict with ``tables``, ``figures``
+    ``pool``, ``accelerations``: see :func:`make_figures`. ``final_dir``: the folder the report will be
+    found in, named in its provenance (``out_dir`` is then the staging folder swapped in as it later). Returns a dict with ``tables``, ``figures``
     (paths), ``notes`` and ``md``/``html`` paths.
     """
     out = Path(out_dir)
@@ -462,7 +463,7 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
         shown, note = _shown(df, _csv_name(title))
         md += [f"## {title}", "", markdown_table(shown) if len(df) else "(none)", ""] + ([note, ""] if note else [])
     md_path = out / "report.md"
-    prov = provenance(res, out)
+    prov = provenance(res, Path(final_dir) if final_dir is not None else out)
     md += ["## Provenance", "", "| item | value |", "|---|---|"] + [f"| {md_escape(k)} | {md_escape(v)} |"
                                                                     for k, v in prov] + [""]
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")

@@ -4,14 +4,14 @@
 from __future__ import annotations
 
 import os
-import shutil
 import sys
-import tempfile
 from collections import OrderedDict
 from pathlib import Path
 
 import figstyle
-from plumbing.fileio import check_output_dir, clear_products, refuse_overwrite
+from plumbing.fileio import check_output_dir, refuse_overwrite
+from plumbing.outdir import output_folder
+from plumbing.stopsignals import Terminated
 
 from .identify import (
     pipeline as identify_pipeline,  # identify_pipeline.identify_device: replaceable in tests
@@ -67,53 +67,33 @@ IDENTIFY_PRODUCTS = ("recordings", "accel_g*N.json", "position_g*N.json", "model
 SUCCESSIVE_PRODUCTS = ("model.json", "report.txt", "report.json", "stage_*.png", "successive_state.json")
 
 
-def _keep_failed(target: Path, out: Path) -> Path:
-    """Move a failed run's folder ``target`` beside ``out`` as ``<out>.failed`` and return where it went.
-
-    An earlier failed run's folder is never replaced (its finished stages may have taken an operator an
-    hour on hardware): the next free ``<out>.failed.2``, ``.3``, ... is used instead.
-    """
-    kept = out.parent / f"{out.name}.failed"
-    n = 1
-    while True:
-        try:
-            os.rename(target, kept)  # fails if kept exists and is not empty (Linux: ENOTEMPTY / EEXIST)
-        except OSError:
-            if not kept.exists():
-                raise
-            n += 1
-            kept = out.parent / f"{out.name}.failed.{n}"
-            continue
-        return kept
-
-
-def _swap_in(new: Path, out: Path, products=IDENTIFY_PRODUCTS) -> None:
-    """Replace a command's earlier ``products`` (glob patterns) in ``out`` by everything in ``new`` (a finished
-    run), then remove ``new``. Other files in ``out`` are kept. Paths to ``new`` in the reports are rewritten
-    to ``out``."""
+def _rewrite_paths(new: Path, out: Path) -> None:
+    """Paths to the staging folder ``new`` in a finished run's reports are rewritten to ``out``, where the
+    run is swapped in."""
+    if new == out:
+        return
     for name in ("report.json", "report.txt"):
         p = new / name
         if p.is_file():
             p.write_text(p.read_text(encoding="utf-8").replace(str(new), str(out)), encoding="utf-8")
-    entries = sorted(new.iterdir())
-    clear_products(out, tuple(products) + tuple(e.name for e in entries))
-    for e in entries:
-        os.replace(e, out / e.name)
-    new.rmdir()
 
 
 def run_identify(args) -> int:
     """The ``identify`` command (comprehensive or successive, see ``--method``); returns the exit code.
 
     With ``--force`` over earlier results, the new run is measured into a temporary folder beside
-    ``--out`` and swapped in only when it succeeded: a failure or Ctrl-C leaves the earlier results as
-    they were. Ctrl-C prints one line and exits 130.
+    ``--out`` and swapped in only when it succeeded: a failure, Ctrl-C or a stop signal leaves the earlier
+    results as they were (plumbing.outdir). Ctrl-C prints one line and exits 130; SIGTERM/SIGHUP the same
+    with 143/129, and no worker process outlives the command (plumbing.stopsignals.worker_pool).
     """
     try:
         return _run_identify(args)
     except KeyboardInterrupt:
         print(f"\ninterrupted: identification stopped; nothing in {args.out} was replaced", file=sys.stderr)
         return 130
+    except Terminated as exc:  # SIGTERM/SIGHUP: the workers were killed, the staging folder removed
+        print(f"{exc}: identification stopped; nothing in {args.out} was replaced", file=sys.stderr)
+        return exc.code
 
 
 def _run_identify(args) -> int:
@@ -122,22 +102,21 @@ def _run_identify(args) -> int:
         raise ValueError(f"--amplitudes-A must be > 0 A, got {args.amplitude}")
     if args.method == "successive":
         return run_successive(args)
-    out = check_output_dir(args.out, args.force)
-    # earlier results stay until the new run has succeeded: it is measured into a sibling folder
-    replace = out.is_dir() and any(out.iterdir())
-    target = Path(tempfile.mkdtemp(prefix=f".{out.name}.identify-", dir=out.parent)) if replace else out
-    try:
-        report = _measure(args, target)
-    except BaseException as exc:
-        if replace:
-            if isinstance(exc, ValueError) and (target / "report.txt").is_file():
-                kept = _keep_failed(target, out)
+    # written beside --out and swapped in once it succeeded (plumbing.outdir), one writer at a time
+    folder = output_folder(args.out, args.force, products=IDENTIFY_PRODUCTS).open()
+    out, target = folder.out, folder.path
+    with folder:
+        try:
+            report = _measure(args, target)
+        except ValueError as exc:
+            if (target / "report.txt").is_file():  # a failed fit: its files are worth a look
+                if not folder.replacing:  # a new --out: it holds them, as the run left them
+                    raise ValueError(str(exc).replace(str(target), str(folder.commit()))) from None
+                kept = folder.set_aside("failed")
                 raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier results; "
                                  f"this run's files are in {kept})") from None
-            shutil.rmtree(target, ignore_errors=True)
-        raise
-    if replace:
-        _swap_in(target, out)
+            raise
+        _rewrite_paths(target, out)
 
     print(format_report(report).replace(str(target), str(out)), end="")
     print(f"wrote {out / 'model_set.json'}, models, etfe_accel.npz, etfe_position.npz, bode_accel.png, "
@@ -183,25 +162,26 @@ def run_successive(args) -> int:
             raise ValueError(f"--out {out} already holds an identification's files ({', '.join(found)}); choose "
                              "another folder, pass --resume to continue it or --force to replace it")
     stages = tuple(s.strip() for s in args.stages.split(",")) if args.stages else STAGE_NAMES
-    # earlier results stay until the new run has succeeded: it is identified into a sibling folder
-    replace = not args.resume and out.is_dir() and any(out.iterdir())
-    target = Path(tempfile.mkdtemp(prefix=f".{out.name}.identify-", dir=out.parent)) if replace else out
-    try:
-        result = identify_successive(args.device, stages=stages, state_dir=target, resume=args.resume,
-                                     seed=args.seed, log=lambda m: print(m, flush=True))
-        path = save_result(result, target, overwrite=args.resume, figures=not args.no_figures)
-    except BaseException as exc:
-        if replace:
-            if isinstance(exc, ValueError) and (target / STATE_FILE).is_file():
-                kept = _keep_failed(target, out)
-                raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier model; "
-                                 f"this run's finished stages are in {kept}: --out {kept} --resume continues "
-                                 "it)") from None
-            shutil.rmtree(target, ignore_errors=True)
-        raise
-    if replace:
-        _swap_in(target, out, SUCCESSIVE_PRODUCTS)
-        path = out / path.name
+    # earlier results stay until the new run has succeeded: it is identified beside --out and swapped in
+    # (plumbing.outdir); --resume continues the run in --out itself, under the same lock
+    folder = output_folder(out, True, products=SUCCESSIVE_PRODUCTS, in_place=args.resume).open()
+    target = folder.path
+    with folder:
+        try:
+            result = identify_successive(args.device, stages=stages, state_dir=target, resume=args.resume,
+                                         seed=args.seed, log=lambda m: print(m, flush=True))
+            path = save_result(result, target, overwrite=args.resume, figures=not args.no_figures)
+        except ValueError as exc:
+            if args.resume or not (target / STATE_FILE).is_file():
+                raise
+            if not folder.replacing:  # a new --out keeps the finished stages (--resume there continues)
+                raise ValueError(str(exc).replace(str(target), str(folder.commit()))) from None
+            kept = folder.set_aside("failed")
+            raise ValueError(f"{str(exc).replace(str(target), str(kept))} ({out} keeps the earlier model; "
+                             f"this run's finished stages are in {kept}: --out {kept} --resume continues "
+                             "it)") from None
+        _rewrite_paths(target, out)
+    path = out / path.name
     print(format_result(result), end="")
     print(f"wrote {path} (use it as --device sim:{path}), report.txt, report.json"
           + ("" if args.no_figures else ", stage_*.png"))

@@ -10,7 +10,9 @@ the command runs. So ``python -m renderer run --help`` does not pay for numba, s
 
 Errors the user can fix (:class:`ValueError`, :class:`FileNotFoundError`,
 :class:`plumbing.errors.UserError`, which ``devices.DeviceError`` derives from) print one ``error: ...`` line and exit 2;
-a reader that goes away (``| head``) exits 1 without a traceback.
+a reader that goes away (``| head``) exits 1 without a traceback; Ctrl-C that a command does not handle
+itself prints ``interrupted`` and exits 130 (no traceback); a full disk (ENOSPC, EDQUOT, EFBIG) prints one
+``error:`` line and exits 2.
 
 A command whose parser sets ``fast_exit=True`` (``set_defaults``) declares that it has closed every
 file and joined every thread it started when it returns; run as a script (:func:`run_as_script`),
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import errno
 import gc
 import importlib
 import os
@@ -35,6 +38,11 @@ import sys
 from typing import NamedTuple, Sequence
 
 from .errors import UserError
+
+
+#: the write errors of a full disk (ENOSPC), an exhausted quota (EDQUOT) and a file-size limit (EFBIG,
+#: ``ulimit -f``): one ``error:`` line, exit 2, like a user error
+DISK_FULL_ERRNOS = frozenset(getattr(errno, n) for n in ("ENOSPC", "EDQUOT", "EFBIG") if hasattr(errno, n))
 
 #: set by :func:`main` when the command that ran declared ``fast_exit`` and returned
 _fast_exit_ok = False
@@ -160,6 +168,18 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
     except (ValueError, FileNotFoundError, UserError) as exc:  # UserError: e.g. devices.DeviceError, a port that is absent or mute
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        if exc.errno not in DISK_FULL_ERRNOS:
+            raise
+        # a full disk, a quota or a file-size limit: the command's output folder or file was not swapped in
+        # (plumbing.outdir), so the earlier results stand and no temporary file is left
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"error: {where}cannot write: {exc.strerror} (full disk, quota or file-size limit); earlier results "
+              "were left as they were", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # Ctrl-C in a command that does not say more itself: one line, the shell's 130
+        print("\ninterrupted", file=sys.stderr)
+        return 130
 
 
 def console_prog(prog: str) -> str:

@@ -17,6 +17,11 @@ the output, and, uncaught, the process exits with the conventional status 128 + 
   partial result): a signal that arrives inside it is raised when the section ends.
 * :func:`die_with_parent` stops a servo child process the same way when its parent dies (Linux:
   ``prctl(PR_SET_PDEATHSIG, SIGTERM)``); :class:`ParentWatch` is the portable fallback a loop polls.
+* :class:`signals_blocked` holds SIGINT, SIGTERM and SIGHUP back over a few system calls that must not
+  be cut in two (a folder swap, a fork: a signal raised in a fork's after-fork hooks is dropped).
+* :func:`worker_pool` is a process pool whose workers hold no output and nothing to zero: they are
+  killed (SIGKILL) when the parent dies of any signal, and stopped at once, not awaited, when the
+  parent leaves the pool with an exception (Ctrl-C, SIGTERM, an error).
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ import threading
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
+#: what :class:`signals_blocked` holds back: Ctrl-C and the stop signals
+_BLOCKED = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
 
 
 def signal_name(signum: int) -> str:
@@ -141,6 +148,27 @@ class stop_on_signals:
             raise Terminated(self.signum)
 
 
+class signals_blocked:
+    """Context manager: SIGINT, SIGTERM and SIGHUP wait (are blocked) inside, then are delivered.
+
+    For the few system calls that must not be cut in two: the swap of an output folder, the removal
+    of a staging folder, a fork (a child forked inside starts with them blocked:
+    :func:`worker_dies_with_parent` unblocks them). Blocks them in the calling thread (the kernel then
+    delivers them to another thread or when the block ends; Python runs the handlers in the main thread).
+    """
+
+    def __enter__(self) -> "signals_blocked":
+        self._old = None
+        if hasattr(signal, "pthread_sigmask"):
+            self._old = signal.pthread_sigmask(signal.SIG_BLOCK, _BLOCKED)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self._old)
+        return False
+
+
 class holding:
     """Context manager: a stop signal arriving inside is raised (as :class:`Terminated`) when it ends.
 
@@ -224,3 +252,13 @@ class ParentWatch:
             if os.getppid() != self.parent_pid:
                 self.gone = True
         return self.gone
+
+
+def _prctl_pdeathsig(sig: int) -> bool:
+    """``prctl(PR_SET_PDEATHSIG, sig)`` (Linux; False elsewhere or when refused)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False

@@ -180,6 +180,9 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, whe
     if path is not None:
         p = Path(path)
         where = str(p)
+        if p.exists() and not p.is_file():  # e.g. --protocol /dev/null: it is there, but holds no settings
+            raise ValueError(f"{what} file {p} is not a regular file ({'a folder' if p.is_dir() else 'a device or pipe'}"
+                             "); give a TOML or JSON file")
         if not p.is_file():
             raise FileNotFoundError(f"{what} file {p} not found")
         text = read_text_utf8(p, f"{what} file")

@@ -21,12 +21,12 @@ from devices.limits import check_grips, check_tap_speeds
 from devices.registry import make_device
 from devices.sim import TapTrajectory
 from plumbing import provenance
-from plumbing.fileio import check_output_dir
+from plumbing.outdir import output_folder
 from plumbing.stopsignals import Terminated, stop_on_signals
 
 from . import sim_aot
 from .cli_run_parser import TRANSIENTS
-from .config import RendererConfig, load_config
+from .config import RendererConfig, check_run_size, load_config
 from .loop import ServoLoop
 
 
@@ -93,17 +93,33 @@ def run_command(args) -> int:
         return _run(args)
 
 
-def _save_partial(result, out: str, why: str) -> None:
-    """Save a partial run (if any) after a stop signal or Ctrl-C, and say so."""
-    if result is not None:
-        result.save(out)
-        print(f"{why}: partial run saved to {out}", file=sys.stderr)
+def _save_partial(result, folder, why: str) -> None:
+    """Save a partial run (if any) after a stop signal, Ctrl-C or a failure, and say where.
+
+    Into ``--out`` when it was new; beside it (``<out>.interrupted``) when it holds an earlier run, which
+    a partial one does not replace (``folder``: the :class:`plumbing.outdir.OutputFolder` of ``--out``).
+    """
+    if result is None:
+        return
+    result.save(folder.path)
+    if folder.replacing:
+        kept = folder.set_aside("interrupted")
+        print(f"{why}: partial run saved to {kept} ({folder.out} keeps the earlier run)", file=sys.stderr)
+    else:
+        print(f"{why}: partial run saved to {folder.commit()}", file=sys.stderr)
 
 
 def _run(args) -> int:
-    if args.taps < 1:
-        raise ValueError(f"--taps must be >= 1, got {args.taps}")
-    check_output_dir(args.out, args.force)   # a file, a path below one or earlier results: refused before the run
+    check_run_size(args.taps, args.duration)   # time and memory bounded: refused before anything is written
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): a failed or
+    # interrupted run leaves an earlier one as it was
+    folder = output_folder(args.out, args.force).open()
+    with folder:
+        return _run_into(args, folder)
+
+
+def _run_into(args, folder) -> int:
+    """The run, its files written into ``folder`` (an open :class:`plumbing.outdir.OutputFolder`)."""
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)
     simulated = args.device.split(":", 1)[0] == "sim"
@@ -125,10 +141,10 @@ def _run(args) -> int:
             try:
                 result = loop.run(duration_s=duration, realtime=args.realtime)
             except KeyboardInterrupt:
-                _save_partial(loop.result, args.out, "interrupted")
+                _save_partial(loop.result, folder, "interrupted")
                 return 130
             except Terminated as exc:
-                _save_partial(loop.result, args.out, str(exc))
+                _save_partial(loop.result, folder, str(exc))
                 return exc.code
     elif args.in_process:
         dev = make_device(args.device)
@@ -141,7 +157,7 @@ def _run(args) -> int:
                 except KeyboardInterrupt:
                     result = loop.result
         except Terminated as exc:  # the output was zeroed by the loop and again on closing
-            _save_partial(loop.result if loop is not None else None, args.out, str(exc))
+            _save_partial(loop.result if loop is not None else None, folder, str(exc))
             return exc.code
     else:
         try:
@@ -149,15 +165,13 @@ def _run(args) -> int:
 
             result = process.run_in_process(args.device, cfg, transient, duration_s=args.duration)
         except RuntimeError as exc:  # the servo process failed: keep what it logged before failing
-            partial = getattr(exc, "partial_result", None)
-            if partial is not None:
-                partial.save(args.out)
-                print(f"partial run saved to {args.out}", file=sys.stderr)
+            _save_partial(getattr(exc, "partial_result", None), folder, "failed")
             raise
         except Terminated as exc:  # the servo process zeroed and stopped first
-            _save_partial(exc.partial_result, args.out, str(exc))
+            _save_partial(exc.partial_result, folder, str(exc))
             return exc.code
-    result.save(args.out)
+    result.save(folder.path)
+    folder.commit()
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")
     if simulated and not result.timing.get("aot"):

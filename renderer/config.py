@@ -31,6 +31,34 @@ from .scene import Scene, Wall, parse_scene
 
 PACING_MODES = ("sleep_spin", "spin")
 MAX_TRANSIENT_LIMIT_S = 10.0  # upper bound of max_transient_s: the transient buffer is allocated up front
+#: the most taps of one ``renderer run`` on a sim device: the simulated hand's plan (position and grip,
+#: 16 bytes per servo tick, ~0.8 s per tap: ~125 kB per tap at 10 kHz) is computed up front, so this
+#: bounds it to ~130 MB (the log is a ring of ``log_capacity_s``, whatever the run's length)
+MAX_RUN_TAPS = 1000
+#: the longest ``renderer run`` (s): one day, so that no run goes on for ever by a typo (``--duration-s 1e9``)
+MAX_RUN_DURATION_S = 86400.0
+
+
+def check_run_size(taps: int, duration_s: float | None) -> None:
+    """Refuse a run whose time or memory would be unbounded, naming the limit (issue 38, item 4).
+
+    Parameters
+    ----------
+    taps : int
+        ``--taps`` (sim devices): 1..:data:`MAX_RUN_TAPS`.
+    duration_s : float or None
+        ``--duration-s``: None or up to :data:`MAX_RUN_DURATION_S`.
+
+    Raises
+    ------
+    ValueError
+        Naming the option, the value and the limit.
+    """
+    if not 1 <= taps <= MAX_RUN_TAPS:
+        raise ValueError(f"--taps must be 1..{MAX_RUN_TAPS}, got {taps} (the simulated hand's tap plan is computed "
+                         f"up front, ~125 kB per tap; run several runs for more taps)")
+    if duration_s is not None and not duration_s <= MAX_RUN_DURATION_S:
+        raise ValueError(f"--duration-s must be at most {MAX_RUN_DURATION_S:g} s (one day), got {duration_s:g}")
 
 
 @dataclass(frozen=True)

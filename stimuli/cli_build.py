@@ -9,6 +9,7 @@ from devices import registry  # registry.make_device: replaceable in tests
 from devices.identify.modelset import read_model_set_index
 from devices.model import load_model
 from plumbing.fileio import check_output_file
+from plumbing.outdir import output_file
 
 from .hfam.build import build_library, format_verification, source_entry
 from .hfam.refine import RefineSettings, recording_targets, refine_library
@@ -57,12 +58,17 @@ def expand_model_paths(paths) -> list[Path]:
 
 def run(args) -> int:
     """The ``build-library`` command: taps + models -> HFAM library, verified through the forward models; returns the exit code."""
-
     check_output_file(args.out, force=True)   # a folder or a path below a file: refused before building
-    if args.out.exists() and not args.force:
-        raise ValueError(f"{args.out} exists; use --force to overwrite it")
     if args.out.suffix != ".npz":
         raise ValueError(f"--out {args.out}: the library file must end in .npz")
+    # a folder, a path below a file or (without --force) an existing library: refused before building; the
+    # library is written beside and renamed into place, one writer at a time (plumbing.outdir)
+    with output_file(args.out, args.force) as out:
+        return _build(args, out.path)
+
+
+def _build(args, library_path) -> int:
+    """The build of ``run``, the library written to ``library_path`` (renamed to ``--out`` by the caller)."""
     taps_sel = None
     if args.taps:
         try:
@@ -118,8 +124,7 @@ def run(args) -> int:
         print(f"warning: model grip levels {g[0]:g}..{g[-1]:g} N do not cover device {args.device!r} grip range "
               f"{grip_range[0]:g}..{grip_range[1]:g} N: renderer and study will refuse this library on it; "
               f"identify at grips spanning the range (e.g. --grip 0,1,2,3,5,10)")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    library.save(args.out)
+    library.save(library_path)
     print(f"wrote {args.out}: {len(library.velocities_m_s)} velocities x {len(library.grips_N)} grip level(s) x "
           f"{library.n_samples} samples at {library.fs_hz:g} Hz")
     return 0

@@ -52,7 +52,39 @@ def run_command(args) -> int:
 
 def _run_command(args) -> int:
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port must be 0..65535 (0: any free port), got {args.port}")
     plan = plan_session(args)
+    # the views' socket is bound before anything is written: a busy port or an address this computer does not
+    # have is refused here, with no subject folder made (a rerun on a free port then starts afresh)
+    web = _bind_views(args)
+    try:
+        return _run_session(args, plan, say, web)
+    finally:
+        if web is not None:
+            web.stop()
+
+
+def _bind_views(args):
+    """The views' server, bound to ``--host``/``--port`` but not serving yet; None when no view is served.
+
+    Raises
+    ------
+    ValueError
+        The address cannot be served (in use, not an address of this computer, unknown host name).
+    """
+    if not (args.participant == "keyboard" or args.serve):
+        return None
+    try:
+        web = WebUI(UiState(), host=args.host, port=args.port, token=args.token)
+    except OSError as exc:  # EADDRINUSE, EADDRNOTAVAIL, a host name that does not resolve
+        raise ValueError(f"--host {args.host} --port {args.port}: cannot serve the views there "
+                         f"({exc.strerror or exc}); nothing was written") from None
+    return web
+
+
+def _run_session(args, plan, say, web) -> int:
+    """The session of ``plan`` (views on ``web`` if not None, started once the session's folder is open)."""
     store, previous, subject, is_sim = plan.store, plan.previous, plan.subject, plan.is_sim
     protocol, seed, info, catalog, library_dir = plan.protocol, plan.seed, plan.info, plan.catalog, plan.library_dir
 
@@ -90,7 +122,7 @@ def _run_command(args) -> int:
     isolate = args.servo_process == "on" or (args.servo_process == "auto" and not is_sim)
     device_options = {"seed": seed} if is_sim else {}
     device = apparatus = None
-    ui = web = None
+    ui = None
     if isolate:
         apparatus = IsolatedApparatus(args.device, device_options, catalog, protocol, library_dir,
                                       sim_participant, realtime=True if args.realtime else None)
@@ -116,9 +148,9 @@ def _run_command(args) -> int:
                                         apparatus.real_saturation_detection)
 
 
-        if args.participant == "keyboard" or args.serve:
-            ui = UiState()
-            web = WebUI(ui, host=args.host, port=args.port, token=args.token).start()
+        if web is not None:
+            ui = web.ui
+            web.start()
             print(f"subject view:  {web.subject_url}", flush=True)
             print(f"operator view: {web.operator_url}", flush=True)
             if args.participant == "keyboard":
@@ -161,7 +193,7 @@ def _run_command(args) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 5
         if isinstance(exc, ServoStopped):
-            print(f"error: {exc}; the output was zeroed, the attempt in progress is not recorded; data so far is "
+            print(f"error: {servo_stopped_message(exc)}; the attempt in progress is not recorded; data so far is "
                   f"in {store.dir}; continue with --resume", file=sys.stderr)
             return 4
         raise
@@ -177,6 +209,13 @@ def _run_command(args) -> int:
                 web.stop()
     _summary(store, say)
     return 0
+
+
+def servo_stopped_message(exc) -> str:
+    """What stopped the servo, saying once that the output was zeroed (the device's or the loop's own
+    message often says so already: "disconnected (...); output zeroed by the device watchdog")."""
+    text = str(exc)
+    return text if "zeroed" in text else f"{text}; the output was zeroed"
 
 
 def _trial_counts(schedule) -> tuple[int, int]:

@@ -12,10 +12,20 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-from plumbing.validation import load_dataclass_file, require_int, require_positive
+from plumbing.validation import load_dataclass_file, require_int, require_number, require_positive
 
 from .choices import EXPERIENCE, GENDERS, HANDEDNESS
 from .data import check_subject_id
+
+#: upper bounds of the protocol's numbers, so that a session's time, memory and traces stay bounded
+#: (``repetitions = 1e6`` planned millions of trials; a servo log is preallocated for the longest window)
+#: and the homing target stays within the handle's reach (the renderer's position limit is 0.25 m).
+#: The thesis's values (section 4.5.3) are far inside them: 3 repetitions, 5 s windows, 1 cm.
+MAX_REPETITIONS = 100
+MAX_FAMILIARIZATION_WINDOWS = 1000
+PROTOCOL_LIMITS = {"tap_window_s": 60.0, "familiarization_window_s": 60.0, "first_tap_timeout_s": 600.0,
+                   "homing_after_s": 60.0, "homing_before_max_s": 60.0, "home_height_m": 0.1,
+                   "audio_fs_hz": 192000.0, "servo_watchdog_s": 1.0}
 
 
 @dataclass(frozen=True)
@@ -69,10 +79,13 @@ class ProtocolConfig:
     servo_watchdog_s: float = 0.02
 
     def __post_init__(self) -> None:
-        require_int("repetitions", self.repetitions, minimum=1)
+        require_int("repetitions", self.repetitions, minimum=1, maximum=MAX_REPETITIONS)
         require_positive(self, "tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s",
                          "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s")
-        require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1)
+        for name, limit in PROTOCOL_LIMITS.items():  # time, memory and reach bounded (issue 38, items 4 and 12)
+            require_number(name, getattr(self, name), maximum=limit)
+        require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1,
+                    maximum=MAX_FAMILIARIZATION_WINDOWS)
         if not (isinstance(self.masking_level_dbfs, (int, float)) and not isinstance(self.masking_level_dbfs, bool)
                 and math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
             raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")

@@ -26,7 +26,6 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import errno
-import fcntl
 import io
 import json
 import math
@@ -34,7 +33,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import tempfile
 from pathlib import Path
 
@@ -42,6 +40,7 @@ import numpy as np
 
 from plumbing.fileio import atomic_temp_target, current_umask, fsync_dir
 from plumbing.fileio import atomic_write_bytes as _atomic_write_bytes
+from plumbing.outdir import FileLock
 
 from .choices import EXPERIENCE  # noqa: F401 (study.data.EXPERIENCE, as before: the choices live in study.choices)
 
@@ -94,8 +93,9 @@ def release_all_locks() -> None:
         lock.release()
 
 
-class SubjectLock:
-    """Exclusive per-subject OS lock: ``fcntl.flock`` on ``<folder>/.lock``, released when the process dies.
+class SubjectLock(FileLock):
+    """Exclusive per-subject OS lock: ``fcntl.flock`` on ``<folder>/.lock``, released when the process dies
+    (:class:`plumbing.outdir.FileLock`, the lock of every output folder; this one stays in the folder).
 
     Parameters
     ----------
@@ -104,56 +104,19 @@ class SubjectLock:
     """
 
     def __init__(self, folder: Path) -> None:
-        self.path = Path(folder) / LOCK_NAME
-        self.fd: int | None = None
-
-    @staticmethod
-    def holder(path: Path) -> str:
-        """``"pid N on host H"`` as written by the holder (or a placeholder when it is not written yet)."""
-        try:
-            info = json.loads(Path(path).read_text(encoding="utf-8"))
-            return f"pid {int(info['pid'])} on host {info['host']}"
-        except (OSError, ValueError, KeyError, TypeError):
-            return "a process that has not written its pid yet"
-
-    @staticmethod
-    def busy(path: Path) -> bool:
-        """True when a runner holds the lock file ``path`` (tested without creating or writing anything)."""
-        try:
-            fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-        except OSError:
-            return False
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-            return False
-        except OSError:
-            return True
-        finally:
-            os.close(fd)
+        super().__init__(Path(folder) / LOCK_NAME)
 
     def acquire(self, subject: str) -> None:
         """Take the lock or raise :class:`SubjectBusy` naming the holder; then write our pid and host."""
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            os.close(fd)
-            if exc.errno in (errno.EWOULDBLOCK, errno.EACCES, errno.EAGAIN):
-                raise SubjectBusy(f"subject {subject!r} is in use by another runner: {self.holder(self.path)} "
-                                  f"(lock {self.path}); nothing was written") from None
-            raise
-        data = json.dumps({"pid": os.getpid(), "host": socket.gethostname()}).encode()
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, data, 0)
-        os.fsync(fd)
-        self.fd = fd
+        if not self.try_acquire():
+            raise SubjectBusy(f"subject {subject!r} is in use by another runner: {self.holder(self.path)} "
+                              f"(lock {self.path}); nothing was written")
+        os.fsync(self.fd)
         _HELD_LOCKS.add(self)
 
     def release(self) -> None:
         """Drop the lock (closing our descriptor); harmless when not held."""
-        if self.fd is not None:
-            os.close(self.fd)  # closing the last descriptor drops the flock
-            self.fd = None
+        super().release()
         _HELD_LOCKS.discard(self)
 
 SUBJECT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")

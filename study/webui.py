@@ -381,6 +381,7 @@ class WebUI:
         return seen
 
     def stop(self) -> None:
-        """Stop serving and close the socket (the pages then show the runner stopped)."""
-        self.httpd.shutdown()
+        """Stop serving (if started) and close the socket (the pages then show the runner stopped)."""
+        if self._thread.is_alive():  # shutdown() waits for serve_forever, which a server never started lacks
+            self.httpd.shutdown()
         self.httpd.server_close()

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -15,6 +16,8 @@ from scipy.signal import find_peaks
 
 from plumbing.fileio import atomic_write_text
 from plumbing.progress import Progress
+from plumbing.pools import worker_dies_with_parent, worker_pool
+from plumbing.stopsignals import signals_blocked
 from plumbing.validation import require_int
 
 from ..base import Device
@@ -254,7 +257,7 @@ def draw_bode_plots(jobs: list, parallel: bool = False) -> list[Path]:
     if not parallel or len(jobs) < 2:
         return [bode_plot(*job, force=True) for job in jobs]   # into identify's own --out
     preload_figures()
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork")) as pool:
+    with worker_pool(1, multiprocessing.get_context("fork")) as pool:
         futures = [pool.submit(bode_plot, *job, force=True) for job in jobs[1:]]
         first = bode_plot(*jobs[0], force=True)
         return [first] + [f.result() for f in futures]
@@ -271,13 +274,14 @@ def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, l
     ctx = multiprocessing.get_context("fork")
     results = [None] * len(jobs)
     inbox, outbox = ctx.Pipe(duplex=False)
-    recorder = ctx.Process(target=_recorder, args=(outbox, jobs, spec, seed, cfg, out), daemon=True)
-    recorder.start()
+    recorder = ctx.Process(target=_recorder, args=(outbox, jobs, spec, seed, cfg, out, os.getpid()), daemon=True)
+    with signals_blocked():  # a stop signal during the fork would be dropped in its after-fork hooks
+        recorder.start()
     outbox.close()
     n_recorded = 0
     try:
         load_solvers()
-        with ProcessPoolExecutor(max_workers=min(cfg.workers, len(jobs)), mp_context=ctx) as pool:
+        with worker_pool(min(cfg.workers, len(jobs)), ctx) as pool:  # workers die with this process
             fitting = {}
             while n_recorded < len(jobs) or fitting:
                 if n_recorded < len(jobs):  # recordings arrive in grip order
@@ -305,10 +309,11 @@ def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, l
     return results
 
 
-def _recorder(outbox, jobs, spec, seed, cfg, out) -> None:
+def _recorder(outbox, jobs, spec, seed, cfg, out, parent_pid) -> None:
     """Recording process of :func:`identify_device`: :func:`_record_worker` for each ``(k, grip)`` of ``jobs``
     in turn, each result sent as ``("ok", result)``; an error is sent as ``("error", exception)`` and ends
-    it."""
+    it. It dies with the parent (``parent_pid``), whatever kills that."""
+    worker_dies_with_parent(parent_pid)
     try:
         for k, g in jobs:
             outbox.send(("ok", _record_worker((spec, seed, k, g, cfg, out))))

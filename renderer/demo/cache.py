@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from devices.identify.modelset import load_model_set
+from plumbing.outdir import output_folder
 from devices.registry import make_device
 from plumbing.fileio import user_cache_dir
 from stimuli import HfamLibrary
@@ -149,19 +150,14 @@ def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, re
             return _load(entry, settings)
         except (OSError, ValueError, KeyError) as exc:  # a damaged entry is rebuilt, not trusted
             progress.say(f"cache entry {entry} unusable ({exc}); rebuilding", indent=False)
-    base.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".demo-{key}-", dir=base))
-    try:
+    # built beside the entry and swapped in whole, one builder at a time (plumbing.outdir): a killed build
+    # leaves no half entry, and its debris is removed by the next build
+    with output_folder(entry, True, what="demo cache entry") as folder:
+        tmp = folder.path
         timings = build_pipeline(tmp, settings, progress)
         manifest = {"key": key, "settings": settings.to_dict(), "timings_s": timings,
                     "created_unix": time.time(), "version": CACHE_VERSION}
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
-        if entry.exists():
-            shutil.rmtree(entry)
-        os.replace(tmp, entry)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     pipe = _load(entry, settings)
     pipe.from_cache = False
     return pipe

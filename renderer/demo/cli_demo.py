@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 from devices.limits import check_tap_speeds
 from plumbing.fileio import check_output_dir
+from plumbing.outdir import output_folder
 from stimuli.hfam.settings import PipelineSettings
 
+from .report import DEMO_PRODUCTS
 from .config import DemoConfig
 from .hw_demo import run_hardware_demo
-from .report import check_demo_out, format_reactive
+from .report import format_reactive
 from .sim_demo import format_table, run_sim_demo
 
 
@@ -58,10 +61,17 @@ def run(args) -> int:
     if args.taps is not None:
         changes["taps"] = args.taps
     cfg = DemoConfig(**changes)
-    check_demo_out(args.out, args.force)
     if args.cache_dir is not None:
         check_output_dir(args.cache_dir, what="--cache-dir")  # a file there: refused before anything is built
-    res = run_sim_demo(cfg, args.out, args.cache_dir, args.rebuild, figures=not args.no_figures)
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir); the user's other
+    # files in --out stay
+    folder = output_folder(args.out, args.force, products=DEMO_PRODUCTS,
+                           results="a demo's results").open()
+    if folder.replacing:
+        print(f"--force: replacing an earlier demo's results in {args.out} ({', '.join(folder.earlier_results())})")
+    with folder:
+        res = run_sim_demo(cfg, folder.path, args.cache_dir, args.rebuild, figures=not args.no_figures)
+    res.figures = {k: folder.out / Path(p).name for k, p in res.figures.items()}
     print()
     print(format_table(cfg, res.rows, res.pipeline.library))
     if res.reactive:

@@ -27,6 +27,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from devices.registry import make_device
+from plumbing.outdir import output_folder
 from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 from stimuli import HfamLibrary
 
@@ -36,7 +37,7 @@ from ..process import end_child
 from . import figures as figs
 from . import metrics as dm
 from . import runs
-from .report import check_demo_out, write_summary
+from .report import DEMO_PRODUCTS, write_summary
 
 RING = 4096          # ticks kept in the shared scope ring
 MAX_EVENTS = 256
@@ -272,17 +273,20 @@ def run_hardware_demo(args, prompt=input, say=print) -> int:
     SIGTERM/SIGHUP end it like Ctrl-C (the output zeroed, the taps so far kept and summarised), and it
     returns 128 + the signal's number."""
     with stop_on_signals():
-        return _hardware_demo(args, prompt, say)
+        # a person's taps are not repeatable: an earlier session's results are refused before the device
+        # opens; the results are written beside --out and swapped in whole (plumbing.outdir)
+        folder = output_folder(args.out, bool(getattr(args, "force", False)), products=DEMO_PRODUCTS,
+                           results="a demo's results").open()
+        with folder:
+            return _hardware_demo(args, prompt, say, folder.path, folder.out)
 
 
-def _hardware_demo(args, prompt, say) -> int:
+def _hardware_demo(args, prompt, say, out: Path, shown: Path) -> int:
+    """The demo's body: results written into ``out`` (the staging folder of ``shown``, the --out named
+    in what is printed)."""
     spec = args.device
     n_taps = args.taps or 5
     timeout_s = float(getattr(args, "timeout", None) or 120.0)
-    out = Path(args.out)
-    # a person's taps are not repeatable: an earlier session's results are refused before the device opens
-    check_demo_out(out, bool(getattr(args, "force", False)))
-    out.mkdir(parents=True, exist_ok=True)
     dev = make_device(spec)  # validates the string; opened by the servo process, not here
     with dev:
         info = dev.info
@@ -368,7 +372,7 @@ def _hardware_demo(args, prompt, say) -> int:
             f"{m('correlation'):6.3f} {sum(x['clipped'] for x in sel):4d}/{len(sel)}")
     say(f"NRMSE/correlation: each tap against the real tap of closest incoming velocity (within "
         f"{MATCH_TOLERANCE:.0%}), 20-1000 Hz (limited by Nyquist at {log_fs:g} Hz).")
-    say(f"detail (one row per tap): {out / 'summary.csv'}")
+    say(f"detail (one row per tap): {shown / 'summary.csv'}")
     if real and len(traces) > 1:
         v_target = 0.11
         panels = []
@@ -380,5 +384,5 @@ def _hardware_demo(args, prompt, say) -> int:
         panels = [(lab, ref.accel if lab.startswith(runs.REAL.name) else w) for lab, w in panels]
         p = figs.contact_figure(panels, ref.accel, log_fs, runs.PRE_S, round(ref.v_in_m_s, 3), ref.grip_N,
                                 out / "fig_contact.png")
-        say(f"figure contact  : {p}")
+        say(f"figure contact  : {shown / p.name}")
     return code

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from plumbing.fileio import check_output_dir
 
 from . import runs
 from .config import DemoResult
@@ -20,19 +19,6 @@ SUMMARY_COLUMNS = ("rendering", "velocity_m_s", "grip_N", "peak_accel_m_s2", "do
 
 #: what the demo (sim or hardware) writes into --out (an earlier demo's, refused without --force)
 DEMO_PRODUCTS = ("summary.csv", "traces.npz", "fig_*.png", "fig_*.svg", "fig_*.plot.csv")
-
-
-def check_demo_out(out: Path, force: bool) -> None:
-    """Refuse (``ValueError``) an --out that is a file or below one, or that holds an earlier demo's results
-    unless ``force``; before anything is built or measured."""
-    check_output_dir(out)
-    found = sorted({p.name for pattern in DEMO_PRODUCTS for p in out.glob(pattern)}) if out.is_dir() else []
-    shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
-    if found and not force:
-        raise ValueError(f"--out {out} already holds a demo's results ({shown}); not overwriting them: choose "
-                         "another --out or pass --force to replace them")
-    if found:
-        print(f"--force: replacing an earlier demo's results in {out} ({shown})")
 
 
 def write_summary(rows: list[dict], path: Path) -> Path:

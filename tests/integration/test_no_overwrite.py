@@ -53,18 +53,21 @@ def test_commands_refuse_existing_outputs(tmp_path):
     ident.mkdir()
     (ident / "accel_g7N.json").write_text("{}")
     r = cli("devices", "identify", "--device", "sim", "--grip", "2", "--out", str(ident))
-    assert r.returncode == 2 and f"{ident} exists and is not empty" in r.stderr and "--force" in r.stderr
+    assert r.returncode == 2 and f"--out {ident} already holds earlier results (accel_g7N.json)" in r.stderr \
+        and "--force" in r.stderr
     assert (ident / "accel_g7N.json").read_text() == "{}"
     run = tmp_path / "run"
     r = cli("renderer", "run", "--device", "sim", "--taps", "1", "--out", str(run))
     assert r.returncode == 0, r.stderr
     r = cli("renderer", "run", "--device", "sim", "--taps", "1", "--out", str(run))
-    assert r.returncode == 2 and f"{run} exists and is not empty" in r.stderr and "--force" in r.stderr
+    assert r.returncode == 2 and f"--out {run} already holds earlier results (events.csv, log.npz, run.json)" \
+        in r.stderr and "--force" in r.stderr
     r = cli("renderer", "run", "--device", "sim", "--taps", "1", "--out", str(run), "--force")
     assert r.returncode == 0, r.stderr
     report = tmp_path / "REPORT"
     report.mkdir()
     (report / "report.md").write_text("mine")
     r = cli("analysis", "report", str(tmp_path / "DATA"), "--out", str(report))
-    assert r.returncode == 2 and f"{report} exists and is not empty" in r.stderr and "--force" in r.stderr
+    assert r.returncode == 2 and f"--out {report} already holds earlier results (report.md)" in r.stderr \
+        and "--force" in r.stderr
     assert (report / "report.md").read_text() == "mine"

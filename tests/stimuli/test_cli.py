@@ -65,7 +65,7 @@ def test_build_library_and_show(tmp_path, inputs, capsys):
     # refuses to overwrite
     assert main(["build-library", "--recordings", str(rec), "--model", str(m1), "--out", str(out),
                  "--device", "none", "--force-per-amp", "2.35"]) == 2
-    assert "exists; use --force" in capsys.readouterr().err
+    assert "lib.npz exists; not overwriting it: choose another --out or pass --force to replace it" in capsys.readouterr().err
     # show
     png = tmp_path / "fig.png"
     assert main(["show", str(out), "--out", str(png)]) == 0

@@ -73,7 +73,7 @@ def test_bad_input_refused_before_start(tmp_path, capsys):
 
     base = ["--seed", 1, "--out", data]
     refused("--subject", "../S9", *base, match="subject id")
-    refused("--subject", "S9", *base, "--repetitions", 0, match="repetitions must be an integer >= 1")
+    refused("--subject", "S9", *base, "--repetitions", 0, match="repetitions must be an integer 1..100")
     refused("--subject", "S9", *base, "--samples", "wood,marble", match="unknown sample(s) ['marble']")
     # a catalog whose real sample does not exist in the sim, and one whose HFAM library is missing
     cat = write(tmp_path / "cat.toml", '[[sample]]\nname = "wood"\nkind = "real"\nstiffness_N_m = 70000.0\n'

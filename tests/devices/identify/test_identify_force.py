@@ -62,7 +62,7 @@ def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
         if line.startswith("GATE:"):
             break
     assert seen and seen[-1].startswith("GATE:"), "".join(seen)
-    measuring = list(tmp_path.glob(".identA.identify-*/recordings/g2N*.csv"))
+    measuring = list(tmp_path.glob(".identA.staging-*/recordings/g2N*.csv"))
     assert len(measuring) == 2                  # both trials of the grip recorded into the sibling folder
     proc.send_signal(signal.SIGINT)             # the run is parked at the gate: Ctrl-C arrives mid-run
     _, rest = proc.communicate(timeout=600)
@@ -72,7 +72,7 @@ def test_ctrl_c_during_a_forced_identify_keeps_the_earlier_results(tmp_path):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert lines[-1] == f"interrupted: identification stopped; nothing in {out} was replaced"
     assert tree_hashes(out) == before                              # every earlier file, byte for byte
-    assert not list(tmp_path.glob(".identA.identify-*"))       # the half-measured run is gone
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["identA"]   # the half-measured run is gone, no lock left
 
 
 def test_a_failed_forced_identify_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):

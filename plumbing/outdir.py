@@ -1,0 +1,448 @@
+"""The one way a command writes its output folder: beside, then swapped in whole; one writer at a time.
+
+``with output_folder(out, force) as w:`` ... write into ``w.path`` ... :
+
+1. ``out`` is checked (a file, or a path below one: refused whatever ``force``).
+2. An OS lock is taken: ``fcntl.flock`` on ``<parent>/.<name>.lock`` (:class:`FileLock`, the lock the
+   study's subject folders use too), held until the block ends and dropped by the kernel when the
+   process dies however it dies. A second writer of the same ``out`` is refused at once, naming the
+   holder's pid and host.
+3. Earlier results are refused without ``force``, naming them (all of ``out``, or the entries that match
+   the command's ``products`` when it names them).
+4. Debris of an earlier writer of ``out`` that was killed (SIGKILL, power cut) is removed: its
+   staging folders ``<parent>/.<name>.staging-*`` (and the older ``.<name>.identify-*``). Only the lock
+   holder writes them, and it holds the lock now, so none of them belongs to a live run.
+5. ``w.path`` is a new staging folder ``<parent>/.<name>.staging-XXXXXXXX`` on the same file system.
+6. When the block ends without an exception the staging folder replaces ``out`` in one step (Linux
+   ``renameat2(RENAME_EXCHANGE)``; elsewhere two renames): a reader sees the earlier folder or the new
+   one, never a mixture. Files of ``out`` that are not the command's (``products``, when given) are
+   carried over (hard links) before the swap. The earlier folder is then deleted.
+7. On any exception (an error, Ctrl-C, SIGTERM/SIGHUP, which the block turns into
+   :class:`plumbing.stopsignals.Terminated`) the staging folder is deleted and ``out`` is untouched;
+   :meth:`OutputFolder.set_aside` instead keeps it beside ``out`` (``<out>.failed``, ``<out>.interrupted``)
+   where its contents are worth keeping (a failed identification's finished stages, a partial run).
+
+Signals are blocked during the swap and the clean-up, so neither is cut in two. What a SIGKILL leaves:
+``out`` as it was (or the new one, if the kill came after the swap), plus the staging folder and the lock
+file, both removed by the next run that writes ``out``. docs/architecture.md, "Output folders".
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import fcntl
+import fnmatch
+import json
+import os
+import shutil
+import socket
+import sys
+import tempfile
+from pathlib import Path
+
+from .errors import UserError
+from .fileio import check_output_dir, check_output_file, current_umask, fsync_dir
+from .stopsignals import signals_blocked, stop_on_signals
+
+#: the prefixes of the staging folders of ``out``: this module's, and ``devices identify``'s before it
+STAGING_TAGS = ("staging", "identify")
+
+class OutputBusy(UserError):
+    """Another process is writing the same output (its pid and host are in the message)."""
+
+
+class FileLock:
+    """Exclusive OS lock on a file: ``fcntl.flock``, released when the descriptor is closed or the process dies.
+
+    The holder writes its pid and host into the file, which a refused second writer names.
+
+    Parameters
+    ----------
+    path : str or Path
+        The lock file (created if needed).
+    unlink : bool
+        Remove the file when released (a lock beside an output folder; safe: :meth:`acquire` retries
+        when the file it locked was removed or replaced meanwhile). False: the file stays (a lock inside
+        a folder that lives on, e.g. a study's subject folder).
+    """
+
+    def __init__(self, path, unlink: bool = False) -> None:
+        self.path = Path(path)
+        self.unlink = bool(unlink)
+        self.fd: int | None = None
+
+    @staticmethod
+    def holder(path) -> str:
+        """``"pid N on host H"`` as written by the holder (or a placeholder when it is not written yet)."""
+        try:
+            info = json.loads(Path(path).read_text(encoding="utf-8"))
+            return f"pid {int(info['pid'])} on host {info['host']}"
+        except (OSError, ValueError, KeyError, TypeError):
+            return "a process that has not written its pid yet"
+
+    @staticmethod
+    def busy(path) -> bool:
+        """True when a process holds the lock file ``path`` (tested without creating or writing anything)."""
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            return False
+        except OSError:
+            return True
+        finally:
+            os.close(fd)
+
+    def try_acquire(self) -> bool:
+        """Take the lock without waiting; False if another process holds it. Then write our pid and host."""
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                os.close(fd)
+                if exc.errno in (errno.EWOULDBLOCK, errno.EACCES, errno.EAGAIN):
+                    return False
+                raise
+            try:  # the holder before us may have removed (unlinked) the file we locked: lock the new one
+                same = os.path.samestat(os.fstat(fd), os.stat(self.path))
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        data = json.dumps({"pid": os.getpid(), "host": socket.gethostname()}).encode()
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, data, 0)
+        self.fd = fd
+        return True
+
+    def release(self) -> None:
+        """Drop the lock (and remove the file if ``unlink``); harmless when not held."""
+        if self.fd is None:
+            return
+        if self.unlink:
+            try:
+                os.unlink(self.path)  # while held: a process waiting on it then retries on a new file
+            except OSError:
+                pass
+        os.close(self.fd)  # closing the last descriptor drops the flock
+        self.fd = None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the names of ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    renameat2.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):  # a file system without it
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """Copy ``src`` (a file or a folder) to ``dst``, hard-linking files where the file system allows."""
+    def link(s, d):
+        try:
+            os.link(s, d)
+        except OSError:
+            shutil.copy2(s, d)
+    if src.is_dir() and not src.is_symlink():
+        shutil.copytree(src, dst, symlinks=True, copy_function=link)
+    elif src.is_symlink():
+        os.symlink(os.readlink(src), dst)
+    else:
+        link(src, dst)
+
+
+class OutputFolder:
+    """An output folder being written: see the module doc. Made by :func:`output_folder`.
+
+    Attributes
+    ----------
+    out : Path
+        The folder the command writes.
+    path : Path
+        Where to write now: the staging folder beside ``out``.
+    replacing : bool
+        ``out`` held something (the user passed ``force``): it is replaced when the block ends.
+    """
+
+    def __init__(self, out, force: bool, products=None, flag: str = "--force", what: str = "--out",
+                 in_place: bool = False, results: str = "earlier results") -> None:
+        self.out = Path(out)
+        self.results = results
+        self.in_place = bool(in_place)
+        self.force = bool(force)
+        self.products = tuple(products) if products is not None else None
+        self.flag, self.what = flag, what
+        self.path: Path | None = None
+        self.replacing = False
+        self.done = False
+        self._lock = None
+        self._signals = None
+
+    # -- opening ---------------------------------------------------------------------------------------
+    def open(self) -> "OutputFolder":
+        """Check ``out``, take the lock, refuse earlier results without ``force``, reclaim debris, make the staging folder."""
+        out = self._check()
+        if out.name in ("", ".", ".."):
+            out = Path(os.path.abspath(out))
+            self.out = out
+        parent = out.parent
+        parent.mkdir(parents=True, exist_ok=True)
+        self._signals = stop_on_signals()
+        self._signals.__enter__()
+        try:
+            self._lock = FileLock(parent / f".{out.name}.lock", unlink=True)
+            if not self._lock.try_acquire():
+                self._lock = None
+                raise OutputBusy(f"{out} is being written by another run: {FileLock.holder(parent / f'.{out.name}.lock')}"
+                                 f" (lock {parent / f'.{out.name}.lock'}); wait for it or choose another {self.what}")
+            earlier = self.earlier_results()
+            if earlier and not self.force and not self.in_place:
+                shown = ", ".join(earlier[:4]) + (f", ... ({len(earlier)} entries)" if len(earlier) > 4 else "")
+                raise ValueError(f"{self.what} {out} already holds {self.results} ({shown}); not overwriting "
+                                 f"them: choose another {self.what} or pass {self.flag} to replace them")
+            self.replacing = bool(earlier)
+            self.reclaimed = reclaim_staging(out)
+            if self.in_place:
+                out.mkdir(exist_ok=True)
+                self.path = out
+                return self
+            with signals_blocked():
+                self.path = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=parent))
+                os.chmod(self.path, 0o777 & ~current_umask())
+        except BaseException:
+            self._close()
+            raise
+        return self
+
+    def _check(self) -> Path:
+        """``out``, refused (ValueError) if it is a file or below one."""
+        return check_output_dir(self.out, what=self.what)
+
+    def earlier_results(self) -> list[str]:
+        """The entries of ``out`` that a new run replaces: all of them, or those matching ``products``
+        (folders end in ``/``)."""
+        if not self.out.is_dir():
+            return []
+        return sorted(p.name + ("/" if p.is_dir() else "") for p in self.out.iterdir()
+                      if self.products is None or any(fnmatch.fnmatch(p.name, pat) for pat in self.products))
+
+    # -- ending -----------------------------------------------------------------------------------------
+    def commit(self) -> Path:
+        """Swap the staging folder in as ``out`` (module doc, 6); returns ``out``. Idempotent."""
+        if self.done or self.in_place:
+            self.done = True
+            self._close()
+            return self.out
+        out, new = self.out, self.path
+        with signals_blocked():
+            if self.products is not None and out.is_dir():
+                for entry in sorted(out.iterdir()):  # the user's own files in out stay
+                    if not (new / entry.name).exists() and not any(fnmatch.fnmatch(entry.name, pat)
+                                                                   for pat in self.products):
+                        _link_tree(entry, new / entry.name)
+            if out.is_dir() and _exchange(new, out):
+                shutil.rmtree(new, ignore_errors=True)  # the earlier folder, now under the staging name
+            elif out.is_dir():
+                old = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=out.parent))
+                os.rename(out, old / "old")   # a kill now leaves the earlier folder in old (reclaimed; documented)
+                os.rename(new, out)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.rename(new, out)
+            fsync_dir(out.parent)
+            self.done = True
+        self._close()
+        return out
+
+    def discard(self) -> None:
+        """Delete the staging folder; ``out`` stays as it was. Idempotent."""
+        if not self.done and self.path is not None and not self.in_place:
+            with signals_blocked():
+                shutil.rmtree(self.path, ignore_errors=True)
+                self.done = True
+        self._close()
+
+    def set_aside(self, label: str) -> Path:
+        """Keep what was written beside ``out`` as ``<out>.<label>`` (the next free ``.<label>.2``, ...)
+        instead of deleting it; ``out`` stays as it was. Returns where it went (``out`` itself when the
+        folder is written in place)."""
+        if self.in_place:
+            self.done = True
+            self._close()
+            return self.out
+        kept = self.out.parent / f"{self.out.name}.{label}"
+        n = 1
+        with signals_blocked():
+            while True:
+                try:
+                    os.rename(self.path, kept)  # fails if kept exists and is not empty
+                    break
+                except OSError:
+                    if not kept.exists():
+                        raise
+                    n += 1
+                    kept = self.out.parent / f"{self.out.name}.{label}.{n}"
+            self.done = True
+        self._close()
+        return kept
+
+    def _close(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+        if self._signals is not None:
+            signals, self._signals = self._signals, None
+            signals.__exit__(None, None, None)
+
+    def __enter__(self) -> "OutputFolder":
+        return self.open() if self.path is None else self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            self.commit()
+        else:
+            if isinstance(exc, OSError) and exc.errno is not None and self.path is not None:
+                # a write that failed (a full disk): name the output, not the staging folder
+                exc.filename = self.shown(exc.filename) if exc.filename else str(self.out)
+            self.discard()
+        return False
+
+    def shown(self, path) -> str:
+        """``path`` inside the staging folder, named as it would be in ``out`` (for messages)."""
+        if isinstance(self, OutputFile):
+            return str(self.out) if Path(path).parent == self._staging_dir else str(path)
+        try:
+            rel = Path(path).relative_to(self.path)
+        except ValueError:
+            return str(path)
+        return str(self.out / rel) if str(rel) != "." else str(self.out)
+
+
+class OutputFile(OutputFolder):
+    """One output file written the same way (:func:`output_file`): ``path`` is ``<staging>/<name>``, renamed
+    over ``out`` when the block ends without an exception (``os.replace``: atomic for a file)."""
+
+    def _check(self) -> Path:
+        """``out``, refused (ValueError) if it is a folder or below a file, or exists and not ``force``."""
+        out = check_output_file(self.out, True, what=self.what)
+        if out.exists() and not self.force:
+            raise ValueError(f"{self.what} {out} exists; not overwriting it: choose another {self.what} or pass "
+                             f"{self.flag} to replace it")
+        return out
+
+    def open(self) -> "OutputFile":
+        """As :meth:`OutputFolder.open`; ``path`` is then the file to write."""
+        super().open()
+        self._staging_dir, self.path = self.path, self.path / self.out.name
+        return self
+
+    def earlier_results(self) -> list[str]:
+        """``[name]`` when the file exists (it is replaced), else empty."""
+        return [self.out.name] if self.out.is_file() else []
+
+    def commit(self) -> Path:
+        """Rename the file written over ``out``; returns ``out``. Idempotent."""
+        if not self.done:
+            with signals_blocked():
+                os.replace(self.path, self.out)
+                fsync_dir(self.out.parent)
+                shutil.rmtree(self._staging_dir, ignore_errors=True)
+                self.done = True
+        self._close()
+        return self.out
+
+    def discard(self) -> None:
+        """Delete what was written; ``out`` stays as it was. Idempotent."""
+        if not self.done and self.path is not None:
+            with signals_blocked():
+                shutil.rmtree(self._staging_dir, ignore_errors=True)
+                self.done = True
+        self._close()
+
+    def set_aside(self, label: str) -> Path:
+        """Not offered for a file: use :meth:`discard`."""
+        raise NotImplementedError("an output file is written whole or not at all")
+
+
+def output_file(out, force: bool, flag: str = "--force", what: str = "--out") -> OutputFile:
+    """One output file, written beside and renamed into place, one writer at a time (module doc).
+
+    ``with output_file(path, force) as w:`` write ``w.path`` (a file of the same name in a staging folder
+    beside ``out``). Refused (ValueError): ``out`` is a folder, is below a file, or exists and not ``force``;
+    :class:`OutputBusy` while another process writes it. An error, Ctrl-C or SIGTERM/SIGHUP leaves the
+    earlier file as it was and nothing beside it.
+
+    Returns
+    -------
+    OutputFile
+    """
+    return OutputFile(out, force, flag=flag, what=what)
+
+
+def output_folder(out, force: bool, products=None, flag: str = "--force", what: str = "--out",
+                  in_place: bool = False, results: str = "earlier results") -> OutputFolder:
+    """The output folder ``out`` of a command, written beside and swapped in whole (module doc).
+
+    Parameters
+    ----------
+    out : str or Path
+        The folder the command writes.
+    force : bool
+        The user passed ``flag``: earlier results in ``out`` are replaced (once the new ones are whole).
+    products : sequence of str, optional
+        Glob patterns of what the command writes into ``out``; other files there are the user's and are
+        kept. None (default): the whole folder is the command's.
+    flag, what : str
+        The option that allows replacing, and the one that gave ``out``, named in the messages.
+    in_place : bool
+        Write into ``out`` itself, under its lock (continuing an interrupted run there: ``--resume``);
+        nothing is refused or swapped.
+    results : str
+        What the earlier results are, in the refusal ("a demo's results").
+
+    Returns
+    -------
+    OutputFolder
+        A context manager (``with output_folder(...) as w``: write into ``w.path``); or call
+        ``open()`` first, to refuse early, and use it as a context manager later.
+
+    Raises
+    ------
+    ValueError
+        ``out`` is a file, is below one, or holds earlier results and not ``force``.
+    OutputBusy
+        Another process writes ``out`` now.
+    """
+    return OutputFolder(out, force, products=products, flag=flag, what=what, in_place=in_place,
+                        results=results)
+
+
+def reclaim_staging(out) -> list[Path]:
+    """Remove the staging folders a killed writer of ``out`` left (call only with ``out``'s lock held)."""
+    out = Path(out)
+    gone = []
+    if not out.parent.is_dir():
+        return gone
+    for entry in sorted(out.parent.iterdir()):
+        if any(entry.name.startswith(f".{out.name}.{tag}-") for tag in STAGING_TAGS) and entry.is_dir():
+            with signals_blocked():
+                shutil.rmtree(entry, ignore_errors=True)
+            gone.append(entry)
+    return gone
+

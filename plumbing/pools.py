@@ -1,0 +1,87 @@
+"""Worker pools whose workers die with their parent (issue 38): a SIGKILLed or signalled parent leaves no
+orphaned worker waiting forever. Apart from :mod:`plumbing.stopsignals` because it loads multiprocessing's
+pool machinery (~26 ms), which only the commands that start a pool need."""
+
+from __future__ import annotations
+
+import os
+import signal
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+
+from .stopsignals import _BLOCKED, STOP_SIGNALS, _prctl_pdeathsig, signals_blocked
+
+
+def worker_dies_with_parent(parent_pid: int, initializer=None, initargs=()) -> None:
+    """Initializer of a worker process (pool worker, recording process) that holds nothing to save or zero.
+
+    The worker is killed (SIGKILL) when its parent dies, however it dies (Linux ``PR_SET_PDEATHSIG``; a
+    worker of a parent already gone ends at once); it ignores Ctrl-C (the terminal sends it to the whole
+    process group: the parent stops the workers, which then print no traceback of their own) and takes
+    SIGTERM/SIGHUP with their default action (a fork inherits the parent's :class:`stop_on_signals`
+    handlers). Then runs ``initializer(*initargs)``.
+
+    Parameters
+    ----------
+    parent_pid : int
+        ``os.getpid()`` of the parent, taken there before the fork.
+    """
+    global _active
+    _active = None
+    if hasattr(signal, "pthread_sigmask"):  # forked inside signals_blocked (see worker_pool): take them again
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _BLOCKED)
+    if hasattr(signal, "SIGINT"):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_DFL)
+    _prctl_pdeathsig(signal.SIGKILL)
+    if os.getppid() != parent_pid:  # the parent died before the request took effect
+        os._exit(1)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+@contextmanager
+def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
+    """A :class:`concurrent.futures.ProcessPoolExecutor` whose workers die with this process (module doc).
+
+    Leaving the block normally waits for the workers as the executor does; leaving it with an exception
+    (an error, Ctrl-C, :class:`Terminated`) cancels what is queued and kills the workers at once instead
+    of waiting for their tasks, so that no worker outlives the command. Start the workers from the
+    thread that lives as long as the pool (the kernel's parent-death signal follows the thread that
+    forked them): submit from the main thread.
+
+    Parameters
+    ----------
+    max_workers : int
+    mp_context : multiprocessing context
+        e.g. ``multiprocessing.get_context("fork")``.
+    initializer, initargs
+        Run in each worker after :func:`worker_dies_with_parent`.
+
+    Yields
+    ------
+    ProcessPoolExecutor
+    """
+    class Pool(ProcessPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):
+            # the executor forks its workers in submit: a stop signal then would be raised in the fork's
+            # after-fork hooks, where Python prints and drops it; held back over the fork, it is raised here
+            with signals_blocked():
+                return super().submit(fn, *args, **kwargs)
+
+    pool = Pool(max_workers=max_workers, mp_context=mp_context, initializer=worker_dies_with_parent,
+                initargs=(os.getpid(), initializer, tuple(initargs)))
+    try:
+        yield pool
+    except BaseException:
+        procs = list((getattr(pool, "_processes", None) or {}).values())  # the executor offers no public kill
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            if proc.is_alive():
+                proc.kill()
+        for proc in procs:
+            proc.join()
+        raise
+    else:
+        pool.shutdown(wait=True)

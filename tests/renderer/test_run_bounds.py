@@ -1,0 +1,96 @@
+"""``renderer run``: time and memory bounded by design (issue 38, item 4) and its --out written whole, one
+writer at a time (item 1)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from renderer.__main__ import main
+from tests.files import tree_hashes
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))   # the code of this tree, not another installed copy
+
+
+@pytest.mark.parametrize("extra, message", [
+    (("--taps", "100000000"), "error: --taps must be 1..1000, got 100000000 (the simulated hand's tap plan is "
+                              "computed up front, ~125 kB per tap; run several runs for more taps)"),
+    (("--taps", "0"), "error: --taps must be 1..1000, got 0 (the simulated hand's tap plan is computed up front, "
+                      "~125 kB per tap; run several runs for more taps)"),
+    (("--duration-s", "1e9"), "error: --duration-s must be at most 86400 s (one day), got 1e+09"),
+])
+def test_unbounded_runs_are_refused_naming_the_limit(tmp_path, capsys, extra, message):
+    code = main(["run", "--device", "sim", *extra, "--out", str(tmp_path / "X")])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == message
+    assert list(tmp_path.iterdir()) == []                    # refused before anything was written
+
+
+def test_a_second_run_into_the_same_out_is_refused_while_the_first_writes(tmp_path):
+    """The first run holds --out's lock from before the device opens until its files are swapped in."""
+    out = tmp_path / "X"
+    first = subprocess.Popen([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1",
+                              "--realtime", "--duration-s", "60", "--out", str(out)], cwd=tmp_path, env=ENV,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        lock = tmp_path / ".X.lock"
+        while not (lock.is_file() and lock.read_text().startswith("{")):    # the first run holds the lock
+            assert first.poll() is None, first.communicate()
+        second = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1",
+                                 "--out", str(out), "--force"], cwd=tmp_path, env=ENV, capture_output=True,
+                                text=True)
+        assert second.returncode == 2, second.stderr
+        assert second.stderr.startswith(f"error: {out} is being written by another run: pid {first.pid} on host")
+    finally:
+        first.terminate()
+        _, err = first.communicate(timeout=120)
+    assert first.returncode == 143, err
+    # the stopped run had no earlier results to keep: its partial run is --out, whole, and nothing is beside it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X"]
+    assert sorted(tree_hashes(out)) == ["events.csv", "log.npz", "run.json"]
+
+
+def test_a_stopped_forced_run_keeps_the_earlier_run_exactly(tmp_path):
+    out = tmp_path / "X"
+    assert main(["run", "--device", "sim", "--taps", "1", "--out", str(out)]) == 0
+    before = tree_hashes(out)
+    proc = subprocess.Popen([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1", "--realtime",
+                             "--duration-s", "60", "--out", str(out), "--force"], cwd=tmp_path, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        while not list(tmp_path.glob(".X.staging-*")):        # the run is under way (its staging folder exists)
+            assert proc.poll() is None, proc.communicate()
+        proc.terminate()
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert "Traceback" not in err
+    assert tree_hashes(out) == before                          # the earlier run, byte for byte
+    # stopped in the loop: the partial run is set aside; before it: nothing was measured
+    kept = ["X", "X.interrupted"] if "partial run saved" in err else ["X"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == kept
+
+
+def test_a_partial_run_over_an_earlier_one_is_set_aside(tmp_path, capsys):
+    from plumbing.outdir import output_folder
+    from renderer.cli_run import _save_partial
+    from renderer.loop import RunResult
+
+    out, other = tmp_path / "X", tmp_path / "Y"
+    for folder in (out, other):
+        assert main(["run", "--device", "sim", "--taps", "1", "--out", str(folder)]) == 0
+    before = tree_hashes(out)
+    capsys.readouterr()
+    _save_partial(RunResult.load(other), output_folder(out, True).open(), "stopped by SIGTERM")
+    assert capsys.readouterr().err == (f"stopped by SIGTERM: partial run saved to {tmp_path / 'X.interrupted'} "
+                                       f"({out} keeps the earlier run)\n")
+    kept = tree_hashes(tmp_path / "X.interrupted")
+    assert tree_hashes(out) == before and sorted(kept) == ["events.csv", "log.npz", "run.json"]
+    assert kept["events.csv"] == tree_hashes(other)["events.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X", "X.interrupted", "Y"]
