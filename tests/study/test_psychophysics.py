@@ -334,7 +334,8 @@ def test_a_person_answers_through_the_subject_view_and_the_operator_places_every
                     _http("POST", api + "/api/operator/confirm", {}, hdr)
                 elif subj["prompt"] == "choice":
                     key = next(keys)
-                    answer = _http("POST", api + "/api/key", {"key": key}, {"Content-Type": "application/json"})
+                    answer = _http("POST", api + "/api/key", {"key": key, "trial_id": subj["trial_id"]},
+                                   {"Content-Type": "application/json"})
                     sent.append((key, answer["accepted"]))
                     hints.append(answer["hint"])
                 time.sleep(0.02)   # polling, as the views do (the session waits for us, not for time)
