@@ -16,7 +16,7 @@ from study.methods import METHODS, method_from_state, method_from_table
 from study.multistair import Interleaved
 from study.observer import ObserverParams, SimulatedObserver
 from study.psychometric import intensity_at, inverse_sigmoid, jnd, psi, sigmoid
-from study.quest import Psi, QuestPlus, make_grid
+from study.quest import QuestPlus, make_grid
 from study.simulate import SimulationSettings, make_method
 from study.staircase import UpDown, WeightedUpDown
 
