@@ -8,16 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from plumbing.cliargs import add_renamed, with_examples
+from plumbing.cliargs import add_renamed, float_list, with_examples
 from plumbing.dispatch import Body
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
 
 
 def _order(text: str):
@@ -30,7 +22,6 @@ def _order(text: str):
     return n
 
 
-
 def _delay(text: str):
     if text == "auto":
         return "auto"
@@ -38,7 +29,6 @@ def _delay(text: str):
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"--delay must be 'auto' or a number of seconds, got {text!r}") from None
-
 
 
 def _fit_options_args(p: argparse.ArgumentParser) -> None:
@@ -57,7 +47,6 @@ def _fit_options_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detrend", choices=("ramp", "periodic"), default="ramp",
                    help="ETFE detrending: 'ramp' (thesis eq. 3.13-3.14, default) or 'periodic' (remove only the "
                         "drift between the two sweep copies; exact in the lowest bins)")
-
 
 
 def register(subparsers) -> None:
@@ -83,11 +72,11 @@ def register(subparsers) -> None:
     p.add_argument("--method", choices=("comprehensive", "successive"), default="comprehensive",
                    help="comprehensive evaluation (LTI, default) or successive isolation (nonlinear)")
     p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, hid:VID:PID)")
-    add_renamed(p, "--grips-N", "--grip", dest="grip", type=_floats, default=None,
+    add_renamed(p, "--grips-N", "--grip", dest="grip", type=float_list, default=None,
                    help="comma-separated grip levels in N (default: spans the device's grip range, "
                         "0,1,2,3,5,10 on the sim, so an HFAM library built from the set covers every grip)")
     p.add_argument("--trials", type=int, default=4, help="good trials per grip, half reversed (default 4)")
-    add_renamed(p, "--amplitudes-A", "--amplitude", dest="amplitude", type=_floats, default=(0.75,),
+    add_renamed(p, "--amplitudes-A", "--amplitude", dest="amplitude", type=float_list, default=(0.75,),
                 help="sweep amplitude(s) in A, comma-separated (default 0.75); several give one ETFE curve each, "
                      "combined by --purpose")
     p.add_argument("--purpose", choices=("hfam", "cimm", "general"), default="general",

@@ -5,18 +5,9 @@ The parser (light: imported for ``--help``); the body is :mod:`devices.cli_linea
 
 from __future__ import annotations
 
-import argparse
 
-from plumbing.cliargs import add_renamed, with_examples
+from plumbing.cliargs import add_renamed, float_list, with_examples
 from plumbing.dispatch import Body
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
 
 
 def register(subparsers) -> None:
@@ -28,11 +19,11 @@ def register(subparsers) -> None:
                     "conditions that differ in one factor (dB and degree distance, and over which band) and "
                     "conclude in plain language whether an LTI model suffices (sec. 3.4.3).")
     p.add_argument("--device", default="sim", help="device string (sim, sim:lti, serial:PORT, ...)")
-    add_renamed(p, "--amplitudes-A", "--amplitudes", dest="amplitudes", type=_floats, default=None,
+    add_renamed(p, "--amplitudes-A", "--amplitudes", dest="amplitudes", type=float_list, default=None,
                    help="sweep amplitudes in A (default: 8, 40 and 95 %% of the continuous current)")
-    add_renamed(p, "--grips-N", "--grips", dest="grips", type=_floats, default=(1.0, 2.0, 3.0),
+    add_renamed(p, "--grips-N", "--grips", dest="grips", type=float_list, default=(1.0, 2.0, 3.0),
                 help="grips in N (default 1,2,3)")
-    p.add_argument("--positions", type=_floats, default=(0.0, 0.02),
+    p.add_argument("--positions", type=float_list, default=(0.0, 0.02),
                    help="workspace positions in m, handle space (default 0,0.02)")
     add_renamed(p, "--band-hz", "--band", dest="band", type=float, nargs=2, default=(20.0, 500.0), metavar=("LO", "HI"),
                    help="judged band in Hz (default 20 500)")

@@ -6,18 +6,9 @@ The parser (light: imported for ``--help``); the body is :mod:`devices.cli_valid
 
 from __future__ import annotations
 
-import argparse
 
-from plumbing.cliargs import add_renamed, with_examples
+from plumbing.cliargs import add_renamed, float_list, with_examples
 from plumbing.dispatch import Body
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
 
 
 def register(subparsers) -> None:
@@ -36,7 +27,7 @@ def register(subparsers) -> None:
                 help="grip of the holding user in N (default 2)")
     add_renamed(p, "--amplitude-A", "--amplitude", dest="amplitude", type=float, default=1.0,
                 help="transient amplitude in A (default 1)")
-    add_renamed(p, "--amplitudes-A", "--amplitudes", dest="amplitudes", type=_floats, default=(0.2, 0.75, 1.25),
+    add_renamed(p, "--amplitudes-A", "--amplitudes", dest="amplitudes", type=float_list, default=(0.2, 0.75, 1.25),
                    help="sweep amplitudes for the ETFE comparison (nonlinear models; default 0.2,0.75,1.25)")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
     p.add_argument("--plot", default=None, help="write the time-domain figure (Figure 3.10 style) here")

@@ -68,3 +68,17 @@ def with_examples(parser: argparse.ArgumentParser, *lines: str) -> argparse.Argu
     if parser.formatter_class is argparse.HelpFormatter:
         parser.formatter_class = Formatter
     return parser
+
+
+def float_list(text: str) -> tuple[float, ...]:
+    """An argparse ``type`` for a comma-separated list of numbers (``"0.2,0.75,1.25"``); empty items are skipped.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Naming the text when an item is not a number (argparse prints it as one usage error line).
+    """
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
