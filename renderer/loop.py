@@ -608,6 +608,9 @@ class ServoLoop:
             if step is not None and callable(getattr(dev, "use_compiled_step", None)):
                 dev.use_compiled_step(step)
         self._prime(warm_law=not compiled)
+        restart = getattr(dev, "restart_link_timing", None)
+        if callable(restart):  # run.json's link round trip and longest gap: this run's ticks, not the priming
+            restart()
         paced = realtime and not compiled
         # the real-time policy after the priming cycle (one-time costs must not run under SCHED_FIFO) and the
         # collector paused for the paced ticks (renderer.rtpolicy); the policy is released when the loop ends

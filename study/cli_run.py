@@ -77,6 +77,9 @@ def register(subparsers) -> None:
                         "them (auto: on for hardware, off for sim)")
     p.add_argument("--realtime", action="store_true",
                    help="pace a sim device's tapping windows to wall-clock time (hardware is always paced)")
+    p.add_argument("--accept-timing", action="store_true",
+                   help="start a hardware session even if the servo timing check before it fails (recorded in "
+                        "session.json; docs/study.md 'Servo timing')")
     p.add_argument("--serve", action="store_true", help="serve the views also for a simulated participant")
     p.add_argument("--host", default="127.0.0.1", help="bind address of the views (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")
@@ -141,6 +144,15 @@ def _run_command(args) -> int:
         load_participant_config,
     )
 
+    timing_rec = None
+    if not is_sim:  # the servo's timing through this device, before any trial (issue 40; study.servo_timing)
+        from .servo_timing import pre_session_check  # deferred: keeps `--help` fast (loads the servo loop)
+
+        say(f"checking the servo's timing through {args.device} ({protocol.timing_check_s:g} s, motor off) ...")
+        timing_rec = pre_session_check(args.device, protocol, args.accept_timing)
+        if timing_rec["accepted_override"]:
+            print(f"warning: the servo timing check failed ({'; '.join(timing_rec['verdict']['failed'])}); "
+                  "running anyway as --accept-timing asks (recorded in session.json)", file=sys.stderr)
     sim_participant = None
     if is_sim:
         pcfg = load_participant_config(args.participant_config if previous is None
@@ -174,6 +186,7 @@ def _run_command(args) -> int:
                             protocol.familiarization_sample or None, subject)
         rows, fam_ended = start_session(plan, args, schedule, device_info, isolate, sim_participant, audio_info,
                                         apparatus.real_saturation_detection)
+        _record_timing(store, timing_rec, getattr(apparatus, "servo_policy", None), previous is not None)
 
         from .runner import StudyRunner  # deferred: keeps `--help` fast (a command loads only what it runs)
         from .uistate import UiState  # deferred: keeps `--help` fast (a command loads only what it runs)
@@ -209,6 +222,11 @@ def _run_command(args) -> int:
                 watch.join(2.0)
             audio.stop()
         store.session["order"] = schedule.summary()
+        if hasattr(apparatus, "window_timing"):  # the servo process's tapping windows against the thresholds
+            from .servo_timing import merge_summaries, window_summary  # deferred: keeps `--help` fast
+
+            store.session["servo_timing"] = merge_summaries(store.session.get("servo_timing"),
+                                                            window_summary(apparatus.window_timing))
         store.finish()
     except KeyboardInterrupt:
         print(f"interrupted: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
@@ -237,6 +255,22 @@ def _run_command(args) -> int:
             web.stop()
     _summary(store, say)
     return 0
+
+
+def _record_timing(store, timing_rec, servo_policy, resumed: bool) -> None:
+    """Put the pre-session timing check and the servo's granted policy into session.json and schedule.jsonl."""
+    if timing_rec is None and servo_policy is None:
+        return
+    if timing_rec is not None:
+        store.log_event({"event": "timing_check", "met": timing_rec["verdict"]["met"],
+                         "failed": timing_rec["verdict"]["failed"],
+                         "accepted_override": timing_rec["accepted_override"]})
+        store.session.setdefault("timing_checks", []).append(timing_rec)
+        if not resumed:
+            store.session["timing_check"] = timing_rec
+    if servo_policy is not None:
+        store.session.setdefault("servo_policy", []).append(servo_policy)
+    store.write_session()
 
 
 def _trial_counts(schedule) -> tuple[int, int]:
