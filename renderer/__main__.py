@@ -15,7 +15,7 @@ COMMANDS = (
     Command("teleop-sweep", "renderer.teleop.cli_teleop",
             "lambda sweep with/without cancellation and stabilisers (Fig. 5.11)"),
     Command("timing-check", "renderer.cli_timing_check",
-            "check this machine's servo timing as the loop would run (cyclictest-like; verdict)", blas_threads=1),
+            "check this machine's servo timing (cyclictest-like)", blas_threads=1),
     Command("compile-sim", "renderer.sim_aot", "compile the simulated closed loop ahead of time (fast sim runs)"),
 )
 
