@@ -90,7 +90,7 @@ def stop_load(procs: list) -> None:
 
 def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: int = 0,
               device: str = QUIET_DEVICE, thresholds: TimingThresholds = DEFAULT_THRESHOLDS,
-              realtime_policy: bool = True) -> dict:
+              realtime_policy: bool = True, watchdog_s: float | None = None) -> dict:
     """Run the check and return its record (what ``timing_check.json`` holds).
 
     Parameters
@@ -106,6 +106,10 @@ def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: in
     thresholds : TimingThresholds
     realtime_policy : bool
         Ask for the real-time policy, as the servo process does.
+    watchdog_s : float, optional
+        The loop's watchdog bound (``RendererConfig.watchdog_overrun_s``) for a real device: use the session's,
+        so a stall that would stop the session stops the check. A check that does not run its whole length
+        (watchdog, disconnect, ...) fails.
 
     Returns
     -------
@@ -118,8 +122,9 @@ def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: in
         raise ValueError(f"timing check: need duration_s > 0, rate_hz > 0 and load_cores >= 0, got "
                          f"{duration_s!r}, {rate_hz!r}, {load_cores!r}")
     quiet = device == QUIET_DEVICE
+    extra = {} if watchdog_s is None else {"watchdog_overrun_s": float(watchdog_s)}
     cfg = RendererConfig(motor_enabled=False, stiffness_N_m=0.0, rate_hz=float(rate_hz) if quiet else None,
-                         log_capacity_s=float(duration_s) + 1.0)
+                         log_capacity_s=float(duration_s) + 1.0, **extra)
     loads = start_load(load_cores)
     try:
         result = run_in_process(_QuietFactory(rate_hz) if quiet else device, cfg, None, duration_s=duration_s,
@@ -129,9 +134,14 @@ def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: in
     rate = float(result.timing["rate_hz"])
     figures = period_figures(result.log["wall_ns"], rate)
     link = result.timing.get("link")
+    judged = verdict(figures, thresholds, link=link)
+    if result.stop_reason != "duration":  # cut short (watchdog, disconnect): the session would be too
+        judged["failed"].insert(0, f"the check stopped early: {result.stop_reason}"
+                                   + (f" ({result.error})" if result.error else ""))
+        judged["met"] = False
     return {"device": device, "duration_s": float(duration_s), "rate_hz": rate, "load_cores": int(load_cores),
             "stop_reason": result.stop_reason, "policy": result.timing.get("policy"), "figures": figures,
-            "link": link, "verdict": verdict(figures, thresholds, link=link)}
+            "link": link, "verdict": judged}
 
 
 def format_report(rec: dict) -> str:

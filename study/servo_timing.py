@@ -46,7 +46,8 @@ def pre_session_check(device_spec: str, protocol, accept: bool) -> dict:
     ValueError
         The verdict failed and ``accept`` is false: the message names what failed and the flag.
     """
-    rec = run_check(duration_s=protocol.timing_check_s, device=device_spec, thresholds=thresholds(protocol))
+    rec = run_check(duration_s=protocol.timing_check_s, device=device_spec, thresholds=thresholds(protocol),
+                    watchdog_s=protocol.servo_watchdog_s)
     failed = rec["verdict"]["met"] is False
     rec["accepted_override"] = bool(failed and accept)
     if failed and not accept:

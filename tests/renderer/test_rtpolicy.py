@@ -112,7 +112,7 @@ def test_timing_check_fails_and_passes_by_its_thresholds(tmp_path):
     assert proc.returncode == 1, proc.stderr
     assert "verdict: FAIL: period error p99" in proc.stdout and "period error histogram (us):" in proc.stdout
     assert rec["verdict"]["met"] is False and rec["figures"]["periods"] == 1999
-    assert sum(rec["figures"]["histogram"]["counts"]) == 1999 and rec["figures"]["period_p50_us"] > 200
+    assert sum(rec["figures"]["histogram"]["counts"]) == 1999
     assert rec["policy"]["requested"]["policy"] == "SCHED_FIFO"
     proc, rec = _check(tmp_path, "--max-p99-us", "1e6", "--max-p999-us", "1e6", "--max-period-ms", "1e6")
     assert proc.returncode == 0, proc.stderr
