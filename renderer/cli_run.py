@@ -99,6 +99,8 @@ def register(subparsers) -> None:
                    help="hardware: run the servo loop in this process instead of its own")
     p.add_argument("--out", required=True, help="output directory (new or empty)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier run")
+    p.add_argument("--no-figure", dest="figure", action="store_false",
+                   help="do not draw run.png/.svg (position, forces, acceleration, events, the wall) beside the data")
     with_examples(p, 'hfam-renderer run --device sim --transient pulse --stiffness-N-m 680 --taps 10 --velocities-m-s 0.1 --out runs/pulse', 'hfam-renderer run --device serial:/dev/ttyACM0 --transient hfam --library LIB.npz --duration-s 60 --out runs/hw')
     # run_command closes the device and every file and joins its threads before it returns
     p.set_defaults(func=run_command, fast_exit=True)
@@ -204,6 +206,11 @@ def _run(args) -> int:
     result.save(args.out)
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")
+    if args.figure:  # after the data are safe, in this process (never the servo's): matplotlib loads only here
+        from .run_figure import save_run_figure  # deferred: matplotlib (~0.5 s), not for --help or --no-figure
+
+        save_run_figure(result, args.out)
+        print(f"saved {args.out}/run.png, run.svg, run.plot.csv (the run drawn)")
     if simulated and not result.timing.get("aot"):
         from . import sim_aot  # deferred: keeps `--help` fast (a command loads only what it runs)
 
