@@ -5,7 +5,6 @@ of at most 1 ns over a pseudo-terminal is impossible, so the check must fail on 
 """
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -76,7 +75,9 @@ def test_accept_timing_starts_the_session_and_records_the_override(tmp_path):
     assert link["rtt_p99_s"] > 1e-6 and link["frames_rx"] > 500 and fig["periods"] > 500
     assert sum(fig["histogram"]["counts"]) == fig["periods"]
     assert check["policy"]["policy"] in ("SCHED_FIFO", "SCHED_OTHER")
-    assert (check["policy"]["policy"] == "SCHED_FIFO") == (os.geteuid() == 0 or check["policy"]["rlimit_rtprio"] not in (0, None))
+    # what the OS granted, or why not (an ordinary user without rtprio: refused, recorded, and the run went on)
+    refused = [m for m in check["policy"]["missing"] if m.startswith("SCHED_FIFO")]
+    assert (check["policy"]["policy"] == "SCHED_FIFO") == (not refused)
     events = [json.loads(ln) for ln in (session.parent / "schedule.jsonl").read_text().splitlines()]
     assert any(e.get("event") == "timing_check" and e["accepted_override"] is True for e in events)
     assert data["servo_policy"][0]["policy"] == check["policy"]["policy"]

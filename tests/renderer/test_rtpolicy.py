@@ -7,6 +7,7 @@ granted, read back from the kernel. The verdicts are driven by thresholds, never
 
 import json
 import os
+import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -23,10 +24,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _may_fifo() -> bool:
-    """Whether this user may ask for SCHED_FIFO 80 (root, CAP_SYS_NICE or an rtprio limit that allows it)."""
-    import resource
+    """Whether this process may ask for SCHED_FIFO 80: CAP_SYS_NICE in its effective set (root, or an interpreter
+    given it with setcap) or an rtprio limit that allows it."""
     soft = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
-    return os.geteuid() == 0 or soft == resource.RLIM_INFINITY or soft >= rtpolicy.RT_PRIORITY
+    with open("/proc/self/status") as fh:
+        cap_eff = int(next(ln for ln in fh if ln.startswith("CapEff:")).split()[1], 16)
+    return bool(cap_eff >> 23 & 1) or soft == resource.RLIM_INFINITY or soft >= rtpolicy.RT_PRIORITY
 
 
 def test_acquire_gets_or_reports_each_part_and_the_kernel_agrees():
