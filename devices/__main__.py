@@ -13,6 +13,8 @@ COMMANDS = (
     Command("validate", "devices.cli_validate", "validate an identified model against the device (ETFEs, held transients)"),
     Command("linearity", "devices.cli_linearity",
             "linearity and time-invariance report: ETFEs at several amplitudes, grips, positions"),
+    Command("calibrate", "devices.cli_calibrate",
+            "calibrate a real board: encoder zero, accelerometer and grip offsets"),
     Command("emulate", "devices.cli_hardware",
             "firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)"),
     Command("latency", "devices.cli_hardware", "measure command->state round trip and achieved update rate of a device"),
