@@ -166,6 +166,8 @@ def _run(args) -> int:
             traj = TapTrajectory(args.velocity, n_taps=args.taps)
             dev.set_user(traj, grip_N=args.grip)
             loop = ServoLoop(dev, cfg, transient)
+            if args.realtime:  # paced: SCHED_FIFO, mlockall, a core of its own around the ticks (renderer.rtpolicy)
+                loop.rt_request = {"core": None}
             # --duration-s: that long (the hand rests after its last tap); else the plan's length
             duration = args.duration if args.duration is not None else traj.duration_s
             try:
@@ -182,6 +184,7 @@ def _run(args) -> int:
         try:
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
+                loop.rt_request = {"core": None}  # SCHED_FIFO and mlockall around the ticks (renderer.rtpolicy)
                 try:
                     result = loop.run(duration_s=args.duration, realtime=True)
                 except KeyboardInterrupt:
@@ -204,6 +207,10 @@ def _run(args) -> int:
             _save_partial(exc.partial_result, args.out, str(exc))
             return exc.code
     result.save(args.out)
+    if (simulated or args.in_process) and result.timing.get("policy", {}).get("requested"):
+        from .rtpolicy import warn_once  # deferred: keeps `--help` fast (run_in_process warns by itself)
+
+        warn_once(result.timing["policy"])
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")
     if args.figure:  # after the data are safe, in this process (never the servo's): matplotlib loads only here

@@ -163,12 +163,14 @@ def acquire(priority: int = RT_PRIORITY, core: int | None = None, lock_memory: b
            "missing": []}
     rec.update(read_rt_throttling())
     rec.update(_limits())
+    before = rec["affinity"]
     if core is not None and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, {core})
         except OSError as exc:
             rec["missing"].append(f"affinity to CPU {core}: {exc.strerror}")
         rec["affinity"] = allowed_cores()
+        rec["affinity_before"] = before
     if lock_memory:
         libc = _libc()
         if libc is not None and hasattr(libc, "mlockall"):
@@ -234,10 +236,15 @@ def describe_current() -> dict:
 
 
 def release(rec: dict | None) -> None:
-    """Undo :func:`acquire` for the rest of the process (back to SCHED_OTHER, memory unlocked); the
-    affinity stays. Safe to call with any record."""
+    """Undo :func:`acquire` for the rest of the process (back to SCHED_OTHER, memory unlocked, the CPUs it
+    had before). Safe to call with any record."""
     if not rec:
         return
+    if rec.get("affinity_before") and hasattr(os, "sched_setaffinity"):
+        try:
+            os.sched_setaffinity(0, set(rec["affinity_before"]))
+        except OSError:
+            pass
     if rec.get("policy") == "SCHED_FIFO":
         try:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
