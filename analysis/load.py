@@ -162,7 +162,7 @@ def read_session(path) -> dict:
     """Read and check one ``session.json`` (``path``: str or Path); errors name the file, line or key.
 
     Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
-    finished, seed, software_version, device``.
+    finished, seed, software_version, device, servo_timing`` (:func:`servo_timing_text`).
     """
     text = _read_text(path, "utf-8")
     try:
@@ -187,7 +187,42 @@ def read_session(path) -> dict:
         "age": raw.get("age"), "gender": raw.get("gender"), "handedness": raw.get("handedness"),
         "finished": raw.get("finished_at") is not None,
         "seed": raw.get("seed"), "software_version": raw.get("software_version"), "device": raw.get("device"),
+        "servo_timing": servo_timing_text(raw),
     }
+
+
+def servo_timing_text(raw: dict) -> str:
+    """Whether a session's servo met the timing thresholds, in words, from its session.json (issue 40).
+
+    Reads ``timing_check`` / ``timing_checks`` (the check before a hardware session, with
+    ``accepted_override``) and ``servo_timing`` (its tapping windows' verdicts); written by ``study run``.
+
+    Returns
+    -------
+    str
+        ``"met"``, ``"NOT met (...)"``, or ``"not judged (...)"`` for a simulated session or one recorded
+        before the check existed.
+    """
+    checks = raw.get("timing_checks") or ([raw["timing_check"]] if isinstance(raw.get("timing_check"), dict) else [])
+    checks = [c for c in checks if isinstance(c, dict)]
+    windows = raw.get("servo_timing") if isinstance(raw.get("servo_timing"), dict) else None
+    why = []
+    for c in checks:
+        v = c.get("verdict") if isinstance(c.get("verdict"), dict) else {}
+        if v.get("met") is False:
+            why.append("check failed" + (", run with --accept-timing" if c.get("accepted_override") else "")
+                       + (f": {'; '.join(map(str, v.get('failed', [])))}" if v.get("failed") else ""))
+    judged = windows is not None and windows.get("all_met") is not None
+    if judged and not windows["all_met"]:
+        why.append(f"{windows.get('windows', 0) - windows.get('met', 0)} of {windows.get('windows', 0)} tapping "
+                   "windows missed the thresholds")
+    if why:
+        return "NOT met (" + "; ".join(why) + ")"
+    if not checks and not judged:
+        return "not judged (no paced servo timing recorded: a simulated session, or one older than the check)"
+    parts = (["check passed"] if checks else []) + ([f"{windows['met']} of {windows['windows']} windows"]
+                                                      if judged else [])
+    return "met (" + ", ".join(parts) + ")"
 
 
 def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
@@ -794,7 +829,7 @@ def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, d
             _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
                             "its attempts are used as far as they go", stacklevel=4)
         subj_rows.append({k: sess[k] for k in ("subject", "experience", "age", "gender", "handedness", "finished",
-                                               "seed", "software_version", "device")}
+                                               "seed", "software_version", "device", "servo_timing")}
                          | {"folder": folder, "session_file": sess_path,
                             "trials_file": os.path.join(folder, "trials.csv")})
     return pd.DataFrame(subj_rows), catalog, kinds

@@ -289,6 +289,10 @@ def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
                  f" ({len(seeds)} sessions)") if seeds else "none recorded"
     soft = sorted({str(v) for v in subj.get("software_version", []) if v is not None})
     devices = sorted({str(v) for v in subj.get("device", []) if v is not None})
+    timing = [f"{s}: {t}" for s, t in zip(subj.get("subject", []), subj.get("servo_timing", []))]
+    timing_text = "; ".join(timing) if len(timing) <= 12 else (
+        f"{sum(t.split(': ', 1)[1].startswith('met') for t in timing)} of {len(timing)} sessions met them; "
+        + "; ".join(t for t in timing if ": NOT met" in t)[:2000])
     cfg = res.config
     return [
         ("data folder", ", ".join(folders)),
@@ -297,6 +301,8 @@ def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
         ("session seeds", seed_text),
         ("study software", ", ".join(soft) or "not recorded"),
         ("devices", ", ".join(devices) or "not recorded"),
+        # issue 40: whether each session's servo met p99 <= 20 us, p99.9 <= 50 us, no period > 1 ms (+ link)
+        ("servo timing", timing_text or "not recorded"),
         ("analysis settings", f"reference {cfg.reference}, margin ±{cfg.margin:g}, groups {cfg.group}, "
                               f"α = {cfg.alpha}, Holm correction across the pairs of each group"),
         ("software", f"Python {platform.python_version()}, " + ", ".join(versions)),

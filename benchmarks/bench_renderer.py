@@ -32,6 +32,7 @@ from devices.base import Device, DeviceState
 from devices.sim import SimDevice, TapTrajectory
 from renderer import RendererConfig, ServoLoop
 from renderer.process import run_in_process
+from renderer.run_figure import save_run_figure
 from renderer.scene import Box, Scene, Sphere, Wall
 
 
@@ -145,7 +146,8 @@ def bench_closed_loop(repeats=3, seconds=5.0):
             for r in range(max(repeats, 5) + 1):
                 t0 = time.perf_counter()
                 proc = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--duration-s",
-                                       "30", "--taps", "40", "--force", "--out", os.path.join(tmp, f"run{r}")],
+                                       "30", "--taps", "40", "--no-figure", "--force", "--out",
+                                       os.path.join(tmp, f"run{r}")],
                                       check=True, capture_output=True, text=True,
                                       env=dict(os.environ, HFAM_SIM_AOT=mode))
                 if r:  # the first run warms the OS file cache
@@ -216,11 +218,31 @@ def bench_gil(seconds=3.0):
     return rows
 
 
+def bench_run_figure(repeats=3):
+    """The run figure ``renderer run`` draws after a 30 s simulated run (issue 39; ``--no-figure`` skips it)."""
+    dev, _ = _sim(n_taps=40)
+    res = ServoLoop(dev, RendererConfig()).run(duration_s=30.0)
+    times, cpu = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(repeats + 1):
+            t0, c0 = time.perf_counter(), time.process_time()
+            save_run_figure(res, os.path.join(tmp, f"fig{r}"))
+            if r:  # the first draw also imports matplotlib
+                times.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
+    med = statistics.median(times)
+    print(f"   run figure of a 30 s run (run.png + run.svg + run.plot.csv, {res.timing['ticks']} ticks): median "
+          f"{med:.3f} s wall, {statistics.median(cpu):.3f} s CPU of {repeats} (after matplotlib's import; the wall "
+          f"time grows with the machine's load)")
+    return med
+
+
 def main(argv=None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     quick = "--quick" in argv
     bench_compute(repeats=3 if quick else 5)
     bench_closed_loop(repeats=3, seconds=2.0 if quick else 5.0)
+    bench_run_figure(repeats=3)
     bench_pacing(seconds=2.0 if quick else 10.0)
     bench_gil(seconds=2.0 if quick else 3.0)
 

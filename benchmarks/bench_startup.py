@@ -99,7 +99,8 @@ def main(argv=None) -> dict:
                     worst = max(worst, (med, args))
             print(f"   slowest --help: python {' '.join(worst[1])} ({worst[0]:.3f} s)")
             _show_top(worst[1], cwd)
-            run = ["-m", "renderer", "run", "--device", "sim", "--duration-s", "2", "--force", "--out", str(cwd / "run")]
+            run = ["-m", "renderer", "run", "--device", "sim", "--duration-s", "2", "--no-figure", "--force", "--out",
+                   str(cwd / "run")]  # the run figure (matplotlib) is measured apart: bench_renderer
             # the simulated loop compiled ahead of time (renderer.sim_aot; built once, as a user's first
             # simulated run does in the background), then the JIT path with a warm numba cache for comparison
             subprocess.run([sys.executable, "-m", "renderer", "compile-sim"], cwd=cwd, check=True, capture_output=True)

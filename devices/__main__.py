@@ -15,6 +15,8 @@ COMMANDS = (
     Command("validate", "devices.cli_validate_parser", "validate an identified model against the device (ETFEs, held transients)"),
     Command("linearity", "devices.cli_linearity_parser",
             "linearity and time-invariance report: ETFEs at several amplitudes, grips, positions"),
+    Command("calibrate", "devices.cli_calibrate_parser",
+            "calibrate a real board: encoder zero, accelerometer and grip offsets"),
     Command("emulate", "devices.cli_hardware_parser",
             "firmware emulator on a pseudo-terminal (speaks docs/protocol.md, sim physics)"),
     Command("latency", "devices.cli_hardware_parser", "measure command->state round trip and achieved update rate of a device"),

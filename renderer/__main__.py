@@ -16,6 +16,8 @@ COMMANDS = (
     Command("teleop", "renderer.teleop.cli_teleop", "run a simulated teleoperation session (thesis ch. 5)"),
     Command("teleop-sweep", "renderer.teleop.cli_teleop",
             "lambda sweep with/without cancellation and stabilisers (Fig. 5.11)"),
+    Command("timing-check", "renderer.cli_timing_check_parser",
+            "check this machine's servo timing (cyclictest-like)", blas_threads=1),
     Command("compile-sim", "renderer.cli_compile_sim_parser", "compile the simulated closed loop ahead of time (fast sim runs)"),
 )
 

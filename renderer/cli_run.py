@@ -15,6 +15,7 @@ On a sim device the simulated hand taps ``--taps`` times at ``--velocity``
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import stimuli
 from devices.limits import check_grips, check_tap_speeds
@@ -28,6 +29,7 @@ from . import sim_aot
 from .cli_run_parser import TRANSIENTS
 from .config import RendererConfig, check_run_size, load_config
 from .loop import ServoLoop
+from .rtpolicy import warn_once
 
 
 def make_transient(kind: str, library: str | None = None, gain: float | None = None):
@@ -136,6 +138,8 @@ def _run_into(args, folder) -> int:
             traj = TapTrajectory(args.velocity, n_taps=args.taps)
             dev.set_user(traj, grip_N=args.grip)
             loop = ServoLoop(dev, cfg, transient)
+            if args.realtime:  # paced: SCHED_FIFO, mlockall, a core of its own around the ticks (renderer.rtpolicy)
+                loop.rt_request = {"core": None}
             # --duration-s: that long (the hand rests after its last tap); else the plan's length
             duration = args.duration if args.duration is not None else traj.duration_s
             try:
@@ -152,6 +156,7 @@ def _run_into(args, folder) -> int:
         try:
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
+                loop.rt_request = {"core": None}  # SCHED_FIFO and mlockall around the ticks (renderer.rtpolicy)
                 try:
                     result = loop.run(duration_s=args.duration, realtime=True)
                 except KeyboardInterrupt:
@@ -171,9 +176,20 @@ def _run_into(args, folder) -> int:
             _save_partial(exc.partial_result, folder, str(exc))
             return exc.code
     result.save(folder.path)
+    if (simulated or args.in_process) and result.timing.get("policy", {}).get("requested"):
+        warn_once(result.timing["policy"])
+    if args.figure:  # after the data are saved, in this process (never the servo's): matplotlib loads only here
+        from .run_figure import save_run_figure  # deferred: matplotlib, 0.5 s CPU of every run that asks for no figure
+
+        try:
+            save_run_figure(result, folder.path)
+        except (OSError, ValueError) as exc:   # the data matter more than their picture: the run is kept
+            print(f"warning: the run's figure was not drawn ({exc})", file=sys.stderr)
     folder.commit()
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz")
+    if args.figure and (Path(args.out) / "run.png").is_file():
+        print(f"saved {args.out}/run.png, run.svg, run.plot.csv (the run drawn)")
     if simulated and not result.timing.get("aot"):
         if sim_aot.schedule_build():
             print("compiling the simulated loop ahead of time in the background (once, ~5 s): later simulated "

@@ -79,6 +79,8 @@ def register(subparsers) -> None:
                    help="hardware: run the servo loop in this process instead of its own")
     p.add_argument("--out", required=True, help="output directory (new or empty)")
     p.add_argument("--force", action="store_true", help="write into --out even if it holds an earlier run")
+    p.add_argument("--no-figure", dest="figure", action="store_false",
+                   help="do not draw run.png/.svg (position, forces, acceleration, events, the wall) beside the data")
     with_examples(p, 'hfam-renderer run --device sim --transient pulse --stiffness-N-m 680 --taps 10 --velocities-m-s 0.1 --out runs/pulse', 'hfam-renderer run --device serial:/dev/ttyACM0 --transient hfam --library LIB.npz --duration-s 60 --out runs/hw')
     # run_command closes the device and every file and joins its threads before it returns
     p.set_defaults(func=Body('renderer.cli_run', 'run_command'), fast_exit=True)

@@ -29,6 +29,7 @@ paced simulations), and ``renderer.law.run_sim`` runs it together with a simulat
 from __future__ import annotations
 
 import array
+import contextlib
 import csv
 import ctypes
 import dataclasses
@@ -46,11 +47,13 @@ import numpy as np
 from devices.base import Status
 from plumbing import provenance
 from devices.limits import check_stiffness
-from plumbing.fileio import save_npz
+from plumbing.npzfile import save_npz
 from plumbing.stopsignals import Terminated, holding, stop_on_signals
 
 from . import law_layout as LAW
+from . import rtpolicy
 from . import sim_aot
+from . import timing_verdict
 from .config import RendererConfig
 from .passivity import passivity_constants, wall_energy
 from .safety import safety_bounds
@@ -313,6 +316,9 @@ class ServoLoop:
         self.result: RunResult | None = None
         self.stop_requested = False
         self._prepared = False
+        #: real-time treatment to ask for around a paced run (``renderer.rtpolicy.acquire`` keywords, e.g.
+        #: ``{"core": 1}``), or None to run with the process's policy as it is (still recorded in run.json)
+        self.rt_request: dict | None = None
 
     # ------------------------------------------------------------------ set-up
     def prepare(self) -> None:
@@ -485,7 +491,7 @@ class ServoLoop:
         self._cap = cap_ticks
         self._stats = {"stop_reason": "exception", "n_logged": 0, "wrapped": False, "ticks": 0,
                        "overruns": 0, "bad_samples": 0, "error": ""}
-        old_slack = _set_timer_slack_ns(1000) if realtime and self.cfg.pacing == "sleep_spin" else None
+        old_slack = _set_timer_slack_ns(1000) if realtime else None
         wall0 = time.perf_counter()
         cpu0 = time.process_time()
         failure = None
@@ -604,6 +610,17 @@ class ServoLoop:
             if step is not None and callable(getattr(dev, "use_compiled_step", None)):
                 dev.use_compiled_step(step)
         self._prime(warm_law=not compiled)
+        restart = getattr(dev, "restart_link_timing", None)
+        if callable(restart):  # run.json's link round trip and longest gap: this run's ticks, not the priming
+            restart()
+        paced = realtime and not compiled
+        # the real-time policy after the priming cycle (one-time costs must not run under SCHED_FIFO) and the
+        # collector paused for the paced ticks (renderer.rtpolicy); the policy is released when the loop ends
+        acquired = None
+        if paced and self.rt_request is not None:
+            acquired = rtpolicy.acquire(**{"fifo": True, **self.rt_request})
+        st["policy"] = acquired if acquired is not None else rtpolicy.describe_current()
+        gc_pause = rtpolicy.gc_paused() if paced else contextlib.nullcontext()
         self._ev = None
         self._tlen = 0
         st["compiled"] = compiled
@@ -613,11 +630,14 @@ class ServoLoop:
         self._n = 0
         reason = "duration"
         try:
-            if compiled:
-                reason = self._run_compiled(limit, until, t0)
-            else:
-                reason = self._run_ticks(limit, until, realtime, t0)
+            with gc_pause:
+                if compiled:
+                    reason = self._run_compiled(limit, until, t0)
+                else:
+                    reason = self._run_ticks(limit, until, realtime, t0)
         finally:
+            if acquired is not None:
+                rtpolicy.release(acquired)
             w = self.law_state
             ev = self._ev
             if ev is not None:
@@ -673,6 +693,12 @@ class ServoLoop:
         watchdog = not info.simulated  # a stalled simulation endangers nothing: the watchdog guards real motors
         spin_ns = int(cfg.spin_margin_s * 1e9)
         sleep_spin = cfg.pacing == "sleep_spin"
+        if realtime and st.get("policy", {}).get("policy") == "SCHED_FIFO":
+            # never busy-wait a whole period under SCHED_FIFO (RT throttling would stall the loop ~50 ms every
+            # second): sleep to the deadline and spin only a short, throttling-safe margin (renderer.rtpolicy)
+            sleep_spin = True
+            spin_ns = int(rtpolicy.fifo_spin_margin_s(1.0 / fs, cfg.spin_margin_s) * 1e9)
+            st["policy"]["spin_margin_us"] = spin_ns / 1000.0
         catchup_ns = int(cfg.max_catchup_s * 1e9)
         until_every = int(cfg.until_every)
         uc = until_every
@@ -969,6 +995,7 @@ class ServoLoop:
             "period_p99_us": pct(periods, 99),
             "period_max_us": float(periods.max()) if len(periods) else 0.0,
             "period_error_p99_us": pct(np.abs(periods - period_us), 99),
+            "period_error_p999_us": pct(np.abs(periods - period_us), 99.9),
             "period_error_max_us": float(np.abs(periods - period_us).max()) if len(periods) else 0.0,
             "overruns": int(st.get("overruns", 0)),
             "lateness_p50_us": pct(lateness, 50),
@@ -994,6 +1021,14 @@ class ServoLoop:
         link_stats = getattr(self.device, "link_stats", None)
         if callable(link_stats):  # hardware links: frames, CRC errors, losses, longest gap, round trip
             timing["link"] = link_stats()
+        # what the OS granted the servo (renderer.rtpolicy) and whether the paced ticks met the thresholds
+        timing["policy"] = st.get("policy") or rtpolicy.describe_current()
+        if st.get("paced") and not timing["compiled_sim"] and not self.on_device:
+            timing["timing_verdict"] = timing_verdict.verdict({**timing, "periods": len(periods)},
+                                                              link=timing.get("link"))
+        else:  # no per-tick clock of the servo here (compiled simulation, or the device's own loop)
+            timing["timing_verdict"] = {"met": None, "failed": [], "thresholds":
+                                        timing_verdict.DEFAULT_THRESHOLDS.to_dict()}
         info = self.info
         device = dataclasses.asdict(info) if dataclasses.is_dataclass(info) else {}
         device["limits_used"] = dict(self.limits)

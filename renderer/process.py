@@ -39,6 +39,7 @@ from devices.base import DeviceError
 from devices.registry import make_device
 from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, holding, stop_on_signals
 
+from . import rtpolicy
 from .config import RendererConfig
 from .loop import ServoLoop
 
@@ -48,7 +49,7 @@ STOP_GRACE_S = 5.0
 
 
 def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, realtime, stop_event,
-           nice, parent_pid) -> None:
+           nice, parent_pid, rt_request=None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     loop = None
     terminated = None
@@ -57,7 +58,7 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
         with stop_on_signals(own_process=True):
             die_with_parent(parent_pid)
             if nice:
-                try:  # a higher CFS priority (not SCHED_FIFO: busy-waiting under it trips real-time throttling)
+                try:  # a higher CFS priority until the loop asks for SCHED_FIFO around its paced ticks (rtpolicy)
                     os.nice(nice)
                 except OSError:
                     pass
@@ -67,6 +68,7 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
                 dev = device()
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
+                loop.rt_request = rt_request  # SCHED_FIFO, mlockall, its own core around the paced ticks
                 parent_gone = ParentWatch(parent_pid)  # where PR_SET_PDEATHSIG is missing: ~every 1000 ticks
                 result = loop.run(duration_s=duration_s, max_ticks=max_ticks, realtime=realtime,
                                   until=lambda lp: parent_gone() or stop_event.is_set())
@@ -117,7 +119,7 @@ def end_child(proc, conn, want_message: bool):
 def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, transient=None, *,
                    duration_s: float | None = None, max_ticks: int | None = None, realtime: bool | None = None,
                    device_options: dict | None = None, stop_event=None, timeout_s: float | None = None,
-                   nice: int = -10):
+                   nice: int = -10, realtime_policy: bool = True):
     """Run a servo loop in a child process and return its :class:`renderer.RunResult`.
 
     Parameters
@@ -135,6 +137,11 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
     nice : int
         ``os.nice`` increment for the servo process (negative = higher
         priority; needs privileges, silently skipped without them; 0 = leave).
+    realtime_policy : bool
+        Ask for real-time treatment around the paced ticks (``renderer.rtpolicy``: SCHED_FIFO at
+        ``RT_PRIORITY``, ``mlockall``, the servo pinned to ``servo_core()``, which this process avoids while
+        the child runs); what was granted is in the result's ``timing["policy"]``, and a refusal prints one
+        warning line with the remedy (once per process).
     timeout_s : float, optional
         After this long the child is asked to stop (the stop event), then, if it
         has not answered within ``STOP_GRACE_S``, sent SIGTERM (an orderly stop
@@ -153,12 +160,24 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
     plumbing.stopsignals.Terminated
         On SIGTERM/SIGHUP, after the child zeroed and stopped (``partial_result``: its result).
     """
+    core = rtpolicy.servo_core() if realtime_policy else None
+    rt_request = {"core": core} if realtime_policy else None
+    with rtpolicy.avoid_core(core):  # the rest of the program keeps off the servo's core
+        result = _run_child(device, cfg, transient, duration_s, max_ticks, realtime, device_options, stop_event,
+                            timeout_s, nice, rt_request)
+    rtpolicy.warn_once(result.timing.get("policy"))
+    return result
+
+
+def _run_child(device, cfg, transient, duration_s, max_ticks, realtime, device_options, stop_event, timeout_s,
+               nice, rt_request):
+    """The body of :func:`run_in_process`: start the child, wait for its result, end it."""
     ctx = mp.get_context("spawn")
     stop = stop_event if stop_event is not None else ctx.Event()
     parent_conn, child_conn = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_child, name="renderer-servo",
                        args=(child_conn, device, device_options, cfg or RendererConfig(), transient,
-                             duration_s, max_ticks, realtime, stop, nice, os.getpid()), daemon=True)
+                             duration_s, max_ticks, realtime, stop, nice, os.getpid(), rt_request), daemon=True)
     message = None
     interrupted = False
     terminated = None

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plumbing.fileio import atomic_open, load_npz
+from plumbing.fileio import atomic_open
+from plumbing.npzfile import load_npz
 
 FORMAT = "hfam-library"
 FORMAT_VERSION = 1

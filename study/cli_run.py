@@ -32,6 +32,7 @@ from .participants import SimulatedParticipant, load_participant_config
 from .protocol import Schedule
 from .psysession import run_experiment
 from .runner import StudyRunner
+from .servo_timing import merge_summaries, pre_session_check, window_summary
 from .session import plan_session, start_session
 from .uistate import Aborted, UiState
 from .webui import WebUI
@@ -114,6 +115,13 @@ def _run_session(args, plan, say, web) -> int:
 
 
 
+    timing_rec = None
+    if not is_sim:  # the servo's timing through this device, before any trial (issue 40; study.servo_timing)
+        say(f"checking the servo's timing through {args.device} ({protocol.timing_check_s:g} s, motor off) ...")
+        timing_rec = pre_session_check(args.device, protocol, args.accept_timing)
+        if timing_rec["accepted_override"]:
+            print(f"warning: the servo timing check failed ({'; '.join(timing_rec['verdict']['failed'])}); "
+                  "running anyway as --accept-timing asks (recorded in session.json)", file=sys.stderr)
     sim_participant = None
     if is_sim:
         pcfg = load_participant_config(args.participant_config if previous is None
@@ -146,6 +154,7 @@ def _run_session(args, plan, say, web) -> int:
                             protocol.familiarization_sample or None, subject)
         rows, fam_ended = start_session(plan, args, schedule, device_info, isolate, sim_participant, audio_info,
                                         apparatus.real_saturation_detection)
+        _record_timing(store, timing_rec, getattr(apparatus, "servo_policy", None), previous is not None)
 
 
         if web is not None:
@@ -178,6 +187,9 @@ def _run_session(args, plan, say, web) -> int:
                 watch.join(2.0)
             audio.stop()
         store.session["order"] = schedule.summary()
+        if hasattr(apparatus, "window_timing"):  # the servo process's tapping windows against the thresholds
+            store.session["servo_timing"] = merge_summaries(store.session.get("servo_timing"),
+                                                            window_summary(apparatus.window_timing))
         store.finish()
     except KeyboardInterrupt:
         print(f"interrupted: data so far is in {store.dir}; continue with --resume", file=sys.stderr)
@@ -216,6 +228,22 @@ def servo_stopped_message(exc) -> str:
     message often says so already: "disconnected (...); output zeroed by the device watchdog")."""
     text = str(exc)
     return text if "zeroed" in text else f"{text}; the output was zeroed"
+
+
+def _record_timing(store, timing_rec, servo_policy, resumed: bool) -> None:
+    """Put the pre-session timing check and the servo's granted policy into session.json and schedule.jsonl."""
+    if timing_rec is None and servo_policy is None:
+        return
+    if timing_rec is not None:
+        store.log_event({"event": "timing_check", "met": timing_rec["verdict"]["met"],
+                         "failed": timing_rec["verdict"]["failed"],
+                         "accepted_override": timing_rec["accepted_override"]})
+        store.session.setdefault("timing_checks", []).append(timing_rec)
+        if not resumed:
+            store.session["timing_check"] = timing_rec
+    if servo_policy is not None:
+        store.session.setdefault("servo_policy", []).append(servo_policy)
+    store.write_session()
 
 
 def _trial_counts(schedule) -> tuple[int, int]:

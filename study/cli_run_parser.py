@@ -77,6 +77,9 @@ def register(subparsers) -> None:
                         "them (auto: on for hardware, off for sim)")
     p.add_argument("--realtime", action="store_true",
                    help="pace a sim device's tapping windows to wall-clock time (hardware is always paced)")
+    p.add_argument("--accept-timing", action="store_true",
+                   help="start a hardware session even if the servo timing check before it fails (recorded in "
+                        "session.json; docs/study.md 'Servo timing')")
     p.add_argument("--serve", action="store_true", help="serve the views also for a simulated participant")
     p.add_argument("--host", default="127.0.0.1", help="bind address of the views (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")

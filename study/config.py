@@ -62,6 +62,13 @@ class ProtocolConfig:
     servo_watchdog_s : float
         The renderer's watchdog bound (``RendererConfig.watchdog_overrun_s``): a servo period
         longer than nominal by more than this zeroes the output and stops the session.
+    timing_check_s : float
+        Length of the servo timing check before a hardware session (``renderer timing-check`` through the
+        device, motor off; docs/study.md "Servo timing").
+    timing_p99_us, timing_p999_us, timing_max_period_ms, timing_link_rtt_p99_ms, timing_link_gap_ms : float
+        The check's thresholds (``renderer.timing_verdict.TimingThresholds``): period error p99 and p99.9
+        (us), longest period (ms), the link's p99 round trip and longest gap (ms). A session does not start
+        on a failing check unless ``--accept-timing`` is given (recorded).
     """
 
     repetitions: int = 3
@@ -77,11 +84,19 @@ class ProtocolConfig:
     cue_level_db: float = 0.0
     audio_fs_hz: float = 44100.0
     servo_watchdog_s: float = 0.02
+    timing_check_s: float = 3.0
+    timing_p99_us: float = 20.0
+    timing_p999_us: float = 50.0
+    timing_max_period_ms: float = 1.0
+    timing_link_rtt_p99_ms: float = 2.0
+    timing_link_gap_ms: float = 10.0
 
     def __post_init__(self) -> None:
         require_int("repetitions", self.repetitions, minimum=1, maximum=MAX_REPETITIONS)
         require_positive(self, "tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s",
-                         "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s")
+                         "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s",
+                         "timing_check_s", "timing_p99_us", "timing_p999_us", "timing_max_period_ms",
+                         "timing_link_rtt_p99_ms", "timing_link_gap_ms")
         for name, limit in PROTOCOL_LIMITS.items():  # time, memory and reach bounded (issue 38, items 4 and 12)
             require_number(name, getattr(self, name), maximum=limit)
         require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1,

@@ -36,6 +36,7 @@ import signal
 from dataclasses import asdict
 
 from devices import make_device
+from renderer import rtpolicy
 from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 
 from .apparatus import Apparatus, ServoStopped
@@ -43,13 +44,13 @@ from .rater import tap_features
 
 
 def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
-           sim_participant, realtime, parent_pid) -> None:
+           sim_participant, realtime, parent_pid, core=None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C there closes the pipe
     # SIGTERM (also on the parent's death) and SIGHUP raise Terminated: _serve's finally zeroes and closes
     with stop_on_signals(own_process=True):
         die_with_parent(parent_pid)
         _serve(conn, clip_q, hold_event, spec, device_options, catalog, protocol, library_dir, sim_participant,
-               realtime, parent_pid)
+               realtime, parent_pid, core)
 
 
 #: the servo process asks the OS for its parent once every this many loop stop checks (homing: every 200
@@ -58,17 +59,18 @@ PARENT_CHECK_EVERY = 4
 
 
 def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
-           sim_participant, realtime, parent_pid: int) -> None:
-    if realtime is not False:
-        try:  # a higher CFS priority for the servo (not SCHED_FIFO: its busy-waits would trip RT throttling)
-            os.nice(-10)
-        except OSError:
-            pass  # not permitted for this user: run at normal priority
-
+           sim_participant, realtime, parent_pid: int, core=None) -> None:
     device = None
+    policy = None
     try:
         device = make_device(spec, **device_options)
         device.open()
+        if realtime is True or (realtime is None and not device.info.simulated):
+            # paced for the whole session (homing between requests too): SCHED_FIFO, mlockall, its own core
+            # (renderer.rtpolicy; the loops sleep to their deadlines, so RT throttling is never reached)
+            policy = rtpolicy.acquire(core=core)
+        else:  # a simulation run as fast as possible: under SCHED_FIFO it would hit RT throttling
+            policy = rtpolicy.describe_current()
         app = Apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
                         realtime=realtime)
         parent_gone = ParentWatch(parent_pid, every=PARENT_CHECK_EVERY)
@@ -82,7 +84,8 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
         app.stop_check = check_parent
 
         conn.send(("ok", {"real_saturation_detection": app.real_saturation_detection, "device_info": asdict(device.info),
-                          "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz}))
+                          "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz,
+                          "servo_policy": policy}))
         while True:
             if not app.is_sim:
                 # a streaming device must be commanded every tick (its watchdog zeroes it otherwise): keep homing
@@ -127,12 +130,27 @@ class IsolatedApparatus:
     def __init__(self, spec: str, device_options: dict, catalog, protocol, library_dir=None,
                  sim_participant=None, realtime=None) -> None:
         ctx = mp.get_context("spawn")
+        # paced: hardware, or a simulation paced to the clock (as the child decides with the device's info)
+        paced = realtime is True or (realtime is None and spec.split(":", 1)[0] != "sim")
+        core = rtpolicy.servo_core() if paced else None
+        # the rest of the program (UI, audio, disk) keeps off the servo's core until close()
+        self._avoid = rtpolicy.avoid_core(core)
+        self._avoid.__enter__()
+        try:
+            self._start(ctx, spec, device_options, catalog, protocol, library_dir, sim_participant, realtime, core)
+        except BaseException:
+            self._avoid.__exit__(None, None, None)
+            raise
+
+    def _start(self, ctx, spec, device_options, catalog, protocol, library_dir, sim_participant, realtime,
+               core) -> None:
+        """Start the servo child and take its first answer (what the device and the OS granted)."""
         self._conn, child_conn = ctx.Pipe()
         self._clip_q = ctx.Queue()
         self._hold = ctx.Event()
         self._proc = ctx.Process(target=_child, name="study-servo", daemon=True,
                                  args=(child_conn, self._clip_q, self._hold, spec, device_options, catalog, protocol,
-                                       library_dir, sim_participant, realtime, os.getpid()))
+                                       library_dir, sim_participant, realtime, os.getpid(), core))
         self._proc.start()
         child_conn.close()
         info = self._recv()
@@ -141,6 +159,9 @@ class IsolatedApparatus:
         self.is_sim = info["is_sim"]
         self.fs_hz = info["fs_hz"]
         self.device_info = info["device_info"]
+        self.servo_policy = info.get("servo_policy")
+        rtpolicy.warn_once(self.servo_policy)
+        self.window_timing: list = []  # each tapping window's timing verdict and figures (study.servo_timing)
         self.sim_participant = sim_participant
         self.reference = None
         self._pending = False
@@ -245,6 +266,11 @@ class IsolatedApparatus:
 
         result = self._call("tap_window", window_s, first_tap_timeout_s, on_wait=drain)
         drain()
+        tm = getattr(result, "timing", None) or {}
+        if "timing_verdict" in tm:
+            self.window_timing.append({"verdict": tm["timing_verdict"],
+                                       **{k: tm.get(k, 0.0) for k in ("period_error_p99_us", "period_error_p999_us",
+                                                                      "period_max_us")}})
         return result
 
     def features(self, tap):
@@ -273,3 +299,4 @@ class IsolatedApparatus:
                 self._proc.kill()
                 self._proc.join(timeout=5)
             self._conn.close()
+            self._avoid.__exit__(None, None, None)

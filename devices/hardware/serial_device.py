@@ -779,6 +779,13 @@ class ProtocolDevice(Device):
             self._poll(left)
         return time.perf_counter() - t0
 
+    def restart_link_timing(self) -> None:
+        """Start the round-trip and longest-gap figures afresh (the counters stay): a servo loop calls it after
+        its priming cycle, so its run's figures cover its ticks, not its one-time start-up (e.g. a JIT)."""
+        self._rtt_n = 0
+        self._last_rx_state = None
+        self._longest_gap_s = 0.0
+
     def link_stats(self) -> dict:
         """Link counters and timing.
 

@@ -66,7 +66,7 @@ def test_short_study_run_over_the_emulated_serial_port(mode, faults, tmp_path):
     spec = f"serial:{port}" + ("?mode=on-device" if mode == "on-device" else "?loss_timeout_s=0.02")
     cmd = [sys.executable, "-m", "study", "run", "--device", spec, "--participant", "keyboard", "--subject", "HW1",
            "--age", "30", "--gender", "female", "--handedness", "right", "--experience", "few", "--audio", "off",
-           "--port", str(web_port), "--token", "tok", "--samples", "pulse_firm", "--repetitions", "1",
+           "--accept-timing", "--port", str(web_port), "--token", "tok", "--samples", "pulse_firm", "--repetitions", "1",
            "--protocol", str(proto), "--seed", "1", "--out", str(tmp_path / "data"), "--quiet"]
     stop = threading.Event()
     seen = {"confirms": 0, "ratings": 0}

@@ -29,7 +29,7 @@ def test_keyboard_session_over_the_emulated_serial_device(tmp_path):
     proto = write(tmp_path / "p.toml", 'familiarization_sample = ""\ntap_window_s = 2.0\nservo_watchdog_s = 0.25\n')
     cmd = [sys.executable, "-m", "study", "run", "--device", f"serial:{port}?loss_timeout_s=0.02", "--participant", "keyboard",
            "--subject", "H1", "--out", str(tmp_path / "DATA"), "--samples", "firm,pulse_firm", "--repetitions", "1",
-           "--age", "30", "--gender", "male", "--handedness", "right", "--experience", "few", "--audio", "off",
+           "--age", "30", "--gender", "male", "--handedness", "right", "--experience", "few", "--audio", "off", "--accept-timing",
            "--token", "tok", "--protocol", str(proto)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     hdr = {"X-Study-Token": "tok", "Content-Type": "application/json"}

@@ -199,9 +199,13 @@ class _AnnouncingMassDevice(MassDevice):
     def __init__(self, made, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._made = made
+        self._reads = 0
 
     def read(self) -> DeviceState:
-        if self._made is not None:
+        # the loop's priming cycle reads twice (then warms the law and asks for its real-time policy):
+        # the third read is the first tick's
+        self._reads += 1
+        if self._made is not None and self._reads == 3:
             self._made.set()
             self._made = None
         return super().read()

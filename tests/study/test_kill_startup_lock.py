@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_study_kill import KillHarness
-from plumbing.fileio import atomic_write_text, load_npz
+from plumbing.fileio import atomic_write_text
+from plumbing.npzfile import load_npz
 from study.data import SessionStore
 
 from .helpers import quick_args, read_rows, run_study

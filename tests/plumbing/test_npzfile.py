@@ -1,4 +1,4 @@
-"""plumbing.fileio: the servo log's .npz writer against numpy's."""
+"""plumbing.npzfile: the servo log's .npz writer against numpy's."""
 
 import io
 import zipfile
@@ -6,8 +6,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from plumbing import fileio
-from plumbing.fileio import save_npz
+from plumbing import npzfile
+from plumbing.npzfile import save_npz
 
 
 def _arrays():
@@ -37,7 +37,7 @@ def test_save_npz_writes_what_numpy_savez_writes(tmp_path, monkeypatch, zip64):
     zip64 sizes and offsets in the central directory, the zip64 end records)."""
     if zip64:
         monkeypatch.setattr(zipfile, "ZIP64_LIMIT", 1000)
-        monkeypatch.setattr(fileio, "_ZIP64_LIMIT", 1000)
+        monkeypatch.setattr(npzfile, "_ZIP64_LIMIT", 1000)
     arrays = _arrays()
     save_npz(tmp_path / "ours.npz", arrays)
     np.savez(tmp_path / "numpy.npz", **arrays)

@@ -1,0 +1,183 @@
+"""``renderer timing-check``: a cyclictest-like check of this machine as the servo loop would run (issue 40).
+
+The check runs the servo loop itself (``renderer.ServoLoop``, same pacing and law) in its own process with the
+real-time policy (``renderer.process.run_in_process``, ``renderer.rtpolicy``), the motor disabled, for
+``duration_s``; by default on :class:`QuietDevice` (a device that answers at once and holds still, so what is
+measured is the machine: scheduling, wake-ups, the loop's own cost), or through a real device (the study checks
+its hardware link this way: zero current, and the link's round trip and gaps join the verdict). Optional
+synthetic load: ``load_cores`` processes busy-looping at normal priority beside it, unpinned (the worst case a
+browser or a compiler would give). The verdict is :func:`renderer.timing_verdict.verdict`.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from devices.base import Device, DeviceInfo, DeviceState
+
+from .config import RendererConfig
+from .process import run_in_process
+from .timing_verdict import DEFAULT_THRESHOLDS, TimingThresholds, period_figures, verdict
+
+#: a check's device when none is named: the loop alone on this machine
+QUIET_DEVICE = "quiet"
+
+
+class QuietDevice(Device):
+    """A streaming device that answers at once and holds still above the wall: the timing check's default.
+
+    Parameters
+    ----------
+    rate_hz : float
+        Its servo rate (Hz). Marked simulated, so the loop's watchdog counts a stall instead of stopping the
+        check: the check reports the whole run.
+    """
+
+    def __init__(self, rate_hz: float = 10000.0) -> None:
+        super().__init__()
+        # Table 3.1's device (gear 15, 0.15 m handle, 2000 lines): only the limits matter, the motor is off
+        self.info = DeviceInfo(name="timing-check", encoder_lines=2000, gear_ratio=15.0, handle_length_m=0.15,
+                               torque_constant_Nm_A=0.0235, current_continuous_A=1.26, current_peak_A=4.0,
+                               current_amplifier_A=4.0, servo_rate_hz=float(rate_hz), simulated=True)
+        self._state = DeviceState(position_m=0.01, grip_N=2.0)
+        self._dt = 1.0 / float(rate_hz)
+
+    def _open(self) -> None:
+        pass
+
+    def _close(self) -> None:
+        pass
+
+    def read(self) -> DeviceState:
+        """The same still state, its device time advanced one period per read."""
+        self._state.t_s += self._dt
+        return self._state
+
+    def _send_current(self, current_A: float) -> None:
+        pass
+
+
+def quiet_device(rate_hz: float) -> QuietDevice:
+    """A :class:`QuietDevice` (module-level, so the spawned servo process can unpickle the factory)."""
+    return QuietDevice(rate_hz)
+
+
+class _QuietFactory:
+    """Picklable zero-argument factory of a :class:`QuietDevice` at a rate."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+
+    def __call__(self) -> QuietDevice:
+        return quiet_device(self.rate_hz)
+
+
+def start_load(n: int) -> list:
+    """Start ``n`` busy-looping Python processes at normal priority (unpinned); returns their Popen handles."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for _ in range(int(n))]
+
+
+def stop_load(procs: list) -> None:
+    """Kill the load processes started by :func:`start_load` (each by its own handle) and reap them."""
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+    for p in procs:
+        p.wait()
+
+
+def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: int = 0,
+              device: str = QUIET_DEVICE, thresholds: TimingThresholds = DEFAULT_THRESHOLDS,
+              realtime_policy: bool = True, watchdog_s: float | None = None) -> dict:
+    """Run the check and return its record (what ``timing_check.json`` holds).
+
+    Parameters
+    ----------
+    duration_s : float
+        Length of the paced run (s).
+    rate_hz : float
+        Servo rate of the quiet device (Hz); a real device runs at its own rate.
+    load_cores : int
+        Busy-looping processes beside the loop (:func:`start_load`).
+    device : str
+        ``"quiet"`` (:class:`QuietDevice`) or a device string (``serial:...``): motor disabled, zero current.
+    thresholds : TimingThresholds
+    realtime_policy : bool
+        Ask for the real-time policy, as the servo process does.
+    watchdog_s : float, optional
+        The loop's watchdog bound (``RendererConfig.watchdog_overrun_s``) for a real device: use the session's,
+        so a stall that would stop the session stops the check. A check that does not run its whole length
+        (watchdog, disconnect, ...) fails.
+
+    Returns
+    -------
+    dict
+        ``device``, ``duration_s``, ``rate_hz``, ``load_cores``, ``stop_reason``, ``policy`` (what the OS
+        granted, renderer.rtpolicy), ``figures`` (:func:`renderer.timing_verdict.period_figures`),
+        ``link`` (a hardware link's statistics, or None), ``verdict``.
+    """
+    if not (duration_s > 0 and rate_hz > 0) or load_cores < 0:
+        raise ValueError(f"timing check: need duration_s > 0, rate_hz > 0 and load_cores >= 0, got "
+                         f"{duration_s!r}, {rate_hz!r}, {load_cores!r}")
+    quiet = device == QUIET_DEVICE
+    extra = {} if watchdog_s is None else {"watchdog_overrun_s": float(watchdog_s)}
+    cfg = RendererConfig(motor_enabled=False, stiffness_N_m=0.0, rate_hz=float(rate_hz) if quiet else None,
+                         log_capacity_s=float(duration_s) + 1.0, **extra)
+    loads = start_load(load_cores)
+    try:
+        result = run_in_process(_QuietFactory(rate_hz) if quiet else device, cfg, None, duration_s=duration_s,
+                                realtime=True, realtime_policy=realtime_policy)
+    finally:
+        stop_load(loads)
+    rate = float(result.timing["rate_hz"])
+    figures = period_figures(result.log["wall_ns"], rate)
+    link = result.timing.get("link")
+    judged = verdict(figures, thresholds, link=link)
+    if result.stop_reason != "duration":  # cut short (watchdog, disconnect): the session would be too
+        judged["failed"].insert(0, f"the check stopped early: {result.stop_reason}"
+                                   + (f" ({result.error})" if result.error else ""))
+        judged["met"] = False
+    return {"device": device, "duration_s": float(duration_s), "rate_hz": rate, "load_cores": int(load_cores),
+            "stop_reason": result.stop_reason, "policy": result.timing.get("policy"), "figures": figures,
+            "link": link, "verdict": judged}
+
+
+def format_report(rec: dict) -> str:
+    """The check's record as the lines ``timing-check`` prints: histogram, figures, policy, verdict."""
+    f, pol, v = rec["figures"], rec.get("policy") or {}, rec["verdict"]
+    lines = [f"timing check: {rec['device']} at {rec['rate_hz']:g} Hz for {rec['duration_s']:g} s, "
+             f"{rec['load_cores']} busy load process(es); stop: {rec['stop_reason']}",
+             f"policy: {pol.get('policy', '?')} priority {pol.get('priority', 0)}, mlockall "
+             f"{'yes' if pol.get('mlockall') else 'no'}, CPU {pol.get('affinity')}, RT throttling "
+             f"{pol.get('rt_runtime_us')}/{pol.get('rt_period_us')} us"
+             + (f", spin {pol['spin_margin_us']:g} us" if "spin_margin_us" in pol else ""),
+             "period error histogram (us):"]
+    edges, counts = f["histogram"]["edges_us"], f["histogram"]["counts"]
+    total = max(1, sum(counts))
+    for k, c in enumerate(counts):
+        hi = edges[k + 1]
+        label = f"{edges[k]:>7g} - {hi:<7g}" if hi != "inf" else f"{edges[k]:>7g} +      "
+        bar = "#" * int(round(40 * c / total))
+        lines.append(f"  {label} {c:>9d} {bar}")
+    lines.append(f"periods {f['periods']}: p50 {f['period_p50_us']:.1f} us; error p50/p99/p99.9/max "
+                 f"{f['period_error_p50_us']:.1f}/{f['period_error_p99_us']:.1f}/{f['period_error_p999_us']:.1f}/"
+                 f"{f['period_error_max_us']:.1f} us; longest period {f['period_max_us']:.1f} us; "
+                 f"overruns {f['overruns']}")
+    link = rec.get("link")
+    if link:
+        ms = (lambda x: "-" if x is None else f"{1000 * x:.2f}")
+        lines.append(f"link: round trip median/p99/max {ms(link.get('rtt_median_s'))}/{ms(link.get('rtt_p99_s'))}/"
+                     f"{ms(link.get('rtt_max_s'))} ms, longest gap {ms(link.get('longest_gap_s'))} ms, "
+                     f"{link.get('losses', 0)} lost, {link.get('crc_errors', 0)} CRC errors")
+    th = v["thresholds"]
+    limits = (f"p99 <= {th['period_error_p99_us']:g} us, p99.9 <= {th['period_error_p999_us']:g} us, "
+              f"no period > {th['max_period_ms']:g} ms")
+    if v["met"] is None:
+        lines.append(f"verdict: NOT JUDGED (too few periods) against {limits}")
+    elif v["met"]:
+        lines.append(f"verdict: PASS ({limits})")
+    else:
+        lines.append(f"verdict: FAIL: {'; '.join(v['failed'])}")
+    return "\n".join(lines)
