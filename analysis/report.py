@@ -398,7 +398,7 @@ def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Pa
 
 def _section_html(sec) -> str:
     """One :class:`analysis.report_models.Section` as HTML: its lines, figures (embedded PNG), tables, extra HTML."""
-    parts = [f"<h2>{html.escape(sec.title)}</h2><ul>"] + [f"<li>{_strong(html.escape(ln))}</li>" for ln in sec.lines]
+    parts = [f"<h2>{html.escape(sec.title)}</h2><ul>"] + [f"<li>{_html_line(ln)}</li>" for ln in sec.lines]
     parts.append("</ul>")
     for path, caption in sec.figures:
         data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
@@ -413,7 +413,7 @@ def _section_html(sec) -> str:
 
 def _section_md(sec) -> list[str]:
     """One :class:`analysis.report_models.Section` as markdown lines (figures linked, tables in full up to the cap)."""
-    md = [f"## {sec.title}", ""] + [f"- {ln}" for ln in sec.lines] + [""]
+    md = [f"## {sec.title}", ""] + [f"- {_names_md(ln)}" for ln in sec.lines] + [""]
     for path, caption in sec.figures:
         md += [f"![{caption.split(':')[0]}]({Path(path).name})", "", f"*{caption}*", ""]
     for title, df in sec.tables:

@@ -16,6 +16,12 @@ import pandas as pd
 from analysis import figures
 from analysis.bayes import JZS_R, evidence_words
 
+
+def _n(name) -> str:
+    """A name from the data inside a section line, between analysis.report's name markers (escaped there when
+    the line is written as markdown or HTML)."""
+    return f"\x02{name}\x03"
+
 ORDINAL_FIGURE = "fig_ordinal_probs.png"
 ORDINAL_CAPTION = ("Ordinal model: probability of each realism rating 1–7 per sample from the proportional-odds "
                    "model at the mean incoming velocity, samples sorted by their expected rating. Read a bar "
@@ -63,8 +69,8 @@ def mixed_lines(models, alpha: float) -> list[str]:
     if len(emm):
         top, low = emm.iloc[0], emm.iloc[-1]
         at = f" at the mean incoming velocity ({v_mean:.3f} m/s)" if np.isfinite(v_mean) else ""
-        out.append(f"Estimated marginal means{at}: highest {top['sample']} {top['emm']:.2f} "
-                   f"({_ci(top['ci_low'], top['ci_high'])}), lowest {low['sample']} {low['emm']:.2f} "
+        out.append(f"Estimated marginal means{at}: highest {_n(top['sample'])} {top['emm']:.2f} "
+                   f"({_ci(top['ci_low'], top['ci_high'])}), lowest {_n(low['sample'])} {low['emm']:.2f} "
                    f"({_ci(low['ci_low'], low['ci_high'])}); all in models_emm.csv.")
     vel = models.fixed[(models.fixed["model"] == "mixed") & (models.fixed["term"] == "velocity_m_s")]
     if len(vel):
@@ -86,7 +92,7 @@ def mixed_lines(models, alpha: float) -> list[str]:
         flips = c[have & ~c["same_direction"].astype(bool)]
         if len(flips):
             text += " Opposite directions (all small differences): " + ", ".join(
-                f"{r.sample_a}–{r.sample_b} ({r.estimate:+.2f} vs {r.ttest_mean_diff:+.2f})"
+                f"{_n(r.sample_a)}–{_n(r.sample_b)} ({r.estimate:+.2f} vs {r.ttest_mean_diff:+.2f})"
                 for r in flips.head(6).itertuples()) + ("; …" if len(flips) > 6 else "") + "."
         out.append(text)
         out.append("Reading: where the model and the t-tests agree, the conclusions do not depend on averaging each "
@@ -108,8 +114,8 @@ def ordinal_lines(models, alpha: float) -> list[str]:
     out = [f"**Ordinal model** (statsmodels OrderedModel, proportional odds, logit) of the same {info['n_attempts']} "
            "attempts and fixed effects, treating the ratings as ordered categories rather than numbers; subjects "
            "enter through cluster-robust standard errors (population-averaged effects, see docs/analysis.md).",
-           f"Most likely rating: {', '.join(f'{s} {int(mode[s])}' for s in expected.index[:4])}, …; probability "
-           f"of a rating of 5 or more: highest {high.index[0]} {high.iloc[0]:.0%}, lowest {high.index[-1]} "
+           f"Most likely rating: {', '.join(f'{_n(s)} {int(mode[s])}' for s in expected.index[:4])}, …; probability "
+           f"of a rating of 5 or more: highest {_n(high.index[0])} {high.iloc[0]:.0%}, lowest {_n(high.index[-1])} "
            f"{high.iloc[-1]:.0%} (figure below, models_ordinal_probabilities.csv).",
            "Assumption (proportional odds): each sample shifts all the cut-points between adjacent ratings by the "
            "same log-odds, so one number per sample describes it. This is assumed, not tested here; compare the "
@@ -119,8 +125,8 @@ def ordinal_lines(models, alpha: float) -> list[str]:
         same = rank_lin[:3] == expected.index[:3].tolist()
         out.append("The ordinal and the linear model " + ("rank the top three samples alike."
                                                           if same else "rank the top three samples differently: "
-                                                          f"{', '.join(rank_lin[:3])} vs "
-                                                          f"{', '.join(expected.index[:3])}."))
+                                                          f"{', '.join(map(_n, rank_lin[:3]))} vs "
+                                                          f"{', '.join(map(_n, expected.index[:3]))}."))
     return out
 
 
@@ -152,10 +158,10 @@ def evidence_lines(res) -> list[str]:
             if not np.isfinite(r.bf01):
                 continue
             tost = "equivalent" if r.equivalent else "not shown equivalent"
-            parts.append(f"{r.sample}: {tost} within ±{r.margin:g} (TOST {_p(r.p_tost)}), "
+            parts.append(f"{_n(r.sample)}: {tost} within ±{r.margin:g} (TOST {_p(r.p_tost)}), "
                          f"{evidence_words(_inverse(r.bf01))}")
         if parts:
-            out.append(f"**{g} subjects, each sample vs {cfg.reference}**: " + "; ".join(parts) + ".")
+            out.append(f"**{g} subjects, each sample vs {_n(cfg.reference)}**: " + "; ".join(parts) + ".")
     for g, sub in res.pairwise.groupby("group", sort=False):
         bf = sub["bf10"]
         null = sub[bf < 1 / 3]
@@ -163,7 +169,7 @@ def evidence_lines(res) -> list[str]:
         line = (f"**{g} subjects, all {len(sub)} pairs**: {len(null)} with at least moderate evidence for no "
                 f"difference (BF01 > 3)")
         if len(null):
-            line += ": " + ", ".join(f"{r.sample_a}–{r.sample_b} (BF01 = {_inverse(r.bf10):.1f})"
+            line += ": " + ", ".join(f"{_n(r.sample_a)}–{_n(r.sample_b)} (BF01 = {_inverse(r.bf10):.1f})"
                                      for r in null.sort_values("bf10").head(8).itertuples()) + \
                 ("; …" if len(null) > 8 else "")
         line += (f"; {len(unsure)} inconclusive (1/3 ≤ BF10 ≤ 3): for those, more subjects are needed "
