@@ -291,6 +291,9 @@ def load_protocol_file(path, where: str = "command line", **overrides):
     if path is None:
         return load_dataclass_file(None, ProtocolConfig, "protocol", overrides, where), None
     p = Path(path)
+    if p.exists() and not p.is_file():  # e.g. --protocol /dev/null: it is there, but holds no settings
+        raise ValueError(f"protocol file {p} is not a regular file ({'a folder' if p.is_dir() else 'a device or pipe'}"
+                         "); give a TOML or JSON file")
     if not p.is_file():
         raise FileNotFoundError(f"protocol file {p} not found")
     text = read_text_utf8(p, "protocol file")

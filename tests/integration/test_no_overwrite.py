@@ -57,7 +57,7 @@ def test_commands_refuse_existing_outputs(tmp_path):
         and "--force" in r.stderr
     assert (ident / "accel_g7N.json").read_text() == "{}"
     run = tmp_path / "run"
-    r = cli("renderer", "run", "--device", "sim", "--taps", "1", "--out", str(run))
+    r = cli("renderer", "run", "--device", "sim", "--taps", "1", "--no-figure", "--out", str(run))
     assert r.returncode == 0, r.stderr
     r = cli("renderer", "run", "--device", "sim", "--taps", "1", "--out", str(run))
     assert r.returncode == 2 and f"--out {run} already holds earlier results (events.csv, log.npz, run.json)" \
