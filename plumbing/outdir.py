@@ -29,6 +29,7 @@ file, both removed by the next run that writes ``out``. docs/architecture.md, "O
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import errno
 import fcntl
@@ -44,6 +45,19 @@ from pathlib import Path
 from .errors import UserError
 from .fileio import check_output_dir, check_output_file, current_umask, fsync_dir
 from .stopsignals import signals_blocked, stop_on_signals
+
+#: output folders opened and not yet committed, discarded or set aside: a stop signal that lands between
+#: ``open()`` and the caller's ``with`` (or any exit that skips ``__exit__``) must not leave a staging folder
+_OPEN: set = set()
+
+
+def _discard_open() -> None:
+    """At exit (SystemExit from a stop signal included): delete the staging folders nobody finished."""
+    for folder in list(_OPEN):
+        folder.discard()
+
+
+atexit.register(_discard_open)
 
 #: the prefixes of the staging folders of ``out``: this module's, and ``devices identify``'s before it
 STAGING_TAGS = ("staging", "identify")
@@ -224,9 +238,10 @@ class OutputFolder:
                 return self
             with signals_blocked():
                 self.path = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=parent))
+                _OPEN.add(self)  # discarded at exit if the caller never reaches its ``with`` (a signal between)
                 os.chmod(self.path, 0o777 & ~current_umask())
         except BaseException:
-            self._close()
+            self.discard()   # a stop signal delivered as the staging folder was made: it goes too
             raise
         return self
 
@@ -303,6 +318,7 @@ class OutputFolder:
         return kept
 
     def _close(self) -> None:
+        _OPEN.discard(self)
         if self._lock is not None:
             self._lock.release()
             self._lock = None
@@ -371,7 +387,8 @@ class OutputFile(OutputFolder):
         """Delete what was written; ``out`` stays as it was. Idempotent."""
         if not self.done and self.path is not None:
             with signals_blocked():
-                shutil.rmtree(self._staging_dir, ignore_errors=True)
+                # stopped inside OutputFolder.open, ``path`` is still the staging folder itself
+                shutil.rmtree(getattr(self, "_staging_dir", self.path), ignore_errors=True)
                 self.done = True
         self._close()
 

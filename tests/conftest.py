@@ -1,9 +1,17 @@
 """Settings every test shares."""
 
 import os
+import signal
 
 # The simulated closed loop runs JIT-compiled in every test, whatever builds the user's cache holds, and no
 # test starts a background build: tests/renderer/test_sim_aot.py builds the ahead-of-time loop itself and
 # checks it against the JIT one tick for tick (renderer.sim_aot). HFAM_SIM_AOT=nobuild runs the suite on
 # an existing build instead.
 os.environ.setdefault("HFAM_SIM_AOT", "off")
+
+# A suite started in the background by a non-interactive shell (``make test &``, some CI runners) inherits
+# SIGINT ignored, and so would every command a test starts: Python then installs no KeyboardInterrupt
+# handler and the Ctrl-C tests would send a signal nobody hears. A handler here is reset to the default
+# in the children on exec, so they meet Ctrl-C as a user's terminal would deliver it.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
