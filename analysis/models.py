@@ -264,7 +264,7 @@ def mixed_model(data: pd.DataFrame, samples: list, reference: int, covariates: l
         v = X[:, names.index("velocity_m_s")]
         try:
             res, boundary, why = _fit_mixed(y, X, groups, v, ("lbfgs", "powell"))
-        except (np.linalg.LinAlgError, ValueError) as exc:
+        except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError) as exc:
             res, boundary, why = None, False, f"failed ({str(exc).splitlines()[0]})"
         if res is not None:
             sd_v = centres["velocity_m_s"][1]
@@ -284,7 +284,7 @@ def mixed_model(data: pd.DataFrame, samples: list, reference: int, covariates: l
         # data whose subjects' biases have an SD of 0.4 rating points (a false boundary); of the two, the
         # fit with the higher likelihood is kept
         res, boundary, why = _fit_mixed(y, X, groups, None, ("powell", "lbfgs"))
-    except (np.linalg.LinAlgError, ValueError) as exc:
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError) as exc:
         res, boundary, why = None, False, f"failed ({str(exc).splitlines()[0]})"
     if res is None:
         notes.append(f"mixed model {why}; its estimates are not reported: the paired t-tests above are the "
@@ -365,6 +365,10 @@ def ordinal_model(data: pd.DataFrame, samples: list, reference: int, covariates:
     if len(levels) < 3:
         return _empty(FIXED_COLUMNS), _empty(PROB_COLUMNS), info, \
             [f"ordinal model not fitted: ratings take {len(levels)} value(s); it needs 3 or more"]
+    n_params = X.shape[1] + len(levels) - 1
+    if len(y) <= n_params:
+        return _empty(FIXED_COLUMNS), _empty(PROB_COLUMNS), info, \
+            [f"ordinal model not fitted: {len(y)} attempts for its {n_params} parameters"]
     endog = pd.Series(pd.Categorical(y, categories=levels, ordered=True))
     groups = data["subject"].to_numpy()
     model = OrderedLogit(endog, pd.DataFrame(X, columns=names), distr="logit")
@@ -375,9 +379,10 @@ def ordinal_model(data: pd.DataFrame, samples: list, reference: int, covariates:
                             cov_kwds={"groups": groups})
         converged = bool(res.mle_retvals.get("converged", True))
         bad = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
-    except (np.linalg.LinAlgError, ValueError) as exc:
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError) as exc:
+        # e.g. a cluster-robust covariance with as many parameters as attempts (statsmodels divides by zero)
         return _empty(FIXED_COLUMNS), _empty(PROB_COLUMNS), info, \
-            [f"ordinal model not fitted: {str(exc).splitlines()[0]}"]
+            [f"ordinal model not fitted: {(str(exc).splitlines() or [type(exc).__name__])[0]}"]
     params = np.asarray(res.params)
     se = np.asarray(res.bse)
     if not converged or bad or not np.all(np.isfinite(se)):
