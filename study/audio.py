@@ -298,7 +298,8 @@ class MaskingAudio:
         self.blocksize = int(blocksize)
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._noise = np.zeros(self.blocksize, np.float32)
-        self._cues: list[list] = []          # [array, read position]
+        self._cues: list[list] = []          # [array, read position], played in turn
+        self._overlays: list[list] = []      # [array, read position], mixed over whatever plays
         self._lock = threading.Lock()
         self._stream = None
         self.frames_played = 0
@@ -319,14 +320,26 @@ class MaskingAudio:
         self._rng.standard_normal(frames, dtype=np.float32, out=noise)
         noise *= self.rms
         with self._lock:
+            # the spoken cues one after another (a cue asked for while another plays waits for it: two voices
+            # at once are unintelligible), the low tone mixed at once (an alarm does not queue)
+            at = 0
             cues = self._cues
-            for cue in cues:
-                arr, pos = cue
+            while cues and at < frames:
+                arr, pos = cues[0]
+                n = min(frames - at, arr.shape[0] - pos)
+                noise[at:at + n] += arr[pos:pos + n]
+                at += n
+                if pos + n >= arr.shape[0]:
+                    cues.pop(0)
+                else:
+                    cues[0][1] = pos + n
+            for tone in self._overlays:
+                arr, pos = tone
                 n = min(frames, arr.shape[0] - pos)
                 noise[:n] += arr[pos:pos + n]
-                cue[1] = pos + n
-            if cues:
-                self._cues = [c for c in cues if c[1] < c[0].shape[0]]
+                tone[1] = pos + n
+            if self._overlays:
+                self._overlays = [t for t in self._overlays if t[1] < t[0].shape[0]]
         np.clip(noise, -1.0, 1.0, out=noise)
         for ch in range(outdata.shape[1]):
             outdata[:, ch] = noise
@@ -343,9 +356,18 @@ class MaskingAudio:
         return self
 
     def play(self, samples: np.ndarray) -> None:
-        """Mix ``samples`` (float32, full scale 1.0) into the output from the next block on."""
+        """Mix ``samples`` (float32, full scale 1.0) into the output after the cues already asked for.
+
+        Cues play in turn, never over each other: one asked for while another still plays starts
+        where that one ends (at once otherwise, from the next block on).
+        """
         with self._lock:
             self._cues.append([np.asarray(samples, np.float32), 0])
+
+    def overlay(self, samples: np.ndarray) -> None:
+        """Mix ``samples`` into the output from the next block on, over any cue playing (an alarm)."""
+        with self._lock:
+            self._overlays.append([np.asarray(samples, np.float32), 0])
 
     def cue(self, name: str) -> None:
         """Mix the cue ``name`` (a key of :attr:`cues`) into the output."""
@@ -360,8 +382,8 @@ class MaskingAudio:
         self.play(self.cues["rate"])
 
     def cue_low_tone(self) -> None:
-        """Play the low tone (a clipped tap, section 4.5.3) over the noise."""
-        self.play(self.low_tone)
+        """Play the low tone (a clipped tap, section 4.5.3) over the noise, at once (over a cue if one plays)."""
+        self.overlay(self.low_tone)
 
     def wait_cues(self, timeout_s: float) -> bool:
         """Wait until the cues asked for have been handed to PortAudio (at most ``timeout_s``).
@@ -372,12 +394,12 @@ class MaskingAudio:
         deadline = time.monotonic() + timeout_s
         while self._stream is not None and self._stream.active:
             with self._lock:
-                if not self._cues:
+                if not self._cues and not self._overlays:
                     return True
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.01)
-        return not self._cues
+        return not self._cues and not self._overlays
 
     def stop(self) -> None:
         """Stop the stream; what was handed to PortAudio still plays (``Pa_StopStream``)."""
