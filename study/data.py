@@ -316,6 +316,52 @@ def _append_durably(path: Path, data: bytes) -> None:
         os.fsync(fh.fileno())
 
 
+def cut_torn_tail(path: Path, data: bytes, keep: int, line_no: int, then: str = "removed it and kept it in") -> bytes:
+    """Move ``data[keep:]`` (the tail of ``path`` a crash tore) to ``<path>.torn`` and truncate ``path`` to
+    ``keep`` bytes, durably, with a note naming file and line. Returns ``data[:keep]``.
+
+    The torn bytes are appended to the ``.torn`` file, never thrown away (a person can read them).
+    """
+    torn = path.with_name(path.name + ".torn")
+    _append_durably(torn, data[keep:].rstrip(b"\n") + b"\n")
+    with open(path, "r+b") as fh:
+        fh.truncate(keep)
+        fh.flush()
+        os.fsync(fh.fileno())
+    print(f"note: {path} line {line_no} was torn by a crash while it was written (it does not parse); "
+          f"{then} {torn}")
+    return data[:keep]
+
+
+def mend_last_line(path: Path, data: bytes, whole) -> bytes:
+    """A CSV file's last line without its newline (a crash while it was written), mended on disk.
+
+    Parameters
+    ----------
+    path : Path
+        The file ``data`` was read from.
+    data : bytes
+        Its content.
+    whole : callable
+        ``whole(head, last, where) -> bool``: whether ``last`` (the line without its newline, after the
+        lines ``head``) is a complete, valid row; ``where`` names file and line for its messages.
+
+    Returns
+    -------
+    bytes
+        The content as it now is on disk: a whole last row gets its newline; one that does not parse is
+        moved to ``<path>.torn`` (:func:`cut_torn_tail`).
+    """
+    if not data or data.endswith(b"\n"):
+        return data
+    cut = data.rfind(b"\n") + 1
+    line_no = data.count(b"\n") + 1
+    if whole(data[:cut], data[cut:], f"{path} line {line_no}"):
+        _append_durably(path, b"\n")
+        return data + b"\n"
+    return cut_torn_tail(path, data, cut, line_no)
+
+
 #: the files a session writes atomically (their half-written temporary files are removed on --resume)
 _ATOMIC_PRODUCTS = (".json", ".jsonl", ".csv", ".npz")
 
@@ -581,23 +627,7 @@ class SessionStore:
         """Read recorded attempts. A last line without its newline is completed if it is a whole, valid
         row; only one that does not parse (torn by a crash) is dropped: copied to ``trials.csv.torn``,
         truncated away, with a note naming the file and line."""
-        data = self.trials_path.read_bytes()
-        if data and not data.endswith(b"\n"):
-            cut = data.rfind(b"\n") + 1
-            line_no = data.count(b"\n") + 1
-            if _whole_last_row(data[:cut], data[cut:], f"{self.trials_path} line {line_no}"):
-                _append_durably(self.trials_path, b"\n")  # a complete row: only its newline is missing
-                data += b"\n"
-            else:
-                torn = self.trials_path.with_name(self.trials_path.name + ".torn")
-                _append_durably(torn, data[cut:] + b"\n")  # kept, never just thrown away
-                with open(self.trials_path, "r+b") as fh:
-                    fh.truncate(cut)
-                    fh.flush()
-                    os.fsync(fh.fileno())
-                print(f"note: {self.trials_path} line {line_no} was torn by a crash while it was "
-                      f"written (it does not parse); removed it and kept it in {torn}")
-                data = data[:cut]
+        data = mend_last_line(self.trials_path, self.trials_path.read_bytes(), _whole_last_row)
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError as exc:

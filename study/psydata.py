@@ -14,7 +14,7 @@ import json
 import math
 import os
 
-from .data import crash_point
+from .data import crash_point, cut_torn_tail, mend_last_line
 
 PSY_COLUMNS = (
     "subject", "trial", "attempt", "condition", "staircase", "intensity", "intensity_physical", "correct",
@@ -56,22 +56,20 @@ def parse_psy_row(raw: dict, where: str) -> dict:
     return row
 
 
-def _parses(header: list, line: bytes, where: str) -> bool:
+def _whole_psy_row(head: bytes, last: bytes, where: str) -> bool:
+    """Whether ``last`` (a line without its newline, after the lines ``head``) is a whole, valid row of a
+    psychophysics session's trials.csv (or, with nothing before it, its header)."""
     try:
-        fields = list(csv.reader(io.StringIO(line.decode("utf-8") + "\n")))
+        header = next(csv.reader([head.split(b"\n", 1)[0].decode("utf-8")]), None) if head else None
+        fields = list(csv.reader(io.StringIO(last.decode("utf-8") + "\n")))
+        if header is None:
+            return len(fields) == 1 and tuple(fields[0]) == PSY_COLUMNS
         if len(fields) != 1 or len(fields[0]) != len(header):
             return False
         parse_psy_row(dict(zip(header, fields[0])), where)
         return True
     except (UnicodeDecodeError, ValueError, csv.Error):
         return False
-
-
-def _append_durably(path, data: bytes) -> None:
-    with open(path, "ab") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
 
 
 def read_psy_trials(store) -> list[dict]:
@@ -86,25 +84,7 @@ def read_psy_trials(store) -> list[dict]:
         A header that is not :data:`PSY_COLUMNS`, non-UTF-8 bytes or a bad value, naming file and line.
     """
     path = store.trials_path
-    data = path.read_bytes()
-    head = data.split(b"\n", 1)[0].decode("utf-8", "replace")
-    header = next(csv.reader([head]), [])
-    if data and not data.endswith(b"\n"):
-        cut = data.rfind(b"\n") + 1
-        line_no = data.count(b"\n") + 1
-        if cut and _parses(header, data[cut:], f"{path} line {line_no}"):
-            _append_durably(path, b"\n")
-            data += b"\n"
-        elif cut:
-            torn = path.with_name(path.name + ".torn")
-            _append_durably(torn, data[cut:] + b"\n")
-            with open(path, "r+b") as fh:
-                fh.truncate(cut)
-                fh.flush()
-                os.fsync(fh.fileno())
-            print(f"note: {path} line {line_no} was torn by a crash while it was written (it does not parse); "
-                  f"removed it and kept it in {torn}")
-            data = data[:cut]
+    data = mend_last_line(path, path.read_bytes(), _whole_psy_row)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -166,11 +146,5 @@ def repair_states(store) -> int:
         whole += 1
     keep = b"".join(ln + b"\n" for ln in lines[:whole])
     if keep != data:
-        _append_durably(path.with_name(path.name + ".torn"), data[len(keep):].rstrip(b"\n") + b"\n")
-        with open(path, "r+b") as fh:
-            fh.truncate(len(keep))
-            fh.flush()
-            os.fsync(fh.fileno())
-        print(f"note: {path} line {whole + 1} was torn by a crash while it was written; kept it in "
-              f"{path}.torn and write it again from trials.csv")
+        cut_torn_tail(path, data, len(keep), whole + 1, then="it will be written again from trials.csv; kept it in")
     return whole

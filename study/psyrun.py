@@ -37,7 +37,7 @@ from .experiment import QUESTIONS, ExperimentConfig, PlannedTrial, adaptive_tria
 from .perception import choose, measured
 from .protocol import PHASE_CODES
 from .psydata import append_psy_trial, append_state, repair_states, read_psy_trials
-from .runner import Placement
+from .runner import Placement, operator_places
 from .uistate import Aborted
 
 TEXT = {
@@ -206,14 +206,8 @@ class ForcedChoiceRunner:
         if self.ui is None:
             return
         self.ui.set_operator(trial=pt.trial, attempt=attempt, **self._status(interval=interval))
-        if self.participant.kind == "simulated":
-            self.ui.set_operator(place=place, awaiting_confirm=False)
-            return
-        self.ui.request_confirm(place)
-        self.apparatus.hold(until=self.ui.confirmed)
-        while self.ui.snapshot("operator")["paused"]:
-            self._subject("paused")
-            self.apparatus.hold(until=lambda: not self.ui.snapshot("operator")["paused"])
+        operator_places(self.ui, self.apparatus, place, simulated=self.participant.kind == "simulated",
+                        on_pause=lambda: self._subject("paused"))
 
     # -- one attempt -------------------------------------------------------------
     def run_interval(self, pt: PlannedTrial, attempt: int, interval: int) -> Interval:

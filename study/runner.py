@@ -88,6 +88,20 @@ class AttemptRecord:
         }
 
 
+def operator_places(ui, apparatus, place: str, simulated: bool, on_pause) -> None:
+    """The operator's turn before a tap window: ask to place ``place`` and wait for the confirmation, then
+    through any pause (the apparatus holds the stylus meanwhile). A simulated participant's session shows
+    the placement without waiting. ``on_pause()`` tells the subject's page the session is paused."""
+    if simulated:
+        ui.set_operator(place=place, awaiting_confirm=False)
+        return
+    ui.request_confirm(place)
+    apparatus.hold(until=ui.confirmed)
+    while ui.snapshot("operator")["paused"]:
+        on_pause()
+        apparatus.hold(until=lambda: not ui.snapshot("operator")["paused"])
+
+
 class Placement:
     """What the operator puts on the stand: real samples as such, virtual ones on placeholder A/B.
 
@@ -180,14 +194,8 @@ class StudyRunner:
             return
         self.ui.set_operator(phase=trial.phase, trial=trial.trial, attempt=attempt, progress=self._progress(),
                              **self._status())
-        if self.participant.kind == "simulated":
-            self.ui.set_operator(place=place, awaiting_confirm=False)
-            return
-        self.ui.request_confirm(place)
-        self.apparatus.hold(until=self.ui.confirmed)
-        while self.ui.snapshot("operator")["paused"]:
-            self._subject("paused")
-            self.apparatus.hold(until=lambda: not self.ui.snapshot("operator")["paused"])
+        operator_places(self.ui, self.apparatus, place, simulated=self.participant.kind == "simulated",
+                        on_pause=lambda: self._subject("paused"))
 
     # -- one attempt ---------------------------------------------------------
     def run_attempt(self, trial: Trial, attempt: int) -> AttemptRecord:
