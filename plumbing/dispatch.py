@@ -35,6 +35,7 @@ import gc
 import importlib
 import os
 import sys
+import warnings
 from typing import NamedTuple, Sequence
 
 from .errors import UserError
@@ -199,6 +200,27 @@ def console_prog(prog: str) -> str:
     return name if name.startswith("hfam-") else prog
 
 
+#: the project's source tree: a warning raised from a file under it is ours (``warning:`` line)
+_PROJECT_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+_default_showwarning = warnings.showwarning
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Print one of the project's warnings as a ``warning: <message>`` line on stderr, like the ``error:`` lines.
+
+    A warning raised by the project's own code (a device limit, an implausible parameter, an analysis note)
+    is meant for the user, who needs its words, not the source file, line number and category Python
+    prints by default. Other libraries' warnings keep Python's format (their location is how one finds
+    the cause). Installed by :func:`run_as_script` (commands run as programs), so a library user's own
+    warning handling is left alone.
+    """
+    where = str(filename)
+    if where.startswith(_PROJECT_ROOT) and not where.startswith((_PROJECT_ROOT + ".venv", _PROJECT_ROOT + ".deps")):
+        print(f"warning: {message}", file=sys.stderr if file is None else file)
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
+
+
 def run_as_script(main_func) -> None:
     """``if __name__ == "__main__"`` body: run ``main_func()`` and exit with its code; quiet on a broken pipe.
 
@@ -208,6 +230,7 @@ def run_as_script(main_func) -> None:
     """
     global _as_script
     _as_script = True
+    warnings.showwarning = show_warning
     try:
         code = main_func()
         sys.stdout.flush()  # a reader that went away (``| head``) shows up here or in a print

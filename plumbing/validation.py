@@ -160,8 +160,9 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, whe
     overrides : dict or None
         Values that win over the file's (entries that are None are ignored).
     where : str
-        Where the values come from without a file, for messages (e.g. a resumed session's
-        ``session.json: protocol``).
+        Where ``overrides`` come from (without a file: all the values), for messages (e.g. a resumed
+        session's ``session.json: protocol``). A refused value is blamed on the file only when the file's
+        values alone are refused too.
 
     Returns
     -------
@@ -179,7 +180,6 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, whe
     data: dict = {}
     if path is not None:
         p = Path(path)
-        where = str(p)
         if p.exists() and not p.is_file():  # e.g. --protocol /dev/null: it is there, but holds no settings
             raise ValueError(f"{what} file {p} is not a regular file ({'a folder' if p.is_dir() else 'a device or pipe'}"
                              "); give a TOML or JSON file")
@@ -192,8 +192,56 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, whe
             raise ValueError(f"{p}: cannot parse ({exc})") from None
         if not isinstance(data, dict):
             raise ValueError(f"{p}: a {what} file must hold a table/object of settings, got {type(data).__name__}")
-    return dataclass_from_dict(cls, {**data, **{k: v for k, v in (overrides or {}).items() if v is not None}},
-                               what, where)
+    return dataclass_from_layers(cls, data, overrides, what, str(path) if path is not None else where, where)
+
+
+def dataclass_from_layers(cls, data: dict, overrides: dict | None, what: str, where: str,
+                          overrides_where: str = "command line"):
+    """Build ``cls`` from a file's ``data`` with ``overrides`` (e.g. command-line flags; None entries ignored)
+    winning; an error names where the refused value came from.
+
+    Parameters
+    ----------
+    cls : type
+        Frozen dataclass whose field names are the valid keys.
+    data : dict
+        The file's values (may be empty).
+    overrides : dict or None
+        Values that win over ``data``.
+    what : str
+        What they are, for messages ("protocol").
+    where : str
+        Where ``data`` comes from (the file).
+    overrides_where : str
+        Where ``overrides`` come from, for messages.
+
+    Returns
+    -------
+    cls
+
+    Raises
+    ------
+    ValueError
+        As :func:`dataclass_from_dict`, naming ``overrides_where`` when the file's values alone are
+        accepted (so an override is what was refused) and ``where`` otherwise.
+    """
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    try:
+        return dataclass_from_dict(cls, {**data, **given}, what, where)
+    except ValueError:
+        if not given or not data or not _accepted(cls, data):
+            raise
+    # the file alone is accepted: an override is the value refused
+    return dataclass_from_dict(cls, {**data, **given}, what, overrides_where)
+
+
+def _accepted(cls, data: dict) -> bool:
+    """Whether ``cls(**data)`` builds (``data``'s keys all fields of ``cls``)."""
+    try:
+        dataclass_from_dict(cls, data, "", "")
+    except ValueError:
+        return False
+    return True
 
 
 def dataclass_from_dict(cls, data: dict, what: str, where: str):

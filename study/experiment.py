@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from plumbing.fileio import read_text_utf8
-from plumbing.validation import require_int
+from plumbing.validation import dataclass_from_layers, require_int
 
 from .config import ProtocolConfig, load_dataclass_file
 from .multistair import Interleaved
@@ -302,10 +302,9 @@ def load_protocol_file(path, where: str = "command line", **overrides):
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{p}: cannot parse ({exc})") from None
     if not isinstance(data, dict) or "experiment" not in data:
-        return load_dataclass_file(p, ProtocolConfig, "protocol", overrides), None
+        return load_dataclass_file(p, ProtocolConfig, "protocol", overrides, where), None
     experiment = experiment_from_dict(data.pop("experiment"), str(p))
-    protocol = load_dataclass_file(None, ProtocolConfig, "protocol", {**data, **{
-        k: v for k, v in overrides.items() if v is not None}}, str(p))
+    protocol = dataclass_from_layers(ProtocolConfig, data, overrides, "protocol", str(p), where)
     # psychophysics sessions have no familiarization or demonstration phase (docs/study.md)
     return replace(protocol, familiarization_sample=""), experiment
 

@@ -144,3 +144,30 @@ def test_a_commands_body_is_imported_only_when_it_runs(tmp_path):
     assert "BODY RAN True" in ran.stdout
     broken = _run_split(tmp_path, "go", FAKE_BODY_BROKEN="1")
     assert broken.returncode != 0 and "the body was imported" in broken.stderr
+
+
+def test_the_projects_warnings_are_warning_lines_and_other_libraries_keep_their_format(tmp_path):
+    """A command run as a program prints the project's own warnings as ``warning: <message>`` (no source path,
+    line or category: they are meant for the user), and a library's warning in Python's format (its location
+    is how one finds the cause)."""
+    script = textwrap.dedent('''
+        import sys, warnings
+        from plumbing.dispatch import run_as_script
+
+        def main():
+            # raised "from" a module of the project (what renderer/loop.py's stiffness check does) ...
+            warnings.warn_explicit("stiffness_N_m=1e+06 N/m is beyond one count per limit", RuntimeWarning,
+                                   "%s/renderer/loop.py", 349)
+            # ... and from a library outside the project tree
+            warnings.warn_explicit("divide by zero encountered", RuntimeWarning, "/usr/lib/python3/numpy/core.py", 7)
+            return 0
+
+        run_as_script(main)
+    ''' % ROOT)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert "warning: stiffness_N_m=1e+06 N/m is beyond one count per limit" in lines
+    assert not any("loop.py" in ln for ln in lines)
+    assert any(ln.startswith("/usr/lib/python3/numpy/core.py:7: RuntimeWarning: divide by zero") for ln in lines)

@@ -127,3 +127,18 @@ def test_a_config_file_error_names_the_file_and_the_key(tmp_path):
     assert load_dataclass_file(None, ProtocolConfig, "protocol", {"repetitions": 2, "seed": None}).repetitions == 2
     with pytest.raises(ValueError, match=r"^session.json: protocol: .*repetitions"):
         dataclass_from_dict(ProtocolConfig, {"repetitions": -1}, "protocol", "session.json: protocol")
+
+
+def test_a_refused_override_names_the_command_line_and_a_refused_file_value_names_the_file(tmp_path):
+    good = tmp_path / "good.toml"
+    good.write_text("tap_window_s = 2.0\n")
+    with pytest.raises(ValueError, match=r"^command line: tap_window_s must be <= 60.0, got 1e\+308"):
+        load_dataclass_file(good, ProtocolConfig, "protocol", {"tap_window_s": 1e308})
+    bad = tmp_path / "bad.toml"
+    bad.write_text("tap_window_s = 1e308\nfirst_tap_timeout_s = -1.0\n")
+    # the file's own values are refused (with or without the flag): the file is named
+    with pytest.raises(ValueError, match=r"^.*bad\.toml: "):
+        load_dataclass_file(bad, ProtocolConfig, "protocol", {"tap_window_s": 2.0})
+    # a flag that replaces the file's only bad value makes the whole accepted
+    bad.write_text("tap_window_s = 1e308\n")
+    assert load_dataclass_file(bad, ProtocolConfig, "protocol", {"tap_window_s": 2.0}).tap_window_s == 2.0

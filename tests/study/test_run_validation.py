@@ -41,8 +41,8 @@ def test_a_busy_port_is_refused_before_the_subject_folder(tmp_path, capsys, busy
     (("--port", "-1"), "error: --port must be 0..65535 (0: any free port), got -1"),
     (("--host", "192.0.2.1"), "error: --host 192.0.2.1 --port 0: cannot serve the views there (Cannot assign "
                               "requested address); nothing was written"),
-    (("--tap-window-s", "1e308"), "quick_protocol.toml: tap_window_s must be <= 60.0, got 1e+308"),  # no OverflowError
-    (("--repetitions", "1000000"), "quick_protocol.toml: repetitions must be an integer 1..100, got 1000000"),
+    (("--tap-window-s", "1e308"), "command line: tap_window_s must be <= 60.0, got 1e+308"),  # no OverflowError
+    (("--repetitions", "1000000"), "command line: repetitions must be an integer 1..100, got 1000000"),
 ])
 def test_bad_addresses_and_numbers_are_refused_before_the_subject_folder(tmp_path, capsys, extra, message):
     err = _refused(tmp_path, capsys, *extra)
