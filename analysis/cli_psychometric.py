@@ -50,8 +50,9 @@ def run(args: argparse.Namespace) -> int:
     reference = args.reference if args.reference is not None else trials.experiment.get("reference")
     scale = trials.experiment.get("intensity_scale", "linear")
     # on a log10 intensity axis the reference is compared in physical units (physical_summary), not in the fit
+    equal = alternatives == 1 and args.lower_asymptote == "lapse"
     fits = fit_groups(trials, alternatives, args.function, args.lapse, args.bootstrap, args.ci,
-                      None if scale == "log10" else reference, args.seed)
+                      None if scale == "log10" else reference, args.seed, equal)
     out.mkdir(parents=True, exist_ok=True)
     def entry(f):
         d = f.as_dict()

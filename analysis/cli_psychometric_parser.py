@@ -51,6 +51,11 @@ def register(subparsers) -> None:
                    help="F: logistic, cumulative normal or Weibull (intensities > 0) (default logistic)")
     p.add_argument("--lapse", type=_lapse, default=None, metavar="free|RATE",
                    help="lapse rate: 'free' (fitted in [0, 0.1], the default) or a fixed rate such as 0")
+    p.add_argument("--lower-asymptote", choices=("lapse", "zero"), default="lapse",
+                   help="yes/no and 'which was harder?' tasks (--alternatives 1): 'lapse' (default), the lower "
+                        "asymptote equals the fitted lapse rate (gamma = lambda: a lapse flips an answer either "
+                        "way; psignifit's equal asymptote), or 'zero' (gamma = 0, lapses only at the top). "
+                        "Ignored for n-AFC tasks, whose guess rate is 1/N")
     p.add_argument("--bootstrap", type=int, default=1000, metavar="R",
                    help="parametric bootstrap resamples for the intervals and the deviance test (default 1000; 0: none)")
     p.add_argument("--ci", type=float, default=0.95, help="confidence level of the intervals (default 0.95)")

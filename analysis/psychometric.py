@@ -15,8 +15,8 @@ the 75 %-correct point). All three are location-scale families of ``z = beta (u 
 stimulus), which is how they are fitted.
 
 Fitting (Wichmann & Hill 2001a): binomial maximum likelihood over ``(a, ln beta, lambda)`` with
-gamma = 1/n for n-AFC (0 for yes/no and "which was harder?" tasks) and lambda either fixed or fitted
-in ``[0, lapse_max]``; Fisher scoring with Levenberg-Marquardt damping, vectorised over data sets so
+gamma = 1/n for n-AFC (0 for yes/no, or gamma = lambda, "equal asymptotes", for a yes/no or "which was
+harder?" task whose lapses flip answers either way) and lambda either fixed or fitted in ``[0, lapse_max]``; Fisher scoring with Levenberg-Marquardt damping, vectorised over data sets so
 that a parametric bootstrap (Wichmann & Hill 2001b) refits 1,000 resamples at once. Goodness of fit is
 the deviance, with its p-value from the bootstrap's deviances (and the chi-square approximation).
 """
@@ -198,17 +198,21 @@ def deviance(k, n, p):
 
 
 def _predict(theta, u, guess, lapse_fixed, function):
-    """p (B, L) and dp/dtheta (B, L, P) for theta = (a, ln beta[, lambda]) of shape (B, P)."""
+    """p (B, L) and dp/dtheta (B, L, P) for theta = (a, ln beta[, lambda]) of shape (B, P).
+
+    ``guess`` None: equal asymptotes, gamma = lambda (psignifit's "equal asymptote" type).
+    """
     a, s = theta[:, :1], theta[:, 1:2]
     beta = np.exp(s)
     lam = theta[:, 2:3] if lapse_fixed is None else np.full_like(a, lapse_fixed)
+    gam = lam if guess is None else guess
     z = beta * (u[None, :] - a)
     g, dg = base_cdf(z, function), base_pdf(z, function)
-    scale = 1.0 - guess - lam
-    p = guess + scale * g
+    scale = 1.0 - gam - lam
+    p = gam + scale * g
     cols = [scale * dg * (-beta), scale * dg * z]
     if lapse_fixed is None:
-        cols.append(-g)
+        cols.append(1.0 - 2.0 * g if guess is None else -g)
     return p, np.stack(cols, axis=-1)
 
 
@@ -230,7 +234,8 @@ def _start(k, n, u, guess, lapse_fixed, lapse_max, function):
     A, S, L = np.meshgrid(a_grid, s_grid, l_grid, indexing="ij")
     A, S, L = A.ravel(), S.ravel(), L.ravel()
     z = np.exp(S)[:, None] * (u[None, :] - A[:, None])
-    p = guess + (1 - guess - L)[:, None] * base_cdf(z, function)          # (G, L)
+    G = L if guess is None else np.full_like(L, guess)                    # guess None: gamma = lambda
+    p = G[:, None] + (1 - G - L)[:, None] * base_cdf(z, function)         # (G, L)
     p = np.clip(p, 1e-12, 1 - 1e-12)
     ll = k @ np.log(p).T + (n - k) @ np.log1p(-p).T                       # (B, G)
     best = np.argmax(ll, axis=1)
@@ -253,8 +258,9 @@ def fit_many(k, n, x, guess: float, lapse=None, function: str = "logistic", laps
         Trials per level.
     x : array_like, shape (L,)
         Stimulus levels (> 0 for the Weibull).
-    guess : float
-        gamma.
+    guess : float or None
+        gamma; None for equal asymptotes (gamma = lambda, a yes/no task whose lapses flip answers
+        either way).
     lapse : float or None
         Fixed lambda, or None to fit it.
     function : {'logistic', 'normal', 'weibull'}
@@ -340,7 +346,8 @@ class Fit:
     Attributes are in the stimulus's units; ``slope`` is beta of the module docstring; ``jnd`` is
     x(F = 0.75) - x(F = 0.5); ``weber`` is ``jnd / reference`` for a yes/no ("which was harder?")
     task and ``(threshold - reference) / reference`` for an n-AFC task whose intensity is the
-    comparison's value (``reference`` given), else NaN. ``threshold_ci`` is the profile-likelihood
+    comparison's value (``reference`` given), else NaN. With ``equal_asymptote`` the guess rate is the
+    fitted lapse rate (gamma = lambda). ``threshold_ci`` is the profile-likelihood
     interval (:func:`profile_interval`), ``threshold_ci_bootstrap`` the bootstrap's percentile interval;
     the other intervals are the bootstrap's.
     """
@@ -372,6 +379,7 @@ class Fit:
     levels: tuple = field(default=(), repr=False)
     n_per_level: tuple = field(default=(), repr=False)
     k_per_level: tuple = field(default=(), repr=False)
+    equal_asymptote: bool = False
 
     @property
     def pse(self) -> float:
@@ -381,7 +389,8 @@ class Fit:
     def as_dict(self) -> dict:
         """JSON-ready dict of every figure (intervals as [low, high])."""
         out = {}
-        for name in ("function", "alternatives", "guess", "threshold", "slope", "lapse", "lapse_fitted", "pse",
+        for name in ("function", "alternatives", "guess", "equal_asymptote", "threshold", "slope", "lapse",
+                     "lapse_fitted", "pse",
                      "jnd", "weber", "reference", "deviance", "deviance_p_chi2", "deviance_p_bootstrap", "loglik",
                      "n_trials", "n_levels", "bootstrap", "ci_level"):
             v = getattr(self, name)
@@ -411,8 +420,9 @@ def aggregate(intensity, correct) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return levels, n, k
 
 
-def _derived(theta, function, guess, reference):
-    """threshold, slope, lapse, jnd, weber (each shape (B,)) from fitted theta (B, P)."""
+def _derived(theta, function, yes_no, reference):
+    """threshold, slope, lapse, jnd, weber (each shape (B,)) from fitted theta (B, P); ``yes_no``: a yes/no
+    ("which was harder?") task, whose Weber fraction is JND / reference."""
     a, beta = theta[:, 0], np.exp(theta[:, 1])
     lam = theta[:, 2] if theta.shape[1] == 3 else None
     threshold = from_axis(a, function)
@@ -420,7 +430,7 @@ def _derived(theta, function, guess, reference):
     jnd = x75 - threshold
     if reference is None or not math.isfinite(reference) or reference == 0:
         weber = np.full_like(threshold, np.nan)
-    elif guess == 0.0:
+    elif yes_no:
         weber = jnd / reference
     else:
         weber = (threshold - reference) / reference
@@ -492,21 +502,26 @@ def profile_interval(levels, n, k, theta, loglik, guess: float, lapse=None, func
     return from_axis(out, function)
 
 
-def _check_options(alternatives, lapse, lapse_max, ci_level) -> float:
-    """The guess rate, after checking the options of :func:`fit` (one ``ValueError`` per bad value)."""
+def _check_options(alternatives, lapse, lapse_max, ci_level, equal_asymptote=False) -> float | None:
+    """The guess rate (None: equal asymptotes), after checking the options of :func:`fit` (one ``ValueError``
+    per bad value)."""
     guess = guess_rate(alternatives)
-    if lapse is not None and not (0.0 <= lapse < 1.0 - guess):
-        raise ValueError(f"a fixed lapse rate must be in [0, {1 - guess:g}), got {lapse!r}")
-    if not (0.0 < lapse_max < 1.0 - guess):
-        raise ValueError(f"lapse_max must be in (0, {1 - guess:g}), got {lapse_max!r}")
+    if equal_asymptote and alternatives != 1:
+        raise ValueError(f"equal asymptotes (gamma = lambda) are for a yes/no task (alternatives 1); a "
+                         f"{alternatives}-AFC task guesses at 1/{alternatives}")
+    top = 0.5 if equal_asymptote else 1.0 - guess   # gamma = lambda: the function must still rise
+    if lapse is not None and not (0.0 <= lapse < top):
+        raise ValueError(f"a fixed lapse rate must be in [0, {top:g}), got {lapse!r}")
+    if not (0.0 < lapse_max < top):
+        raise ValueError(f"lapse_max must be in (0, {top:g}), got {lapse_max!r}")
     if not (0.5 <= ci_level < 1.0):
         raise ValueError(f"the confidence level must be in [0.5, 1), got {ci_level!r}")
-    return guess
+    return None if equal_asymptote else guess
 
 
 def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", lapse=None,
         lapse_max: float = LAPSE_MAX, bootstrap: int = 1000, ci_level: float = 0.95, reference=None,
-        seed: int = 0) -> Fit:
+        seed: int = 0, equal_asymptote: bool = False) -> Fit:
     """Fit psi to trial-by-trial responses by maximum likelihood, with a parametric bootstrap.
 
     Parameters
@@ -529,6 +544,12 @@ def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", l
         The reference stimulus of a discrimination task (for the Weber fraction).
     seed : int
         Seed of the bootstrap's generator.
+    equal_asymptote : bool
+        A yes/no task (``alternatives = 1``) whose lapses flip answers either way: gamma = lambda, one
+        fitted rate at both asymptotes (psignifit 4's "equal asymptote" type; Wichmann & Hill 2001a
+        section 2.2). A "which was harder?" discrimination is the case: a lapse says "harder" to a
+        much softer comparison as often as "softer" to a much harder one, and a lapse only at the top
+        would bias the PSE and JND.
 
     Returns
     -------
@@ -536,7 +557,7 @@ def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", l
     """
     levels, n, k = aggregate(intensity, correct)
     return fit_counts(levels, n, k, alternatives, function, lapse, lapse_max, bootstrap, ci_level, reference,
-                      seed)[0]
+                      seed, equal_asymptote)[0]
 
 
 #: bootstrap data sets refitted in one vectorised call (bounds the memory of many observers x resamples)
@@ -545,7 +566,7 @@ CHUNK = 20_000
 
 def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", lapse=None,
                lapse_max: float = LAPSE_MAX, bootstrap: int = 1000, ci_level: float = 0.95, reference=None,
-               seed: int = 0) -> list[Fit]:
+               seed: int = 0, equal_asymptote: bool = False) -> list[Fit]:
     """:func:`fit` for counts per level, of one data set or of B data sets at the same levels at once.
 
     Parameters
@@ -556,7 +577,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         Trials per level (the same for every data set).
     k : array_like, shape (L,) or (B, L)
         Correct (or "yes") responses per level, per data set.
-    alternatives, function, lapse, lapse_max, bootstrap, ci_level, reference, seed
+    alternatives, function, lapse, lapse_max, bootstrap, ci_level, reference, seed, equal_asymptote
         As for :func:`fit`; data set b's bootstrap draws from the b-th stream of ``seed``.
 
     Returns
@@ -565,7 +586,8 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         One per data set.
     """
     _check_function(function)
-    guess = _check_options(alternatives, lapse, lapse_max, ci_level)
+    guess = _check_options(alternatives, lapse, lapse_max, ci_level, equal_asymptote)
+    yes_no = alternatives == 1
     levels = np.asarray(levels, dtype=float)
     n = np.asarray(n, dtype=float)
     k = np.atleast_2d(np.asarray(k, dtype=float))
@@ -576,7 +598,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         raise ValueError(f"the Weibull function needs intensities > 0, got {levels[0]:g}")
     u = stimulus_axis(levels, function)
     theta, ll = fit_many(k, n, levels, guess, lapse, function, lapse_max)
-    est = _derived(theta, function, guess, reference)
+    est = _derived(theta, function, yes_no, reference)
     p_hat = _predict(theta, u, guess, lapse, function)[0]
     dev = deviance(k, n[None, :], p_hat)
     dof = L - theta.shape[1]
@@ -598,7 +620,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         devb = deviance(kb, n[None, :], _predict(tb, u, guess, lapse, function)[0]).reshape(B, R)
         p_boot = np.mean(devb >= dev[:, None] - 1e-9, axis=1)
         q = [(1 - ci_level) / 2 * 100, (1 + ci_level) / 2 * 100]
-        boot = [None if v is None else v.reshape(B, R) for v in _derived(tb, function, guess, reference)]
+        boot = [None if v is None else v.reshape(B, R) for v in _derived(tb, function, yes_no, reference)]
         for name, v in zip(("threshold_bootstrap",) + names[1:], boot):
             if v is None:
                 continue
@@ -612,9 +634,10 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
     threshold, beta, lam, jnd, weber = est
     out = []
     for b in range(B):
-        out.append(Fit(function=function, alternatives=int(alternatives), guess=guess,
+        lapse_b = float(lam[b] if lam is not None else lapse)
+        out.append(Fit(function=function, alternatives=int(alternatives), guess=lapse_b if guess is None else guess,
                        threshold=float(threshold[b]), slope=float(beta[b]),
-                       lapse=float(lam[b] if lam is not None else lapse), lapse_fitted=lapse is None,
+                       lapse=lapse_b, lapse_fitted=lapse is None, equal_asymptote=guess is None,
                        jnd=float(jnd[b]), weber=float(weber[b]),
                        reference=math.nan if reference is None else float(reference), deviance=float(dev[b]),
                        deviance_p_chi2=float(p_chi2[b]), deviance_p_bootstrap=float(p_boot[b]),

@@ -192,13 +192,13 @@ class GroupFit:
 
 
 def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", lapse=None, bootstrap: int = 1000,
-               ci_level: float = 0.95, reference=None, seed: int = 0) -> list[GroupFit]:
+               ci_level: float = 0.95, reference=None, seed: int = 0, equal_asymptote: bool = False) -> list[GroupFit]:
     """Fit every (subject, condition) group, each condition pooled over subjects, and all trials pooled.
 
     Parameters
     ----------
     trials : Trials
-    alternatives, function, lapse, bootstrap, ci_level, reference, seed
+    alternatives, function, lapse, bootstrap, ci_level, reference, seed, equal_asymptote
         As for :func:`analysis.psychometric.fit`.
 
     Returns
@@ -222,7 +222,8 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
             continue
         try:
             f = fit(trials.intensity[mask], trials.correct[mask], alternatives=alternatives, function=function,
-                    lapse=lapse, bootstrap=bootstrap, ci_level=ci_level, reference=reference, seed=seed + i)
+                    lapse=lapse, bootstrap=bootstrap, ci_level=ci_level, reference=reference, seed=seed + i,
+                    equal_asymptote=equal_asymptote)
         except ValueError as exc:
             who = f"subject {subject!r}, condition {condition!r}"
             raise ValueError(f"{who}: {exc}") from None
@@ -252,7 +253,7 @@ def physical_summary(f: Fit, reference=None) -> dict:
     jnd = x75 - thr
     weber = None
     if reference is not None and math.isfinite(reference) and reference > 0:
-        weber = jnd / reference if f.guess == 0.0 else (thr - reference) / reference
+        weber = jnd / reference if f.alternatives == 1 else (thr - reference) / reference
     lo, hi = f.threshold_ci
     return {"threshold_physical": thr, "pse_physical": thr, "jnd_physical": jnd, "weber_physical": weber,
             "reference_physical": reference,

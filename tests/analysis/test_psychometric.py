@@ -3,6 +3,7 @@ statsmodels' binomial GLM and psignifit 4, recovery and interval calibration on 
 command's files, bad input."""
 
 import csv
+import math
 import json
 import subprocess
 import sys
@@ -263,3 +264,58 @@ def test_fit_groups_excludes_catch_trials():
     assert fits[0].fit.threshold == pytest.approx(direct.threshold, rel=1e-9)
     with pytest.raises(FileNotFoundError):
         load_trials(trials_path.parent / "no-such-folder")
+
+
+def _psignifit_equal_asymptote(x, y):
+    from psignifit import psignifit
+
+    levels, n, k = pm.aggregate(x, y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = psignifit(np.column_stack([levels, k, n]), sigmoid="logistic", experiment_type="equal asymptote",
+                        verbose=False)
+    return float(res.parameter_estimate["threshold"]), float(res.parameter_estimate["lambda"])
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_equal_asymptotes_agree_with_psignifit_and_remove_the_bias_of_a_lapse_only_at_the_top(seed):
+    """A "which was harder?" observer who lapses 6 % of the time answers at random on those trials: the
+    function runs from 0.03 to 0.97. psignifit 4's "equal asymptote" fit and ours (gamma = lambda) agree on
+    the PSE; fitting gamma = 0 with the lapse only at the top pulls the PSE down (the low asymptote's
+    "harder" answers are read as a shallow rise)."""
+    rng = np.random.default_rng(seed)
+    pse, slope, lapse = 500.0, 0.02, 0.06
+    levels = np.linspace(300.0, 700.0, 9)
+    x, y = _simulate(rng, pse, slope, lapse / 2, lapse / 2, "logistic", 80, levels)
+    equal = pm.fit(x, y, alternatives=1, bootstrap=0, equal_asymptote=True, reference=pse)
+    top_only = pm.fit(x, y, alternatives=1, bootstrap=0, reference=pse)
+    thr, lam = _psignifit_equal_asymptote(x, y)
+    assert equal.equal_asymptote and equal.guess == equal.lapse
+    assert abs(equal.threshold - thr) < 0.1 * (levels[-1] - levels[0]) / 8, (equal.threshold, thr)
+    # psignifit's lambda is a posterior estimate under its lapse prior (it can sit near 0 where the maximum
+    # likelihood is 0.03): the lapse is checked against the truth instead, each asymptote at 0.03
+    assert abs(equal.lapse - lapse / 2) < 0.025 and np.isfinite(lam)
+    assert abs(equal.threshold - pse) < abs(top_only.threshold - pse) + 5.0
+
+
+def test_equal_asymptotes_recover_the_pse_and_jnd_of_lapsing_observers_without_bias():
+    """200 simulated "which was harder?" observers (PSE 500 N/m, JND 27.5 N/m, lapse 6 %): the equal-asymptote
+    fits' median PSE is within 1 % and median JND within 10 % of the truth; gamma = 0 fits are biased."""
+    rng = np.random.default_rng(3)
+    pse, slope, lapse = 500.0, 0.04, 0.06
+    levels = np.linspace(400.0, 600.0, 9)
+    n = np.full(len(levels), 40.0)
+    p = pm.psychometric(levels, pse, slope, lapse / 2, lapse / 2)
+    k = rng.binomial(40, p, size=(200, len(levels))).astype(float)
+    eq = pm.fit_counts(levels, n, k, alternatives=1, bootstrap=0, equal_asymptote=True)
+    zero = pm.fit_counts(levels, n, k, alternatives=1, bootstrap=0)
+    true_jnd = math.log(3.0) / slope
+    assert abs(np.median([f.threshold for f in eq]) - pse) < 0.01 * pse
+    assert abs(np.median([f.jnd for f in eq]) - true_jnd) < 0.10 * true_jnd
+    bias_zero = abs(np.median([f.threshold for f in zero]) - pse)
+    assert bias_zero > 2 * abs(np.median([f.threshold for f in eq]) - pse)
+
+
+def test_equal_asymptotes_are_refused_for_an_n_afc_task():
+    with pytest.raises(ValueError, match="equal asymptotes .* are for a yes/no task"):
+        pm.fit([1, 2, 3], [0, 1, 1], alternatives=2, equal_asymptote=True, bootstrap=0)

@@ -48,6 +48,11 @@ def test_a_stiffness_jnd_session_fits_back_to_the_participants_pse_and_weber_fra
     low, high = fit["threshold_ci_physical"]
     assert low < reference < high
     assert fit["weber_physical"] == pytest.approx(WEBER_STIFFNESS, rel=0.30)
+    # with a free lapse, "which was harder?" lapses either way: one rate at both asymptotes (gamma = lambda)
+    assert analysis(["psychometric", str(data), "--bootstrap", "0", "--no-figures", "--out", str(tmp_path / "F2")]) == 0
+    free = json.loads((tmp_path / "F2" / "fit.json").read_text())
+    assert free["equal_asymptote"] is True and free["guess"] == free["lapse"] and 0.0 <= free["lapse"] <= 0.1
+    assert free["pse_physical"] == pytest.approx(reference, rel=0.10)
 
 
 def test_a_real_virtual_session_gives_proportions_correct_against_chance(tmp_path):
