@@ -11,13 +11,16 @@ import time
 
 import numpy as np
 
+from plumbing import rtpolicy
+
 from .base import DeviceError
 from .firmware.emulator import FaultSpec, build_emulator
 from .registry import open_device
 
 
 def set_realtime_priority(priority: int | None) -> str:
-    """SCHED_FIFO at ``priority`` for this process, and freeze the GC's view of start-up objects.
+    """SCHED_FIFO at ``priority`` for this process (:func:`plumbing.rtpolicy.acquire`), and freeze the GC's
+    view of start-up objects.
 
     Returns a note for the user. Our loops block in select(), so FIFO cannot starve the machine.
     A full garbage collection walks every object numba/numpy created at import (milliseconds):
@@ -29,11 +32,10 @@ def set_realtime_priority(priority: int | None) -> str:
         return "default scheduling"
     if not 1 <= priority <= 99:
         raise ValueError(f"--rt-priority must be within 1..99, got {priority}")
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (PermissionError, OSError) as exc:
-        return f"SCHED_FIFO refused ({exc}); default scheduling"
-    return f"SCHED_FIFO priority {priority}"
+    rec = rtpolicy.acquire(priority, lock_memory=False)
+    if rec["policy"] == "SCHED_FIFO":
+        return f"SCHED_FIFO priority {priority}"
+    return f"SCHED_FIFO refused ({'; '.join(rec['missing'])}); default scheduling"
 
 
 def run_emulate(args) -> int:

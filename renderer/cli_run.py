@@ -29,7 +29,7 @@ from . import sim_aot
 from .cli_run_parser import TRANSIENTS
 from .config import RendererConfig, check_run_size, load_config
 from .loop import ServoLoop
-from .rtpolicy import warn_once
+from plumbing.rtpolicy import warn_once
 
 
 def make_transient(kind: str, library: str | None = None, gain: float | None = None):
@@ -138,7 +138,7 @@ def _run_into(args, folder) -> int:
             traj = TapTrajectory(args.velocity, n_taps=args.taps)
             dev.set_user(traj, grip_N=args.grip)
             loop = ServoLoop(dev, cfg, transient)
-            if args.realtime:  # paced: SCHED_FIFO, mlockall, a core of its own around the ticks (renderer.rtpolicy)
+            if args.realtime:  # paced: SCHED_FIFO, mlockall, a core of its own around the ticks (plumbing.rtpolicy)
                 loop.rt_request = {"core": None}
             # --duration-s: that long (the hand rests after its last tap); else the plan's length
             duration = args.duration if args.duration is not None else traj.duration_s
@@ -156,7 +156,7 @@ def _run_into(args, folder) -> int:
         try:
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
-                loop.rt_request = {"core": None}  # SCHED_FIFO and mlockall around the ticks (renderer.rtpolicy)
+                loop.rt_request = {"core": None}  # SCHED_FIFO and mlockall around the ticks (plumbing.rtpolicy)
                 try:
                     result = loop.run(duration_s=args.duration, realtime=True)
                 except KeyboardInterrupt:

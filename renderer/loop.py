@@ -51,7 +51,7 @@ from plumbing.npzfile import save_npz
 from plumbing.stopsignals import Terminated, holding, stop_on_signals
 
 from . import law_layout as LAW
-from . import rtpolicy
+from plumbing import rtpolicy
 from . import sim_aot
 from . import timing_verdict
 from .config import RendererConfig
@@ -316,7 +316,7 @@ class ServoLoop:
         self.result: RunResult | None = None
         self.stop_requested = False
         self._prepared = False
-        #: real-time treatment to ask for around a paced run (``renderer.rtpolicy.acquire`` keywords, e.g.
+        #: real-time treatment to ask for around a paced run (``plumbing.rtpolicy.acquire`` keywords, e.g.
         #: ``{"core": 1}``), or None to run with the process's policy as it is (still recorded in run.json)
         self.rt_request: dict | None = None
 
@@ -615,7 +615,7 @@ class ServoLoop:
             restart()
         paced = realtime and not compiled
         # the real-time policy after the priming cycle (one-time costs must not run under SCHED_FIFO) and the
-        # collector paused for the paced ticks (renderer.rtpolicy); the policy is released when the loop ends
+        # collector paused for the paced ticks (plumbing.rtpolicy); the policy is released when the loop ends
         acquired = None
         if paced and self.rt_request is not None:
             acquired = rtpolicy.acquire(**{"fifo": True, **self.rt_request})
@@ -695,7 +695,7 @@ class ServoLoop:
         sleep_spin = cfg.pacing == "sleep_spin"
         if realtime and st.get("policy", {}).get("policy") == "SCHED_FIFO":
             # never busy-wait a whole period under SCHED_FIFO (RT throttling would stall the loop ~50 ms every
-            # second): sleep to the deadline and spin only a short, throttling-safe margin (renderer.rtpolicy)
+            # second): sleep to the deadline and spin only a short, throttling-safe margin (plumbing.rtpolicy)
             sleep_spin = True
             spin_ns = int(rtpolicy.fifo_spin_margin_s(1.0 / fs, cfg.spin_margin_s) * 1e9)
             st["policy"]["spin_margin_us"] = spin_ns / 1000.0
@@ -1021,7 +1021,7 @@ class ServoLoop:
         link_stats = getattr(self.device, "link_stats", None)
         if callable(link_stats):  # hardware links: frames, CRC errors, losses, longest gap, round trip
             timing["link"] = link_stats()
-        # what the OS granted the servo (renderer.rtpolicy) and whether the paced ticks met the thresholds
+        # what the OS granted the servo (plumbing.rtpolicy) and whether the paced ticks met the thresholds
         timing["policy"] = st.get("policy") or rtpolicy.describe_current()
         if st.get("paced") and not timing["compiled_sim"] and not self.on_device:
             timing["timing_verdict"] = timing_verdict.verdict({**timing, "periods": len(periods)},

@@ -39,7 +39,7 @@ from devices.base import DeviceError
 from devices.registry import make_device
 from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, holding, stop_on_signals
 
-from . import rtpolicy
+from plumbing import rtpolicy
 from .config import RendererConfig
 from .loop import ServoLoop
 
@@ -138,7 +138,7 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
         ``os.nice`` increment for the servo process (negative = higher
         priority; needs privileges, silently skipped without them; 0 = leave).
     realtime_policy : bool
-        Ask for real-time treatment around the paced ticks (``renderer.rtpolicy``: SCHED_FIFO at
+        Ask for real-time treatment around the paced ticks (``plumbing.rtpolicy``: SCHED_FIFO at
         ``RT_PRIORITY``, ``mlockall``, the servo pinned to ``servo_core()``, which this process avoids while
         the child runs); what was granted is in the result's ``timing["policy"]``, and a refusal prints one
         warning line with the remedy (once per process).

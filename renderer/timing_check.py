@@ -1,7 +1,7 @@
 """``renderer timing-check``: a cyclictest-like check of this machine as the servo loop would run (issue 40).
 
 The check runs the servo loop itself (``renderer.ServoLoop``, same pacing and law) in its own process with the
-real-time policy (``renderer.process.run_in_process``, ``renderer.rtpolicy``), the motor disabled, for
+real-time policy (``renderer.process.run_in_process``, ``plumbing.rtpolicy``), the motor disabled, for
 ``duration_s``; by default on :class:`QuietDevice` (a device that answers at once and holds still, so what is
 measured is the machine: scheduling, wake-ups, the loop's own cost), or through a real device (the study checks
 its hardware link this way: zero current, and the link's round trip and gaps join the verdict). Optional
@@ -115,7 +115,7 @@ def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: in
     -------
     dict
         ``device``, ``duration_s``, ``rate_hz``, ``load_cores``, ``stop_reason``, ``policy`` (what the OS
-        granted, renderer.rtpolicy), ``figures`` (:func:`renderer.timing_verdict.period_figures`),
+        granted, plumbing.rtpolicy), ``figures`` (:func:`renderer.timing_verdict.period_figures`),
         ``link`` (a hardware link's statistics, or None), ``verdict``.
     """
     if not (duration_s > 0 and rate_hz > 0) or load_cores < 0:

@@ -36,7 +36,7 @@ import signal
 from dataclasses import asdict
 
 from devices import make_device
-from renderer import rtpolicy
+from plumbing import rtpolicy
 from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
 
 from .apparatus import Apparatus, ServoStopped
@@ -67,7 +67,7 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
         device.open()
         if realtime is True or (realtime is None and not device.info.simulated):
             # paced for the whole session (homing between requests too): SCHED_FIFO, mlockall, its own core
-            # (renderer.rtpolicy; the loops sleep to their deadlines, so RT throttling is never reached)
+            # (plumbing.rtpolicy; the loops sleep to their deadlines, so RT throttling is never reached)
             policy = rtpolicy.acquire(core=core)
         else:  # a simulation run as fast as possible: under SCHED_FIFO it would hit RT throttling
             policy = rtpolicy.describe_current()

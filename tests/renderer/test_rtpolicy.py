@@ -1,4 +1,4 @@
-"""Issue 40: the servo's real-time policy (renderer.rtpolicy), the timing verdict and ``renderer timing-check``.
+"""Issue 40: the servo's real-time policy (plumbing.rtpolicy), the timing verdict and ``renderer timing-check``.
 
 These tests hold as root (SCHED_FIFO, mlockall granted) and as an ordinary user without rtprio (the run goes
 on at normal priority and one warning line names the remedy): each branch asserts what the OS actually
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from renderer import rtpolicy
+from plumbing import rtpolicy
 from renderer.process import run_in_process
 from renderer.timing_check import QuietDevice, _QuietFactory
 from renderer.timing_verdict import TimingThresholds, period_figures, verdict
@@ -33,7 +33,7 @@ def _may_fifo() -> bool:
 
 
 def test_acquire_gets_or_reports_each_part_and_the_kernel_agrees():
-    code = ("import json, os\nfrom renderer import rtpolicy\n"
+    code = ("import json, os\nfrom plumbing import rtpolicy\n"
             "core = rtpolicy.servo_core()\nrec = rtpolicy.acquire(core=core)\n"
             "rec['kernel'] = {'fifo': os.sched_getscheduler(0) == os.SCHED_FIFO,"
             " 'prio': os.sched_getparam(0).sched_priority, 'cpus': sorted(os.sched_getaffinity(0)),"
