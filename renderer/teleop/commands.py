@@ -36,11 +36,12 @@ from .hfam import accel_match, design_hfam, figure_45, identify_master_hha
 from .models import cimm_params, underestimation_check
 from .options import SWEEP_CONDITIONS, parse_lambdas
 from .serial_master import run_serial_session
-from .session import TeleopConfig, default_path, run_session, session_metrics
+from .session import TeleopConfig, default_path, resolve_gains, run_session, session_metrics
 
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
                  "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
 
+HOLDS_CONTACT = ("settles", "buzzes")
 HFAM_K_MU_HZ = 40.0   # pd+hfam: low-pass on x_c keeps the HFAM-induced master motion out of the slave
 HFAM_MASTER_PD_HZ = 150.0   # pd+hfam: low-pass on the master PD force (PD = power band, HFAM above it)
 
@@ -70,7 +71,10 @@ def _new_dir(path: Path) -> Path:
 def build_testbed(args) -> Testbed:
     """Testbed from command-line arguments."""
     P = default_params()
-    return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz)
+    if not (math.isfinite(args.backlash_mm) and 0.0 <= args.backlash_mm < 5.0):
+        raise ValueError(f"--backlash-mm must be in [0, 5), got {args.backlash_mm!r}")
+    return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz,
+                   backlash_m=args.backlash_mm * 1e-3)
 
 
 def build_hfam(args, tb: Testbed, out: Path):
@@ -128,8 +132,8 @@ def run_teleop(args) -> int:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
     if args.master != "sim":
         return run_teleop_master(args)
-    cfg = _teleop_config(args)
     tb = build_testbed(args)
+    cfg = resolve_gains(_teleop_config(args), tb)   # run.json records the derived gains
     out = _new_dir(Path(args.out))
     hfam = None
     if args.controller == "pd+hfam":
@@ -152,6 +156,7 @@ def run_teleop(args) -> int:
     _write_traces(out, res)
     taps = [None if m is None else {"impact_s": m.impact_s, "settling_s": m.settling_s if math.isfinite(m.settling_s)
                                     else None, "quasi_static_N": m.quasi_static_N, "contact_breaks": m.breaks,
+                                    "contact_losses": m.contact_losses, "contact_class": m.contact_class,
                                     "stable": m.stable, "F_f_energy_above_50Hz": m.hf_energy_fraction}
             for m in metrics]
     unstable = sum(1 for m in metrics if m is not None and not m.stable)
@@ -219,6 +224,7 @@ def run_teleop_master(args) -> int:
     with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
         P = default_params()
         tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz)
+        cfg = resolve_gains(cfg, tb)
         check = None
         if cimm is not None:
             # the check needs the true master; here only the simulated Table 3.1 one is at hand, so it is
@@ -289,7 +295,8 @@ def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, m
 
     Returns
     -------
-    list of dict (condition, lambda, speed_m_s, settling_s, stable, breaks, hf_energy_fraction)
+    list of dict (condition, lambda, speed_m_s, settling_s, stable, breaks, contact_losses, contact_class,
+    hf_energy_fraction)
     """
     speeds = np.linspace(0.08, 0.12, taps) if taps > 1 else np.array([0.1])
     trials = [(c, lam, float(v)) for c in conditions for lam in lambdas for v in speeds]
@@ -304,22 +311,34 @@ def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, m
         rows.append({"condition": cond, "lambda": lam, "speed_m_s": v,
                      "settling_s": (m.settling_s if m else math.inf),
                      "stable": bool(m.stable) if m else False, "breaks": m.breaks if m else -1,
+                     "contact_losses": m.contact_losses if m else -1,
+                     "contact_class": m.contact_class if m else "no contact",
                      "hf_energy_fraction": m.hf_energy_fraction if m else float("nan")})
         if progress is not None:
             progress(j + 1, len(trials))
     return rows
 
 
-def largest_stable(rows: list[dict], cond: str) -> float:
-    """Largest lambda of ``cond`` with every tap stable at it and at every smaller lambda (0 if none)."""
+def largest_lambda(rows: list[dict], cond: str, classes=("settles",)) -> float:
+    """Largest lambda of ``cond`` at which every tap, and every tap at every smaller lambda, is of one of
+    ``classes`` (the contact classification, :func:`renderer.teleop.session.classify_contact`); 0 if none.
+
+    ``("settles",)``: the largest lambda that settles; ``("settles", "buzzes")``: the largest that holds contact.
+    """
     lams = sorted({r["lambda"] for r in rows if r["condition"] == cond})
     best = 0.0
     for lam in lams:
-        if all(r["stable"] for r in rows if r["condition"] == cond and r["lambda"] == lam):
+        if all(r["contact_class"] in classes for r in rows if r["condition"] == cond and r["lambda"] == lam):
             best = lam
         else:
             break
     return best
+
+
+def largest_stable(rows: list[dict], cond: str) -> float:
+    """Largest lambda of ``cond`` that holds contact (settles or buzzes) at every tap and every smaller lambda:
+    the stability limit of Figure 5.11 ("cannot sustain a force reflection ratio above about 2.5")."""
+    return largest_lambda(rows, cond, HOLDS_CONTACT)
 
 
 def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
@@ -370,18 +389,22 @@ def run_sweep(args) -> int:
     rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
                  progress=lambda i, n: bar.update(i))
     bar.close()
-    lines = ["condition,lambda,speed_m_s,settling_s,stable,breaks,hf_energy_fraction"]
+    lines = ["condition,lambda,speed_m_s,settling_s,contact_class,contact_losses,stable,breaks,hf_energy_fraction"]
     for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
         lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['settling_s']:.4f},"
-                     f"{int(r['stable'])},{r['breaks']},{r['hf_energy_fraction']:.3f}")
+                     f"{r['contact_class']},{r['contact_losses']},{int(r['stable'])},{r['breaks']},"
+                     f"{r['hf_energy_fraction']:.3f}")
     atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
-    table = ["| controller | largest stable lambda | F_f energy above 50 Hz at that lambda |", "|---|---|---|"]
+    table = ["| controller | largest lambda that settles | largest lambda that holds contact | "
+             "F_f energy above 50 Hz at that lambda |", "|---|---|---|---|"]
     summary = {}
     for c in conds:
+        ls = largest_lambda(rows, c, ("settles",))
         lm = largest_stable(rows, c)
         hf = [r["hf_energy_fraction"] for r in rows if r["condition"] == c and r["lambda"] == lm]
-        summary[c] = {"largest_stable_lambda": lm, "hf_energy_fraction": float(np.nanmean(hf)) if hf else None}
-        table.append(f"| {c} | {lm:g} | {summary[c]['hf_energy_fraction'] if hf else float('nan'):.2f} |")
+        summary[c] = {"largest_settling_lambda": ls, "largest_contact_lambda": lm,
+                      "hf_energy_fraction": float(np.nanmean(hf)) if hf else None}
+        table.append(f"| {c} | {ls:g} | {lm:g} | {summary[c]['hf_energy_fraction'] if hf else float('nan'):.2f} |")
     atomic_write_text(out / "table.md", "\n".join(table) + "\n")
     atomic_write_text(out / "run.json", json.dumps({
         "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
