@@ -436,34 +436,56 @@ def run_sweep(args) -> int:
     return 0
 
 
-def figure_511(rows, conds, path: Path) -> None:
-    """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps; the unstable
-    taps in a strip above, one row per condition (drawn at 320 ms in one pile, one could not tell whose they
-    were). Project style (figstyle: PNG, SVG, the rows as ``.plot.csv``)."""
+def _contact_class(r: dict) -> str:
+    """A sweep row's contact class (rows without one, e.g. older callers: settles if stable, else make-break)."""
+    return r.get("contact_class", "settles" if r.get("stable") else "make-break")
 
+
+def figure_511(rows, conds, path: Path) -> None:
+    """Figure 5.11: settling time vs lambda per condition, every tap with a finite settling time, marked by its
+    contact class (o settles, ^ buzzes, x make-break), with quadratic fits over the taps that hold contact; taps
+    that make and break contact or never settle in the window also in a strip above, one row per condition. Project style (figstyle: PNG, SVG,
+    the rows as ``.plot.csv``)."""
+
+    markers = {"settles": "o", "buzzes": "^", "make-break": "x", "no contact": "x"}
     with figstyle.style() as plt:
         fig, (top, ax) = plt.subplots(2, 1, sharex=True, figsize=figstyle.figsize("page", height_in=4.6),
                                       height_ratios=(max(1, len(conds)) * 0.25, 3.0), layout="constrained")
+        handles = []
         for k, c in enumerate(conds):
             rs = [r for r in rows if r["condition"] == c]
             lam = np.array([r["lambda"] for r in rs], dtype=float)
             st = np.array([r["settling_s"] * 1e3 for r in rs], dtype=float)
-            ok = np.array([r["stable"] for r in rs], dtype=bool)
-            line = ax.plot(lam[ok], st[ok], "o", ms=4, label=f"{c}")[0]
-            top.plot(lam[~ok], np.full((~ok).sum(), k), "x", color=line.get_color(), ms=5)
-            if ok.sum() >= 3 and len(set(lam[ok])) >= 3:
-                co = np.polyfit(lam[ok], st[ok], 2)
-                xx = np.linspace(lam[ok].min(), lam[ok].max(), 50)
-                ax.plot(xx, np.polyval(co, xx), "-", color=line.get_color(), alpha=0.6)
+            cls = np.array([_contact_class(r) for r in rs])
+            fin = np.isfinite(st)
+            color = None
+            for name, mk in markers.items():
+                sel = fin & (cls == name)
+                if sel.any():
+                    ln = ax.plot(lam[sel], st[sel], mk, ms=4, color=color, label=c)[0]
+                    color = ln.get_color()
+            if color is None:   # nothing finite: a colour for the strip and the legend all the same
+                color = ax.plot([], [], "o", ms=4, label=c)[0].get_color()
+            handles.append(plt.Line2D([], [], color=color, marker="o", ls="", ms=4, label=c))
+            lost = ~fin | ~np.isin(cls, HOLDS_CONTACT)
+            top.plot(lam[lost], np.full(lost.sum(), k), "x", color=color, ms=5)
+            held = fin & np.isin(cls, HOLDS_CONTACT)
+            if held.sum() >= 3 and len(set(lam[held])) >= 3:
+                co = np.polyfit(lam[held], st[held], 2)
+                xx = np.linspace(lam[held].min(), lam[held].max(), 50)
+                ax.plot(xx, np.polyval(co, xx), "-", color=color, alpha=0.6)
+        handles += [plt.Line2D([], [], color="0.4", marker=mk, ls="", ms=4, label=name)
+                    for name, mk in list(markers.items())[:3]]
         top.set_yticks(range(len(conds)), list(conds))
         top.set_ylim(-0.6, len(conds) - 0.4)
         top.invert_yaxis()
-        top.set_title("unstable taps (x), per condition", fontsize=7, loc="left")
+        top.set_title("taps that make and break contact or never settle (x), per condition", fontsize=7, loc="left")
         ax.set_xlabel("force-feedback gain lambda (1; mu = 1)")
         ax.set_ylabel("settling time of the contact force (ms)")
-        fig.legend(handles=[ln for ln in ax.lines if ln.get_label() in conds], loc="outside right upper",
-                   title="condition", fontsize=6, title_fontsize=6)
+        fig.legend(handles=handles, loc="outside right upper", title="condition / contact", fontsize=6,
+                   title_fontsize=6)
         fig.suptitle("Settling time vs lambda (cf. thesis Figure 5.11)", fontsize=8)
-        header = ["condition", "lambda", "settling_ms", "stable"]
-        data = (header, [(r["condition"], r["lambda"], r["settling_s"] * 1e3, int(bool(r["stable"]))) for r in rows])
+        header = ["condition", "lambda", "settling_ms", "stable", "contact_class"]
+        data = (header, [(r["condition"], r["lambda"], r["settling_s"] * 1e3, int(bool(r["stable"])),
+                          _contact_class(r)) for r in rows])
         figstyle.save(fig, path, data, force=True)   # the sweep's own folder (checked with --force before)
