@@ -73,6 +73,7 @@ def register(sub) -> None:
                    help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
     _add_common(q)
     with_examples(q, "hfam-renderer teleop-sweep --lambda 1:15 --taps 2 --out sweep/",
-                  "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/")
+                  "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/",
+                  "hfam-renderer teleop-sweep --lambda 1:6 --conditions pf,pf+cimm --backlash-mm 0.1 --out sweep_fig511/")
     q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))
 
