@@ -19,23 +19,36 @@ import numpy as np
 
 from . import teleop_kernel as K
 from .params import SimParams, default_params
+from .samples import KIND_BLOCK_ON_FOAM, KIND_HALFSPACE, SampleParams, get_sample
 
 
 @dataclass(frozen=True)
 class Environment:
-    """A slave environment (surface at height 0 under the slave tip, positive up).
+    """A slave environment (surface at height 0 under the slave, positive up).
+
+    The contact is the virtual environment's (``devices.sim.kernel._contact``): a Hunt-Crossley half-space
+    F = k d (1 + alpha d') plus a Maxwell branch, or a block resting on a viscoelastic foam.
 
     Attributes
     ----------
     name : str
     kind : int
-        1 Hunt-Crossley half-space F = k d (1 + alpha d'), 2 block on a foam spring-damper.
+        1 Hunt-Crossley half-space, 2 block on a foam spring-damper (``devices.sim.samples.KIND_*``).
     k_N_m, alpha_s_m : float
         Contact stiffness (N/m) and Hunt-Crossley damping (s/m).
     block_mass_kg, foam_k_N_m, foam_b_Ns_m : float
         Block-on-foam parameters (kind 2).
+    maxwell_k_N_m, maxwell_tau_s : float
+        Maxwell branch (spring in series with a damper of relaxation time tau) of the half-space contact
+        (kind 1) or of the foam (kind 2); 0 N/m: elastic.
     texture_amplitude_m, texture_wavelength_m : float
         Bump profile h(y) = A (1 - cos(2 pi y / L)) / 2 along the stroke coordinate (0: flat).
+    struck_by : str
+        ``"tip"``: the slave's handle tip meets the environment; ``"drum"``: the slave's front transmission
+        element (the drum) rests on it, as on the section 5.7 testbed, whose force sensor is "located beneath
+        the front transmission element of the slave joystick".
+    source : str
+        Where the parameters come from (``devices.sim.samples`` for the shared samples).
     """
 
     name: str
@@ -45,22 +58,56 @@ class Environment:
     block_mass_kg: float = 1.0
     foam_k_N_m: float = 0.0
     foam_b_Ns_m: float = 0.0
+    maxwell_k_N_m: float = 0.0
+    maxwell_tau_s: float = 1.0
     texture_amplitude_m: float = 0.0
     texture_wavelength_m: float = 1e-3
+    struck_by: str = "tip"
+    source: str = ""
 
     def __post_init__(self) -> None:
         if self.kind not in (1, 2) or not (self.k_N_m > 0 and self.alpha_s_m >= 0 and self.block_mass_kg > 0):
             raise ValueError(f"environment {self.name!r}: invalid parameters")
+        if not (self.maxwell_k_N_m >= 0 and self.maxwell_tau_s > 0):
+            raise ValueError(f"environment {self.name!r}: Maxwell branch needs k >= 0 and tau > 0")
+        if self.struck_by not in ("tip", "drum"):
+            raise ValueError(f"environment {self.name!r}: struck_by must be 'tip' or 'drum', got {self.struck_by!r}")
+
+
+def environment_from_sample(sample: SampleParams, name: str | None = None, **changes) -> Environment:
+    """The teleoperation environment of a virtual-environment sample (``devices.sim.samples``), unchanged.
+
+    Parameters
+    ----------
+    sample : SampleParams
+        A half-space or block-on-foam sample (thesis Table 4.1).
+    name : str or None
+        Environment name (default: the sample's).
+    **changes
+        Further :class:`Environment` fields (a texture profile on top of the sample).
+    """
+    if sample.kind not in (KIND_HALFSPACE, KIND_BLOCK_ON_FOAM):
+        raise ValueError(f"sample {sample.name!r} has no contact to teleoperate on")
+    fields = dict(name=name or sample.name, kind=sample.kind, k_N_m=sample.contact_k_N_m,
+                  alpha_s_m=sample.contact_alpha_s_m, maxwell_k_N_m=sample.maxwell_k_N_m,
+                  maxwell_tau_s=sample.maxwell_tau_s, source=f"devices.sim.samples: {sample.name}")
+    if sample.kind == KIND_BLOCK_ON_FOAM:
+        fields.update(block_mass_kg=sample.block_mass_kg, foam_k_N_m=sample.foam_k_N_m, foam_b_Ns_m=sample.foam_b_Ns_m)
+    fields.update(changes)
+    return Environment(**fields)
 
 
 ENVIRONMENTS = {
-    # the top of the slave's force sensor (Figure 5.11): aluminium on a stiff sensor
-    "hard": Environment("hard", 1, 3.0e5, 10.0),
-    "wood": Environment("wood", 1, 7.0e4, 0.3),
-    "wood_on_foam": Environment("wood_on_foam", 2, 2.0e4, 0.3, block_mass_kg=0.03, foam_k_N_m=356.0,
-                                foam_b_Ns_m=2.5),
-    "foam": Environment("foam", 1, 220.0, 8.0),
-    "texture": Environment("texture", 1, 7.0e4, 0.3, texture_amplitude_m=0.3e-3, texture_wavelength_m=2.0e-3),
+    # the top of the slave's force sensor (sections 5.7, 5.7.2: "tap repeatedly on the hard surface of the force
+    # sensor"), beneath the slave's front transmission element: aluminium on a stiff sensor
+    "hard": Environment("hard", 1, 3.0e5, 10.0, struck_by="drum", source="teleop: the force sensor's top"),
+    # the virtual environment's samples (one definition: devices.sim.samples)
+    "wood": environment_from_sample(get_sample("wood")),
+    "wood_on_foam": environment_from_sample(get_sample("wood_on_foam")),
+    "foam": environment_from_sample(get_sample("foam")),
+    # wood with 0.3 mm bumps every 2 mm along the stroke (section 4.3.2's rough texture)
+    "texture": environment_from_sample(get_sample("wood"), name="texture", texture_amplitude_m=0.3e-3,
+                                       texture_wavelength_m=2.0e-3),
 }
 
 
@@ -169,7 +216,8 @@ class CimmModel:
             raise ValueError(f"CIMM model: step_s must be in (0, 40e-6] s, got {self.step_s!r}")
 
 
-def chain_block(params: SimParams, rigid: bool = False, extra_handle_mass_kg: float = 0.0) -> np.ndarray:
+def chain_block(params: SimParams, rigid: bool = False, extra_handle_mass_kg: float = 0.0,
+                backlash_m: float = 0.0) -> np.ndarray:
     """Parameter block (``teleop_kernel.CP_*``) of one joystick chain from a nonlinear SimParams.
 
     Parameters
@@ -180,6 +228,8 @@ def chain_block(params: SimParams, rigid: bool = False, extra_handle_mass_kg: fl
         One pure mass m_m + m_d + m_h (section 5.3.1).
     extra_handle_mass_kg : float
         Added to m_h (a hand mass moving with the handle).
+    backlash_m : float
+        Total free play of the cable transmission between motor and drum (m, handle space; 0: none).
     """
     m = params.mechanics
     b = np.zeros(K.CP_N)
@@ -192,6 +242,7 @@ def chain_block(params: SimParams, rigid: bool = False, extra_handle_mass_kg: fl
     b[K.CP_HYST] = 1.0 if m["hysteresis"] else 0.0
     b[K.CP_RIGID] = 1.0 if rigid else 0.0
     b[K.CP_VSTICK] = params.simulation["stick_velocity_m_s"]
+    b[K.CP_GAP] = backlash_m
     return b
 
 
@@ -250,6 +301,11 @@ def tap_path(n_taps: int, fs_hz: float, *, speed_m_s: float = 0.1, approach_m: f
     return np.concatenate(seg), np.asarray(crossings, dtype=np.int64)
 
 
+# Figure 5.11's uncorrected backlash: the thesis gives no size; 0.1 mm at the handle (0.6 deg at the motor
+# shaft through rho = 15 and h = 0.15 m), chosen before any sweep; sensitivity in docs/teleop.md
+BACKLASH_FIG_5_11_M = 0.1e-3
+
+
 @dataclass(frozen=True)
 class Testbed:
     """Master, slave, operator, environment and sensors of a simulated teleoperation session.
@@ -267,6 +323,10 @@ class Testbed:
         Physics substep (divides the servo period).
     rigid : bool
         Master and slave as pure masses (section 5.3.1).
+    backlash_m : float
+        Free play in both transmissions (motor to drum, m in handle space; 0: none). Figure 5.11's
+        condition ("the transmissions of both master and slave contained significant backlash");
+        ``BACKLASH_FIG_5_11_M`` is the value used for it (docs/teleop.md).
     """
 
     master: SimParams
@@ -277,6 +337,7 @@ class Testbed:
     servo_rate_hz: float = 5000.0
     substep_s: float = 10e-6
     rigid: bool = False
+    backlash_m: float = 0.0
     __test__ = False  # not a pytest class
 
     def nsub(self) -> int:
@@ -289,8 +350,10 @@ class Testbed:
     def pack(self, cimm: CimmModel | None) -> np.ndarray:
         """Parameter array with the plant part filled (controller part zero, set by the caller)."""
         p = np.zeros(K.N_PARAM)
-        p[K.PB_MASTER:K.PB_MASTER + K.CP_N] = chain_block(self.master, self.rigid)
-        p[K.PB_SLAVE:K.PB_SLAVE + K.CP_N] = chain_block(self.slave, self.rigid)
+        if not (math.isfinite(self.backlash_m) and 0.0 <= self.backlash_m < 0.005):
+            raise ValueError(f"backlash_m must be in [0, 5 mm), got {self.backlash_m!r}")
+        p[K.PB_MASTER:K.PB_MASTER + K.CP_N] = chain_block(self.master, self.rigid, backlash_m=self.backlash_m)
+        p[K.PB_SLAVE:K.PB_SLAVE + K.CP_N] = chain_block(self.slave, self.rigid, backlash_m=self.backlash_m)
         nsub = self.nsub()
         dt = self.substep_s
         p[K.P_DT], p[K.P_NSUB], p[K.P_TICK] = dt, nsub, 1.0 / self.servo_rate_hz
@@ -306,6 +369,8 @@ class Testbed:
         p[K.P_EKIND], p[K.P_EK], p[K.P_EALPHA] = e.kind, e.k_N_m, e.alpha_s_m
         p[K.P_EMB], p[K.P_EKF], p[K.P_EBF] = e.block_mass_kg, e.foam_k_N_m, e.foam_b_Ns_m
         p[K.P_TEX_A], p[K.P_TEX_L] = e.texture_amplitude_m, e.texture_wavelength_m
+        p[K.P_EK1], p[K.P_EMXDECAY] = e.maxwell_k_N_m, math.exp(-dt / e.maxwell_tau_s)
+        p[K.P_EDRUM] = 1.0 if e.struck_by == "drum" else 0.0
         se = self.sensors
         p[K.P_FS_A] = 1 - math.exp(-2 * math.pi * se.force_bandwidth_hz * dt)
         p[K.P_FS_N] = se.force_noise_N

@@ -21,11 +21,13 @@ import math
 
 from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
+from .kernel import _contact as _sample_contact
 from .kernel import _friction, _xorshift_normal, hysteresis_step
 
 # ---- chain parameter block (offsets inside a block of CP_N) ----
 CP_MM, CP_BM, CP_CM, CP_KC, CP_BC, CP_MD, CP_BD, CP_CD = 0, 1, 2, 3, 4, 5, 6, 7
 CP_KLP, CP_KLN, CP_FLP, CP_FLN, CP_GAM, CP_BL, CP_MH, CP_HYST, CP_RIGID, CP_VSTICK = 8, 9, 10, 11, 12, 13, 14, 15, 16, 17
+CP_GAP = 18          # backlash: total free play of the cable transmission, motor to drum (m in handle space)
 CP_N = 20
 # ---- chain state block ----
 CS_XM, CS_VM, CS_XD, CS_VD, CS_XH, CS_VH, CS_FL, CS_FHAT, CS_XLP, CS_AH = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
@@ -53,6 +55,9 @@ P_DIV_POS, P_DIV_VEL = 110, 111
 P_LINK_LOST_TICK = 112
 P_PUSH, P_PUSH_TICK = 113, 114   # constant operator force on the master handle (N, up) from this tick on
 P_MPD_A = 115        # bilateral PD: first-order low-pass (alpha) on the master PD force; 0 or 1 = off
+P_FF_MAX = 116       # position-force: saturation of the force feedback F_f (N; 0 = none; Figure 5.10)
+P_EK1, P_EMXDECAY = 117, 118   # environment: Maxwell branch stiffness (N/m) and exp(-dt/tau) (samples.py)
+P_EDRUM = 119        # 1: the environment (force sensor) is struck by the slave's drum, 0: by its handle tip
 P_FIR = 120          # 15 FIR taps (modified Bartlett-Hanning)
 N_FIR = 15
 P_SOS = 140          # up to 12 second-order sections (b0 b1 b2 a1 a2), HP first then inverse
@@ -70,6 +75,7 @@ S_WASH_Y, S_WASH_X = 57, 58
 S_CLIP_M, S_CLIP_S, S_CLIP_HF, S_NAN = 59, 60, 61, 62
 S_CONTACT, S_LINK_HOLD = 63, 64
 S_MPD = 65                                    # low-passed master PD force
+S_FMX = 66                                    # environment: Maxwell-branch force (N)
 S_FIRBUF = 70                                 # 15 samples, circular
 S_FIRIDX = 86
 S_SOSZ = 90                                   # 2 per section
@@ -86,8 +92,11 @@ FAULT_NONE, FAULT_NAN, FAULT_DIVERGED = 0, 1, 2
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, dt):
+def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, f_drum_ext, dt):
     """One semi-implicit Euler substep of a joystick chain (eq. 3.32-3.35); returns the handle acceleration.
+
+    With ``CP_GAP`` > 0 the cable transmission has backlash (Figure 5.11's condition): its spring and damper
+    act only once the motor-drum offset leaves the free play of +/- gap/2.
 
     Parameters
     ----------
@@ -97,12 +106,14 @@ def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, dt):
         Force at the motor in handle space (N, up).
     f_handle_ext : float
         External force on the handle: user plus contact (N, up).
+    f_drum_ext : float
+        External force on the drum: contact with a sensor beneath the front transmission element (N, up).
     dt : float
         Substep (s).
     """
     if p[pb + CP_RIGID] != 0.0:
         m = p[pb + CP_MM] + p[pb + CP_MD] + p[pb + CP_MH]
-        a = (f_motor + f_handle_ext - p[pb + CP_BM] * s[sb + CS_VM]) / m
+        a = (f_motor + f_handle_ext + f_drum_ext - p[pb + CP_BM] * s[sb + CS_VM]) / m
         v = s[sb + CS_VM] + a * dt
         x = s[sb + CS_XM] + v * dt
         s[sb + CS_VM] = v
@@ -124,9 +135,20 @@ def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, dt):
     s[sb + CS_FL] = fl
     s[sb + CS_XLP] = xl
     flt = fl + p[pb + CP_BL] * (vd - vh)
-    fc = p[pb + CP_KC] * (xd - xm) + p[pb + CP_BC] * (vd - vm)
+    dc = xd - xm
+    half_gap = 0.5 * p[pb + CP_GAP]
+    if half_gap > 0.0:
+        # backlash: the cable is slack inside the free play, engaged (spring and damper) beyond it
+        if dc > half_gap:
+            fc = p[pb + CP_KC] * (dc - half_gap) + p[pb + CP_BC] * (vd - vm)
+        elif dc < -half_gap:
+            fc = p[pb + CP_KC] * (dc + half_gap) + p[pb + CP_BC] * (vd - vm)
+        else:
+            fc = 0.0
+    else:
+        fc = p[pb + CP_KC] * dc + p[pb + CP_BC] * (vd - vm)
     fm = fc + f_motor - p[pb + CP_BM] * vm
-    fd = -fc - p[pb + CP_BD] * vd - flt
+    fd = -fc - p[pb + CP_BD] * vd - flt + f_drum_ext
     vst = p[pb + CP_VSTICK]
     cmf, stm = _friction(vm, fm, p[pb + CP_CM], vst)
     cdf, std = _friction(vd, fd, p[pb + CP_CD], vst)
@@ -144,27 +166,6 @@ def _chain_substep(s, sb, p, pb, f_motor, f_handle_ext, dt):
 def _grip_force(p, ik, iq, ib, x_rel, v_rel):
     """Linear + quintic user stiffness and damper (section 5.7.1): force on the handle (N)."""
     return -(p[ik] * x_rel + p[iq] * x_rel ** 5) - p[ib] * v_rel
-
-
-@njit(cache=True, _nrt=False, inline="always")
-def _contact(p, s, xtip, vtip, surf):
-    """Environment contact force on the slave tip (N, up) and block acceleration; Hunt-Crossley."""
-    kind = p[P_EKIND]
-    if kind == 1.0:
-        d = surf - xtip
-        if d > 0.0:
-            f = p[P_EK] * d * (1.0 + p[P_EALPHA] * (-vtip))
-            return (f if f > 0.0 else 0.0), 0.0
-        return 0.0, 0.0
-    if kind == 2.0:
-        d = s[S_XB] + surf - xtip
-        f = 0.0
-        if d > 0.0:
-            f = p[P_EK] * d * (1.0 + p[P_EALPHA] * (s[S_VB] - vtip))
-            if f < 0.0:
-                f = 0.0
-        return f, (-f - p[P_EKF] * s[S_XB] - p[P_EBF] * s[S_VB]) / p[P_EMB]
-    return 0.0, 0.0
 
 
 @njit(cache=True, _nrt=False)
@@ -308,6 +309,12 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
             if p[P_KLAM_A] < 1.0:
                 s[S_KLAM] += p[P_KLAM_A] * (ff - s[S_KLAM])
                 ff = s[S_KLAM]
+            if p[P_FF_MAX] > 0.0:
+                # the force-feedback saturation of Figure 5.10 ("the saturated force feedback signal")
+                if ff > p[P_FF_MAX]:
+                    ff = p[P_FF_MAX]
+                elif ff < -p[P_FF_MAX]:
+                    ff = -p[P_FF_MAX]
             f_m = ff - p[P_BDAMP] * vm_est
         if link_lost:
             f_m = 0.0
@@ -388,13 +395,24 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
                     s[S_COMP] += p[P_COMP_W] * (xu - xh) * dt
                 else:
                     fu = _grip_force(p, P_KU, P_QU, P_BU, xh - xu, vh - vu)
-                _chain_substep(s, SB_MASTER, p, PB_MASTER, fm_applied, fu + push, dt)
+                _chain_substep(s, SB_MASTER, p, PB_MASTER, fm_applied, fu + push, 0.0, dt)
             # slave + environment
-            fe_true, ab = _contact(p, s, s[SB_SLAVE + CS_XH], s[SB_SLAVE + CS_VH], surf)
+            # the environment: the virtual environment's sample contact (devices.sim.kernel._contact, one
+            # definition of wood, wood on foam and foam), struck by the slave's handle tip or its drum
+            if p[P_EDRUM] != 0.0:
+                xq, vq = s[SB_SLAVE + CS_XD], s[SB_SLAVE + CS_VD]
+            else:
+                xq, vq = s[SB_SLAVE + CS_XH], s[SB_SLAVE + CS_VH]
+            fe_true, ab, _flag, s[S_FMX] = _sample_contact(p[P_EKIND], p[P_EK], p[P_EALPHA], p[P_EMB], p[P_EKF],
+                                                           p[P_EBF], p[P_EK1], p[P_EMXDECAY], dt, xq - surf, vq,
+                                                           s[S_XB], s[S_VB], s[S_FMX])
             if fe_true > 0.0:
                 contact = 1.0
             fc_sum += fe_true
-            ah = _chain_substep(s, SB_SLAVE, p, PB_SLAVE, fs_applied, fe_true, dt)
+            if p[P_EDRUM] != 0.0:
+                ah = _chain_substep(s, SB_SLAVE, p, PB_SLAVE, fs_applied, 0.0, fe_true, dt)
+            else:
+                ah = _chain_substep(s, SB_SLAVE, p, PB_SLAVE, fs_applied, fe_true, 0.0, dt)
             ah_sum += ah
             if p[P_EKIND] == 2.0:
                 s[S_VB] += ab * dt
@@ -406,7 +424,7 @@ def run_session(p, s, rs, path, stroke, out, k0, k1, master_ext):
             if p[P_CIMM] != 0.0 and (j + 1) % mdt_n == 0:
                 mdt = dt * mdt_n
                 fum = _grip_force(p, P_MKU, P_MQU, P_MBU, s[SB_MODEL + CS_XH], s[SB_MODEL + CS_VH])
-                _chain_substep(s, SB_MODEL, p, PB_MODEL, fm_applied, fum, mdt)
+                _chain_substep(s, SB_MODEL, p, PB_MODEL, fm_applied, fum, 0.0, mdt)
         s[S_CONTACT] = contact
         out[k, O_CONTACT] = contact
     return 0, -1
@@ -431,5 +449,5 @@ def cimm_model_run(p, s, force_N, out_x):
     for k in range(force_N.shape[0]):
         for j in range(nsub // mdt_n):
             fum = _grip_force(p, P_MKU, P_MQU, P_MBU, s[SB_MODEL + CS_XH], s[SB_MODEL + CS_VH])
-            _chain_substep(s, SB_MODEL, p, PB_MODEL, force_N[k], fum, mdt)
+            _chain_substep(s, SB_MODEL, p, PB_MODEL, force_N[k], fum, 0.0, mdt)
         out_x[k] = s[SB_MODEL + CS_XM]

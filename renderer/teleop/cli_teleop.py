@@ -22,6 +22,9 @@ def _add_common(p) -> None:
     p.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: "
                    "marked stand-in until successive isolation is merged)")
     p.add_argument("--washout-hz", type=float, default=0.0, help="high-pass on the CIMM model output (0: off)")
+    p.add_argument("--backlash-mm", type=float, default=0.0,
+                   help="free play in both transmissions, motor to drum, mm at the handle (Figure 5.11's "
+                        "uncorrected backlash: 0.1; default 0, Figure 5.10's corrected testbed)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty)")
 
 
@@ -70,6 +73,7 @@ def register(sub) -> None:
                    help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
     _add_common(q)
     with_examples(q, "hfam-renderer teleop-sweep --lambda 1:15 --taps 2 --out sweep/",
-                  "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/")
+                  "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/",
+                  "hfam-renderer teleop-sweep --lambda 1:6 --conditions pf,pf+cimm --backlash-mm 0.1 --out sweep_fig511/")
     q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))
 

@@ -36,11 +36,12 @@ from .hfam import accel_match, design_hfam, figure_45, identify_master_hha
 from .models import cimm_params, underestimation_check
 from .options import SWEEP_CONDITIONS, parse_lambdas
 from .serial_master import run_serial_session
-from .session import TeleopConfig, default_path, run_session, session_metrics
+from .session import TeleopConfig, default_path, resolve_gains, run_session, session_metrics
 
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
                  "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
 
+HOLDS_CONTACT = ("settles", "buzzes")
 HFAM_K_MU_HZ = 40.0   # pd+hfam: low-pass on x_c keeps the HFAM-induced master motion out of the slave
 HFAM_MASTER_PD_HZ = 150.0   # pd+hfam: low-pass on the master PD force (PD = power band, HFAM above it)
 
@@ -70,7 +71,10 @@ def _new_dir(path: Path) -> Path:
 def build_testbed(args) -> Testbed:
     """Testbed from command-line arguments."""
     P = default_params()
-    return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz)
+    if not (math.isfinite(args.backlash_mm) and 0.0 <= args.backlash_mm < 5.0):
+        raise ValueError(f"--backlash-mm must be in [0, 5), got {args.backlash_mm!r}")
+    return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz,
+                   backlash_m=args.backlash_mm * 1e-3)
 
 
 def build_hfam(args, tb: Testbed, out: Path):
@@ -128,8 +132,8 @@ def run_teleop(args) -> int:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
     if args.master != "sim":
         return run_teleop_master(args)
-    cfg = _teleop_config(args)
     tb = build_testbed(args)
+    cfg = resolve_gains(_teleop_config(args), tb)   # run.json records the derived gains
     out = _new_dir(Path(args.out))
     hfam = None
     if args.controller == "pd+hfam":
@@ -152,6 +156,7 @@ def run_teleop(args) -> int:
     _write_traces(out, res)
     taps = [None if m is None else {"impact_s": m.impact_s, "settling_s": m.settling_s if math.isfinite(m.settling_s)
                                     else None, "quasi_static_N": m.quasi_static_N, "contact_breaks": m.breaks,
+                                    "contact_losses": m.contact_losses, "contact_class": m.contact_class,
                                     "stable": m.stable, "F_f_energy_above_50Hz": m.hf_energy_fraction}
             for m in metrics]
     unstable = sum(1 for m in metrics if m is not None and not m.stable)
@@ -219,6 +224,7 @@ def run_teleop_master(args) -> int:
     with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
         P = default_params()
         tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz)
+        cfg = resolve_gains(cfg, tb)
         check = None
         if cimm is not None:
             # the check needs the true master; here only the simulated Table 3.1 one is at hand, so it is
@@ -289,7 +295,8 @@ def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, m
 
     Returns
     -------
-    list of dict (condition, lambda, speed_m_s, settling_s, stable, breaks, hf_energy_fraction)
+    list of dict (condition, lambda, speed_m_s, settling_s, stable, breaks, contact_losses, contact_class,
+    hf_energy_fraction)
     """
     speeds = np.linspace(0.08, 0.12, taps) if taps > 1 else np.array([0.1])
     trials = [(c, lam, float(v)) for c in conditions for lam in lambdas for v in speeds]
@@ -304,22 +311,34 @@ def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, m
         rows.append({"condition": cond, "lambda": lam, "speed_m_s": v,
                      "settling_s": (m.settling_s if m else math.inf),
                      "stable": bool(m.stable) if m else False, "breaks": m.breaks if m else -1,
+                     "contact_losses": m.contact_losses if m else -1,
+                     "contact_class": m.contact_class if m else "no contact",
                      "hf_energy_fraction": m.hf_energy_fraction if m else float("nan")})
         if progress is not None:
             progress(j + 1, len(trials))
     return rows
 
 
-def largest_stable(rows: list[dict], cond: str) -> float:
-    """Largest lambda of ``cond`` with every tap stable at it and at every smaller lambda (0 if none)."""
+def largest_lambda(rows: list[dict], cond: str, classes=("settles",)) -> float:
+    """Largest lambda of ``cond`` at which every tap, and every tap at every smaller lambda, is of one of
+    ``classes`` (the contact classification, :func:`renderer.teleop.session.classify_contact`); 0 if none.
+
+    ``("settles",)``: the largest lambda that settles; ``("settles", "buzzes")``: the largest that holds contact.
+    """
     lams = sorted({r["lambda"] for r in rows if r["condition"] == cond})
     best = 0.0
     for lam in lams:
-        if all(r["stable"] for r in rows if r["condition"] == cond and r["lambda"] == lam):
+        if all(r["contact_class"] in classes for r in rows if r["condition"] == cond and r["lambda"] == lam):
             best = lam
         else:
             break
     return best
+
+
+def largest_stable(rows: list[dict], cond: str) -> float:
+    """Largest lambda of ``cond`` that holds contact (settles or buzzes) at every tap and every smaller lambda:
+    the stability limit of Figure 5.11 ("cannot sustain a force reflection ratio above about 2.5")."""
+    return largest_lambda(rows, cond, HOLDS_CONTACT)
 
 
 def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
@@ -342,11 +361,19 @@ def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
 
 def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: float = 1.0, seed: int = 1,
                error: float = 0.3, progress=None) -> dict:
-    """Largest stable lambda of ``pf+cimm`` for each of :func:`model_variants` (the +/-30 % table)."""
+    """``pf+cimm`` with each of :func:`model_variants` (the +/-30 % table).
+
+    Returns
+    -------
+    dict name -> {"largest_stable_lambda": float, "largest_settling_lambda": float,
+    "mean_contact_losses": float (per tap over the grid)}
+    """
     out = {}
     for name, model in model_variants(cimm, error).items():
         rows = sweep(tb, model, lambdas, ["pf+cimm"], taps=taps, mu=mu, seed=seed, progress=progress)
-        out[name] = largest_stable(rows, "pf+cimm")
+        out[name] = {"largest_stable_lambda": largest_stable(rows, "pf+cimm"),
+                     "largest_settling_lambda": largest_lambda(rows, "pf+cimm", ("settles",)),
+                     "mean_contact_losses": float(np.mean([r["contact_losses"] for r in rows]))}
     return out
 
 
@@ -370,18 +397,25 @@ def run_sweep(args) -> int:
     rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
                  progress=lambda i, n: bar.update(i))
     bar.close()
-    lines = ["condition,lambda,speed_m_s,settling_s,stable,breaks,hf_energy_fraction"]
+    lines = ["condition,lambda,speed_m_s,settling_s,contact_class,contact_losses,stable,breaks,hf_energy_fraction"]
     for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
         lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['settling_s']:.4f},"
-                     f"{int(r['stable'])},{r['breaks']},{r['hf_energy_fraction']:.3f}")
+                     f"{r['contact_class']},{r['contact_losses']},{int(r['stable'])},{r['breaks']},"
+                     f"{r['hf_energy_fraction']:.3f}")
     atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
-    table = ["| controller | largest stable lambda | F_f energy above 50 Hz at that lambda |", "|---|---|---|"]
+    table = ["| controller | largest lambda that settles | largest lambda that holds contact | "
+             "F_f energy above 50 Hz at that lambda | contact losses per tap (mean over the grid) |",
+             "|---|---|---|---|---|"]
     summary = {}
     for c in conds:
+        ls = largest_lambda(rows, c, ("settles",))
         lm = largest_stable(rows, c)
         hf = [r["hf_energy_fraction"] for r in rows if r["condition"] == c and r["lambda"] == lm]
-        summary[c] = {"largest_stable_lambda": lm, "hf_energy_fraction": float(np.nanmean(hf)) if hf else None}
-        table.append(f"| {c} | {lm:g} | {summary[c]['hf_energy_fraction'] if hf else float('nan'):.2f} |")
+        losses = float(np.mean([r["contact_losses"] for r in rows if r["condition"] == c]))
+        summary[c] = {"largest_settling_lambda": ls, "largest_contact_lambda": lm,
+                      "hf_energy_fraction": float(np.nanmean(hf)) if hf else None, "mean_contact_losses": losses}
+        table.append(f"| {c} | {ls:g} | {lm:g} | {summary[c]['hf_energy_fraction'] if hf else float('nan'):.2f} | "
+                     f"{losses:.1f} |")
     atomic_write_text(out / "table.md", "\n".join(table) + "\n")
     atomic_write_text(out / "run.json", json.dumps({
         "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
@@ -392,42 +426,66 @@ def run_sweep(args) -> int:
     print("\n".join(table))
     if args.robustness:
         rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed)
-        lines = ["| CIMM model | largest stable lambda |", "|---|---|"]
-        lines += [f"| {k} | {v:g} |" for k, v in rob.items()]
+        lines = ["| CIMM model | largest lambda that settles | largest lambda that holds contact | "
+                 "contact losses per tap (mean over the grid) |", "|---|---|---|---|"]
+        lines += [f"| {k} | {v['largest_settling_lambda']:g} | {v['largest_stable_lambda']:g} | "
+                  f"{v['mean_contact_losses']:.1f} |" for k, v in rob.items()]
         atomic_write_text(out / "robustness.md", "\n".join(lines) + "\n")
         print("\n".join(lines))
     print(f"wrote {out}")
     return 0
 
 
-def figure_511(rows, conds, path: Path) -> None:
-    """Figure 5.11: settling time vs lambda per condition, with quadratic fits over the stable taps; the unstable
-    taps in a strip above, one row per condition (drawn at 320 ms in one pile, one could not tell whose they
-    were). Project style (figstyle: PNG, SVG, the rows as ``.plot.csv``)."""
+def _contact_class(r: dict) -> str:
+    """A sweep row's contact class (rows without one, e.g. older callers: settles if stable, else make-break)."""
+    return r.get("contact_class", "settles" if r.get("stable") else "make-break")
 
+
+def figure_511(rows, conds, path: Path) -> None:
+    """Figure 5.11: settling time vs lambda per condition, every tap with a finite settling time, marked by its
+    contact class (o settles, ^ buzzes, x make-break), with quadratic fits over the taps that hold contact; taps
+    that make and break contact or never settle in the window also in a strip above, one row per condition. Project style (figstyle: PNG, SVG,
+    the rows as ``.plot.csv``)."""
+
+    markers = {"settles": "o", "buzzes": "^", "make-break": "x", "no contact": "x"}
     with figstyle.style() as plt:
         fig, (top, ax) = plt.subplots(2, 1, sharex=True, figsize=figstyle.figsize("page", height_in=4.6),
                                       height_ratios=(max(1, len(conds)) * 0.25, 3.0), layout="constrained")
+        handles = []
         for k, c in enumerate(conds):
             rs = [r for r in rows if r["condition"] == c]
             lam = np.array([r["lambda"] for r in rs], dtype=float)
             st = np.array([r["settling_s"] * 1e3 for r in rs], dtype=float)
-            ok = np.array([r["stable"] for r in rs], dtype=bool)
-            line = ax.plot(lam[ok], st[ok], "o", ms=4, label=f"{c}")[0]
-            top.plot(lam[~ok], np.full((~ok).sum(), k), "x", color=line.get_color(), ms=5)
-            if ok.sum() >= 3 and len(set(lam[ok])) >= 3:
-                co = np.polyfit(lam[ok], st[ok], 2)
-                xx = np.linspace(lam[ok].min(), lam[ok].max(), 50)
-                ax.plot(xx, np.polyval(co, xx), "-", color=line.get_color(), alpha=0.6)
+            cls = np.array([_contact_class(r) for r in rs])
+            fin = np.isfinite(st)
+            color = None
+            for name, mk in markers.items():
+                sel = fin & (cls == name)
+                if sel.any():
+                    ln = ax.plot(lam[sel], st[sel], mk, ms=4, color=color, label=c)[0]
+                    color = ln.get_color()
+            if color is None:   # nothing finite: a colour for the strip and the legend all the same
+                color = ax.plot([], [], "o", ms=4, label=c)[0].get_color()
+            handles.append(plt.Line2D([], [], color=color, marker="o", ls="", ms=4, label=c))
+            lost = ~fin | ~np.isin(cls, HOLDS_CONTACT)
+            top.plot(lam[lost], np.full(lost.sum(), k), "x", color=color, ms=5)
+            held = fin & np.isin(cls, HOLDS_CONTACT)
+            if held.sum() >= 3 and len(set(lam[held])) >= 3:
+                co = np.polyfit(lam[held], st[held], 2)
+                xx = np.linspace(lam[held].min(), lam[held].max(), 50)
+                ax.plot(xx, np.polyval(co, xx), "-", color=color, alpha=0.6)
+        handles += [plt.Line2D([], [], color="0.4", marker=mk, ls="", ms=4, label=name)
+                    for name, mk in list(markers.items())[:3]]
         top.set_yticks(range(len(conds)), list(conds))
         top.set_ylim(-0.6, len(conds) - 0.4)
         top.invert_yaxis()
-        top.set_title("unstable taps (x), per condition", fontsize=7, loc="left")
+        top.set_title("taps that make and break contact or never settle (x), per condition", fontsize=7, loc="left")
         ax.set_xlabel("force-feedback gain lambda (1; mu = 1)")
         ax.set_ylabel("settling time of the contact force (ms)")
-        fig.legend(handles=[ln for ln in ax.lines if ln.get_label() in conds], loc="outside right upper",
-                   title="condition", fontsize=6, title_fontsize=6)
+        fig.legend(handles=handles, loc="outside right upper", title="condition / contact", fontsize=6,
+                   title_fontsize=6)
         fig.suptitle("Settling time vs lambda (cf. thesis Figure 5.11)", fontsize=8)
-        header = ["condition", "lambda", "settling_ms", "stable"]
-        data = (header, [(r["condition"], r["lambda"], r["settling_s"] * 1e3, int(bool(r["stable"]))) for r in rows])
+        header = ["condition", "lambda", "settling_ms", "stable", "contact_class"]
+        data = (header, [(r["condition"], r["lambda"], r["settling_s"] * 1e3, int(bool(r["stable"])),
+                          _contact_class(r)) for r in rows])
         figstyle.save(fig, path, data, force=True)   # the sweep's own folder (checked with --force before)

@@ -9,7 +9,7 @@ motion, eq. 5.20). Settling time and stability are defined once here (docs/teleo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
@@ -29,17 +29,52 @@ QS_CUTOFF_HZ = 8.0               # quasi-static force: zero-phase low-pass at th
 GRACE_S = 0.030                  # contact breaks in the first 30 ms after impact are the impact's own bounce
 ANALYSIS_END_S = 0.30            # analysis window after impact (inside the 0.4 s dwell)
 
-# Default slave PD on the motor position (N/m, N s/m) per architecture; the thesis gives no slave gains.
-# Position-force: in contact the loop of eq. 5.3 runs through the slave servo (G_se ~ b_s + k_s/s,
-# eq. 5.16-5.18), so its gain scales with the servo's stiffness: the slave is made only as stiff as
-# tracking the user's voluntary motion (below 5 Hz, section 5.2.2) needs -- 200 N/m on the joystick's
-# 0.032 kg is a 12.6 Hz servo (damping ratio 0.40). Measured (docs/teleop.md): 600 N/m, 3 N s/m gave
-# lambda_max 0.75, below the thesis's lambda = 1 "nearly identical" operating point. 200/2 was picked
-# among the gains that keep lambda = 1 stable because it also meets issue 18's Figure 5.10 relations --
-# partly a fit inside the range the thesis leaves open (sensitivity table in docs/teleop.md).
-# Bilateral PD: the slave's error force is what the master feels, so the stiffer servo is kept
-# (the HFAM figures of docs/teleop.md were measured with it).
-SLAVE_PD_DEFAULTS = {"pf": (200.0, 2.0), "pd": (600.0, 3.0)}
+# Contact classification of one tap, calibrated on Figure 5.10's words (section 5.7.2): "settles" (contact
+# held, the transient decays: lambda = 1, "decay in about 50 ms"), "buzzes" (contact held, "the contact
+# transient is prolonged to over 100 ms ... a slight buzzing on impact": lambda = 3) and "make-break" ("the
+# slave makes and breaks contact with the environment several times": lambda = 6).
+BUZZ_S = 0.100                   # a held contact whose transient lasts longer than this buzzes
+MAKE_BREAK_LOSSES = 2            # contact lost this often after the impact (its own bounce included): make-break
+CONTACT_CLASSES = ("settles", "buzzes", "make-break")
+
+# Servo gains from one rule (docs/teleop.md, "Gains"): every PD servo on a joystick (the slave in both
+# architectures, the master in bilateral PD) is a second-order loop on that joystick's moving mass
+# (m_m + m_d + m_h in handle space) with its natural frequency at the user's motion-control bandwidth,
+# "from steady state to about eight hertz" (sections 5.5.2, 5.6.2: the voluntary motion the slave must
+# track lies below it) and damping ratio 0.7 (the quickest response without ringing). The thesis gives
+# no slave or master gains (section 5.7.2: "proportional and derivative feedback on the slave").
+SERVO_BANDWIDTH_HZ = 8.0
+SERVO_DAMPING_RATIO = 0.7
+# Force-feedback saturation (Figure 5.10 plots "the saturated force feedback signal"): the thesis's
+# "maximum feedback force" is the force that deflects its user model by 2 mm (section 5.7.1:
+# q_u = 3.125e13 N/m^5 "tuned to allow only two millimeters of deflection at maximum feedback force"),
+# with the linear part k_u = 40 N/m (Table 3.1): 40 * 0.002 + 3.125e13 * 0.002**5 = 1.08 N.
+FF_MAX_N = 40.0 * 0.002 + 3.125e13 * 0.002 ** 5
+
+
+def servo_gains(mass_kg: float, natural_hz: float = SERVO_BANDWIDTH_HZ,
+                damping_ratio: float = SERVO_DAMPING_RATIO) -> tuple[float, float]:
+    """PD gains of a second-order servo on a mass: k = m w^2, b = 2 zeta m w (w = 2 pi f_n).
+
+    Parameters
+    ----------
+    mass_kg : float
+        Moving mass in handle space (kg).
+    natural_hz, damping_ratio : float
+        Natural frequency (Hz) and damping ratio of the closed loop.
+
+    Returns
+    -------
+    (kp_N_m, kd_Ns_m) : tuple of float
+    """
+    w = 2 * math.pi * natural_hz
+    return mass_kg * w * w, 2 * damping_ratio * mass_kg * w
+
+
+def joystick_mass_kg(params) -> float:
+    """Moving mass of a joystick in handle space, m_m + m_d + m_h (Table 3.1: 0.032 kg)."""
+    m = params.mechanics
+    return m["m_m_kg"] + m["m_d_kg"] + m["m_h_kg"]
 
 
 @dataclass(frozen=True)
@@ -53,10 +88,12 @@ class TeleopConfig:
     mu, lam : float
         Position scale and force-feedback gain (section 5.1).
     kp_s_N_m, kd_s_Ns_m : float or None
-        Slave PD gains on the motor position; None (default): ``SLAVE_PD_DEFAULTS`` of the controller's
-        architecture (position-force 200 N/m, 2 N s/m; bilateral PD 600 N/m, 3 N s/m).
-    kp_m_N_m, kd_m_Ns_m : float
-        Master PD gains (bilateral PD only).
+        Slave PD gains on the motor position; None (default): :func:`servo_gains` of the slave's moving
+        mass (the rule of docs/teleop.md, "Gains"; resolved by :func:`resolve_gains`).
+    kp_m_N_m, kd_m_Ns_m : float or None
+        Master PD gains (bilateral PD only); None: the same rule on the master's moving mass.
+    ff_max_N : float
+        Position-force: saturation of the force feedback F_f (N; 0 = none); default ``FF_MAX_N``.
     b_Ns_m : float
         Master damping (eq. 5.9), position-force only.
     k_mu_hz, k_lambda_hz : float
@@ -77,8 +114,9 @@ class TeleopConfig:
     lam: float = 1.0
     kp_s_N_m: float | None = None
     kd_s_Ns_m: float | None = None
-    kp_m_N_m: float = 1500.0
-    kd_m_Ns_m: float = 6.0
+    kp_m_N_m: float | None = None
+    kd_m_Ns_m: float | None = None
+    ff_max_N: float = FF_MAX_N
     b_Ns_m: float = 0.0
     k_mu_hz: float = 0.0
     k_lambda_hz: float = 0.0
@@ -89,16 +127,36 @@ class TeleopConfig:
 
     def __post_init__(self) -> None:
         require_choice("controller", self.controller, CONTROLLERS)
-        kp, kd = SLAVE_PD_DEFAULTS["pd" if self.controller.startswith("pd") else "pf"]
-        # frozen dataclass: resolve the architecture's default gains once, so run.json records the numbers
-        if self.kp_s_N_m is None:
-            object.__setattr__(self, "kp_s_N_m", kp)
-        if self.kd_s_Ns_m is None:
-            object.__setattr__(self, "kd_s_Ns_m", kd)
-        require_positive(self, "mu", "kp_s_N_m", "divergence_m", "divergence_m_s", "velocity_hz")
-        for name in ("lam", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m", "b_Ns_m", "k_mu_hz", "k_lambda_hz",
-                     "master_pd_lowpass_hz"):
+        require_positive(self, "mu", "divergence_m", "divergence_m_s", "velocity_hz")
+        for name in ("kp_s_N_m", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m"):
+            if getattr(self, name) is not None:
+                require_number(name, getattr(self, name), minimum=0.0)
+        if self.kp_s_N_m is not None:
+            require_positive(self, "kp_s_N_m")
+        for name in ("lam", "b_Ns_m", "k_mu_hz", "k_lambda_hz", "master_pd_lowpass_hz", "ff_max_N"):
             require_number(name, getattr(self, name), minimum=0.0)
+
+
+def resolve_gains(cfg: TeleopConfig, tb: Testbed) -> TeleopConfig:
+    """``cfg`` with every unset servo gain replaced by :func:`servo_gains` of its joystick's moving mass.
+
+    Parameters
+    ----------
+    cfg : TeleopConfig
+    tb : Testbed
+        Supplies the slave's and the master's mechanics.
+
+    Returns
+    -------
+    TeleopConfig
+        With numbers in ``kp_s_N_m``, ``kd_s_Ns_m``, ``kp_m_N_m``, ``kd_m_Ns_m`` (run.json records them).
+    """
+    ks, bs = servo_gains(joystick_mass_kg(tb.slave))
+    km, bm = servo_gains(joystick_mass_kg(tb.master))
+    return replace(cfg, kp_s_N_m=ks if cfg.kp_s_N_m is None else cfg.kp_s_N_m,
+                   kd_s_Ns_m=bs if cfg.kd_s_Ns_m is None else cfg.kd_s_Ns_m,
+                   kp_m_N_m=km if cfg.kp_m_N_m is None else cfg.kp_m_N_m,
+                   kd_m_Ns_m=bm if cfg.kd_m_Ns_m is None else cfg.kd_m_Ns_m)
 
 
 @dataclass
@@ -135,6 +193,8 @@ class SessionResult:
 def controller_params(p: np.ndarray, tb: Testbed, cfg: TeleopConfig, hfam=None) -> None:
     """Write the controller part of the parameter array ``p`` (in place)."""
     fs = tb.servo_rate_hz
+    cfg = resolve_gains(cfg, tb)
+    p[K.P_FF_MAX] = cfg.ff_max_N
     p[K.P_MODE] = K.MODE_PD if cfg.controller.startswith("pd") else K.MODE_PF
     p[K.P_MU], p[K.P_LAM] = cfg.mu, cfg.lam
     p[K.P_KPS], p[K.P_KDS], p[K.P_KPM], p[K.P_KDM] = cfg.kp_s_N_m, cfg.kd_s_Ns_m, cfg.kp_m_N_m, cfg.kd_m_Ns_m
@@ -232,6 +292,11 @@ class TapMetrics:
         No such contact loss, settled within the window, no fault.
     hf_energy_fraction : float
         Fraction of F_f's energy above 50 Hz in the first 100 ms after impact.
+    contact_losses : int
+        Contact losses (force below threshold for >= 1 ms) from the impact to the end of the analysis
+        window, the impact's own bounce included.
+    contact_class : str
+        :func:`classify_contact`: ``"settles"``, ``"buzzes"`` or ``"make-break"``.
     """
 
     impact_s: float
@@ -240,6 +305,45 @@ class TapMetrics:
     breaks: int
     stable: bool
     hf_energy_fraction: float
+    contact_losses: int = 0
+    contact_class: str = "settles"
+
+
+def classify_contact(contact_losses: int, settling_s: float) -> str:
+    """One tap's contact, in Figure 5.10's words (section 5.7.2).
+
+    Parameters
+    ----------
+    contact_losses : int
+        Contact losses from the impact on (its bounce included).
+    settling_s : float
+        Settling time of the contact force (s; inf if it never settles in the window).
+
+    Returns
+    -------
+    str
+        ``"make-break"`` if contact was lost ``MAKE_BREAK_LOSSES`` (2) or more times ("makes and breaks
+        contact with the environment several times"); otherwise ``"buzzes"`` if the transient lasts longer
+        than ``BUZZ_S`` (100 ms: "prolonged to over 100 ms ... a slight buzzing"); otherwise ``"settles"``.
+    """
+    if contact_losses >= MAKE_BREAK_LOSSES:
+        return "make-break"
+    if not settling_s <= BUZZ_S:
+        return "buzzes"
+    return "settles"
+
+
+def _count_losses(force_N: np.ndarray, fs_hz: float) -> int:
+    """Runs of >= 1 ms with the force at or below ``CONTACT_THRESHOLD_N``."""
+    low = force_N <= CONTACT_THRESHOLD_N
+    min_run = max(1, int(0.001 * fs_hz))
+    losses = 0
+    run = 0
+    for v in low:
+        run = run + 1 if v else 0
+        if run == min_run:
+            losses += 1
+    return losses
 
 
 def tap_metrics(force_N: np.ndarray, ff_N: np.ndarray, fs_hz: float, start: int, stop: int,
@@ -281,20 +385,14 @@ def tap_metrics(force_N: np.ndarray, ff_N: np.ndarray, fs_hz: float, start: int,
         settle = math.inf
     else:
         settle = (outside[-1] + 1) / fs_hz
-    # contact breaks after the grace period: runs of >= 1 ms below threshold
-    g = seg[int(GRACE_S * fs_hz):]
-    low = g <= CONTACT_THRESHOLD_N
-    min_run = max(1, int(0.001 * fs_hz))
-    breaks = 0
-    run = 0
-    for v in low:
-        run = run + 1 if v else 0
-        if run == min_run:
-            breaks += 1
+    # contact breaks after the grace period (stability), and all losses from the impact on (classification)
+    breaks = _count_losses(seg[int(GRACE_S * fs_hz):], fs_hz)
+    losses = _count_losses(seg, fs_hz)
     ff = ff_N[start + i0:start + min(len(f), i0 + int(0.1 * fs_hz))]
     hf = hf_energy_fraction(ff, fs_hz)
     stable = (breaks == 0) and math.isfinite(settle) and not fault
-    return TapMetrics(start / fs_hz + i0 / fs_hz, settle, fqs, breaks, stable, hf)
+    cls = "make-break" if fault else classify_contact(losses, settle)
+    return TapMetrics(start / fs_hz + i0 / fs_hz, settle, fqs, breaks, stable, hf, losses, cls)
 
 
 def quasi_static(force_N: np.ndarray, fs_hz: float) -> np.ndarray:

@@ -1,4 +1,6 @@
-"""Teleoperation on the simulated testbed (issue 18): Figure 5.10/5.11 behaviour, safety, commands.
+"""Teleoperation on the simulated testbed (issues 18, 37): the section 5.7 testbed (force sensor beneath the
+slave's drum, F_f saturation, optional backlash, servo gains from one rule), the contact classification of
+Figure 5.10, the environments shared with the virtual environment, safety, commands.
 
 The CIMM model source is one fixture (``cimm_model``): successive isolation (thesis section 3.5,
 ``devices.identify.successive``) of the simulated master, saved with the project's saver and loaded
@@ -15,14 +17,18 @@ import pytest
 
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
-from devices.sim.teleop import ENVIRONMENTS, CimmModel, Testbed
+from devices.sim.samples import get_sample
+from devices.sim.teleop import BACKLASH_FIG_5_11_M, ENVIRONMENTS, CimmModel, Testbed
 from renderer.__main__ import main
 from renderer.teleop.cli_teleop import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS
 from renderer.teleop.commands import largest_stable, sweep
 from renderer.teleop.models import STAND_IN_SOURCE, cimm_params, underestimation_check
-from renderer.teleop.session import SLAVE_PD_DEFAULTS, TeleopConfig, default_path, run_session
+from renderer.teleop.session import (BUZZ_S, FF_MAX_N, TeleopConfig, classify_contact, default_path,
+                                     quasi_static, resolve_gains, run_session, session_metrics, tap_metrics)
 
-LAMBDAS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+LAMBDAS = (1.0, 3.0, 6.0, 10.0, 15.0)
+LAMBDAS_BACKLASH = (1.0, 2.0, 3.0)
+FS = 5000.0
 
 
 @pytest.fixture(scope="module")
@@ -50,58 +56,181 @@ def cimm_model(cimm_file):
 
 @pytest.fixture(scope="module")
 def sweep_rows(testbed, cimm_model):
-    # four taps per lambda (0.08-0.12 m/s): the settling times vary by ~5 ms from tap to tap, and the
-    # lambda = 1 and 1.5x comparisons below sit ~5 ms from their bounds (docs/teleop.md: spread over seeds)
-    return sweep(testbed, cimm_model, LAMBDAS, ["pf", "pf+cimm", "pf+K_lambda"], taps=4, seed=3)
+    """Figure 5.10's testbed (no backlash): two taps per lambda (0.08, 0.12 m/s)."""
+    return sweep(testbed, cimm_model, LAMBDAS, ["pf", "pf+cimm", "pf+K_lambda"], taps=2, seed=3)
 
 
-def _settle(rows, cond, lam):
-    return float(np.mean([r["settling_s"] for r in rows if r["condition"] == cond and r["lambda"] == lam]))
+@pytest.fixture(scope="module")
+def sweep_backlash(cimm_model):
+    """Figure 5.11's condition: backlash in both transmissions."""
+    P = default_params()
+    tb = Testbed(P, P, environment=ENVIRONMENTS["hard"], backlash_m=BACKLASH_FIG_5_11_M)
+    return sweep(tb, cimm_model, LAMBDAS_BACKLASH, ["pf", "pf+cimm"], taps=2, seed=3)
 
 
-def test_at_lambda_1_both_controllers_settle_alike_in_30_to_80_ms(sweep_rows):
-    """Figure 5.10, first column: at lambda = 1 (mu = 1) the transients decay in about 50 ms with and without
-    cancellation, "nearly identical"."""
-    for cond in ("pf", "pf+cimm"):
-        assert all(r["stable"] for r in sweep_rows if r["condition"] == cond and r["lambda"] == 1.0), cond
-    s_pf, s_c = _settle(sweep_rows, "pf", 1.0), _settle(sweep_rows, "pf+cimm", 1.0)
-    print(f"settling at lambda 1: pf {s_pf * 1e3:.0f} ms, pf+cimm {s_c * 1e3:.0f} ms")
-    assert 0.030 <= s_pf <= 0.080 and 0.030 <= s_c <= 0.080
-    assert abs(s_pf - s_c) <= 0.25 * max(s_pf, s_c)
+def _rows(rows, cond, lam):
+    return [r for r in rows if r["condition"] == cond and r["lambda"] == lam]
 
 
-def test_cimm_extends_stable_lambda_at_least_3x(sweep_rows):
-    lmax_pf = largest_stable(sweep_rows, "pf")
-    lmax_cimm = largest_stable(sweep_rows, "pf+cimm")
-    print(f"largest stable lambda: pf {lmax_pf}, pf+cimm {lmax_cimm}")
-    assert lmax_pf >= 1.0             # the slave PD of SLAVE_PD_DEFAULTS (600 N/m, 3 N s/m gave 0.75)
-    assert lmax_cimm >= 3 * lmax_pf
-    # settling with cancellation at 3x lambda_max stays within 1.5x of its value at lambda = 1
-    lam3 = min(lam for lam in LAMBDAS if lam >= 3 * lmax_pf)
-    s1, s3 = _settle(sweep_rows, "pf+cimm", 1.0), _settle(sweep_rows, "pf+cimm", lam3)
-    print(f"pf+cimm settling: lambda 1 {s1 * 1e3:.0f} ms, lambda {lam3} {s3 * 1e3:.0f} ms")
-    assert math.isfinite(s1) and s3 <= 1.5 * s1
+def _losses(rows, cond, lam):
+    return float(np.mean([r["contact_losses"] for r in _rows(rows, cond, lam)]))
 
 
-def test_without_cancellation_settling_grows_then_contact_breaks(sweep_rows):
-    lmax_pf = largest_stable(sweep_rows, "pf")
-    lo = _settle(sweep_rows, "pf", 0.25)
-    hi = _settle(sweep_rows, "pf", lmax_pf)
-    print(f"pf settling: lambda 0.25 {lo * 1e3:.0f} ms, lambda {lmax_pf} {hi * 1e3:.0f} ms")
-    assert math.isfinite(lo) and hi > 1.1 * lo
-    assert _settle(sweep_rows, "pf", 0.5) > lo
-    # beyond lambda_max the slave makes and breaks contact repeatedly
-    breaks = [r["breaks"] for r in sweep_rows if r["condition"] == "pf" and r["lambda"] >= 2 * lmax_pf]
-    assert breaks and min(breaks) >= 5
+# ------------------------------------------------------------------ the contact classification (item 2)
+def test_classification_is_figure_5_10_in_words():
+    """settles: held, decays (lambda = 1, "about 50 ms"); buzzes: held, "prolonged to over 100 ms"; make-break:
+    contact lost twice or more ("makes and breaks contact ... several times"); the impact's one bounce is allowed."""
+    assert classify_contact(0, 0.050) == "settles"
+    assert classify_contact(1, 0.099) == "settles"
+    assert classify_contact(1, 0.101) == "buzzes"
+    assert classify_contact(0, math.inf) == "buzzes"
+    assert classify_contact(2, 0.030) == "make-break"
+    assert BUZZ_S == 0.100
+
+
+def _synthetic(kind: str) -> np.ndarray:
+    """A force trace (N) at 5 kHz: 20 ms before contact, then a press at 1 N with a 150 Hz transient."""
+    t = np.arange(int(0.45 * FS)) / FS
+    f = np.zeros_like(t)
+    c = t >= 0.02
+    tc = t[c] - 0.02
+    tau = {"settles": 0.008, "buzzes": 0.060, "make-break": 0.008}[kind]
+    f[c] = 1.0 + 0.8 * np.exp(-tc / tau) * np.sin(2 * np.pi * 150 * tc)
+    if kind == "make-break":
+        for t0 in (0.040, 0.080, 0.120):            # three 3 ms losses of contact
+            f[(t >= t0) & (t < t0 + 0.003)] = 0.0
+    return f
+
+
+@pytest.mark.parametrize("kind", ["settles", "buzzes", "make-break"])
+def test_tap_metrics_classifies_known_traces(kind):
+    f = _synthetic(kind)
+    m = tap_metrics(f, np.zeros_like(f), FS, 0, len(f))
+    print(kind, m)
+    assert m.contact_class == kind
+    if kind == "settles":     # an 8 ms decay time constant: inside the band (10 % of 1 N) after ~17 ms
+        assert 0.010 < m.settling_s < 0.030 and m.contact_losses == 0
+    if kind == "buzzes":      # a 60 ms time constant: ~125 ms
+        assert 0.100 < m.settling_s < 0.160 and m.contact_losses == 0
+    if kind == "make-break":
+        assert m.contact_losses == 3
+
+
+# ------------------------------------------------------------------ the section 5.7 testbed (item 1)
+def test_servo_gains_follow_the_stated_rule(testbed):
+    """Every PD servo: natural frequency 8 Hz (the user's motion-control bandwidth), damping ratio 0.7, on the
+    joystick's moving mass (Table 3.1: 0.01075 + 0.0075 + 0.014 kg)."""
+    cfg = resolve_gains(TeleopConfig(controller="pf"), testbed)
+    m, w = 0.01075 + 0.0075 + 0.014, 2 * math.pi * 8.0
+    assert cfg.kp_s_N_m == pytest.approx(m * w * w) == pytest.approx(81.48, abs=0.01)
+    assert cfg.kd_s_Ns_m == pytest.approx(2 * 0.7 * m * w) == pytest.approx(2.269, abs=0.001)
+    # closed-loop poles of m s^2 + kd s + kp: |p| = 8 Hz, zeta 0.7
+    p = np.roots([m, cfg.kd_s_Ns_m, cfg.kp_s_N_m])
+    assert np.allclose(np.abs(p), w) and np.allclose(-p.real / np.abs(p), 0.7)
+    pd = resolve_gains(TeleopConfig(controller="pd"), testbed)   # identical joysticks: the same servo each side
+    assert (pd.kp_m_N_m, pd.kd_m_Ns_m) == (pd.kp_s_N_m, pd.kd_s_Ns_m) == (cfg.kp_s_N_m, cfg.kd_s_Ns_m)
+    explicit = resolve_gains(TeleopConfig(controller="pf", kp_s_N_m=600.0, kd_s_Ns_m=3.0), testbed)
+    assert (explicit.kp_s_N_m, explicit.kd_s_Ns_m) == (600.0, 3.0)
+    with pytest.raises(ValueError):
+        TeleopConfig(controller="pf", kp_s_N_m=-1.0)
+
+
+def test_force_feedback_saturates_at_the_maximum_feedback_force(testbed, cimm_model):
+    """Section 5.7.1: q_u gives 2 mm of deflection at maximum feedback force: 40 N/m * 2 mm + q_u (2 mm)^5."""
+    assert FF_MAX_N == pytest.approx(1.08)
+    path, cr = default_path(FS, 1.0, n_taps=1)
+    res = run_session(testbed, TeleopConfig(controller="pf+cimm", lam=10.0), path, cimm=cimm_model, impact_ticks=cr)
+    ff = res.col(K.O_FF)
+    print("peak |F_f| at lambda 10:", np.max(np.abs(ff)), "peak F_e:", np.max(res.col(K.O_FE)))
+    assert np.max(np.abs(ff)) <= FF_MAX_N + 1e-9
+    assert np.sum(np.abs(ff) >= FF_MAX_N - 1e-9) >= 10        # it does saturate (peak F_e x 10 >> 1.08 N)
+    assert np.max(res.col(K.O_FE)) * 10 > 3 * FF_MAX_N
+
+
+def test_force_sensor_is_beneath_the_drum(testbed):
+    """The hard environment is the top of the force sensor under the slave's front transmission element: the
+    drum touches it (x_d <= 0) while the handle tip stays above the surface it would have struck."""
+    assert ENVIRONMENTS["hard"].struck_by == "drum"
+    path, cr = default_path(FS, 1.0, n_taps=1)
+    res = run_session(testbed, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr)
+    i0 = int(np.flatnonzero(res.col(K.O_FE) > 0.05)[0])
+    # the encoder reads the motor; the drum sits between motor and linkage: at contact the motor is within
+    # the cable's deflection (~F/k_c, microns) of the surface
+    assert abs(res.col(K.O_XS)[i0]) < 0.1e-3
+
+
+# ------------------------------------------------------------------ environments (item 3)
+def test_foam_quasi_static_force_is_the_samples_stiffness():
+    """A slow press into the teleoperated foam meets the sample's static stiffness (220 N/m, Table 4.1): the
+    Maxwell branch relaxes, the slave's press depth times 220 N/m is the force."""
+    P = default_params()
+    tb = Testbed(P, P, environment=ENVIRONMENTS["foam"])
+    path, cr = default_path(FS, 1.0, n_taps=1)
+    res = run_session(tb, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr)
+    tip = res.col(K.O_XTIP)
+    fe = res.col(K.O_FE_TRUE)
+    j = int(cr[0]) + int(0.35 * FS)            # late in the dwell
+    k_static = get_sample("foam").static_stiffness_N_m
+    print("foam: depth", -tip[j], "force", fe[j], "k", fe[j] / -tip[j])
+    assert fe[j] / -tip[j] == pytest.approx(k_static, rel=0.1)
+
+
+# ------------------------------------------------------------------ Figure 5.10 / 5.11 / section 5.8 (measured)
+def test_figure_5_10_ordering_losses_grow_with_lambda_and_cimm_holds_better(sweep_rows):
+    """What the model reproduces of Figure 5.10: without cancellation contact losses grow with lambda; with
+    cancellation there are fewer at every lambda, and lambda = 15 with cancellation loses contact less often than
+    lambda = 3 without (docs/teleop.md, "Measured")."""
+    for lam in LAMBDAS:
+        print(lam, "pf", _losses(sweep_rows, "pf", lam), "pf+cimm", _losses(sweep_rows, "pf+cimm", lam))
+    assert _losses(sweep_rows, "pf", 1.0) < _losses(sweep_rows, "pf", 6.0)
+    for lam in LAMBDAS:
+        assert _losses(sweep_rows, "pf+cimm", lam) < _losses(sweep_rows, "pf", lam), lam
+    assert _losses(sweep_rows, "pf+cimm", 15.0) < _losses(sweep_rows, "pf", 3.0)
+    assert all(r["contact_class"] == "make-break" for r in _rows(sweep_rows, "pf", 6.0))
+
+
+def test_figure_5_10_targets_fail_for_a_measured_reason(testbed):
+    """Not met (docs/teleop.md): lambda = 1 settling in 40-60 ms. The slave's own impact (lambda = 0) already
+    rings for over 100 ms: its unheld handle oscillates on the linkage, which Table 3.1 gives no damping
+    (b_l = 0), at a frequency between the handle on the linkage's large-deflection stiffness
+    (sqrt(k_l / m_h) / 2 pi = 85 Hz) and its stiffer small-deflection slope (section 3.5.3: k_l + gamma_l
+    (f_lp - f_ln) = 11 700 N/m, 146 Hz; measured 115 Hz), and the drum under it passes that to the sensor. The same tap with 2 N s/m of linkage damping (a diagnostic, not the model)
+    settles within 100 ms."""
+    path, cr = default_path(FS, 1.0, n_taps=1)
+    res = run_session(testbed, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr)
+    (m,) = session_metrics(res)
+    fe = res.col(K.O_FE)
+    i0 = int(np.flatnonzero(fe > 0.05)[0])
+    seg = fe[i0 + int(0.05 * FS):i0 + int(0.25 * FS)]
+    seg = seg - quasi_static(seg, FS)
+    spec = np.abs(np.fft.rfft(seg * np.hanning(len(seg))))
+    f_peak = np.fft.rfftfreq(len(seg), 1 / FS)[np.argmax(spec)]
+    P = default_params()
+    damped = Testbed(P, P.replace(mechanics={"b_l_Ns_m": 2.0}), environment=ENVIRONMENTS["hard"])
+    (md,) = session_metrics(run_session(damped, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr))
+    print(f"lambda 0: settling {m.settling_s * 1e3:.0f} ms, ringing at {f_peak:.0f} Hz; "
+          f"with b_l 2 N s/m: {md.settling_s * 1e3:.0f} ms")
+    assert m.settling_s > BUZZ_S and 85.0 <= f_peak <= 146.0
+    assert md.settling_s < BUZZ_S
+
+
+def test_figure_5_11_backlash_cimm_keeps_the_impact_bounce_only(sweep_backlash):
+    """With backlash (Figure 5.11's condition) cancellation loses contact little more than in the impact's double
+    bounce up to lambda = 3 (measured 2, 2, 3 per tap on average), while without it the slave makes and breaks
+    contact twenty times or more from lambda = 1 (measured 23.5, 27, 31). Figure 5.11's limits (2-3.5 without,
+    4-6 with cancellation) are not met: every tap is make-break (docs/teleop.md)."""
+    for lam in LAMBDAS_BACKLASH:
+        print(lam, "pf", _losses(sweep_backlash, "pf", lam), "pf+cimm", _losses(sweep_backlash, "pf+cimm", lam))
+        assert _losses(sweep_backlash, "pf+cimm", lam) <= 3.5
+        assert max(r["contact_losses"] for r in _rows(sweep_backlash, "pf+cimm", lam)) <= 5
+        assert min(r["contact_losses"] for r in _rows(sweep_backlash, "pf", lam)) >= 10
+    print("largest stable: pf", largest_stable(sweep_backlash, "pf"), "pf+cimm", largest_stable(sweep_backlash, "pf+cimm"))
 
 
 def test_force_filter_removes_high_frequency_cimm_keeps_it(sweep_rows):
-    lk = largest_stable(sweep_rows, "pf+K_lambda")
-    hf_k = np.mean([r["hf_energy_fraction"] for r in sweep_rows
-                    if r["condition"] == "pf+K_lambda" and r["lambda"] == lk])
-    hf_c = np.mean([r["hf_energy_fraction"] for r in sweep_rows
-                    if r["condition"] == "pf+cimm" and r["lambda"] == lk])
-    print(f"F_f energy above 50 Hz at lambda {lk}: K_lambda {hf_k:.3f}, CIMM {hf_c:.3f}")
+    hf_k = np.mean([r["hf_energy_fraction"] for r in _rows(sweep_rows, "pf+K_lambda", 3.0)])
+    hf_c = np.mean([r["hf_energy_fraction"] for r in _rows(sweep_rows, "pf+cimm", 3.0)])
+    print(f"F_f energy above 50 Hz at lambda 3: K_lambda {hf_k:.3f}, CIMM {hf_c:.3f}")
     assert hf_c > 3 * hf_k
 
 
@@ -115,13 +244,18 @@ def test_start_up_check_warns_on_overestimating_model(cimm_model, testbed):
 
 def test_currents_limited_and_finite(testbed, cimm_model):
     path, cr = default_path(testbed.servo_rate_hz, 1.0, n_taps=1)
-    res = run_session(testbed, TeleopConfig(controller="pf+cimm", lam=15.0), path, cimm=cimm_model,
+    # the F_f saturation off, so that the amplifier's own clamp is what limits the master current
+    res = run_session(testbed, TeleopConfig(controller="pf+cimm", lam=15.0, ff_max_N=0.0), path, cimm=cimm_model,
                       impact_ticks=cr)
     for col, lim in ((K.O_IM, testbed.master.device["current_amplifier_A"]),
                      (K.O_IS, testbed.slave.device["current_amplifier_A"])):
         i = res.col(col)
         assert np.all(np.isfinite(i)) and np.max(np.abs(i)) <= lim + 1e-12
     assert res.counts["master_clip_ticks"] > 0
+    # with the default saturation the master current stays at 1.08 N / (rho k_t / h)
+    res = run_session(testbed, TeleopConfig(controller="pf+cimm", lam=15.0), path, cimm=cimm_model, impact_ticks=cr)
+    kf = 15.0 * 0.0235 / 0.15
+    assert np.max(np.abs(res.col(K.O_IM))) <= FF_MAX_N / kf + 1e-9 and res.counts["master_clip_ticks"] == 0
 
 
 def test_nan_and_divergence_stop_with_zero_output(testbed):
@@ -154,7 +288,10 @@ def test_teleop_command_writes_run_folder_and_refuses_overwrite(tmp_path, capsys
                  str(cimm_file), "--out", str(out)]) == 0
     run = json.loads((out / "run.json").read_text())
     assert run["cimm_model"]["source"] == f"file: {cimm_file}"
-    assert run["unstable_taps"] == 0 and run["fault"] == 0 and len(run["taps"]) == 2
+    assert run["fault"] == 0 and len(run["taps"]) == 2
+    assert all(tap["contact_class"] in ("settles", "buzzes", "make-break") for tap in run["taps"])
+    assert run["controller"]["kp_s_N_m"] == pytest.approx(81.48, abs=0.01)   # the derived gains are recorded
+    assert run["controller"]["ff_max_N"] == pytest.approx(1.08)
     assert (out / "figure_5_10.png").stat().st_size > 10000
     cols = (out / "traces.csv").read_text().splitlines()[0].split(",")
     assert "x_hat_mi_hf_m" in cols and "F_f_N" in cols
@@ -168,6 +305,10 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
                  "--cimm-model", "stand-in", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["cimm_model"]["source"] == STAND_IN_SOURCE
     assert (out / "figure_5_11.png").exists() and "pf+cimm" in (out / "table.md").read_text()
+    assert "largest lambda that settles | largest lambda that holds contact" in (out / "table.md").read_text()
+    trials = (out / "trials.csv").read_text().splitlines()
+    assert "contact_class" in trials[0].split(",") and len(trials) == 5
+    assert all(line.split(",")[4] in ("settles", "buzzes", "make-break") for line in trials[1:])
     err = capsys.readouterr().err          # not a terminal: plain progress lines, no bar redrawn with \r
     assert "\r" not in err and "teleop-sweep: 4 of 4 taps done" in err
     assert main(["teleop-sweep", "--lambda", "5:1", "--out", str(tmp_path / "x")]) == 2
@@ -176,13 +317,18 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
 
 
 def test_cimm_robust_to_30_percent_model_errors(testbed, cimm_model, sweep_rows):
+    """+/-30 % in the model's user stiffness or hand mass changes what cancellation does by little: contact
+    losses per tap over lambda 1-15 within 15 % of the nominal model's, all under half of those without
+    cancellation (measured: 11.1-12.0 against 11.6 nominal; pf 40)."""
     from renderer.teleop.commands import robustness
-    lmax_pf = largest_stable(sweep_rows, "pf")
-    table = robustness(testbed, cimm_model, (1.0, 2.0, 3.0), taps=1, seed=4)
-    print("robustness (largest stable lambda):", table)
+    table = robustness(testbed, cimm_model, LAMBDAS, taps=1, seed=4)
+    pf = float(np.mean([r["contact_losses"] for r in sweep_rows if r["condition"] == "pf"]))
+    print("robustness:", table, "pf losses per tap:", pf)
     assert len(table) == 5
-    for name, lam in table.items():
-        assert lam >= 3 * lmax_pf, name
+    nominal = table["nominal"]["mean_contact_losses"]
+    for name, v in table.items():
+        assert abs(v["mean_contact_losses"] - nominal) <= 0.15 * nominal, name
+        assert v["mean_contact_losses"] < 0.5 * pf, name
 
 
 def test_cli_choice_lists_match_the_testbed_and_the_controllers():
@@ -203,18 +349,3 @@ def test_teleop_help_does_not_import_the_numba_testbed():
             "print('numba' in sys.modules, 'devices.sim' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60).stdout
     assert out.strip().splitlines()[-1] == "False False", out
-
-
-def test_slave_pd_defaults_follow_the_architecture():
-    """Position-force uses the softer slave servo (docs/teleop.md, "Slave gains"), bilateral PD the stiffer
-    one; explicit gains win and run.json records the resolved numbers."""
-    for controller in ("pf", "pf+cimm"):
-        cfg = TeleopConfig(controller=controller)
-        assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == SLAVE_PD_DEFAULTS["pf"] == (200.0, 2.0)
-    for controller in ("pd", "pd+hfam"):
-        cfg = TeleopConfig(controller=controller)
-        assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == SLAVE_PD_DEFAULTS["pd"] == (600.0, 3.0)
-    cfg = TeleopConfig(controller="pf", kp_s_N_m=600.0, kd_s_Ns_m=3.0)
-    assert (cfg.kp_s_N_m, cfg.kd_s_Ns_m) == (600.0, 3.0)
-    with pytest.raises(ValueError):
-        TeleopConfig(controller="pf", kp_s_N_m=-1.0)

@@ -59,7 +59,8 @@ def _tap(master_kg: float, lam: float, mu: float = 1.0):
                   push_N=-lam * HOLD_N)
     tb = Testbed(_ideal_mass(master_kg), _ideal_mass(SLAVE_KG), operator=op, environment=SURFACE, rigid=True)
     cfg = TeleopConfig(controller="pf", mu=mu, lam=lam, kp_s_N_m=SLAVE_KG * SLAVE_W_RAD_S ** 2,
-                       kd_s_Ns_m=2 * SLAVE_ZETA * SLAVE_KG * SLAVE_W_RAD_S, divergence_m=0.1)
+                       kd_s_Ns_m=2 * SLAVE_ZETA * SLAVE_KG * SLAVE_W_RAD_S, divergence_m=0.1,
+                       ff_max_N=0.0)   # eq. 5.8 is about unsaturated feedback (Figure 5.10's saturation off)
     n = int(DURATION_S * tb.servo_rate_hz)
     v_master = SPEED_M_S / mu
     path = HEIGHT_M / mu - v_master * np.arange(n) / tb.servo_rate_hz   # the intended descent
@@ -78,7 +79,8 @@ def _held_tap(master_kg: float, lam: float, cancel: bool):
     op = Operator(k_u_N_m=k, q_u_N_m5=0.0, b_u_Ns_m=b, hand_mass_kg=0.0)
     tb = Testbed(_ideal_mass(master_kg), _ideal_mass(SLAVE_KG), operator=op, environment=SURFACE, rigid=True)
     cfg = TeleopConfig(controller="pf+cimm" if cancel else "pf", lam=lam, kp_s_N_m=SLAVE_KG * SLAVE_W_RAD_S ** 2,
-                       kd_s_Ns_m=2 * SLAVE_ZETA * SLAVE_KG * SLAVE_W_RAD_S, divergence_m=0.1)
+                       kd_s_Ns_m=2 * SLAVE_ZETA * SLAVE_KG * SLAVE_W_RAD_S, divergence_m=0.1,
+                       ff_max_N=0.0)   # eq. 5.8 is about unsaturated feedback (Figure 5.10's saturation off)
     t = np.arange(int(DURATION_S * tb.servo_rate_hz)) / tb.servo_rate_hz
     t_surface = HEIGHT_M / SPEED_M_S
     tau = PRESS_M / SPEED_M_S                  # the exponential ease keeps the velocity continuous

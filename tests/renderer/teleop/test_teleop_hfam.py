@@ -1,8 +1,9 @@
 """HFAM over bilateral PD in teleoperation (section 4.3.1, Figures 1.6 and 4.5), with H_ha from the
 project's comprehensive identification of the simulated master held by the teleoperation operator (never
-the simulator's true parameters). Issue 18's targets, 22-1000 Hz with the pipeline delay removed by
-cross-correlation (``accel_match``): PD alone, master RMS < 20 % of the tip's; PD + HFAM, correlation
->= 0.8 and normalised RMS error <= 0.5."""
+the simulator's true parameters), and the servo gains of the stated rule (8 Hz, damping ratio 0.7).
+22-1000 Hz with the pipeline delay removed by cross-correlation (``accel_match``). Issue 37's targets
+(correlation >= 0.9, NRMSE <= 0.45 over three operators; at most one bounce per tap) are measured here; the
+ones not met are pinned to their measured reasons (docs/teleop.md, "Bilateral PD and HFAM on wood")."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from devices.sim.params import default_params
 from devices.sim.teleop import ENVIRONMENTS, Operator, Testbed
 from renderer.teleop.commands import HFAM_K_MU_HZ, HFAM_MASTER_PD_HZ
 from renderer.teleop.hfam import accel_match, bartlett_hann_fir, design_hfam, identify_master_hha
-from renderer.teleop.session import TeleopConfig, default_path, run_session
+from renderer.teleop.session import TeleopConfig, default_path, run_session, session_metrics
 
 FS = 5000.0
 # the operator the targets are measured with, spelled out: the NRMSE target holds for this operator, not for
@@ -80,7 +81,8 @@ def test_inverse_that_cannot_match_in_the_band_is_refused(hha):
 
 
 def test_smoothing_bounds_the_match(wood):
-    """What the prescribed smoothing alone allows: an exact inverse after the FIR and the 22 Hz high-pass."""
+    """What the prescribed smoothing alone allows: an exact inverse after the FIR and the 22 Hz high-pass. Its
+    NRMSE is above issue 37's 0.45: no inverse model can meet that target behind ``barthann(15)``."""
     from scipy import signal  # deferred: analysis only
 
     path, cr = default_path(FS, 1.0, n_taps=3)
@@ -92,8 +94,9 @@ def test_smoothing_bounds_the_match(wood):
     for name, fir in (("barthann15", bartlett_hann_fir()), ("15 nonzero taps", nonzero_ends / nonzero_ends.sum())):
         bound[name] = accel_match(tip, signal.sosfilt(hp, np.convolve(tip, fir)[:len(tip)]), FS)
     print("exact inverse after the smoothing:", bound)
-    # measured 0.935 / 0.487 with barthann(15); 0.912 / 0.565 with 15 nonzero taps (the target is out of reach)
-    assert bound["barthann15"]["nrmse"] < 0.5 < bound["15 nonzero taps"]["nrmse"]
+    # measured 0.929 / 0.468 with barthann(15); worse with 15 nonzero taps
+    assert 0.45 < bound["barthann15"]["nrmse"] < bound["15 nonzero taps"]["nrmse"]
+    assert bound["barthann15"]["correlation"] >= 0.9
     assert bound["barthann15"]["delay_samples"] == 7
 
 
@@ -102,7 +105,7 @@ def test_pd_alone_master_feels_almost_nothing(wood):
     res = run_session(wood, TeleopConfig(controller="pd"), path, impact_ticks=cr)
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD alone:", m)
-    assert m["rms_ratio"] < 0.20   # measured 0.085
+    assert m["rms_ratio"] < 0.20   # measured 0.05
 
 
 def _free_air_tip_rms(res):
@@ -117,24 +120,28 @@ def test_pd_hfam_master_matches_slave_tip_on_wood(wood, hha):
     hf = design_hfam(hha, FS, max_current_A=4.0)
     path, cr = default_path(FS, 1.0, n_taps=3)
     # without K_mu the HFAM-induced master motion re-enters x_c; with the inverse's sign right in the band that
-    # loop no longer rings (it rang at ~140 Hz, 35 m/s^2, while the inverse pushed the wrong way below 596 Hz)
+    # loop does not ring (it rang at ~140 Hz, 35 m/s^2, while the inverse pushed the wrong way below 596 Hz)
     free = run_session(wood, TeleopConfig(controller="pd+hfam"), path, hfam=hf, impact_ticks=cr)
     res = run_session(wood, _hfam_config(), path, hfam=hf, impact_ticks=cr)
     print("free-air tip RMS (22-1000 Hz): no K_mu", _free_air_tip_rms(free), "defaults", _free_air_tip_rms(res))
-    assert _free_air_tip_rms(free) < 2.0 and _free_air_tip_rms(res) < 2.0   # measured 0.95 and 1.1 m/s^2
+    # measured 0.56 m/s^2 without K_mu, 4.1 with the 40 Hz K_mu: with the rule's 8 Hz slave servo the K_mu
+    # low-pass only adds lag to the PD loop, which then rings near 20 Hz in free air (docs/teleop.md)
+    assert _free_air_tip_rms(free) < 1.0 and _free_air_tip_rms(res) < 6.0
     assert res.fault == 0
     i = res.col(K.O_IM)
     assert np.all(np.isfinite(i)) and np.max(np.abs(i)) <= 4.0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD + HFAM (wood):", m)
-    # issue 18 targets; measured 0.908 / 0.477 / RMS ratio 0.68, delay 1.8 ms (before: 0.71 / 0.70 / 0.66)
-    assert m["correlation"] >= 0.8
-    assert m["nrmse"] <= 0.5
+    # measured 0.895 / 0.520 / RMS ratio 0.63, delay 1.8 ms with the rule's gains (0.908 / 0.477 with the
+    # earlier hand-picked 1500 N/m master PD); the issue's 0.9 / 0.45 are not met: see the bound above
+    assert m["correlation"] >= 0.87
+    assert m["nrmse"] <= 0.55
     assert 1.5e-3 <= m["delay_s"] <= 2.5e-3   # 7 samples of smoothing + the servo cycle
 
 
-def test_master_pd_lowpass_helps(wood, hha):
-    """The master PD unfiltered pulls back the handle motion HFAM creates (measured NRMSE 0.495 vs 0.477)."""
+def test_master_pd_lowpass_keeps_more_of_the_hfam_amplitude(wood, hha):
+    """The master PD unfiltered pulls back some of the handle motion HFAM creates (measured with the rule's
+    8 Hz master servo: RMS ratio 0.60 -> 0.63, NRMSE 0.529 -> 0.520)."""
     hf = design_hfam(hha, FS, max_current_A=4.0)
     path, cr = default_path(FS, 1.0, n_taps=3)
     m = {}
@@ -143,8 +150,8 @@ def test_master_pd_lowpass_helps(wood, hha):
                           path, hfam=hf, impact_ticks=cr)
         m[lp] = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("master PD low-pass off / on:", m)
-    assert m[HFAM_MASTER_PD_HZ]["nrmse"] < m[0.0]["nrmse"] - 0.01
-    assert m[HFAM_MASTER_PD_HZ]["rms_ratio"] > m[0.0]["rms_ratio"]
+    assert m[HFAM_MASTER_PD_HZ]["nrmse"] < m[0.0]["nrmse"]
+    assert m[HFAM_MASTER_PD_HZ]["rms_ratio"] > m[0.0]["rms_ratio"] + 0.01
 
 
 def test_pd_hfam_master_matches_slave_tip_stroking_texture(texture, hha):
@@ -154,6 +161,55 @@ def test_pd_hfam_master_matches_slave_tip_stroking_texture(texture, hha):
     assert res.fault == 0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD + HFAM (texture):", m)
-    # measured 0.913 / 0.481 / RMS ratio 0.66 (before: 0.74 / 0.69 / 0.60)
-    assert m["correlation"] >= 0.8
-    assert m["nrmse"] <= 0.5
+    # measured 0.904 / 0.505 / RMS ratio 0.64
+    assert m["correlation"] >= 0.87
+    assert m["nrmse"] <= 0.55
+
+
+# three operators: grip and hand/arm mass spread (half and double the default grip impedance and mass)
+OPERATORS = {"default": OPERATOR,
+             "light": dataclasses.replace(OPERATOR, k_u_N_m=20.0, b_u_Ns_m=11.5, hand_mass_kg=0.1),
+             "firm": dataclasses.replace(OPERATOR, k_u_N_m=80.0, b_u_Ns_m=46.0, hand_mass_kg=0.4)}
+
+
+@pytest.fixture(scope="module")
+def three_operators():
+    """PD + HFAM on wood for each operator, H_ha identified with that operator holding the master."""
+    P = default_params()
+    out = {}
+    path, cr = default_path(FS, 1.0, n_taps=3)
+    for name, op in OPERATORS.items():
+        tb = Testbed(P, P, operator=op, environment=ENVIRONMENTS["wood"])
+        hf = design_hfam(identify_master_hha(P, FS, operator=op), FS, max_current_A=4.0)
+        res = run_session(tb, _hfam_config(), path, hfam=hf, impact_ticks=cr)
+        out[name] = (res, accel_match(res.col(K.O_AS), res.col(K.O_AM), FS), session_metrics(res))
+    return out
+
+
+def test_hfam_match_over_three_operators(three_operators):
+    """Issue 37: correlation >= 0.9, NRMSE <= 0.45 over three operators. Measured 0.868-0.895 and 0.520-0.602:
+    not met (the smoothing alone bounds NRMSE at 0.468; the firm, heavy operator pins the handle)."""
+    for name, (res, m, _) in three_operators.items():
+        print(name, m)
+        assert res.fault == 0
+        assert m["correlation"] >= 0.85, name
+        assert m["nrmse"] <= 0.65, name
+    assert three_operators["firm"][1]["nrmse"] > three_operators["default"][1]["nrmse"]
+
+
+def test_slave_chatter_on_wood_is_its_undamped_handle(three_operators):
+    """Issue 37: at most one bounce per tap, not met -- measured 30-60 contact losses per tap under PD + HFAM
+    (and PD alone). The reason, measured: the unheld slave handle rattles on its linkage (Table 3.1: b_l = 0) on
+    nearly elastic wood (alpha = 0.3 s/m). With 4 N s/m of linkage damping (a diagnostic, not the model) the
+    same PD taps lose contact at most twice. The thesis's HFAM testbed was a pair of early Phantoms with
+    "relatively stiff linkage elements" (section 4.3.2), not the Impulse Engine's soft linkage."""
+    losses = {name: [t.contact_losses for t in mets] for name, (_, _, mets) in three_operators.items()}
+    print("contact losses per tap:", losses)
+    assert min(min(v) for v in losses.values()) >= 10
+    P = default_params()
+    damped = Testbed(P, P.replace(mechanics={"b_l_Ns_m": 4.0}), operator=OPERATOR, environment=ENVIRONMENTS["wood"])
+    path, cr = default_path(FS, 1.0, n_taps=3)
+    res = run_session(damped, TeleopConfig(controller="pd"), path, impact_ticks=cr)
+    d = [t.contact_losses for t in session_metrics(res)]
+    print("with linkage damping 4 N s/m:", d)
+    assert max(d) <= 2
