@@ -37,6 +37,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import MappingProxyType
 
 import numpy as np
@@ -45,8 +46,9 @@ from scipy import signal
 from devices.sim import Person, SimDevice
 
 from ..library import HfamLibrary
+from .pipeline import OPEN_LOOP_LIBRARY, build_from_folder
 from .refine import play_tap
-from .settings import TAP_STOP_TIME_S
+from .settings import TAP_STOP_TIME_S, PipelineSettings
 
 #: the person who taps by default: the sim's default (``devices.sim.DEFAULT_PERSON``); named for the tables
 DEFAULT_PERSON_NAME = "default"
@@ -85,6 +87,10 @@ class ScoreSettings:
         Stiffness of the proportional wall the transients play over (the firm wall, Table 4.1: 680 N/m).
     sample : str
         The real sample the references tap (the recordings' ``wood_on_foam``).
+    reference_person : str
+        Who taps the real references: ``same`` (the person who taps the rendering: what that person would
+        feel on the real sample) or ``recording`` (the default person, who tapped the library's recordings:
+        section 4.4.3 matches "pre-recorded transients and transients generated during virtual tapping").
     reference_grip_N : float or None
         Grip of the reference taps: 2 N, the recordings' grip (the demo's references; section 4.4.1: "contact
         accelerations are generally independent of grip force"), or None for the scored tap's own grip.
@@ -104,6 +110,7 @@ class ScoreSettings:
 
     wall_N_m: float = 680.0
     sample: str = "wood_on_foam"
+    reference_person: str = "same"
     reference_grip_N: float | None = 2.0
     stop_time_s: float = TAP_STOP_TIME_S
     seed: int = 1
@@ -118,6 +125,9 @@ class ScoreSettings:
             raise ValueError(f"ScoreSettings.wall_N_m must be >= 0 N/m, got {self.wall_N_m!r}")
         if self.reference_grip_N is not None and not (self.reference_grip_N >= 0):
             raise ValueError(f"ScoreSettings.reference_grip_N must be >= 0 N or None, got {self.reference_grip_N!r}")
+        if self.reference_person not in ("same", "recording"):
+            raise ValueError(f"ScoreSettings.reference_person must be 'same' or 'recording', got "
+                             f"{self.reference_person!r}")
         lo, hi = self.band_hz
         if not 0 < lo < hi:
             raise ValueError(f"ScoreSettings.band_hz must be (lo, hi) with 0 < lo < hi, got {self.band_hz!r}")
@@ -322,7 +332,8 @@ def score_library(library: HfamLibrary, speeds_m_s: Sequence[float], grips_N: Se
             if (v, g_ref) not in refs:
                 # the reference is always tapped on the default device: raising the transient limit must not
                 # change what the rendering is compared with (the motor is off anyway)
-                refs[(v, g_ref)] = real_reference(float(v), g_ref, hand, settings,
+                ref_hand = hand if settings.reference_person == "same" else None
+                refs[(v, g_ref)] = real_reference(float(v), g_ref, ref_hand, settings,
                                                   default_device_factory(settings.seed), n)
             cells.append(score_cell(library, float(v), float(g), refs[(v, g_ref)], hand, person, settings, factory))
     return cells
@@ -442,3 +453,249 @@ def format_cells(cells: Sequence[CellScore], title: str) -> str:
                  + (f" (their NRMSE median {m['saturated_median_nrmse']:.3f}, worst {m['saturated_worst_nrmse']:.3f})"
                     if m["n_saturated"] else ""))
     return "\n".join(lines)
+
+
+#: the raised transient-only limit the thermal option reports by default (A): twice the sim's 4 A peak
+DEFAULT_TRANSIENT_LIMIT_A = 8.0
+
+
+@dataclass(frozen=True)
+class HfamScores:
+    """Everything :func:`score_pipeline` measured (issue 36 item 5).
+
+    Attributes
+    ----------
+    open_loop : list of CellScore
+        The open-loop library over the open-loop grid, default person, default current limit.
+    refined : list of CellScore
+        The refined library over the unseen conditions, both persons (reference: ``settings.reference_person``).
+    refined_recording_reference : list of CellScore
+        The same taps against the recording person's real taps (section 4.4.3's "pre-recorded transients").
+    raised : list of CellScore
+        The open-loop library rebuilt for, and played under, the raised transient limit, same grid.
+    saturation_grid : list of CellScore
+        The open-loop library over the whole saturation grid (default limit).
+    saturation_grid_raised : list of CellScore
+        The same under the raised limit.
+    transient_limit_A : float
+    thermal : dict
+        :func:`thermal_budget` of ``saturation_grid_raised``.
+    thermal_default : dict
+        :func:`thermal_budget` of ``saturation_grid``.
+    person_floor : list of dict
+        Per unseen speed and grip: NRMSE of the second person's real tap against the recording person's
+        (``velocity_m_s, grip_N, nrmse``): how far any library made from the recording person's taps starts
+        from the second person's own real tap.
+    """
+
+    open_loop: list
+    refined: list
+    refined_recording_reference: list
+    raised: list
+    saturation_grid: list
+    saturation_grid_raised: list
+    transient_limit_A: float
+    thermal: dict
+    thermal_default: dict
+    person_floor: list
+
+
+def person_floor(speeds_m_s: Sequence[float], grips_N: Sequence[float], settings: ScoreSettings = ScoreSettings(),
+                 hand=SECOND_PERSON) -> list[dict]:
+    """NRMSE of ``hand``'s real tap against the default person's real tap at each speed and grip (same
+    comparison as the scoring): the distance between the two persons' real taps, which a library recorded
+    by one person cannot close for the other by reproducing its recordings."""
+    factory = default_device_factory(settings.seed)
+    n = int(round((settings.eval_s + settings.max_lag_s) * 10_000.0)) + 1
+    rows = []
+    for v in speeds_m_s:
+        for g in grips_N:
+            g_ref = float(g) if settings.reference_grip_N is None else float(settings.reference_grip_N)
+            other = real_reference(float(v), g_ref, hand, settings, factory, n)
+            base = real_reference(float(v), g_ref, None, settings, factory, n)
+            fs = factory().info.servo_rate_hz
+            rows.append({"velocity_m_s": float(v), "grip_N": float(g), "nrmse": compare(other, base, fs, settings)[0]})
+    return rows
+
+
+def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loop: HfamLibrary,
+                   speeds_m_s: Sequence[float] = OPEN_LOOP_SPEEDS_M_S, grips_N: Sequence[float] = GRIPS_N,
+                   unseen_speeds_m_s: Sequence[float] | None = None,
+                   unseen_grips_N: Sequence[float] = UNSEEN_GRIPS_N,
+                   saturation_speeds_m_s: Sequence[float] | None = None,
+                   transient_limit_A: float = DEFAULT_TRANSIENT_LIMIT_A,
+                   settings: ScoreSettings = ScoreSettings()) -> HfamScores:
+    """Score a pipeline's three libraries (issue 36 item 5).
+
+    Parameters
+    ----------
+    open_loop, refined : HfamLibrary
+        The pipeline's ``library_open_loop.npz`` and ``library.npz``.
+    raised_open_loop : HfamLibrary
+        The open-loop library built with ``peak_current_A = transient_limit_A``
+        (:func:`stimuli.hfam.pipeline.build_from_folder`).
+    speeds_m_s, grips_N : sequence of float
+        The open-loop grid (m/s, N).
+    unseen_speeds_m_s, unseen_grips_N : sequence of float
+        The refined library's unseen conditions (None: :func:`unseen_speeds`).
+    saturation_speeds_m_s : sequence of float or None
+        The saturation grid's speeds (None: ``speeds_m_s`` plus 0.25 and 0.3 m/s, the speeds where the
+        thesis's device saturated).
+    transient_limit_A : float
+        The thermal option's raised limit (A).
+    settings : ScoreSettings
+
+    Returns
+    -------
+    HfamScores
+    """
+    unseen = unseen_speeds(refined) if unseen_speeds_m_s is None else tuple(unseen_speeds_m_s)
+    sat_speeds = (tuple(sorted(set(speeds_m_s) | {0.25, 0.3})) if saturation_speeds_m_s is None
+                  else tuple(saturation_speeds_m_s))
+    ol = score_library(open_loop, speeds_m_s, grips_N, settings)
+    rf = score_refined(refined, unseen, unseen_grips_N, settings)
+    rf_rec = score_refined(refined, unseen, unseen_grips_N, dataclasses.replace(settings, reference_person="recording"))
+    raised_factory = raised_limit_device_factory(transient_limit_A, settings.seed)
+    sat = score_library(open_loop, sat_speeds, grips_N, settings)
+    # the grid's cells inside the open-loop grid are the same taps as ``ol``: scored once more for simplicity
+    sat_raised = score_library(raised_open_loop, sat_speeds, grips_N, settings, device_factory=raised_factory)
+    raised = [c for c in sat_raised if any(math.isclose(c.velocity_m_s, v) for v in speeds_m_s)]
+    info = SimDevice(seed=settings.seed).info
+    return HfamScores(ol, rf, rf_rec, raised, sat, sat_raised, float(transient_limit_A),
+                      thermal_budget(sat_raised, raised_factory().info), thermal_budget(sat, info),
+                      person_floor(unseen, unseen_grips_N, settings))
+
+
+def _pick(cells: Sequence[CellScore], like: Sequence[CellScore]) -> list[CellScore]:
+    """The cells of ``cells`` at the (person, speed, grip) of ``like``."""
+    keys = {(c.person, c.velocity_m_s, c.grip_N) for c in like}
+    return [c for c in cells if (c.person, c.velocity_m_s, c.grip_N) in keys]
+
+
+def hfam_claims(scores: HfamScores) -> list[dict]:
+    """One row per issue-36 item-5 target: ``id, section, thesis, target, measured, measured_text, holds``.
+
+    ``measured`` is the number the target is about (the worst of the two NRMSE figures' margins is in the
+    text); ``holds`` is whether every part of the target holds.
+    """
+    ol = summarise(scores.open_loop)
+    rf = summarise(scores.refined)
+    rf_rec = summarise(scores.refined_recording_reference)
+    t = TARGETS
+    sat_default = [c for c in scores.saturation_grid if c.saturated]
+    sat_raised = summarise(scores.saturation_grid_raised)
+    was_sat = summarise(_pick(scores.saturation_grid_raised, sat_default))
+    floor = [r["nrmse"] for r in scores.person_floor]
+    ol_holds = (ol["median_nrmse"] <= t["open_loop_median"] and ol["worst_nrmse"] <= t["open_loop_worst"]
+                and ol["min_corr"] >= t["open_loop_min_corr"])
+    rf_holds = rf["median_nrmse"] <= t["refined_median"] and rf["worst_nrmse"] <= t["refined_worst"]
+    speeds = sorted({c.velocity_m_s for c in scores.open_loop})
+    unseen = sorted({c.velocity_m_s for c in scores.refined})
+    grips = sorted({c.grip_N for c in scores.refined})
+    sat_speeds = sorted({c.velocity_m_s for c in scores.saturation_grid})
+    th = scores.thermal
+    return [
+        {"id": "hfam_open_loop", "section": "4.4.1",
+         "thesis": "record, smooth, invert through the device model, high-pass, taper (Figure 4.7); "
+                   "\"good acceleration matching between pre-recorded transients and transients generated during "
+                   "virtual tapping when saturation was not encountered\" (4.4.3)",
+         "target": f"open-loop library over {speeds[0]:g}-{speeds[-1]:g} m/s x 1-3 N: median NRMSE <= "
+                   f"{t['open_loop_median']:g}, worst <= {t['open_loop_worst']:g}, correlation >= "
+                   f"{t['open_loop_min_corr']:g}",
+         "measured": ol["median_nrmse"],
+         "measured_text": f"median {ol['median_nrmse']:.3f}, worst {ol['worst_nrmse']:.3f}, lowest correlation "
+                          f"{ol['min_corr']:.3f} over {ol['n_scored']} cells ({ol['n_saturated']} saturated, "
+                          f"excluded)",
+         "holds": bool(ol_holds)},
+        {"id": "hfam_refined_unseen", "section": "4.4.1",
+         "thesis": "\"good acceleration matching between pre-recorded transients and transients generated during "
+                   "virtual tapping\" (4.4.3), for conditions the library was not refined on",
+         "target": f"refined library at unseen speeds {', '.join(f'{v:g}' for v in unseen)} m/s x grips "
+                   f"{', '.join(f'{g:g}' for g in grips)} N x two persons: median NRMSE <= {t['refined_median']:g}, "
+                   f"worst <= {t['refined_worst']:g}",
+         "measured": rf["median_nrmse"],
+         "measured_text": f"against each person's own real tap: median {rf['median_nrmse']:.3f}, worst "
+                          f"{rf['worst_nrmse']:.3f} over {rf['n_scored']} cells ({rf['n_saturated']} saturated); "
+                          f"against the recording person's real tap: median {rf_rec['median_nrmse']:.3f}, worst "
+                          f"{rf_rec['worst_nrmse']:.3f}; the two persons' real taps differ by NRMSE "
+                          f"{min(floor):.2f}-{max(floor):.2f}",
+         "holds": bool(rf_holds)},
+        {"id": "hfam_saturation", "section": "4.4.3",
+         "thesis": "\"the transient current command reached the saturation value of four amps ... A higher "
+                   "saturation limit could have been used to avoid this effect, though motor thermal limits would "
+                   "have more severely limited the number of strong taps\"",
+         "target": f"saturated cells flagged, counted and excluded; a transient-only limit raised under the motor "
+                   f"thermal model, with its numbers ({sat_speeds[0]:g}-{sat_speeds[-1]:g} m/s x 1-3 N)",
+         "measured": float(len(sat_default)),
+         "measured_text": f"{len(sat_default)} of {len(scores.saturation_grid)} cells saturate at the "
+                          f"{scores.saturation_grid[0].limit_A:g} A limit; at {scores.transient_limit_A:g} A "
+                          f"{sat_raised['n_saturated']}, and those cells score median "
+                          f"{was_sat['median_nrmse']:.3f}, worst {was_sat['worst_nrmse']:.3f}; hardest tap heats "
+                          f"the winding {th['max_temp_rise_K']:.2f} K (limit {th['limit_K']:g} K), "
+                          f"{th['taps_per_min']:.0f} such taps a minute sustainable",
+         "holds": bool(sat_raised["n_saturated"] < len(sat_default) or not sat_default)
+                  and th["max_temp_rise_K"] < th["limit_K"]},
+    ]
+
+
+def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSettings(),
+                       transient_limit_A: float = DEFAULT_TRANSIENT_LIMIT_A) -> tuple[HfamLibrary, HfamLibrary,
+                                                                                       HfamLibrary]:
+    """The open-loop, refined and raised-limit open-loop libraries of a pipeline folder
+    (:func:`stimuli.hfam.pipeline.build_pipeline` wrote it; the demo's cache entries are such folders).
+
+    The open-loop library is ``library_open_loop.npz`` if the folder has it, else rebuilt from the folder's
+    ``identify/`` and ``recordings.csv`` (the same code path); the raised one is always rebuilt with
+    ``peak_current_A = transient_limit_A``.
+
+    Raises
+    ------
+    FileNotFoundError
+        The folder lacks ``library.npz``, ``identify/`` or ``recordings.csv`` (named).
+    """
+    folder = Path(folder)
+    for name in ("library.npz", "identify", "recordings.csv"):
+        if not (folder / name).exists():
+            raise FileNotFoundError(f"{folder / name}: not found; --pipeline must be a folder written by the HFAM "
+                                    "pipeline (python -m renderer demo's cache entry, or score-hfam's own out/pipeline)")
+    info = SimDevice().info
+    path = folder / OPEN_LOOP_LIBRARY
+    if path.exists():
+        open_loop = HfamLibrary.load(path)
+    else:
+        open_loop = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, info.current_peak_A,
+                                      info.force_per_amp_N_A)[0]
+    raised = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, transient_limit_A,
+                               info.force_per_amp_N_A)[0]
+    return open_loop, HfamLibrary.load(folder / "library.npz"), raised
+
+
+def score_rows(scores: HfamScores) -> list[dict]:
+    """Every scored cell as a table row, with a ``set`` column (``open_loop``, ``refined_unseen``,
+    ``refined_unseen_vs_recording_person``, ``open_loop_grid``, ``open_loop_grid_raised_limit``)."""
+    sets = (("open_loop", scores.open_loop), ("refined_unseen", scores.refined),
+            ("refined_unseen_vs_recording_person", scores.refined_recording_reference),
+            ("open_loop_grid", scores.saturation_grid), ("open_loop_grid_raised_limit", scores.saturation_grid_raised))
+    return [{"set": name, **c.as_dict()} for name, cells in sets for c in cells]
+
+
+def format_scores(scores: HfamScores) -> str:
+    """The printed report: the tables of :func:`format_cells`, the thermal numbers and the claims."""
+    parts = [format_cells(scores.open_loop, "Open-loop library (no playback refinement), default person:"),
+             format_cells(scores.refined, "Refined library at conditions it was never refined on "
+                                          "(reference: each person's own real tap):"),
+             format_cells(scores.refined_recording_reference, "The same taps against the recording person's real tap:"),
+             "Real taps of the second person against the recording person's (NRMSE): "
+             + ", ".join(f"{r['velocity_m_s']:g} m/s {r['grip_N']:g} N {r['nrmse']:.3f}" for r in scores.person_floor),
+             format_cells(scores.saturation_grid, f"Saturation (section 4.4.3), open-loop library at the default "
+                                                  f"{scores.saturation_grid[0].limit_A:g} A limit:"),
+             format_cells(scores.saturation_grid_raised, f"Transient-only limit raised to {scores.transient_limit_A:g} A "
+                                                         "(library rebuilt for it):")]
+    for name, th in (("default limit", scores.thermal_default), (f"{scores.transient_limit_A:g} A", scores.thermal)):
+        parts.append(f"thermal ({name}): hardest tap {th['max_heat_A2s']:.3f} A^2 s, winding +{th['max_temp_rise_K']:.2f} K "
+                     f"from cold (limit {th['limit_K']:g} K), {th['taps_per_min']:.0f} such taps/min sustainable")
+    parts.append("Claims (issue 36 item 5):")
+    for c in hfam_claims(scores):
+        parts.append(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['id']} (section {c['section']}): {c['target']}; "
+                     f"measured {c['measured_text']}")
+    return "\n\n".join(parts)
