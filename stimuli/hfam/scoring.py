@@ -48,7 +48,8 @@ from devices.sim import Person, SimDevice
 from ..library import HfamLibrary
 from .pipeline import OPEN_LOOP_LIBRARY, build_from_folder
 from .refine import play_tap
-from .settings import TAP_STOP_TIME_S, PipelineSettings
+from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, OPEN_LOOP_SPEEDS_M_S,  # noqa: F401
+                       TAP_STOP_TIME_S, UNSEEN_GRIPS_N, PipelineSettings)
 
 #: the person who taps by default: the sim's default (``devices.sim.DEFAULT_PERSON``); named for the tables
 DEFAULT_PERSON_NAME = "default"
@@ -62,15 +63,6 @@ DEFAULT_PERSON_NAME = "default"
 SECOND_PERSON = Person(arm_mass_kg=0.2, muscle_stiffness_N_m=120.0, muscle_damping_Ns_m=6.0)
 SECOND_PERSON_NAME = "heavy-stiff"
 
-#: the issue's open-loop grid: 0.03-0.2 m/s x 1-3 N (the demo's rows inside that range, plus 0.03 and 0.14)
-OPEN_LOOP_SPEEDS_M_S = (0.03, 0.05, 0.08, 0.11, 0.14, 0.2)
-#: the issue's examples of speeds between the library's velocities; :func:`unseen_speeds` moves each to the
-#: middle of the two library velocities around it (the library's velocities are the recordings' measured
-#: incoming speeds, e.g. 0.138 m/s: 0.14 itself would be a refined condition)
-ISSUE_UNSEEN_SPEEDS_M_S = (0.065, 0.095, 0.14)
-#: grips between the library's 1/2/3 N levels
-UNSEEN_GRIPS_N = (1.5, 2.5)
-GRIPS_N = (1.0, 2.0, 3.0)
 
 #: the issue's targets (item 5)
 TARGETS = MappingProxyType({"open_loop_median": 0.30, "open_loop_worst": 0.40, "open_loop_min_corr": 0.9,
@@ -455,8 +447,6 @@ def format_cells(cells: Sequence[CellScore], title: str) -> str:
     return "\n".join(lines)
 
 
-#: the raised transient-only limit the thermal option reports by default (A): twice the sim's 4 A peak
-DEFAULT_TRANSIENT_LIMIT_A = 8.0
 
 
 @dataclass(frozen=True)
