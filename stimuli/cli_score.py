@@ -45,7 +45,7 @@ def run(args) -> int:
             pipe.mkdir()
             build_pipeline(pipe, settings, Progress(3))
         libs = scoring.pipeline_libraries(pipe, settings, args.transient_limit_A)
-        scores = scoring.score_pipeline(*libs, speeds_m_s=args.speeds_m_s, grips_N=args.grips_N,
+        scores = scoring.score_pipeline(*libs[:3], libs[3], speeds_m_s=args.speeds_m_s, grips_N=args.grips_N,
                                         unseen_speeds_m_s=args.unseen_speeds_m_s, unseen_grips_N=args.unseen_grips_N,
                                         transient_limit_A=args.transient_limit_A)
         text = scoring.format_scores(scores)
