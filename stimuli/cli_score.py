@@ -28,6 +28,7 @@ def _check(args) -> None:
         for v in vals:
             require_number(flag, v, minimum=0.0, strict=True)
     require_number("--transient-limit-A", args.transient_limit_A, minimum=0.0, strict=True)
+    scoring.raised_limit_device_factory(args.transient_limit_A)     # within the thermal model, or refused
     if args.pipeline is not None and args.pipeline.resolve().is_relative_to(args.out.resolve()):
         raise ValueError(f"--pipeline {args.pipeline} is inside --out {args.out}, which this run replaces; "
                          "copy it elsewhere or choose another --out")
