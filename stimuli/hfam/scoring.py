@@ -148,6 +148,9 @@ class CellScore:
         The alignment used (positive: the rendered tap was late).
     peak_command_A : float
         Largest |commanded current| (wall + transient) during the transient, A.
+    wall_peak_A : float
+        Largest current of the proportional wall alone during the transient (the command less the
+        transient), A: the steady-state part that Figure 4.9's lower limit would bound.
     limit_A : float
         The amplifier limit the tap played under, A.
     saturated : bool
@@ -167,6 +170,7 @@ class CellScore:
     correlation: float
     lag_ms: float
     peak_command_A: float
+    wall_peak_A: float
     limit_A: float
     saturated: bool
     temp_rise_K: float
@@ -189,9 +193,8 @@ def raised_limit_device_factory(transient_limit_A: float, seed: int = 1) -> Call
     feedback: DC motors can easily withstand higher current for short durations ... provided that the
     temperature of the motor is accurately estimated". The device's ``current_peak_A`` and
     ``current_amplifier_A`` become ``transient_limit_A``; the continuous limit and the thermal model are kept.
-    The steady-state (wall) part of each scored tap stays far below the original peak (its largest value is
-    reported as part of ``peak_command_A`` in cells without a transient's peak), so one clamp on the sum
-    stands for the two levels of Figure 4.9.
+    The steady-state (wall) part of each scored tap stays below the original peak (``CellScore.wall_peak_A``),
+    so one clamp on the sum stands for the two levels of Figure 4.9.
 
     Parameters
     ----------
@@ -297,13 +300,15 @@ def score_cell(library: HfamLibrary, velocity_m_s: float, grip_N: float, referen
     limit = float(dev.info.current_amplifier_A)
     if not math.isfinite(tap.v_in_m_s) or not np.all(np.isfinite(tap.accel_m_s2)):
         nan = math.nan
-        return CellScore(person, float(velocity_m_s), float(grip_N), nan, nan, nan, nan, nan, limit, False, nan, nan)
+        return CellScore(person, float(velocity_m_s), float(grip_N), nan, nan, nan, nan, nan, nan, limit, False, nan,
+                         nan)
     err, corr, lag = compare(_window(tap), reference, fs, s)
     n_tr = library.n_samples
     peak = float(np.max(np.abs(tap.command_A[:n_tr + 1])))     # the wall and the transient's samples
+    wall = tap.command_A[:n_tr + 1] - np.r_[0.0, current[:n_tr]]  # transient sample k is on tick k + 1
     applied = np.clip(tap.command_A, -limit, limit)
     return CellScore(person, float(velocity_m_s), float(grip_N), float(tap.v_in_m_s), err, corr, lag / fs * 1e3,
-                     peak, limit, bool(peak >= limit * (1.0 - 1e-9)),
+                     peak, float(np.max(np.abs(wall))), limit, bool(peak >= limit * (1.0 - 1e-9)),
                      float(dev.true_state()["winding_temp_rise_K"]), float(np.sum(applied * applied) / fs))
 
 
