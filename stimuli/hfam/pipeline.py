@@ -41,8 +41,6 @@ from .settings import TAP_STOP_TIME_S, BuildSettings, PipelineSettings  # noqa: 
 
 DEFAULT_VELOCITIES_M_S = (0.03, 0.05, 0.07, 0.09, 0.11, 0.14, 0.17, 0.2, 0.25, 0.3)
 DEFAULT_GRIPS_N = (0.0, 2.5, 5.0, 7.5, 10.0)
-#: the unrefined library a refining pipeline also writes (issue 36)
-OPEN_LOOP_LIBRARY = "library_open_loop.npz"
 
 
 def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_on_foam", grip_N: float = 2.0,
@@ -199,9 +197,6 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                                        dev.info.force_per_amp_N_A)
     refine_note = ""
     if s.refine_iterations > 0:
-        # the thesis's open-loop library (no playback refinement) is kept next to the refined one: issue 36
-        # scores both (stimuli.hfam.scoring)
-        lib.save(out / OPEN_LOOP_LIBRARY)
 
         lines = []
 

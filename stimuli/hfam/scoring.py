@@ -3,8 +3,9 @@
 Every number here is recomputed from a library and the sim; nothing is a stored constant.
 
 * **Open-loop** library: the thesis's pipeline (record, smooth, invert through the identified model at each
-  grip, high-pass, taper; section 4.4.1), no playback. The pipeline writes it as ``library_open_loop.npz``
-  (:data:`stimuli.hfam.pipeline.OPEN_LOOP_LIBRARY`).
+  grip, high-pass, taper; section 4.4.1), no playback: rebuilt from a pipeline folder's identification and
+  recordings by the pipeline's own build step (:func:`stimuli.hfam.pipeline.build_from_folder`), i.e. the
+  library the pipeline then refined.
 * **Refined** library: the open-loop one refined by playback on the sim (``stimuli.hfam.refine``) at the
   library's own velocities and grips, with the default person. It is scored only on conditions it was never
   refined on (:func:`generalisation_conditions`): speeds between its velocities, grips between its grip
@@ -46,7 +47,7 @@ from scipy import signal
 from devices.sim import Person, SimDevice
 
 from ..library import HfamLibrary
-from .pipeline import OPEN_LOOP_LIBRARY, build_from_folder
+from .pipeline import build_from_folder
 from .inversion import forward_simulate
 from .refine import aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, OPEN_LOOP_SPEEDS_M_S,  # noqa: F401
@@ -609,7 +610,7 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
     Parameters
     ----------
     open_loop, refined : HfamLibrary
-        The pipeline's ``library_open_loop.npz`` and ``library.npz``.
+        The pipeline's open-loop library (:func:`pipeline_libraries`) and its ``library.npz``.
     models : sequence of (grip_N, model)
         The identified models the libraries were inverted through (:func:`model_mismatch`).
     raised_open_loop : HfamLibrary
@@ -725,9 +726,9 @@ def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSet
     """The open-loop, refined and raised-limit open-loop libraries of a pipeline folder
     (:func:`stimuli.hfam.pipeline.build_pipeline` wrote it; the demo's cache entries are such folders).
 
-    The open-loop library is ``library_open_loop.npz`` if the folder has it, else rebuilt from the folder's
-    ``identify/`` and ``recordings.csv`` (the same code path); the raised one is always rebuilt with
-    ``peak_current_A = transient_limit_A``.
+    The open-loop library is rebuilt from the folder's ``identify/`` and ``recordings.csv`` by the pipeline's
+    build step (:func:`stimuli.hfam.pipeline.build_from_folder`: the library the pipeline then refined); the
+    raised one the same way with ``peak_current_A = transient_limit_A``.
 
     Returns
     -------
@@ -746,12 +747,8 @@ def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSet
             raise FileNotFoundError(f"{folder / name}: not found; --pipeline must be a folder written by the HFAM "
                                     "pipeline (python -m renderer demo's cache entry, or score-hfam's own out/pipeline)")
     info = SimDevice().info
-    path = folder / OPEN_LOOP_LIBRARY
-    if path.exists():
-        open_loop = HfamLibrary.load(path)
-    else:
-        open_loop = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, info.current_peak_A,
-                                      info.force_per_amp_N_A)[0]
+    open_loop = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, info.current_peak_A,
+                                  info.force_per_amp_N_A)[0]
     raised, _, models, _, _ = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, transient_limit_A,
                                                 info.force_per_amp_N_A)
     grips = [float(m.grip_N) for _, m in models]

@@ -17,7 +17,7 @@ from scipy import stats
 from devices.sim import SimDevice, TapTrajectory
 from stimuli.__main__ import main
 from stimuli.hfam import scoring as S
-from stimuli.hfam.pipeline import OPEN_LOOP_LIBRARY, PipelineSettings, Progress, build_pipeline
+from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
 from stimuli.library import HfamLibrary
 
 CLAIM_KEYS = ["id", "section", "thesis", "target", "measured", "measured_text", "holds"]
@@ -43,13 +43,18 @@ def scores(libs):
     return S.score_pipeline(*libs[:3], libs[3])
 
 
-def test_the_pipeline_keeps_its_open_loop_library(pipe, libs):
-    """The refining pipeline writes the unrefined library too, and the refinement changed the currents."""
-    open_loop, refined = HfamLibrary.load(pipe / OPEN_LOOP_LIBRARY), HfamLibrary.load(pipe / "library.npz")
-    assert np.array_equal(open_loop.currents_A, libs[0].currents_A)
+def test_the_open_loop_library_is_the_one_the_pipeline_refined(pipe, libs):
+    """Rebuilt from the pipeline folder by its own build step: the same velocities, grips and targets as the
+    refined library, the same currents where the refinement did not touch them (grip 0 N), and a rebuild
+    gives the same currents."""
+    open_loop, refined = libs[0], HfamLibrary.load(pipe / "library.npz")
     assert np.array_equal(open_loop.velocities_m_s, refined.velocities_m_s)
+    assert np.array_equal(open_loop.grips_N, refined.grips_N)
+    assert np.array_equal(open_loop.desired_accel_m_s2, refined.desired_accel_m_s2)
     assert "refinement" in refined.metadata and "refinement" not in open_loop.metadata
-    assert np.max(np.abs(refined.currents_A - open_loop.currents_A)) > 0.05
+    assert np.array_equal(open_loop.currents_A[:, 0], refined.currents_A[:, 0])       # 0 N: not refined
+    assert np.max(np.abs(refined.currents_A[:, 1:] - open_loop.currents_A[:, 1:])) > 0.05
+    assert np.array_equal(S.pipeline_libraries(pipe)[0].currents_A, open_loop.currents_A)
 
 
 def test_claims_are_one_row_per_target_with_the_issue_keys(scores):
