@@ -51,7 +51,7 @@ from .pipeline import build_from_folder
 from .inversion import forward_simulate
 from .refine import aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, OPEN_LOOP_SPEEDS_M_S,  # noqa: F401
-                       TAP_STOP_TIME_S, UNSEEN_GRIPS_N, PipelineSettings)
+                       TAP_STOP_TIME_S, UNSEEN_GRIPS_N, BuildSettings, PipelineSettings)
 
 #: the person who taps by default: the sim's default (``devices.sim.DEFAULT_PERSON``); named for the tables
 DEFAULT_PERSON_NAME = "default"
@@ -721,14 +721,25 @@ def hfam_claims(scores: HfamScores) -> list[dict]:
     ]
 
 
+def _build_settings(library: HfamLibrary) -> BuildSettings | None:
+    """The :class:`BuildSettings` a library's metadata records (``settings``), or None if it records none."""
+    stored = library.metadata.get("settings")
+    if not isinstance(stored, dict):
+        return None
+    names = {f.name for f in dataclasses.fields(BuildSettings)}
+    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items() if k in names}
+    return BuildSettings(**kw)
+
+
 def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSettings(),
                        transient_limit_A: float = DEFAULT_TRANSIENT_LIMIT_A) -> tuple:
     """The open-loop, refined and raised-limit open-loop libraries of a pipeline folder
     (:func:`stimuli.hfam.pipeline.build_pipeline` wrote it; the demo's cache entries are such folders).
 
     The open-loop library is rebuilt from the folder's ``identify/`` and ``recordings.csv`` by the pipeline's
-    build step (:func:`stimuli.hfam.pipeline.build_from_folder`: the library the pipeline then refined); the
-    raised one the same way with ``peak_current_A = transient_limit_A``.
+    build step (:func:`stimuli.hfam.pipeline.build_from_folder`) with the build settings ``library.npz``
+    records (its ``settings`` metadata; ``pipeline_settings`` if it records none): the library the pipeline
+    then refined. The raised one the same way with ``peak_current_A = transient_limit_A``.
 
     Returns
     -------
@@ -747,12 +758,15 @@ def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSet
             raise FileNotFoundError(f"{folder / name}: not found; --pipeline must be a folder written by the HFAM "
                                     "pipeline (python -m renderer demo's cache entry, or score-hfam's own out/pipeline)")
     info = SimDevice().info
+    refined = HfamLibrary.load(folder / "library.npz")
+    # the settings the pipeline built with (its metadata), so the rebuild is the library it refined
+    bs = _build_settings(refined)
     open_loop = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, info.current_peak_A,
-                                  info.force_per_amp_N_A)[0]
+                                  info.force_per_amp_N_A, bs)[0]
     raised, _, models, _, _ = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, transient_limit_A,
-                                                info.force_per_amp_N_A)
+                                                info.force_per_amp_N_A, bs)
     grips = [float(m.grip_N) for _, m in models]
-    return open_loop, HfamLibrary.load(folder / "library.npz"), raised, list(zip(grips, [m for _, m in models]))
+    return open_loop, refined, raised, list(zip(grips, [m for _, m in models]))
 
 
 def score_rows(scores: HfamScores) -> list[dict]:
