@@ -87,14 +87,14 @@ def test_open_loop_scores_follow_the_model_mismatch(scores):
     mism = {(r["velocity_m_s"], r["grip_N"]): r["nrmse"] for r in scores.model_mismatch}
     keys = sorted(by_cell)
     rho = stats.spearmanr([by_cell[k] for k in keys], [mism[k] for k in keys]).statistic
-    assert rho > 0.7, rho
+    assert rho > 0.8, rho
     slow = [mism[k] for k in keys if k[0] <= 0.08]
     fast = [mism[k] for k in keys if k[0] >= 0.11]
     assert np.mean(fast) > np.mean(slow) + 0.05, (slow, fast)
-    # a cell cannot beat both floors by much: its error is at least the mismatch less the target's own share
+    # no cell beats its mismatch by much (measured: every cell at least its mismatch)
     floor = [r["nrmse"] for r in scores.target_floor]
     assert len(floor) == 12 and all(0.15 < f < 0.3 for f in floor), floor
-    assert all(by_cell[k] > 0.5 * mism[k] for k in keys)
+    assert all(by_cell[k] > 0.8 * mism[k] for k in keys)
 
 
 def test_refined_library_generalises_for_the_recording_person(scores):
