@@ -12,6 +12,8 @@ COMMANDS = (
     Command("show", "stimuli.cli_show_parser", "plot an HFAM library (accelerations and currents per velocity/grip) to a PNG"),
     Command("sim-library", "stimuli.cli_sim_library_parser",
             "record simulated taps and build the shipped default library through the sim's LTI models"),
+    Command("score-hfam", "stimuli.cli_score_parser",
+            "score the open-loop and refined HFAM libraries against the real tap on the sim (issue 36)"),
 )
 
 

@@ -7,6 +7,9 @@
               section 4.4.1; details in docs/hfam_library.md)
 ``pipeline``  device -> models + recorded taps -> library: the simulated recording and the shipped
               library (``python -m stimuli sim-library``), the demo's identify/record/build steps
+``scoring``   the open-loop and refined libraries against the real tap on the sim, unseen conditions,
+              saturation and the thermal option (:func:`score_pipeline`, :func:`hfam_claims`; issue 36,
+              ``python -m stimuli score-hfam``)
 """
 
 import importlib
@@ -16,11 +19,12 @@ _EXPORTS = {"BuildReport": "build", "build_library": "build", "file_digest": "bu
             "check_model": "inversion", "forward_simulate": "inversion", "highpass_target": "inversion",
             "invert": "inversion", "make_proper": "inversion", "nrmse_corr": "inversion",
             "Selection": "selection", "select_taps": "selection", "MAX_SMOOTH_HZ": "settings",
-            "BuildSettings": "settings"}
+            "BuildSettings": "settings", "hfam_claims": "scoring", "score_pipeline": "scoring",
+            "pipeline_libraries": "scoring"}
 
 __all__ = ["MAX_SMOOTH_HZ", "BuildReport", "BuildSettings", "Selection", "band_sos", "build_library", "check_model",
            "file_digest", "format_verification", "forward_simulate", "highpass_target", "invert", "make_proper",
-           "nrmse_corr", "select_taps", "source_entry"]
+           "hfam_claims", "nrmse_corr", "pipeline_libraries", "score_pipeline", "select_taps", "source_entry"]
 
 
 def __getattr__(name):

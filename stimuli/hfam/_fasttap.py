@@ -12,7 +12,7 @@ from devices.sim import layout as L
 
 
 @njit(cache=True, _nrt=False)
-def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hist, acc):
+def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hist, acc, hist_acc, cmd):
     """One tap on the wall ``-wall_N_m x`` (x < 0) with ``current_A`` played from the tick after the crossing.
 
     Parameters
@@ -29,6 +29,12 @@ def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hi
         Written: a ring of the positions read up to and including the crossing tick.
     acc : float64 array (n,)
         Written: acceleration read after the command of ticks 0..n-1 after the crossing (NaN elsewhere).
+    hist_acc : float64 array (n_hist,)
+        Written alongside ``hist``: the acceleration read on the same ticks (the approach before impact; the
+        HFAM scoring compares windows that start before impact, ``stimuli.hfam.scoring``).
+    cmd : float64 array (n,)
+        Written: the current commanded (wall + transient, before the amplifier's clamp) on ticks 0..n-1 after
+        the crossing, A (section 4.4.3's saturation: whether the command reached the limit).
 
     Returns
     -------
@@ -47,6 +53,7 @@ def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hi
         x = dev[L.D_POS]
         if k_imp < 0:
             hist[pushed % n_hist] = x
+            hist_acc[pushed % n_hist] = dev[L.D_ACC]
             pushed += 1
             if prev >= 0.0 > x:                         # the renderer: depth -x > 0
                 k_imp = k
@@ -56,6 +63,8 @@ def tap_on_wall(dev, sp, ss, srs, traj, grip, current_A, wall_N_m, kf, limit, hi
             i_cmd += current_A[j - 1]
         # SimDevice.command(i_cmd): the device's input rule, then one servo period of its physics (written
         # out as in renderer.law.run_sim: one shared inlined helper for both made that loop 20 % slower)
+        if 0 <= j < n:
+            cmd[j] = i_cmd
         i, status, rejected = SK.command_rule_nb(i_cmd, dev[L.D_LIMIT])
         dev[L.D_REJECTED] += rejected
         dev[L.D_LAST] = i

@@ -19,6 +19,7 @@ code itself needs only ``devices.model``.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -192,18 +193,8 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                           f"{max(np.max(np.abs(a)) for _, _, a in taps):.0f} m/s^2")
 
     progress.start("building the HFAM library (select, smooth, invert per grip, high-pass, taper, verify)")
-
-    mset = load_model_set(out / "identify")
-    models = [(f"identify/accel_g{g:g}N.json", m) for g, m in zip(mset.grip_N, mset.models["accel_m_s2"])]
-    fs_rec, rec_taps = read_tap_csv(out / "recordings.csv")
-    # the reader estimates fs from t_s steps (9999.99999...); the library must carry the servo rate exactly
-    fs_rec = fs if abs(fs_rec - fs) < 1e-6 * fs else fs_rec
-    bs = BuildSettings(n_velocities=min(s.library_velocities, len(rec_taps)), smooth_hz=s.smooth_hz,
-                       peak_current_A=dev.info.current_peak_A, scale_to_limit=True)
-    lib, rep = build_library(rec_taps, fs_rec, models, bs, force_per_amp_N_A=dev.info.force_per_amp_N_A,
-                             log=None, provenance={"source_files": {"recordings": "recordings.csv",
-                                                                    "models": [n for n, _ in models]},
-                                                   "device": s.device, "built_by": "python -m renderer demo"})
+    lib, rep, models, rec_taps, bs = build_from_folder(out, s, fs, dev.info.current_peak_A,
+                                                       dev.info.force_per_amp_N_A)
     refine_note = ""
     if s.refine_iterations > 0:
 
@@ -236,6 +227,49 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
                                        + (f"; {len(rep.scaled)} transient(s) scaled to the peak limit"
                                           if rep.scaled else "") + refine_note)
     return timings
+
+
+def build_from_folder(out: Path, s: PipelineSettings, fs_hz: float, peak_current_A: float,
+                      force_per_amp_N_A: float, settings: BuildSettings | None = None):
+    """Build the open-loop library (section 4.4.1: select, smooth, invert, high-pass, taper) from a pipeline
+    folder's identification (``identify/``) and recordings (``recordings.csv``).
+
+    Parameters
+    ----------
+    out : Path
+        The folder :func:`build_pipeline` wrote.
+    s : PipelineSettings
+    fs_hz : float
+        The device's servo rate (Hz; the recordings' time column rounds it).
+    peak_current_A : float
+        Current limit of the transients (A); those above are scaled down to it (``BuildSettings.scale_to_limit``).
+    force_per_amp_N_A : float
+        The device's force constant (N/A).
+    settings : BuildSettings or None
+        None: the pipeline's own (``s.library_velocities``, ``s.smooth_hz``).
+
+    Returns
+    -------
+    library : HfamLibrary
+    report : BuildReport
+    models : list of (name, ZpkModel)
+    taps : list of Tap
+        The recordings read back.
+    settings : BuildSettings
+        What was used.
+    """
+    mset = load_model_set(out / "identify")
+    models = [(f"identify/accel_g{g:g}N.json", m) for g, m in zip(mset.grip_N, mset.models["accel_m_s2"])]
+    fs_rec, rec_taps = read_tap_csv(out / "recordings.csv")
+    # the reader estimates fs from t_s steps (9999.99999...); the library must carry the servo rate exactly
+    fs_rec = fs_hz if abs(fs_rec - fs_hz) < 1e-6 * fs_hz else fs_rec
+    bs = settings or BuildSettings(n_velocities=min(s.library_velocities, len(rec_taps)), smooth_hz=s.smooth_hz)
+    bs = dataclasses.replace(bs, peak_current_A=float(peak_current_A), scale_to_limit=True)
+    lib, rep = build_library(rec_taps, fs_rec, models, bs, force_per_amp_N_A=force_per_amp_N_A,
+                             log=None, provenance={"source_files": {"recordings": "recordings.csv",
+                                                                    "models": [n for n, _ in models]},
+                                                   "device": s.device, "built_by": "python -m renderer demo"})
+    return lib, rep, models, rec_taps, bs
 
 
 def identify_grips(dev, s: PipelineSettings, out: Path, say) -> str:

@@ -177,6 +177,30 @@ def aligned(y: np.ndarray, d: np.ndarray, max_lag: int) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class WallTap:
+    """One simulated tap played by :func:`play_tap` (arrays on the library's time base).
+
+    Attributes
+    ----------
+    accel_m_s2 : ndarray, shape (n,)
+        Measured handle acceleration at ticks 1..n after the crossing tick (sample k at t = (k+1)/fs after
+        impact); NaN if the tap never crossed.
+    pre_accel_m_s2 : ndarray, shape (n_pre,)
+        The acceleration read on the ``n_pre`` ticks up to and including the crossing tick, oldest first.
+    command_A : ndarray, shape (n,)
+        The current commanded on the same ticks as ``accel_m_s2`` (wall + transient, before the amplifier's
+        clamp), A.
+    v_in_m_s : float
+        Incoming speed (least-squares slope of the encoder over the 5 ms before the crossing, m/s).
+    """
+
+    accel_m_s2: np.ndarray
+    pre_accel_m_s2: np.ndarray
+    command_A: np.ndarray
+    v_in_m_s: float
+
+
 def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: float, wall_N_m: float,
                  stop_time_s: float = 0.045, hand=None) -> tuple[np.ndarray, float]:
     """One simulated tap on a proportional wall with a transient; the handle acceleration after impact.
@@ -200,10 +224,34 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     Returns
     -------
     accel_m_s2 : ndarray, shape (n,)
-        Measured handle acceleration at ticks 1..n after the crossing tick (the library's time base,
-        sample k at t = (k+1)/fs after impact); NaN if the tap never crossed.
+        :attr:`WallTap.accel_m_s2`.
     v_in_m_s : float
-        Incoming speed (least-squares slope of the encoder over the 5 ms before the crossing, m/s).
+        :attr:`WallTap.v_in_m_s`.
+    """
+    tap = play_tap(device, current_A, velocity_m_s, grip_N, wall_N_m, stop_time_s, hand)
+    return tap.accel_m_s2, tap.v_in_m_s
+
+
+def play_tap(device, current_A: np.ndarray, velocity_m_s: float, grip_N: float, wall_N_m: float,
+             stop_time_s: float = 0.045, hand=None, sample: str = "placeholder", motor_on: bool = True,
+             pre_s: float = 0.01) -> WallTap:
+    """:func:`play_on_wall` with everything the HFAM scoring needs (``stimuli.hfam.scoring``).
+
+    Parameters
+    ----------
+    device, current_A, velocity_m_s, grip_N, wall_N_m, stop_time_s, hand
+        As :func:`play_on_wall`.
+    sample : str
+        The sim sample under the stylus (``placeholder``: none, a virtual wall; ``wood_on_foam``: the real
+        sample, with ``motor_on=False`` and ``wall_N_m=0``, as the recordings are tapped).
+    motor_on : bool
+        The motor's enable (False: a real-sample tap with the motor off, section 4.4.1).
+    pre_s : float
+        How much acceleration before the crossing to keep (s, at least the 5 ms of the incoming-speed fit).
+
+    Returns
+    -------
+    WallTap
     """
 
     fs = device.info.servo_rate_hz
@@ -211,51 +259,61 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     n = int(current_A.size)
     traj = TapTrajectory(float(velocity_m_s), n_taps=1, approach_height_m=max(0.004, 0.04 * velocity_m_s),
                          press_depth_m=float(velocity_m_s) * stop_time_s / 1.5)
-    device.set_sample("placeholder")
+    device.set_sample(sample)
     device.set_user(traj, grip_N=float(grip_N), hand=hand)
-    device.motor_enabled = True
-    n_hist = int(round(0.005 * fs))
+    device.motor_enabled = bool(motor_on)
+    n_fit = int(round(0.005 * fs))
+    n_hist = max(n_fit, int(round(pre_s * fs)))
     acc = np.full(n, np.nan)
+    cmd = np.full(n, np.nan)
     limit = int(math.ceil(traj.duration_s * fs))
     if callable(getattr(device, "fused_arrays", None)):
         # the same ticks in one compiled call (~15x faster: the refinement plays ~900 taps per demo build)
 
         dv = device.fused_state()
-        ring = np.empty(n_hist)
+        ring, ring_acc = np.empty(n_hist), np.empty(n_hist)
         try:
             k_imp, pushed = tap_on_wall(dv, *device.fused_arrays(), np.ascontiguousarray(current_A, dtype=float),
-                                        float(wall_N_m), float(kf), limit, ring, acc)
+                                        float(wall_N_m), float(kf), limit, ring, acc, ring_acc, cmd)
         finally:
             device.fused_sync(dv)
-        h = ring[np.arange(pushed - min(pushed, n_hist), pushed) % n_hist]  # the ring, oldest first
+        order = np.arange(pushed - min(pushed, n_hist), pushed) % n_hist   # the ring, oldest first
+        h, h_acc = ring[order], ring_acc[order]
     else:
-        k_imp, hist = _tap_loop(device, current_A, wall_N_m, kf, limit, acc)
-        h = np.array(hist[-n_hist:])
+        k_imp, hist, hist_acc = _tap_loop(device, current_A, wall_N_m, kf, limit, acc, cmd)
+        h, h_acc = np.array(hist[-n_hist:]), np.array(hist_acc[-n_hist:])
+    pre = np.zeros(n_hist)
+    pre[n_hist - h_acc.size:] = h_acc
     if k_imp < 0:
-        return acc, math.nan
+        return WallTap(acc, pre, cmd, math.nan)
+    h = h[-n_fit:]
     t = np.arange(h.size) / fs
     v_in = -float(np.polyfit(t, h, 1)[0]) if h.size > 2 else math.nan
-    return acc, v_in
+    return WallTap(acc, pre, cmd, v_in)
 
 
-def _tap_loop(device, current_A, wall_N_m, kf, limit, acc):
-    """:func:`play_on_wall`'s ticks through ``read()``/``command()`` (any device); returns the crossing tick
-    (-1: none) and the positions read up to it."""
+def _tap_loop(device, current_A, wall_N_m, kf, limit, acc, cmd):
+    """:func:`play_tap`'s ticks through ``read()``/``command()`` (any device); returns the crossing tick
+    (-1: none), the positions read up to it and the accelerations read with them."""
     n = int(current_A.size)
-    hist = []
+    hist, hist_acc = [], []
     k_imp = -1
     prev = device.read().position_m
     k = 0
     while k < limit:
-        x = device.read().position_m
+        st = device.read()
+        x = st.position_m
         if k_imp < 0:
             hist.append(x)
+            hist_acc.append(st.accel_m_s2)
             if prev >= 0.0 > x:                         # the renderer: depth -x > 0
                 k_imp = k
         i_cmd = (-wall_N_m * x / kf) if x < 0.0 else 0.0
         j = k - k_imp if k_imp >= 0 else -1
         if 1 <= j <= n:
             i_cmd += float(current_A[j - 1])           # the renderer's timing: sample 0 on the next tick
+        if 0 <= j < n:
+            cmd[j] = i_cmd
         device.command(i_cmd)
         if 0 <= j < n:
             acc[j] = device.read().accel_m_s2      # the state one period after the command
@@ -263,7 +321,7 @@ def _tap_loop(device, current_A, wall_N_m, kf, limit, acc):
             break
         prev = x
         k += 1
-    return k_imp, hist
+    return k_imp, hist, hist_acc
 
 
 def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], device_factory: Callable,

@@ -227,3 +227,17 @@ class PipelineSettings:
     def to_dict(self) -> dict:
         """The settings as plain JSON-able data (tuples as lists)."""
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+
+# -- the HFAM scoring's grids (issue 36 item 5; stimuli.hfam.scoring, ``python -m stimuli score-hfam``) --------
+#: the issue's open-loop grid: 0.03-0.2 m/s x 1-3 N (the demo's rows inside that range, plus 0.03 and 0.14)
+OPEN_LOOP_SPEEDS_M_S = (0.03, 0.05, 0.08, 0.11, 0.14, 0.2)
+#: the issue's examples of speeds between the library's velocities; :func:`stimuli.hfam.scoring.unseen_speeds` moves each to the
+#: middle of the two library velocities around it (the library's velocities are the recordings' measured
+#: incoming speeds, e.g. 0.138 m/s: 0.14 itself would be a refined condition)
+ISSUE_UNSEEN_SPEEDS_M_S = (0.065, 0.095, 0.14)
+#: grips between the library's 1/2/3 N levels
+UNSEEN_GRIPS_N = (1.5, 2.5)
+GRIPS_N = (1.0, 2.0, 3.0)
+#: the raised transient-only limit the thermal option reports by default (A): twice the sim's 4 A peak
+DEFAULT_TRANSIENT_LIMIT_A = 8.0

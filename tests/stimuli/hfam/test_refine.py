@@ -156,7 +156,7 @@ def test_compiled_tap_is_the_read_command_loop_tick_for_tick():
     """play_on_wall's compiled tap (stimuli/hfam/_fasttap.py over the sim's fused arrays) and its
     read()/command() loop (any device) give the same accelerations, incoming speed and device state."""
     from devices.sim import SimDevice
-    from stimuli.hfam.refine import play_on_wall
+    from stimuli.hfam.refine import play_on_wall, play_tap
 
     rng = np.random.default_rng(0)
     for v, g in ((0.05, 1.0), (0.1, 2.0), (0.3, 3.0)):
@@ -170,3 +170,25 @@ def test_compiled_tap_is_the_read_command_loop_tick_for_tick():
         assert np.max(np.abs(a_fast)) > 1.0      # the transient and the wall really moved the handle
         assert (fast.time_s, fast.read().position_m, fast.rejected_commands, fast.last_command_A) == \
             (slow.time_s, slow.read().position_m, slow.rejected_commands, slow.last_command_A)
+    # play_tap's extra outputs (the HFAM scoring's): the commanded current and the approach's accelerations, on
+    # a wall and on the real sample with the motor off
+    for kw in ({"wall_N_m": 680.0}, {"wall_N_m": 0.0, "sample": "wood_on_foam", "motor_on": False}):
+        current = rng.normal(0.0, 1.5, 600)
+        fast, slow = SimDevice(seed=5), SimDevice(seed=5)
+        slow.fused_arrays = None
+        wall = kw.pop("wall_N_m")
+        t_fast = play_tap(fast, current, 0.2, 3.0, wall, **kw)
+        t_slow = play_tap(slow, current, 0.2, 3.0, wall, **kw)
+        for field in ("accel_m_s2", "pre_accel_m_s2", "command_A"):
+            assert np.array_equal(getattr(t_fast, field), getattr(t_slow, field)), field
+        assert t_fast.v_in_m_s == t_slow.v_in_m_s and t_fast.pre_accel_m_s2.size == 100
+        assert np.isfinite(t_fast.command_A).all() and np.isfinite(t_fast.pre_accel_m_s2).all()
+        if wall:
+            # the command is the wall's current plus the transient (sample k on tick k + 1), before the clamp
+            assert np.max(np.abs(t_fast.command_A)) > 4.0
+            wall_part = np.r_[t_fast.command_A[0], t_fast.command_A[1:] - current[:-1]]
+            assert np.all(wall_part >= 0.0) and 0.05 < wall_part.max() < 3.0     # -k x / kf below the surface
+        else:
+            # no wall: the command is the current alone (ignored by the motor-off device)
+            assert np.array_equal(t_fast.command_A, np.r_[0.0, current[:-1]])
+            assert np.max(np.abs(t_fast.accel_m_s2)) > 50.0   # the real wood on foam's impact, motor off

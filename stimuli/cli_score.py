@@ -1,0 +1,62 @@
+"""``python -m stimuli score-hfam``: the body (see :mod:`stimuli.cli_score_parser`)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+from plumbing.outdir import output_folder
+from plumbing.validation import require_number
+
+from .hfam import scoring
+from .hfam.pipeline import Progress, build_pipeline
+from .hfam.settings import PipelineSettings
+
+#: what the command writes into --out (other files there are the user's)
+PRODUCTS = ("scores.csv", "claims.json", "scores.txt", "pipeline")
+
+
+def _check(args) -> None:
+    """Refuse bad grids before any work (ValueError names the option)."""
+    for flag, key in (("--speeds-m-s", "speeds_m_s"), ("--grips-N", "grips_N"), ("--unseen-grips-N", "unseen_grips_N"),
+                      ("--unseen-speeds-m-s", "unseen_speeds_m_s")):
+        vals = getattr(args, key)
+        if vals is None:
+            continue
+        if not vals:
+            raise ValueError(f"{flag}: give at least one number")
+        for v in vals:
+            require_number(flag, v, minimum=0.0, strict=True)
+    require_number("--transient-limit-A", args.transient_limit_A, minimum=0.0, strict=True)
+    scoring.raised_limit_device_factory(args.transient_limit_A)     # within the thermal model, or refused
+    if args.pipeline is not None and args.pipeline.resolve().is_relative_to(args.out.resolve()):
+        raise ValueError(f"--pipeline {args.pipeline} is inside --out {args.out}, which this run replaces; "
+                         "copy it elsewhere or choose another --out")
+
+
+def run(args) -> int:
+    """Run the pipeline (or read ``--pipeline``), score it, print and write the tables; returns the exit code."""
+    _check(args)
+    folder = output_folder(args.out, args.force, products=PRODUCTS, results="earlier scores").open()
+    with folder:
+        pipe = args.pipeline
+        settings = PipelineSettings()
+        if pipe is None:
+            pipe = folder.path / "pipeline"
+            pipe.mkdir()
+            build_pipeline(pipe, settings, Progress(3))
+        libs = scoring.pipeline_libraries(pipe, settings, args.transient_limit_A)
+        scores = scoring.score_pipeline(*libs[:3], libs[3], speeds_m_s=args.speeds_m_s, grips_N=args.grips_N,
+                                        unseen_speeds_m_s=args.unseen_speeds_m_s, unseen_grips_N=args.unseen_grips_N,
+                                        transient_limit_A=args.transient_limit_A)
+        text = scoring.format_scores(scores)
+        rows = scoring.score_rows(scores)
+        with open(folder.path / "scores.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        (folder.path / "claims.json").write_text(json.dumps(scoring.hfam_claims(scores), indent=2) + "\n")
+        (folder.path / "scores.txt").write_text(text + "\n")
+    print(text)
+    print(f"\nwrote {args.out}/scores.csv, claims.json, scores.txt" + ("" if args.pipeline else ", pipeline/"))
+    return 0

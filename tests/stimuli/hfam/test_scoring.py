@@ -1,0 +1,236 @@
+"""HFAM scoring (issue 36 item 5): the open-loop and refined libraries against the real tap on the sim, the
+unseen conditions, saturation flagging and the thermal option (stimuli/hfam/scoring.py, docs/hfam_library.md).
+
+One pipeline (identify, record, build, refine: the demo's defaults) and one scoring run per module; every number
+asserted is recomputed here from the sim.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from devices.sim import SimDevice, TapTrajectory
+from stimuli.__main__ import main
+from stimuli.hfam import scoring as S
+from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
+from stimuli.library import HfamLibrary
+
+CLAIM_KEYS = ["id", "section", "thesis", "target", "measured", "measured_text", "holds"]
+
+
+@pytest.fixture(scope="module")
+def pipe(tmp_path_factory):
+    """The demo's pipeline (default PipelineSettings) run once into a temporary folder."""
+    out = tmp_path_factory.mktemp("hfam_pipeline")
+    build_pipeline(out, PipelineSettings(), Progress(3, quiet=True))
+    return out
+
+
+@pytest.fixture(scope="module")
+def libs(pipe):
+    """(open_loop, refined, raised, models) of the pipeline."""
+    return S.pipeline_libraries(pipe)
+
+
+@pytest.fixture(scope="module")
+def scores(libs):
+    """The whole scoring with its defaults."""
+    return S.score_pipeline(*libs[:3], libs[3])
+
+
+def test_the_open_loop_library_is_the_one_the_pipeline_refined(pipe, libs):
+    """Rebuilt from the pipeline folder by its own build step: the same velocities, grips and targets as the
+    refined library, the same currents where the refinement did not touch them (grip 0 N), and a rebuild
+    gives the same currents."""
+    open_loop, refined = libs[0], HfamLibrary.load(pipe / "library.npz")
+    assert np.array_equal(open_loop.velocities_m_s, refined.velocities_m_s)
+    assert np.array_equal(open_loop.grips_N, refined.grips_N)
+    assert np.array_equal(open_loop.desired_accel_m_s2, refined.desired_accel_m_s2)
+    assert "refinement" in refined.metadata and "refinement" not in open_loop.metadata
+    assert np.array_equal(open_loop.currents_A[:, 0], refined.currents_A[:, 0])       # 0 N: not refined
+    assert np.max(np.abs(refined.currents_A[:, 1:] - open_loop.currents_A[:, 1:])) > 0.05
+    assert np.array_equal(S.pipeline_libraries(pipe)[0].currents_A, open_loop.currents_A)
+
+
+def test_claims_are_one_row_per_target_with_the_issue_keys(scores):
+    claims = S.hfam_claims(scores)
+    assert [c["id"] for c in claims] == ["hfam_open_loop", "hfam_refined_unseen", "hfam_saturation"]
+    for c in claims:
+        assert list(c) == CLAIM_KEYS
+        assert isinstance(c["holds"], bool) and math.isfinite(c["measured"])
+        assert c["section"] in ("4.4.1", "4.4.3") and c["thesis"] and c["target"] and c["measured_text"]
+    json.dumps(claims)                                   # the demo writes them to fidelity.csv / JSON
+    ol, rf = S.summarise(scores.open_loop), S.summarise(scores.refined)
+    assert claims[0]["measured"] == ol["median_nrmse"]
+    assert claims[0]["holds"] == (ol["median_nrmse"] <= 0.30 and ol["worst_nrmse"] <= 0.40 and ol["min_corr"] >= 0.9)
+    assert claims[1]["holds"] == (rf["median_nrmse"] <= 0.28 and rf["worst_nrmse"] <= 0.38)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 36 item 5: the open-loop library misses median <= 0.30 / worst <= 0.40 "
+                                       "on this sim (the device departs from its LTI model, test below); "
+                                       "docs/hfam_library.md 'Scoring'")
+def test_open_loop_target(scores):
+    m = S.summarise(scores.open_loop)
+    assert m["median_nrmse"] <= 0.30 and m["worst_nrmse"] <= 0.40 and m["min_corr"] >= 0.9
+
+
+def test_open_loop_scores_follow_the_model_mismatch(scores):
+    """Why the open loop misses: over the grid, a cell's NRMSE against the real tap rises with how far the sim's
+    response to its transient is from the inversion's LTI model (superposition), which rises with tap speed;
+    the smoothed targets themselves sit 0.15-0.3 from the real tap."""
+    by_cell = {(c.velocity_m_s, c.grip_N): c.nrmse for c in scores.open_loop}
+    mism = {(r["velocity_m_s"], r["grip_N"]): r["nrmse"] for r in scores.model_mismatch}
+    keys = sorted(by_cell)
+    rho = stats.spearmanr([by_cell[k] for k in keys], [mism[k] for k in keys]).statistic
+    assert rho > 0.8, rho
+    slow = [mism[k] for k in keys if k[0] <= 0.08]
+    fast = [mism[k] for k in keys if k[0] >= 0.11]
+    assert np.mean(fast) > np.mean(slow) + 0.05, (slow, fast)
+    # no cell beats its mismatch by much (measured: every cell at least its mismatch)
+    floor = [r["nrmse"] for r in scores.target_floor]
+    assert len(floor) == 12 and all(0.15 < f < 0.3 for f in floor), floor
+    assert all(by_cell[k] > 0.8 * mism[k] for k in keys)
+
+
+def test_refined_library_generalises_for_the_recording_person(scores):
+    """The refined library at speeds between its velocities and grips between its levels, tapped by the
+    person it was refined with: within the issue's refined targets."""
+    own = [c for c in scores.refined if c.person == S.DEFAULT_PERSON_NAME]
+    assert len(own) == 6 and not any(c.saturated for c in own)
+    m = S.summarise(own)
+    assert m["median_nrmse"] <= 0.28 and m["worst_nrmse"] <= 0.38, m
+    assert m["min_corr"] >= 0.9
+
+
+@pytest.mark.xfail(strict=True, reason="issue 36 item 5: the second person's real taps are 0.28-0.31 from the "
+                                       "recording person's, and the refined library reproduces the recordings "
+                                       "(test below); docs/hfam_library.md 'Scoring'")
+def test_refined_target_over_both_persons(scores):
+    m = S.summarise(scores.refined)
+    assert m["median_nrmse"] <= 0.28 and m["worst_nrmse"] <= 0.38
+
+
+def test_second_person_is_farther_from_own_real_tap_than_from_the_recordings(scores):
+    """The refined library plays for the second person closer to the recording person's real tap than to that
+    person's own: it carries the recordings, and the two persons' real taps differ by >= 0.25."""
+    other = {(c.velocity_m_s, c.grip_N): c for c in scores.refined if c.person == S.SECOND_PERSON_NAME}
+    vs_rec = {(c.velocity_m_s, c.grip_N): c for c in scores.refined_recording_reference
+              if c.person == S.SECOND_PERSON_NAME}
+    assert len(other) == 6 and set(other) == set(vs_rec)
+    for k in other:
+        assert other[k].v_in_m_s == vs_rec[k].v_in_m_s            # the same tap, two references
+        assert other[k].nrmse > vs_rec[k].nrmse + 0.03, k
+    assert all(r["nrmse"] >= 0.25 for r in scores.person_floor), scores.person_floor
+    assert S.summarise(list(vs_rec.values()))["worst_nrmse"] <= 0.38
+
+
+def test_unseen_conditions_are_between_the_library_points(libs, scores):
+    refined = libs[1]
+    speeds = sorted({c.velocity_m_s for c in scores.refined})
+    assert speeds == sorted(S.unseen_speeds(refined))
+    v = refined.velocities_m_s
+    for s in speeds:
+        k = int(np.searchsorted(v, s))
+        assert abs(s - 0.5 * (v[k - 1] + v[k])) < 1e-4
+    assert {c.grip_N for c in scores.refined} == {1.5, 2.5}
+    assert {c.person for c in scores.refined} == {S.DEFAULT_PERSON_NAME, S.SECOND_PERSON_NAME}
+    with pytest.raises(ValueError, match="near the library's own velocity"):
+        S.generalisation_conditions(refined, [float(v[4]) + 1e-4])
+    with pytest.raises(ValueError, match="grip 2 N is one of the library's grip levels"):
+        S.generalisation_conditions(refined, [S.unseen_speeds(refined)[0]], [2.0])
+
+
+def test_saturation_is_flagged_counted_and_excluded(scores):
+    """Section 4.4.3: a cell whose command reached the amplifier limit is saturated; the summary leaves it out.
+    At the sim's 4 A the fast, firm-grip cells saturate (0.3 m/s x 3 N among them); the raised limit takes
+    every one of them below its clamp, with currents above the old limit."""
+    grid = scores.saturation_grid
+    for c in grid:
+        assert c.saturated == (c.peak_command_A >= c.limit_A * (1 - 1e-9)) and c.limit_A == 4.0
+    sat = [c for c in grid if c.saturated]
+    assert any(c.velocity_m_s == 0.3 and c.grip_N == 3.0 for c in sat)
+    assert all(c.velocity_m_s >= 0.14 for c in sat)
+    m = S.summarise(grid)
+    assert m["n_saturated"] == len(sat) and m["n_scored"] == len(grid) - len(sat)
+    assert m["worst_nrmse"] == max(c.nrmse for c in grid if not c.saturated)
+    raised = {(c.velocity_m_s, c.grip_N): c for c in scores.saturation_grid_raised}
+    assert S.summarise(scores.saturation_grid_raised)["n_saturated"] < len(sat)
+    # the wall's own (steady-state) current stays under the device's peak in every tap: one clamp on the sum
+    # stands for Figure 4.9's two levels
+    assert all(0.0 < c.wall_peak_A < 1.0 for c in scores.saturation_grid_raised)
+    for c in sat:
+        r = raised[(c.velocity_m_s, c.grip_N)]
+        assert r.limit_A == scores.transient_limit_A and r.peak_command_A > 4.0
+        assert r.nrmse < c.nrmse + 0.02                   # no worse than clipped
+    assert S.hfam_claims(scores)[2]["measured"] == len(sat)
+
+
+def test_thermal_numbers_follow_the_winding_model(scores):
+    """Each tap's winding temperature rise (the sim's thermal state) equals R R_th / tau x its heat (the
+    first-order model over a tap much shorter than tau), and the sustained tap rate follows from I_cont."""
+    info = SimDevice().info
+    k = info.winding_resistance_ohm * info.thermal_resistance_K_W / info.thermal_time_constant_s
+    for c in scores.saturation_grid_raised + scores.saturation_grid:
+        assert c.temp_rise_K == pytest.approx(k * c.heat_A2s, rel=0.02), c
+    th = scores.thermal
+    assert th["max_temp_rise_K"] < th["limit_K"]
+    assert th["taps_per_min"] == pytest.approx(60 * info.current_continuous_A ** 2 / th["max_heat_A2s"])
+    assert scores.thermal["max_heat_A2s"] > scores.thermal_default["max_heat_A2s"]
+
+
+def test_raised_limit_stays_inside_the_thermal_model():
+    """max_transient_limit_A is the current a 100 ms transient may hold from cold: the sim's winding reaches
+    (0.99)^2 of its limit holding 0.99 of it for 100 ms; beyond it the option is refused."""
+    top = S.max_transient_limit_A(SimDevice().info)
+    dev = S.raised_limit_device_factory(0.99 * top)()
+    assert dev.info.current_amplifier_A == pytest.approx(0.99 * top) and dev.info.current_continuous_A == 1.26
+    dev.set_user(TapTrajectory(0.05, n_taps=1), grip_N=2.0)
+    with dev:
+        for _ in range(1000):
+            dev.command(0.99 * top)
+            dev.read()
+        rise = dev.true_state()["winding_temp_rise_K"]
+    assert rise == pytest.approx(0.99 ** 2 * dev.info.winding_max_temp_rise_K, rel=1e-3)
+    with pytest.raises(ValueError, match="between the device's peak current 4 A"):
+        S.raised_limit_device_factory(1.01 * top)
+    with pytest.raises(ValueError, match="between the device's peak current 4 A"):
+        S.raised_limit_device_factory(3.0)
+
+
+def test_score_settings_refuse_bad_values():
+    for kw, msg in (({"wall_N_m": -1.0}, "wall_N_m"), ({"reference_person": "other"}, "reference_person"),
+                    ({"band_hz": (100.0, 20.0)}, "band_hz"), ({"max_lag_s": 0.05}, "max_lag_s"),
+                    ({"pre_s": 0.0001}, "pre_s")):
+        with pytest.raises(ValueError, match=msg):
+            S.ScoreSettings(**kw)
+
+
+def test_score_hfam_command(pipe, tmp_path, capsys):
+    """``python -m stimuli score-hfam`` on an existing pipeline, small grids: prints the tables, writes the CSV
+    and the claims, refuses to overwrite them and names bad input."""
+    out = tmp_path / "scores"
+    argv = ["score-hfam", "--out", str(out), "--pipeline", str(pipe), "--speeds-m-s", "0.05,0.3",
+            "--grips-N", "3", "--unseen-grips-N", "1.5"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "Open-loop library" in text and "Claims (issue 36 item 5)" in text and "SAT (excluded)" in text
+    rows = (out / "scores.csv").read_text().splitlines()
+    assert rows[0].startswith("set,person,velocity_m_s,grip_N")
+    assert sum(r.startswith("open_loop,") for r in rows) == 2
+    claims = json.loads((out / "claims.json").read_text())
+    assert [list(c) for c in claims] == [CLAIM_KEYS] * 3
+    assert main(argv) == 2
+    assert "already holds earlier scores" in capsys.readouterr().err
+    assert main(argv[:3] + ["--force", "--pipeline", str(tmp_path / "none")]) == 2
+    assert "none/library.npz: not found" in capsys.readouterr().err
+    assert main(["score-hfam", "--out", str(tmp_path / "o2"), "--pipeline", str(pipe), "--unseen-speeds-m-s",
+                 str(float(HfamLibrary.load(pipe / "library.npz").velocities_m_s[3]))]) == 2
+    assert "not an unseen condition" in capsys.readouterr().err
+    assert main(["score-hfam", "--out", str(tmp_path / "o3"), "--pipeline", str(pipe), "--transient-limit-A", "2"]) == 2
+    assert "transient limit 2.0 A must be between" in capsys.readouterr().err
+    assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
