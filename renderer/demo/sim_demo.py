@@ -365,7 +365,8 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
               "pulse_firm": "pulse over firm", "pulse_soft": "pulse over soft", "sinusoid_firm": "sinusoid over firm",
               "sinusoid_soft": "sinusoid over soft", "hfam_firm": "HFAM over firm", "hfam_soft": "HFAM over soft"}
     out_figs["penetration"] = figs.penetration_figure(
-        pen, labels, out / "fig_penetration.png", f"{', '.join(f'{v:g}' for v in op)} m/s x grips")
+        pen, labels, out / "fig_penetration.png", f"{', '.join(f'{v:g}' for v in op)} m/s x grips",
+        {"thesis 4.5.5: wood, wood on foam < 0.25 mm": 0.25, "thesis 4.5.5: foam, soft wall > 2 mm": 2.0})
     if grid is not None:
         out_figs["hfam_grid"] = grid[-1] if _drawn_aside(side) else figs.hfam_grid_figure(*grid)
     if pipeline_figures:
