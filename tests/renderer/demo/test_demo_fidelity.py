@@ -160,4 +160,14 @@ def test_duplicate_claim_ids_are_refused(tmp_path, claims):
 def test_nan_measurement_does_not_hold():
     c = fidelity.measure_claims({}, (), 10_000.0)
     assert len(c) == 16 and not any(x.holds for x in c)
-    assert all(math.isnan(x.measured) or x.measured == 0 for x in c)
+    assert all(math.isnan(x.measured) for x in c)
+    line = fidelity.format_fidelity(c)
+    assert line.startswith("Thesis claims reproduced by the sim: 0 of 16; not measured by these taps")
+    assert "(not:" not in line
+
+
+def test_printed_line_counts_what_holds(claims):
+    line = fidelity.format_fidelity(claims.values())
+    n = sum(c.holds for c in claims.values())
+    assert line.startswith(f"Thesis claims reproduced by the sim: {n} of 16 (not: ")
+    assert "not measured" not in line
