@@ -15,3 +15,24 @@ os.environ.setdefault("HFAM_SIM_AOT", "off")
 # in the children on exec, so they meet Ctrl-C as a user's terminal would deliver it.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+import pytest  # noqa: E402 (after the settings above, which must come first)
+
+
+@pytest.fixture(scope="session")
+def default_demo(tmp_path_factory):
+    """The sim demo with its default settings (``make demo``'s taps, no figures), run once per session.
+
+    Shared by the fidelity tests (tests/renderer/demo/test_demo_fidelity.py) and the README's printed table
+    (tests/integration/test_readme_demo_table.py). Its own cache folder: built once (~15-40 s), then the taps.
+    """
+    from renderer.demo import config as demo_config, sim_demo
+    from stimuli.hfam.pipeline import Progress
+
+    out = tmp_path_factory.mktemp("default_demo")
+    cfg = demo_config.DemoConfig()
+    res = sim_demo.run_sim_demo(cfg, out, tmp_path_factory.mktemp("default_demo_cache"), figures=False,
+                                progress=Progress(5, quiet=True))
+    res.cfg, res.out = cfg, out
+    return res

@@ -12,6 +12,7 @@ from plumbing.fileio import check_output_dir
 from plumbing.outdir import output_folder
 from stimuli.hfam.settings import PipelineSettings
 
+from .fidelity import format_fidelity
 from .report import DEMO_PRODUCTS
 from .config import DemoConfig
 from .hw_demo import run_hardware_demo
@@ -76,8 +77,10 @@ def run(args) -> int:
     print(format_table(cfg, res.rows, res.pipeline.library))
     if res.reactive:
         print(format_reactive(res.reactive))
+    print(format_fidelity(res.claims))
     print()
     print(f"detail (one row per rendering x velocity x grip): {args.out / 'summary.csv'}")
+    print(f"thesis claims (one row per claim, measured, holds or not): {args.out / 'fidelity.csv'}")
     for name, path in res.figures.items():
         print(f"figure {name:9s}: {path}")
     print(f"cache: {res.pipeline.directory} ({'reused' if res.pipeline.from_cache else 'built'}); "

@@ -58,8 +58,9 @@ def register(subparsers) -> None:
                    help="hardware mode: HFAM library (.npz) built for this device (default: none, HFAM skipped)")
     p.add_argument("--taps", type=int, default=None, help="taps per rendering (hardware default 5, sim default 1)")
     p.add_argument("--renderings", type=lambda s: tuple(x for x in s.split(",") if x), default=None,
-                   help="hardware mode: comma-separated subset of " + ",".join(r.name for r in RENDERINGS)
-                        + " (the real sample is always first)")
+                   help="hardware mode: comma-separated subset of "
+                        + ",".join(r.name for r in RENDERINGS if not r.is_real)
+                        + " (the real wood-on-foam sample is always first)")
     p.add_argument("--timeout", type=float, default=120.0, help="hardware mode: seconds allowed per rendering")
     p.add_argument("--scope", choices=("auto", "window", "text", "none"), default="auto",
                    help="hardware mode live scope: a matplotlib window if a display is available, else text")

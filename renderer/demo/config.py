@@ -21,7 +21,8 @@ class DemoConfig:
     Attributes
     ----------
     velocities_m_s : tuple of float
-        Tap speeds of the simulated user (m/s).
+        Tap speeds of the simulated user (m/s): 0.05-0.15 m/s cover section 4.5.4's operating point (the
+        fidelity claims, :mod:`renderer.demo.fidelity`), 0.2-0.3 m/s the library's upper range.
     grips_N : tuple of float
         Grips of the simulated user (N): light, medium, firm.
     taps : int
@@ -37,7 +38,7 @@ class DemoConfig:
     renderings : tuple of Rendering
     """
 
-    velocities_m_s: tuple = (0.05, 0.08, 0.11, 0.2, 0.3)
+    velocities_m_s: tuple = (0.05, 0.08, 0.11, 0.15, 0.2, 0.3)
     grips_N: tuple = (1.0, 2.0, 3.0)
     taps: int = 1
     medium_grip_N: float = 2.0
@@ -75,6 +76,8 @@ class DemoResult:
     timings_s : dict
     reactive : dict
         :func:`reactive_hand_cuts` (empty if not applicable).
+    claims : list of Claim
+        The thesis claims measured on the taps (:func:`renderer.demo.fidelity.measure_claims`; ``fidelity.csv``).
     """
 
     rows: list
@@ -85,6 +88,7 @@ class DemoResult:
     timings_s: dict
     fs_hz: float = 10_000.0
     reactive: dict = field(default_factory=dict)
+    claims: list = field(default_factory=list)
 
     def row(self, rendering: str, velocity_m_s: float, grip_N: float) -> dict:
         """The summary row of one rendering at one velocity (m/s) and grip (N); KeyError if there is none."""

@@ -162,7 +162,8 @@ def bode_figure(etfe_npz: Path, model_set, path: Path) -> Path:
                      force=True)   # the demo checked its --out
 
 
-def penetration_figure(penetration_m: dict, labels: dict, path: Path) -> Path:
+def penetration_figure(penetration_m: dict, labels: dict, path: Path,
+                       taps_text: str = "velocities x grips", marks_mm: dict | None = None) -> Path:
     """Mean peak penetration per rendering with its spread (thesis Figure 4.19 style).
 
     Parameters
@@ -173,6 +174,10 @@ def penetration_figure(penetration_m: dict, labels: dict, path: Path) -> Path:
         Rendering name -> axis label.
     path : Path
         PNG to write.
+    taps_text : str
+        What the spread is over (axis label).
+    marks_mm : dict or None
+        Label -> depth (mm) drawn as a dashed vertical line (the thesis's 0.25 mm and 2 mm of section 4.5.5).
 
     Returns
     -------
@@ -188,9 +193,13 @@ def penetration_figure(penetration_m: dict, labels: dict, path: Path) -> Path:
     # light bars, black whiskers on top: the real sample's black bar hid its own (black) whisker
     ax.barh(y, mean, color=colors, alpha=0.5)
     ax.errorbar(mean, y, xerr=sd, fmt="none", ecolor="black", elinewidth=1.0, capsize=3, zorder=3)
+    for k, (label, x) in enumerate((marks_mm or {}).items()):
+        ax.axvline(x, color="0.3", linestyle=("--", ":")[k % 2], linewidth=1.0, label=label)
+    if marks_mm:
+        ax.legend(loc="upper right", fontsize="small")
     ax.set_yticks(y, [labels[n] for n in names])
     ax.invert_yaxis()
-    ax.set_xlabel("mean peak penetration (mm), bars: +/- 1 s.d. over velocities x grips")
+    ax.set_xlabel(f"mean peak penetration (mm), bars: +/- 1 s.d. over {taps_text}")
     ax.set_title("Penetration per rendering and sample (cf. thesis Figure 4.19)")
     ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()

@@ -18,7 +18,7 @@ SUMMARY_COLUMNS = ("rendering", "velocity_m_s", "grip_N", "peak_accel_m_s2", "do
 
 
 #: what the demo (sim or hardware) writes into --out (an earlier demo's, refused without --force)
-DEMO_PRODUCTS = ("summary.csv", "traces.npz", "fig_*.png", "fig_*.svg", "fig_*.plot.csv")
+DEMO_PRODUCTS = ("summary.csv", "fidelity.csv", "traces.npz", "fig_*.png", "fig_*.svg", "fig_*.plot.csv")
 
 
 def write_summary(rows: list[dict], path: Path) -> Path:

@@ -8,7 +8,8 @@ Sim mode (default, ``--device sim``), thesis sections 4.4.3 and 4.5.5:
 2. let the simulated user tap every rendering (:data:`renderer.demo.runs.RENDERINGS`)
    at several velocities and grips;
 3. print a table per rendering and write ``DIR/summary.csv`` (one row per
-   rendering x velocity x grip) plus ``DIR/traces.npz``;
+   rendering x velocity x grip), ``DIR/fidelity.csv`` (one row per thesis claim,
+   :mod:`renderer.demo.fidelity`) plus ``DIR/traces.npz``;
 4. write the figures (``DIR/fig_*.png``) and print where they are.
 
 With a hardware device string (``serial:...``, ``hid:...``) a person taps
@@ -32,6 +33,7 @@ from devices.registry import make_device
 from devices.sim import ReactiveHand
 from stimuli.hfam.pipeline import Progress
 
+from . import fidelity
 from . import figures as figs
 from . import runs
 from .cache import Pipeline, build_or_load, keep_figures, restore_figures
@@ -350,14 +352,21 @@ def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figure
         # forked after pyplot is imported so the child does not import it again
         side = _draw_aside(figs.hfam_grid_figure, grid)
     out_figs = {"contact": figs.contact_figure(panels, ref, fs, pre, v_fig, g_mid, out / "fig_contact.png")}
+    # Figure 4.19 is at the study's taps (section 4.5.4: 0.10 +/- 0.042 m/s): the demo's speeds in 0.05-0.15 m/s
+    lo, hi = fidelity.OPERATING_RANGE_M_S
+    op = [v for v in cfg.velocities_m_s if lo <= v <= hi] or list(cfg.velocities_m_s)
     pen = {}
-    for (name, _v, _g), taps in tr.items():
-        pen.setdefault(name, []).extend(t.penetration_m for t in taps if t.found)
-    labels = {"soft": "soft wall 340 N/m", "firm": "firm wall 680 N/m", "very_firm": "very firm wall 1020 N/m",
-              "pulse_firm": "pulse over firm", "sinusoid_firm": "sinusoid over firm", "hfam_firm": "HFAM over firm",
-              "hfam_soft": "HFAM over soft", "hfam_fixed_grip_firm": "HFAM, no grip compensation",
-              runs.REAL.name: "real wood on foam"}
-    out_figs["penetration"] = figs.penetration_figure(pen, labels, out / "fig_penetration.png")
+    for (name, v, _g), taps in tr.items():
+        if v in op:
+            pen.setdefault(name, []).extend(t.penetration_m for t in taps if t.found)
+    # Figure 4.19's twelve samples (the no-grip-compensation HFAM is not one of them)
+    labels = {"real_wood": "real wood", runs.REAL.name: "real wood on foam", "real_foam": "real foam",
+              "soft": "soft wall 340 N/m", "firm": "firm wall 680 N/m", "very_firm": "very firm wall 1020 N/m",
+              "pulse_firm": "pulse over firm", "pulse_soft": "pulse over soft", "sinusoid_firm": "sinusoid over firm",
+              "sinusoid_soft": "sinusoid over soft", "hfam_firm": "HFAM over firm", "hfam_soft": "HFAM over soft"}
+    out_figs["penetration"] = figs.penetration_figure(
+        pen, labels, out / "fig_penetration.png", f"{', '.join(f'{v:g}' for v in op)} m/s x grips",
+        {"thesis 4.5.5: wood, wood on foam < 0.25 mm": 0.25, "thesis 4.5.5: foam, soft wall > 2 mm": 2.0})
     if grid is not None:
         out_figs["hfam_grid"] = grid[-1] if _drawn_aside(side) else figs.hfam_grid_figure(*grid)
     if pipeline_figures:
@@ -405,8 +414,10 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.say(f"{'reactive hand':22s} {reactive['taps']} taps on firm, pulse and HFAM over firm")
     t_sim = progress.done()
     rows = summarize(cfg, traces, pipe.library)
-    result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz, reactive)
+    claims = fidelity.measure_claims(traces, cfg.renderings, pipe.fs_hz, cfg.medium_grip_N)
+    result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz, reactive, claims)
     write_summary(rows, out / "summary.csv")
+    fidelity.write_fidelity(claims, out / "fidelity.csv")
     write_traces(result, out / "traces.npz")
     t_fig = 0.0
     if figures:
