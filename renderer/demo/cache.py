@@ -44,6 +44,7 @@ from devices.registry import make_device
 from plumbing.fileio import user_cache_dir
 from stimuli import HfamLibrary
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
+from stimuli.hfam.scoring import hfam_claims, pipeline_libraries, score_pipeline
 from stimuli.recordings import read_tap_csv
 
 #: modules whose code determines the cached results (hashed into the cache key)
@@ -229,3 +230,33 @@ def keep_figures(pipe: Pipeline, out: Path) -> bool:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
         return False
+
+
+#: the HFAM accuracy claims of an entry (issue 36 item 5), computed once: the scoring code and the sim are in the key
+HFAM_CLAIMS_FILE = "hfam_claims.json"
+
+
+def entry_hfam_claims(pipe: Pipeline, settings: PipelineSettings) -> list[dict]:
+    """The HFAM claims of fidelity.csv for the entry's libraries (:func:`stimuli.hfam.scoring.hfam_claims`).
+
+    Scoring the open-loop, refined (at unseen conditions, two persons) and raised-limit libraries taps
+    ~100 cells (10-20 s); the result depends only on what the entry's key hashes (the pipeline settings,
+    the sim and ``stimuli/hfam``, scoring included), so it is kept in the entry (best effort, as the
+    figures) and read back on later runs.
+    """
+    path = pipe.directory / HFAM_CLAIMS_FILE
+    try:
+        rows = json.loads(path.read_text())
+        if isinstance(rows, list) and all(isinstance(r, dict) for r in rows) and rows:
+            return rows
+    except (OSError, ValueError):
+        pass
+    open_loop, refined, raised, models = pipeline_libraries(pipe.directory, settings)
+    rows = hfam_claims(score_pipeline(open_loop, refined, raised, models))
+    try:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(rows, indent=1, allow_nan=True) + "\n")
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return rows

@@ -36,7 +36,7 @@ from stimuli.hfam.pipeline import Progress
 from . import fidelity
 from . import figures as figs
 from . import runs
-from .cache import Pipeline, build_or_load, keep_figures, restore_figures
+from .cache import Pipeline, build_or_load, entry_hfam_claims, keep_figures, restore_figures
 from .config import DemoConfig, DemoResult
 from .report import write_summary, write_traces
 
@@ -407,6 +407,8 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         # this process waits for the tap workers: tap the reactive hand here (pyplot, which the HFAM grid's
         # drawing process needs, is imported with this module, before that process is forked)
         aside["reactive"] = reactive_hand_cuts(cfg, pipe)
+        # the HFAM libraries' accuracy (open loop, unseen conditions, saturation): fidelity.csv's item-5 rows
+        aside["hfam_claims"] = fidelity.claims_from_dicts(entry_hfam_claims(pipe, cfg.pipeline))
 
     traces, refs = simulate(cfg, pipe, progress, meanwhile=meanwhile)
     reactive = aside["reactive"]
@@ -414,7 +416,7 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.say(f"{'reactive hand':22s} {reactive['taps']} taps on firm, pulse and HFAM over firm")
     t_sim = progress.done()
     rows = summarize(cfg, traces, pipe.library)
-    claims = fidelity.measure_claims(traces, cfg.renderings, pipe.fs_hz, cfg.medium_grip_N)
+    claims = fidelity.measure_claims(traces, cfg.renderings, pipe.fs_hz, cfg.medium_grip_N) + aside["hfam_claims"]
     result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz, reactive, claims)
     write_summary(rows, out / "summary.csv")
     fidelity.write_fidelity(claims, out / "fidelity.csv")

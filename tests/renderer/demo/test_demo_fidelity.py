@@ -43,7 +43,8 @@ def test_fidelity_csv_has_one_row_per_claim(default_demo, claims):
         "penetration_wood", "penetration_wood_on_foam", "penetration_foam", "penetration_soft",
         "firm_shallower", "very_firm_shallower", "transient_cut_mean", "transient_cut_each",
         "grip_nrmse_wood", "grip_peak_wood", "grip_nrmse_wood_on_foam", "grip_peak_wood_on_foam",
-        "grip_nrmse_foam", "grip_peak_foam", "sinusoid_correlation", "sinusoid_frequency"}
+        "grip_nrmse_foam", "grip_peak_foam", "sinusoid_correlation", "sinusoid_frequency",
+        "hfam_open_loop", "hfam_refined_unseen", "hfam_saturation"}
     for r in rows:
         c = claims[r["id"]]
         assert float(r["measured"]) == pytest.approx(c.measured, rel=1e-5)
@@ -169,5 +170,23 @@ def test_nan_measurement_does_not_hold():
 def test_printed_line_counts_what_holds(claims):
     line = fidelity.format_fidelity(claims.values())
     n = sum(c.holds for c in claims.values())
-    assert line.startswith(f"Thesis claims reproduced by the sim: {n} of 16 (not: ")
+    assert line.startswith(f"Thesis claims reproduced by the sim: {n} of 19 (not: ")
     assert "not measured" not in line
+
+
+def test_the_hfam_claims_are_the_scoring_of_the_demos_own_pipeline_kept_in_its_cache_entry(default_demo, claims):
+    """fidelity.csv carries item 5's rows (stimuli.hfam.scoring.hfam_claims on the demo's pipeline), computed
+    once per cache entry: the entry's hfam_claims.json holds the same numbers the demo wrote."""
+    import json
+
+    from renderer.demo.cache import HFAM_CLAIMS_FILE
+
+    ids = ("hfam_open_loop", "hfam_refined_unseen", "hfam_saturation")
+    assert all(i in claims for i in ids)
+    kept = {r["id"]: r for r in json.loads((default_demo.pipeline.directory / HFAM_CLAIMS_FILE).read_text())}
+    for i in ids:
+        assert claims[i].measured == pytest.approx(kept[i]["measured"], rel=1e-12)
+        assert claims[i].holds == kept[i]["holds"]
+    # the open-loop figure is a median NRMSE of real taps: a number between the HFAM rows' and the wall's
+    assert 0.1 < claims["hfam_open_loop"].measured < 1.0
+    assert claims["hfam_saturation"].measured >= 0
