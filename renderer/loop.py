@@ -820,11 +820,19 @@ class ServoLoop:
         st["paced"] = False
         arrays = dev.fused_arrays()
         dv = dev.fused_state()
+        span = dev.fused_span()
         run_sim = self._run_sim
         reason = "duration"
         try:
             while n < limit:
-                k = run_sim(c, w, log, dv, *arrays, min(uc, limit - n))
+                if span <= 0:
+                    # the hand's plan is streamed (devices.sim.SimDevice.fused_span): its next window
+                    dev.fused_sync(dv)
+                    arrays = dev.fused_arrays()
+                    dv = dev.fused_state()
+                    span = dev.fused_span()
+                k = run_sim(c, w, log, dv, *arrays, min(uc, limit - n, span))
+                span -= k
                 now = time.perf_counter_ns() - t0
                 end = li + k
                 if end <= cap:
@@ -866,6 +874,7 @@ class ServoLoop:
                     # the callback may have changed the device (a new user, sample, trajectory)
                     arrays = dev.fused_arrays()
                     dv = dev.fused_state()
+                    span = dev.fused_span()
         finally:
             dev.fused_sync(dv)
             self._n = n

@@ -220,10 +220,11 @@ def play_on_wall(device, current_A: np.ndarray, velocity_m_s: float, grip_N: flo
     if callable(getattr(device, "fused_arrays", None)):
         # the same ticks in one compiled call (~15x faster: the refinement plays ~900 taps per demo build)
 
+        arrays = device.fused_arrays(limit + 1)   # the tap's whole plan (a window that long: streamed plans)
         dv = device.fused_state()
         ring = np.empty(n_hist)
         try:
-            k_imp, pushed = tap_on_wall(dv, *device.fused_arrays(), np.ascontiguousarray(current_A, dtype=float),
+            k_imp, pushed = tap_on_wall(dv, *arrays, np.ascontiguousarray(current_A, dtype=float),
                                         float(wall_N_m), float(kf), limit, ring, acc)
         finally:
             device.fused_sync(dv)

@@ -18,10 +18,12 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT))   # the code of this tree, not anot
 
 
 @pytest.mark.parametrize("extra, message", [
-    (("--taps", "100000000"), "error: --taps must be 1..1000, got 100000000 (the simulated hand's tap plan is "
-                              "computed up front, ~125 kB per tap; run several runs for more taps)"),
-    (("--taps", "0"), "error: --taps must be 1..1000, got 0 (the simulated hand's tap plan is computed up front, "
-                      "~125 kB per tap; run several runs for more taps)"),
+    (("--taps", "100000000"), "error: --taps must be 1..100000, got 100000000 (every tap's contact event is kept "
+                              "in memory for events.csv, ~1 kB per tap; run several runs for more taps)"),
+    (("--taps", "100001"), "error: --taps must be 1..100000, got 100001 (every tap's contact event is kept "
+                           "in memory for events.csv, ~1 kB per tap; run several runs for more taps)"),
+    (("--taps", "0"), "error: --taps must be 1..100000, got 0 (every tap's contact event is kept in memory for "
+                      "events.csv, ~1 kB per tap; run several runs for more taps)"),
     (("--duration-s", "1e9"), "error: --duration-s must be at most 86400 s (one day), got 1e+09"),
 ])
 def test_unbounded_runs_are_refused_naming_the_limit(tmp_path, capsys, extra, message):
