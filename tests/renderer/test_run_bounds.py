@@ -101,3 +101,20 @@ def test_a_partial_run_over_an_earlier_one_is_set_aside(tmp_path, capsys):
     assert tree_hashes(out) == before and sorted(kept) == ["events.csv", "log.npz", "run.json"]
     assert kept["events.csv"] == tree_hashes(other)["events.csv"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["X", "X.interrupted", "Y"]
+
+
+def test_a_run_stopped_before_its_loop_had_a_result_leaves_out_as_it_was(tmp_path):
+    """A SIGTERM while the loop is being set up (importing numba, say) reaches the command with no partial
+    result: the earlier run stays, byte for byte, and no empty folder is swapped in (nor made, for a new --out)."""
+    from plumbing.outdir import output_folder
+    from renderer.cli_run import _save_partial
+
+    out = tmp_path / "X"
+    assert main(["run", "--device", "sim", "--taps", "1", "--out", str(out)]) == 0
+    before = tree_hashes(out)
+    for target in (out, tmp_path / "new"):
+        with output_folder(target, True).open() as folder:
+            (folder.path / "events.csv").write_text("half")      # whatever had been written meanwhile
+            _save_partial(None, folder, "stopped by SIGTERM")
+    assert tree_hashes(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X"]
