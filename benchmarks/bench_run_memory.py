@@ -2,7 +2,7 @@
 
 Each run is a fresh ``python -m renderer run --device sim --taps N --out DIR`` process; its peak resident set
 (``ru_maxrss`` from ``os.wait4``) is taken, three runs per N, and the medians are printed with the growth per
-tap between the two largest N; then the same for one tap and ``--duration-s`` 60 and 600 s (the hand rests
+tap between the two largest N; then the same for one tap and ``--duration-s`` 300 and 3000 s (the hand rests
 after its tap). The servo log is a ring of ``log_capacity_s`` (60 s: ~77 taps) and the simulated hand's plan
 is streamed in windows of ``devices.sim.device.PLAN_WINDOW_TICKS`` ticks, so beyond the ring's filling
 neither grows; what still does is the run's list of contact events (~1 kB per tap), which ``--taps``' cap
@@ -21,7 +21,7 @@ from pathlib import Path
 from renderer.config import MAX_RUN_TAPS
 
 TAPS = (10, 300, 1000, 3000)
-DURATIONS_S = (60.0, 600.0)
+DURATIONS_S = (300.0, 3000.0)
 REPEATS = 3
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -62,4 +62,5 @@ def main() -> None:
     d0, d1 = DURATIONS_S
     print(f"   growth {a}->{b} taps: {per_tap / 1e3:.2f} kB per tap (the contact events; the hand's plan is "
           f"streamed); at the cap of {MAX_RUN_TAPS} taps: ~{(medians[b] + per_tap * (MAX_RUN_TAPS - b)) / 2**20:.0f} MB")
-    print(f"   growth {d0:g}->{d1:g} s: {(by_duration[d1] - by_duration[d0]) / 2**20:+.1f} MB (the log is a ring)")
+    print(f"   growth {d0:g}->{d1:g} s: {(by_duration[d1] - by_duration[d0]) / 2**20:+.1f} MB (the log is a ring of "
+          f"60 s: full and wrapped in both)")
