@@ -86,6 +86,8 @@ class SimDevice(Device):
         self._plan_lo = 0
         self._plan_kmin = 0
         self._plan_kmax = sys.maxsize
+        self._plan_base = 0                 # _user_tick + _plan_lo: command()'s index into the window
+        self._plan_tick_max = sys.maxsize   # the last device tick the window serves
         self.trajectory = None
         self.hand = PRESCRIBED
         self.sample_name = "placeholder"
@@ -197,10 +199,10 @@ class SimDevice(Device):
         fn = self._tick_fn
         if fn is None:
             fn = self._tick_fn = _kernel_tick()
-        k = tick - 1 - self._user_tick
-        if k > self._plan_kmax or k < self._plan_kmin:
-            self._plan_fill(k)
-        pos, acc, grip, hot = fn(self._s, self._p, self._rs, self._traj, self._grip, k - self._plan_lo, applied)
+        if tick > self._plan_tick_max:       # the plan's window is used up (ticks only go forward)
+            self._plan_fill(tick - 1 - self._user_tick)
+        pos, acc, grip, hot = fn(self._s, self._p, self._rs, self._traj, self._grip, tick - 1 - self._plan_base,
+                                 applied)
         st = self._state
         st.t_s = tick * self._period_s
         st.position_m = pos
@@ -412,6 +414,8 @@ class SimDevice(Device):
         self._plan_lo = lo
         self._plan_kmin = lo + 1 if lo > 0 else -sys.maxsize
         self._plan_kmax = hi - 2 if hi < n else sys.maxsize
+        self._plan_base = self._user_tick + lo
+        self._plan_tick_max = self._user_tick + self._plan_kmax + 1
 
     def _grip_at(self, k: int) -> float:
         """The plan's grip (N) at tick ``k`` from the user's start (held at its ends), from the window when
