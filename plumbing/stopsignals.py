@@ -13,6 +13,11 @@ the output, and, uncaught, the process exits with the conventional status 128 + 
   another uses the outer one.
 * The first signal raises; later ones (a second SIGTERM while the output is being zeroed) are
   ignored until the block ends.
+* A raise that Python swallows is not lost: a signal handled while C code calls back into Python
+  (numba's compiler runs LLVM through llvmlite, whose ctypes callbacks print "Exception ignored" and
+  go on) reaches ``sys.unraisablehook``, which the block takes over while it is installed: it records
+  the stop (quietly) and :func:`stop_if_signalled`, called where a long-running caller can stop (a
+  servo loop after its JIT compile, between its compiled chunks), raises it there.
 * :class:`holding` defers the raise over a short critical section (the zeroing itself, building a
   partial result): a signal that arrives inside it is raised when the section ends.
 * :func:`die_with_parent` stops a servo child process the same way when its parent dies (Linux:
@@ -92,8 +97,11 @@ class stop_on_signals:
         self.installed = False
         self.signum = None
         self.raised = False
+        #: the raise of ``signum`` was swallowed (sys.unraisablehook saw it): :func:`stop_if_signalled` raises it
+        self.lost = False
         self._holds = 0
         self._previous: dict = {}
+        self._unraisable = None
         self._thread = None
 
     def __enter__(self) -> "stop_on_signals":
@@ -114,6 +122,9 @@ class stop_on_signals:
         self.installed = bool(self._previous)
         if not self.installed:
             _active = None
+        else:
+            self._unraisable = sys.unraisablehook
+            sys.unraisablehook = self._swallowed
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -126,10 +137,25 @@ class stop_on_signals:
             except (ValueError, OSError):
                 pass
         self._previous = {}
+        if self._unraisable is not None:
+            if sys.unraisablehook == self._swallowed:   # (a hook installed after ours stays)
+                sys.unraisablehook = self._unraisable
+            self._unraisable = None
         self.installed = False
         _active = None
-        self._raise_pending(exc_type)
+        self._raise_pending(exc_type)   # also one swallowed and not raised since: the block ends with it
         return False
+
+    def _swallowed(self, unraisable) -> None:
+        """``sys.unraisablehook`` while installed: this block's :class:`Terminated`, raised where Python could
+        only print it ("Exception ignored", e.g. in a ctypes callback), is recorded for :func:`stop_if_signalled`
+        instead; anything else goes to the hook that was in place."""
+        if isinstance(unraisable.exc_value, Terminated) and self.signum is not None:
+            self.lost = True
+            self.raised = False     # pending again: raised by stop_if_signalled, a holding's end or the block's
+            return
+        previous = self._unraisable if self._unraisable is not None else sys.__unraisablehook__
+        previous(unraisable)
 
     def _handle(self, signum, frame) -> None:
         if self.signum is not None:
@@ -140,12 +166,31 @@ class stop_on_signals:
             raise Terminated(signum)
 
     def _raise_pending(self, exc_type) -> None:
-        """Raise a signal that arrived while held, unless another exception (not a Ctrl-C) is on its way out."""
+        """Raise a signal that arrived while held (or whose raise was swallowed), unless another exception
+        (not a Ctrl-C) is on its way out."""
         if self.signum is None or self.raised:
             return
         if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
             self.raised = True
+            self.lost = False
             raise Terminated(self.signum)
+
+
+def stop_if_signalled() -> None:
+    """Raise :class:`Terminated` for a stop signal whose raise was swallowed (module doc); else nothing.
+
+    For the places a long-running caller can stop cleanly, in the thread of the :class:`stop_on_signals`
+    block: a servo loop calls it after its one-time JIT compile (before the first tick) and between its
+    compiled chunks, so a SIGTERM that landed inside numba's compiler stops the run there, with the exit
+    status and the zeroed output of any SIGTERM. Cheap (a few attribute reads); a no-op outside a block,
+    in another thread and inside :class:`holding` (which raises it when it ends).
+    """
+    block = _active
+    if block is None or not block.lost or block._holds or block._thread != threading.get_ident():
+        return
+    block.lost = False
+    block.raised = True
+    raise Terminated(block.signum)
 
 
 class signals_blocked:

@@ -100,8 +100,11 @@ def _save_partial(result, folder, why: str) -> None:
 
     Into ``--out`` when it was new; beside it (``<out>.interrupted``) when it holds an earlier run, which
     a partial one does not replace (``folder``: the :class:`plumbing.outdir.OutputFolder` of ``--out``).
+    Stopped before the loop had a result (a signal while it was being set up): nothing is kept, and the
+    staging folder is discarded, so ``--out`` stays as it was (it used to be swapped in empty).
     """
     if result is None:
+        folder.discard()
         return
     result.save(folder.path)
     if folder.replacing:

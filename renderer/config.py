@@ -31,10 +31,11 @@ from .scene import Scene, Wall, parse_scene
 
 PACING_MODES = ("sleep_spin", "spin")
 MAX_TRANSIENT_LIMIT_S = 10.0  # upper bound of max_transient_s: the transient buffer is allocated up front
-#: the most taps of one ``renderer run`` on a sim device: the simulated hand's plan (position and grip,
-#: 16 bytes per servo tick, ~0.8 s per tap: ~125 kB per tap at 10 kHz) is computed up front, so this
-#: bounds it to ~130 MB (the log is a ring of ``log_capacity_s``, whatever the run's length)
-MAX_RUN_TAPS = 1000
+#: the most taps of one ``renderer run`` on a sim device. The simulated hand's plan is streamed (a fixed window
+#: of ticks, devices.sim.device.PLAN_WINDOW_TICKS) and the log is a ring of ``log_capacity_s``, so neither grows
+#: with the taps; what does is the run's record of its contact events (one ContactEvent a tap, kept for
+#: events.csv, run.json and the table: ~1 kB a tap), which this bounds to ~100 MB (and ~22 h of simulated time)
+MAX_RUN_TAPS = 100_000
 #: the longest ``renderer run`` (s): one day, so that no run goes on for ever by a typo (``--duration-s 1e9``)
 MAX_RUN_DURATION_S = 86400.0
 
@@ -55,8 +56,8 @@ def check_run_size(taps: int, duration_s: float | None) -> None:
         Naming the option, the value and the limit.
     """
     if not 1 <= taps <= MAX_RUN_TAPS:
-        raise ValueError(f"--taps must be 1..{MAX_RUN_TAPS}, got {taps} (the simulated hand's tap plan is computed "
-                         f"up front, ~125 kB per tap; run several runs for more taps)")
+        raise ValueError(f"--taps must be 1..{MAX_RUN_TAPS}, got {taps} (every tap's contact event is kept in memory "
+                         f"for events.csv, ~1 kB per tap; run several runs for more taps)")
     if duration_s is not None and not duration_s <= MAX_RUN_DURATION_S:
         raise ValueError(f"--duration-s must be at most {MAX_RUN_DURATION_S:g} s (one day), got {duration_s:g}")
 

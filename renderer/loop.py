@@ -48,7 +48,7 @@ from devices.base import Status
 from plumbing import provenance
 from devices.limits import check_stiffness
 from plumbing.npzfile import save_npz
-from plumbing.stopsignals import Terminated, holding, stop_on_signals
+from plumbing.stopsignals import Terminated, holding, stop_if_signalled, stop_on_signals
 
 from . import law_layout as LAW
 from plumbing import rtpolicy
@@ -387,6 +387,7 @@ class ServoLoop:
     def _stop_check(self, until) -> str:
         """Stop reason from a stop request or the caller's ``until`` predicate, else ""; polled every
         ``until_every`` ticks (not per tick) by both loops."""
+        stop_if_signalled()   # a SIGTERM swallowed by a JIT compile since (plumbing.stopsignals) stops here
         if self.stop_requested:
             return "stopped"
         if until is not None and until(self):
@@ -610,6 +611,13 @@ class ServoLoop:
             if step is not None and callable(getattr(dev, "use_compiled_step", None)):
                 dev.use_compiled_step(step)
         self._prime(warm_law=not compiled)
+        if compiled:
+            # the compiled loop's one-time cost (numba's JIT compile on a cold cache, or loading it) here too,
+            # before the first tick: called for no ticks, it changes nothing
+            self._run_sim(self._law_c, self.law_state, self._logf, dev.fused_state(), *dev.fused_arrays(), 0)
+        # a SIGTERM/SIGHUP that landed inside numba's compiler was swallowed by llvmlite's ctypes callback
+        # ("Exception ignored"): plumbing.stopsignals kept it, and the run stops now, as it would have
+        stop_if_signalled()
         restart = getattr(dev, "restart_link_timing", None)
         if callable(restart):  # run.json's link round trip and longest gap: this run's ticks, not the priming
             restart()
@@ -820,11 +828,19 @@ class ServoLoop:
         st["paced"] = False
         arrays = dev.fused_arrays()
         dv = dev.fused_state()
+        span = dev.fused_span()
         run_sim = self._run_sim
         reason = "duration"
         try:
             while n < limit:
-                k = run_sim(c, w, log, dv, *arrays, min(uc, limit - n))
+                if span <= 0:
+                    # the hand's plan is streamed (devices.sim.SimDevice.fused_span): its next window
+                    dev.fused_sync(dv)
+                    arrays = dev.fused_arrays()
+                    dv = dev.fused_state()
+                    span = dev.fused_span()
+                k = run_sim(c, w, log, dv, *arrays, min(uc, limit - n, span))
+                span -= k
                 now = time.perf_counter_ns() - t0
                 end = li + k
                 if end <= cap:
@@ -854,6 +870,7 @@ class ServoLoop:
                     self.time_s = float(w[LAW.W_T])
                     self.temp_rise_K = float(w[LAW.W_TEMP])
                     if until is None:
+                        stop_if_signalled()
                         if self.stop_requested:
                             reason = "stopped"
                             break
@@ -866,6 +883,7 @@ class ServoLoop:
                     # the callback may have changed the device (a new user, sample, trajectory)
                     arrays = dev.fused_arrays()
                     dv = dev.fused_state()
+                    span = dev.fused_span()
         finally:
             dev.fused_sync(dv)
             self._n = n

@@ -99,9 +99,10 @@ def _play_sim(dev, u: np.ndarray):
     x, a, g = np.empty(n), np.empty(n), np.empty(n)
     st = dev.read()
     t0 = dev._tick
+    traj, grip_plan, k0 = dev.fused_plan(n + 1)   # the hand's plan for these ticks (streamed: a window)
     try:
         held, pos, acc, grip, hot, clipped = play_open(
-            dev._s, dev._p, dev._rs, dev._traj, dev._grip, dev._tick - dev._user_tick, dev._held_A, u,
+            dev._s, dev._p, dev._rs, traj, grip_plan, k0, dev._held_A, u,
             dev._limit_A, st.position_m, st.accel_m_s2, st.grip_N, x, a, g)
         dev._tick = t0 + n
         dev._held_A = held

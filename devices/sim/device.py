@@ -6,11 +6,20 @@ internal substeps in one numba call); the current commanded at tick k is
 applied (zero-order hold) during the period after the next ``command()``,
 i.e. one servo cycle of output delay. ``read()`` returns the same
 :class:`DeviceState` object, updated in place by ``command()``.
+
+The simulated hand's plan (desired position and grip per servo tick) is
+streamed: the device holds a window of :data:`PLAN_WINDOW_TICKS` ticks of it
+and computes the next window (``TapTrajectory.sample_range``) when the ticks
+reach its end, in ``command()`` or between the chunks of a compiled loop
+(:meth:`SimDevice.fused_span`), so memory does not grow with the number of
+taps (issue 38). The kernel sees the same numbers as with the whole plan
+(windows overlap by a tick and the last one ends where the plan does).
 """
 
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
@@ -23,6 +32,9 @@ from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
 _HOT = int(Status.OVER_TEMPERATURE)
+#: ticks of the hand's plan held at once (position and grip, 16 bytes a tick: 1 MB; 6.6 s at 10 kHz); a plan
+#: that fits is held whole, as before streaming
+PLAN_WINDOW_TICKS = 1 << 16
 
 
 def _kernel_tick():
@@ -65,9 +77,17 @@ class SimDevice(Device):
         self._tick = 0
         self._user_tick = 0
         self._held_A = 0.0
-        self._traj = np.zeros(1)
+        self._traj = np.zeros(1)        # the window of the hand's plan: ticks _plan_lo.. (see _plan_fill)
         self._grip = np.zeros(1)
         self._traj_ticks = 0
+        self._positions = lambda lo, hi: np.zeros(max(0, min(hi, 1) - lo))
+        self._grip_N = 0.0
+        self._plan_n = 1
+        self._plan_lo = 0
+        self._plan_kmin = 0
+        self._plan_kmax = sys.maxsize
+        self._plan_base = 0                 # _user_tick + _plan_lo: command()'s index into the window
+        self._plan_tick_max = sys.maxsize   # the last device tick the window serves
         self.trajectory = None
         self.hand = PRESCRIBED
         self.sample_name = "placeholder"
@@ -179,7 +199,10 @@ class SimDevice(Device):
         fn = self._tick_fn
         if fn is None:
             fn = self._tick_fn = _kernel_tick()
-        pos, acc, grip, hot = fn(self._s, self._p, self._rs, self._traj, self._grip, tick - 1 - self._user_tick, applied)
+        if tick > self._plan_tick_max:       # the plan's window is used up (ticks only go forward)
+            self._plan_fill(tick - 1 - self._user_tick)
+        pos, acc, grip, hot = fn(self._s, self._p, self._rs, self._traj, self._grip, tick - 1 - self._plan_base,
+                                 applied)
         st = self._state
         st.t_s = tick * self._period_s
         st.position_m = pos
@@ -196,15 +219,50 @@ class SimDevice(Device):
         self._tick_fn = step
 
     # -- the compiled servo loop (renderer.law.run_sim) ------------------------
-    def fused_arrays(self) -> tuple:
+    def fused_plan(self, ticks: int | None = None) -> tuple:
+        """The hand's plan as ``devices.sim.kernel.tick`` indexes it, for the next ``ticks`` ticks.
+
+        Parameters
+        ----------
+        ticks : int or None
+            How many ticks from now the arrays must cover (a window that large is computed if needed);
+            None: at least the next one (then :meth:`fused_span` says how many).
+
+        Returns
+        -------
+        traj, grip : ndarray float64
+            The window of desired positions (m) and grips (N).
+        k : int
+            The kernel's index of the next tick into them.
+        """
+        k = self._tick - self._user_tick
+        last = k if ticks is None else k + max(int(ticks), 1) - 1
+        if k < self._plan_kmin or last > self._plan_kmax:
+            self._plan_fill(k, ticks)
+        return self._traj, self._grip, k - self._plan_lo
+
+    def fused_arrays(self, ticks: int | None = None) -> tuple:
         """The physics arrays of ``devices.sim.kernel.tick`` (params, state, noise state, trajectory,
-        grip), advanced in place by a compiled loop that stands in for :meth:`command` calls."""
-        return self._p, self._s, self._rs, self._traj, self._grip
+        grip), advanced in place by a compiled loop that stands in for :meth:`command` calls.
+
+        The trajectory and grip are the plan's window from the current tick (:meth:`fused_plan`): a loop
+        runs at most :meth:`fused_span` ticks (or the ``ticks`` asked for) on them, then asks again."""
+        traj, grip, _ = self.fused_plan(ticks)
+        return self._p, self._s, self._rs, traj, grip
+
+    def fused_span(self) -> int:
+        """Ticks from the current one that the arrays of :meth:`fused_arrays` cover (very large once they
+        hold the end of the plan, after which the hand holds its last position)."""
+        return max(0, self._plan_kmax - (self._tick - self._user_tick) + 1)
 
     def fused_state(self) -> np.ndarray:
-        """The Python-side state that :meth:`command` keeps, as the ``D_*`` vector of :mod:`devices.sim.layout`."""
+        """The Python-side state that :meth:`command` keeps, as the ``D_*`` vector of :mod:`devices.sim.layout`.
+
+        ``D_USER_TICK`` is offset by the start of the plan's window (:meth:`fused_plan`), so that a compiled
+        loop's ``tick - 1 - D_USER_TICK`` indexes the window's arrays."""
+        self.fused_plan()
         st = self._state
-        return np.array([self._tick, self._user_tick, self._held_A, self._limit_A, self._period_s,
+        return np.array([self._tick, self._user_tick + self._plan_lo, self._held_A, self._limit_A, self._period_s,
                          self.rejected_commands, self.last_command_A, st.status, st.position_m, st.accel_m_s2,
                          st.grip_N, st.t_s], dtype=np.float64)
 
@@ -288,18 +346,30 @@ class SimDevice(Device):
         elif isinstance(trajectory, (int, float)):
             trajectory = HoldTrajectory(float(trajectory))
         fs = self.info.servo_rate_hz
-        traj = np.ascontiguousarray(trajectory.sample(fs), dtype=float)
-        if traj.size < 1 or not np.all(np.isfinite(traj)):
+        if callable(getattr(trajectory, "sample_range", None)) and callable(getattr(trajectory, "n_ticks", None)):
+            n = int(trajectory.n_ticks(fs))    # streamed: computed a window at a time (_plan_fill)
+            positions = (lambda lo, hi, tr=trajectory: tr.sample_range(fs, lo, hi))
+        else:                                  # a trajectory that only samples whole is held whole
+            whole = np.ascontiguousarray(trajectory.sample(fs), dtype=float)
+            n = whole.size
+            positions = (lambda lo, hi, x=whole: x[lo:hi])
+        if n < 1:
             raise ValueError("set_user: trajectory must give finite positions")
-        if traj.size == 1 and callable(grip_N):
+        if n == 1 and callable(grip_N):
             # a held position with time-varying grip: sample the grip for a while and hold
-            traj = np.full(int(60 * fs), traj[0])
-        grip = sample_grip(grip_N, traj.size, fs)
+            x0 = positions(0, 1)
+            n = int(60 * fs)
+            positions = (lambda lo, hi, x=x0: np.full(max(0, hi - lo), x[0]))
+        old = (self._positions, self._grip_N, self._plan_n, self._user_tick)
+        self._positions, self._grip_N, self._plan_n, self._user_tick = positions, grip_N, n, self._tick
+        try:
+            self._plan_fill(0)   # checks the first window before anything else changes
+        except Exception:
+            self._positions, self._grip_N, self._plan_n, self._user_tick = old   # the window is untouched
+            raise
+        traj = self._traj
         self.trajectory = trajectory
-        self._traj = traj
-        self._grip = np.ascontiguousarray(grip)
         self._traj_ticks = int(round(trajectory.duration_s * fs))
-        self._user_tick = self._tick
         p = self._p
         p[K.P_HAND_ON] = 0.0 if hand_obj is None else 1.0
         p[K.P_HAND_KCOMP] = 0.0
@@ -322,6 +392,39 @@ class SimDevice(Device):
                 p[K.P_HAND_CALPHA] = 1.0 - math.exp(-2 * math.pi * hand_obj.compensation_bandwidth_hz * p[K.P_DT])
         self.hand = hand_obj if hand_obj is not None else PRESCRIBED
         self._place_at(traj[0])
+
+    def _plan_fill(self, k: int, ticks: int | None = None) -> None:
+        """Compute the window of the hand's plan for tick ``k`` (from the user's start) onwards.
+
+        The window holds ticks ``lo..hi-1`` with ``lo = k - 1`` (the kernel looks one tick back for the
+        desired acceleration) and ``hi = lo + PLAN_WINDOW_TICKS`` (or ``ticks`` + 3), or it is the plan's
+        last ``PLAN_WINDOW_TICKS`` ticks, ending where the plan ends, so the kernel's clamps and its
+        "k >= 1 and k + 1 < n" test see exactly what they saw on the whole plan: it is used for
+        ``k - 1 >= lo`` and ``k + 1 < hi`` only (or for every later tick in the last window).
+        """
+        size = PLAN_WINDOW_TICKS if ticks is None else max(PLAN_WINDOW_TICKS, int(ticks) + 3)
+        n = self._plan_n
+        lo = max(0, min(int(k) - 1, n - size))
+        hi = min(n, lo + size)
+        traj = np.ascontiguousarray(self._positions(lo, hi), dtype=float)
+        if traj.size != hi - lo or not np.all(np.isfinite(traj)):
+            raise ValueError("set_user: trajectory must give finite positions")
+        grip = np.ascontiguousarray(sample_grip(self._grip_N, hi - lo, self.info.servo_rate_hz, start=lo))
+        self._traj, self._grip = traj, grip
+        self._plan_lo = lo
+        self._plan_kmin = lo + 1 if lo > 0 else -sys.maxsize
+        self._plan_kmax = hi - 2 if hi < n else sys.maxsize
+        self._plan_base = self._user_tick + lo
+        self._plan_tick_max = self._user_tick + self._plan_kmax + 1
+
+    def _grip_at(self, k: int) -> float:
+        """The plan's grip (N) at tick ``k`` from the user's start (held at its ends), from the window when
+        it holds it."""
+        k = min(max(k, 0), self._plan_n - 1)
+        j = k - self._plan_lo
+        if 0 <= j < self._grip.size:
+            return float(self._grip[j])
+        return float(sample_grip(self._grip_N, 1, self.info.servo_rate_hz, start=k)[0])
 
     def _place_at(self, x0: float) -> None:
         s = self._s
@@ -393,13 +496,11 @@ class SimDevice(Device):
         st.t_s = self.time_s
         st.position_m = res * math.floor(self._s[K.S_XM] / res)
         st.accel_m_s2 = 0.0
-        g = float(self._grip[min(max(self._tick - self._user_tick, 0), self._grip.size - 1)])
-        st.grip_N = g
+        st.grip_N = self._grip_at(self._tick - self._user_tick)
 
     def true_state(self) -> dict:
         """True (unquantized) physical state, SI units, for tests and recordings."""
         s = self._s
-        k = min(max(self._tick - self._user_tick, 0), self._grip.size - 1)
         return {
             "t_s": self.time_s,
             "motor_position_m": float(s[K.S_XM]), "motor_velocity_m_s": float(s[K.S_VM]),
@@ -413,7 +514,7 @@ class SimDevice(Device):
             "hand_position_m": float(s[K.S_XU]), "hand_velocity_m_s": float(s[K.S_VU]),
             "arm_position_m": float(s[K.S_XA]), "arm_velocity_m_s": float(s[K.S_VA]),
             "reflex_holding": bool(s[K.S_RFX_ON] != 0.0),
-            "grip_N": float(self._grip[k]),
+            "grip_N": self._grip_at(self._tick - self._user_tick),
             "winding_temp_rise_K": float(s[K.S_TEMP]),
             "pending_current_A": self._held_A,
         }

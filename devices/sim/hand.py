@@ -6,8 +6,9 @@ and damping rise linearly with grip force from zero (no user) through the
 Table 3.1 values at the nominal grip (section 3.5.2, last paragraphs):
 ``k_u(g) = k_u * g / g_nom``, ``b_u(g) = b_u * g / g_nom``.
 
-Trajectories are sampled once onto the servo grid when the user is set, so
-the servo path only indexes arrays.
+Trajectories are sampled onto the servo grid in fixed-size windows that the
+simulated device refills between kernel calls (``sample_range``), so the servo
+path only indexes arrays and memory does not grow with the plan's length.
 """
 
 from __future__ import annotations
@@ -30,6 +31,11 @@ class TapTrajectory:
     slows down, so nothing but the impact disturbs it), dwell ``dwell_s``,
     lift back to the approach height in ``lift_s`` (half-cosine profile) and
     pause ``pause_s`` before the next tap.
+
+    The plan is kept as its tap schedule (a few numbers per tap, ~80 bytes),
+    never as samples: :meth:`sample_range` computes any stretch of servo ticks
+    on demand, so a simulated device streams it (issue 38: memory constant in
+    the number of taps).
 
     Parameters
     ----------
@@ -68,7 +74,6 @@ class TapTrajectory:
                 raise ValueError(f"TapTrajectory: {key} must be > 0, got {val!r}")
         if not (math.isfinite(pause_s) and pause_s >= 0):
             raise ValueError(f"TapTrajectory: pause_s must be >= 0, got {pause_s!r}")
-        self.velocities_m_s = tuple(vels[i % len(vels)] for i in range(int(n_taps)))
         self.n_taps = int(n_taps)
         self.approach_height_m = float(approach_height_m)
         self.dwell_s = float(dwell_s)
@@ -76,26 +81,38 @@ class TapTrajectory:
         self.press_depth_m = float(press_depth_m)
         self.pause_s = float(pause_s)
         self.ramp_s = float(ramp_s)
-        self._taps = [self._tap_segments(v) for v in self.velocities_m_s]
-        self._tap_arrays = {key: np.array([tp[key] for tp in self._taps])
-                            for key in ("v", "ramp", "t_surface", "t_through", "t_decel", "t_rest", "t_lift")}
-        starts = np.concatenate([[0.0], np.cumsum([tp["total"] for tp in self._taps])])
-        self._starts = starts
-        self.duration_s = float(starts[-1])
-        #: times (s, from the start) at which the desired hand crosses the surface, one per tap
-        self.surface_times_s = tuple(float(s0 + tp["t_surface"]) for s0, tp in zip(starts, self._taps))
+        # one entry per tap, the speeds cycled (np.resize repeats the sequence)
+        self._tap_arrays = self._tap_segments(np.resize(np.array(vels), self.n_taps))
+        self._starts = np.concatenate([[0.0], np.cumsum(self._tap_arrays["total"])])
+        self.duration_s = float(self._starts[-1])
 
-    def _tap_segments(self, v: float) -> dict:
+    @property
+    def velocities_m_s(self) -> tuple:
+        """The speed of every tap (m/s), one per tap (the given speeds cycled), as a tuple made on request."""
+        return tuple(self._tap_arrays["v"].tolist())
+
+    @property
+    def surface_times_s(self) -> tuple:
+        """Times (s, from the start) at which the desired hand crosses the surface, one per tap (a tuple
+        made on request: the plan keeps only its schedule)."""
+        return tuple((self._starts[:-1] + self._tap_arrays["t_surface"]).tolist())
+
+    def _tap_segments(self, v: np.ndarray) -> dict:
+        """Segment times (s, from each tap's start) of taps at speeds ``v`` (m/s, shape (n_taps,)).
+
+        Element by element the same IEEE operations as the scalar formulas (numpy does not fuse or reorder
+        them), so a tap's numbers do not depend on how many taps the plan has.
+        """
         h = self.approach_height_m
-        ramp = min(self.ramp_s, h / v)         # keep the ramp distance (v*ramp/2) within the approach
+        ramp = np.minimum(self.ramp_s, h / v)     # keep the ramp distance (v*ramp/2) within the approach
         t_cruise = (h - v * ramp / 2) / v
         t_surface = ramp + t_cruise
         t_through = 0.5 * self.press_depth_m / v          # constant speed below the surface
         t_decel = self.press_depth_m / v                  # uniform deceleration over the other half
         t_rest = t_surface + t_through + t_decel
         return {"v": v, "ramp": ramp, "t_surface": t_surface, "t_through": t_through, "t_decel": t_decel,
-                "t_rest": t_rest,
-                "t_lift": t_rest + self.dwell_s, "total": t_rest + self.dwell_s + self.lift_s + self.pause_s}
+                "t_rest": t_rest, "t_lift": t_rest + self.dwell_s,
+                "total": t_rest + self.dwell_s + self.lift_s + self.pause_s}
 
     def position(self, t_s) -> np.ndarray:
         """Desired hand position (m) at times ``t_s`` (s, array of any order), vectorized.
@@ -122,7 +139,7 @@ class TapTrajectory:
 
     def _position(self, t: np.ndarray) -> np.ndarray:
         h, d = self.approach_height_m, self.press_depth_m
-        n_taps = len(self._taps)
+        n_taps = self.n_taps
         idx = np.clip(np.searchsorted(self._starts[:n_taps], t, side="right") - 1, 0, n_taps - 1)
         tau = t - self._starts[idx]
         par = self._tap_arrays
@@ -143,18 +160,35 @@ class TapTrajectory:
         x = np.where((t < self._starts[0]) | (t >= self._starts[-1]), h, x)
         return x
 
+    def n_ticks(self, fs_hz: float) -> int:
+        """Number of servo ticks :meth:`sample` gives at ``fs_hz``: ``ceil(duration * fs) + 1``."""
+        return int(math.ceil(self.duration_s * fs_hz)) + 1
+
     def sample(self, fs_hz: float) -> np.ndarray:
         """Desired position at ticks ``k/fs_hz`` for k = 0..ceil(duration*fs) (m), shape (n,).
 
         The same values as :meth:`position` at those times, bit for bit; because the times are in
         order, each tap's samples and each of its segments are contiguous, so every segment's formula
         runs once over its own slice (no per-sample gathering or selection): ~10x faster, linear in taps
-        and samples (issue 21 item 2).
+        and samples (issue 21 item 2). ``sample_range(fs_hz, 0, n_ticks(fs_hz))``.
         """
-        n = int(math.ceil(self.duration_s * fs_hz)) + 1
-        out = np.full(n, self.approach_height_m)
+        return self.sample_range(fs_hz, 0, self.n_ticks(fs_hz))
+
+    def sample_range(self, fs_hz: float, lo: int, hi: int) -> np.ndarray:
+        """Ticks ``lo..hi-1`` of :meth:`sample` (m), shape (hi - lo,) after clipping to ``0..n_ticks``.
+
+        Bit for bit ``sample(fs_hz)[lo:hi]``, computed only for those ticks (memory and time linear in
+        ``hi - lo`` plus the taps they touch, not in the plan): every tick's value is the same per-element
+        arithmetic on ``k / fs_hz`` whatever the stretch asked for. ``devices.sim.SimDevice`` streams the
+        plan this way in fixed-size windows.
+        """
+        n = self.n_ticks(fs_hz)
+        lo, hi = max(0, int(lo)), min(n, int(hi))
+        out = np.full(max(hi - lo, 0), self.approach_height_m)
+        if hi <= lo:
+            return out
         h, d, lift_s = self.approach_height_m, self.press_depth_m, self.lift_s
-        n_taps = len(self._taps)
+        n_taps, starts, par = self.n_taps, self._starts, self._tap_arrays
 
         def first_tick_at(t_s: float) -> int:
             # the first tick k with k / fs >= t_s, decided by the same division as the tick times
@@ -165,30 +199,34 @@ class TapTrajectory:
                 k += 1
             return k
 
-        # tap i owns starts[i] <= t < starts[i + 1] (the first also t < starts[0], the last all later t,
-        # as position()'s clipped search); past the plan's end the hand is at the approach height
-        edges = [first_tick_at(float(s0)) for s0 in self._starts[1:n_taps]]
-        lo_all = [0, *edges]
-        hi_all = [*edges, first_tick_at(float(self._starts[-1]))]
-        for tp, s0, lo, hi in zip(self._taps, self._starts, lo_all, hi_all):
-            if hi <= lo:
-                continue
-            tau = np.arange(lo, hi) / fs_hz - s0      # this tap's tick times only: memory linear in one tap
-            v, ramp, t_surf = tp["v"], tp["ramp"], tp["t_surface"]
-            t_brake = t_surf + tp["t_through"]
-            t_rest, t_decel, t_lift = tp["t_rest"], tp["t_decel"], tp["t_lift"]
-            a, b, c, e, f, g = np.searchsorted(tau, (0.0, ramp, t_surf, t_brake, t_rest, t_lift), side="left")
-            phase = (tau[g:] - t_lift) / lift_s
-            end = g + int(np.searchsorted(phase, 1.0, side="left"))
-            x = out[lo:hi]
-            # the segment formulas of _position, operation for operation
-            x[a:b] = h - 0.5 * v / ramp * tau[a:b] ** 2
-            x[b:c] = h - v * ramp / 2 - v * (tau[b:c] - ramp)
-            x[c:e] = -v * (tau[c:e] - t_surf)
-            u = tau[e:f] - t_brake
-            x[e:f] = -0.5 * d - v * u + 0.5 * (v / t_decel) * u ** 2
-            x[f:g] = -d
-            x[g:end] = -d + (h + d) * 0.5 * (1 - np.cos(np.pi * phase[:end - g]))
+        # tap i owns first_tick_at(starts[i]) <= k < first_tick_at(starts[i + 1]) (the first also the ticks
+        # before, as position()'s clipped search); past the plan's end the hand is at the approach height.
+        # The first tap reaching into lo..hi: the last whose first tick is <= lo, i.e. starts[i] <= lo / fs
+        i = max(0, int(np.searchsorted(starts[:n_taps], lo / fs_hz, side="right")) - 1)
+        t_lo = 0 if i == 0 else first_tick_at(float(starts[i]))
+        while i < n_taps and t_lo < hi:
+            t_hi = first_tick_at(float(starts[i + 1]))
+            a0, b0 = max(t_lo, lo), min(t_hi, hi)
+            if b0 > a0:
+                s0 = starts[i]
+                tau = np.arange(a0, b0) / fs_hz - s0      # this tap's ticks in the stretch only
+                v, ramp, t_surf = par["v"][i], par["ramp"][i], par["t_surface"][i]
+                t_brake = t_surf + par["t_through"][i]
+                t_rest, t_decel, t_lift = par["t_rest"][i], par["t_decel"][i], par["t_lift"][i]
+                a, b, c, e, f, g = np.searchsorted(tau, (0.0, ramp, t_surf, t_brake, t_rest, t_lift), side="left")
+                phase = (tau[g:] - t_lift) / lift_s
+                end = g + int(np.searchsorted(phase, 1.0, side="left"))
+                x = out[a0 - lo:b0 - lo]
+                # the segment formulas of _position, operation for operation
+                x[a:b] = h - 0.5 * v / ramp * tau[a:b] ** 2
+                x[b:c] = h - v * ramp / 2 - v * (tau[b:c] - ramp)
+                x[c:e] = -v * (tau[c:e] - t_surf)
+                u = tau[e:f] - t_brake
+                x[e:f] = -0.5 * d - v * u + 0.5 * (v / t_decel) * u ** 2
+                x[f:g] = -d
+                x[g:end] = -d + (h + d) * 0.5 * (1 - np.cos(np.pi * phase[:end - g]))
+            i += 1
+            t_lo = t_hi
         return out
 
 
@@ -223,10 +261,19 @@ class ScriptedTrajectory:
         """Hand target position (m) at ``t_s`` (s, scalar or array), linearly interpolated; shape of ``t_s`` (1-D)."""
         return np.interp(np.atleast_1d(np.asarray(t_s, dtype=float)), self.t_s, self.x_m)
 
+    def n_ticks(self, fs_hz: float) -> int:
+        """Number of servo ticks :meth:`sample` gives at ``fs_hz``: ``ceil(duration * fs) + 1``."""
+        return int(math.ceil(self.duration_s * fs_hz)) + 1
+
     def sample(self, fs_hz: float) -> np.ndarray:
         """The target position (m) at ``fs_hz`` from 0 to the end of the script, shape (n,)."""
-        n = int(math.ceil(self.duration_s * fs_hz)) + 1
-        return self.position(np.arange(n) / fs_hz)
+        return self.sample_range(fs_hz, 0, self.n_ticks(fs_hz))
+
+    def sample_range(self, fs_hz: float, lo: int, hi: int) -> np.ndarray:
+        """Ticks ``lo..hi-1`` of :meth:`sample` (m, bit for bit: interpolation is per tick), clipped to
+        ``0..n_ticks``; shape (hi - lo,)."""
+        lo, hi = max(0, int(lo)), min(self.n_ticks(fs_hz), int(hi))
+        return self.position(np.arange(lo, max(lo, hi)) / fs_hz)
 
 
 class HoldTrajectory:
@@ -240,20 +287,30 @@ class HoldTrajectory:
         """The hold position (m) at every time in ``t_s``; shape of ``t_s`` (1-D)."""
         return np.full(np.shape(np.atleast_1d(t_s)), self.x_m)
 
+    def n_ticks(self, fs_hz: float) -> int:
+        """One tick: the hold position holds for ever."""
+        return 1
+
     def sample(self, fs_hz: float) -> np.ndarray:
         """One sample: the hold position (m), shape (1,)."""
         return np.array([self.x_m])
 
+    def sample_range(self, fs_hz: float, lo: int, hi: int) -> np.ndarray:
+        """Ticks ``lo..hi-1`` of :meth:`sample` clipped to its one tick (m), shape (0,) or (1,)."""
+        return np.full(max(0, min(1, int(hi)) - max(0, int(lo))), self.x_m)
 
-def sample_grip(grip_N: float | Callable, n: int, fs_hz: float) -> np.ndarray:
-    """Grip force (N) at the ``n`` ticks ``k / fs_hz``; ``grip_N`` is a constant or a callable t_s -> N.
+
+def sample_grip(grip_N: float | Callable, n: int, fs_hz: float, start: int = 0) -> np.ndarray:
+    """Grip force (N) at the ``n`` ticks ``k / fs_hz``, k = start..start+n-1; ``grip_N`` is a constant or a
+    callable t_s -> N.
 
     A callable is first tried vectorized (array in, array out), else called
     per sample; a constant needs no time grid. Returns shape (n,). Raises
-    ValueError for negative or non-finite grip.
+    ValueError for negative or non-finite grip. ``start`` lets a simulated
+    device stream the grip in windows, as the plan (the same tick times).
     """
     if callable(grip_N):
-        t_s = np.arange(n) / fs_hz
+        t_s = np.arange(start, start + n) / fs_hz
         try:
             g = np.asarray(grip_N(t_s), dtype=float)
             if g.shape != t_s.shape:

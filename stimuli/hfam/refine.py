@@ -270,10 +270,11 @@ def play_tap(device, current_A: np.ndarray, velocity_m_s: float, grip_N: float, 
     if callable(getattr(device, "fused_arrays", None)):
         # the same ticks in one compiled call (~15x faster: the refinement plays ~900 taps per demo build)
 
+        arrays = device.fused_arrays(limit + 1)   # the tap's whole plan (a window that long: streamed plans)
         dv = device.fused_state()
         ring, ring_acc = np.empty(n_hist), np.empty(n_hist)
         try:
-            k_imp, pushed = tap_on_wall(dv, *device.fused_arrays(), np.ascontiguousarray(current_A, dtype=float),
+            k_imp, pushed = tap_on_wall(dv, *arrays, np.ascontiguousarray(current_A, dtype=float),
                                         float(wall_N_m), float(kf), limit, ring, acc, ring_acc, cmd)
         finally:
             device.fused_sync(dv)

@@ -8,6 +8,7 @@ take seconds to start a spawned interpreter.
 """
 
 import functools
+import json
 import os
 import signal
 import subprocess
@@ -104,6 +105,88 @@ def test_stop_signals_in_a_real_process():
         "installed False", "own handler 15", "kept True True",
         "section finished", "raised after it 15", ""], p.stderr
     assert p.returncode == 128 + signal.SIGTERM and "Traceback" not in p.stderr
+
+
+SWALLOWED = textwrap.dedent("""
+    import ctypes, os, signal, sys
+    from plumbing.stopsignals import Terminated, holding, stop_if_signalled, stop_on_signals
+    # a Python function C calls back: an exception raised in it is printed ("Exception ignored") and dropped
+    callback = ctypes.CFUNCTYPE(None)(lambda: os.kill(os.getpid(), signal.SIGTERM))
+    others = []
+    mine = lambda u: others.append(type(u.exc_value).__name__)
+    sys.unraisablehook = mine
+    with stop_on_signals() as block:
+        stop_if_signalled()                      # no signal: nothing
+        try:
+            callback()
+            print("survived the callback", block.signum, block.lost)
+            stop_if_signalled()
+            print("not raised")
+        except Terminated as exc:
+            print("raised", exc.signum, exc.code)
+        stop_if_signalled()                      # raised once only
+        ctypes.CFUNCTYPE(None)(lambda: 1 / 0)()  # not a stop: the hook that was in place sees it
+    print("hook back", others, sys.unraisablehook is mine)
+    try:
+        with stop_on_signals():
+            callback()
+            with holding():
+                stop_if_signalled()              # held: not here, at the section's end
+                print("held")
+    except Terminated as exc:
+        print("raised after the section", exc.signum)
+    try:
+        with stop_on_signals():
+            callback()
+            print("never checked")
+    except Terminated as exc:
+        print("raised at the block's end", exc.signum)
+""")
+
+
+def test_a_stop_swallowed_in_a_ctypes_callback_is_raised_where_the_run_can_stop():
+    """The raise inside a C callback (llvmlite's, during numba's compile) is lost to Python; the block keeps it
+    and raises it at the next check, at a holding's end or at the block's end, once, without the noise."""
+    p = subprocess.run([sys.executable, "-c", SWALLOWED], cwd=ROOT, env=ENV, capture_output=True, text=True,
+                       timeout=120)
+    assert p.stdout.split("\n") == [
+        "survived the callback 15 True", "raised 15 143", "hook back ['ZeroDivisionError'] True",
+        "held", "raised after the section 15", "never checked", "raised at the block's end 15", ""], p.stderr
+    assert p.returncode == 0 and "Exception ignored" not in p.stderr and "Traceback" not in p.stderr
+
+
+# the child: numba's compiler sends itself SIGTERM from inside llvmlite's object-cache callback (the ctypes
+# callback LLVM calls when it has compiled a module), so the signal lands there every time, not by timing
+IN_COMPILE = textwrap.dedent("""
+    import os, runpy, signal, sys
+    from numba.core.codegen import JITCodeLibrary
+    compiled = JITCodeLibrary._object_compiled_hook.__func__
+    sent = []
+    def hook(cls, ll_module, buf):
+        if not sent:
+            sent.append(1)
+            print("SIGTERM inside numba's compiler", file=sys.stderr, flush=True)
+            os.kill(os.getpid(), signal.SIGTERM)
+        return compiled(cls, ll_module, buf)
+    JITCodeLibrary._object_compiled_hook = classmethod(hook)
+    sys.argv = ["renderer", *sys.argv[1:]]
+    runpy.run_module("renderer", run_name="__main__", alter_sys=True)
+""")
+
+
+def test_a_sigterm_inside_numbas_compile_stops_the_run(tmp_path):
+    """Cold numba cache, no ahead-of-time build: the run compiles its law and physics, and a SIGTERM delivered
+    inside the compiler (where llvmlite's callback swallowed it: the run went on to exit 0) stops it before its
+    first tick, with exit status 143 and its (empty) partial run saved, as any SIGTERM."""
+    env = {**ENV, "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "HFAM_SIM_AOT": "off"}
+    p = subprocess.run([sys.executable, "-c", IN_COMPILE, "run", "--device", "sim", "--taps", "3", "--out",
+                        str(tmp_path / "X")], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
+    assert p.returncode == 143, p.stderr
+    assert p.stderr == f"SIGTERM inside numba's compiler\nstopped by SIGTERM: partial run saved to {tmp_path / 'X'}\n"
+    assert list((tmp_path / "numba").rglob("*.nbi"))                  # it was compiling (a cold cache, filled)
+    run = json.loads((tmp_path / "X" / "run.json").read_text())
+    assert (run["stop_reason"], run["ticks"], run["error"]) == ("interrupted", 0, "Terminated: stopped by SIGTERM")
+    assert (tmp_path / "X" / "events.csv").read_text().count("\n") == 1     # the header: no tap was rendered
 
 
 def test_handlers_only_in_the_main_thread_and_restored():
