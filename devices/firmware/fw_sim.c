@@ -90,7 +90,8 @@ static const char *elf_path, *stats_path;
 static int pace_realtime = 1, pace_lockstep, selfhost;
 /* --pace lockstep: one host period of simulated time per host frame (see lockstep_* below) */
 static unsigned lockstep_ticks = 4; /* host period in servo ticks (4 kHz Timer1): 4 = 1 ms, a 1 kHz host loop */
-static double lockstep_timeout_s = 10.0; /* wall time at the horizon with no host frame: the MCU runs free */
+static double lockstep_free_run_s = 0.0; /* > 0: wall time at the horizon with no host frame after which the MCU
+                                           * runs free in real time (0: never; simulated time waits for the host) */
 static double speed = 1.0, max_sim_s = 0.0;
 static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns, sym_po_e, sym_tr_k, sym_ev_kind, sym_heat_n;
 static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current)
@@ -513,8 +514,10 @@ static void out_push(const uint8_t *b, unsigned n) {
  * does not stop at the horizon while it owes the released frame its reply (or is sending a frame):
  * such a reply is late (counted) and the next period starts when it is out. While the firmware renders
  * on board (RENDER_START .. RENDER_STOP) the harness runs as --pace fast (telemetry back-pressure).
- * A host silent at the horizon for --lockstep-timeout-s of wall time (gone or hung) lets the MCU run
- * free in real time, so the firmware's watchdog zeroes the motor as on a board; its next frame
+ * A host that sends nothing leaves the MCU waiting at the horizon (simulated time stands still, as
+ * for a host paused by a compile or the scheduler: a priming pause of 10+ s was seen on a loaded
+ * machine); with --lockstep-free-run-s T > 0 a host silent for T of wall time lets the MCU run free in
+ * real time instead, so the firmware's watchdog zeroes the motor as on a board; the host's next frame
  * resumes lockstep. */
 #define LS_CURRENT_FRAME (HFAM_OVERHEAD + 4)
 #define LS_OWED_MAX_CYCLES (F_CPU_HZ / 10) /* a reply that never comes: stop waiting 100 ms of MCU time on */
@@ -909,7 +912,7 @@ int main(int argc, char **argv) {
         else if (OPT("--stats")) stats_path = val;
         else if (OPT("--pace")) { pace_realtime = !strcmp(val, "realtime"); pace_lockstep = !strcmp(val, "lockstep"); }
         else if (OPT("--lockstep-ticks")) lockstep_ticks = (unsigned)atoi(val);
-        else if (OPT("--lockstep-timeout-s")) lockstep_timeout_s = atof(val);
+        else if (OPT("--lockstep-free-run-s")) lockstep_free_run_s = atof(val);
         else if (OPT("--speed")) speed = atof(val);
         else if (OPT("--max-sim-s")) max_sim_s = atof(val);
         else if (OPT("--sym-encoder")) sym_encoder = (uint16_t)strtoul(val, NULL, 0);
@@ -936,8 +939,8 @@ int main(int argc, char **argv) {
     }
     if (getenv("FW_SIM_TRACE_FROM")) trace_from = strtoull(getenv("FW_SIM_TRACE_FROM"), NULL, 0);
     if (!elf_path) { fprintf(stderr, "error: --elf FILE is required\n"); return 2; }
-    if (pace_lockstep && !(lockstep_ticks >= 1 && lockstep_ticks <= 255 && lockstep_timeout_s > 0)) {
-        fprintf(stderr, "error: --lockstep-ticks must be 1..255 and --lockstep-timeout-s > 0\n");
+    if (pace_lockstep && !(lockstep_ticks >= 1 && lockstep_ticks <= 255 && lockstep_free_run_s >= 0)) {
+        fprintf(stderr, "error: --lockstep-ticks must be 1..255 and --lockstep-free-run-s >= 0\n");
         return 2;
     }
     elf_firmware_t fw;
@@ -1006,7 +1009,7 @@ int main(int argc, char **argv) {
             if (ls_must_wait()) {
                 double now = wall_s();
                 if (ls_wait_since == 0.0) { ls_wait_since = now; ls_waits++; }
-                if (now - ls_wait_since > lockstep_timeout_s) {
+                if (lockstep_free_run_s > 0 && now - ls_wait_since > lockstep_free_run_s) {
                     /* the host is gone or hung: run free in real time (the firmware watchdog acts as on a board) */
                     ls_free = 1;
                     ls_timeouts++;

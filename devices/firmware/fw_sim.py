@@ -56,9 +56,11 @@ PACES = ("lockstep", "realtime", "fast")
 #: (11 bytes) and its STATE (23 bytes) take 340 us of the 1 Mbaud UART plus the firmware's handling, so a
 #: 4 kHz (250 us) streaming loop cannot exist on this link; 2 (2 kHz) is the fastest that fits.
 LOCKSTEP_TICKS = 4
-#: Lockstep: wall-clock seconds the MCU waits at the end of a host period for the host's next frame; then it
-#: runs free in real time, so the firmware's watchdog zeroes the motor as on a board (a host gone or hung).
-LOCKSTEP_TIMEOUT_S = 10.0
+#: Lockstep: wall-clock seconds the MCU waits at the end of a host period for the host's next frame before it
+#: runs free in real time (the firmware's watchdog then zeroes the motor as on a board); 0: it waits for ever.
+#: 0 by default: a host's honest pauses (the servo loop's one-time compile took 10+ s with two busy loops
+#: running) must not cost device time; a host that is gone leaves a frozen MCU, which endangers nothing.
+LOCKSTEP_FREE_RUN_S = 0.0
 SOURCES = ("hfam_fw.c", "hfam_protocol.c", "hfam_protocol.h", "fw_sim.c", "Makefile")
 
 
@@ -242,13 +244,13 @@ def build(force: bool = False) -> Build:
 def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=(0.05, 0.1, 0.2), hold_m=None,
                  sweep_m_s=(), grip_N=2.0, faults: str | None = None, seed=0, selfhost=False, decimation=1,
                  max_sim_s=None, tick_log: Path | None = None, lockstep_ticks: int = LOCKSTEP_TICKS,
-                 lockstep_timeout_s: float = LOCKSTEP_TIMEOUT_S) -> list[str]:
+                 lockstep_free_run_s: float = LOCKSTEP_FREE_RUN_S) -> list[str]:
     if pace not in PACES:
         raise ValueError(f"pace must be one of {', '.join(PACES)}, got {pace!r}")
     if not (isinstance(lockstep_ticks, int) and 1 <= lockstep_ticks <= 255):
         raise ValueError(f"lockstep_ticks must be a whole number of servo ticks in 1..255, got {lockstep_ticks!r}")
-    if not lockstep_timeout_s > 0:
-        raise ValueError(f"lockstep_timeout_s must be > 0 s, got {lockstep_timeout_s!r}")
+    if not lockstep_free_run_s >= 0:
+        raise ValueError(f"lockstep_free_run_s must be >= 0 s (0: never), got {lockstep_free_run_s!r}")
     if not speed > 0:
         raise ValueError(f"speed must be > 0 (times real time), got {speed!r}")
     cmd = [str(b.harness), "--elf", str(b.elf), "--stats", str(stats), "--pace", pace, "--speed", str(speed),
@@ -278,7 +280,7 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
     if max_sim_s:
         cmd += ["--max-sim-s", str(max_sim_s)]
     if pace == "lockstep":
-        cmd += ["--lockstep-ticks", str(lockstep_ticks), "--lockstep-timeout-s", str(lockstep_timeout_s)]
+        cmd += ["--lockstep-ticks", str(lockstep_ticks), "--lockstep-free-run-s", str(lockstep_free_run_s)]
     return cmd
 
 
@@ -380,7 +382,7 @@ def read_tick_log(path: Path) -> dict:
 def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1, 0.2), hold_m: float | None = None,
                  grip_N: float = 2.0, faults: str | None = None, seed: int = 0,
                  startup_timeout_s: float = 10.0, tick_log: bool = False, lockstep_ticks: int = LOCKSTEP_TICKS,
-                 lockstep_timeout_s: float = LOCKSTEP_TIMEOUT_S) -> tuple[str, FwSimHandle]:
+                 lockstep_free_run_s: float = LOCKSTEP_FREE_RUN_S) -> tuple[str, FwSimHandle]:
     """Build if needed and start the real firmware on simavr behind a new pty; return ``(port, handle)``.
 
     Parameters
@@ -393,9 +395,9 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
         (docs/protocol.md "Lockstep"). While the firmware renders on board it runs as ``fast``.
     lockstep_ticks : int
         Lockstep: servo ticks (250 us each) per host period; 4 (1 ms, a 1 kHz loop) by default.
-    lockstep_timeout_s : float
+    lockstep_free_run_s : float
         Lockstep: wall-clock seconds the MCU waits for the host's next frame before it runs free in real time
-        (a host gone or hung: the firmware's watchdog then zeroes the motor as on a board).
+        (the firmware's watchdog then zeroes the motor as on a board); 0 (default): it waits for ever.
     taps_m_s : sequence of float
         The hand taps down through the wall height (0) at these speeds, in turn, forever;
         empty: it holds the handle at ``hold_m`` (default 10 mm).
@@ -423,7 +425,7 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
     log = Path(tmp.name) / "ticks.bin" if tick_log else None
     cmd = _harness_cmd(b, stats, pace=pace, speed=speed, taps_m_s=taps_m_s, hold_m=hold_m, grip_N=grip_N,
                        faults=faults, seed=seed, tick_log=log, lockstep_ticks=lockstep_ticks,
-                       lockstep_timeout_s=lockstep_timeout_s)
+                       lockstep_free_run_s=lockstep_free_run_s)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + startup_timeout_s
     fd = proc.stdout.fileno()
@@ -452,7 +454,8 @@ class FwSimDevice(SerialDevice):
 
     Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (lockstep, the default | realtime | fast; see
     :func:`start_fw_sim`), ``lockstep_ticks`` (servo ticks per host period, default 4: a 1 kHz streaming loop),
-    ``lockstep_timeout_s``, ``speed`` (times real time),
+    ``lockstep_free_run_s`` (see :func:`start_fw_sim`), ``lockstep_timeout_s`` (the driver's wait for a reply,
+    :class:`~devices.hardware.serial_device.ProtocolDevice`), ``speed`` (times real time),
     ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``hold_m`` (with ``taps=``: the height
     the hand holds the handle at, default 0.01; below the wall it presses into it), ``grip_N``, ``faults``, ``tick_log``
     (1: keep every rendered tick's inputs and command, in ``last_tick_log`` after ``close()``), plus every
@@ -465,7 +468,7 @@ class FwSimDevice(SerialDevice):
 
     def __init__(self, pace: str = "lockstep", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
                  faults: str | None = None, tick_log=0, hold_m: float | None = None,
-                 lockstep_ticks=LOCKSTEP_TICKS, lockstep_timeout_s=LOCKSTEP_TIMEOUT_S, **options) -> None:
+                 lockstep_ticks=LOCKSTEP_TICKS, lockstep_free_run_s=LOCKSTEP_FREE_RUN_S, **options) -> None:
         if isinstance(taps, (int, float)):
             taps = str(taps)
         try:
@@ -475,13 +478,13 @@ class FwSimDevice(SerialDevice):
         if pace not in PACES:
             raise ValueError(f"fw-sim: pace must be one of {', '.join(PACES)}, got {pace!r}")
         try:
-            self.lockstep_ticks, self.lockstep_timeout_s = int(lockstep_ticks), float(lockstep_timeout_s)
+            self.lockstep_ticks, self.lockstep_free_run_s = int(lockstep_ticks), float(lockstep_free_run_s)
         except ValueError:
-            raise ValueError(f"fw-sim: lockstep_ticks must be a whole number of servo ticks and lockstep_timeout_s "
-                             f"seconds, got {lockstep_ticks!r}, {lockstep_timeout_s!r}") from None
-        if not (1 <= self.lockstep_ticks <= 255 and self.lockstep_timeout_s > 0):
-            raise ValueError(f"fw-sim: lockstep_ticks must be in 1..255 and lockstep_timeout_s > 0 s, got "
-                             f"{lockstep_ticks!r}, {lockstep_timeout_s!r}")
+            raise ValueError(f"fw-sim: lockstep_ticks must be a whole number of servo ticks and lockstep_free_run_s "
+                             f"seconds, got {lockstep_ticks!r}, {lockstep_free_run_s!r}") from None
+        if not (1 <= self.lockstep_ticks <= 255 and self.lockstep_free_run_s >= 0):
+            raise ValueError(f"fw-sim: lockstep_ticks must be in 1..255 and lockstep_free_run_s >= 0 s, got "
+                             f"{lockstep_ticks!r}, {lockstep_free_run_s!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
         self.tick_log = bool(int(tick_log))
         try:
@@ -499,7 +502,6 @@ class FwSimDevice(SerialDevice):
             # give the firmware watchdog room, or it trips between two keepalives (lockstep runs as fast while
             # the firmware renders on board; streaming in lockstep keeps the firmware's 100 ms: MCU time)
             options["watchdog_ms"] = 2000
-        options.setdefault("lockstep_timeout_s", self.lockstep_timeout_s)
         # the simulated MCU keeps its own pace (it may run slower than wall-clock time on a loaded machine), so
         # a late reply is not a lost frame: strict mode (retransmit with backoff) unless asked otherwise
         options.setdefault("max_consecutive_losses", 0)
@@ -516,7 +518,7 @@ class FwSimDevice(SerialDevice):
                 self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, hold_m=self.hold_m,
                                                       grip_N=self.grip_N, faults=self.faults, tick_log=self.tick_log,
                                                       lockstep_ticks=self.lockstep_ticks,
-                                                      lockstep_timeout_s=self.lockstep_timeout_s)
+                                                      lockstep_free_run_s=self.lockstep_free_run_s)
             except FwSimError as exc:
                 raise DeviceError(f"fw-sim: {exc}") from None
         super()._open()
