@@ -515,8 +515,8 @@ static void out_push(const uint8_t *b, unsigned n) {
  * such a reply is late (counted) and the next period starts when it is out. While the firmware renders
  * on board (RENDER_START .. RENDER_STOP) the harness runs as --pace fast (telemetry back-pressure).
  * A host that sends nothing leaves the MCU waiting at the horizon (simulated time stands still, as
- * for a host paused by a compile or the scheduler: a priming pause of 10+ s was seen on a loaded
- * machine); with --lockstep-free-run-s T > 0 a host silent for T of wall time lets the MCU run free in
+ * for a host paused by the scheduler: the servo loop's host was silent 10+ s after its first tick on a
+ * loaded machine); with --lockstep-free-run-s T > 0 a host silent for T of wall time lets the MCU run free in
  * real time instead, so the firmware's watchdog zeroes the motor as on a board; the host's next frame
  * resumes lockstep. */
 #define LS_CURRENT_FRAME (HFAM_OVERHEAD + 4)
