@@ -526,7 +526,10 @@ static uint8_t ls_q[QN]; /* complete host frames not yet handed to the UART */
 static unsigned ls_head, ls_tail;
 static uint16_t ls_len[1024];
 static unsigned ls_fhead, ls_ftail;
-static avr_cycle_count_t ls_horizon, ls_released_at;
+/* the MCU boots (10 ms of MCU time; its set-up takes well under 1 ms) before it waits for the host: a frame
+ * handed to the UART before the firmware enables its receiver would be lost */
+#define LS_BOOT_CYCLES (F_CPU_HZ / 100)
+static avr_cycle_count_t ls_horizon = LS_BOOT_CYCLES, ls_released_at;
 static int ls_owed, ls_render, ls_free;
 static uint64_t ls_frames, ls_currents, ls_waits, ls_timeouts, ls_late, ls_dropped;
 static double ls_wait_wall_s;
