@@ -333,7 +333,7 @@ class ServoLoop:
         if lockstep_hz is not None and abs(fs - lockstep_hz) > 1e-9 * fs:
             raise ValueError(f"rate_hz={fs:g}: this device runs in lockstep (a simulated MCU; docs/protocol.md "
                              f"'Lockstep') and advances {info.lockstep_ticks} of its {info.servo_rate_hz:g} Hz ticks per "
-                             f"command, so the streaming rate is {lockstep_hz:g} Hz: leave --rate-hz out or give that")
+                             f"command, so the streaming rate is {lockstep_hz:g} Hz: leave rate_hz unset or give that")
         if info.simulated and abs(fs - info.servo_rate_hz) > 1e-9 * fs:
             raise ValueError(f"rate_hz={fs:g} differs from the sim device's servo_rate_hz={info.servo_rate_hz:g}; "
                              "a sim device advances 1/servo_rate_hz per command, so create it with that rate")
