@@ -89,7 +89,7 @@ RTT_RING = 65536  # round-trip samples kept for the link statistics (preallocate
 CLOCK_FREEZE_STATES = 3
 CALIBRATION_ENV = "HFAM_CALIBRATION"
 #: Lockstep devices (INFO flags bit 1): wall-clock seconds a reply may take before the link counts as dead. The
-#: simulator runs 0.1-1x real time on a loaded machine (a 1 ms host period: 1-10 ms of wall time), so 10 s
+#: simulator ran 0.2-3x real time here, by load (a 1 ms host period: 0.3-5 ms of wall time), so 10 s
 #: is only ever reached by a hung simulator; it bounds how long a host waits for one.
 LOCKSTEP_TIMEOUT_S = 10.0
 
