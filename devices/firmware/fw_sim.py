@@ -58,8 +58,8 @@ PACES = ("lockstep", "realtime", "fast")
 LOCKSTEP_TICKS = 4
 #: Lockstep: wall-clock seconds the MCU waits at the end of a host period for the host's next frame before it
 #: runs free in real time (the firmware's watchdog then zeroes the motor as on a board); 0: it waits for ever.
-#: 0 by default: a host's honest pauses (the servo loop's host was silent 10+ s after its first tick with two
-#: busy loops running) must not cost device time; a host that is gone leaves a frozen MCU, which endangers nothing.
+#: 0 by default: a host's honest pauses (the servo loop's host was silent 10+ s after its first tick on the
+#: busy machine) must not cost device time; a host that is gone leaves a frozen MCU, which endangers nothing.
 LOCKSTEP_FREE_RUN_S = 0.0
 SOURCES = ("hfam_fw.c", "hfam_protocol.c", "hfam_protocol.h", "fw_sim.c", "Makefile")
 
