@@ -76,6 +76,13 @@ class DeviceInfo:
         Range the grip sensor can measure.
     capabilities : tuple of str
         e.g. ``("streaming",)`` or ``("streaming", "on_device")``.
+    simulated : bool
+        A simulated device (no link; one servo period per command).
+    lockstep_ticks : int
+        0 for a device on the wall clock. Otherwise the device's clock is simulated and advances this many
+        of its servo ticks per host command (INFO flags bit 1, bits 8-15; ``fw-sim``'s lockstep pace):
+        a streaming host runs at ``servo_rate_hz / lockstep_ticks`` paced on the device's clock, not the
+        wall clock (docs/protocol.md, "Lockstep").
     """
 
     name: str
@@ -95,8 +102,11 @@ class DeviceInfo:
     grip_range_N: tuple[float, float] = (0.0, 10.0)
     capabilities: tuple[str, ...] = ("streaming",)
     simulated: bool = False
+    lockstep_ticks: int = 0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.lockstep_ticks, int) and 0 <= self.lockstep_ticks <= 255):
+            raise ValueError(f"DeviceInfo.lockstep_ticks must be a whole number in 0..255, got {self.lockstep_ticks!r}")
         positive = {
             "encoder_lines": self.encoder_lines,
             "gear_ratio": self.gear_ratio,
@@ -129,6 +139,11 @@ class DeviceInfo:
     def position_resolution_m(self) -> float:
         """Handle travel per encoder count (4x quadrature), eq. 3.2-3.3 mapped through rho and h."""
         return 2.0 * math.pi * self.handle_length_m / (4.0 * self.encoder_lines * self.gear_ratio)
+
+    @property
+    def lockstep_rate_hz(self) -> float | None:
+        """The streaming rate of a lockstep device (``servo_rate_hz / lockstep_ticks``), None on the wall clock."""
+        return self.servo_rate_hz / self.lockstep_ticks if self.lockstep_ticks else None
 
 
 @dataclass

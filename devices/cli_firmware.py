@@ -28,7 +28,8 @@ def run_fw_sim(args) -> int:
 
     taps = tuple(float(v) for v in args.taps.split(",") if v.strip()) if args.taps else ()
     try:
-        port, handle = fw_sim.start_fw_sim(args.pace, args.speed, taps, faults=args.fault)
+        port, handle = fw_sim.start_fw_sim(args.pace, args.speed, taps, faults=args.fault,
+                                           lockstep_ticks=args.lockstep_ticks)
     except fw_sim.FwSimError as exc:
         raise ValueError(str(exc)) from None
     print(f"PORT {port}", flush=True)

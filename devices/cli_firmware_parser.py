@@ -50,8 +50,12 @@ def register(subparsers) -> None:
         "fw-sim", help="run the real firmware on simavr behind a pty (connect with serial:<pty>)",
         description="Print 'PORT <pty>' and run the AVR firmware on a simulated ATmega328P whose paddle a "
                     "simulated hand taps; a host connects with serial:<pty>. Stop with Ctrl-C / SIGTERM.")
-    q.add_argument("--pace", choices=("realtime", "fast"), default="realtime",
-                   help="realtime (for a person), or as fast as the host reads telemetry (tests)")
+    q.add_argument("--pace", choices=("lockstep", "realtime", "fast"), default="lockstep",
+                   help="lockstep (default: the MCU runs one host period per host frame and the host paces on its "
+                        "clock, so a slow simulator never trips a watchdog), realtime (on the wall clock; "
+                        "slower than real time on a loaded machine), or fast (as fast as the host reads telemetry)")
+    q.add_argument("--lockstep-ticks", type=int, default=4,
+                   help="lockstep: 250 us servo ticks per host period (default 4: a 1 kHz streaming loop)")
     q.add_argument("--speed", type=float, default=1.0, help="realtime pace: times real time (default 1)")
     q.add_argument("--taps", default="0.05,0.1,0.2", help="tap speeds, m/s, cycled ('' : hold at 10 mm)")
     q.add_argument("--fault", default=None, help="device->host faults: drop=P,corrupt=P,garbage=P,duplicate=P,"

@@ -215,6 +215,12 @@ def format_table(result) -> str:
     if tm.get("compiled_sim"):
         how = "ahead of time" if tm.get("aot") else "JIT"
         lines.append(head + f"; law and simulated physics compiled together ({how}; no per-tick timing)")
+    elif result.device.get("lockstep_ticks") and not tm.get("on_device"):
+        # the device's clock waits for the host (fw-sim, docs/protocol.md "Lockstep"): wall-clock periods measure
+        # the simulator's speed, not the loop's timing
+        lines.append(head + f"; lockstep: paced on the device's clock ({result.device['lockstep_ticks']} device "
+                     f"ticks per command), wall-clock period p50/max {tm['period_p50_us']:.1f}/"
+                     f"{tm['period_max_us']:.1f} us (the simulator's speed); overruns {tm['overruns']}")
     else:
         lines.append(head + f"; period p50/p99/max {tm['period_p50_us']:.1f}/{tm['period_p99_us']:.1f}/"
                      f"{tm['period_max_us']:.1f} us; overruns {tm['overruns']}; compute p50/p99 "

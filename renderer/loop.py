@@ -326,7 +326,14 @@ class ServoLoop:
         cfg, dev = self.cfg, self.device
         info = dev.info
         self.info = info
-        fs = float(cfg.rate_hz) if cfg.rate_hz is not None else float(info.servo_rate_hz)
+        on_device = bool(getattr(dev, "on_device_rendering", False)) and "on_device" in info.capabilities
+        lockstep_hz = None if on_device else info.lockstep_rate_hz
+        native_hz = float(lockstep_hz if lockstep_hz is not None else info.servo_rate_hz)
+        fs = float(cfg.rate_hz) if cfg.rate_hz is not None else native_hz
+        if lockstep_hz is not None and abs(fs - lockstep_hz) > 1e-9 * fs:
+            raise ValueError(f"rate_hz={fs:g}: this device runs in lockstep (a simulated MCU; docs/protocol.md "
+                             f"'Lockstep') and advances {info.lockstep_ticks} of its {info.servo_rate_hz:g} Hz ticks per "
+                             f"command, so the streaming rate is {lockstep_hz:g} Hz: leave rate_hz unset or give that")
         if info.simulated and abs(fs - info.servo_rate_hz) > 1e-9 * fs:
             raise ValueError(f"rate_hz={fs:g} differs from the sim device's servo_rate_hz={info.servo_rate_hz:g}; "
                              "a sim device advances 1/servo_rate_hz per command, so create it with that rate")
@@ -475,6 +482,8 @@ class ServoLoop:
             dev.open()
         if realtime is None:
             realtime = not self.info.simulated
+        if self.info.lockstep_ticks and not self.on_device:
+            realtime = False  # the device's clock paces a lockstep device: wall-clock pacing would only lag it
         limit = math.inf
         if duration_s is not None:
             limit = int(round(duration_s * self.fs_hz))
@@ -694,11 +703,15 @@ class ServoLoop:
         cap = self._cap
         fs = self.fs_hz
         period_ns = int(round(1e9 / fs))
-        paced = realtime or not info.simulated
+        # a simulated device, and a lockstep one (its clock waits for the host: docs/protocol.md "Lockstep"), take
+        # no wall-clock pacing: no overrun counting, no host watchdog on the wall clock (a stalled simulation
+        # endangers nothing: the watchdog guards real motors; a dead lockstep link is the driver's to detect)
+        on_device_clock = info.simulated or bool(info.lockstep_ticks)
+        paced = realtime or not on_device_clock
         tol = cfg.overrun_tolerance_s if cfg.overrun_tolerance_s is not None else 0.5 / fs
         over_ns = period_ns + int(tol * 1e9)
         wd_ns = period_ns + int(cfg.watchdog_overrun_s * 1e9)
-        watchdog = not info.simulated  # a stalled simulation endangers nothing: the watchdog guards real motors
+        watchdog = not on_device_clock
         spin_ns = int(cfg.spin_margin_s * 1e9)
         sleep_spin = cfg.pacing == "sleep_spin"
         if realtime and st.get("policy", {}).get("policy") == "SCHED_FIFO":

@@ -94,8 +94,9 @@ def safety_bounds(info, fs_hz: float, cfg: RendererConfig | None = None,
         grip_min_N=-gmax, grip_max_N=gmax, max_bad_samples=int(cfg.max_bad_samples),
         continuous_safe_A=safe_continuous_current(info, ic), heat_K_A2=heat, alpha=alpha,
         t_attenuate_K=cfg.thermal_attenuate_frac * tmax, t_end_K=cfg.thermal_end_frac * tmax,
-        # a stalled simulation endangers nothing: the watchdog guards real motors only
-        watchdog_period_ns=None if info.simulated else period_ns + int(cfg.watchdog_overrun_s * 1e9))
+        # a stalled simulation endangers nothing: the watchdog guards real motors only (a lockstep device's clock
+        # is simulated too and waits for the host: docs/protocol.md "Lockstep")
+        watchdog_period_ns=None if info.simulated or info.lockstep_ticks else period_ns + int(cfg.watchdog_overrun_s * 1e9))
 
 
 class SafetyPath:

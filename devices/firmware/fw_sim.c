@@ -8,7 +8,10 @@
  *   (INT0/INT1) with each count's edge placed at its exact cycle (linear interpolation within
  *   the physics step); the handle acceleration and the grip force drive ADC0/ADC1.
  * - Simulated time is the MCU's cycle count. --pace realtime keeps it on the wall clock
- *   (--speed X: X times real time); --pace fast runs as fast as the host drains the telemetry.
+ *   (--speed X: X times real time); --pace fast runs as fast as the host drains the telemetry;
+ *   --pace lockstep (streaming) advances the MCU one host period (--lockstep-ticks servo ticks) per
+ *   host frame and waits for the next frame, so the host paces on the MCU's clock: the harness
+ *   marks INFO's flags (bit 1 lockstep, bits 8-15 the ticks) and the host drops wall-clock pacing.
  * - Timing instrumentation: interrupt entry/exit of every vector (simavr's per-vector RUNNING
  *   IRQ), the servo tick's trace marks on GPIOR0 (1 start, 2 end, 3/4 frame handling), RAM
  *   high-water by stack painting, encoder counts of the firmware vs the true count, motor
@@ -84,7 +87,11 @@ static void on_signal(int s) { (void)s; quit = 1; }
 
 /* ---- options ---------------------------------------------------------------------------- */
 static const char *elf_path, *stats_path;
-static int pace_realtime = 1, selfhost;
+static int pace_realtime = 1, pace_lockstep, selfhost;
+/* --pace lockstep: one host period of simulated time per host frame (see lockstep_* below) */
+static unsigned lockstep_ticks = 4; /* host period in servo ticks (4 kHz Timer1): 4 = 1 ms, a 1 kHz host loop */
+static double lockstep_free_run_s = 0.0; /* > 0: wall time at the horizon with no host frame after which the MCU
+                                           * runs free in real time (0: never; simulated time waits for the host) */
 static double speed = 1.0, max_sim_s = 0.0;
 static uint16_t sym_encoder, sym_bss_end, sym_parser, sym_probe, sym_rx_overruns, sym_po_e, sym_tr_k, sym_ev_kind, sym_heat_n;
 static FILE *tick_log; /* --tick-log: per rendered tick, the firmware's tick_probe (t_us, enc, adc, current)
@@ -301,6 +308,8 @@ static void uart_fix_byte_time(void) {
     uart0->cycles_per_byte = c / 11 * 10;
 }
 
+static avr_cycle_count_t uart_byte_cycles(void) { return uart0 && uart0->cycles_per_byte ? uart0->cycles_per_byte : 160; }
+
 /* ---- timing instrumentation -------------------------------------------------------------- */
 #define HIST 65536
 static uint32_t tick_hist[HIST], body_hist[HIST], own_hist[HIST]; /* own: no latency, no nested interrupts */
@@ -497,6 +506,100 @@ static void out_push(const uint8_t *b, unsigned n) {
     }
 }
 
+/* ---- lockstep (--pace lockstep) ----------------------------------------------------------------
+ * The MCU runs up to a horizon; a complete host frame is handed to the UART only once the MCU has
+ * reached the horizon, and moves it one host period P on (plus the extra UART time of a frame longer
+ * than a CURRENT). A streaming host answers each STATE with its next CURRENT, so consecutive CURRENTs
+ * reach the MCU exactly P apart in MCU time, however slowly simavr runs or the host answers. The MCU
+ * does not stop at the horizon while it owes the released frame its reply (or is sending a frame):
+ * such a reply is late (counted) and the next period starts when it is out. While the firmware renders
+ * on board (RENDER_START .. RENDER_STOP) the harness runs as --pace fast (telemetry back-pressure).
+ * A host that sends nothing leaves the MCU waiting at the horizon (simulated time stands still, as
+ * for a host paused by the scheduler: the servo loop's host was silent 10+ s after its first tick on a
+ * loaded machine); with --lockstep-free-run-s T > 0 a host silent for T of wall time lets the MCU run free in
+ * real time instead, so the firmware's watchdog zeroes the motor as on a board; the host's next frame
+ * resumes lockstep. */
+#define LS_CURRENT_FRAME (HFAM_OVERHEAD + 4)
+#define LS_OWED_MAX_CYCLES (F_CPU_HZ / 10) /* a reply that never comes: stop waiting 100 ms of MCU time on */
+static hfam_parser_t ls_in_parser;
+static uint8_t ls_q[QN]; /* complete host frames not yet handed to the UART */
+static unsigned ls_head, ls_tail;
+static uint16_t ls_len[1024];
+static unsigned ls_fhead, ls_ftail;
+/* the MCU boots (10 ms of MCU time; its set-up takes well under 1 ms) before it waits for the host: a frame
+ * handed to the UART before the firmware enables its receiver would be lost */
+#define LS_BOOT_CYCLES (F_CPU_HZ / 100)
+static avr_cycle_count_t ls_horizon = LS_BOOT_CYCLES, ls_released_at;
+static int ls_owed, ls_render, ls_free;
+static uint64_t ls_frames, ls_currents, ls_waits, ls_timeouts, ls_late, ls_dropped;
+static double ls_wait_wall_s;
+static avr_cycle_count_t ls_late_max;
+
+static avr_cycle_count_t ls_period(void) { return (avr_cycle_count_t)lockstep_ticks * (F_CPU_HZ / 4000); }
+
+static void ls_host_byte(uint8_t c) {
+    if (!hfam_parse_byte(&ls_in_parser, c)) return;
+    unsigned n = (unsigned)ls_in_parser.buf[2] + HFAM_OVERHEAD;
+    if ((ls_fhead + 1) % 1024 == ls_ftail || (QN - 1 - (ls_head + QN - ls_tail) % QN) < n) { ls_dropped++; return; }
+    for (unsigned i = 0; i < n; i++) { ls_q[ls_head] = ls_in_parser.buf[i]; ls_head = (ls_head + 1) % QN; }
+    ls_len[ls_fhead] = (uint16_t)n;
+    ls_fhead = (ls_fhead + 1) % 1024;
+}
+
+static void host_push(const uint8_t *b, unsigned n);
+
+/* hand the next queued host frame to the UART if the MCU has reached the horizon; returns 1 if it did */
+static int ls_release(void) {
+    if (ls_ftail == ls_fhead) return 0;
+    if (!ls_render && !ls_free && avr->cycle < ls_horizon) return 0;
+    unsigned n = ls_len[ls_ftail];
+    ls_ftail = (ls_ftail + 1) % 1024;
+    uint8_t f[HFAM_MAX_PAYLOAD + HFAM_OVERHEAD] = {0};
+    for (unsigned i = 0; i < n; i++) { f[i] = ls_q[ls_tail]; ls_tail = (ls_tail + 1) % QN; }
+    uint8_t type = f[3];
+    if (type == MSG_RENDER_START) ls_render = 1;
+    else if (type == MSG_RENDER_STOP || (type == MSG_SET_MODE && f[2] >= 1 && f[5] == 0)) ls_render = 0;
+    /* the period runs from the horizon when the frame was waiting there (no drift from overshoot) */
+    avr_cycle_count_t start = (!ls_free && avr->cycle < ls_horizon + 2 * PHYS_CYCLES) ? ls_horizon : avr->cycle;
+    avr_cycle_count_t extra = n > LS_CURRENT_FRAME ? (avr_cycle_count_t)(n - LS_CURRENT_FRAME) * uart_byte_cycles() : 0;
+    ls_horizon = start + ls_period() + extra;
+    ls_released_at = avr->cycle;
+    ls_owed = type != MSG_KEEPALIVE; /* every other frame is answered (STATE, ACK, NAK, PONG or INFO) */
+    ls_free = 0;
+    ls_frames++;
+    if (type == MSG_CURRENT) ls_currents++;
+    host_push(f, n);
+    return 1;
+}
+
+/* a complete frame from the MCU: INFO advertises lockstep; a reply pays what the released frame owed */
+static void ls_device_frame(uint8_t *frame, unsigned n) {
+    uint8_t type = frame[3];
+    if (type == MSG_INFO && frame[2] >= 87) {
+        uint8_t *flags = frame + 5 + 85;
+        flags[0] |= 2;                         /* bit 1: lockstep, the host paces on the device clock */
+        flags[1] = (uint8_t)lockstep_ticks;    /* bits 8-15: servo ticks per host period */
+        uint8_t payload[HFAM_MAX_PAYLOAD];
+        memcpy(payload, frame + 5, frame[2]);
+        hfam_encode(frame, type, frame[4], payload, frame[2]);
+    }
+    (void)n;
+    if (type == MSG_STATE || type == MSG_ACK || type == MSG_NAK || type == MSG_PONG || type == MSG_INFO) {
+        if (ls_owed && avr->cycle > ls_horizon) {
+            ls_late++;
+            if (avr->cycle - ls_horizon > ls_late_max) ls_late_max = avr->cycle - ls_horizon;
+        }
+        ls_owed = 0;
+    }
+}
+
+/* the MCU must wait for the host: at the horizon, nothing owed, nothing on the way in or out */
+static int ls_must_wait(void) {
+    if (ls_render || ls_free || avr->cycle < ls_horizon) return 0;
+    if (ls_owed && avr->cycle < ls_horizon + LS_OWED_MAX_CYCLES) return 0;
+    return hq_tail == hq_head && out_parser.pos == 0;
+}
+
 static void selfhost_rx(uint8_t c) {
     if (!hfam_parse_byte(&sh_parser, c)) return;
     uint8_t type = sh_parser.buf[3], seq = sh_parser.buf[4];
@@ -533,11 +636,13 @@ static void uart_out_hook(avr_irq_t *irq, uint32_t value, void *param) {
     bytes_from_mcu++;
     if (selfhost) { selfhost_rx(c); return; }
     if (disconnected) return;
-    if (!faults_on) { out_push(&c, 1); return; }
+    if (!faults_on && !pace_lockstep) { out_push(&c, 1); return; }
     if (!hfam_parse_byte(&out_parser, c)) return;
     uint8_t frame[HFAM_MAX_PAYLOAD + HFAM_OVERHEAD + 64];
     unsigned n = (unsigned)out_parser.buf[2] + HFAM_OVERHEAD;
     memcpy(frame, out_parser.buf, n);
+    if (pace_lockstep) ls_device_frame(frame, n);
+    if (!faults_on) { out_push(frame, n); return; }
     if (f_drop > 0 && rnd() < f_drop) { frames_dropped++; return; }
     if (f_garbage > 0 && rnd() < f_garbage) {
         frames_garbage++;
@@ -588,7 +693,10 @@ static void pty_read(void) {
         ssize_t n = read(master_fd, buf, sizeof buf);
         if (n <= 0) break;
         if (!attach_cycle) attach_cycle = avr->cycle ? avr->cycle : 1;
-        host_push(buf, (unsigned)n);
+        if (pace_lockstep)
+            for (ssize_t i = 0; i < n; i++) ls_host_byte(buf[i]);
+        else
+            host_push(buf, (unsigned)n);
     }
 }
 
@@ -684,6 +792,16 @@ static void write_stats(int final) {
     fprintf(f, "{\"final\": %d, \"cycles\": %llu, \"sim_time_s\": %.6f, \"f_cpu_hz\": %lu,\n", final,
             (unsigned long long)avr->cycle, avr->cycle / (double)F_CPU_HZ, F_CPU_HZ);
     /* a tick still running when the run stopped is not a lost one: its compare match is left out */
+    if (pace_lockstep)
+        fprintf(f, " \"lockstep\": {\"ticks_per_period\": %u, \"period_cycles\": %llu, \"frames\": %llu, "
+                "\"currents\": %llu, \"waits\": %llu, \"wait_wall_s\": %.3f, \"timeouts\": %llu, \"free\": %d, "
+                "\"late_replies\": %llu, \"late_max_cycles\": %llu, \"frames_dropped\": %llu, \"render\": %d, "
+                "\"host_garbage\": %u, \"host_crc_errors\": %u},\n",
+                lockstep_ticks, (unsigned long long)ls_period(), (unsigned long long)ls_frames,
+                (unsigned long long)ls_currents, (unsigned long long)ls_waits, ls_wait_wall_s,
+                (unsigned long long)ls_timeouts, ls_free, (unsigned long long)ls_late,
+                (unsigned long long)ls_late_max, (unsigned long long)ls_dropped, ls_render,
+                ls_in_parser.garbage, ls_in_parser.crc_errors);
     fprintf(f, " \"ticks\": %llu, \"compare_matches\": %llu, \"tick_in_progress\": %d, \"tick_overruns\": %llu,\n",
             (unsigned long long)ticks, (unsigned long long)(compare_matches - (tick_open ? 1 : 0)), tick_open,
             (unsigned long long)tick_overruns);
@@ -795,7 +913,9 @@ int main(int argc, char **argv) {
 #define OPT(name) (!strcmp(a, name) && val && ++i)
         if (OPT("--elf")) elf_path = val;
         else if (OPT("--stats")) stats_path = val;
-        else if (OPT("--pace")) pace_realtime = !strcmp(val, "realtime");
+        else if (OPT("--pace")) { pace_realtime = !strcmp(val, "realtime"); pace_lockstep = !strcmp(val, "lockstep"); }
+        else if (OPT("--lockstep-ticks")) lockstep_ticks = (unsigned)atoi(val);
+        else if (OPT("--lockstep-free-run-s")) lockstep_free_run_s = atof(val);
         else if (OPT("--speed")) speed = atof(val);
         else if (OPT("--max-sim-s")) max_sim_s = atof(val);
         else if (OPT("--sym-encoder")) sym_encoder = (uint16_t)strtoul(val, NULL, 0);
@@ -822,6 +942,10 @@ int main(int argc, char **argv) {
     }
     if (getenv("FW_SIM_TRACE_FROM")) trace_from = strtoull(getenv("FW_SIM_TRACE_FROM"), NULL, 0);
     if (!elf_path) { fprintf(stderr, "error: --elf FILE is required\n"); return 2; }
+    if (pace_lockstep && !(lockstep_ticks >= 1 && lockstep_ticks <= 255 && lockstep_free_run_s >= 0)) {
+        fprintf(stderr, "error: --lockstep-ticks must be 1..255 and --lockstep-free-run-s >= 0\n");
+        return 2;
+    }
     elf_firmware_t fw;
     memset(&fw, 0, sizeof fw);
     if (elf_read_firmware(elf_path, &fw) != 0) { fprintf(stderr, "error: cannot read firmware %s\n", elf_path); return 2; }
@@ -879,7 +1003,40 @@ int main(int argc, char **argv) {
     double t0 = wall_s(), last_stats = t0, max_lag = 0;
     avr_cycle_count_t next_service = SERVICE_CYCLES;
     int state = cpu_Running;
+    double ls_wait_since = 0.0;
     while (!quit) {
+        if (pace_lockstep && !selfhost) {
+            pty_read();
+            while (ls_release()) {}
+            feed_uart();
+            if (ls_must_wait()) {
+                double now = wall_s();
+                if (ls_wait_since == 0.0) { ls_wait_since = now; ls_waits++; }
+                if (lockstep_free_run_s > 0 && now - ls_wait_since > lockstep_free_run_s) {
+                    /* the host is gone or hung: run free in real time (the firmware watchdog acts as on a board) */
+                    ls_free = 1;
+                    ls_timeouts++;
+                    ls_wait_wall_s += now - ls_wait_since;
+                    ls_wait_since = 0.0;
+                    t0 = now - avr->cycle / (double)F_CPU_HZ / speed;
+                } else {
+                    struct pollfd pfd = {master_fd, POLLIN, 0};
+                    struct timespec ts = {0, 20000000}; /* wake for the stats file and the parent check */
+                    ppoll(&pfd, master_fd >= 0 ? 1 : 0, &ts, NULL);
+                    if (now - last_stats > 0.05) {
+                        write_stats(0);
+                        if (tick_log) fflush(tick_log);
+                        last_stats = now;
+                        if (getppid() != parent) break;
+                    }
+                    continue;
+                }
+            } else if (ls_wait_since != 0.0) {
+                ls_wait_wall_s += wall_s() - ls_wait_since;
+                ls_wait_since = 0.0;
+            }
+            if (!ls_free && !ls_render && ls_horizon > avr->cycle && next_service > ls_horizon) next_service = ls_horizon;
+        }
         while (avr->cycle < next_service) {
             avr_cycle_count_t c_before = avr->cycle;
             uint32_t pc_before = avr->pc;
@@ -914,13 +1071,14 @@ int main(int argc, char **argv) {
                 close(master_fd); close(slave_fd); master_fd = slave_fd = -1;
             }
             if (!pty_flush() && pace_realtime) { pty_drops += (oq_head + QN - oq_tail) % QN; oq_tail = oq_head; }
+            if (pace_lockstep) while (ls_release()) {}
         }
         feed_uart();
         if (max_sim_s > 0 && sim_s >= max_sim_s) break;
         if (hand_mode == HAND_SWEEP && selfhost && sweep_k >= n_sweep) break;
         double now = wall_s();
         if (!selfhost) {
-            if (pace_realtime) {
+            if (pace_realtime || (pace_lockstep && ls_free)) {
                 double ahead = sim_s / speed - (now - t0);
                 if (ahead > 0.0002) { /* ahead of the wall clock: sleep, but wake at once for host bytes */
                     struct pollfd pfd = {master_fd, POLLIN, 0};

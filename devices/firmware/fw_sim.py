@@ -49,6 +49,18 @@ RAM_BYTES = 2048
 #: Fig. 4.13) with margin; encoder counts must not be lost up to it.
 MAX_RATED_SPEED_M_S = 0.5
 UART_BYTE_CYCLES = 160  # 10 bits at 1 Mbaud
+#: Harness paces: ``realtime`` follows the wall clock, ``fast`` runs as fast as the host drains telemetry,
+#: ``lockstep`` advances the MCU one host period per host frame (the host paces on the MCU's clock).
+PACES = ("lockstep", "realtime", "fast")
+#: Lockstep: servo ticks of the firmware (4 kHz) per host period; 4 = 1 ms, a 1 kHz streaming loop. A CURRENT
+#: (11 bytes) and its STATE (23 bytes) take 340 us of the 1 Mbaud UART plus the firmware's handling, so a
+#: 4 kHz (250 us) streaming loop cannot exist on this link; 2 (2 kHz) is the fastest that fits.
+LOCKSTEP_TICKS = 4
+#: Lockstep: wall-clock seconds the MCU waits at the end of a host period for the host's next frame before it
+#: runs free in real time (the firmware's watchdog then zeroes the motor as on a board); 0: it waits for ever.
+#: 0 by default: a host's honest pauses (the servo loop's host was silent 10+ s after its first tick on the
+#: busy machine) must not cost device time; a host that is gone leaves a frozen MCU, which endangers nothing.
+LOCKSTEP_FREE_RUN_S = 0.0
 SOURCES = ("hfam_fw.c", "hfam_protocol.c", "hfam_protocol.h", "fw_sim.c", "Makefile")
 
 
@@ -231,9 +243,14 @@ def build(force: bool = False) -> Build:
 # -- running -----------------------------------------------------------------------------------------
 def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=(0.05, 0.1, 0.2), hold_m=None,
                  sweep_m_s=(), grip_N=2.0, faults: str | None = None, seed=0, selfhost=False, decimation=1,
-                 max_sim_s=None, tick_log: Path | None = None) -> list[str]:
-    if pace not in ("realtime", "fast"):
-        raise ValueError(f"pace must be 'realtime' or 'fast', got {pace!r}")
+                 max_sim_s=None, tick_log: Path | None = None, lockstep_ticks: int = LOCKSTEP_TICKS,
+                 lockstep_free_run_s: float = LOCKSTEP_FREE_RUN_S) -> list[str]:
+    if pace not in PACES:
+        raise ValueError(f"pace must be one of {', '.join(PACES)}, got {pace!r}")
+    if not (isinstance(lockstep_ticks, int) and 1 <= lockstep_ticks <= 255):
+        raise ValueError(f"lockstep_ticks must be a whole number of servo ticks in 1..255, got {lockstep_ticks!r}")
+    if not lockstep_free_run_s >= 0:
+        raise ValueError(f"lockstep_free_run_s must be >= 0 s (0: never), got {lockstep_free_run_s!r}")
     if not speed > 0:
         raise ValueError(f"speed must be > 0 (times real time), got {speed!r}")
     cmd = [str(b.harness), "--elf", str(b.elf), "--stats", str(stats), "--pace", pace, "--speed", str(speed),
@@ -262,6 +279,8 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
         cmd += ["--selfhost", "--decimation", str(int(decimation))]
     if max_sim_s:
         cmd += ["--max-sim-s", str(max_sim_s)]
+    if pace == "lockstep":
+        cmd += ["--lockstep-ticks", str(lockstep_ticks), "--lockstep-free-run-s", str(lockstep_free_run_s)]
     return cmd
 
 
@@ -362,14 +381,23 @@ def read_tick_log(path: Path) -> dict:
 
 def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1, 0.2), hold_m: float | None = None,
                  grip_N: float = 2.0, faults: str | None = None, seed: int = 0,
-                 startup_timeout_s: float = 10.0, tick_log: bool = False) -> tuple[str, FwSimHandle]:
+                 startup_timeout_s: float = 10.0, tick_log: bool = False, lockstep_ticks: int = LOCKSTEP_TICKS,
+                 lockstep_free_run_s: float = LOCKSTEP_FREE_RUN_S) -> tuple[str, FwSimHandle]:
     """Build if needed and start the real firmware on simavr behind a new pty; return ``(port, handle)``.
 
     Parameters
     ----------
-    pace : {"realtime", "fast"}
+    pace : {"realtime", "fast", "lockstep"}
         ``realtime``: simulated time follows the wall clock (``speed`` times real time);
-        ``fast``: as fast as the host drains the telemetry (at most 2 kB unread in the pty).
+        ``fast``: as fast as the host drains the telemetry (at most 2 kB unread in the pty);
+        ``lockstep``: the MCU runs one host period (``lockstep_ticks`` servo ticks) per host frame and then
+        waits for the next one; INFO tells the host (flags bit 1), which then paces on the MCU's clock
+        (docs/protocol.md "Lockstep"). While the firmware renders on board it runs as ``fast``.
+    lockstep_ticks : int
+        Lockstep: servo ticks (250 us each) per host period; 4 (1 ms, a 1 kHz loop) by default.
+    lockstep_free_run_s : float
+        Lockstep: wall-clock seconds the MCU waits for the host's next frame before it runs free in real time
+        (the firmware's watchdog then zeroes the motor as on a board); 0 (default): it waits for ever.
     taps_m_s : sequence of float
         The hand taps down through the wall height (0) at these speeds, in turn, forever;
         empty: it holds the handle at ``hold_m`` (default 10 mm).
@@ -396,7 +424,8 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
     stats = Path(tmp.name) / "stats.json"
     log = Path(tmp.name) / "ticks.bin" if tick_log else None
     cmd = _harness_cmd(b, stats, pace=pace, speed=speed, taps_m_s=taps_m_s, hold_m=hold_m, grip_N=grip_N,
-                       faults=faults, seed=seed, tick_log=log)
+                       faults=faults, seed=seed, tick_log=log, lockstep_ticks=lockstep_ticks,
+                       lockstep_free_run_s=lockstep_free_run_s)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + startup_timeout_s
     fd = proc.stdout.fileno()
@@ -423,7 +452,10 @@ def start_fw_sim(pace: str = "realtime", speed: float = 1.0, taps_m_s=(0.05, 0.1
 class FwSimDevice(SerialDevice):
     """Device string ``fw-sim``: the real firmware on simavr, started on ``open()`` and stopped on ``close()``.
 
-    Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (realtime | fast), ``speed`` (times real time),
+    Options (``fw-sim?mode=on-device&pace=fast``): ``pace`` (lockstep, the default | realtime | fast; see
+    :func:`start_fw_sim`), ``lockstep_ticks`` (servo ticks per host period, default 4: a 1 kHz streaming loop),
+    ``lockstep_free_run_s`` (see :func:`start_fw_sim`), ``lockstep_timeout_s`` (the driver's wait for a reply,
+    :class:`~devices.hardware.serial_device.ProtocolDevice`), ``speed`` (times real time),
     ``taps`` (comma-separated tap speeds in m/s, e.g. ``taps=0.05,0.2``), ``hold_m`` (with ``taps=``: the height
     the hand holds the handle at, default 0.01; below the wall it presses into it), ``grip_N``, ``faults``, ``tick_log``
     (1: keep every rendered tick's inputs and command, in ``last_tick_log`` after ``close()``), plus every
@@ -434,16 +466,25 @@ class FwSimDevice(SerialDevice):
     servo tick (devices/firmware/README.md).
     """
 
-    def __init__(self, pace: str = "realtime", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
-                 faults: str | None = None, tick_log=0, hold_m: float | None = None, **options) -> None:
+    def __init__(self, pace: str = "lockstep", speed: float = 1.0, taps="0.05,0.1,0.2", grip_N: float = 2.0,
+                 faults: str | None = None, tick_log=0, hold_m: float | None = None,
+                 lockstep_ticks=LOCKSTEP_TICKS, lockstep_free_run_s=LOCKSTEP_FREE_RUN_S, **options) -> None:
         if isinstance(taps, (int, float)):
             taps = str(taps)
         try:
             self.taps_m_s = tuple(float(v) for v in str(taps).split(",") if v.strip()) if taps else ()
         except ValueError:
             raise ValueError(f"fw-sim: taps must be comma-separated speeds in m/s, got {taps!r}") from None
-        if pace not in ("realtime", "fast"):
-            raise ValueError(f"fw-sim: pace must be 'realtime' or 'fast', got {pace!r}")
+        if pace not in PACES:
+            raise ValueError(f"fw-sim: pace must be one of {', '.join(PACES)}, got {pace!r}")
+        try:
+            self.lockstep_ticks, self.lockstep_free_run_s = int(lockstep_ticks), float(lockstep_free_run_s)
+        except ValueError:
+            raise ValueError(f"fw-sim: lockstep_ticks must be a whole number of servo ticks and lockstep_free_run_s "
+                             f"seconds, got {lockstep_ticks!r}, {lockstep_free_run_s!r}") from None
+        if not (1 <= self.lockstep_ticks <= 255 and self.lockstep_free_run_s >= 0):
+            raise ValueError(f"fw-sim: lockstep_ticks must be in 1..255 and lockstep_free_run_s >= 0 s, got "
+                             f"{lockstep_ticks!r}, {lockstep_free_run_s!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
         self.tick_log = bool(int(tick_log))
         try:
@@ -455,9 +496,11 @@ class FwSimDevice(SerialDevice):
         self.last_tick_log: dict | None = None
         self.handle: FwSimHandle | None = None
         options.setdefault("baudrate", 1_000_000)  # the firmware's UART (the pty itself ignores it)
-        if pace == "fast" and options.get("watchdog_ms") is None:
+        on_device = str(options.get("mode", "streaming")).replace("_", "-") == "on-device"
+        if (pace == "fast" or (pace == "lockstep" and on_device)) and options.get("watchdog_ms") is None:
             # simulated time outruns the host's clock (keepalives every watchdog_ms/4 of wall time):
-            # give the firmware watchdog room, or it trips between two keepalives
+            # give the firmware watchdog room, or it trips between two keepalives (lockstep runs as fast while
+            # the firmware renders on board; streaming in lockstep keeps the firmware's 100 ms: MCU time)
             options["watchdog_ms"] = 2000
         # the simulated MCU keeps its own pace (it may run slower than wall-clock time on a loaded machine), so
         # a late reply is not a lost frame: strict mode (retransmit with backoff) unless asked otherwise
@@ -473,7 +516,9 @@ class FwSimDevice(SerialDevice):
         if self.handle is None or not self.handle.alive:
             try:
                 self.port, self.handle = start_fw_sim(self.pace, self.speed, self.taps_m_s, hold_m=self.hold_m,
-                                                      grip_N=self.grip_N, faults=self.faults, tick_log=self.tick_log)
+                                                      grip_N=self.grip_N, faults=self.faults, tick_log=self.tick_log,
+                                                      lockstep_ticks=self.lockstep_ticks,
+                                                      lockstep_free_run_s=self.lockstep_free_run_s)
             except FwSimError as exc:
                 raise DeviceError(f"fw-sim: {exc}") from None
         super()._open()

@@ -88,6 +88,10 @@ RTT_RING = 65536  # round-trip samples kept for the link statistics (preallocate
 #: a STATE frame takes >= 100 us on a 1 Mbaud link, far beyond a clock tick
 CLOCK_FREEZE_STATES = 3
 CALIBRATION_ENV = "HFAM_CALIBRATION"
+#: Lockstep devices (INFO flags bit 1): wall-clock seconds a reply may take before the link counts as dead. The
+#: simulator ran 0.2-3x real time here, by load (a 1 ms host period: 0.3-5 ms of wall time), so 10 s
+#: is only ever reached by a hung simulator; it bounds how long a host waits for one.
+LOCKSTEP_TIMEOUT_S = 10.0
 
 
 # -- calibration file ----------------------------------------------------------
@@ -202,6 +206,11 @@ class ProtocolDevice(Device):
     max_loss_rate, loss_window : float, int
         Also stop when more than ``max_loss_rate`` of the last ``loss_window`` frames were lost
         (default 5 % of 1000: a link that bad is not rendering the sample any more).
+    lockstep_timeout_s : float
+        Used only when the device's INFO says lockstep (``fw-sim``: its clock advances only with the host's
+        frames, docs/protocol.md "Lockstep"): a reply is waited for this long in wall-clock time before the
+        link counts as dead (a hung simulator; a killed one closes the pty and is seen at once). A late reply
+        there is the simulator's slowness, never a lost frame: no loss tolerance, no retransmit. Default 10 s.
     """
 
     spec_prefix = "protocol"
@@ -209,8 +218,13 @@ class ProtocolDevice(Device):
     def __init__(self, *, mode: str = "streaming", timeout_s: float = 0.02, hello_timeout_s: float = 1.0,
                  retries: int = 3, calibration=None, watchdog_ms: int | None = None,
                  telemetry_decimation: int | None = None, rearm_interval_s: float = 0.02, loss_timeout_s: float = 0.005,
-                 max_consecutive_losses: int = 10, max_loss_rate: float = 0.05, loss_window: int = 1000) -> None:
+                 max_consecutive_losses: int = 10, max_loss_rate: float = 0.05, loss_window: int = 1000,
+                 lockstep_timeout_s: float = LOCKSTEP_TIMEOUT_S) -> None:
         super().__init__()
+        if not (isinstance(lockstep_timeout_s, (int, float)) and math.isfinite(lockstep_timeout_s)
+                and lockstep_timeout_s > 0):
+            raise ValueError(f"lockstep_timeout_s must be a positive number of seconds, got {lockstep_timeout_s!r}")
+        self.lockstep_timeout_s = float(lockstep_timeout_s)
         mode = str(mode).replace("_", "-")
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -383,6 +397,12 @@ class ProtocolDevice(Device):
                               f"{wire.info.capabilities}")
         self.wire_info = wire
         self._info = wire.info
+        if wire.info.lockstep_ticks:
+            # the device's clock is simulated and waits for the host (docs/protocol.md "Lockstep"): its replies
+            # come when the simulator gets there, so wall-clock waits are long and a late reply is no loss
+            self.max_consecutive_losses = 0
+            self.timeout_s = max(self.timeout_s, self.lockstep_timeout_s)
+            self.retries = 0
         self._newer_minor = wire.protocol_version[1] > P.PROTOCOL_VERSION[1]
         defaults = Calibration(0, 1, wire.accel_scale_m_s2_per_count, wire.accel_offset_counts,
                                wire.grip_scale_N_per_count, wire.grip_offset_counts)

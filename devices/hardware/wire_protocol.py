@@ -455,6 +455,20 @@ def _short_str(text: str, limit: int, what: str) -> bytes:
     return bytes((len(raw),)) + raw
 
 
+#: INFO flags: bit 0 simulated; bit 1 lockstep (the device's clock is simulated and advances only with the
+#: host's frames: bits 8-15 give the servo ticks per host period, docs/protocol.md "Lockstep")
+INFO_FLAG_SIMULATED = 1
+INFO_FLAG_LOCKSTEP = 2
+
+
+def info_flags(info: DeviceInfo) -> int:
+    """INFO's flags field for ``info``: simulated (bit 0), lockstep (bit 1) with its ticks per period (bits 8-15)."""
+    flags = INFO_FLAG_SIMULATED if info.simulated else 0
+    if info.lockstep_ticks:
+        flags |= INFO_FLAG_LOCKSTEP | (info.lockstep_ticks << 8)
+    return flags
+
+
 def encode_info(w: WireInfo) -> bytes:
     """INFO payload: protocol and firmware versions, device constants and calibration of ``w``."""
     i = w.info
@@ -465,7 +479,7 @@ def encode_info(w: WireInfo) -> bytes:
         i.accel_range_m_s2, w.accel_scale_m_s2_per_count, w.accel_offset_counts,
         w.grip_scale_N_per_count, w.grip_offset_counts, i.grip_range_N[0], i.grip_range_N[1],
         i.winding_resistance_ohm, i.thermal_resistance_K_W, i.thermal_time_constant_s, i.winding_max_temp_rise_K,
-        w.watchdog_ms, w.capability_bits, w.max_table_samples, 1 if i.simulated else 0,
+        w.watchdog_ms, w.capability_bits, w.max_table_samples, info_flags(i),
     )
     return fixed + _short_str(i.name, 32, "name") + _short_str(w.serial_number, 16, "serial number")
 
@@ -495,6 +509,8 @@ def decode_info(payload: bytes) -> WireInfo:
                         "current_amplifier_A": amp, "accel_range_m_s2": arange, "grip_range_N": (gmin, gmax),
                         "winding_resistance_ohm": rw, "thermal_resistance_K_W": rth, "thermal_time_constant_s": tau,
                         "winding_max_temp_rise_K": trise, "watchdog_ms": wd_ms, "max_table_samples": max_table})
+    if flags & INFO_FLAG_LOCKSTEP and not flags >> 8:
+        raise ProtocolError("INFO flags say lockstep but give 0 servo ticks per host period (bits 8-15)")
     # float32 on the wire: round to its ~7 significant digits so 0.15 stays 0.15
     rho, h, kt, cont, peak, amp, rate, arange, gmin, gmax, rw, rth, tau, trise = (
         float(f"{x:.7g}") for x in (rho, h, kt, cont, peak, amp, rate, arange, gmin, gmax, rw, rth, tau, trise))
@@ -504,7 +520,8 @@ def decode_info(payload: bytes) -> WireInfo:
             current_continuous_A=cont, current_peak_A=peak, current_amplifier_A=amp, servo_rate_hz=rate,
             winding_resistance_ohm=rw, thermal_resistance_K_W=rth, thermal_time_constant_s=tau,
             winding_max_temp_rise_K=trise, accel_range_m_s2=arange, grip_range_N=(gmin, gmax),
-            capabilities=capability_names(caps), simulated=bool(flags & 1),
+            capabilities=capability_names(caps), simulated=bool(flags & INFO_FLAG_SIMULATED),
+            lockstep_ticks=(flags >> 8) if flags & INFO_FLAG_LOCKSTEP else 0,
         )
     except ValueError as exc:
         raise ProtocolError(f"INFO describes an impossible device: {exc}") from None

@@ -618,8 +618,10 @@ class _Mirror:
 def fw_and_mirror():
     """(link, mirror, handle, both): the real firmware on simavr (hand at 10 mm, above the wall at 0) and the
     mirror; ``both(type, payload)`` sends the same frame to each and returns the C firmware's answer after
-    asserting the mirror's is the same."""
-    port, handle = fw_sim.start_fw_sim(taps_m_s=())
+    asserting the mirror's is the same. In lockstep (docs/protocol.md "Lockstep"): each frame is one 1 ms
+    period of MCU time, so the host's pauses between frames (20 ms of wall time and more on a loaded machine)
+    cannot trip a short firmware watchdog between two frames."""
+    port, handle = fw_sim.start_fw_sim(pace="lockstep", taps_m_s=())
     link = _RawLink(port)
     try:
         kind, payload = link.request(P.HELLO, P.HELLO_STRUCT.pack(*P.PROTOCOL_VERSION))
@@ -707,10 +709,15 @@ def test_current_in_on_device_mode_after_a_watchdog_trip_outputs_zero_like_the_m
     assert both(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_ON_DEVICE, 1)) == OK
     assert both(P.CLEAR_FAULTS) == OK  # feeds the watchdog: 30 ms from here
     assert both(P.CURRENT, P.encode_current(1.5)) == ("STATE", 0, 1500)
-    # the host goes silent: the firmware trips and reports it once (a STATE), as the mirror does
-    trip, deadline = [], time.monotonic() + 5.0
-    while not trip and time.monotonic() < deadline:
-        trip = [P.decode_state(f.payload) for f in link.frames(0.05) if f.type == P.STATE]
+    # no CURRENT any more, only PINGs (they do not feed the watchdog): 40 of them are 40 ms of MCU time in
+    # lockstep, whatever the wall clock does; the firmware trips and reports it once (a STATE), as the mirror does
+    for _ in range(40):
+        link.send(P.PING)
+    frames, t0 = [], time.monotonic()
+    while sum(f.type == P.PONG for f in frames) < 40:  # wait for the answers, not for a time
+        assert time.monotonic() - t0 < 600.0, frames  # hang guard
+        frames += link.frames(0.05)
+    trip = [P.decode_state(f.payload) for f in frames if f.type == P.STATE]
     assert [(s.status, s.current_mA) for s in trip] == mirror.trip_watchdog() == [(TRIPPED, 0)]
     for _ in range(3):  # the stale command is not applied, however often it comes
         assert both(P.CURRENT, P.encode_current(1.5)) == ("STATE", TRIPPED, 0)
