@@ -17,7 +17,7 @@ from scipy.signal import find_peaks
 from plumbing.fileio import atomic_write_text
 from plumbing.progress import Progress
 from plumbing.pools import worker_dies_with_parent, worker_pool
-from plumbing.stopsignals import signals_blocked
+from plumbing.stopsignals import signals_blocked, stop_if_signalled
 from plumbing.validation import require_int
 
 from ..base import Device
@@ -284,6 +284,9 @@ def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, l
         with worker_pool(min(cfg.workers, len(jobs)), ctx) as pool:  # workers die with this process
             fitting = {}
             while n_recorded < len(jobs) or fitting:
+                # a stop signal that landed inside numba's compiler (load_solvers, a first fit) was swallowed
+                # there (plumbing.stopsignals): raised here, within one pass, not after the whole run
+                stop_if_signalled()
                 if n_recorded < len(jobs):  # recordings arrive in grip order
                     if inbox.poll(0.05):
                         recorded = _received(inbox, recorder)
@@ -295,7 +298,7 @@ def _grips_in_processes(jobs: list, cfg: IdentifyConfig, spec: str, seed: int, l
                             preload_figures()
                     done = [f for f in fitting if f.done()]
                 else:
-                    done = wait(fitting, return_when=FIRST_COMPLETED)[0]
+                    done = wait(fitting, timeout=0.2, return_when=FIRST_COMPLETED)[0]
                 for fut in sorted(done, key=fitting.get):
                     i = fitting.pop(fut)
                     results[i] = fut.result()

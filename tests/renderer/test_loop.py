@@ -278,7 +278,7 @@ def test_ctrl_c_zeroes_the_output_and_keeps_the_partial_result():
 class StallingDevice(MassDevice):
     def read(self):
         if self.tick == 300:
-            time.sleep(0.05)
+            time.sleep(1.5)   # far beyond the watchdog below, which a loaded machine's own stalls stay under
         return super().read()
 
 
@@ -286,7 +286,7 @@ def test_watchdog_zeroes_on_overrun_on_hardware():
     # a device that is not simulated (the watchdog guards real motors; a stalled sim just runs late)
     dev = StallingDevice(tap_trajectory(0.1, n_taps=1, height_m=0.0), grip_N=2.0, x0_m=0.0,
                          info=make_info(simulated=False))
-    res = ServoLoop(dev, RendererConfig(watchdog_overrun_s=0.02)).run(duration_s=1.0)
+    res = ServoLoop(dev, RendererConfig(watchdog_overrun_s=0.5)).run(duration_s=1.0)
     assert res.stop_reason == "watchdog"
     assert res.timing["ticks"] == 299  # stalled reading device tick 300 (log tick 299)
     assert dev.applied[-1] == 0.0 and dev.last_command_A == 0.0
