@@ -8,23 +8,13 @@ five such grids (84 cells plus the floors' taps) and rebuilds two libraries.
 
 from __future__ import annotations
 
-import statistics
-import time
 from pathlib import Path
 
+from benchmarks.timing import median_time
 from stimuli.hfam import scoring as S
 from stimuli.library import HfamLibrary
 
 LIBRARY = Path(__file__).resolve().parent.parent / "stimuli" / "libraries" / "wood_on_foam_sim.npz"
-
-
-def _median_time(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -34,8 +24,8 @@ def main() -> None:
     n = int(round((s.eval_s + s.max_lag_s) * lib.fs_hz)) + 1
     ref = S.real_reference(0.1, 2.0, None, s, factory, n)           # warm-up: compiles the tap
     S.score_cell(lib, 0.1, 2.0, ref, None, "default", s, factory)
-    cell = _median_time(lambda: S.score_cell(lib, 0.1, 2.0, ref, None, "default", s, factory), 7)
-    grid = _median_time(lambda: S.score_library(lib, S.OPEN_LOOP_SPEEDS_M_S, S.GRIPS_N, s), 3)
+    cell = median_time(lambda: S.score_cell(lib, 0.1, 2.0, ref, None, "default", s, factory), 7)
+    grid = median_time(lambda: S.score_library(lib, S.OPEN_LOOP_SPEEDS_M_S, S.GRIPS_N, s), 3)
     n_cells = len(S.OPEN_LOOP_SPEEDS_M_S) * len(S.GRIPS_N)
     print(f"score_cell (2 taps at 0.1 m/s, 2 N + comparison): median {cell * 1e3:.0f} ms")
     print(f"score_library {len(S.OPEN_LOOP_SPEEDS_M_S)} speeds x {len(S.GRIPS_N)} grips ({n_cells} cells, "

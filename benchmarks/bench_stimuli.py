@@ -12,6 +12,8 @@ import time
 
 import numpy as np
 
+from benchmarks.timing import median_time
+
 from devices.model import ZpkModel
 from stimuli.hfam import BuildSettings, build_library
 from stimuli.recordings import Tap
@@ -39,21 +41,13 @@ def _inputs():
     return taps, models
 
 
-def _median_time(fn, repeat):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
 
 def main() -> None:
     taps, models = _inputs()
     settings = BuildSettings(n_velocities=8)
     lib, _ = build_library(taps, FS_HZ, models, settings, force_per_amp_N_A=2.35)  # warm-up
     assert lib.currents_A.shape == (8, 5, 1000)
-    build_s = _median_time(lambda: build_library(taps, FS_HZ, models, settings, force_per_amp_N_A=2.35), 5)
+    build_s = median_time(lambda: build_library(taps, FS_HZ, models, settings, force_per_amp_N_A=2.35), 5)
     print(f"build 8 velocities x 5 grips x 100 ms @ 10 kHz: median {build_s * 1e3:.0f} ms "
           f"(target < 1000 ms, ratio {build_s / 1.0:.2f})")
 

@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+
+from plumbing.fileio import atomic_open
 
 from . import metrics as dm
 from .renderings import EVENT_BASED
@@ -156,14 +157,12 @@ def write_fidelity(claims, path: Path, extra=()) -> Path:
     if dup:
         raise ValueError(f"fidelity.csv: claim id(s) given twice: {', '.join(dup)}")
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_open(path, "w", newline="") as fh:   # whole or not at all, fsynced
         w = csv.writer(fh)
         w.writerow(COLUMNS)
         for c in rows:
             w.writerow([c.id, c.section, c.thesis, c.target, f"{c.measured:.6g}", c.measured_text,
                         "yes" if c.holds else "no"])
-    os.replace(tmp, path)
     return path
 
 

@@ -4,11 +4,11 @@ reactive-hand line."""
 from __future__ import annotations
 
 import csv
-import os
 from pathlib import Path
 
 import numpy as np
 
+from plumbing.fileio import atomic_open
 
 from . import runs
 from .config import DemoResult
@@ -24,14 +24,12 @@ DEMO_PRODUCTS = ("summary.csv", "fidelity.csv", "traces.npz", "fig_*.png", "fig_
 def write_summary(rows: list[dict], path: Path) -> Path:
     """Write ``summary.csv`` (``SUMMARY_COLUMNS``) atomically."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_open(path, "w", newline="") as fh:   # whole or not at all, fsynced
         w = csv.writer(fh)
         w.writerow(SUMMARY_COLUMNS)
         for row in rows:
             w.writerow([row[c] if isinstance(row[c], str) else (f"{row[c]:.6g}" if isinstance(row[c], float)
                                                                  else row[c]) for c in SUMMARY_COLUMNS])
-    os.replace(tmp, path)
     return path
 
 
