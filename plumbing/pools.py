@@ -76,12 +76,22 @@ def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
         yield pool
     except BaseException:
         procs = list((getattr(pool, "_processes", None) or {}).values())  # the executor offers no public kill
+        queue = getattr(pool, "_call_queue", None)   # taken before shutdown(), which drops it
         pool.shutdown(wait=False, cancel_futures=True)
         for proc in procs:
             if proc.is_alive():
                 proc.kill()
         for proc in procs:
             proc.join()
+        # the executor's feeder thread may be writing a large queued task (identify's recordings: ~1 MB) into
+        # the call queue's pipe, which no worker reads any more: it would block forever, and the executor's
+        # manager thread and the interpreter's exit would wait for it (a command that hung after its error
+        # line). Closing this process's read end turns the write into a broken pipe; the feeder is not joined.
+        if queue is not None:
+            queue.cancel_join_thread()
+            reader = getattr(queue, "_reader", None)
+            if reader is not None:
+                reader.close()
         raise
     else:
         pool.shutdown(wait=True)

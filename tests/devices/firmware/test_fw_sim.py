@@ -49,9 +49,10 @@ def test_handshake_info_and_streaming_against_the_real_firmware():
             dev.command(i)
             if k > 0:
                 assert s.extra["current_A"] == pytest.approx(0.3 if k <= 100 else -0.45, abs=1e-3)
+        s = dev.read()   # the reply to the last command: the MCU has applied it (in lockstep, not before)
+        assert s.extra["current_A"] == pytest.approx(-0.45, abs=1e-3)
         pwm = dev.handle.stats()["motor_A"]  # what OCR2A and the direction pin drive
         assert pwm == pytest.approx(-0.45, abs=2.0 / 255)
-        s = dev.read()
         assert s.t_s > t0 and dev.link_stats()["crc_errors"] == dev.link_stats()["seq_gaps"] == 0
         assert s.position_m < 0.01 - 10 * res  # pushed down by the motor against the hand
     assert dev.handle is None  # the simulated MCU was stopped on close

@@ -1,0 +1,49 @@
+"""plumbing.pools.worker_pool: a pool left with an error kills its workers and never hangs its process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# the worker is busy with a first task; a second task of 4 MB is queued, so the executor's feeder thread is
+# blocked writing it into the call queue's 64 kB pipe when the block fails (what identify's recordings did
+# when a grip's recording failed: the command printed its error and then never exited)
+SCRIPT = textwrap.dedent('''
+    import multiprocessing, sys, time
+    from plumbing.pools import worker_pool
+
+    def busy(path):
+        open(path, "w").close()      # the worker has taken its first task
+        time.sleep(600)
+
+    def take(payload):
+        return len(payload)
+
+    started = sys.argv[1]
+    try:
+        with worker_pool(1, multiprocessing.get_context("fork")) as pool:
+            pool.submit(busy, started)
+            while not __import__("os").path.exists(started):
+                time.sleep(0.01)
+            pool.submit(take, b"x" * (4 << 20))
+            pool.submit(take, b"y" * (4 << 20))
+            time.sleep(0.5)          # let the manager hand the large tasks to the feeder thread
+            raise RuntimeError("a recording failed")
+    except RuntimeError as exc:
+        print("caught:", exc, flush=True)
+''')
+
+
+def test_a_failed_pool_block_with_a_large_task_in_flight_lets_the_process_exit(tmp_path):
+    script = tmp_path / "pool.py"
+    script.write_text(SCRIPT)
+    proc = subprocess.run([sys.executable, str(script), str(tmp_path / "started")], cwd=tmp_path,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "caught: a recording failed"
+    assert "Traceback" not in proc.stderr
