@@ -23,7 +23,8 @@ from devices.identify.successive import identify_successive, save_result
 from devices.sim.params import DEFAULT_PARAMS_FILE, SimParams, default_params, load_sim_params
 from plumbing.fileio import user_cache_dir
 
-# relative errors of the stand-in model (until successive isolation is merged): name -> factor
+# relative errors of the stand-in model (the marked alternative to the default successive-isolation model, whose
+# errors are what identification left): name -> factor
 STAND_IN_ERRORS = {"m_m_kg": 1.08, "m_d_kg": 0.92, "m_h_kg": 1.10, "k_c_N_m": 0.90, "b_c_Ns_m": 1.20,
                    "c_m_N": 0.85, "c_d_N": 1.15, "k_lp_N_m": 1.05, "k_ln_N_m": 0.95, "gamma_l_rad_m": 1.10,
                    "b_d_Ns_m": 1.2}
