@@ -11,6 +11,9 @@ from contextlib import contextmanager
 
 from .stopsignals import _BLOCKED, STOP_SIGNALS, _prctl_pdeathsig, signals_blocked
 
+# how long a failed block waits for the executor's manager thread to wind up after its workers are killed
+_MANAGER_WAIT_S = 10.0
+
 
 def worker_dies_with_parent(parent_pid: int, initializer=None, initargs=()) -> None:
     """Initializer of a worker process (pool worker, recording process) that holds nothing to save or zero.
@@ -76,22 +79,31 @@ def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
         yield pool
     except BaseException:
         procs = list((getattr(pool, "_processes", None) or {}).values())  # the executor offers no public kill
-        queue = getattr(pool, "_call_queue", None)   # taken before shutdown(), which drops it
+        queue = getattr(pool, "_call_queue", None)   # taken before shutdown(), which drops them
+        manager = getattr(pool, "_executor_manager_thread", None)
         pool.shutdown(wait=False, cancel_futures=True)
         for proc in procs:
             if proc.is_alive():
                 proc.kill()
         for proc in procs:
             proc.join()
-        # the executor's feeder thread may be writing a large queued task (identify's recordings: ~1 MB) into
-        # the call queue's pipe, which no worker reads any more: it would block forever, and the executor's
-        # manager thread and the interpreter's exit would wait for it (a command that hung after its error
-        # line). Closing this process's read end turns the write into a broken pipe; the feeder is not joined.
         if queue is not None:
+            # the executor's feeder thread may be writing a large queued task (identify's recordings: ~1 MB)
+            # into the call queue's pipe, which no worker reads any more, and the manager thread joins it:
+            # the command hung after its error line. Cancel that join; the manager, seeing its workers
+            # killed, closes the pipe's read end itself (CPython gh-94777), which breaks the write.
             queue.cancel_join_thread()
+            if manager is not None:
+                manager.join(timeout=_MANAGER_WAIT_S)
+            # If the manager left by its shutdown path (no close) or is stuck, close the read end here, after
+            # waiting for it: closing it while the manager closes it too raced (EBADF in CI; worse, the
+            # second close could hit a descriptor number opened since).
             reader = getattr(queue, "_reader", None)
-            if reader is not None:
-                reader.close()
+            if reader is not None and not reader.closed:
+                try:
+                    reader.close()
+                except OSError:   # the feeder thread closed it in between after its last item
+                    pass
         raise
     else:
         pool.shutdown(wait=True)
