@@ -221,6 +221,7 @@ class Emulator:
         self.disconnected = False
         self.burst_started = None
         self.last_cmd_after_burst = None
+        self.cmds_after_burst = 0   # CURRENT frames received since a scripted drop burst began
         self.states_sent = 0
         self.frozen_t_us = None
         self.stats = {"frames_in": 0, "frames_out": 0, "dropped": 0, "corrupted": 0, "duplicated": 0, "garbage": 0,
@@ -431,6 +432,7 @@ class Emulator:
         self.applied_A = i
         if self.burst_started is not None:  # scripted drop burst: the host's last command after it began
             self.last_cmd_after_burst = (time.monotonic(), i)
+            self.cmds_after_burst += 1
         self._send_state(phys.read())
         phys.command(i)  # next period: applies i; holds i until the next CURRENT replaces it
         self._keep_hand_busy()
