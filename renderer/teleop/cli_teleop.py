@@ -27,13 +27,14 @@ def _add_common(p) -> None:
                    help="free play in both transmissions, motor to drum, mm at the handle (Figure 5.11's "
                         "uncorrected backlash: 0.1; default 0, Figure 5.10's corrected testbed)")
     p.add_argument("--servo-bandwidth-hz", type=float, default=SERVO_BANDWIDTH_HZ,
-                   help=f"natural frequency of the servo-gain rule (damping ratio 0.7 on the joystick's moving mass; "
-                        f"default {SERVO_BANDWIDTH_HZ:g}: the user's motion-control bandwidth, 81.5 N/m and 2.27 N s/m)")
+                   help=f"natural frequency of the servo-gain rule (damping ratio 0.7 on the joystick's moving "
+                        f"mass; default {SERVO_BANDWIDTH_HZ:g}: the user's motion-control bandwidth, 81.5 N/m and "
+                        f"2.27 N s/m)")
     p.add_argument("--slave-handle-damping-N-s-m", dest="slave_handle_damping", type=float,
                    default=SLAVE_HANDLE_DAMPING_N_S_M,
                    help=f"viscous damping between the slave's unheld handle and its linkage, N s/m (default "
-                        f"{SLAVE_HANDLE_DAMPING_N_S_M:g}: calibrated so that the slave's natural impact settles in 50 ms, "
-                        f"Figure 5.10; 0: Table 3.1 as identified, with the handle held)")
+                        f"{SLAVE_HANDLE_DAMPING_N_S_M:g}: calibrated so that the slave's natural impact settles "
+                        f"in 50 ms, Figure 5.10; 0: Table 3.1 as identified, with the handle held)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty)")
 
 

@@ -262,7 +262,8 @@ def test_figure_5_10_targets_with_the_calibrated_slave(sweep_rows, natural_impac
             print(lam, c, [(r["contact_losses"], round(r["settling_s"] * 1e3, 1), r["contact_class"])
                            for r in sorted(_rows(sweep_rows, c, lam), key=lambda r: r["speed_m_s"])])
     nat = [r["contact_losses"] for r in natural_impacts]
-    print("natural impact (lambda 0):", [(r["contact_losses"], round(r["settling_s"] * 1e3, 1)) for r in natural_impacts])
+    print("natural impact (lambda 0):",
+          [(r["contact_losses"], round(r["settling_s"] * 1e3, 1)) for r in natural_impacts])
     # met
     assert all(0.040 <= r["settling_s"] <= 0.060 for r in _rows(sweep_rows, "pf", 1.0))
     assert all(r["contact_class"] == "make-break" and r["contact_losses"] >= 20 for r in _rows(sweep_rows, "pf", 6.0))
