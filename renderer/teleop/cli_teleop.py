@@ -7,10 +7,11 @@ the testbed's and the controllers' names, kept here as plain tuples (a test chec
 
 from __future__ import annotations
 
-from plumbing.cliargs import with_examples
+from plumbing.cliargs import add_renamed, with_examples
 from plumbing.dispatch import Body
 
-from .options import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS, parse_lambdas  # noqa: F401
+from .options import (CONTROLLER_NAMES, ENVIRONMENT_NAMES, SERVO_BANDWIDTH_HZ,  # noqa: F401
+                      SLAVE_HANDLE_DAMPING_N_S_M, SWEEP_CONDITIONS, parse_lambdas)
 
 
 def _add_common(p) -> None:
@@ -18,7 +19,6 @@ def _add_common(p) -> None:
     p.add_argument("--environment", default="hard", choices=ENVIRONMENT_NAMES,
                    help="the slave's environment (default hard)")
     p.add_argument("--rate-hz", type=float, default=5000.0, help="servo rate (default 5000, as the thesis)")
-    p.add_argument("--speed", type=float, default=0.1, help="incoming tap speed of the slave, m/s")
     p.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: the simulated "
                    "master identified by successive isolation, section 3.5, cached; 'stand-in': marked "
                    "Table 3.1 parameters with 5-20 %% errors)")
@@ -26,6 +26,15 @@ def _add_common(p) -> None:
     p.add_argument("--backlash-mm", type=float, default=0.0,
                    help="free play in both transmissions, motor to drum, mm at the handle (Figure 5.11's "
                         "uncorrected backlash: 0.1; default 0, Figure 5.10's corrected testbed)")
+    p.add_argument("--servo-bandwidth-hz", type=float, default=SERVO_BANDWIDTH_HZ,
+                   help=f"natural frequency of the servo-gain rule (damping ratio 0.7 on the joystick's moving "
+                        f"mass; default {SERVO_BANDWIDTH_HZ:g}: the user's motion-control bandwidth, 81.5 N/m and "
+                        f"2.27 N s/m)")
+    p.add_argument("--slave-handle-damping-N-s-m", dest="slave_handle_damping", type=float,
+                   default=SLAVE_HANDLE_DAMPING_N_S_M,
+                   help=f"viscous damping between the slave's unheld handle and its linkage, N s/m (default "
+                        f"{SLAVE_HANDLE_DAMPING_N_S_M:g}: calibrated so that the slave's natural impact settles "
+                        f"in 50 ms, Figure 5.10; 0: Table 3.1 as identified, with the handle held)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty)")
 
 
@@ -42,7 +51,9 @@ def register(sub) -> None:
                    help="the teleoperation controller (thesis ch. 5; default pf: position-force)")
     p.add_argument("--lambda", dest="lam", type=float, default=1.0, help="force-feedback gain lambda")
     p.add_argument("--taps", type=int, default=10, help="taps of the simulated operator (default 10)")
-    p.add_argument("--b", type=float, default=0.0, help="master damping b, N s/m (eq. 5.9)")
+    add_renamed(p, "--b-N-s-m", "--b", dest="b", type=float, default=0.0, help="master damping b, N s/m (eq. 5.9)")
+    add_renamed(p, "--speed-m-s", "--speed", dest="speed", type=float, default=0.1,
+                help="incoming tap speed of the slave, m/s (default 0.1)")
     p.add_argument("--k-mu-hz", type=float, default=None,
                    help="position-command low-pass K_mu (eq. 5.10); default 0 (off), 40 Hz for pd+hfam, whose "
                         "high-frequency master motion would otherwise reach the slave through x_c")
@@ -52,7 +63,8 @@ def register(sub) -> None:
     p.add_argument("--k-lambda-hz", type=float, default=0.0, help="force-feedback low-pass K_lambda (eq. 5.11)")
     p.add_argument("--no-figures", action="store_true", help="write the data only, no figures")
     p.add_argument("--hha-model", default=None, help="H_ha model file for pd+hfam (default: identify the master)")
-    p.add_argument("--hfam-max-current", type=float, default=4.0, help="saturation of the HFAM channel, A")
+    add_renamed(p, "--hfam-max-current-A", "--hfam-max-current", dest="hfam_max_current", type=float, default=4.0,
+                help="saturation of the HFAM channel, A (default 4)")
     p.add_argument("--master", default="sim",
                    help="the master: sim (simulated master and operator, default) or a device string such as "
                         "serial:/dev/ttyACM0 (a real master streaming over the serial link; the slave and the "
@@ -61,7 +73,9 @@ def register(sub) -> None:
                    help="with --master DEVICE: session length in s (default 10); the simulated operator's "
                         "session lasts as long as its --taps")
     _add_common(p)
-    with_examples(p, "hfam-renderer teleop --controller pf+cimm --lambda 4 --taps 5 --out teleop/",
+    with_examples(p, "hfam-renderer teleop --controller pf+cimm --lambda 4 --taps 5 --speed-m-s 0.12 --out teleop/",
+                  "hfam-renderer teleop --controller pf --lambda 3 --slave-handle-damping-N-s-m 0 --out teleop_table31/",
+                  "hfam-renderer teleop --controller pd+hfam --environment wood --taps 3 --out teleop_hfam/",
                   "hfam-renderer teleop --controller pf --master serial:/dev/ttyACM0 --duration-s 10 --out teleop_hw/")
     p.set_defaults(func=Body("renderer.teleop.commands", "run_teleop"))
     q = sub.add_parser("teleop-sweep", help="lambda sweep with/without cancellation and stabilisers (Fig. 5.11)")
@@ -73,7 +87,9 @@ def register(sub) -> None:
     q.add_argument("--robustness", action="store_true",
                    help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
     _add_common(q)
-    with_examples(q, "hfam-renderer teleop-sweep --lambda 1:15 --taps 2 --out sweep/",
+    with_examples(q, "hfam-renderer teleop-sweep --lambda 0.25,0.5,1,1.5,2,3,4,6,8,10,15 --taps 2 --out sweep/",
+                  "hfam-renderer teleop-sweep --lambda 1,3,6,10 --conditions pf,pf+cimm --servo-bandwidth-hz 12 "
+                  "--out sweep_12hz/",
                   "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/",
                   "hfam-renderer teleop-sweep --lambda 1:6 --conditions pf,pf+cimm --backlash-mm 0.1 --out sweep_fig511/")
     q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))

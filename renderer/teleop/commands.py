@@ -36,7 +36,8 @@ from .hfam import accel_match, design_hfam, figure_45, identify_master_hha
 from .models import cimm_params, underestimation_check
 from .options import SWEEP_CONDITIONS, parse_lambdas
 from .serial_master import run_serial_session
-from .session import TeleopConfig, default_path, resolve_gains, run_session, session_metrics
+from .session import (SERVO_BANDWIDTH_HZ, TeleopConfig, default_path, resolve_gains, run_session,
+                      session_metrics)
 
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
                  "i_m_A", "i_s_A", "contact", "x_tip_m", "x_path_m", "i_hfam_A", "F_e_true_N", "x_m_true_m")
@@ -73,8 +74,17 @@ def build_testbed(args) -> Testbed:
     P = default_params()
     if not (math.isfinite(args.backlash_mm) and 0.0 <= args.backlash_mm < 5.0):
         raise ValueError(f"--backlash-mm must be in [0, 5), got {args.backlash_mm!r}")
+    _check_servo_options(args)
     return Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=args.rate_hz,
-                   backlash_m=args.backlash_mm * 1e-3)
+                   backlash_m=args.backlash_mm * 1e-3, slave_handle_damping_N_s_m=args.slave_handle_damping)
+
+
+def _check_servo_options(args) -> None:
+    """``--servo-bandwidth-hz`` (> 0) and ``--slave-handle-damping-N-s-m`` (>= 0), named in the error."""
+    if not (math.isfinite(args.servo_bandwidth_hz) and args.servo_bandwidth_hz > 0):
+        raise ValueError(f"--servo-bandwidth-hz must be a positive number, got {args.servo_bandwidth_hz!r}")
+    if not (math.isfinite(args.slave_handle_damping) and args.slave_handle_damping >= 0):
+        raise ValueError(f"--slave-handle-damping-N-s-m must be a number >= 0, got {args.slave_handle_damping!r}")
 
 
 def build_hfam(args, tb: Testbed, out: Path):
@@ -107,8 +117,10 @@ def _teleop_config(args) -> TeleopConfig:
     hfam = args.controller == "pd+hfam"
     k_mu = args.k_mu_hz if args.k_mu_hz is not None else (HFAM_K_MU_HZ if hfam else 0.0)
     mpd = args.master_pd_lowpass_hz if args.master_pd_lowpass_hz is not None else (HFAM_MASTER_PD_HZ if hfam else 0.0)
+    _check_servo_options(args)
     return TeleopConfig(controller=args.controller, mu=args.mu, lam=args.lam, b_Ns_m=args.b, k_mu_hz=k_mu,
-                        k_lambda_hz=args.k_lambda_hz, master_pd_lowpass_hz=mpd)
+                        k_lambda_hz=args.k_lambda_hz, master_pd_lowpass_hz=mpd,
+                        servo_bandwidth_hz=args.servo_bandwidth_hz)
 
 
 def _write_traces(out: Path, res) -> None:
@@ -163,7 +175,8 @@ def run_teleop(args) -> int:
     run = {"command": "teleop", "argv": sys.argv[1:], "controller": cfg.__dict__,
            "testbed": {"environment": tb.environment.__dict__, "operator": tb.operator.__dict__,
                        "sensors": tb.sensors.__dict__, "servo_rate_hz": tb.servo_rate_hz,
-                       "substep_s": tb.substep_s, "master": tb.master.name, "slave": tb.slave.name},
+                       "substep_s": tb.substep_s, "master": tb.master.name, "slave": tb.slave.name,
+                       "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
            "cimm_model": _cimm_record(cimm, check),
            "versions": software_versions(), "duration_s": len(path) / tb.servo_rate_hz,
            "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
@@ -223,7 +236,8 @@ def run_teleop_master(args) -> int:
     dev = make_device(args.master)
     with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
         P = default_params()
-        tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz)
+        tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz,
+                     slave_handle_damping_N_s_m=args.slave_handle_damping)
         cfg = resolve_gains(cfg, tb)
         check = None
         if cimm is not None:
@@ -239,7 +253,8 @@ def run_teleop_master(args) -> int:
     _write_traces(out, res)
     run = {"command": "teleop", "argv": sys.argv[1:], "master": args.master, "controller": cfg.__dict__,
            "testbed": {"environment": tb.environment.__dict__, "sensors": tb.sensors.__dict__,
-                       "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name},
+                       "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name,
+                       "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
            "cimm_model": _cimm_record(cimm, check),
            "versions": software_versions(), "duration_s": args.duration_s, "link": timing,
            "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick}
@@ -288,8 +303,10 @@ def figure_510(res, path: Path, title: str) -> None:
 
 
 def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, mu: float = 1.0,
-          seed: int = 1, progress=None) -> list[dict]:
+          seed: int = 1, progress=None, servo_bandwidth_hz: float = SERVO_BANDWIDTH_HZ) -> list[dict]:
     """Blind-randomised lambda sweep: one single-tap session per (condition, lambda, tap), random order.
+
+    ``servo_bandwidth_hz`` is the servo-gain rule's natural frequency (``TeleopConfig.servo_bandwidth_hz``).
 
     The analysis (:func:`session_metrics`) sees only force traces; the condition is attached after.
 
@@ -304,7 +321,7 @@ def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, m
     rows = []
     for j, (cond, lam, v) in enumerate(trials):
         controller, extra = SWEEP_CONDITIONS[cond]
-        cfg = TeleopConfig(controller=controller, mu=mu, lam=lam, **extra)
+        cfg = TeleopConfig(controller=controller, mu=mu, lam=lam, servo_bandwidth_hz=servo_bandwidth_hz, **extra)
         path, cr = default_path(tb.servo_rate_hz, mu, n_taps=1, speed_m_s=v)
         res = run_session(tb, cfg, path, cimm=cimm, impact_ticks=cr, seed=j + 1)
         m = session_metrics(res)[0]
@@ -360,8 +377,9 @@ def model_variants(cimm: CimmModel, error: float = 0.3) -> dict:
 
 
 def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: float = 1.0, seed: int = 1,
-               error: float = 0.3, progress=None) -> dict:
-    """``pf+cimm`` with each of :func:`model_variants` (the +/-30 % table).
+               error: float = 0.3, progress=None, servo_bandwidth_hz: float = SERVO_BANDWIDTH_HZ) -> dict:
+    """``pf+cimm`` with each of :func:`model_variants` (the +/-30 % table); ``servo_bandwidth_hz`` as in
+    :func:`sweep`.
 
     Returns
     -------
@@ -370,7 +388,8 @@ def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: floa
     """
     out = {}
     for name, model in model_variants(cimm, error).items():
-        rows = sweep(tb, model, lambdas, ["pf+cimm"], taps=taps, mu=mu, seed=seed, progress=progress)
+        rows = sweep(tb, model, lambdas, ["pf+cimm"], taps=taps, mu=mu, seed=seed, progress=progress,
+                     servo_bandwidth_hz=servo_bandwidth_hz)
         out[name] = {"largest_stable_lambda": largest_stable(rows, "pf+cimm"),
                      "largest_settling_lambda": largest_lambda(rows, "pf+cimm", ("settles",)),
                      "mean_contact_losses": float(np.mean([r["contact_losses"] for r in rows]))}
@@ -395,7 +414,7 @@ def run_sweep(args) -> int:
     # a bar on a terminal, plain lines in a log (a tqdm bar wrote \r-separated redraws into a file)
     bar = Progress(len(conds) * len(lambdas) * args.taps, "teleop-sweep", unit="tap")
     rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
-                 progress=lambda i, n: bar.update(i))
+                 progress=lambda i, n: bar.update(i), servo_bandwidth_hz=args.servo_bandwidth_hz)
     bar.close()
     lines = ["condition,lambda,speed_m_s,settling_s,contact_class,contact_losses,stable,breaks,hf_energy_fraction"]
     for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
@@ -420,12 +439,15 @@ def run_sweep(args) -> int:
     atomic_write_text(out / "run.json", json.dumps({
         "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
         "taps": args.taps, "seed": args.seed, "mu": args.mu, "environment": args.environment,
+        "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m,
+        "servo_bandwidth_hz": args.servo_bandwidth_hz,
         "cimm_model": {"source": cimm.source, "underestimation_check": check}, "summary": summary,
         "versions": software_versions()}, indent=1, default=str))
     figure_511(rows, conds, out / "figure_5_11.png")
     print("\n".join(table))
     if args.robustness:
-        rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed)
+        rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed,
+                         servo_bandwidth_hz=args.servo_bandwidth_hz)
         lines = ["| CIMM model | largest lambda that settles | largest lambda that holds contact | "
                  "contact losses per tap (mean over the grid) |", "|---|---|---|---|"]
         lines += [f"| {k} | {v['largest_settling_lambda']:g} | {v['largest_stable_lambda']:g} | "

@@ -89,9 +89,13 @@ class TeleopConfig:
         Position scale and force-feedback gain (section 5.1).
     kp_s_N_m, kd_s_Ns_m : float or None
         Slave PD gains on the motor position; None (default): :func:`servo_gains` of the slave's moving
-        mass (the rule of docs/teleop.md, "Gains"; resolved by :func:`resolve_gains`).
+        mass at ``servo_bandwidth_hz`` (the rule of docs/teleop.md, "Gains"; resolved by
+        :func:`resolve_gains`).
     kp_m_N_m, kd_m_Ns_m : float or None
         Master PD gains (bilateral PD only); None: the same rule on the master's moving mass.
+    servo_bandwidth_hz : float
+        Natural frequency of the rule's servos (Hz; default ``SERVO_BANDWIDTH_HZ``, 8 Hz, the user's
+        motion-control bandwidth); damping ratio ``SERVO_DAMPING_RATIO``. Explicit gains override it.
     ff_max_N : float
         Position-force: saturation of the force feedback F_f (N; 0 = none); default ``FF_MAX_N``.
     b_Ns_m : float
@@ -116,6 +120,7 @@ class TeleopConfig:
     kd_s_Ns_m: float | None = None
     kp_m_N_m: float | None = None
     kd_m_Ns_m: float | None = None
+    servo_bandwidth_hz: float = SERVO_BANDWIDTH_HZ
     ff_max_N: float = FF_MAX_N
     b_Ns_m: float = 0.0
     k_mu_hz: float = 0.0
@@ -127,7 +132,7 @@ class TeleopConfig:
 
     def __post_init__(self) -> None:
         require_choice("controller", self.controller, CONTROLLERS)
-        require_positive(self, "mu", "divergence_m", "divergence_m_s", "velocity_hz")
+        require_positive(self, "mu", "divergence_m", "divergence_m_s", "velocity_hz", "servo_bandwidth_hz")
         for name in ("kp_s_N_m", "kd_s_Ns_m", "kp_m_N_m", "kd_m_Ns_m"):
             if getattr(self, name) is not None:
                 require_number(name, getattr(self, name), minimum=0.0)
@@ -138,7 +143,8 @@ class TeleopConfig:
 
 
 def resolve_gains(cfg: TeleopConfig, tb: Testbed) -> TeleopConfig:
-    """``cfg`` with every unset servo gain replaced by :func:`servo_gains` of its joystick's moving mass.
+    """``cfg`` with every unset servo gain replaced by :func:`servo_gains` of its joystick's moving mass at
+    ``cfg.servo_bandwidth_hz`` and damping ratio ``SERVO_DAMPING_RATIO``.
 
     Parameters
     ----------
@@ -151,8 +157,8 @@ def resolve_gains(cfg: TeleopConfig, tb: Testbed) -> TeleopConfig:
     TeleopConfig
         With numbers in ``kp_s_N_m``, ``kd_s_Ns_m``, ``kp_m_N_m``, ``kd_m_Ns_m`` (run.json records them).
     """
-    ks, bs = servo_gains(joystick_mass_kg(tb.slave))
-    km, bm = servo_gains(joystick_mass_kg(tb.master))
+    ks, bs = servo_gains(joystick_mass_kg(tb.slave), cfg.servo_bandwidth_hz)
+    km, bm = servo_gains(joystick_mass_kg(tb.master), cfg.servo_bandwidth_hz)
     return replace(cfg, kp_s_N_m=ks if cfg.kp_s_N_m is None else cfg.kp_s_N_m,
                    kd_s_Ns_m=bs if cfg.kd_s_Ns_m is None else cfg.kd_s_Ns_m,
                    kp_m_N_m=km if cfg.kp_m_N_m is None else cfg.kp_m_N_m,

@@ -18,16 +18,19 @@ import pytest
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.samples import get_sample
-from devices.sim.teleop import BACKLASH_FIG_5_11_M, ENVIRONMENTS, CimmModel, Testbed
+from devices.sim.teleop import BACKLASH_FIG_5_11_M, ENVIRONMENTS, SLAVE_HANDLE_DAMPING_N_S_M, CimmModel, Testbed
 from renderer.__main__ import main
+from renderer.teleop import options
+from renderer.teleop.calibration import calibrate_slave_handle_damping
 from renderer.teleop.cli_teleop import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS
-from renderer.teleop.commands import largest_stable, sweep
+from renderer.teleop.commands import largest_lambda, largest_stable, sweep
 from renderer.teleop.models import STAND_IN_SOURCE, cimm_params, underestimation_check
-from renderer.teleop.session import (BUZZ_S, FF_MAX_N, TeleopConfig, classify_contact, default_path,
-                                     quasi_static, resolve_gains, run_session, session_metrics, tap_metrics)
+from renderer.teleop.session import (BUZZ_S, FF_MAX_N, SERVO_BANDWIDTH_HZ, TeleopConfig, classify_contact,
+                                     default_path, quasi_static, resolve_gains, run_session, session_metrics,
+                                     tap_metrics)
 
 LAMBDAS = (1.0, 3.0, 6.0, 10.0, 15.0)
-LAMBDAS_BACKLASH = (1.0, 2.0, 3.0)
+LAMBDAS_BACKLASH = (1.0, 2.0, 3.0, 4.0, 6.0, 10.0)
 FS = 5000.0
 
 
@@ -58,6 +61,12 @@ def cimm_model(cimm_file):
 def sweep_rows(testbed, cimm_model):
     """Figure 5.10's testbed (no backlash): two taps per lambda (0.08, 0.12 m/s)."""
     return sweep(testbed, cimm_model, LAMBDAS, ["pf", "pf+cimm", "pf+K_lambda"], taps=2, seed=3)
+
+
+@pytest.fixture(scope="module")
+def natural_impacts(testbed, cimm_model):
+    """The slave's natural impact: the same two taps at lambda = 0 (no force feedback)."""
+    return sweep(testbed, cimm_model, [0.0], ["pf"], taps=2, seed=3)
 
 
 @pytest.fixture(scope="module")
@@ -129,6 +138,12 @@ def test_servo_gains_follow_the_stated_rule(testbed):
     assert np.allclose(np.abs(p), w) and np.allclose(-p.real / np.abs(p), 0.7)
     pd = resolve_gains(TeleopConfig(controller="pd"), testbed)   # identical joysticks: the same servo each side
     assert (pd.kp_m_N_m, pd.kd_m_Ns_m) == (pd.kp_s_N_m, pd.kd_s_Ns_m) == (cfg.kp_s_N_m, cfg.kd_s_Ns_m)
+    assert SERVO_BANDWIDTH_HZ == options.SERVO_BANDWIDTH_HZ == 8.0      # the parsers' default is the rule's
+    w12 = 2 * math.pi * 12.0                                              # --servo-bandwidth-hz 12
+    fast = resolve_gains(TeleopConfig(controller="pf", servo_bandwidth_hz=12.0), testbed)
+    assert (fast.kp_s_N_m, fast.kd_s_Ns_m) == (pytest.approx(m * w12 ** 2), pytest.approx(2 * 0.7 * m * w12))
+    with pytest.raises(ValueError, match="servo_bandwidth_hz"):
+        TeleopConfig(controller="pf", servo_bandwidth_hz=0.0)
     explicit = resolve_gains(TeleopConfig(controller="pf", kp_s_N_m=600.0, kd_s_Ns_m=3.0), testbed)
     assert (explicit.kp_s_N_m, explicit.kd_s_Ns_m) == (600.0, 3.0)
     with pytest.raises(ValueError):
@@ -189,15 +204,34 @@ def test_figure_5_10_ordering_losses_grow_with_lambda_and_cimm_holds_better(swee
     assert all(r["contact_class"] == "make-break" for r in _rows(sweep_rows, "pf", 6.0))
 
 
-def test_figure_5_10_targets_fail_for_a_measured_reason(testbed):
-    """Not met (docs/teleop.md): lambda = 1 settling in 40-60 ms. The slave's own impact (lambda = 0) already
-    rings for over 100 ms: its unheld handle oscillates on the linkage, which Table 3.1 gives no damping
-    (b_l = 0), at a frequency between the handle on the linkage's large-deflection stiffness
-    (sqrt(k_l / m_h) / 2 pi = 85 Hz) and its stiffer small-deflection slope (section 3.5.3: k_l + gamma_l
-    (f_lp - f_ln) = 11 700 N/m, 146 Hz; measured 115 Hz), and the drum under it passes that to the sensor. The same tap with 2 N s/m of linkage damping (a diagnostic, not the model)
-    settles within 100 ms."""
+def test_slave_handle_damping_is_its_calibration_on_the_natural_impact():
+    """The default damping of the slave's unheld handle is what ``calibrate_slave_handle_damping`` finds: the value
+    at which a tap with no force feedback (lambda = 0, 0.08 and 0.12 m/s, four noise seeds each) settles in 50 ms
+    on the mean ("the slave's natural impact", Figure 5.10: "decay in about 50 ms"). Measured 1.79 N s/m (mean
+    settling 51.9 ms there, stepping to 46.5 ms at 1.80) against 202 ms with Table 3.1's b_l = 0; stored 1.8."""
+    cal = calibrate_slave_handle_damping()
+    print(f"calibrated {cal.damping_N_s_m:.3f} N s/m: mean settling {cal.settling_s * 1e3:.1f} ms "
+          f"(0 N s/m: {cal.settling_at_zero_s * 1e3:.1f} ms); evaluations "
+          f"{[(round(b, 3), round(t * 1e3, 1)) for b, t in cal.evaluations]}")
+    assert abs(SLAVE_HANDLE_DAMPING_N_S_M - cal.damping_N_s_m) <= 0.10 * cal.damping_N_s_m
+    assert options.SLAVE_HANDLE_DAMPING_N_S_M == SLAVE_HANDLE_DAMPING_N_S_M      # the parsers' default
+    assert Testbed(default_params(), default_params()).slave_handle_damping_N_s_m == SLAVE_HANDLE_DAMPING_N_S_M
+    assert abs(cal.settling_s - 0.050) <= 0.005           # the root sits on a ~5 ms step of the mean
+    assert cal.settling_at_zero_s > 2 * BUZZ_S            # Table 3.1 as identified: 202 ms
+    with pytest.raises(ValueError, match="do not bracket"):
+        calibrate_slave_handle_damping(bracket=(2.5, 4.0))
+
+
+def test_table_3_1_as_identified_the_unheld_handle_rings():
+    """With Table 3.1's b_l = 0 (``slave_handle_damping_N_s_m=0``) the slave's natural impact rings for over
+    100 ms: its unheld handle oscillates on the linkage between the large-deflection (sqrt(k_l / m_h) / 2 pi =
+    85 Hz) and the small-deflection slope (section 3.5.3: k_l + gamma_l (f_lp - f_ln) = 11 700 N/m, 146 Hz;
+    measured 115 Hz), and the drum under it passes that to the sensor. With the calibrated default the same tap
+    settles in 54 ms."""
+    P = default_params()
     path, cr = default_path(FS, 1.0, n_taps=1)
-    res = run_session(testbed, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr)
+    table31 = Testbed(P, P, environment=ENVIRONMENTS["hard"], slave_handle_damping_N_s_m=0.0)
+    res = run_session(table31, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr)
     (m,) = session_metrics(res)
     fe = res.col(K.O_FE)
     i0 = int(np.flatnonzero(fe > 0.05)[0])
@@ -205,26 +239,61 @@ def test_figure_5_10_targets_fail_for_a_measured_reason(testbed):
     seg = seg - quasi_static(seg, FS)
     spec = np.abs(np.fft.rfft(seg * np.hanning(len(seg))))
     f_peak = np.fft.rfftfreq(len(seg), 1 / FS)[np.argmax(spec)]
-    P = default_params()
-    damped = Testbed(P, P.replace(mechanics={"b_l_Ns_m": 2.0}), environment=ENVIRONMENTS["hard"])
-    (md,) = session_metrics(run_session(damped, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr))
-    print(f"lambda 0: settling {m.settling_s * 1e3:.0f} ms, ringing at {f_peak:.0f} Hz; "
-          f"with b_l 2 N s/m: {md.settling_s * 1e3:.0f} ms")
+    default = Testbed(P, P, environment=ENVIRONMENTS["hard"])
+    (md,) = session_metrics(run_session(default, TeleopConfig(controller="pf", lam=0.0), path, impact_ticks=cr))
+    print(f"lambda 0, b_l 0: settling {m.settling_s * 1e3:.0f} ms, ringing at {f_peak:.0f} Hz; "
+          f"calibrated {SLAVE_HANDLE_DAMPING_N_S_M} N s/m: {md.settling_s * 1e3:.0f} ms")
     assert m.settling_s > BUZZ_S and 85.0 <= f_peak <= 146.0
-    assert md.settling_s < BUZZ_S
+    assert 0.040 <= md.settling_s <= 0.060
 
 
-def test_figure_5_11_backlash_cimm_keeps_the_impact_bounce_only(sweep_backlash):
-    """With backlash (Figure 5.11's condition) cancellation loses contact little more than in the impact's double
-    bounce up to lambda = 3 (measured 2, 2, 3 per tap on average), while without it the slave makes and breaks
-    contact twenty times or more from lambda = 1 (measured 23.5, 27, 31). Figure 5.11's limits (2-3.5 without,
-    4-6 with cancellation) are not met: every tap is make-break (docs/teleop.md)."""
+def test_figure_5_10_targets_with_the_calibrated_slave(sweep_rows, natural_impacts):
+    """Issue 37's Figure 5.10 / section 5.8 targets with the calibrated slave (docs/teleop.md, targets table).
+
+    Met: pf at lambda = 1 settles in 40-60 ms (measured 45 and 54 ms); pf at lambda = 6 makes and breaks contact
+    (60+ losses per tap); with cancellation lambda = 15 settles within 1.3x its lambda = 1 time (measured 63 against
+    50 ms, 1.27x). Not met, for a measured reason: every tap loses contact at least twice and so is make-break by
+    the issue's definition -- and so is the slave's natural impact (lambda = 0: 1 and 3 losses), the impact's own
+    bounces against the 8 Hz servo's 0.16 N hold on the 2 mm press, which no lambda adds to below 3; pf at
+    lambda = 3 does not buzz (its transient settles in ~50 ms; contact goes from a few bounces at 4 to 60 losses at
+    6 with no buzzing regime between); with cancellation lambda = 10 settles in 60-63 ms (target 60)."""
+    for lam in LAMBDAS:
+        for c in ("pf", "pf+cimm"):
+            print(lam, c, [(r["contact_losses"], round(r["settling_s"] * 1e3, 1), r["contact_class"])
+                           for r in sorted(_rows(sweep_rows, c, lam), key=lambda r: r["speed_m_s"])])
+    nat = [r["contact_losses"] for r in natural_impacts]
+    print("natural impact (lambda 0):",
+          [(r["contact_losses"], round(r["settling_s"] * 1e3, 1)) for r in natural_impacts])
+    # met
+    assert all(0.040 <= r["settling_s"] <= 0.060 for r in _rows(sweep_rows, "pf", 1.0))
+    assert all(r["contact_class"] == "make-break" and r["contact_losses"] >= 20 for r in _rows(sweep_rows, "pf", 6.0))
+    s1 = np.mean([r["settling_s"] for r in _rows(sweep_rows, "pf+cimm", 1.0)])
+    s15 = np.mean([r["settling_s"] for r in _rows(sweep_rows, "pf+cimm", 15.0)])
+    assert s15 <= 1.3 * s1
+    # not met: the natural impact already loses contact; at lambda 1 and 3 no more than 2 losses beyond it
+    assert max(nat) >= 2 and all(r["contact_class"] == "make-break" for r in _rows(sweep_rows, "pf", 1.0))
+    assert max(r["contact_losses"] for r in _rows(sweep_rows, "pf", 3.0)) <= max(nat) + 2
+    assert all(r["settling_s"] < BUZZ_S for r in _rows(sweep_rows, "pf", 3.0))      # no buzz: a short transient
+    cimm10 = [r["settling_s"] for r in _rows(sweep_rows, "pf+cimm", 10.0)]
+    assert max(cimm10) > 0.060 and max(cimm10) <= 0.070                            # 60-63 ms, target 60
+    assert largest_lambda(sweep_rows, "pf", ("settles",)) == 0.0
+
+
+def test_figure_5_11_backlash_holds_to_a_few_bounces(sweep_backlash):
+    """With backlash (Figure 5.11's condition) the taps keep to the impact's bounces -- pf up to lambda = 3, pf+cimm
+    to 10 -- and pf then makes and breaks contact 25+ times per tap by lambda = 6 (thesis: limits about 2.5 without
+    and 4.5 with cancellation). By the issue's classification every tap, at every lambda, is make-break (two
+    losses or more), so the largest stable lambda is 0 for both (docs/teleop.md): not met, for the same reason as
+    without backlash."""
     for lam in LAMBDAS_BACKLASH:
-        print(lam, "pf", _losses(sweep_backlash, "pf", lam), "pf+cimm", _losses(sweep_backlash, "pf+cimm", lam))
-        assert _losses(sweep_backlash, "pf+cimm", lam) <= 3.5
-        assert max(r["contact_losses"] for r in _rows(sweep_backlash, "pf+cimm", lam)) <= 5
-        assert min(r["contact_losses"] for r in _rows(sweep_backlash, "pf", lam)) >= 10
-    print("largest stable: pf", largest_stable(sweep_backlash, "pf"), "pf+cimm", largest_stable(sweep_backlash, "pf+cimm"))
+        print(lam, "pf", [r["contact_losses"] for r in _rows(sweep_backlash, "pf", lam)],
+              "pf+cimm", [r["contact_losses"] for r in _rows(sweep_backlash, "pf+cimm", lam)])
+    for lam in LAMBDAS_BACKLASH:
+        assert max(r["contact_losses"] for r in _rows(sweep_backlash, "pf+cimm", lam)) <= 3, lam
+        if lam <= 3.0:
+            assert max(r["contact_losses"] for r in _rows(sweep_backlash, "pf", lam)) <= 5, lam
+    assert min(r["contact_losses"] for r in _rows(sweep_backlash, "pf", 6.0)) >= 20
+    assert largest_stable(sweep_backlash, "pf") == largest_stable(sweep_backlash, "pf+cimm") == 0.0
 
 
 def test_force_filter_removes_high_frequency_cimm_keeps_it(sweep_rows):
@@ -299,6 +368,24 @@ def test_teleop_command_writes_run_folder_and_refuses_overwrite(tmp_path, capsys
     assert "exists and is not empty" in capsys.readouterr().err
 
 
+def test_teleop_servo_and_slave_flags_and_renamed_speed(tmp_path, capsys):
+    """--slave-handle-damping-N-s-m (0: Table 3.1 as identified) and --servo-bandwidth-hz reach the session and
+    run.json; the old --speed still works with a notice; a negative damping is one clear error."""
+    out = tmp_path / "t31"
+    assert main(["teleop", "--controller", "pf", "--taps", "1", "--speed", "0.12", "--slave-handle-damping-N-s-m",
+                 "0", "--servo-bandwidth-hz", "12", "--no-figures", "--out", str(out)]) == 0
+    assert "--speed is deprecated; use --speed-m-s" in capsys.readouterr().err
+    run = json.loads((out / "run.json").read_text())
+    assert run["testbed"]["slave_handle_damping_N_s_m"] == 0.0
+    assert run["controller"]["servo_bandwidth_hz"] == 12.0
+    assert run["controller"]["kp_s_N_m"] == pytest.approx(0.03225 * (2 * math.pi * 12.0) ** 2)
+    # Table 3.1's undamped handle at 0.12 m/s: the natural impact rings past 100 ms (measured 227 ms)
+    assert run["taps"][0]["settling_s"] is None or run["taps"][0]["settling_s"] > BUZZ_S
+    assert main(["teleop", "--slave-handle-damping-N-s-m", "-1", "--out", str(tmp_path / "bad")]) == 2
+    assert "error: --slave-handle-damping-N-s-m must be a number >= 0" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_sweep_command_and_bad_lambda(tmp_path, capsys):
     out = tmp_path / "sweep"
     assert main(["teleop-sweep", "--lambda", "0.5,3", "--taps", "1", "--conditions", "pf,pf+cimm",
@@ -319,7 +406,8 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
 def test_cimm_robust_to_30_percent_model_errors(testbed, cimm_model, sweep_rows):
     """+/-30 % in the model's user stiffness or hand mass changes what cancellation does by little: contact
     losses per tap over lambda 1-15 within 15 % of the nominal model's, all under half of those without
-    cancellation (measured: 11.1-12.0 against 11.6 nominal; pf 40)."""
+    cancellation (measured with the calibrated slave: 1.6-1.8 against 1.8 nominal, one tap per lambda at
+    0.1 m/s; pf 36.8; every variant settles up to lambda = 3)."""
     from renderer.teleop.commands import robustness
     table = robustness(testbed, cimm_model, LAMBDAS, taps=1, seed=4)
     pf = float(np.mean([r["contact_losses"] for r in sweep_rows if r["condition"] == "pf"]))

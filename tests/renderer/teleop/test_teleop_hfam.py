@@ -1,7 +1,8 @@
 """HFAM over bilateral PD in teleoperation (section 4.3.1, Figures 1.6 and 4.5), with H_ha from the
 project's comprehensive identification of the simulated master held by the teleoperation operator (never
 the simulator's true parameters), and the servo gains of the stated rule (8 Hz, damping ratio 0.7).
-22-1000 Hz with the pipeline delay removed by cross-correlation (``accel_match``). Issue 37's targets
+22-1000 Hz with the pipeline delay removed by cross-correlation (``accel_match``). The slave's unheld handle has
+the calibrated damping (``devices.sim.teleop.SLAVE_HANDLE_DAMPING_N_S_M``, 1.8 N s/m). Issue 37's targets
 (correlation >= 0.9, NRMSE <= 0.45 over three operators; at most one bounce per tap) are measured here; the
 ones not met are pinned to their measured reasons (docs/teleop.md, "Bilateral PD and HFAM on wood")."""
 
@@ -94,7 +95,8 @@ def test_smoothing_bounds_the_match(wood):
     for name, fir in (("barthann15", bartlett_hann_fir()), ("15 nonzero taps", nonzero_ends / nonzero_ends.sum())):
         bound[name] = accel_match(tip, signal.sosfilt(hp, np.convolve(tip, fir)[:len(tip)]), FS)
     print("exact inverse after the smoothing:", bound)
-    # measured 0.929 / 0.468 with barthann(15); worse with 15 nonzero taps
+    # measured 0.927 / 0.486 with barthann(15) (0.929 / 0.468 with Table 3.1's undamped slave handle); worse
+    # with 15 nonzero taps (0.902 / 0.560)
     assert 0.45 < bound["barthann15"]["nrmse"] < bound["15 nonzero taps"]["nrmse"]
     assert bound["barthann15"]["correlation"] >= 0.9
     assert bound["barthann15"]["delay_samples"] == 7
@@ -124,7 +126,7 @@ def test_pd_hfam_master_matches_slave_tip_on_wood(wood, hha):
     free = run_session(wood, TeleopConfig(controller="pd+hfam"), path, hfam=hf, impact_ticks=cr)
     res = run_session(wood, _hfam_config(), path, hfam=hf, impact_ticks=cr)
     print("free-air tip RMS (22-1000 Hz): no K_mu", _free_air_tip_rms(free), "defaults", _free_air_tip_rms(res))
-    # measured 0.56 m/s^2 without K_mu, 4.1 with the 40 Hz K_mu: with the rule's 8 Hz slave servo the K_mu
+    # measured 0.54 m/s^2 without K_mu, 3.8 with the 40 Hz K_mu: with the rule's 8 Hz slave servo the K_mu
     # low-pass only adds lag to the PD loop, which then rings near 20 Hz in free air (docs/teleop.md)
     assert _free_air_tip_rms(free) < 1.0 and _free_air_tip_rms(res) < 6.0
     assert res.fault == 0
@@ -132,16 +134,17 @@ def test_pd_hfam_master_matches_slave_tip_on_wood(wood, hha):
     assert np.all(np.isfinite(i)) and np.max(np.abs(i)) <= 4.0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD + HFAM (wood):", m)
-    # measured 0.895 / 0.520 / RMS ratio 0.63, delay 1.8 ms with the rule's gains (0.908 / 0.477 with the
-    # earlier hand-picked 1500 N/m master PD); the issue's 0.9 / 0.45 are not met: see the bound above
-    assert m["correlation"] >= 0.87
-    assert m["nrmse"] <= 0.55
+    # measured 0.885 / 0.554 / RMS ratio 0.58, delay 1.8 ms with the rule's gains and the calibrated slave handle
+    # (0.895 / 0.520 with Table 3.1's undamped handle, 0.908 / 0.477 with the earlier hand-picked 1500 N/m master
+    # PD); the issue's 0.9 / 0.45 are not met: see the bound above
+    assert m["correlation"] >= 0.86
+    assert m["nrmse"] <= 0.58
     assert 1.5e-3 <= m["delay_s"] <= 2.5e-3   # 7 samples of smoothing + the servo cycle
 
 
 def test_master_pd_lowpass_keeps_more_of_the_hfam_amplitude(wood, hha):
     """The master PD unfiltered pulls back some of the handle motion HFAM creates (measured with the rule's
-    8 Hz master servo: RMS ratio 0.60 -> 0.63, NRMSE 0.529 -> 0.520)."""
+    8 Hz master servo and the calibrated slave: RMS ratio 0.574 -> 0.585, NRMSE 0.556 -> 0.554)."""
     hf = design_hfam(hha, FS, max_current_A=4.0)
     path, cr = default_path(FS, 1.0, n_taps=3)
     m = {}
@@ -151,7 +154,7 @@ def test_master_pd_lowpass_keeps_more_of_the_hfam_amplitude(wood, hha):
         m[lp] = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("master PD low-pass off / on:", m)
     assert m[HFAM_MASTER_PD_HZ]["nrmse"] < m[0.0]["nrmse"]
-    assert m[HFAM_MASTER_PD_HZ]["rms_ratio"] > m[0.0]["rms_ratio"] + 0.01
+    assert m[HFAM_MASTER_PD_HZ]["rms_ratio"] > m[0.0]["rms_ratio"] + 0.005
 
 
 def test_pd_hfam_master_matches_slave_tip_stroking_texture(texture, hha):
@@ -161,9 +164,9 @@ def test_pd_hfam_master_matches_slave_tip_stroking_texture(texture, hha):
     assert res.fault == 0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD + HFAM (texture):", m)
-    # measured 0.904 / 0.505 / RMS ratio 0.64
-    assert m["correlation"] >= 0.87
-    assert m["nrmse"] <= 0.55
+    # measured 0.888 / 0.552 / RMS ratio 0.58 (0.904 / 0.505 with Table 3.1's undamped slave handle)
+    assert m["correlation"] >= 0.86
+    assert m["nrmse"] <= 0.58
 
 
 # three operators: grip and hand/arm mass spread (half and double the default grip impedance and mass)
@@ -187,29 +190,37 @@ def three_operators():
 
 
 def test_hfam_match_over_three_operators(three_operators):
-    """Issue 37: correlation >= 0.9, NRMSE <= 0.45 over three operators. Measured 0.868-0.895 and 0.520-0.602:
-    not met (the smoothing alone bounds NRMSE at 0.468; the firm, heavy operator pins the handle)."""
+    """Issue 37: correlation >= 0.9, NRMSE <= 0.45 over three operators. Measured 0.843-0.885 and 0.542-0.639:
+    not met (the smoothing alone bounds NRMSE at 0.486; the firm, heavy operator pins the handle)."""
     for name, (res, m, _) in three_operators.items():
         print(name, m)
         assert res.fault == 0
-        assert m["correlation"] >= 0.85, name
-        assert m["nrmse"] <= 0.65, name
+        assert m["correlation"] >= 0.82, name
+        assert m["nrmse"] <= 0.67, name
     assert three_operators["firm"][1]["nrmse"] > three_operators["default"][1]["nrmse"]
 
 
-def test_slave_chatter_on_wood_is_its_undamped_handle(three_operators):
-    """Issue 37: at most one bounce per tap, not met -- measured 30-60 contact losses per tap under PD + HFAM
-    (and PD alone). The reason, measured: the unheld slave handle rattles on its linkage (Table 3.1: b_l = 0) on
-    nearly elastic wood (alpha = 0.3 s/m). With 4 N s/m of linkage damping (a diagnostic, not the model) the
-    same PD taps lose contact at most twice. The thesis's HFAM testbed was a pair of early Phantoms with
-    "relatively stiff linkage elements" (section 4.3.2), not the Impulse Engine's soft linkage."""
+def test_slave_bounces_on_wood_are_the_elastic_impact(three_operators):
+    """Issue 37: at most one bounce per tap, not met -- measured 7-9 contact losses per tap under PD + HFAM (6-10
+    with PD alone), against 20-58 with Table 3.1's undamped slave handle. The reason, measured: the wood sample is
+    nearly elastic (Hunt-Crossley alpha = 0.3 s/m, Table 4.1's), so the unheld handle rebounds and the 8 Hz servo
+    (0.16 N on the 2 mm press) catches it only after several bounces. The same PD taps on wood with the hard
+    surface's alpha = 10 s/m lose contact once; more handle damping (8 N s/m) still leaves the impact's double
+    bounce on the wood itself (2 per tap)."""
     losses = {name: [t.contact_losses for t in mets] for name, (_, _, mets) in three_operators.items()}
     print("contact losses per tap:", losses)
-    assert min(min(v) for v in losses.values()) >= 10
+    assert min(min(v) for v in losses.values()) >= 5 and max(max(v) for v in losses.values()) <= 12
     P = default_params()
-    damped = Testbed(P, P.replace(mechanics={"b_l_Ns_m": 4.0}), operator=OPERATOR, environment=ENVIRONMENTS["wood"])
     path, cr = default_path(FS, 1.0, n_taps=3)
-    res = run_session(damped, TeleopConfig(controller="pd"), path, impact_ticks=cr)
-    d = [t.contact_losses for t in session_metrics(res)]
-    print("with linkage damping 4 N s/m:", d)
-    assert max(d) <= 2
+    out = {}
+    for name, env, damping in (("table 3.1", ENVIRONMENTS["wood"], 0.0),
+                               ("alpha 10", dataclasses.replace(ENVIRONMENTS["wood"], alpha_s_m=10.0), None),
+                               ("b 8", ENVIRONMENTS["wood"], 8.0)):
+        kw = {} if damping is None else {"slave_handle_damping_N_s_m": damping}
+        tb = Testbed(P, P, operator=OPERATOR, environment=env, **kw)
+        res = run_session(tb, TeleopConfig(controller="pd"), path, impact_ticks=cr)
+        out[name] = [t.contact_losses for t in session_metrics(res)]
+    print("PD, contact losses per tap:", out)   # measured [36, 33, 34], [1, 1, 1], [2, 2, 2]
+    assert min(out["table 3.1"]) >= 20
+    assert max(out["alpha 10"]) <= 1
+    assert out["b 8"] == [2, 2, 2]
