@@ -790,9 +790,15 @@ def pipeline_linkage(folder) -> str:
 
     Raises
     ------
+    FileNotFoundError
+        The folder has no ``library.npz`` (not a pipeline folder).
     ValueError
         The file holds parameters of neither variant (named).
     """
+    if not (Path(folder) / "library.npz").exists():
+        raise FileNotFoundError(f"{Path(folder) / 'library.npz'}: not found; --pipeline must be a folder written by "
+                                "the HFAM pipeline (python -m renderer demo's cache entry, or score-hfam's own "
+                                "out/pipeline)")
     path = Path(folder) / DEVICE_FILE
     if not path.exists():
         return "hysteretic"

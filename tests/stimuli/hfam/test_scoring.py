@@ -317,6 +317,9 @@ def test_score_hfam_linkage_option(pipe, linear_pipe, tmp_path, capsys):
     assert "was run on the hysteretic device" in capsys.readouterr().err
     assert not (tmp_path / "h").exists() and not (tmp_path / "h2").exists()
     (tmp_path / "odd").mkdir()
+    with pytest.raises(FileNotFoundError, match="odd/library.npz: not found"):
+        S.pipeline_linkage(tmp_path / "odd")
+    (tmp_path / "odd" / "library.npz").write_bytes(b"")
     (tmp_path / "odd" / S.DEVICE_FILE).write_text(json.dumps(S.device_params("hysteretic").replace(
         mechanics={"m_h_kg": 0.02}).to_dict()))
     with pytest.raises(ValueError, match="neither of the scoring's devices"):
