@@ -154,7 +154,7 @@ def linear_linkage_params(params, linkage: str = "small_signal"):
     and gamma are then unused). With ``"small_signal"`` (7817.5 N/m for Table 3.1) the variant's analytic
     model equals the hysteretic device's small-signal :func:`linear_model`; it stands for a transmission
     without the joystick's amplitude-dependent resonance (section 3.5.3), such as the section 4.4.3 one-dof
-    testbed (a Maxon RE025 on a cable drive; the thesis reports no hysteresis for it).
+    testbed (a Maxon RE025, one LTI model per grip in section 3.4.6; the thesis reports no hysteresis for it).
 
     Parameters
     ----------
