@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 from plumbing.outdir import output_folder
@@ -34,9 +35,22 @@ def _check(args) -> None:
                          "copy it elsewhere or choose another --out")
 
 
+def _linkage(args) -> str:
+    """The device variant to score on: ``--linkage`` (default hysteretic), or the ``--pipeline`` folder's own
+    (ValueError if ``--linkage`` names another: its library was built on that folder's device)."""
+    if args.pipeline is None:
+        return args.linkage or "hysteretic"
+    found = scoring.pipeline_linkage(args.pipeline)
+    if args.linkage is not None and args.linkage != found:
+        raise ValueError(f"--linkage {args.linkage}: the pipeline folder {args.pipeline} was run on the {found} "
+                         f"device; score it without --linkage, or run a new pipeline (no --pipeline)")
+    return found
+
+
 def run(args) -> int:
     """Run the pipeline (or read ``--pipeline``), score it, print and write the tables; returns the exit code."""
     _check(args)
+    linkage = _linkage(args)
     folder = output_folder(args.out, args.force, products=PRODUCTS, results="earlier scores").open()
     with folder:
         pipe = args.pipeline
@@ -44,11 +58,13 @@ def run(args) -> int:
         if pipe is None:
             pipe = folder.path / "pipeline"
             pipe.mkdir()
+            settings = dataclasses.replace(settings, device=scoring.pipeline_device(pipe, linkage))
             build_pipeline(pipe, settings, Progress(3))
         libs = scoring.pipeline_libraries(pipe, settings, args.transient_limit_A)
         scores = scoring.score_pipeline(*libs[:3], libs[3], speeds_m_s=args.speeds_m_s, grips_N=args.grips_N,
                                         unseen_speeds_m_s=args.unseen_speeds_m_s, unseen_grips_N=args.unseen_grips_N,
-                                        transient_limit_A=args.transient_limit_A)
+                                        transient_limit_A=args.transient_limit_A,
+                                        settings=scoring.ScoreSettings(linkage=linkage))
         text = scoring.format_scores(scores)
         rows = scoring.score_rows(scores)
         with open(folder.path / "scores.csv", "w", newline="") as fh:

@@ -241,3 +241,7 @@ UNSEEN_GRIPS_N = (1.5, 2.5)
 GRIPS_N = (1.0, 2.0, 3.0)
 #: the raised transient-only limit the thermal option reports by default (A): twice the sim's 4 A peak
 DEFAULT_TRANSIENT_LIMIT_A = 8.0
+#: the sim device variants the scoring can run on (``--linkage``; :func:`stimuli.hfam.scoring.device_params`):
+#: ``hysteretic``, the Table 3.1 joystick as it is (section 3.5.3's linkage), and ``linear``, the same device
+#: with the linkage a linear spring at its small-signal stiffness (``devices.sim.linear.linear_linkage_params``)
+LINKAGES = ("hysteretic", "linear")

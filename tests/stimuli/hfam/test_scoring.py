@@ -1,7 +1,8 @@
 """HFAM scoring (issue 36 item 5): the open-loop and refined libraries against the real tap on the sim, the
 unseen conditions, saturation flagging and the thermal option (stimuli/hfam/scoring.py, docs/hfam_library.md).
 
-One pipeline (identify, record, build, refine: the demo's defaults) and one scoring run per module; every number
+One pipeline (identify, record, build, refine: the demo's defaults) and one scoring run per module, plus one
+unrefined pipeline and open-loop scoring on the linear-linkage device (``--linkage linear``, ~30 s); every number
 asserted is recomputed here from the sim.
 """
 
@@ -43,6 +44,26 @@ def scores(libs):
     return S.score_pipeline(*libs[:3], libs[3])
 
 
+@pytest.fixture(scope="module")
+def linear_pipe(tmp_path_factory):
+    """The demo's pipeline on the linear-linkage device (``--linkage linear``) up to the open-loop library: the
+    open-loop target is about the library before any refinement, so none is run (saves ~10 s)."""
+    out = tmp_path_factory.mktemp("hfam_pipeline_linear")
+    device = S.pipeline_device(out, "linear")
+    build_pipeline(out, PipelineSettings(device=device, refine_iterations=0, refine_recording_iterations=0),
+                   Progress(3, quiet=True))
+    return out
+
+
+@pytest.fixture(scope="module")
+def linear(linear_pipe):
+    """(open-loop cells, model mismatch) of the linear-linkage device over the open-loop grid."""
+    open_loop, _, _, models = S.pipeline_libraries(linear_pipe)
+    st = S.ScoreSettings(linkage="linear")
+    return (S.score_library(open_loop, S.OPEN_LOOP_SPEEDS_M_S, S.GRIPS_N, st),
+            S.model_mismatch(open_loop, models, S.OPEN_LOOP_SPEEDS_M_S, S.GRIPS_N, st))
+
+
 def test_the_open_loop_library_is_the_one_the_pipeline_refined(pipe, libs):
     """Rebuilt from the pipeline folder by its own build step: the same velocities, grips and targets as the
     refined library, the same currents where the refinement did not touch them (grip 0 N), and a rebuild
@@ -72,7 +93,8 @@ def test_claims_are_one_row_per_target_with_the_issue_keys(scores):
 
 
 @pytest.mark.xfail(strict=True, reason="issue 36 item 5: the open-loop library misses median <= 0.30 / worst <= 0.40 "
-                                       "on this sim (the device departs from its LTI model, test below); "
+                                       "on the default sim: the joystick's hysteretic linkage departs from its LTI "
+                                       "model; with the linkage linear it holds (tests below); "
                                        "docs/hfam_library.md 'Scoring'")
 def test_open_loop_target(scores):
     m = S.summarise(scores.open_loop)
@@ -95,6 +117,42 @@ def test_open_loop_scores_follow_the_model_mismatch(scores):
     floor = [r["nrmse"] for r in scores.target_floor]
     assert len(floor) == 12 and all(0.15 < f < 0.3 for f in floor), floor
     assert all(by_cell[k] > 0.8 * mism[k] for k in keys)
+
+
+def test_open_loop_target_holds_on_the_linear_linkage(linear):
+    """The same pipeline and scoring on the sim whose linkage is a linear spring at its small-signal stiffness
+    (``--linkage linear``): the open-loop library meets item 5's target with no cell saturated (measured:
+    median 0.219, worst 0.260, lowest correlation 0.969)."""
+    cells, _ = linear
+    assert len(cells) == 18 and not any(c.saturated for c in cells)
+    m = S.summarise(cells)
+    assert m["median_nrmse"] <= 0.30 and m["worst_nrmse"] <= 0.40 and m["min_corr"] >= 0.9, m
+
+
+def test_the_open_loop_miss_is_the_linkage_hysteresis(scores, linear):
+    """Why the hysteretic default misses: its model mismatch (the sim's response to a transient against the
+    identified LTI model) grows with tap speed, i.e. with the transient's current, as the hysteretic linkage's
+    resonance moves with amplitude (section 3.5.3); with the linkage linear the mismatch stays flat and low at
+    every speed, and the fast cells the hysteretic device loses come back (measured: 0.38-0.43 -> 0.20-0.24 at
+    0.11-0.2 m/s)."""
+    lin_cells, lin_mism = linear
+    hyst = {(c.velocity_m_s, c.grip_N): c for c in scores.open_loop}
+    lin = {(c.velocity_m_s, c.grip_N): c for c in lin_cells}
+    assert set(hyst) == set(lin)
+    for name, rows, flat in (("hysteretic", scores.model_mismatch, False), ("linear", lin_mism, True)):
+        slow = np.mean([r["nrmse"] for r in rows if r["velocity_m_s"] <= 0.08])
+        fast = np.mean([r["nrmse"] for r in rows if r["velocity_m_s"] >= 0.11])
+        if flat:
+            assert abs(fast - slow) < 0.03 and max(r["nrmse"] for r in rows) < 0.3, (name, slow, fast)
+        else:
+            assert fast > slow + 0.05, (name, slow, fast)
+    h_mism = {(r["velocity_m_s"], r["grip_N"]): r["nrmse"] for r in scores.model_mismatch}
+    assert max(h_mism[k] for k in h_mism if k[0] == 0.2) > 0.38
+    for k in hyst:
+        if k[0] >= 0.11 and not hyst[k].saturated:
+            assert lin[k].nrmse < hyst[k].nrmse - 0.1, k
+    # the median improves by more than the gap to the target; the targets are no further from the real tap
+    assert S.summarise(lin_cells)["median_nrmse"] < S.summarise(scores.open_loop)["median_nrmse"] - 0.08
 
 
 def test_refined_library_generalises_for_the_recording_person(scores):
@@ -204,6 +262,7 @@ def test_raised_limit_stays_inside_the_thermal_model():
 
 def test_score_settings_refuse_bad_values():
     for kw, msg in (({"wall_N_m": -1.0}, "wall_N_m"), ({"reference_person": "other"}, "reference_person"),
+                    ({"linkage": "rigid"}, "linkage"),
                     ({"band_hz": (100.0, 20.0)}, "band_hz"), ({"max_lag_s": 0.05}, "max_lag_s"),
                     ({"pre_s": 0.0001}, "pre_s")):
         with pytest.raises(ValueError, match=msg):
@@ -234,3 +293,34 @@ def test_score_hfam_command(pipe, tmp_path, capsys):
     assert main(["score-hfam", "--out", str(tmp_path / "o3"), "--pipeline", str(pipe), "--transient-limit-A", "2"]) == 2
     assert "transient limit 2.0 A must be between" in capsys.readouterr().err
     assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
+
+
+def test_score_hfam_linkage_option(pipe, linear_pipe, tmp_path, capsys):
+    """``--linkage``: a pipeline folder run on the linear device says so (``device_params.json``), is scored on
+    that device (the report and every CSV row name it) and refuses the other device; the default folder is the
+    hysteretic one."""
+    assert S.pipeline_linkage(pipe) == "hysteretic" and S.pipeline_linkage(linear_pipe) == "linear"
+    out = tmp_path / "lin"
+    argv = ["score-hfam", "--out", str(out), "--pipeline", str(linear_pipe), "--speeds-m-s", "0.14",
+            "--grips-N", "2", "--unseen-grips-N", "1.5"]
+    assert main(argv + ["--linkage", "linear"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("Device: the sim joystick with its linkage a linear spring")
+    rows = (out / "scores.csv").read_text().splitlines()
+    assert rows[0].endswith(",linkage") and all(r.endswith(",linear") for r in rows[1:])
+    ol = [r for r in rows if r.startswith("open_loop,")]
+    assert len(ol) == 1 and float(ol[0].split(",")[5]) < 0.3        # the 0.14 m/s x 2 N cell: 0.217 measured
+    assert "device: linear linkage" in json.loads((out / "claims.json").read_text())[0]["measured_text"]
+    assert main(argv[:1] + ["--out", str(tmp_path / "h"), *argv[3:], "--linkage", "hysteretic"]) == 2
+    assert "--linkage hysteretic: the pipeline folder" in capsys.readouterr().err
+    assert main(["score-hfam", "--out", str(tmp_path / "h2"), "--pipeline", str(pipe), "--linkage", "linear"]) == 2
+    assert "was run on the hysteretic device" in capsys.readouterr().err
+    assert not (tmp_path / "h").exists() and not (tmp_path / "h2").exists()
+    (tmp_path / "odd").mkdir()
+    with pytest.raises(FileNotFoundError, match="odd/library.npz: not found"):
+        S.pipeline_linkage(tmp_path / "odd")
+    (tmp_path / "odd" / "library.npz").write_bytes(b"")
+    (tmp_path / "odd" / S.DEVICE_FILE).write_text(json.dumps(S.device_params("hysteretic").replace(
+        mechanics={"m_h_kg": 0.02}).to_dict()))
+    with pytest.raises(ValueError, match="neither of the scoring's devices"):
+        S.pipeline_linkage(tmp_path / "odd")
