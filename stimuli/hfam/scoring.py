@@ -883,7 +883,7 @@ def format_scores(scores: HfamScores) -> str:
              format_cells(scores.refined, "Refined library at conditions it was never refined on "
                                           "(reference: each person's own real tap):"),
              format_cells(scores.refined_recording_reference, "The same taps against the recording person's real tap:"),
-             "Why the open-loop library misses (NRMSE): its targets against the real tap "
+             "What bounds the open-loop library (NRMSE): its targets against the real tap "
              + ", ".join(f"{r['velocity_m_s']:.3f} {r['nrmse']:.3f}" for r in scores.target_floor)
              + "\n  the sim's response to each transient against the inversion's model (superposition, per speed x "
                "grip): " + ", ".join(f"{r['velocity_m_s']:g}/{r['grip_N']:g} N {r['nrmse']:.2f} ({r['peak_A']:.1f} A)"
