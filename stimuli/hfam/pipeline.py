@@ -219,6 +219,16 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
         if len(second) > 1:
             refine_note += (f"; then {len(second) - 1}x towards the recordings: median "
                             f"{second[0]['median_nrmse']:.3f} -> {second[-1]['median_nrmse']:.3f}")
+        ref = lib.metadata["refinement"]
+        at_limit = ref["cells_at_limit"]
+        # per grip, the slowest cell at the clip (the faster ones are, too, on a monotonic library)
+        slowest = {}
+        for v, g, _ in at_limit:
+            slowest[g] = min(v, slowest.get(g, v))
+        refine_note += (f"; {len(at_limit)} of {lib.currents_A.shape[0] * lib.currents_A.shape[1]} cells held at "
+                        f"the refinement's {ref['current_limit_A']:.2f} A current limit (saturated"
+                        + (", from " + ", ".join(f"{slowest[g]:.3f} m/s at {g:g} N" for g in sorted(slowest))
+                           if at_limit else "") + "; library.npz metadata: refinement.cells_at_limit)")
     lib.save(out / "library.npz")
     (out / "library_verification.txt").write_text(format_verification(rep) + "\n")
     worst = max(rep.verification, key=lambda r: r["nrmse"])

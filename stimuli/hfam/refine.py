@@ -464,11 +464,38 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
     meta = dict(library.metadata)
     meta["refinement"] = {"iterations": settings.iterations, "gain": settings.gain, "wall_N_m": settings.wall_N_m,
                           "recording_iterations": settings.recording_iterations if recordings_m_s2 is not None else 0,
+                          "current_limit_A": peak, "cells_at_limit": cells_at_limit(cur, library, peak),
                           "history": [{k: v for k, v in h.items() if k != "cells"} for h in history]}
     lib = HfamLibrary(library.velocities_m_s, library.grips_N, cur, fs, library.force_per_amp_N_A,
                       gain=library.gain, max_extrapolation=library.max_extrapolation, metadata=meta,
                       desired_accel_m_s2=library.desired_accel_m_s2, source=library.source)
     return lib, history
+
+
+def cells_at_limit(currents_A: np.ndarray, library: HfamLibrary, limit_A: float) -> list:
+    """Cells whose refined transient reaches the refinement's current clip (section 4.4.3's saturation).
+
+    The refinement clips every correction at ``limit_A`` (``RefineSettings.headroom`` x the peak current), so
+    the renderer's amplifier limit is never hit by these transients and a demo counts no clipped tap; a cell
+    held at the clip is saturated all the same (its transient is flattened where the target asks for more).
+
+    Parameters
+    ----------
+    currents_A : ndarray, shape (n_velocities, n_grips, n_t)
+        Refined currents (A).
+    library : HfamLibrary
+        Gives the cells' velocities (m/s) and grips (N).
+    limit_A : float
+        The refinement's current clip (A).
+
+    Returns
+    -------
+    list of [velocity_m_s, grip_N, peak_A]
+        The cells whose peak |current| is within 1 % of ``limit_A``, in library order.
+    """
+    peaks = np.max(np.abs(currents_A), axis=-1)
+    return [[float(library.velocities_m_s[i]), float(library.grips_N[j]), float(peaks[i, j])]
+            for i in range(peaks.shape[0]) for j in range(peaks.shape[1]) if peaks[i, j] >= 0.99 * limit_A]
 
 
 def _record(history: list, it: int, rows: list, target: str, settings: RefineSettings, say) -> None:

@@ -35,6 +35,16 @@ def test_refinement_lowers_the_error_of_every_cell():
     assert new.metadata["refinement"]["iterations"] == 3
     assert new.currents_A.shape == lib.currents_A.shape
     assert abs(new.currents_A).max() <= dev.info.current_peak_A + 1e-12
+    # the cells held at the refinement's clip are listed (and only they): section 4.4.3's saturation, which the
+    # renderer's amplifier limit no longer shows for a refined library
+    ref = new.metadata["refinement"]
+    limit = ref["current_limit_A"]
+    assert limit == pytest.approx(RefineSettings().headroom * dev.info.current_peak_A)
+    peaks = np.max(np.abs(new.currents_A), axis=-1)
+    listed = {(v, g) for v, g, _ in ref["cells_at_limit"]}
+    for i, v in enumerate(new.velocities_m_s):
+        for j, g in enumerate(new.grips_N):
+            assert ((float(v), float(g)) in listed) == bool(peaks[i, j] >= 0.99 * limit), (v, g, peaks[i, j])
 
 
 def test_refine_settings_validated():
