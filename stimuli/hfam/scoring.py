@@ -171,7 +171,8 @@ class CellScore:
     limit_A : float
         The amplifier limit the tap played under, A.
     saturated : bool
-        The command reached ``limit_A`` (section 4.4.3).
+        The command reached ``limit_A`` (section 4.4.3), or the looked-up transient sits at a refined library's
+        own current clip (its metadata's ``refinement.current_limit_A``, within 1 %).
     temp_rise_K : float
         Winding temperature rise over the tap from cold (the device's thermal model), K.
     heat_A2s : float
@@ -344,8 +345,12 @@ def score_cell(library: HfamLibrary, velocity_m_s: float, grip_N: float, referen
     peak = float(np.max(np.abs(tap.command_A[:n_tr + 1])))     # the wall and the transient's samples
     wall = tap.command_A[:n_tr + 1] - np.r_[0.0, current[:n_tr]]  # transient sample k is on tick k + 1
     applied = np.clip(tap.command_A, -limit, limit)
+    # a refined library's transients never reach the amplifier's limit: the refinement clipped them below it
+    # (stimuli.hfam.refine.cells_at_limit); one at that clip is saturated all the same
+    clip = library.metadata.get("refinement", {}).get("current_limit_A")
+    at_clip = clip is not None and float(np.max(np.abs(current[:n_tr]))) >= 0.99 * float(clip)
     return CellScore(person, float(velocity_m_s), float(grip_N), float(tap.v_in_m_s), err, corr, lag / fs * 1e3,
-                     peak, float(np.max(np.abs(wall))), limit, bool(peak >= limit * (1.0 - 1e-9)),
+                     peak, float(np.max(np.abs(wall))), limit, bool(peak >= limit * (1.0 - 1e-9) or at_clip),
                      float(dev.true_state()["winding_temp_rise_K"]), float(np.sum(applied * applied) / fs))
 
 
