@@ -55,7 +55,7 @@ def register(subparsers) -> None:
                         "clock, so a slow simulator never trips a watchdog), realtime (on the wall clock; "
                         "slower than real time on a loaded machine), or fast (as fast as the host reads telemetry)")
     q.add_argument("--lockstep-ticks", type=int, default=4,
-                   help="lockstep: 250 us servo ticks per host period (default 4: a 1 kHz streaming loop)")
+                   help="lockstep: 250 us servo ticks per host period, 2..255 (default 4: a 1 kHz streaming loop)")
     q.add_argument("--speed", type=float, default=1.0, help="realtime pace: times real time (default 1)")
     q.add_argument("--taps", default="0.05,0.1,0.2", help="tap speeds, m/s, cycled ('' : hold at 10 mm)")
     q.add_argument("--fault", default=None, help="device->host faults: drop=P,corrupt=P,garbage=P,duplicate=P,"

@@ -95,11 +95,12 @@ def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
             queue.cancel_join_thread()
             if manager is not None:
                 manager.join(timeout=_MANAGER_WAIT_S)
-            # If the manager left by its shutdown path (no close) or is stuck, close the read end here, after
-            # waiting for it: closing it while the manager closes it too raced (EBADF in CI; worse, the
-            # second close could hit a descriptor number opened since).
+            # If the manager left by its shutdown path (no close), close the read end here, after it has
+            # gone: closing it while the manager closes it too raced (EBADF in CI; worse, the second close
+            # could hit a descriptor number opened since). A manager still alive after the wait is left
+            # alone: its join on the feeder is cancelled, and the feeder is a daemon thread.
             reader = getattr(queue, "_reader", None)
-            if reader is not None and not reader.closed:
+            if reader is not None and not reader.closed and not (manager is not None and manager.is_alive()):
                 try:
                     reader.close()
                 except OSError:   # the feeder thread closed it in between after its last item

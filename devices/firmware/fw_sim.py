@@ -56,6 +56,8 @@ PACES = ("lockstep", "realtime", "fast")
 #: (11 bytes) and its STATE (23 bytes) take 340 us of the 1 Mbaud UART plus the firmware's handling, so a
 #: 4 kHz (250 us) streaming loop cannot exist on this link; 2 (2 kHz) is the fastest that fits.
 LOCKSTEP_TICKS = 4
+#: the fewest servo ticks per lockstep period that leave room for a CURRENT and its STATE on the UART (above)
+MIN_LOCKSTEP_TICKS = 2
 #: Lockstep: wall-clock seconds the MCU waits at the end of a host period for the host's next frame before it
 #: runs free in real time (the firmware's watchdog then zeroes the motor as on a board); 0: it waits for ever.
 #: 0 by default: a host's honest pauses (the servo loop's host was silent 10+ s after its first tick on the
@@ -247,8 +249,10 @@ def _harness_cmd(b: Build, stats: Path, *, pace="realtime", speed=1.0, taps_m_s=
                  lockstep_free_run_s: float = LOCKSTEP_FREE_RUN_S) -> list[str]:
     if pace not in PACES:
         raise ValueError(f"pace must be one of {', '.join(PACES)}, got {pace!r}")
-    if not (isinstance(lockstep_ticks, int) and 1 <= lockstep_ticks <= 255):
-        raise ValueError(f"lockstep_ticks must be a whole number of servo ticks in 1..255, got {lockstep_ticks!r}")
+    if not (isinstance(lockstep_ticks, int) and MIN_LOCKSTEP_TICKS <= lockstep_ticks <= 255):
+        raise ValueError(f"lockstep_ticks must be a whole number of servo ticks in {MIN_LOCKSTEP_TICKS}..255 (a "
+                         f"CURRENT and its STATE take 340 us of the UART, more than one 250 us tick), "
+                         f"got {lockstep_ticks!r}")
     if not lockstep_free_run_s >= 0:
         raise ValueError(f"lockstep_free_run_s must be >= 0 s (0: never), got {lockstep_free_run_s!r}")
     if not speed > 0:
@@ -482,8 +486,9 @@ class FwSimDevice(SerialDevice):
         except ValueError:
             raise ValueError(f"fw-sim: lockstep_ticks must be a whole number of servo ticks and lockstep_free_run_s "
                              f"seconds, got {lockstep_ticks!r}, {lockstep_free_run_s!r}") from None
-        if not (1 <= self.lockstep_ticks <= 255 and self.lockstep_free_run_s >= 0):
-            raise ValueError(f"fw-sim: lockstep_ticks must be in 1..255 and lockstep_free_run_s >= 0 s, got "
+        if not (MIN_LOCKSTEP_TICKS <= self.lockstep_ticks <= 255 and self.lockstep_free_run_s >= 0):
+            raise ValueError(f"fw-sim: lockstep_ticks must be in {MIN_LOCKSTEP_TICKS}..255 (a CURRENT and its STATE "
+                             f"take 340 us of the UART, more than one 250 us tick) and lockstep_free_run_s >= 0 s, got "
                              f"{lockstep_ticks!r}, {lockstep_free_run_s!r}")
         self.pace, self.speed, self.grip_N, self.faults = pace, float(speed), float(grip_N), faults
         self.tick_log = bool(int(tick_log))

@@ -28,6 +28,7 @@ import inspect
 import json
 import math
 import os
+import stat
 import time
 import warnings
 from dataclasses import asdict
@@ -397,6 +398,11 @@ class ProtocolDevice(Device):
                               f"{wire.info.capabilities}")
         self.wire_info = wire
         self._info = wire.info
+        if wire.info.lockstep_ticks and not self._may_run_lockstep():
+            raise DeviceError(f"{self.name}: the device's INFO says lockstep (flags bit 1: a simulated clock that "
+                              "waits for the host), but only a simulator on a pseudo-terminal may run so; a board "
+                              "must report flags bit 1 clear. Refused: lockstep turns off the host's loss "
+                              "detection and the renderer's wall-clock watchdog (docs/protocol.md 'Lockstep')")
         if wire.info.lockstep_ticks:
             # the device's clock is simulated and waits for the host (docs/protocol.md "Lockstep"): its replies
             # come when the simulator gets there, so wall-clock waits are long and a late reply is no loss
@@ -412,6 +418,10 @@ class ProtocolDevice(Device):
             self._request(P.SET_WATCHDOG, P.WATCHDOG_STRUCT.pack(self.watchdog_ms))
         self._request(P.SET_MODE, P.MODE_STRUCT.pack(P.MODE_STREAMING, 1))
         self._request(P.CLEAR_FAULTS)
+
+    def _may_run_lockstep(self) -> bool:
+        """Whether this link may be a simulator in lockstep: only a serial pseudo-terminal (SerialDevice)."""
+        return False
 
     def _close(self) -> None:
         if self._t is not None:
@@ -1081,6 +1091,31 @@ def _check_options(options: dict, name: str) -> dict:
     return options
 
 
+# Linux's Unix98 pseudo-terminal slaves (/dev/pts/N): character devices of majors 136-143
+# (Documentation/admin-guide/devices.txt)
+_PTY_SLAVE_MAJORS = range(136, 144)
+
+
+def is_pseudo_terminal(path: str) -> bool:
+    """Whether ``path`` (symbolic links followed) is a pseudo-terminal slave, as the simulators serve
+    (``devices fw-sim``, ``devices emulate``); a board's USB serial port (ttyACM, ttyUSB) is not one.
+
+    Parameters
+    ----------
+    path : str
+        A device path.
+
+    Returns
+    -------
+    bool
+    """
+    try:
+        st = os.stat(os.path.realpath(path))
+    except OSError:
+        return False
+    return stat.S_ISCHR(st.st_mode) and os.major(st.st_rdev) in _PTY_SLAVE_MAJORS
+
+
 class SerialDevice(ProtocolDevice):
     """A device on a serial/CDC port (pyserial), e.g. ``SerialDevice("/dev/ttyACM0", mode="on-device")``."""
 
@@ -1096,6 +1131,9 @@ class SerialDevice(ProtocolDevice):
 
     def _make_transport(self) -> Transport:
         return SerialTransport(self.port, self.baudrate)
+
+    def _may_run_lockstep(self) -> bool:
+        return is_pseudo_terminal(self.port)
 
     def link_bytes_per_s(self) -> float:
         """``baudrate / 10``: a UART sends 10 bits (start, 8 data, stop) per byte."""

@@ -231,13 +231,16 @@ def run_teleop_master(args) -> int:
         raise ValueError(f"--master {args.master} with pf+cimm needs --cimm-model FILE: the model of this "
                          "master as you hold it (e.g. the model.json of `devices successive` on it)")
     cfg = _teleop_config(args)
+    if not (math.isfinite(args.backlash_mm) and 0.0 <= args.backlash_mm < 5.0):
+        raise ValueError(f"--backlash-mm must be in [0, 5), got {args.backlash_mm!r}")
     cimm = build_cimm(args) if args.controller == "pf+cimm" else None
     out = _new_dir(Path(args.out))
     dev = make_device(args.master)
     with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
         P = default_params()
+        # the simulated slave takes --backlash-mm as in the all-sim session (the real master's own play is its own)
         tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz,
-                     slave_handle_damping_N_s_m=args.slave_handle_damping)
+                     slave_handle_damping_N_s_m=args.slave_handle_damping, backlash_m=args.backlash_mm * 1e-3)
         cfg = resolve_gains(cfg, tb)
         check = None
         if cimm is not None:
@@ -253,7 +256,7 @@ def run_teleop_master(args) -> int:
     _write_traces(out, res)
     run = {"command": "teleop", "argv": sys.argv[1:], "master": args.master, "controller": cfg.__dict__,
            "testbed": {"environment": tb.environment.__dict__, "sensors": tb.sensors.__dict__,
-                       "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name,
+                       "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name, "backlash_m": tb.backlash_m,
                        "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
            "cimm_model": _cimm_record(cimm, check),
            "versions": software_versions(), "duration_s": args.duration_s, "link": timing,

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[2]
 # blocked writing it into the call queue's 64 kB pipe when the block fails (what identify's recordings did
 # when a grip's recording failed: the command printed its error and then never exited)
 SCRIPT = textwrap.dedent('''
-    import multiprocessing, sys, time
+    import fcntl, multiprocessing, sys, termios, time
     from plumbing.pools import worker_pool
 
     def busy(path):
@@ -32,7 +32,11 @@ SCRIPT = textwrap.dedent('''
                 time.sleep(0.01)
             pool.submit(take, b"x" * (4 << 20))
             pool.submit(take, b"y" * (4 << 20))
-            time.sleep(0.5)          # let the manager hand the large tasks to the feeder thread
+            # wait until the feeder thread is writing into the call queue's pipe (it then blocks writing the rest of
+            # the 4 MB task, which no worker reads): the state in which the block used to hang
+            reader = pool._call_queue._reader.fileno()
+            while int.from_bytes(fcntl.ioctl(reader, termios.FIONREAD, b"\\0\\0\\0\\0"), sys.byteorder) < 4096:
+                time.sleep(0.01)
             raise RuntimeError("a recording failed")
     except RuntimeError as exc:
         print("caught:", exc, flush=True)

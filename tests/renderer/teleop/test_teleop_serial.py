@@ -64,6 +64,10 @@ def test_teleop_command_with_a_serial_master(tmp_path):
         no_model = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
                                    "--controller", "pf+cimm", "--out", str(tmp_path / "cimm")],
                                   capture_output=True, text=True, timeout=120)
+        # the simulated slave takes --backlash-mm with a serial master too (it was silently ignored)
+        bad_backlash = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
+                                       "--controller", "pf", "--backlash-mm", "7", "--out", str(tmp_path / "bl")],
+                                      capture_output=True, text=True, timeout=120)
     finally:
         handle.stop()
     assert no_model.returncode != 0 and "--cimm-model FILE" in no_model.stderr
@@ -71,7 +75,8 @@ def test_teleop_command_with_a_serial_master(tmp_path):
     link = run["link"]
     assert link["ticks"] == 2000 and link["link_lost_tick"] is None and run["fault"] == 0
     assert 0.0 < link["rate_hz"] <= 1010.0 and link["round_trip_p99_ms"] is not None   # paced, never faster
-    assert run["testbed"]["servo_rate_hz"] == 1000.0
+    assert run["testbed"]["servo_rate_hz"] == 1000.0 and run["testbed"]["backlash_m"] == 0.0
+    assert bad_backlash.returncode == 2 and "--backlash-mm must be in [0, 5)" in bad_backlash.stderr
     traces = np.loadtxt(out / "traces.csv", delimiter=",", skiprows=1)
     assert traces.shape == (2000, 17)
     assert traces[:, K.O_FE].max() > 0.5                 # the emulated hand's tap reached the slave's surface
