@@ -16,7 +16,7 @@ import json
 import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +72,9 @@ class Study:
     taps : dict
         For ``incoming_velocities_m_s`` and ``penetration_depths_m``: ``(values, row)``, every listed
         value (m/s, m) flattened and the 0-based row of ``trials`` it belongs to.
+    labels : dict
+        Sample name -> its label in the catalogs the subjects ran (catalog objects with a ``label``); the
+        first subject naming a label wins (:func:`catalog_labels`).
     """
 
     trials: pd.DataFrame
@@ -80,6 +83,7 @@ class Study:
     kinds: dict
     warnings: tuple
     taps: dict
+    labels: dict = field(default_factory=dict)
 
 
 def _warn(messages: list, text: str, stacklevel: int = 3) -> None:
@@ -105,12 +109,13 @@ def _subject_folders(data_dir: Path) -> list[str]:
 
 
 def _catalog_names(raw, path: Path) -> tuple[list[str], dict]:
-    """Sample names and kinds from a session.json ``catalog`` (list of names or of objects with ``name``)."""
+    """Sample names, kinds and labels from a session.json ``catalog`` (list of names or of objects with
+    ``name``, and optionally ``kind`` and ``label``)."""
     if isinstance(raw, dict):
         raw = raw.get("samples", raw.get("catalog"))
     if not isinstance(raw, list) or not raw:
         raise ValueError(f"{path}: key 'catalog' must be a non-empty list of samples")
-    names, kinds = [], {}
+    names, kinds, labels = [], {}, {}
     for i, item in enumerate(raw):
         if isinstance(item, str):
             name = item
@@ -118,24 +123,26 @@ def _catalog_names(raw, path: Path) -> tuple[list[str], dict]:
             name = item["name"]
             if item.get("kind") in KINDS:
                 kinds[name] = item["kind"]
+            if isinstance(item.get("label"), str):
+                labels[name] = item["label"]
         else:
             raise ValueError(f"{path}: key 'catalog' item {i} is neither a sample name nor an object with 'name'")
         if name in names:
             raise ValueError(f"{path}: key 'catalog' lists sample {name!r} twice")
         names.append(name)
-    return names, kinds
+    return names, kinds, labels
 
 
 _last_catalog: list = [None, None]
 
 
-def _catalog_cached(raw, path: Path) -> tuple[list[str], dict]:
+def _catalog_cached(raw, path: Path) -> tuple[list[str], dict, dict]:
     """:func:`_catalog_names`, reusing the previous result when the raw catalog is equal (the usual case)."""
     if _last_catalog[0] is not None and raw == _last_catalog[0]:
-        names, kinds = _last_catalog[1]
-        return list(names), dict(kinds)
+        names, kinds, labels = _last_catalog[1]
+        return list(names), dict(kinds), dict(labels)
     result = _catalog_names(raw, path)
-    _last_catalog[0], _last_catalog[1] = raw, (list(result[0]), dict(result[1]))
+    _last_catalog[0], _last_catalog[1] = raw, (list(result[0]), dict(result[1]), dict(result[2]))
     return result
 
 
@@ -161,7 +168,7 @@ def _read_text(path, encoding: str) -> str:
 def read_session(path) -> dict:
     """Read and check one ``session.json`` (``path``: str or Path); errors name the file, line or key.
 
-    Returns a dict with ``subject, experience, catalog (list), kinds, age, gender, handedness,
+    Returns a dict with ``subject, experience, catalog (list), kinds, labels, age, gender, handedness,
     finished, seed, software_version, device, servo_timing`` (:func:`servo_timing_text`).
     """
     text = _read_text(path, "utf-8")
@@ -181,9 +188,9 @@ def read_session(path) -> dict:
     exp = _EXPERIENCE_ALIASES.get(exp, exp) if isinstance(exp, str) else exp
     if exp not in EXPERIENCE:
         raise ValueError(f"{path}: key 'experience' is {raw['experience']!r}, expected one of {'|'.join(EXPERIENCE)}")
-    names, kinds = _catalog_cached(raw["catalog"], path)
+    names, kinds, labels = _catalog_cached(raw["catalog"], path)
     return {
-        "subject": subject, "experience": exp, "catalog": names, "kinds": kinds,
+        "subject": subject, "experience": exp, "catalog": names, "kinds": kinds, "labels": labels,
         "age": raw.get("age"), "gender": raw.get("gender"), "handedness": raw.get("handedness"),
         "finished": raw.get("finished_at") is not None,
         "seed": raw.get("seed"), "software_version": raw.get("software_version"), "device": raw.get("device"),
@@ -804,10 +811,12 @@ def _validate(trials: pd.DataFrame, raw_rating, subjects: pd.DataFrame, file_of_
     _check_duplicates(trials)
 
 
-def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, dict]:
-    """Every subject's session.json: (subjects table, catalog, kinds); warnings appended to ``messages``."""
+def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, dict, dict]:
+    """Every subject's session.json: (subjects table, catalog, kinds, labels); warnings appended to
+    ``messages``."""
     catalog: list[str] = []
     kinds: dict = {}
+    labels: dict = {}
     subj_rows = []
     seen_subjects: dict = {}
     for folder in folders:
@@ -825,6 +834,8 @@ def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, d
             catalog.extend(added)
         for name, kind in sess["kinds"].items():
             kinds.setdefault(name, kind)
+        for name, label in sess["labels"].items():
+            labels.setdefault(name, label)
         if not sess["finished"]:
             _warn(messages, f"session {sess['subject']} is not finished (finished_at is null): "
                             "its attempts are used as far as they go", stacklevel=4)
@@ -832,17 +843,17 @@ def _read_sessions(folders: list, messages: list) -> tuple[pd.DataFrame, list, d
                                                "seed", "software_version", "device", "servo_timing")}
                          | {"folder": folder, "session_file": sess_path,
                             "trials_file": os.path.join(folder, "trials.csv")})
-    return pd.DataFrame(subj_rows), catalog, kinds
+    return pd.DataFrame(subj_rows), catalog, kinds, labels
 
 
-def _read_sessions_quietly(folders: list) -> tuple[pd.DataFrame, list, dict, list]:
+def _read_sessions_quietly(folders: list) -> tuple[pd.DataFrame, list, dict, dict, list]:
     """:func:`_read_sessions` in another process: its warnings are returned with the result, not shown
     there (:func:`load_study` issues them again in the calling process, where they are caught)."""
     messages: list[str] = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AnalysisWarning)
-        subjects, catalog, kinds = _read_sessions(folders, messages)
-    return subjects, catalog, kinds, messages
+        subjects, catalog, kinds, labels = _read_sessions(folders, messages)
+    return subjects, catalog, kinds, labels, messages
 
 
 def submit_sessions(data_dir, executor) -> tuple:
@@ -874,16 +885,16 @@ def submit_sessions(data_dir, executor) -> tuple:
     return Path(data_dir), folders, workers.submit(executor, _read_sessions_quietly, folders)
 
 
-def _sessions(future, folders: list, messages: list) -> tuple[pd.DataFrame, list, dict]:
+def _sessions(future, folders: list, messages: list) -> tuple[pd.DataFrame, list, dict, dict]:
     """:func:`_read_sessions`'s result: ``future``'s (of :func:`_read_sessions_quietly`; its warnings are
     issued here) or, without one or when its process died, the session files read here."""
     got = workers.result(future)     # raises the reading's error, if any
     if got is None:
         return _read_sessions(folders, messages)
-    subjects, catalog, kinds, found = got
+    subjects, catalog, kinds, labels, found = got
     for text in found:
         _warn(messages, text, stacklevel=4)     # at load_study's caller, as _read_sessions warns
-    return subjects, catalog, kinds
+    return subjects, catalog, kinds, labels
 
 
 def load_study(data_dir, sessions: tuple | None = None) -> Study:
@@ -916,7 +927,7 @@ def load_study(data_dir, sessions: tuple | None = None) -> Study:
     fast = _fast_trials(folders)
     with ThreadPoolExecutor(max_workers=len(LIST_COLUMNS)) as splitter:
         split = {col: splitter.submit(_fast_lists, fast[0][col]) for col in LIST_COLUMNS} if fast else {}
-        subjects, catalog, kinds = _sessions(pending, folders, messages)
+        subjects, catalog, kinds, labels = _sessions(pending, folders, messages)
         if fast is not None:
             trials, file_of_row = fast
             try:
@@ -957,25 +968,13 @@ def load_study(data_dir, sessions: tuple | None = None) -> Study:
     if trials.empty:
         raise ValueError(f"{data_dir}: the trials.csv files hold no attempts")
     return Study(trials=trials, subjects=subjects, catalog=tuple(catalog), kinds=kinds, warnings=tuple(messages),
-                 taps=taps)
+                 taps=taps, labels=labels)
 
 
 def catalog_labels(study: Study) -> dict:
     """Sample name -> its label in the catalog the subjects ran (``session.json``'s ``catalog`` objects with a
     ``label``, e.g. ``hfam_mine`` -> "HFAM, my library, firm"); the first subject naming a label wins. Samples
-    without one are absent (the figures then use the project palette's label or the name)."""
-    labels: dict = {}
-    for folder in study.subjects["folder"] if "folder" in study.subjects else ():
-        path = os.path.join(str(folder), "session.json")
-        try:
-            with open(path, encoding="utf-8") as f:
-                raw = json.load(f).get("catalog")
-        except (OSError, ValueError, AttributeError):
-            continue
-        if isinstance(raw, dict):
-            raw = raw.get("samples", raw.get("catalog"))
-        for item in raw if isinstance(raw, list) else ():
-            if isinstance(item, dict) and isinstance(item.get("name"), str) and isinstance(item.get("label"), str):
-                labels.setdefault(item["name"], item["label"])
-    return labels
+    without one are absent (the figures then use the project palette's label or the name). Collected while
+    the session files are read (:func:`load_study`; reading 10,000 of them again cost 0.9 s per call)."""
+    return dict(study.labels)
 
