@@ -902,16 +902,17 @@ def pipeline_device(folder, linkage: str) -> str:
 
 
 def pipeline_linkage(folder) -> str:
-    """Which :data:`LINKAGES` device a pipeline folder was run on: ``hysteretic`` if it has no
-    :data:`DEVICE_FILE` (the demo's cache entries, a default run), else the variant whose parameters that file
-    holds.
+    """Which :data:`LINKAGES` device a pipeline folder was run on: the variant whose parameters its
+    :data:`DEVICE_FILE` holds (score-hfam's own runs); else, for a demo cache entry, the device its
+    ``manifest.json`` settings name (:func:`device_linkage`); else ``hysteretic`` (a default run).
 
     Raises
     ------
     FileNotFoundError
         The folder has no ``library.npz`` (not a pipeline folder).
     ValueError
-        The file holds parameters of neither variant (named).
+        The file holds parameters of neither variant, or the manifest names a device the scoring cannot play
+        (``sim:lti``, other parameters; named).
     """
     if not (Path(folder) / "library.npz").exists():
         raise FileNotFoundError(f"{Path(folder) / 'library.npz'}: not found; --pipeline must be a folder written by "
@@ -919,12 +920,27 @@ def pipeline_linkage(folder) -> str:
                                 "out/pipeline)")
     path = Path(folder) / DEVICE_FILE
     if not path.exists():
-        return "hysteretic"
+        return _manifest_linkage(Path(folder))
     linkage = _params_linkage(load_sim_params(path))
     if linkage is not None:
         return linkage
     raise ValueError(f"{path}: these sim parameters are neither of the scoring's devices ({', '.join(LINKAGES)}); "
                      "score-hfam scores pipelines it ran itself, or the demo's")
+
+
+def _manifest_linkage(folder: Path) -> str:
+    """The :data:`LINKAGES` device of a demo cache entry's ``manifest.json`` (``settings.device``); ``hysteretic``
+    without one. ValueError for a device the scoring cannot play (the demo writes those claims "not measured")."""
+    try:
+        device = json.loads((folder / "manifest.json").read_text())["settings"]["device"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return "hysteretic"
+    linkage = device_linkage(str(device))
+    if linkage is None:
+        raise ValueError(f"{folder}: this pipeline ran on {device} (manifest.json); the scoring plays its taps only on "
+                         f"the default sim or its linear-linkage variant ({', '.join(LINKAGES)}), so its libraries "
+                         "cannot be scored")
+    return linkage
 
 
 def _build_settings(library: HfamLibrary) -> BuildSettings | None:

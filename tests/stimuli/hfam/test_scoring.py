@@ -355,3 +355,18 @@ def test_a_real_tap_that_never_reaches_the_sample_is_a_value_error_naming_speed_
         S.real_reference(0.01, 2.0, None, st, factory, 1031)
     window = S.real_reference(S.MIN_SPEED_M_S, 1.0, None, st, factory, 1031)
     assert np.all(np.isfinite(window)) and np.max(np.abs(window)) > 1.0
+
+
+def test_a_demo_entry_is_scored_on_the_device_its_manifest_names(tmp_path):
+    """A demo cache entry has no device_params.json but its manifest.json names the device: ``sim`` and a
+    ``sim:<file>`` of the linear device are scored on theirs, ``sim:lti`` is refused (it was called hysteretic)."""
+    entry = tmp_path / "demo-entry"
+    entry.mkdir()
+    (entry / "library.npz").write_bytes(b"")
+    manifest = entry / "manifest.json"
+    for device, want in (("sim", "hysteretic"), (S.pipeline_device(tmp_path, "linear"), "linear")):
+        manifest.write_text(json.dumps({"settings": {"device": device}}))
+        assert S.pipeline_linkage(entry) == want
+    manifest.write_text(json.dumps({"settings": {"device": "sim:lti"}}))
+    with pytest.raises(ValueError, match="this pipeline ran on sim:lti"):
+        S.pipeline_linkage(entry)
