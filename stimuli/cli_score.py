@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import json
 
+from devices.limits import check_grips, check_tap_speeds
 from plumbing.outdir import output_folder
 from plumbing.validation import require_number
 
@@ -18,7 +19,13 @@ PRODUCTS = ("scores.csv", "claims.json", "scores.txt", "pipeline")
 
 
 def _check(args) -> None:
-    """Refuse bad grids before any work (ValueError names the option)."""
+    """Refuse bad grids before any work (ValueError names the option and the value).
+
+    Speeds: tap speeds of a hand (:func:`devices.limits.check_tap_speeds`: refused above 2 m/s, warned above the
+    rated 0.5 m/s) and at least :data:`stimuli.hfam.scoring.MIN_SPEED_M_S` (slower, the sim's tap does not reach
+    the sample). Grips: within the sim's grip sensor range (:func:`devices.limits.check_grips`).
+    """
+    info = scoring.SimDevice().info   # both linkages have the same grip sensor
     for flag, key in (("--speeds-m-s", "speeds_m_s"), ("--grips-N", "grips_N"), ("--unseen-grips-N", "unseen_grips_N"),
                       ("--unseen-speeds-m-s", "unseen_speeds_m_s")):
         vals = getattr(args, key)
@@ -28,6 +35,15 @@ def _check(args) -> None:
             raise ValueError(f"{flag}: give at least one number")
         for v in vals:
             require_number(flag, v, minimum=0.0, strict=True)
+        if key.endswith("grips_N"):
+            check_grips(info, vals, flag)
+            continue
+        check_tap_speeds(vals, flag)
+        slow = [v for v in vals if v < scoring.MIN_SPEED_M_S]
+        if slow:
+            raise ValueError(f"{flag} {', '.join(f'{v:g}' for v in slow)} m/s: slower than the slowest tap the "
+                             f"scoring plays, {scoring.MIN_SPEED_M_S:g} m/s (below it the sim's tap stops before "
+                             "it reaches the sample)")
     require_number("--transient-limit-A", args.transient_limit_A, minimum=0.0, strict=True)
     scoring.raised_limit_device_factory(args.transient_limit_A)     # within the thermal model, or refused
     if args.pipeline is not None and args.pipeline.resolve().is_relative_to(args.out.resolve()):

@@ -46,14 +46,17 @@ def register(subparsers) -> None:
                         "'python -m renderer demo' cache entry or an earlier --out/pipeline); default: run the "
                         "pipeline on the sim into --out/pipeline (~30 s)")
     p.add_argument("--speeds-m-s", type=float_list, default=OPEN_LOOP_SPEEDS_M_S,
-                   help=f"open-loop grid speeds, m/s (default {_csv(OPEN_LOOP_SPEEDS_M_S)})")
+                   help=f"open-loop grid speeds, m/s, 0.02-2 (default {_csv(OPEN_LOOP_SPEEDS_M_S)})")
     p.add_argument("--grips-N", type=float_list, default=GRIPS_N,
-                   help=f"open-loop and saturation grid grips, N (default {_csv(GRIPS_N)})")
+                   help=f"open-loop and saturation grid grips, N, within the sim's 0-10 N grip range "
+                        f"(default {_csv(GRIPS_N)})")
     p.add_argument("--unseen-speeds-m-s", type=float_list, default=None,
-                   help="speeds the refined library is scored at, m/s (refused if near its own velocities; default: "
+                   help="speeds the refined library is scored at, m/s, 0.02-2 (refused if near its own velocities; "
+                        "default: "
                         f"the middle of its two velocities around each of {_csv(ISSUE_UNSEEN_SPEEDS_M_S)})")
     p.add_argument("--unseen-grips-N", type=float_list, default=UNSEEN_GRIPS_N,
-                   help=f"grips the refined library is scored at, N (default {_csv(UNSEEN_GRIPS_N)})")
+                   help=f"grips the refined library is scored at, N, within the sim's 0-10 N grip range "
+                        f"(default {_csv(UNSEEN_GRIPS_N)})")
     p.add_argument("--transient-limit-A", type=float, default=DEFAULT_TRANSIENT_LIMIT_A,
                    help="the raised transient-only current limit of the thermal option, A (default %(default)s; "
                         "between the device's peak current and what a 100 ms transient may hold under its "

@@ -44,8 +44,11 @@ from devices.registry import make_device
 from plumbing.fileio import user_cache_dir
 from stimuli import HfamLibrary
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
-from stimuli.hfam.scoring import hfam_claims, pipeline_libraries, score_pipeline
+from stimuli.hfam.scoring import (ScoreSettings, device_linkage, hfam_claims, hfam_claims_not_measured,
+                                  pipeline_libraries, score_pipeline)
 from stimuli.recordings import read_tap_csv
+
+from .fidelity import claims_from_dicts
 
 #: modules whose code determines the cached results (hashed into the cache key)
 _CODE_PATHS = ("devices/sim", "devices/identify", "devices/model.py", "devices/recording.py",
@@ -236,23 +239,45 @@ def keep_figures(pipe: Pipeline, out: Path) -> bool:
 HFAM_CLAIMS_FILE = "hfam_claims.json"
 
 
+def hfam_score_settings(settings: PipelineSettings) -> ScoreSettings | None:
+    """How the demo's HFAM claims are scored for its pipeline ``settings``, or None if they cannot be.
+
+    The scoring plays its taps on the default sim or its linear-linkage variant
+    (:func:`stimuli.hfam.scoring.device_linkage`): a demo on ``sim``, or on ``sim:<params file>`` holding one of
+    those two devices, is scored on that device, with the demo's tap stop time (``--tap-stop-time``). Any other
+    device (``sim:lti``, other parameters) is None: its claims are "not measured", never scored on another device.
+    """
+    linkage = device_linkage(settings.device)
+    if linkage is None:
+        return None
+    return ScoreSettings(linkage=linkage, stop_time_s=settings.tap_stop_time_s)
+
+
 def entry_hfam_claims(pipe: Pipeline, settings: PipelineSettings) -> list[dict]:
     """The HFAM claims of fidelity.csv for the entry's libraries (:func:`stimuli.hfam.scoring.hfam_claims`).
 
     Scoring the open-loop, refined (at unseen conditions, two persons) and raised-limit libraries taps
     ~100 cells (10-20 s); the result depends only on what the entry's key hashes (the pipeline settings,
     the sim and ``stimuli/hfam``, scoring included), so it is kept in the entry (best effort, as the
-    figures) and read back on later runs.
+    figures) and read back on later runs. A kept file that does not parse or whose rows are not claims
+    (:func:`renderer.demo.fidelity.claims_from_dicts`) is recomputed and replaced. On a device the scoring
+    cannot play (:func:`hfam_score_settings`) the claims are "not measured" (NaN, not holding, the reason).
     """
+    score_settings = hfam_score_settings(settings)
+    if score_settings is None:
+        return hfam_claims_not_measured(
+            f"the HFAM scoring plays its taps on the default sim (Table 3.1) or its linear-linkage variant, and this "
+            f"demo ran on {settings.device}; scoring on another device would not be this demo's library")
     path = pipe.directory / HFAM_CLAIMS_FILE
     try:
         rows = json.loads(path.read_text())
-        if isinstance(rows, list) and all(isinstance(r, dict) for r in rows) and rows:
+        if isinstance(rows, list) and rows:
+            claims_from_dicts(rows)     # every row a claim, or ValueError: recomputed below
             return rows
     except (OSError, ValueError):
         pass
     open_loop, refined, raised, models = pipeline_libraries(pipe.directory, settings)
-    rows = hfam_claims(score_pipeline(open_loop, refined, raised, models))
+    rows = hfam_claims(score_pipeline(open_loop, refined, raised, models, settings=score_settings))
     try:
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps(rows, indent=1, allow_nan=True) + "\n")

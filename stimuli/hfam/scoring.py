@@ -49,6 +49,7 @@ from types import MappingProxyType
 import numpy as np
 from scipy import signal
 
+from devices.limits import check_grips, check_tap_speeds
 from devices.sim import Person, SimDevice, SimParams, default_params, load_sim_params
 from devices.sim.linear import linear_linkage_params
 
@@ -73,6 +74,13 @@ SECOND_PERSON_NAME = "heavy-stiff"
 
 #: the file in a pipeline folder that names its device when it is not the default one (:func:`pipeline_device`)
 DEVICE_FILE = "device_params.json"
+
+#: the slowest speed a scored tap may have (m/s). The sim's motor-off tap at the 45 ms stop time slows before the
+#: surface: 0.02 m/s reaches the sample at 1-10 N grip, 0.015 m/s only from 2 N, 0.012 m/s not at 1 N (both
+#: persons, both linkages; measured 2026-11-28). It lies below the pipeline's slowest recording (0.03 m/s) and
+#: the open-loop grid. The fastest is :func:`devices.limits.check_tap_speeds`'s (refused above 2 m/s, warned
+#: above the device's rated 0.5 m/s)
+MIN_SPEED_M_S = 0.02
 
 
 #: the issue's targets (item 5)
@@ -312,14 +320,16 @@ def real_reference(velocity_m_s: float, grip_N: float, hand, s: ScoreSettings,
 
     Raises
     ------
-    RuntimeError
-        The tap never reached the sample.
+    ValueError
+        The tap never reached the sample (naming the speed and the grip).
     """
     dev = device_factory()
     tap = play_tap(dev, np.zeros(n), velocity_m_s, grip_N, 0.0, s.stop_time_s, hand, sample=s.sample,
                    motor_on=False, pre_s=s.pre_s)
     if not math.isfinite(tap.v_in_m_s) or not np.all(np.isfinite(tap.accel_m_s2)):
-        raise RuntimeError(f"the real {s.sample} tap at {velocity_m_s:g} m/s, {grip_N:g} N did not reach the sample")
+        raise ValueError(f"the real {s.sample} tap at {velocity_m_s:g} m/s, {grip_N:g} N grip never reached the "
+                         f"sample (within the {s.stop_time_s:g} s stop time): too slow a tap to score; choose a "
+                         f"speed of at least {MIN_SPEED_M_S:g} m/s")
     return _window(tap)
 
 
@@ -414,14 +424,36 @@ def unseen_speeds(library: HfamLibrary, near_m_s: Sequence[float] = ISSUE_UNSEEN
     ValueError
         A speed outside the library's velocity range.
     """
+    kept, dropped = unseen_speeds_in_range(library, near_m_s)
+    if dropped:
+        v = library.velocities_m_s
+        raise ValueError(f"speed {dropped[0]:g} m/s is outside the library's velocities {v[0]:.4f}-{v[-1]:.4f} m/s")
+    return kept
+
+
+def unseen_speeds_in_range(library: HfamLibrary, near_m_s: Sequence[float] = ISSUE_UNSEEN_SPEEDS_M_S
+                           ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """:func:`unseen_speeds` of the ``near_m_s`` inside the library's velocity range, and those left out.
+
+    A library built from few or narrow recordings (the demo's ``--record-velocities 0.1,0.2``: 0.0988-0.1981
+    m/s) has no two velocities around a speed outside its range, so there is no unseen speed near it.
+
+    Returns
+    -------
+    kept : tuple of float
+        The unseen speeds (m/s) of the ``near_m_s`` inside the range.
+    dropped : tuple of float
+        The ``near_m_s`` outside it (m/s), in order.
+    """
     v = np.asarray(library.velocities_m_s, dtype=float)
-    out = []
+    kept, dropped = [], []
     for x in near_m_s:
         k = int(np.searchsorted(v, x))
         if k == 0 or k == v.size:
-            raise ValueError(f"speed {x:g} m/s is outside the library's velocities {v[0]:.4f}-{v[-1]:.4f} m/s")
-        out.append(round(0.5 * (v[k - 1] + v[k]), 4))
-    return tuple(out)
+            dropped.append(float(x))
+        else:
+            kept.append(round(0.5 * (v[k - 1] + v[k]), 4))
+    return tuple(kept), tuple(dropped)
 
 
 def generalisation_conditions(library: HfamLibrary, speeds_m_s: Sequence[float],
@@ -532,6 +564,10 @@ class HfamScores:
         from the second person's own real tap.
     linkage : str
         The device every tap was played on (:data:`LINKAGES`).
+    unseen_dropped_m_s : tuple of float
+        The issue's unseen-speed examples left out: outside the refined library's velocity range (m/s).
+    refined_range_m_s : tuple of float
+        The refined library's (lowest, highest) velocity, m/s (empty if not recorded).
     """
 
     open_loop: list
@@ -547,6 +583,8 @@ class HfamScores:
     model_mismatch: list
     target_floor: list
     linkage: str = "hysteretic"
+    unseen_dropped_m_s: tuple = ()
+    refined_range_m_s: tuple = ()
 
 
 def person_floor(speeds_m_s: Sequence[float], grips_N: Sequence[float], settings: ScoreSettings = ScoreSettings(),
@@ -664,7 +702,8 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
     speeds_m_s, grips_N : sequence of float
         The open-loop grid (m/s, N).
     unseen_speeds_m_s, unseen_grips_N : sequence of float
-        The refined library's unseen conditions (None: :func:`unseen_speeds`).
+        The refined library's unseen conditions (None: :func:`unseen_speeds_in_range` of the issue's speeds;
+        those outside the library's velocity range are left out, ``HfamScores.unseen_dropped_m_s``).
     saturation_speeds_m_s : sequence of float or None
         The saturation grid's speeds (None: ``speeds_m_s`` plus 0.25 and 0.3 m/s, the speeds where the
         thesis's device saturated).
@@ -676,7 +715,9 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
     -------
     HfamScores
     """
-    unseen = unseen_speeds(refined) if unseen_speeds_m_s is None else tuple(unseen_speeds_m_s)
+    # the issue's speeds outside the refined library's range have no unseen speed near them: left out, and said
+    unseen, dropped = (unseen_speeds_in_range(refined) if unseen_speeds_m_s is None
+                       else (tuple(unseen_speeds_m_s), ()))
     sat_speeds = (tuple(sorted(set(speeds_m_s) | {0.25, 0.3})) if saturation_speeds_m_s is None
                   else tuple(saturation_speeds_m_s))
     ol = score_library(open_loop, speeds_m_s, grips_N, settings)
@@ -692,7 +733,7 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
                       thermal_budget(sat_raised, raised_factory().info), thermal_budget(sat, info),
                       person_floor(unseen, unseen_grips_N, settings),
                       model_mismatch(open_loop, models, speeds_m_s, grips_N, settings), target_floor(open_loop, settings),
-                      settings.linkage)
+                      settings.linkage, dropped, (float(refined.velocities_m_s[0]), float(refined.velocities_m_s[-1])))
 
 
 def _pick(cells: Sequence[CellScore], like: Sequence[CellScore]) -> list[CellScore]:
@@ -701,71 +742,143 @@ def _pick(cells: Sequence[CellScore], like: Sequence[CellScore]) -> list[CellSco
     return [c for c in cells if (c.person, c.velocity_m_s, c.grip_N) in keys]
 
 
+#: each HFAM claim's id -> (thesis section, the thesis's words): :func:`hfam_claims`, :func:`hfam_claims_not_measured`
+CLAIM_THESIS = MappingProxyType({
+    "hfam_open_loop": ("4.4.1", "record, smooth, invert through the device model, high-pass, taper (Figure 4.7); "
+                                "\"good acceleration matching between pre-recorded transients and transients generated "
+                                "during virtual tapping when saturation was not encountered\" (4.4.3)"),
+    "hfam_refined_unseen": ("4.4.1", "\"good acceleration matching between pre-recorded transients and transients "
+                                     "generated during virtual tapping\" (4.4.3), for conditions the library was not "
+                                     "refined on"),
+    "hfam_saturation": ("4.4.3", "\"the transient current command reached the saturation value of four amps ... A "
+                                 "higher saturation limit could have been used to avoid this effect, though motor "
+                                 "thermal limits would have more severely limited the number of strong taps\""),
+})
+
+
+def _claim(claim_id: str, target: str, measured: float, measured_text: str, holds: bool) -> dict:
+    section, thesis = CLAIM_THESIS[claim_id]
+    return {"id": claim_id, "section": section, "thesis": thesis, "target": target, "measured": float(measured),
+            "measured_text": measured_text, "holds": bool(holds)}
+
+
+def _refined_claim(scores: HfamScores, device: str) -> dict:
+    """The ``hfam_refined_unseen`` row; "not measured" (NaN, not holding, the reason) if no unseen speed is left."""
+    t = TARGETS
+    rf = summarise(scores.refined)
+    rf_rec = summarise(scores.refined_recording_reference)
+    floor = [r["nrmse"] for r in scores.person_floor]
+    unseen = sorted({c.velocity_m_s for c in scores.refined})
+    grips = sorted({c.grip_N for c in scores.refined})
+    lo_hi = scores.refined_range_m_s
+    dropped = ""
+    if scores.unseen_dropped_m_s:
+        dropped = (f"; the issue's {', '.join(f'{v:g}' for v in scores.unseen_dropped_m_s)} m/s left out: outside "
+                   "the refined library's velocities" + (f" {lo_hi[0]:.4f}-{lo_hi[1]:.4f} m/s" if lo_hi else "")
+                   + " (no two library velocities around each)")
+    if not unseen:
+        return _claim("hfam_refined_unseen", f"refined library at unseen speeds x grips x two persons: median NRMSE "
+                      f"<= {t['refined_median']:g}, worst <= {t['refined_worst']:g}", math.nan,
+                      "not measured: no unseen speed to score" + dropped + device, False)
+    return _claim("hfam_refined_unseen",
+                  f"refined library at unseen speeds {', '.join(f'{v:g}' for v in unseen)} m/s x grips "
+                  f"{', '.join(f'{g:g}' for g in grips)} N x two persons: median NRMSE <= {t['refined_median']:g}, "
+                  f"worst <= {t['refined_worst']:g}", rf["median_nrmse"],
+                  f"against each person's own real tap: median {rf['median_nrmse']:.3f}, worst "
+                  f"{rf['worst_nrmse']:.3f} over {rf['n_scored']} cells ({rf['n_saturated']} saturated); "
+                  f"against the recording person's real tap: median {rf_rec['median_nrmse']:.3f}, worst "
+                  f"{rf_rec['worst_nrmse']:.3f}; the two persons' real taps differ by NRMSE "
+                  f"{min(floor):.2f}-{max(floor):.2f}" + dropped + device,
+                  rf["median_nrmse"] <= t["refined_median"] and rf["worst_nrmse"] <= t["refined_worst"])
+
+
 def hfam_claims(scores: HfamScores) -> list[dict]:
     """One row per issue-36 item-5 target: ``id, section, thesis, target, measured, measured_text, holds``.
 
     ``measured`` is the number the target is about (the worst of the two NRMSE figures' margins is in the
-    text); ``holds`` is whether every part of the target holds.
+    text); ``holds`` is whether every part of the target holds. The refined library's row is "not measured"
+    (``measured`` NaN, not holding, the reason in ``measured_text``) when none of the issue's unseen speeds
+    lies inside its velocity range (``scores.unseen_dropped_m_s``; the ones left out are named).
     """
     ol = summarise(scores.open_loop)
-    rf = summarise(scores.refined)
-    rf_rec = summarise(scores.refined_recording_reference)
     t = TARGETS
     sat_default = [c for c in scores.saturation_grid if c.saturated]
     sat_raised = summarise(scores.saturation_grid_raised)
     was_sat = summarise(_pick(scores.saturation_grid_raised, sat_default))
-    floor = [r["nrmse"] for r in scores.person_floor]
     ol_holds = (ol["median_nrmse"] <= t["open_loop_median"] and ol["worst_nrmse"] <= t["open_loop_worst"]
                 and ol["min_corr"] >= t["open_loop_min_corr"])
-    rf_holds = rf["median_nrmse"] <= t["refined_median"] and rf["worst_nrmse"] <= t["refined_worst"]
     speeds = sorted({c.velocity_m_s for c in scores.open_loop})
-    unseen = sorted({c.velocity_m_s for c in scores.refined})
-    grips = sorted({c.grip_N for c in scores.refined})
     sat_speeds = sorted({c.velocity_m_s for c in scores.saturation_grid})
     th = scores.thermal
     device = "" if scores.linkage == "hysteretic" else f"; device: {scores.linkage} linkage"
     return [
-        {"id": "hfam_open_loop", "section": "4.4.1",
-         "thesis": "record, smooth, invert through the device model, high-pass, taper (Figure 4.7); "
-                   "\"good acceleration matching between pre-recorded transients and transients generated during "
-                   "virtual tapping when saturation was not encountered\" (4.4.3)",
-         "target": f"open-loop library over {speeds[0]:g}-{speeds[-1]:g} m/s x 1-3 N: median NRMSE <= "
-                   f"{t['open_loop_median']:g}, worst <= {t['open_loop_worst']:g}, correlation >= "
-                   f"{t['open_loop_min_corr']:g}",
-         "measured": ol["median_nrmse"],
-         "measured_text": f"median {ol['median_nrmse']:.3f}, worst {ol['worst_nrmse']:.3f}, lowest correlation "
-                          f"{ol['min_corr']:.3f} over {ol['n_scored']} cells ({ol['n_saturated']} saturated, "
-                          f"excluded){device}",
-         "holds": bool(ol_holds)},
-        {"id": "hfam_refined_unseen", "section": "4.4.1",
-         "thesis": "\"good acceleration matching between pre-recorded transients and transients generated during "
-                   "virtual tapping\" (4.4.3), for conditions the library was not refined on",
-         "target": f"refined library at unseen speeds {', '.join(f'{v:g}' for v in unseen)} m/s x grips "
-                   f"{', '.join(f'{g:g}' for g in grips)} N x two persons: median NRMSE <= {t['refined_median']:g}, "
-                   f"worst <= {t['refined_worst']:g}",
-         "measured": rf["median_nrmse"],
-         "measured_text": f"against each person's own real tap: median {rf['median_nrmse']:.3f}, worst "
-                          f"{rf['worst_nrmse']:.3f} over {rf['n_scored']} cells ({rf['n_saturated']} saturated); "
-                          f"against the recording person's real tap: median {rf_rec['median_nrmse']:.3f}, worst "
-                          f"{rf_rec['worst_nrmse']:.3f}; the two persons' real taps differ by NRMSE "
-                          f"{min(floor):.2f}-{max(floor):.2f}{device}",
-         "holds": bool(rf_holds)},
-        {"id": "hfam_saturation", "section": "4.4.3",
-         "thesis": "\"the transient current command reached the saturation value of four amps ... A higher "
-                   "saturation limit could have been used to avoid this effect, though motor thermal limits would "
-                   "have more severely limited the number of strong taps\"",
-         "target": f"saturated cells flagged, counted and excluded; a transient-only limit raised under the motor "
-                   f"thermal model, with its numbers ({sat_speeds[0]:g}-{sat_speeds[-1]:g} m/s x 1-3 N)",
-         "measured": float(len(sat_default)),
-         "measured_text": f"{len(sat_default)} of {len(scores.saturation_grid)} cells saturate at the "
-                          f"{scores.saturation_grid[0].limit_A:g} A limit; at {scores.transient_limit_A:g} A "
-                          f"{sat_raised['n_saturated']}, and those cells score median "
-                          f"{was_sat['median_nrmse']:.3f}, worst {was_sat['worst_nrmse']:.3f}; hardest tap heats "
-                          f"the winding {th['max_temp_rise_K']:.2f} K (limit {th['limit_K']:g} K), "
-                          f"{th['taps_per_min']:.0f} such taps a minute sustainable{device}",
-         "holds": bool(sat_raised["n_saturated"] < len(sat_default) or not sat_default)
-                  and th["max_temp_rise_K"] < th["limit_K"]},
+        _claim("hfam_open_loop",
+               f"open-loop library over {speeds[0]:g}-{speeds[-1]:g} m/s x 1-3 N: median NRMSE <= "
+               f"{t['open_loop_median']:g}, worst <= {t['open_loop_worst']:g}, correlation >= "
+               f"{t['open_loop_min_corr']:g}", ol["median_nrmse"],
+               f"median {ol['median_nrmse']:.3f}, worst {ol['worst_nrmse']:.3f}, lowest correlation "
+               f"{ol['min_corr']:.3f} over {ol['n_scored']} cells ({ol['n_saturated']} saturated, excluded){device}",
+               ol_holds),
+        _refined_claim(scores, device),
+        _claim("hfam_saturation",
+               f"saturated cells flagged, counted and excluded; a transient-only limit raised under the motor "
+               f"thermal model, with its numbers ({sat_speeds[0]:g}-{sat_speeds[-1]:g} m/s x 1-3 N)",
+               float(len(sat_default)),
+               f"{len(sat_default)} of {len(scores.saturation_grid)} cells saturate at the "
+               f"{scores.saturation_grid[0].limit_A:g} A limit; at {scores.transient_limit_A:g} A "
+               f"{sat_raised['n_saturated']}, and those cells score median "
+               f"{was_sat['median_nrmse']:.3f}, worst {was_sat['worst_nrmse']:.3f}; hardest tap heats "
+               f"the winding {th['max_temp_rise_K']:.2f} K (limit {th['limit_K']:g} K), "
+               f"{th['taps_per_min']:.0f} such taps a minute sustainable{device}",
+               bool(sat_raised["n_saturated"] < len(sat_default) or not sat_default)
+               and th["max_temp_rise_K"] < th["limit_K"]),
     ]
+
+
+def hfam_claims_not_measured(reason: str) -> list[dict]:
+    """The rows of :func:`hfam_claims` when nothing could be scored: ``measured`` NaN, ``holds`` False and
+    ``measured_text`` "not measured: <reason>" (as ``renderer.demo.fidelity`` writes a claim its taps could not
+    measure)."""
+    t = TARGETS
+    targets = {"hfam_open_loop": f"open-loop library x 1-3 N: median NRMSE <= {t['open_loop_median']:g}, worst <= "
+                                 f"{t['open_loop_worst']:g}, correlation >= {t['open_loop_min_corr']:g}",
+               "hfam_refined_unseen": f"refined library at unseen speeds x grips x two persons: median NRMSE <= "
+                                      f"{t['refined_median']:g}, worst <= {t['refined_worst']:g}",
+               "hfam_saturation": "saturated cells flagged, counted and excluded; a transient-only limit raised under "
+                                  "the motor thermal model, with its numbers"}
+    return [_claim(k, targets[k], math.nan, f"not measured: {reason}", False) for k in CLAIM_THESIS]
+
+
+def device_linkage(device: str) -> str | None:
+    """Which :data:`LINKAGES` device a device string makes, or None if neither (the scoring cannot play on it).
+
+    ``sim`` (and ``sim:nonlinear``) is ``hysteretic``; ``sim:<params file>`` is the variant whose parameters the
+    file holds (:func:`device_params`; as :func:`pipeline_linkage` reads a pipeline folder's); ``sim:lti``, any
+    other parameters and any other device are None.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        A ``sim:<params file>`` that does not exist or does not load (:func:`devices.sim.load_sim_params`).
+    """
+    kind, _, rest = device.partition(":")
+    if kind != "sim":
+        return None
+    if rest in ("", "nonlinear"):
+        return "hysteretic"
+    if rest == "lti":
+        return None
+    return _params_linkage(load_sim_params(rest))
+
+
+def _params_linkage(params: SimParams) -> str | None:
+    """The :data:`LINKAGES` variant whose :func:`device_params` equal ``params`` (the name aside), or None."""
+    held = params.to_dict()
+    for linkage in LINKAGES:
+        want = device_params(linkage).to_dict()
+        if {k: want[k] for k in want if k != "name"} == {k: held.get(k) for k in want if k != "name"}:
+            return linkage
+    return None
 
 
 def pipeline_device(folder, linkage: str) -> str:
@@ -789,16 +902,17 @@ def pipeline_device(folder, linkage: str) -> str:
 
 
 def pipeline_linkage(folder) -> str:
-    """Which :data:`LINKAGES` device a pipeline folder was run on: ``hysteretic`` if it has no
-    :data:`DEVICE_FILE` (the demo's cache entries, a default run), else the variant whose parameters that file
-    holds.
+    """Which :data:`LINKAGES` device a pipeline folder was run on: the variant whose parameters its
+    :data:`DEVICE_FILE` holds (score-hfam's own runs); else, for a demo cache entry, the device its
+    ``manifest.json`` settings name (:func:`device_linkage`); else ``hysteretic`` (a default run).
 
     Raises
     ------
     FileNotFoundError
         The folder has no ``library.npz`` (not a pipeline folder).
     ValueError
-        The file holds parameters of neither variant (named).
+        The file holds parameters of neither variant, or the manifest names a device the scoring cannot play
+        (``sim:lti``, other parameters; named).
     """
     if not (Path(folder) / "library.npz").exists():
         raise FileNotFoundError(f"{Path(folder) / 'library.npz'}: not found; --pipeline must be a folder written by "
@@ -806,14 +920,27 @@ def pipeline_linkage(folder) -> str:
                                 "out/pipeline)")
     path = Path(folder) / DEVICE_FILE
     if not path.exists():
-        return "hysteretic"
-    held = load_sim_params(path).to_dict()
-    for linkage in LINKAGES:
-        want = device_params(linkage).to_dict()
-        if {k: want[k] for k in want if k != "name"} == {k: held.get(k) for k in want if k != "name"}:
-            return linkage
+        return _manifest_linkage(Path(folder))
+    linkage = _params_linkage(load_sim_params(path))
+    if linkage is not None:
+        return linkage
     raise ValueError(f"{path}: these sim parameters are neither of the scoring's devices ({', '.join(LINKAGES)}); "
                      "score-hfam scores pipelines it ran itself, or the demo's")
+
+
+def _manifest_linkage(folder: Path) -> str:
+    """The :data:`LINKAGES` device of a demo cache entry's ``manifest.json`` (``settings.device``); ``hysteretic``
+    without one. ValueError for a device the scoring cannot play (the demo writes those claims "not measured")."""
+    try:
+        device = json.loads((folder / "manifest.json").read_text())["settings"]["device"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return "hysteretic"
+    linkage = device_linkage(str(device))
+    if linkage is None:
+        raise ValueError(f"{folder}: this pipeline ran on {device} (manifest.json); the scoring plays its taps only on "
+                         f"the default sim or its linear-linkage variant ({', '.join(LINKAGES)}), so its libraries "
+                         "cannot be scored")
+    return linkage
 
 
 def _build_settings(library: HfamLibrary) -> BuildSettings | None:

@@ -1,12 +1,15 @@
 """The demo's pipeline cache: reuse, --rebuild, damaged entries, interrupted builds (small real pipelines)."""
 
 import json
+import math
 
 import pytest
 
-from renderer.demo import sim_demo
-from renderer.demo.cache import PIPELINE_FIGURES, build_or_load, cache_key, figure_folder, restore_figures
+from renderer.demo import fidelity, sim_demo
+from renderer.demo.cache import (HFAM_CLAIMS_FILE, PIPELINE_FIGURES, build_or_load, cache_key, entry_hfam_claims,
+                                 figure_folder, hfam_score_settings, restore_figures)
 from renderer.demo.config import DemoConfig
+from stimuli.hfam import scoring
 from stimuli.hfam.pipeline import PipelineSettings
 
 SMALL = dict(identify_grips_N=(0.0, 10.0), identify_trials=1, sweep_duration_s=0.5,
@@ -85,3 +88,58 @@ def test_pipeline_figures_are_kept_and_copied_byte_for_byte(tmp_path):
     png = folder / "fig_library.png"
     png.write_bytes(png.read_bytes()[:-10])
     assert restore_figures(pipe, tmp_path / "copied") is None
+
+
+def test_hfam_claims_of_a_library_above_every_unseen_speed_are_not_measured_and_a_corrupt_file_is_recomputed(tmp_path):
+    """A library recorded at 0.2 and 0.3 m/s lies above all of the issue's unseen speeds (0.065, 0.095, 0.14 m/s):
+    the refined-unseen claim is "not measured" (NaN, not holding, the speeds named), the others are scored. The
+    claims kept in the entry are checked as claims: valid JSON with the wrong keys is recomputed and replaced
+    (a new file renamed over it), not returned (it failed every later demo run until --rebuild)."""
+    s = PipelineSettings(**{**SMALL, "record_velocities_m_s": (0.2, 0.3), "library_velocities": 2})
+    pipe = build_or_load(s, tmp_path)
+    v = pipe.library.velocities_m_s
+    assert 0.14 < v[0] < v[-1] < 0.31
+    rows = entry_hfam_claims(pipe, s)
+    claims = {c.id: c for c in fidelity.claims_from_dicts(rows)}
+    rf = claims["hfam_refined_unseen"]
+    assert math.isnan(rf.measured) and not rf.holds
+    assert rf.measured_text.startswith("not measured: no unseen speed to score")
+    assert "0.065, 0.095, 0.14 m/s left out" in rf.measured_text and f"{v[0]:.4f}-{v[-1]:.4f} m/s" in rf.measured_text
+    assert 0.1 < claims["hfam_open_loop"].measured < 1.5 and claims["hfam_saturation"].measured >= 0
+    assert "not measured" in fidelity.format_fidelity(claims.values())
+
+    path = pipe.directory / HFAM_CLAIMS_FILE
+    assert [r["measured_text"] for r in json.loads(path.read_text())] == [r["measured_text"] for r in rows]
+    path.write_text(json.dumps([{"id": "hfam_open_loop", "median": 0.1}, {"claim": "x"}]))
+    inode = path.stat().st_ino
+    again = entry_hfam_claims(pipe, s)
+    assert [c.id for c in fidelity.claims_from_dicts(again)] == list(claims)
+    assert [r["measured"] for r in again][0::2] == [rows[0]["measured"], rows[2]["measured"]]
+    kept = json.loads(path.read_text())
+    assert [r["id"] for r in kept] == list(claims) and path.stat().st_ino != inode
+    assert sorted(p.name for p in pipe.directory.iterdir() if p.name.startswith(".")) == []
+
+
+def test_hfam_claims_are_scored_on_the_demos_own_device_or_not_measured(tmp_path):
+    """The demo's HFAM claims play on the device the demo ran on: the default sim, or a ``sim:<params file>``
+    holding it or its linear-linkage variant (with the demo's tap stop time); on ``sim:lti`` or other parameters
+    they are "not measured", never scored on the Table 3.1 sim in its place."""
+    assert hfam_score_settings(PipelineSettings()) == scoring.ScoreSettings()
+    st = hfam_score_settings(PipelineSettings(tap_stop_time_s=0.06))
+    assert (st.linkage, st.stop_time_s) == ("hysteretic", 0.06)
+    linear = scoring.pipeline_device(tmp_path, "linear")            # sim:<file> with the linear-linkage device
+    assert hfam_score_settings(PipelineSettings(device=linear)).linkage == "linear"
+    same = tmp_path / "table31.json"
+    same.write_text(json.dumps(scoring.device_params("hysteretic").to_dict()))
+    assert hfam_score_settings(PipelineSettings(device=f"sim:{same}")).linkage == "hysteretic"
+    other = tmp_path / "light.json"
+    other.write_text(json.dumps(scoring.device_params("hysteretic").replace(mechanics={"m_h_kg": 0.02}).to_dict()))
+    for device in ("sim:lti", f"sim:{other}"):
+        s = PipelineSettings(device=device)
+        assert hfam_score_settings(s) is None
+        rows = entry_hfam_claims(None, s)          # decided before the entry is read: nothing is scored
+        claims = fidelity.claims_from_dicts(rows)
+        assert [c.id for c in claims] == ["hfam_open_loop", "hfam_refined_unseen", "hfam_saturation"]
+        for c in claims:
+            assert math.isnan(c.measured) and not c.holds
+            assert c.measured_text.startswith("not measured: ") and device in c.measured_text

@@ -73,3 +73,25 @@ def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path):
     assert res.returncode == 2 and "afile is a file, not a folder" in res.stderr
     assert "--force" in subprocess.run([sys.executable, "-m", "renderer", "demo", "--help"], capture_output=True,
                                        text=True, cwd=tmp_path).stdout
+
+
+def test_demo_on_a_library_missing_some_unseen_speeds_completes(tmp_path, capsys):
+    """``--record-velocities 0.1,0.2`` builds a library over 0.0988-0.1981 m/s: the issue's unseen speeds 0.065 and
+    0.095 m/s are outside it. The demo stopped with ``error: speed 0.065 m/s is outside the library's
+    velocities`` after building, and again on every rerun; now those speeds are left out (and named) and the
+    refined library is scored at the one left (0.14 m/s's neighbour, 0.1484 m/s)."""
+    import csv
+
+    argv = ["demo", "--record-velocities", "0.1,0.2", "--velocities-m-s", "0.15", "--grips-N", "2",
+            "--cache-dir", str(tmp_path / "c"), "--no-figures"]
+    for run in ("built", "cached"):
+        out = tmp_path / run
+        assert main(argv + ["--out", str(out)]) == 0, capsys.readouterr().err
+        assert "error:" not in capsys.readouterr().err
+        with open(out / "fidelity.csv", newline="") as fh:
+            rows = {r["id"]: r for r in csv.DictReader(fh)}
+        rf = rows["hfam_refined_unseen"]
+        assert "unseen speeds 0.1484 m/s" in rf["target"]
+        assert "0.065, 0.095 m/s left out: outside the refined library's velocities 0.0988-0.1981 m/s" \
+            in rf["measured_text"]
+        assert 0.0 < float(rf["measured"]) < 2.0 and rf["holds"] in ("yes", "no")

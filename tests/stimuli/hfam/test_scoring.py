@@ -329,3 +329,49 @@ def test_score_hfam_linkage_option(pipe, linear_pipe, tmp_path, capsys):
         mechanics={"m_h_kg": 0.02}).to_dict()))
     with pytest.raises(ValueError, match="neither of the scoring's devices"):
         S.pipeline_linkage(tmp_path / "odd")
+
+
+@pytest.mark.parametrize("flag, value, says", [
+    ("--speeds-m-s", "0.002", "slower than the slowest tap the scoring plays, 0.02 m/s"),  # was a RuntimeError
+    ("--speeds-m-s", "1e-9", "slower than the slowest tap"),           # was a numpy MemoryError (a 10^7 s tap)
+    ("--speeds-m-s", "100", "not a tap speed of a hand"),              # was accepted
+    ("--unseen-speeds-m-s", "0.01", "slower than the slowest tap"),
+    ("--unseen-grips-N", "1000", "outside the grip range of sim-joystick, 0-10 N"),  # was accepted
+    ("--grips-N", "2,30", "outside the grip range"),
+])
+def test_score_hfam_refuses_speeds_and_grips_outside_the_devices_range(flag, value, says, tmp_path, capsys):
+    """Every speed and grip list is checked at the command line before any work: one ``error:`` line naming the
+    flag and the value, exit 2, no traceback, nothing written."""
+    assert main(["score-hfam", "--out", str(tmp_path / "o"), flag, value]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {flag} ") and says in err, err
+    assert value.split(",")[-1].replace("1e-9", "1e-09") in lines[0]
+    assert "Traceback" not in err and not (tmp_path / "o").exists()
+
+
+def test_a_real_tap_that_never_reaches_the_sample_is_a_value_error_naming_speed_and_grip():
+    """Below the scoring's slowest speed the sim's motor-off tap stops before the sample (0.01 m/s at 2 N):
+    refused as bad input (ValueError, printed as one ``error:`` line), not a RuntimeError; 0.02 m/s (the floor)
+    reaches it at 1 N."""
+    st = S.ScoreSettings()
+    factory = S.default_device_factory(st.seed)
+    with pytest.raises(ValueError, match=r"tap at 0\.01 m/s, 2 N grip never reached the sample"):
+        S.real_reference(0.01, 2.0, None, st, factory, 1031)
+    window = S.real_reference(S.MIN_SPEED_M_S, 1.0, None, st, factory, 1031)
+    assert np.all(np.isfinite(window)) and np.max(np.abs(window)) > 1.0
+
+
+def test_a_demo_entry_is_scored_on_the_device_its_manifest_names(tmp_path):
+    """A demo cache entry has no device_params.json but its manifest.json names the device: ``sim`` and a
+    ``sim:<file>`` of the linear device are scored on theirs, ``sim:lti`` is refused (it was called hysteretic)."""
+    entry = tmp_path / "demo-entry"
+    entry.mkdir()
+    (entry / "library.npz").write_bytes(b"")
+    manifest = entry / "manifest.json"
+    for device, want in (("sim", "hysteretic"), (S.pipeline_device(tmp_path, "linear"), "linear")):
+        manifest.write_text(json.dumps({"settings": {"device": device}}))
+        assert S.pipeline_linkage(entry) == want
+    manifest.write_text(json.dumps({"settings": {"device": "sim:lti"}}))
+    with pytest.raises(ValueError, match="this pipeline ran on sim:lti"):
+        S.pipeline_linkage(entry)
