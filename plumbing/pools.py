@@ -81,30 +81,30 @@ def worker_pool(max_workers: int, mp_context, initializer=None, initargs=()):
         procs = list((getattr(pool, "_processes", None) or {}).values())  # the executor offers no public kill
         queue = getattr(pool, "_call_queue", None)   # taken before shutdown(), which drops them
         manager = getattr(pool, "_executor_manager_thread", None)
+        # The executor's feeder thread may be writing a large queued task (identify's recordings: ~1 MB) into
+        # the call queue's pipe, which no worker will read once they are killed, and the manager thread,
+        # seeing them killed, joins that thread: the command hung after its error line. Cancel the join
+        # first, before the manager can start it (cancelling a join already under way does not end it).
+        if queue is not None:
+            queue.cancel_join_thread()
         pool.shutdown(wait=False, cancel_futures=True)
         for proc in procs:
             if proc.is_alive():
                 proc.kill()
         for proc in procs:
             proc.join()
-        if queue is not None:
-            # the executor's feeder thread may be writing a large queued task (identify's recordings: ~1 MB)
-            # into the call queue's pipe, which no worker reads any more, and the manager thread joins it:
-            # the command hung after its error line. Cancel that join; the manager, seeing its workers
-            # killed, closes the pipe's read end itself (CPython gh-94777), which breaks the write.
-            queue.cancel_join_thread()
-            if manager is not None:
-                manager.join(timeout=_MANAGER_WAIT_S)
-            # If the manager left by its shutdown path (no close), close the read end here, after it has
-            # gone: closing it while the manager closes it too raced (EBADF in CI; worse, the second close
-            # could hit a descriptor number opened since). A manager still alive after the wait is left
-            # alone: its join on the feeder is cancelled, and the feeder is a daemon thread.
-            reader = getattr(queue, "_reader", None)
-            if reader is not None and not reader.closed and not (manager is not None and manager.is_alive()):
-                try:
-                    reader.close()
-                except OSError:   # the feeder thread closed it in between after its last item
-                    pass
+        if manager is not None:
+            manager.join(timeout=_MANAGER_WAIT_S)
+        # Then end the feeder's write by closing this process's read end: CPython 3.11.7 and later close it in
+        # the manager (gh-94777), 3.11.2 does not. Only after the manager has wound up: closing it while the
+        # manager closes it too raced (EBADF in CI; the second close could also hit a descriptor number
+        # opened since).
+        reader = getattr(queue, "_reader", None) if queue is not None else None
+        if reader is not None and not reader.closed:
+            try:
+                reader.close()
+            except OSError:   # the feeder thread closed it in between, after its last item
+                pass
         raise
     else:
         pool.shutdown(wait=True)
