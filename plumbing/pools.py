@@ -9,6 +9,7 @@ import signal
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 
+from . import stopsignals
 from .stopsignals import _BLOCKED, STOP_SIGNALS, _prctl_pdeathsig, signals_blocked
 
 # how long a failed block waits for the executor's manager thread to wind up after its workers are killed
@@ -29,8 +30,7 @@ def worker_dies_with_parent(parent_pid: int, initializer=None, initargs=()) -> N
     parent_pid : int
         ``os.getpid()`` of the parent, taken there before the fork.
     """
-    global _active
-    _active = None
+    stopsignals._active = None   # the parent's block, copied by the fork: not this process's (holding() reads it)
     if hasattr(signal, "pthread_sigmask"):  # forked inside signals_blocked (see worker_pool): take them again
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _BLOCKED)
     if hasattr(signal, "SIGINT"):

@@ -31,6 +31,7 @@ import numpy as np
 
 from devices.registry import make_device
 from devices.sim import ReactiveHand
+from plumbing.pools import worker_dies_with_parent
 from stimuli.hfam.pipeline import Progress
 
 from . import fidelity
@@ -119,7 +120,11 @@ def simulate(cfg: DemoConfig, pipe: Pipeline, progress: Progress, workers: int |
     _JOB = (cfg, pipe, refs)
     try:
         if workers > 1 and _can_fork():
-            with mp.get_context("fork").Pool(workers) as pool:
+            # the workers take SIGTERM with its default action: the pool's exit terminates them with it, and
+            # a fork inside the output folder's stop_on_signals block would otherwise keep its handler (one
+            # worker then waited for tasks for ever and the pool's exit with it, in a CI run)
+            with mp.get_context("fork").Pool(workers, initializer=worker_dies_with_parent,
+                                             initargs=(os.getpid(),)) as pool:
                 done = pool.imap(_tap_rendering, range(len(cfg.renderings)))
                 if meanwhile is not None:
                     meanwhile()

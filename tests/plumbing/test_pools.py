@@ -51,3 +51,26 @@ def test_a_failed_pool_block_with_a_large_task_in_flight_lets_the_process_exit(t
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "caught: a recording failed"
     assert "Traceback" not in proc.stderr
+
+
+def _disposition(_):
+    import signal
+
+    from plumbing import stopsignals
+    return signal.getsignal(signal.SIGTERM) is signal.SIG_DFL, stopsignals._active is None
+
+
+def test_a_worker_forked_inside_a_stop_on_signals_block_takes_sigterm_by_default():
+    """A pool worker forked inside the caller's :class:`stop_on_signals` block (the demo's taps run inside its
+    output folder's) takes SIGTERM with the default action and holds no copy of the caller's block, so a
+    pool's ``terminate()`` ends it whatever it was doing (one kept the handler and waited for ever, in CI)."""
+    import multiprocessing
+
+    from plumbing.pools import worker_dies_with_parent
+    from plumbing.stopsignals import stop_on_signals
+
+    with stop_on_signals() as block:
+        assert block.installed
+        with multiprocessing.get_context("fork").Pool(2, initializer=worker_dies_with_parent,
+                                                      initargs=(os.getpid(),)) as pool:
+            assert pool.map(_disposition, range(4)) == [(True, True)] * 4
