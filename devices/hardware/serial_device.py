@@ -715,8 +715,11 @@ class ProtocolDevice(Device):
             if left <= 0 and not self._final_poll():
                 self.stats["timeouts"] += 1
                 tries += 1
-                for frame in self._parser.skip_partial():
-                    self._dispatch(frame)
+                # a STATE half received when the device (a simulator on a loaded machine) paused is kept: it
+                # completes when the rest comes (given up on, its rest was garbage and the frame a seq gap)
+                if not self._parser.pending_is_well_formed():
+                    for frame in self._parser.skip_partial():
+                        self._dispatch(frame)
                 if tries > self.retries:
                     raise self._fail(f"no telemetry for {(now - t_start) * 1000:.0f} ms; device not responding")
                 wait *= 2

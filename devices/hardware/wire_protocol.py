@@ -260,6 +260,19 @@ class FrameParser:
         """Bytes received but not yet part of a complete frame."""
         return len(self._buf)
 
+    def pending_is_well_formed(self) -> bool:
+        """Whether the pending partial frame starts with a header a device sends (a device -> host type whose
+        length byte is a payload size of that type, :data:`DEVICE_FRAME_SIZES`): a frame still arriving from
+        a slow device (a simulator descheduled mid-frame), not a false sync to give up on."""
+        buf = self._buf
+        if len(buf) < HEADER_SIZE or bytes(buf[:2]) != SYNC:
+            return False
+        sizes = DEVICE_FRAME_SIZES.get(buf[3])
+        if sizes is None:
+            return False
+        exact, minimum = sizes
+        return buf[2] == exact if exact is not None else minimum <= buf[2] <= MAX_PAYLOAD
+
     def skip_partial(self) -> list[Frame]:
         """Give up on a pending partial frame (its length byte may be garbage) and re-parse after its sync.
 

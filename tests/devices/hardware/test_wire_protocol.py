@@ -136,3 +136,19 @@ def test_unknown_message_type_is_treated_as_a_false_sync():
     parser = P.FrameParser()
     got = parser.feed(P.encode_frame(0x42, 1, b"abc") + P.encode_frame(P.ACK, 2, b"\x01\x02"))
     assert [f.seq for f in got] == [2] and parser.garbage_bytes > 0
+
+
+def test_a_state_frame_half_received_is_well_formed_and_a_false_sync_is_not():
+    """The telemetry reader gives up on a pending partial frame at a timeout only if it is not a frame a device
+    sends (a false sync): half a STATE from a simulator paused mid-frame is kept and completes."""
+    frame = P.encode_frame(P.STATE, 7, P.encode_state(1234, 5, 6, 7, 0, 0, 0))
+    parser = P.FrameParser()
+    assert parser.feed(frame[:9]) == [] and parser.pending_is_well_formed()
+    assert [f.seq for f in parser.feed(frame[9:])] == [7] and not parser.pending_is_well_formed()
+    false_sync = P.FrameParser()
+    assert false_sync.feed(P.SYNC + bytes([200, P.STATE, 0, 1, 2])) == []
+    assert not false_sync.pending_is_well_formed()          # a STATE is never 200 bytes
+    assert not P.FrameParser().pending_is_well_formed()
+    host_type = P.FrameParser()
+    assert host_type.feed(P.SYNC + bytes([4, P.CURRENT, 0, 1])) == []
+    assert not host_type.pending_is_well_formed()           # a host -> device type, never from a device
