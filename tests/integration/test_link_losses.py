@@ -49,23 +49,37 @@ def test_one_drop_in_200_and_one_corruption_in_500_complete_10_s_at_1_khz(tmp_pa
     assert "link: " in stdout and " lost " in stdout and "round trip median/p99/max" in stdout
 
 
-def test_50_consecutive_losses_stop_with_zero_output_within_the_watchdog_period(tmp_path, capsys):
+def _burst_run(path, capsys):
+    """One streaming run into the emulator's 50-frame drop burst; (run.json, emulator, output after)."""
     port, handle = start_emulator("streaming", "drop_burst_at=2000,drop_burst=50", process=False,
                                   taps_m_s=(0.05,))
     emu = handle.emulator
     try:
-        code, stdout = _run(f"serial:{port}", tmp_path / "run", tmp_path, capsys, 10)
+        _run(f"serial:{port}", path, path.parent, capsys, 10)
         # the emulator thread may not have read the host's last frames yet when the run returns (a loaded
         # machine): wait for it to take the host's 10th command after the burst, the zero, before looking
         deadline = time.monotonic() + 60
-        while emu.cmds_after_burst < 10 and time.monotonic() < deadline:
+        while emu.burst_started is not None and emu.cmds_after_burst < 10 and time.monotonic() < deadline:
             time.sleep(0.01)
         applied_after = emu.applied_A
     finally:
         handle.stop()
-    run = json.loads((tmp_path / "run" / "run.json").read_text())
-    assert run["stop_reason"] == "disconnected", (run["stop_reason"], run["error"])
-    assert "10 state frames lost in a row" in run["error"]
+    return json.loads((path / "run.json").read_text()), emu, applied_after
+
+
+def test_50_consecutive_losses_stop_with_zero_output_within_the_watchdog_period(tmp_path, capsys):
+    # The emulator is a thread of this process (its counters are read below): on a loaded machine it can be
+    # starved of the GIL for the host's 10 x 5 ms before its burst even begins, and the host then stops on
+    # those losses, rightly, but not on the burst this test is about. Such a run is checked for the same stop
+    # and tried again; one of three must be the burst's.
+    for attempt in range(3):
+        run, emu, applied_after = _burst_run(tmp_path / f"run{attempt}", capsys)
+        assert run["stop_reason"] == "disconnected", (run["stop_reason"], run["error"])
+        assert "10 state frames lost in a row" in run["error"]
+        if emu.burst_started is not None:
+            break
+    else:
+        raise AssertionError("in 3 runs the host never reached the emulator's burst (starved every time)")
     assert applied_after == 0.0
     # the host's last command after the burst began was a zero, sent at its 10th lost frame: counted in frames,
     # not wall time (the host's 10 loss timeouts of 5 ms are 50 ms of its own clock, within the device's 100 ms
