@@ -110,7 +110,10 @@ def test_malformed_telemetry_on_device_is_dropped_and_counted(tmp_path, capsys):
         handle.stop()
     assert code == 0, out
     assert run["stop_reason"] == "duration"
-    assert run["link"]["malformed_frames"] == emu["malformed"] >= 90, (run["link"], emu)
+    # the emulator free-runs on the board's clock: a malformed frame it sent as the host stopped reading is
+    # still in the pty, counted there and not here (one, in a loaded CI run)
+    assert emu["malformed"] - 1 <= run["link"]["malformed_frames"] <= emu["malformed"], (run["link"], emu)
+    assert run["link"]["malformed_frames"] >= 90
 
 
 def test_info_with_a_servo_rate_of_1e9_is_refused_at_the_handshake():
