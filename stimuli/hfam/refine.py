@@ -458,7 +458,7 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
         # a transient already at the current limit cannot take the wider corrections (they are clipped: on
         # the demo's sim 0.2 m/s x 3 N went 0.350 -> 0.373 against the real tap while its error against the
         # recording fell); those cells take the constrained step (box_step) instead
-        open_cells = [c for c in cells if np.max(np.abs(cur[c])) < 0.99 * peak]
+        open_cells = [c for c in cells if np.max(np.abs(cur[c])) < AT_LIMIT * peak]
         _second_stage(library, cur, recs, open_cells, cells, v_plan, model_of, device_factory, settings,
                       build_settings, sos, peak, history, say)
     meta = dict(library.metadata)
@@ -470,6 +470,10 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
                       gain=library.gain, max_extrapolation=library.max_extrapolation, metadata=meta,
                       desired_accel_m_s2=library.desired_accel_m_s2, source=library.source)
     return lib, history
+
+
+#: a transient whose peak |current| is within 1 % of the refinement's clip is at it (saturated)
+AT_LIMIT = 0.99
 
 
 def cells_at_limit(currents_A: np.ndarray, library: HfamLibrary, limit_A: float) -> list:
@@ -495,7 +499,7 @@ def cells_at_limit(currents_A: np.ndarray, library: HfamLibrary, limit_A: float)
     """
     peaks = np.max(np.abs(currents_A), axis=-1)
     return [[float(library.velocities_m_s[i]), float(library.grips_N[j]), float(peaks[i, j])]
-            for i in range(peaks.shape[0]) for j in range(peaks.shape[1]) if peaks[i, j] >= 0.99 * limit_A]
+            for i in range(peaks.shape[0]) for j in range(peaks.shape[1]) if peaks[i, j] >= AT_LIMIT * limit_A]
 
 
 def _record(history: list, it: int, rows: list, target: str, settings: RefineSettings, say) -> None:

@@ -56,7 +56,7 @@ from devices.sim.linear import linear_linkage_params
 from ..library import HfamLibrary
 from .pipeline import build_from_folder
 from .inversion import forward_simulate
-from .refine import aligned, play_tap
+from .refine import AT_LIMIT, aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, LINKAGES,  # noqa: F401
                        OPEN_LOOP_SPEEDS_M_S, TAP_STOP_TIME_S, UNSEEN_GRIPS_N, BuildSettings, PipelineSettings)
 
@@ -358,7 +358,7 @@ def score_cell(library: HfamLibrary, velocity_m_s: float, grip_N: float, referen
     # a refined library's transients never reach the amplifier's limit: the refinement clipped them below it
     # (stimuli.hfam.refine.cells_at_limit); one at that clip is saturated all the same
     clip = library.metadata.get("refinement", {}).get("current_limit_A")
-    at_clip = clip is not None and float(np.max(np.abs(current[:n_tr]))) >= 0.99 * float(clip)
+    at_clip = clip is not None and float(np.max(np.abs(current[:n_tr]))) >= AT_LIMIT * float(clip)
     return CellScore(person, float(velocity_m_s), float(grip_N), float(tap.v_in_m_s), err, corr, lag / fs * 1e3,
                      peak, float(np.max(np.abs(wall))), limit, bool(peak >= limit * (1.0 - 1e-9) or at_clip),
                      float(dev.true_state()["winding_temp_rise_K"]), float(np.sum(applied * applied) / fs))
