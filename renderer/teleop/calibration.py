@@ -115,7 +115,7 @@ def natural_impact_settling_s(damping_N_s_m: float, *, testbed: Testbed | None =
 def calibrate_slave_handle_damping(target_s: float = NATURAL_IMPACT_SETTLING_S, *, testbed: Testbed | None = None,
                                    speeds_m_s=CALIBRATION_SPEEDS_M_S,
                                    noise_seeds: int = CALIBRATION_NOISE_SEEDS, bracket=(0.0, 4.0),
-                                   xtol: float = 0.01) -> HandleDampingCalibration:
+                                   xtol: float = 0.01, config: TeleopConfig | None = None) -> HandleDampingCalibration:
     """Damping between the slave's unheld handle and its linkage that makes its natural impact settle in 50 ms.
 
     Procedure (identification on the thesis's one datum for the slave's own contact; docs/teleop.md):
@@ -145,6 +145,10 @@ def calibrate_slave_handle_damping(target_s: float = NATURAL_IMPACT_SETTLING_S, 
         and below it at its upper end.
     xtol : float
         Absolute tolerance on the damping (N s/m).
+    config : TeleopConfig or None
+        The slave's controller (default ``pf`` with the rule's 8 Hz servo gains; lambda is forced to 0). The
+        servo-bandwidth study (:mod:`renderer.teleop.servo_study`) re-identifies the damping at other servo
+        natural frequencies with it.
 
     Returns
     -------
@@ -160,7 +164,7 @@ def calibrate_slave_handle_damping(target_s: float = NATURAL_IMPACT_SETTLING_S, 
     def mean_settling(b: float) -> float:
         if b not in evals:
             evals[b] = float(np.mean(natural_impact_settling_s(b, testbed=testbed, speeds_m_s=speeds_m_s,
-                                                                noise_seeds=noise_seeds)))
+                                                                noise_seeds=noise_seeds, config=config)))
         return evals[b]
 
     lo, hi = float(bracket[0]), float(bracket[1])

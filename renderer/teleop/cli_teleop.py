@@ -1,4 +1,4 @@
-"""``python -m renderer teleop`` / ``teleop-sweep``: the argument parsers, light enough for a fast ``--help``.
+"""``python -m renderer teleop`` / ``teleop-sweep`` / ``teleop-servo-study``: the argument parsers, light enough for a fast ``--help``.
 
 The commands themselves are in :mod:`renderer.teleop.commands` (named as a ``plumbing.dispatch.Body``,
 imported when one runs): it needs the numba-compiled testbed (``devices.sim``), ~0.3 s to import. The choice lists below are
@@ -39,7 +39,7 @@ def _add_common(p) -> None:
 
 
 def register(sub) -> None:
-    """Add the ``teleop`` and ``teleop-sweep`` commands.
+    """Add the ``teleop``, ``teleop-sweep`` and ``teleop-servo-study`` commands.
 
     Parameters
     ----------
@@ -93,4 +93,22 @@ def register(sub) -> None:
                   "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/",
                   "hfam-renderer teleop-sweep --lambda 1:6 --conditions pf,pf+cimm --backlash-mm 0.1 --out sweep_fig511/")
     q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))
+    r = sub.add_parser("teleop-servo-study",
+                       help="section 5.7's targets at each servo bandwidth, slave handle re-identified at each")
+    r.add_argument("--servo-bandwidth-hz", default="6,8,10,12.6,16,20,22",
+                   help="comma list of natural frequencies of the servo-gain rule, Hz (default 6,8,10,12.6,16,20,22: "
+                        "the rule's 8, the 8-10 Hz of human motion, up to section 4.3.1's 22 Hz slave PD)")
+    r.add_argument("--taps", type=int, default=2, help="taps per condition and lambda (speeds 0.08-0.12 m/s)")
+    r.add_argument("--seed", type=int, default=1, help="seed of the sweeps' blind randomisation")
+    r.add_argument("--fixed-slave-handle-damping-N-s-m", dest="fixed_slave_handle_damping", type=float, default=None,
+                   help="hold the slave handle's damping at this value, N s/m (default: re-identify it on the "
+                        "natural impact at every bandwidth)")
+    r.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: the "
+                   "simulated master identified by successive isolation, cached; 'stand-in': marked Table 3.1)")
+    r.add_argument("--washout-hz", type=float, default=0.0, help="high-pass on the CIMM model output (0: off)")
+    r.add_argument("--out", required=True, help="output folder (must not exist or be empty)")
+    with_examples(r, "hfam-renderer teleop-servo-study --out servo_study/",
+                  "hfam-renderer teleop-servo-study --servo-bandwidth-hz 8,16 --fixed-slave-handle-damping-N-s-m 1.8 "
+                  "--out servo_study_fixed/")
+    r.set_defaults(func=Body("renderer.teleop.servo_study", "run_servo_study"))
 

@@ -2,7 +2,7 @@
 slave's drum, F_f saturation, optional backlash, servo gains from one rule), the contact classification of
 Figure 5.10, the environments shared with the virtual environment, safety, commands.
 
-The CIMM model source is one fixture (``cimm_model``): successive isolation (thesis section 3.5,
+The CIMM model source is one fixture (``cimm_model``, conftest.py): successive isolation (thesis section 3.5,
 ``devices.identify.successive``) of the simulated master, saved with the project's saver and loaded
 with ``load_sim_params`` -- never the simulator's own parameters.
 """
@@ -24,7 +24,7 @@ from renderer.teleop import options
 from renderer.teleop.calibration import calibrate_slave_handle_damping
 from renderer.teleop.cli_teleop import CONTROLLER_NAMES, ENVIRONMENT_NAMES, SWEEP_CONDITIONS
 from renderer.teleop.commands import largest_lambda, largest_stable, sweep
-from renderer.teleop.models import STAND_IN_SOURCE, cimm_params, underestimation_check
+from renderer.teleop.models import STAND_IN_SOURCE, underestimation_check
 from renderer.teleop.session import (BUZZ_S, FF_MAX_N, SERVO_BANDWIDTH_HZ, TeleopConfig, classify_contact,
                                      default_path, quasi_static, resolve_gains, run_session, session_metrics,
                                      tap_metrics)
@@ -38,23 +38,6 @@ FS = 5000.0
 def testbed():
     P = default_params()
     return Testbed(P, P, environment=ENVIRONMENTS["hard"])
-
-
-@pytest.fixture(scope="module")
-def cimm_file(tmp_path_factory):
-    """The one place the CIMM model comes from: successive isolation of the simulated master (~40 s)."""
-    from devices.identify.successive import identify_successive, save_result
-
-    out = tmp_path_factory.mktemp("successive")
-    save_result(identify_successive("sim", log=lambda *a, **k: None), out, figures=False)
-    return out / "model.json"
-
-
-@pytest.fixture(scope="module")
-def cimm_model(cimm_file):
-    params, source = cimm_params(cimm_file)
-    assert params.mechanics["k_c_N_m"] != default_params().mechanics["k_c_N_m"]  # identified, not copied
-    return CimmModel(params, source=source)
 
 
 @pytest.fixture(scope="module")
