@@ -103,6 +103,9 @@ def register(sub) -> None:
     r.add_argument("--fixed-slave-handle-damping-N-s-m", dest="fixed_slave_handle_damping", type=float, default=None,
                    help="hold the slave handle's damping at this value, N s/m (default: re-identify it on the "
                         "natural impact at every bandwidth)")
+    r.add_argument("--grace", action="store_true",
+                   help="classify counting only the contact losses later than 30 ms after the impact (the slave's "
+                        "own bounce), a measured variant of issue 37's count from the impact on")
     r.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: the "
                    "simulated master identified by successive isolation, cached; 'stand-in': marked Table 3.1)")
     r.add_argument("--washout-hz", type=float, default=0.0, help="high-pass on the CIMM model output (0: off)")

@@ -81,6 +81,25 @@ def test_bilateral_pd_bounces_at_every_servo(study):
     assert max(study[8.0].pd_losses) > max(study[12.6].pd_losses)
 
 
+def test_counting_losses_after_the_impacts_bounce_still_leaves_figure_5_10_unmet(cimm_model, study):
+    """The variant that lets the impact's own bounce pass (losses after 30 ms, ``--grace``): the natural impact then
+    holds contact at every servo, but cancellation's lambda = 10 still settles within 60 ms at no point, and
+    wherever pf+cimm holds contact up to lambda = 15 its lambda = 10 transient lasts 65 ms or more (measured 65-127)."""
+    graced = {p.servo_bandwidth_hz: p for p in servo_study(cimm_model, grace=True)}
+    for f, p in graced.items():
+        assert max(r["contact_losses"] for r in _taps(p, "pf", 0.0)) <= 1, f
+        assert not _check(p, "cimm_10_settles").met, (f, _check(p, "cimm_10_settles").measured)
+        if _check(p, "cimm_stable_15").met:
+            assert min(r["settling_s"] for r in _taps(p, "pf+cimm", 10.0)) > 0.062, f
+        # the same taps: only the counting differs
+        assert [r["settling_s"] for r in p.rows] == [r["settling_s"] for r in study[f].rows]
+        assert all(g["contact_losses"] <= r["contact_losses"] for g, r in zip(p.rows, study[f].rows))
+    assert sum(_check(p, "cimm_stable_15").met for p in graced.values()) >= 4
+    # bilateral PD on wood: the bounces are the impact's (none after 30 ms at 10-20 Hz; 6-7 at 6 Hz)
+    assert all(max(graced[f].pd_losses) == 0 for f in (10.0, 12.6, 16.0, 20.0))
+    assert min(graced[6.0].pd_losses) >= 2
+
+
 def test_check_targets_reads_the_classes():
     """The checks on hand-made rows: each target met, then each missed, by the rule the docs state."""
     def row(cond, lam, cls, settling_s, losses=0, speed=0.1):
@@ -130,9 +149,10 @@ def test_servo_study_command_writes_its_folder_and_refuses_overwrite(tmp_path, c
     # a fixed damping is used as given at every point
     out2 = tmp_path / "fixed"
     assert main(["teleop-servo-study", "--servo-bandwidth-hz", "16", "--fixed-slave-handle-damping-N-s-m", "1.8",
-                 "--cimm-model", str(cimm_file), "--out", str(out2)]) == 0
+                 "--grace", "--cimm-model", str(cimm_file), "--out", str(out2)]) == 0
     rec2 = json.loads((out2 / "study.json").read_text())
     assert rec2["points"][0]["slave_handle_damping_N_s_m"] == 1.8
+    assert rec2["contact_losses_counted_from_s"] == 0.030 and rec["contact_losses_counted_from_s"] == 0.0
     for bad, msg in ((["--servo-bandwidth-hz", "8,0"], "--servo-bandwidth-hz"),
                      (["--fixed-slave-handle-damping-N-s-m", "-1"], "--fixed-slave-handle-damping-N-s-m"),
                      (["--taps", "0"], "--taps")):
