@@ -55,11 +55,11 @@ def register(sub) -> None:
     add_renamed(p, "--speed-m-s", "--speed", dest="speed", type=float, default=0.1,
                 help="incoming tap speed of the slave, m/s (default 0.1)")
     p.add_argument("--k-mu-hz", type=float, default=None,
-                   help="position-command low-pass K_mu (eq. 5.10); default 0 (off), 40 Hz for pd+hfam, whose "
-                        "high-frequency master motion would otherwise reach the slave through x_c")
+                   help="position-command low-pass K_mu (eq. 5.10), Hz; default 0 (off; section 4.3.1's pd+hfam has "
+                        "none)")
     p.add_argument("--master-pd-lowpass-hz", type=float, default=None,
-                   help="pd, pd+hfam: low-pass on the master's PD force; default 0 (off), 150 Hz for pd+hfam "
-                        "(the PD keeps the power band, HFAM the band above; section 4.3.1)")
+                   help="pd, pd+hfam: low-pass on the master's PD force, Hz; default 0 (off; section 4.3.1's pd+hfam "
+                        "has none)")
     p.add_argument("--k-lambda-hz", type=float, default=0.0, help="force-feedback low-pass K_lambda (eq. 5.11)")
     p.add_argument("--no-figures", action="store_true", help="write the data only, no figures")
     p.add_argument("--hha-model", default=None, help="H_ha model file for pd+hfam (default: identify the master)")

@@ -16,7 +16,6 @@ import pytest
 from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import ENVIRONMENTS, Operator, Testbed
-from renderer.teleop.commands import HFAM_K_MU_HZ, HFAM_MASTER_PD_HZ
 from renderer.teleop.hfam import accel_match, bartlett_hann_fir, design_hfam, identify_master_hha
 from renderer.teleop.session import TeleopConfig, default_path, run_session, session_metrics
 
@@ -46,9 +45,14 @@ def texture():
     return Testbed(P, P, operator=OPERATOR, environment=ENVIRONMENTS["texture"])
 
 
-def _hfam_config():
-    """The ``pd+hfam`` defaults of the command line (K_mu 40 Hz, master PD low-pass 150 Hz)."""
-    return TeleopConfig(controller="pd+hfam", k_mu_hz=HFAM_K_MU_HZ, master_pd_lowpass_hz=HFAM_MASTER_PD_HZ)
+#: the filters ``pd+hfam`` had by default before (tuned against issue 18's 600 N/m slave; section 4.3.1 has neither)
+FORMER_K_MU_HZ = 40.0
+FORMER_MASTER_PD_HZ = 150.0
+
+
+def _hfam_config(**kw):
+    """The ``pd+hfam`` of the command line: section 4.3.1's bilateral PD plus HFAM, no K_mu, no master-PD low-pass."""
+    return TeleopConfig(controller="pd+hfam", **kw)
 
 
 def _stroke(path):
@@ -121,40 +125,25 @@ def _free_air_tip_rms(res):
 def test_pd_hfam_master_matches_slave_tip_on_wood(wood, hha):
     hf = design_hfam(hha, FS, max_current_A=4.0)
     path, cr = default_path(FS, 1.0, n_taps=3)
-    # without K_mu the HFAM-induced master motion re-enters x_c; with the inverse's sign right in the band that
-    # loop does not ring (it rang at ~140 Hz, 35 m/s^2, while the inverse pushed the wrong way below 596 Hz)
-    free = run_session(wood, TeleopConfig(controller="pd+hfam"), path, hfam=hf, impact_ticks=cr)
+    # the HFAM-induced master motion re-enters x_c; with the inverse's sign right in the band that loop does not
+    # ring (it rang at ~140 Hz, 35 m/s^2, while the inverse pushed the wrong way below 596 Hz)
     res = run_session(wood, _hfam_config(), path, hfam=hf, impact_ticks=cr)
-    print("free-air tip RMS (22-1000 Hz): no K_mu", _free_air_tip_rms(free), "defaults", _free_air_tip_rms(res))
-    # measured 0.54 m/s^2 without K_mu, 3.8 with the 40 Hz K_mu: with the rule's 8 Hz slave servo the K_mu
-    # low-pass only adds lag to the PD loop, which then rings near 20 Hz in free air (docs/teleop.md)
-    assert _free_air_tip_rms(free) < 1.0 and _free_air_tip_rms(res) < 6.0
+    former = run_session(wood, _hfam_config(k_mu_hz=FORMER_K_MU_HZ), path, hfam=hf, impact_ticks=cr)
+    print("free-air tip RMS (22-1000 Hz): defaults", _free_air_tip_rms(res), "with the former 40 Hz K_mu",
+          _free_air_tip_rms(former))
+    # measured 0.54 m/s^2, and 3.8 with the former K_mu: with the rule's 8 Hz slave servo that low-pass only adds
+    # lag to the PD loop, which then rings near 20 Hz in free air (docs/teleop.md)
+    assert _free_air_tip_rms(res) < 1.0 and _free_air_tip_rms(former) > 2 * _free_air_tip_rms(res)
     assert res.fault == 0
     i = res.col(K.O_IM)
     assert np.all(np.isfinite(i)) and np.max(np.abs(i)) <= 4.0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD + HFAM (wood):", m)
-    # measured 0.885 / 0.554 / RMS ratio 0.58, delay 1.8 ms with the rule's gains and the calibrated slave handle
-    # (0.895 / 0.520 with Table 3.1's undamped handle, 0.908 / 0.477 with the earlier hand-picked 1500 N/m master
-    # PD); the issue's 0.9 / 0.45 are not met: see the bound above
-    assert m["correlation"] >= 0.86
-    assert m["nrmse"] <= 0.58
+    # measured 0.912 / 0.562 / RMS ratio 0.53, delay 1.8 ms with the rule's gains and the calibrated slave handle
+    # (0.885 / 0.554 with the former K_mu and master-PD low-pass); the issue's NRMSE 0.45 is not met: see the bound
+    assert m["correlation"] >= 0.90
+    assert m["nrmse"] <= 0.60
     assert 1.5e-3 <= m["delay_s"] <= 2.5e-3   # 7 samples of smoothing + the servo cycle
-
-
-def test_master_pd_lowpass_keeps_more_of_the_hfam_amplitude(wood, hha):
-    """The master PD unfiltered pulls back some of the handle motion HFAM creates (measured with the rule's
-    8 Hz master servo and the calibrated slave: RMS ratio 0.574 -> 0.585, NRMSE 0.556 -> 0.554)."""
-    hf = design_hfam(hha, FS, max_current_A=4.0)
-    path, cr = default_path(FS, 1.0, n_taps=3)
-    m = {}
-    for lp in (0.0, HFAM_MASTER_PD_HZ):
-        res = run_session(wood, TeleopConfig(controller="pd+hfam", k_mu_hz=HFAM_K_MU_HZ, master_pd_lowpass_hz=lp),
-                          path, hfam=hf, impact_ticks=cr)
-        m[lp] = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
-    print("master PD low-pass off / on:", m)
-    assert m[HFAM_MASTER_PD_HZ]["nrmse"] < m[0.0]["nrmse"]
-    assert m[HFAM_MASTER_PD_HZ]["rms_ratio"] > m[0.0]["rms_ratio"] + 0.005
 
 
 def test_pd_hfam_master_matches_slave_tip_stroking_texture(texture, hha):
@@ -164,7 +153,7 @@ def test_pd_hfam_master_matches_slave_tip_stroking_texture(texture, hha):
     assert res.fault == 0
     m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
     print("PD + HFAM (texture):", m)
-    # measured 0.888 / 0.552 / RMS ratio 0.58 (0.904 / 0.505 with Table 3.1's undamped slave handle)
+    # measured 0.913 / 0.560 / RMS ratio 0.53 (0.888 / 0.552 with the former K_mu and master-PD low-pass)
     assert m["correlation"] >= 0.86
     assert m["nrmse"] <= 0.58
 
@@ -185,31 +174,50 @@ def three_operators():
         tb = Testbed(P, P, operator=op, environment=ENVIRONMENTS["wood"])
         hf = design_hfam(identify_master_hha(P, FS, operator=op), FS, max_current_A=4.0)
         res = run_session(tb, _hfam_config(), path, hfam=hf, impact_ticks=cr)
-        out[name] = (res, accel_match(res.col(K.O_AS), res.col(K.O_AM), FS), session_metrics(res))
+        out[name] = (res, accel_match(res.col(K.O_AS), res.col(K.O_AM), FS), session_metrics(res), hf)
     return out
 
 
 def test_hfam_match_over_three_operators(three_operators):
-    """Issue 37: correlation >= 0.9, NRMSE <= 0.45 over three operators. Measured 0.843-0.885 and 0.542-0.639:
-    not met (the smoothing alone bounds NRMSE at 0.486; the firm, heavy operator pins the handle)."""
-    for name, (res, m, _) in three_operators.items():
+    """Issue 37: correlation >= 0.9, NRMSE <= 0.45 over three operators. Measured 0.912 / 0.903 / 0.884 (default /
+    light / firm) and 0.539-0.644: correlation met but for the firm, heavy operator, who pins the handle; NRMSE
+    not met (the smoothing alone bounds it at 0.486)."""
+    for name, (res, m, _, _) in three_operators.items():
         print(name, m)
         assert res.fault == 0
-        assert m["correlation"] >= 0.82, name
+        assert m["correlation"] >= 0.86, name
         assert m["nrmse"] <= 0.67, name
+    assert three_operators["default"][1]["correlation"] >= 0.9 and three_operators["light"][1]["correlation"] >= 0.9
     assert three_operators["firm"][1]["nrmse"] > three_operators["default"][1]["nrmse"]
 
 
+def test_the_former_filters_lowered_the_match(three_operators):
+    """The K_mu (40 Hz) and master-PD low-pass (150 Hz) pd+hfam had by default, tuned against issue 18's 600 N/m
+    slave and absent from section 4.3.1: with the rule's servos they lower the correlation for every operator
+    (measured 0.885 / 0.872 / 0.843) and add contact losses (7-9 per tap against 2-8)."""
+    path, cr = default_path(FS, 1.0, n_taps=3)
+    P = default_params()
+    for name, (res, m, mets, hf) in three_operators.items():
+        tb = Testbed(P, P, operator=OPERATORS[name], environment=ENVIRONMENTS["wood"])
+        old = run_session(tb, _hfam_config(k_mu_hz=FORMER_K_MU_HZ, master_pd_lowpass_hz=FORMER_MASTER_PD_HZ), path,
+                          hfam=hf, impact_ticks=cr)
+        mo = accel_match(old.col(K.O_AS), old.col(K.O_AM), FS)
+        losses_old = sum(t.contact_losses for t in session_metrics(old))
+        print(name, "former filters:", mo, "losses", losses_old)
+        assert mo["correlation"] < m["correlation"] - 0.01, name
+        assert losses_old >= sum(t.contact_losses for t in mets), name
+
+
 def test_slave_bounces_on_wood_are_the_elastic_impact(three_operators):
-    """Issue 37: at most one bounce per tap, not met -- measured 7-9 contact losses per tap under PD + HFAM (6-10
-    with PD alone), against 20-58 with Table 3.1's undamped slave handle. The reason, measured: the wood sample is
+    """Issue 37: at most one bounce per tap, not met -- measured 2 (default), 6-8 (light) and 2-3 (firm) contact
+    losses per tap under PD + HFAM (6-10 with PD alone), against 20-58 with Table 3.1's undamped slave handle. The reason, measured: the wood sample is
     nearly elastic (Hunt-Crossley alpha = 0.3 s/m, Table 4.1's), so the unheld handle rebounds and the 8 Hz servo
     (0.16 N on the 2 mm press) catches it only after several bounces. The same PD taps on wood with the hard
     surface's alpha = 10 s/m lose contact once; more handle damping (8 N s/m) still leaves the impact's double
     bounce on the wood itself (2 per tap)."""
-    losses = {name: [t.contact_losses for t in mets] for name, (_, _, mets) in three_operators.items()}
+    losses = {name: [t.contact_losses for t in mets] for name, (_, _, mets, _) in three_operators.items()}
     print("contact losses per tap:", losses)
-    assert min(min(v) for v in losses.values()) >= 5 and max(max(v) for v in losses.values()) <= 12
+    assert min(min(v) for v in losses.values()) >= 2 and max(max(v) for v in losses.values()) <= 10
     P = default_params()
     path, cr = default_path(FS, 1.0, n_taps=3)
     out = {}
