@@ -232,3 +232,24 @@ def test_slave_bounces_on_wood_are_the_elastic_impact(three_operators):
     assert min(out["table 3.1"]) >= 20
     assert max(out["alpha 10"]) <= 1
     assert out["b 8"] == [2, 2, 2]
+
+
+def test_with_a_linear_linkage_every_operator_meets_the_correlation(three_operators):
+    """The firm operator's correlation miss (0.884) is the joystick's hysteretic linkage: with the master's linkage a
+    linear spring at its small-signal stiffness (H_ha identified on it, nothing else changed) every operator's
+    correlation is above 0.9 (measured 0.909 / 0.905 / 0.915) and the NRMSE near the smoothing's 0.486 bound
+    (0.484 / 0.486 / 0.507). Section 4.3's testbed had "relatively stiff linkage elements"."""
+    from devices.sim.linear import linear_linkage_params
+
+    P = default_params()
+    M = linear_linkage_params(P)
+    path, cr = default_path(FS, 1.0, n_taps=3)
+    for name, op in OPERATORS.items():
+        tb = Testbed(M, P, operator=op, environment=ENVIRONMENTS["wood"])
+        hf = design_hfam(identify_master_hha(M, FS, operator=op), FS, max_current_A=4.0)
+        res = run_session(tb, _hfam_config(), path, hfam=hf, impact_ticks=cr)
+        m = accel_match(res.col(K.O_AS), res.col(K.O_AM), FS)
+        print(name, "linear master linkage:", m)
+        assert res.fault == 0
+        assert m["correlation"] >= 0.9, name
+        assert m["nrmse"] < three_operators[name][1]["nrmse"] and m["nrmse"] <= 0.52, name
