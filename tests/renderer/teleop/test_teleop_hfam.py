@@ -210,11 +210,12 @@ def test_the_former_filters_lowered_the_match(three_operators):
 
 def test_slave_bounces_on_wood_are_the_elastic_impact(three_operators):
     """Issue 37: at most one bounce per tap, not met -- measured 2 (default), 6-8 (light) and 2-3 (firm) contact
-    losses per tap under PD + HFAM (6-10 with PD alone), against 20-58 with Table 3.1's undamped slave handle. The reason, measured: the wood sample is
-    nearly elastic (Hunt-Crossley alpha = 0.3 s/m, the project's; Table 4.1 gives its 70 000 N/m), so the unheld handle rebounds and the 8 Hz servo
-    (0.16 N on the 2 mm press) catches it only after several bounces. The same PD taps on wood with the hard
-    surface's alpha = 10 s/m lose contact once; more handle damping (8 N s/m) still leaves the impact's double
-    bounce on the wood itself (2 per tap)."""
+    losses per tap under PD + HFAM (6-10 with PD alone), against 20-58 with Table 3.1's undamped slave handle.
+    The reason, measured: the wood sample is nearly elastic (Hunt-Crossley alpha = 0.3 s/m, the project's; Table
+    4.1 gives its 70 000 N/m), so the unheld handle rebounds and the 8 Hz servo (0.16 N on the 2 mm press)
+    catches it only after several bounces. The same PD taps on wood with the hard surface's alpha = 10 s/m lose
+    contact once; more handle damping (8 N s/m) still leaves the impact's double bounce on the wood itself (2 per
+    tap)."""
     losses = {name: [t.contact_losses for t in mets] for name, (_, _, mets, _) in three_operators.items()}
     print("contact losses per tap:", losses)
     assert min(min(v) for v in losses.values()) >= 2 and max(max(v) for v in losses.values()) <= 10
