@@ -17,7 +17,7 @@ COMMANDS = (
     Command("teleop-sweep", "renderer.teleop.cli_teleop",
             "lambda sweep with/without cancellation and stabilisers (Fig. 5.11)"),
     Command("teleop-servo-study", "renderer.teleop.cli_teleop",
-            "section 5.7's targets at each servo bandwidth, slave handle re-identified at each (issue 37)"),
+            "section 5.7's targets at each servo bandwidth, slave handle re-identified at each"),
     Command("timing-check", "renderer.cli_timing_check_parser",
             "check this machine's servo timing (cyclictest-like)", blas_threads=1),
     Command("compile-sim", "renderer.cli_compile_sim_parser", "compile the simulated closed loop ahead of time (fast sim runs)"),
