@@ -20,8 +20,9 @@ def _add_common(p) -> None:
                    help="the slave's environment (default hard)")
     p.add_argument("--rate-hz", type=float, default=5000.0, help="servo rate (default 5000, as the thesis)")
     p.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: the simulated "
-                   "master identified by successive isolation, section 3.5, cached; 'stand-in': marked "
-                   "Table 3.1 parameters with 5-20 %% errors)")
+                   "master identified by successive isolation, section 3.5, cached; 'linear-linkage': that model "
+                   "with its linkage made linear, Figure 5.11's simpler model; 'stand-in': marked Table 3.1 "
+                   "parameters with 5-20 %% errors)")
     p.add_argument("--washout-hz", type=float, default=0.0, help="high-pass on the CIMM model output (0: off)")
     p.add_argument("--backlash-mm", type=float, default=0.0,
                    help="free play in both transmissions, motor to drum, mm at the handle (Figure 5.11's "

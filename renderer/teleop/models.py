@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from devices.identify.successive import identify_successive, save_result
+from devices.sim.linear import linear_linkage_params
 from devices.sim.params import DEFAULT_PARAMS_FILE, SimParams, default_params, load_sim_params
 from plumbing.fileio import user_cache_dir
 
@@ -61,6 +62,33 @@ def identified_params(log=print) -> tuple[SimParams, str]:
     return load_sim_params(model), f"{SUCCESSIVE_SOURCE}: {model}"
 
 
+#: ``--cimm-model linear-linkage``: the identified master with its linkage made linear (Figure 5.11's simpler model)
+LINEAR_LINKAGE = "linear-linkage"
+
+
+def simpler_params(params: SimParams, source: str) -> tuple[SimParams, str]:
+    """Figure 5.11's "simpler, less-accurate model of the human-master dynamics" (section 5.7.2): the same
+    identified master with its hysteretic linkage (section 3.5.3) replaced by a linear spring at its small-signal
+    stiffness (:func:`devices.sim.linear.linear_linkage_params`).
+
+    The thesis does not say what its simpler model left out; the hysteretic linkage is what section 3.5 adds to a
+    linear model to reach the sixth-order nonlinear one, so this is the model without it.
+
+    Parameters
+    ----------
+    params : SimParams
+        A nonlinear (sixth-order) master model, e.g. :func:`identified_params`'s.
+    source : str
+        Its source description.
+
+    Returns
+    -------
+    (SimParams, str)
+        The simpler model and its source description.
+    """
+    return linear_linkage_params(params), f"{source}; linkage made linear (Figure 5.11's simpler model)"
+
+
 def cimm_params(path=None) -> tuple[SimParams, str]:
     """The master parameters for the CIMM model and a description of their source.
 
@@ -68,7 +96,8 @@ def cimm_params(path=None) -> tuple[SimParams, str]:
     ----------
     path : str or Path or None
         A parameter file (TOML/JSON, nonlinear model); ``"stand-in"``: the marked stand-in;
-        None: :func:`identified_params` (successive isolation).
+        ``"linear-linkage"``: :func:`identified_params` with the linkage made linear (:func:`simpler_params`,
+        Figure 5.11's "simpler, less-accurate model"); None: :func:`identified_params` (successive isolation).
 
     Returns
     -------
@@ -77,6 +106,8 @@ def cimm_params(path=None) -> tuple[SimParams, str]:
     """
     if path is None:
         return identified_params()
+    if str(path) == LINEAR_LINKAGE:
+        return simpler_params(*identified_params())
     if str(path) != "stand-in":
         p = load_sim_params(path)
         if p.model != "nonlinear":

@@ -420,3 +420,19 @@ def test_teleop_help_does_not_import_the_numba_testbed():
             "print('numba' in sys.modules, 'devices.sim' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60).stdout
     assert out.strip().splitlines()[-1] == "False False", out
+
+
+def test_cimm_model_linear_linkage_is_the_identified_model_made_linear(monkeypatch, cimm_file):
+    """``--cimm-model linear-linkage``: Figure 5.11's "simpler, less-accurate model" -- the identified master (here the
+    session's identification, not the user cache) with its hysteretic linkage replaced by one linear spring."""
+    from renderer.teleop import models
+
+    monkeypatch.setattr(models, "identified_params", lambda log=print: models.cimm_params(cimm_file))
+    full, _ = models.cimm_params(cimm_file)
+    p, src = models.cimm_params(models.LINEAR_LINKAGE)
+    assert p.mechanics["hysteresis"] is False and full.mechanics["hysteresis"] is True
+    assert p.mechanics["k_lp_N_m"] == p.mechanics["k_ln_N_m"] > 0
+    assert "simpler model" in src and str(cimm_file) in src
+    # everything but the linkage is the identified model's
+    for k in ("m_m_kg", "m_d_kg", "m_h_kg", "k_c_N_m", "c_m_N", "c_d_N"):
+        assert p.mechanics[k] == full.mechanics[k], k
