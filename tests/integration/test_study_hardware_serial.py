@@ -84,5 +84,13 @@ def test_keyboard_session_over_the_emulated_serial_device(tmp_path):
         # paced by the device's 1 kHz frames: one tick per frame in device time (the host's wall-clock period is
         # recorded, but a loaded machine makes the host catch up on queued frames: a benchmark's figure, not a test's)
         assert np.median(np.diff(z["t_s"])) == pytest.approx(1e-3, abs=1e-6)
-        assert np.all(np.diff(z["t_s"]) > 0) and 0 < z["timing_period_p50_us"] < 1e6
+        # device time never runs back; where it repeats, the link lost that tick's reply (loss_timeout_s 20 ms: a
+        # loaded machine stalls the emulator longer) and the driver held the last sample: the same sample, logged
+        # again (a loaded fresh-clone run repeated some); held ticks stay rare
+        d = np.diff(z["t_s"])
+        held = np.flatnonzero(d == 0) + 1
+        assert np.all(d >= 0) and len(held) <= 0.01 * len(z["t_s"])
+        for name in ("position_m", "accel_m_s2", "grip_N"):
+            assert np.array_equal(z[name][held], z[name][held - 1]), name
+        assert 0 < z["timing_period_p50_us"] < 1e6
         assert np.abs(z["force_transient_N"]).max() > 0.1                   # the pulse went over the wire
