@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.emulated import recording_emulator
+from tests.emulated import drain, recording_emulator
 from tests.procs import running
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,6 +64,7 @@ def test_sigterm_to_renderer_run_zeroes_the_serial_device(in_process, tmp_path):
         p.send_signal(signal.SIGTERM)
         p.wait(timeout=60)
         err = log.read_text()
+        drain(port, handle)   # every frame the command wrote before it exited is recorded
         n = len(sent)
         time.sleep(1.0)  # the link stays quiet
         assert p.returncode == 128 + signal.SIGTERM, err

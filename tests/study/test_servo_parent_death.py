@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.emulated import recording_emulator
+from tests.emulated import drain, recording_emulator
 from tests.procs import kill, running
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -84,6 +84,7 @@ def test_study_servo_child_zeroes_and_exits_when_its_parent_dies_while_holding(p
         while running(child) and time.monotonic() - t0 < GONE_S:
             time.sleep(0.01)
         gone_s = time.monotonic() - t0
+        drain(port, handle)   # every frame the child wrote before it died is recorded
         n = len(sent)
         time.sleep(0.3)
     finally:

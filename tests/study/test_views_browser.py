@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from playwright.sync_api import Error as PlaywrightError
+from playwright.sync_api import TimeoutError as PlaywrightTimeoutError
 from playwright.sync_api import sync_playwright
 
 from study.uistate import KEY_HINT, UiState
@@ -161,6 +162,13 @@ def step(op, subj, keys, places, typed):
     if state["prompt"] == "familiarization":
         subj.keyboard.press("Enter")
     elif state["prompt"] == "rate":
+        # the page sends a key with the presentation it shows (subject.js polls every 150 ms): wait until it shows
+        # this one, or the key answers the previous presentation and the runner rightly drops it (a loaded
+        # fresh-clone run typed a '4' that was never recorded)
+        try:
+            subj.wait_for_function(f"trialId === {json.dumps(state['trial_id'])}", polling=50, timeout=10_000)
+        except PlaywrightTimeoutError:
+            return  # the runner moved on first: look again
         key = next(keys)
         subj.keyboard.press(key)
         typed.append(key)
