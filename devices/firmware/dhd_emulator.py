@@ -10,7 +10,7 @@ and advances it one servo period; ``dhdGetPosition`` / ``dhdGetLinearVelocity`` 
 duration: forces off). The Mock keeps every call, so tests check the adapter's call order on it.
 
 Faults: ``unplug()`` (every call then fails with -1 and "device not available", as the SDK answers a
-device that went away), ``open_fails=True`` (``dhdOpenID`` returns -1: held by another program).
+device that went away; ``unplug_after=N``: after N forces), ``open_fails=True`` (``dhdOpenID`` returns -1: held by another program).
 """
 
 from __future__ import annotations
@@ -50,11 +50,13 @@ def mock_bindings():
 class DhdEmulator:
     """Wires a device's behaviour onto forcedimension-core's Mock (see module doc)."""
 
-    def __init__(self, plan: TapPlan | None = TapPlan(), rate_hz: float = 1000.0, open_fails: bool = False) -> None:
+    def __init__(self, plan: TapPlan | None = TapPlan(), rate_hz: float = 1000.0, open_fails: bool = False,
+                 unplug_after: int = 0) -> None:
         self.dhd, self.expert, self.lib = mock_bindings()
         self.endpoint = Endpoint((0.0, 0.0, 0.0), vertical=2, plan=plan, mass_kg=0.2)
         self.dt_s = 1.0 / rate_hz
         self.open_fails = open_fails
+        self.unplug_after = int(unplug_after)
         self.unplugged = False
         self.forces_enabled = False
         self.watchdog_s = 0.0
@@ -110,6 +112,11 @@ class DhdEmulator:
 
     def _set_force(self, fx, fy, fz, ID):
         self.stats["set_force"] += 1
+        if self.unplug_after and self.stats["set_force"] > self.unplug_after:
+            self.unplugged = True
+            self.endpoint.set_force(0.0, 0.0, 0.0)
+            self.error = b"device not available"
+            return -1
         self.forces_received.append((fx, fy, fz))
         if len(self.forces_received) > 100_000:
             del self.forces_received[:50_000]

@@ -20,7 +20,8 @@ encoders come back through the inverse kinematics. The model runs in the caller'
 transfers (deterministic, nothing to schedule), plus a watchdog thread: no command for ``watchdog_ms``
 zeroes the motors (emulated behaviour; the real firmware's is not published).
 
-Faults: ``unplug()`` (every later transfer fails with ENODEV, as a pulled cable), ``busy=True`` (the
+Faults: ``unplug()`` (every later transfer fails with ENODEV, as a pulled cable; ``unplug_after=N``: after
+N command packets), ``busy=True`` (the
 interface is claimed by another program: EBUSY), ``garbage_every=N`` (random bytes before every N-th
 status packet), ``stall_at=N, stall_s=S`` (the N-th reply comes S seconds late).
 """
@@ -55,7 +56,7 @@ class FalconModel:
 
     def __init__(self, firmware: bytes, plan: TapPlan | None = TapPlan(), watchdog_ms: float = 50.0,
                  garbage_every: int = 0, stall_at: int = 0, stall_s: float = 0.0, seed: int = 0,
-                 rate_hz: float = 1000.0) -> None:
+                 rate_hz: float = 1000.0, unplug_after: int = 0) -> None:
         if not firmware:
             raise ValueError("the emulated Falcon needs the firmware image it accepts")
         self.accepted = bytes(firmware)
@@ -63,6 +64,8 @@ class FalconModel:
         self.dt_s = 1.0 / rate_hz
         self.watchdog_s = watchdog_ms * 1e-3
         self.garbage_every, self.stall_at, self.stall_s = int(garbage_every), int(stall_at), float(stall_s)
+        self.unplug_after = int(unplug_after)
+        self.backend = None   # set by VirtualFalconBackend (the unplug fault pulls its cable)
         self.rng = random.Random(seed)
         self.state = "off"          # off -> loader -> checked -> uploading -> running | dead
         self.image = bytearray()
@@ -167,6 +170,9 @@ class FalconModel:
         except K.OutOfWorkspace:
             enc = (0, 0, 0)
         n = self.stats["packets_in"]
+        if self.unplug_after and n > self.unplug_after and self.backend is not None:
+            self.backend.unplug()
+            return
         if self.stall_at and n == self.stall_at:
             time.sleep(self.stall_s)
         out = P.encode_status(enc, self.homed, 0)
@@ -196,6 +202,7 @@ class VirtualFalconBackend(usb.backend.IBackend):
 
     def __init__(self, model: FalconModel, serial: str = "FTEMU049", busy: bool = False) -> None:
         self.model = model
+        model.backend = self
         self.serial = serial
         self.busy = busy
         self.unplugged = False
@@ -220,6 +227,7 @@ class VirtualFalconBackend(usb.backend.IBackend):
         self.unplugged = True
         self.model.endpoint.set_force(0.0, 0.0, 0.0)
         self.model.state = "off"
+        self.model.tx.clear()
 
     def _check(self) -> None:
         if self.unplugged:

@@ -14,7 +14,8 @@ other emulators), so tests see the same states however loaded the machine is. Th
 motor torques minus the linkage's gravity (which CWoodenDevice compensates) become the endpoint force
 through ``J^-T``, positions become encoder counts through the inverse kinematics.
 
-Faults: ``unplug()`` (every call then fails as hidapi does for a removed device), ``bad_size_every=N``
+Faults: ``unplug()`` (every call then fails as hidapi does for a removed device; ``unplug_after=N``: after
+N commands), ``bad_size_every=N``
 (every N-th report is 7 bytes), ``freeze_at=N`` (the report counter and encoders stop changing from the
 N-th report: a hung firmware), ``stall_at=N, stall_s=S`` (the N-th report comes S seconds late).
 """
@@ -36,12 +37,13 @@ class WoodenHapticsHandle:
 
     def __init__(self, plan: TapPlan | None = TapPlan(), cfg: W.Config = W.DEFAULT, rate_hz: float = 1000.0,
                  bad_size_every: int = 0, freeze_at: int = 0, stall_at: int = 0, stall_s: float = 0.0,
-                 watchdog: bool = True) -> None:
+                 watchdog: bool = True, unplug_after: int = 0) -> None:
         self.cfg = cfg
         self.endpoint = Endpoint((0.0, 0.0, 0.0), vertical=2, plan=plan, mass_kg=0.2)
         self.dt_s = 1.0 / rate_hz
         self.bad_size_every, self.freeze_at = int(bad_size_every), int(freeze_at)
         self.stall_at, self.stall_s = int(stall_at), float(stall_s)
+        self.unplug_after = int(unplug_after)
         self.opened = False
         self.unplugged = False
         self.enabled = False          # the ESCONs' enable line
@@ -82,6 +84,9 @@ class WoodenHapticsHandle:
         if len(data) != W.REPORT_SIZE + 1 or data[0] != 0:
             return -1
         ma, _ = W.decode_command(data[1:])
+        if self.unplug_after and self.stats["commands"] >= self.unplug_after:
+            self.unplug()
+            self._alive()
         with self._lock:
             self.commands_received.append(ma)
             self.stats["commands"] += 1

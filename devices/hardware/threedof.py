@@ -114,6 +114,7 @@ class ThreeAxisDevice(Device):
         self._rtt_n = 0
         self._last_reply: float | None = None
         self._longest_gap_s = 0.0
+        self.owned: list = []   # things to stop after the link closes (an emulator this device started)
         self.stats = {"transactions": 0, "losses": 0, "max_consecutive_losses": 0, "garbage_bytes": 0,
                       "watchdog_trips": 0, "watchdog_zeros": 0, "clipped": 0}
 
@@ -160,8 +161,15 @@ class ThreeAxisDevice(Device):
         if t is not None and t is not threading.current_thread():
             t.join(1.0)
         self._wd_thread = None
-        with self._lock:
-            self._close_link()
+        try:
+            with self._lock:
+                self._close_link()
+        finally:
+            for thing in self.owned:
+                try:
+                    thing.stop()
+                except Exception:
+                    pass
 
     def close(self) -> None:
         """Zero the output (one zero-force transaction while the link works), then release the device."""
@@ -284,6 +292,11 @@ class ThreeAxisDevice(Device):
     def link_stats(self) -> dict:
         """Transactions, losses, watchdog trips and the force->state round trip (s), for run.json."""
         out = dict(self.stats)
+        # the serial board's names too, so run.json, the printed table and the timing verdict read them alike:
+        # a transaction is one frame each way; a reply that failed its format check counts as a CRC error
+        out.update(frames_tx=self.stats["transactions"], frames_rx=self.stats["transactions"] - self.stats["losses"],
+                   crc_errors=self.stats.get("bad_reports", 0) + self.stats.get("bad_packets", 0),
+                   malformed_frames=self.stats.get("bad_reports", 0))
         n = min(self._rtt_n, RTT_RING)
         rtt = sorted(self._rtt[:n]) if n else []
         out.update(rtt_samples=n, rtt_median_s=rtt[n // 2] if n else None,

@@ -76,7 +76,8 @@ class FalconDevice(ThreeAxisDevice):
                     raise FalconError(f"{self.name}: the Falcon runs no firmware and none was given: give its "
                                       f"firmware file ({self.name}?firmware=/path/to/nvent_firmware.bin or "
                                       f"${FIRMWARE_ENV}); the Falcon loads it from the host at every power-up")
-                image = read_firmware_file(self.firmware_path, self.name)
+                image = (bytes(self.firmware_path) if isinstance(self.firmware_path, (bytes, bytearray))
+                         else read_firmware_file(self.firmware_path, self.name))
                 link.upload_firmware(image)
                 self.firmware_uploaded = True
                 if not any(link.exchange(P.encode_command((0, 0, 0)), 0.05) is not None for _ in range(5)):
