@@ -90,7 +90,7 @@ def make_device(spec: str, **options) -> Device:
     kind, rest, spec_options = _split(spec)
     options = {**spec_options, **options}
     if kind in LAB_KINDS:
-        from .lab_devices import make_lab_device  # deferred: pyftdi, pyusb and the five drivers, 25 ms CPU a sim run does not need
+        from .lab_devices import make_lab_device  # deferred: the 3-DOF drivers, pyftdi/pyusb and emulators, 0.13 s CPU a sim run does not need
 
         return make_lab_device(kind, rest, options, spec)
     if kind == "sim":

@@ -22,6 +22,7 @@ import threading
 import time
 import unittest.mock
 
+from ..hardware.forcedimension.driver import load_bindings
 from .endpoint import Endpoint, TapPlan
 
 MOCK_ENV = "__fdsdkpy_unittest__"
@@ -36,11 +37,8 @@ def mock_bindings():
     fixed at import)."""
     if "forcedimension_core" not in sys.modules:
         os.environ[MOCK_ENV] = "True"
-    # deferred: the optional bindings (~25 ms) only when the Force Dimension emulator is asked for
-    import forcedimension_core.dhd as dhd
-    import forcedimension_core.dhd.expert as expert
-    import forcedimension_core.runtime as runtime
-    lib = runtime._libdhd
+    dhd, expert = load_bindings()
+    lib = sys.modules["forcedimension_core.runtime"]._libdhd
     if not isinstance(lib, unittest.mock.Mock):
         raise RuntimeError("forcedimension-core was loaded with the real Force Dimension SDK in this process; "
                            "the emulator needs its mock mode (start a new process)")

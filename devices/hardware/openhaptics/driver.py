@@ -85,8 +85,7 @@ class TouchDevice(ThreeAxisDevice):
             self._origin_hd_mm = tuple(0.5 * (dims[i] + dims[i + 3]) for i in range(3))
             lib.hdEnable(A.HD_FORCE_OUTPUT)
             self._check_error("enabling force output")
-            # deferred: numba and the callback's compilation (0.3-0.6 s CPU) only when a Touch opens
-            from .servo import compile_callback, new_block
+            from .servo import compile_callback, new_block  # deferred: numba, 0.3 s CPU to import, only for a Touch
             self._cb = compile_callback(hd)
             self._block, self._buttons = new_block(MAX_PEAK_FORCE_N, WATCHDOG_TICKS)
             self._sched = lib.hdScheduleAsynchronous(ctypes.c_void_p(self._cb.address),
