@@ -191,9 +191,11 @@ class ThreeAxisDevice(Device):
             if self._disconnected:
                 self._disconnect_reported = True
         st = self._state
-        if self._trip_report:
+        if self._tripped or self._trip_report:   # while tripped, and once more in the first state after it
             st.status |= Status.WATCHDOG_TRIPPED
             self._trip_report = False
+        else:
+            st.status &= ~Status.WATCHDOG_TRIPPED
         return st
 
     def _send_force(self, fx_N: float, fy_N: float, fz_N: float) -> None:

@@ -45,6 +45,7 @@ class TouchDevice(ThreeAxisDevice):
         self._sched = None
         self._cb = None
         self._block = None
+        self._mv = None
         self._buttons = None
         self.model = ""
         self._origin_hd_mm = (0.0, 0.0, 0.0)
@@ -88,6 +89,7 @@ class TouchDevice(ThreeAxisDevice):
             from .servo import compile_callback, new_block  # deferred: numba, 0.3 s CPU to import, only for a Touch
             self._cb = compile_callback(hd)
             self._block, self._buttons = new_block(MAX_PEAK_FORCE_N, WATCHDOG_TICKS)
+            self._mv = memoryview(self._block)   # plain Python floats in and out: no numpy scalar on the servo path
             self._sched = lib.hdScheduleAsynchronous(ctypes.c_void_p(self._cb.address),
                                                      ctypes.c_void_p(self._block.ctypes.data),
                                                      A.HD_MAX_SCHEDULER_PRIORITY)
@@ -120,8 +122,16 @@ class TouchDevice(ThreeAxisDevice):
     def _link_usable(self) -> bool:
         return self._handle is not None
 
+    def read(self):
+        """As the base class's, with the callback's own watchdog reported (it zeroes the force in the servo thread)."""
+        st = super().read()
+        mv = self._mv if self._block is not None else None
+        if mv is not None and mv[15]:
+            st.status |= Status.WATCHDOG_TRIPPED
+        return st
+
     def _transact(self, fx_N: float, fy_N: float, fz_N: float) -> bool:
-        b = self._block
+        b = self._mv if self._block is not None else None
         if b is None or self._handle is None:
             raise OSError("device closed")
         # device frame -> HD: x_hd = y, y_hd = z, z_hd = x
@@ -140,7 +150,7 @@ class TouchDevice(ThreeAxisDevice):
         o = self._origin_hd_mm
         st.x_m, st.y_m, st.position_m = (b[2] - o[2]) * 1e-3, (b[0] - o[0]) * 1e-3, (b[1] - o[1]) * 1e-3
         st.vx_m_s, st.vy_m_s, st.vz_m_s = b[5] * 1e-3, b[3] * 1e-3, b[4] * 1e-3
-        st.buttons = int(self._buttons[0])
+        st.buttons = int(self._buttons[0])   # (an int32 cell: numpy's int, converted)
         if b[15]:
             st.status |= Status.WATCHDOG_TRIPPED
         self.stats["callback_ticks"] = int(b[7])

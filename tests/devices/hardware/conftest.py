@@ -1,4 +1,4 @@
-"""Shared set-ups of the contract tests (built once per session)."""
+"""Shared set-ups of the 3-DOF adapters' contract tests (built once per session)."""
 
 import subprocess
 from pathlib import Path
@@ -7,9 +7,9 @@ import pytest
 
 from plumbing import sysdeps
 
-from ....needs import need
+from ...needs import need
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parent / "contract"
 
 
 @pytest.fixture(scope="session")
@@ -21,3 +21,4 @@ def modem_shim(tmp_path_factory) -> Path:
                        capture_output=True, text=True, timeout=60, env=sysdeps.tool_env())
     assert r.returncode == 0, r.stderr
     return out
+
