@@ -286,10 +286,12 @@ class ThreeAxisDevice(Device):
 
     # -- figures ------------------------------------------------------------------------------------
     def restart_link_timing(self) -> None:
-        """Start the round-trip and gap figures afresh (the servo loop calls it after its priming cycle)."""
+        """Start the round-trip, gap and watchdog figures afresh (the servo loop calls it after its priming cycle:
+        the host watchdog switching the motors off while the loop was being set up is no fault of the run)."""
         self._rtt_n = 0
         self._last_reply = None
         self._longest_gap_s = 0.0
+        self.stats["watchdog_trips"] = self.stats["watchdog_zeros"] = 0
 
     def link_stats(self) -> dict:
         """Transactions, losses, watchdog trips and the force->state round trip (s), for run.json."""
