@@ -7,7 +7,8 @@ callback is compiled by numba (:mod:`devices.hardware.openhaptics.servo`) and ru
 1 kHz thread without Python: it reads position, velocity and buttons into a shared block, applies the
 host's latest force (its magnitude limited, a NaN one zeroed) and zeroes it when the host has not
 commanded for 20 ticks (its own watchdog, in the servo thread). The host's transaction writes the force
-and waits for the next tick's state.
+and takes the newest state the callback wrote (the device's clock paces the device; a host at the same
+rate sees the occasional repeated sample); no new tick for ``loss_timeout_s`` is a lost reply.
 
 Frame: HD's x (right), y (up), z (towards the user), millimetres, become the device frame's y, z, x in
 metres (``x = z_hd, y = x_hd, z = y_hd``: a cyclic permutation, right-handed), origin at the centre of the
@@ -49,6 +50,8 @@ class TouchDevice(ThreeAxisDevice):
         self._buttons = None
         self.model = ""
         self._origin_hd_mm = (0.0, 0.0, 0.0)
+        self._last_tick = -1.0
+        self._last_tick_t = 0.0
         self.info = three_axis_info("3D Systems Touch", SERVO_RATE_HZ, tuple(-h for h in HALF_BOX_M), HALF_BOX_M,
                                     MAX_FORCE_N, MAX_PEAK_FORCE_N, MAX_STIFFNESS_N_M, POSITION_RESOLUTION_M,
                                     linear=False, buttons=2)
@@ -136,13 +139,15 @@ class TouchDevice(ThreeAxisDevice):
             raise OSError("device closed")
         # device frame -> HD: x_hd = y, y_hd = z, z_hd = x
         b[8], b[9], b[10] = fy_N, fz_N, fx_N
-        tick = b[7]
         b[11] += 1.0
-        deadline = time.monotonic() + self.loss_timeout_s
-        while b[7] == tick:
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(0.0001)
+        # the servo thread runs on the device's own 1 kHz clock: take its newest state without waiting for the
+        # next tick (waiting would pace the host loop twice); no new tick for loss_timeout_s is a lost reply
+        tick = b[7]
+        now = time.monotonic()
+        if tick != self._last_tick:
+            self._last_tick, self._last_tick_t = tick, now
+        elif now - self._last_tick_t > self.loss_timeout_s:
+            return False
         info = self._hd.lib.hdGetError()
         if info.errorCode != A.HD_SUCCESS:
             raise OSError(f"device fault: {A.error_text(self._hd, info)}")
