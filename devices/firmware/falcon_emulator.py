@@ -235,21 +235,25 @@ class VirtualFalconBackend(usb.backend.IBackend):
 
     # -- descriptors ------------------------------------------------------------------------------
     def enumerate_devices(self):
+        """pyusb: the one emulated FT232R (none once unplugged)."""
         if not self.unplugged:
             yield self._dev
 
     def get_device_descriptor(self, dev):
+        """pyusb: an FT232R's device descriptor with the Falcon's ids (bcdDevice 0x0600)."""
         return SimpleNamespace(bLength=18, bDescriptorType=1, bcdUSB=0x0200, bDeviceClass=0, bDeviceSubClass=0,
                                bDeviceProtocol=0, bMaxPacketSize0=8, idVendor=P.FTDI_VID, idProduct=P.FALCON_PID,
                                bcdDevice=0x0600, iManufacturer=1, iProduct=2, iSerialNumber=3,
                                bNumConfigurations=1, address=7, bus=1, port_number=2, port_numbers=(2,), speed=2)
 
     def get_configuration_descriptor(self, dev, config):
+        """pyusb: one configuration, one interface."""
         return SimpleNamespace(bLength=9, bDescriptorType=2, wTotalLength=32, bNumInterfaces=1,
                                bConfigurationValue=1, iConfiguration=0, bmAttributes=0xA0, bMaxPower=45,
                                extra_descriptors=[])
 
     def get_interface_descriptor(self, dev, intf, alt, config):
+        """pyusb: the FTDI's vendor-specific interface 0."""
         if intf != 0 or alt != 0:
             raise IndexError("no such interface")
         return SimpleNamespace(bLength=9, bDescriptorType=4, bInterfaceNumber=0, bAlternateSetting=0,
@@ -257,58 +261,73 @@ class VirtualFalconBackend(usb.backend.IBackend):
                                bInterfaceProtocol=0xFF, iInterface=2, extra_descriptors=[])
 
     def get_endpoint_descriptor(self, dev, ep, intf, alt, config):
+        """pyusb: bulk IN 0x81 and bulk OUT 0x02, 64-byte packets."""
         addr = (0x81, 0x02)[ep]
         return SimpleNamespace(bLength=7, bDescriptorType=5, bEndpointAddress=addr, bmAttributes=2,
                                wMaxPacketSize=MAX_PACKET, bInterval=0, bRefresh=0, bSynchAddress=0,
                                extra_descriptors=[])
 
     def get_parent(self, dev):
+        """pyusb: no hub above it."""
         return None
 
     # -- handles and interfaces --------------------------------------------------------------------
     def open_device(self, dev):
+        """pyusb: the handle is the device itself (ENODEV once unplugged)."""
         self._check()
         return dev
 
     def close_device(self, dev_handle):
+        """pyusb: releases the interface."""
         self.claimed = False
 
     def set_configuration(self, dev_handle, config_value):
+        """pyusb: accepted."""
         self._check()
 
     def get_configuration(self, dev_handle):
+        """pyusb: configuration 1."""
         self._check()
         return 1
 
     def set_interface_altsetting(self, dev_handle, intf, altsetting):
+        """pyusb: accepted."""
         self._check()
 
     def claim_interface(self, dev_handle, intf):
+        """pyusb: EBUSY when another program holds it (``busy=True``)."""
         self._check()
         if self.busy:
             raise usb.core.USBError("Resource busy", errno.EBUSY, errno.EBUSY)
         self.claimed = True
 
     def release_interface(self, dev_handle, intf):
+        """pyusb: releases it."""
         self.claimed = False
 
     def is_kernel_driver_active(self, dev_handle, intf):
+        """pyusb: no kernel driver (ftdi_sio) bound."""
         return False
 
     def detach_kernel_driver(self, dev_handle, intf):
+        """pyusb: nothing to detach."""
         pass
 
     def attach_kernel_driver(self, dev_handle, intf):
+        """pyusb: nothing to attach."""
         pass
 
     def reset_device(self, dev_handle):
+        """pyusb: accepted."""
         self._check()
 
     def clear_halt(self, dev_handle, ep):
+        """pyusb: accepted."""
         self._check()
 
     # -- transfers ----------------------------------------------------------------------------------
     def ctrl_transfer(self, dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout):
+        """pyusb: string descriptors and the FTDI vendor requests (see module doc)."""
         self._check()
         m = self.model
         if bmRequestType == 0x80 and bRequest == 6:  # GET_DESCRIPTOR (strings)
@@ -349,12 +368,14 @@ class VirtualFalconBackend(usb.backend.IBackend):
         return len(data) if data is not None else 0
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
+        """pyusb: bytes to the Falcon through the UART."""
         self._check()
         payload = bytes(data)
         self.model.receive(payload)
         return len(payload)
 
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
+        """pyusb: the receive FIFO in 64-byte packets, each led by the two modem-status bytes."""
         self._check()
         m = self.model
         with m.lock:
