@@ -23,6 +23,8 @@ from devices.hardware.openhaptics.driver import TouchDevice
 from devices.hardware.woodenhaptics.driver import WoodenHapticsDevice
 from devices.registry import make_device
 
+from ...needs import need
+
 ROOT = Path(__file__).resolve().parents[3]
 EMULATED = ["inverse3", "falcon", "woodenhaptics", "dhd"]
 
@@ -290,3 +292,35 @@ def test_a_missing_device_or_vendor_library_is_one_error_line(spec, words):
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and __import__("re").search(words, lines[0]), r.stderr
+
+
+def test_an_old_force_dimension_sdk_is_one_error_line(tmp_path):
+    """forcedimension-core refuses an SDK older than 3.16: a stand-in libdrd reporting 3.14 where ``$FDSDK`` says."""
+    need("cc")
+    lib_dir = tmp_path / "sdk" / "lib" / "release" / "lin-x86_64-gcc"
+    lib_dir.mkdir(parents=True)
+    src = tmp_path / "old_drd.c"
+    src.write_text("void dhdGetSDKVersion(int *a, int *b, int *c, int *d) { *a = 3; *b = 14; *c = 0; *d = 1; }\n")
+    r = subprocess.run(["cc", "-shared", "-fPIC", "-o", str(lib_dir / "libdrd.so.3.14.0"), str(src)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    env = {k: v for k, v in os.environ.items() if k != "__fdsdkpy_unittest__"}
+    env["FDSDK"] = str(tmp_path / "sdk")
+    r = subprocess.run([sys.executable, "-m", "devices", "probe", "dhd:0", "--no-pulse"], capture_output=True,
+                       text=True, timeout=120, cwd=ROOT, env=env)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip().startswith("error: dhd: the Force Dimension SDK (libdrd) could not be loaded: Invalid "
+                                        "version. v3.14.0-1 found but v3.16.0-0 is required"), r.stderr
+
+
+def test_falcon_garbage_between_packets_is_skipped_and_counted():
+    model = FalconModel(stand_in_firmware(), plan=None, garbage_every=7)
+    be = VirtualFalconBackend(model)
+    dev = FalconDevice(0, firmware=stand_in_firmware(), usb_device=falcon_usb_device(be), loss_timeout_s=0.05)
+    with dev:
+        for _ in range(300):
+            dev.read()
+            dev.command_force(0.0, 0.0, 0.2)
+        stats = dev.link_stats()
+    be.stop()
+    assert stats["garbage_bytes"] == model.stats["garbage_sent"] > 0 and stats["losses"] == 0
