@@ -126,6 +126,12 @@ HHD hdInitDevice(const char *name) {
         set_error(HD_DEVICE_FAULT, 2);
         return HD_INVALID_HANDLE;
     }
+    /* a fresh device: the library stays loaded across a test process's devices, its state must not */
+    set_error(0, 0);
+    ticks = 0;
+    t_s = 0;
+    for (int i = 0; i < 3; ++i) { vel[i] = 0; force[i] = 0; frame_force[i] = 0; pos[i] = centre[i]; }
+    pos[1] += 10.0;
     inited = 1;
     return 0;
 }
