@@ -44,7 +44,7 @@ _DRIVER_OPTIONS = {"inverse3": ("baudrate",), "falcon": ("firmware", "homing_tim
                    "woodenhaptics": ("gravity",), "dhd": (), "touch": ()}
 _FAULTS = {"inverse3": ("garbage_every", "silent", "wrong_device", "disconnect_after", "stall_at", "stall_s",
                         "freeze_at"),
-           "falcon": ("garbage_every", "stall_at", "stall_s", "unplug_after", "watchdog_ms"),
+           "falcon": ("garbage_every", "stall_at", "stall_s", "unplug_after", "watchdog_ms", "corrupt_echo_at"),
            "woodenhaptics": ("bad_size_every", "freeze_at", "stall_at", "stall_s", "unplug_after"),
            "dhd": ("open_fails", "unplug_after"), "touch": ()}
 

@@ -23,7 +23,8 @@ zeroes the motors (emulated behaviour; the real firmware's is not published).
 Faults: ``unplug()`` (every later transfer fails with ENODEV, as a pulled cable; ``unplug_after=N``: after
 N command packets), ``busy=True`` (the
 interface is claimed by another program: EBUSY), ``garbage_every=N`` (random bytes before every N-th
-status packet), ``stall_at=N, stall_s=S`` (the N-th reply comes S seconds late).
+status packet), ``stall_at=N, stall_s=S`` (the N-th reply comes S seconds late), ``corrupt_echo_at=N`` (the
+loader echoes firmware byte N wrongly, as a noisy cable would: the host must stop the upload).
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ class FalconModel:
 
     def __init__(self, firmware: bytes, plan: TapPlan | None = TapPlan(), watchdog_ms: float = 50.0,
                  garbage_every: int = 0, stall_at: int = 0, stall_s: float = 0.0, seed: int = 0,
-                 rate_hz: float = 1000.0, unplug_after: int = 0) -> None:
+                 rate_hz: float = 1000.0, unplug_after: int = 0, corrupt_echo_at: int | None = None) -> None:
         if not firmware:
             raise ValueError("the emulated Falcon needs the firmware image it accepts")
         self.accepted = bytes(firmware)
@@ -65,6 +66,7 @@ class FalconModel:
         self.watchdog_s = watchdog_ms * 1e-3
         self.garbage_every, self.stall_at, self.stall_s = int(garbage_every), int(stall_at), float(stall_s)
         self.unplug_after = int(unplug_after)
+        self.corrupt_echo_at = None if corrupt_echo_at is None else int(corrupt_echo_at)
         self.backend = None   # set by VirtualFalconBackend (the unplug fault pulls its cable)
         self.rng = random.Random(seed)
         self.state = "off"          # off -> loader -> checked -> uploading -> running | dead
@@ -118,11 +120,9 @@ class FalconModel:
                     self.state = "uploading"
                     data = data[1:]
                 if self.state == "uploading" and data:
-                    self.image += data
-                    self.tx += data
+                    self._upload(data)
             elif st == "uploading" and P.baud_matches(self.baud, P.UPLOAD_BAUD):
-                self.image += data
-                self.tx += data      # the loader echoes every byte
+                self._upload(data)
             elif st == "running" and P.baud_matches(self.baud, P.NORMAL_BAUD):
                 self.rx += data
                 while len(self.rx) >= P.PACKET_SIZE:
@@ -137,6 +137,16 @@ class FalconModel:
                     del self.rx[:P.PACKET_SIZE]
                     self._on_packet(packet)
             # anything else (wrong baud rate, a dead firmware, powered off) goes unanswered
+
+    def _upload(self, data: bytes) -> None:
+        """Firmware bytes: kept, and echoed back byte for byte (the ``corrupt_echo_at`` fault flips one)."""
+        off = len(self.image)
+        self.image += data
+        echo = bytearray(data)
+        k = self.corrupt_echo_at
+        if k is not None and off <= k < off + len(echo):
+            echo[k - off] ^= 0x5A
+        self.tx += echo
 
     def _on_packet(self, packet: bytes) -> None:
         try:

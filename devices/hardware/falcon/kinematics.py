@@ -3,8 +3,8 @@
 A re-implementation in plain scalar Python of libnifalcon's ``FalconKinematicStamper`` (BSD; Alastair
 Barrow and Kyle Machulis after Stamper, "A Three Degree of Freedom Parallel Manipulator with Only
 Translational Degrees of Freedom", PhD thesis, University of Maryland 1997) with the geometry of its
-``FalconGeometry.h``. A contract test compiles libnifalcon's own source in a small harness and checks
-that this module agrees with it on random values (tests/devices/hardware/contract/).
+``FalconGeometry.h``. A contract test checks that this module agrees with what libnifalcon itself computes
+on random values (vectors recorded from libnifalcon's code; tests/devices/hardware/contract/).
 
 Frame (libnifalcon's, metres): x to the right, y up, z along the grip's axis away from the body (the
 workspace centre is near z = 0.11 m; libnifalcon starts its position guess at (0, 0, 0.08)). The motor

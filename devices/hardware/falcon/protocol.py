@@ -3,7 +3,7 @@
 Everything here follows libnifalcon (BSD; Kyle Machulis et al.), the open driver that documents the
 protocol: ``FalconFirmwareNovintSDK.cpp`` (the 16-byte packets), ``FalconCommLibUSB.cpp`` (the
 FTDI set-up for the firmware upload and for normal mode) and ``FalconFirmware.cpp`` (the upload). A
-contract test compiles that source and checks this codec against it (tests/devices/hardware/contract/).
+contract test checks this codec against what that code computes (recorded vectors; tests/devices/hardware/contract/).
 
 Firmware upload (the Falcon keeps no firmware: the host loads it at every power-up; the file is the
 user's own, from the Novint driver or libnifalcon, never shipped here):

@@ -1,27 +1,29 @@
 """WoodenHaptics' USB HID reports and kinematics: pure functions, no I/O.
 
-Sources (cited lines; the firmware is GPL v3, so it is read, not copied or compiled here):
+Sources (read and cited, not copied: the firmware is GPL v3, the host driver BSD; the formulas below are
+restated in this module's own code):
 
 * Firmware ``mbed-code/WoodenHapticsHID/main.cpp`` of github.com/WoodenHaptics/woody-experimental
-  ("WoodenHaptics 1.5 USB HID interface", Jordi Solsona and Jonas Forsslund, 2015-2019):
-  ``USBHID hid(8, 8)`` (8-byte input and output reports, mbed's default ids 1234:0006);
-  ``struct hid_to_pc_message { short encoder_a, encoder_b, encoder_c; unsigned short debug; }`` sent with
-  ``hid_to_pc.debug++`` before every report (a report counter), ``encoder_x = counter[x]`` (x4 quadrature
-  counts); ``struct pc_to_hid_message { short current_motor_a_mA, b, c; unsigned short debug; }``, applied
-  as ``f = mA * 0.001`` (A), ``direction = f > 0``, ``pwm = |f| > 3.0 ? 0.9 : 0.8 * |f| / 3.0 + 0.1``;
-  ``msg_watchdog.attach(&escon_timeout, 0.5)`` after every command: no command for 0.5 s disables the
-  ESCON amplifiers. The LPC1768 is little-endian: shorts go low byte first.
-* Host ``chai3d-3.0.0-woody/src/devices/CWoodenDevice.cpp`` of the same repository (BSD, CHAI3D's
-  licence): ``hid_open(0x1234, 0x6, NULL)``; a 9-byte ``hid_write`` (report id 0, then the 8 bytes);
-  ``encoder_values = {-encoder_a, encoder_b, encoder_c}``; ``calculate_pose``: ``dofAngle[i] =
-  (2 pi enc[i] / cpr[i]) / gearRatio[i]`` with ``gearRatio = {dA/dcA, -dB/dcB, dC/dcC}``; the forward
-  kinematics ("Mike edition", 2016-05-30) ``tC = -tC + 3.141592/2``, ``x = cos tA (Lb sin tB + Lc sin tC) -
-  ox``, ``y = sin tA (...) - oy``, ``z = Ln + Lb cos tB - Lc cos tC - oz``; its Jacobian and
-  ``t = J^T f`` plus gravity compensation ``-g (0, mB LbCM sin tB + mC (LbCM + LcCM) sin tC, mC LcCM sin tC)``;
-  ``motorTorque = (t.x dcA/dA, -t.y dcB/dB, -t.z dcC/dC)``, ``motorAmpere = motorTorque / kt`` clamped to
-  +/-3 A, sent as ``short(motorAmpere * 1000 * 3)`` ("90 % = 3 A set in microcontroller. Escon however
-  configured to 90% = 1A": the wire's 3000 'mA' is the amplifier's full scale, 1 A of motor current);
-  ``default_woody()``'s dimensions (below).
+  ("WoodenHaptics 1.5 USB HID interface", Jordi Solsona and Jonas Forsslund, 2015-2019). The board is an
+  mbed USB HID device (vendor 0x1234, product 0x0006) with 8-byte input and output reports. The input report
+  carries the three encoder counters (x4 quadrature) as signed 16-bit integers and an unsigned 16-bit
+  counter the firmware increments before every report; the output report carries three signed 16-bit motor
+  commands in the firmware's milliampere units and a 16-bit debug field. The firmware turns a command of
+  ``n`` into a current of ``n / 1000`` A, its sign choosing the direction, and drives the amplifier's PWM at
+  ``0.1 + 0.8 |i| / 3`` (saturating at 0.9 above 3 A). A watchdog re-armed by every command disables the
+  ESCON amplifiers after 0.5 s without one. The LPC1768 is little-endian: low byte first.
+* Host driver ``chai3d-3.0.0-woody/src/devices/CWoodenDevice.cpp`` of the same repository (CHAI3D's BSD
+  licence). It opens the board by those ids and writes a 9-byte buffer (report id 0 and the 8 bytes). It
+  negates the first encoder; a joint angle is ``2 pi counts / cpr`` divided by a signed gear ratio
+  (body diameter over capstan diameter, negative for joint B). Its forward kinematics (the variant dated
+  2016-05-30) replaces ``tC`` by ``pi/2 - tC`` (with pi written as 3.141592) and puts the end effector at
+  ``r cos tA - ox``, ``r sin tA - oy``, ``La + Lb cos tB - Lc cos tC - oz`` with ``r = Lb sin tB + Lc sin tC``.
+  The joint torques are ``J^T f`` plus a gravity term from the masses and centre-of-mass distances of bodies
+  B and C; each is scaled by capstan over body diameter (B and C negated) and divided by the motor's torque
+  constant, clamped to 3 A, and sent as ``3000 x`` the current, truncated to an integer (its comment: the
+  wire's 90 % is 3 A in the firmware, but the ESCON is configured so that 90 % is 1 A: the wire's 3000 is
+  the amplifier's full scale, 1 A of motor current). The default dimensions are those of its
+  ``default_woody()`` configuration (below).
 
 Frame: CHAI3D's (x towards the user, y right, z up), metres, origin at the configuration's workspace origin:
 already the device frame.

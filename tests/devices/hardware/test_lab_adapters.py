@@ -218,6 +218,13 @@ def test_falcon_wrong_firmware_missing_file_and_busy_interface(tmp_path):
     with pytest.raises(DeviceError, match="in use by another program"):
         dev.open()
     be.stop()
+    # a loader echoing a byte wrongly (a noisy cable) stops the upload at that block, and says where
+    dev = make_device("falcon:emulator?fault_corrupt_echo_at=150&axes=3")
+    try:
+        with pytest.raises(DeviceError, match=r"firmware upload failed at byte 186 of 3000.*differently"):
+            dev.open()
+    finally:
+        dev.owned[0].stop()   # the emulator a device string starts stays up for another open: stop it here
 
 
 def test_falcon_skips_the_upload_when_the_firmware_already_runs():

@@ -80,23 +80,23 @@ def test_falcon_kinematics_round_trip_and_force_mapping():
 
 
 def test_woodenhaptics_reports_as_the_firmware_structs_lay_them_out():
-    # hid_to_pc_message {short encoder_a, encoder_b, encoder_c; unsigned short debug} on a little-endian LPC1768
+    # the firmware's input report: three int16 encoder counts and a uint16 counter, little-endian (LPC1768)
     assert W.encode_report((1, -2, 300), 5) == bytes.fromhex("0100" "feff" "2c01" "0500")
     assert W.decode_report(bytes.fromhex("ffff" "0080" "ff7f" "ffff")) == ((-1, -32768, 32767), 65535)
     # counter[] is an int: a count beyond a short wraps as the firmware's assignment does
     assert W.decode_report(W.encode_report((40000, 0, 0), 1))[0][0] == 40000 - 65536
-    # pc_to_hid_message {short current_motor_a_mA, b, c; unsigned short debug}
+    # its output report: three int16 motor commands (the firmware's mA) and a uint16 field
     assert W.encode_command((3000, -1500, 0), 9) == bytes.fromhex("b80b" "24fa" "0000" "0900")
     with pytest.raises(W.ProtocolError):
         W.decode_report(b"\x00" * 7)
 
 
 def test_woodenhaptics_firmware_current_saturates_at_its_full_scale():
-    # main.cpp: f = mA * 0.001; |f| > 3.0 -> pwm 0.9 (the saturation), else 0.8 |f| / 3 + 0.1
+    # the firmware: a command n is n/1000 A; its PWM saturates (0.9) above 3 A, else 0.1 + 0.8 |i| / 3
     assert W.firmware_current_A(1500) == pytest.approx(1.5)
     assert W.firmware_current_A(9000) == W.FIRMWARE_FULL_SCALE_A == 3.0
     assert W.firmware_current_A(-9000) == -3.0
-    # CWoodenDevice: short(motorAmpere * 1000 * 3), motorAmpere clamped to +/-3
+    # CWoodenDevice: the current clamped to +/-3 A, times 3000, truncated to an int16
     assert W.wire_ma((0.5, -5.0, 0.0)) == (1500, -9000, 0)
 
 

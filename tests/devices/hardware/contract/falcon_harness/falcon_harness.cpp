@@ -1,7 +1,10 @@
-/* A command-line harness around libnifalcon's own kinematics, packet and firmware-upload code.
+/* A command-line harness around libnifalcon's own kinematics, packet and firmware-upload code (our code: it
+ * only calls libnifalcon; libnifalcon's sources are not in this repository).
  *
- * Built by tests/devices/hardware/contract/test_falcon_libnifalcon.py from the vendored libnifalcon
- * sources (../libnifalcon, BSD) and this directory (the GMTL shim, this file: written for the test).
+ * It is linked, outside this repository, with libnifalcon's FalconKinematicStamper, FalconFirmwareNovintSDK
+ * and FalconFirmware (BSD) and the small GMTL stand-in beside it (falcon/gmtl/gmtl.h, written for this
+ * harness), and driven by ../falcon_vectors.py, which records its answers as the contract test's vectors
+ * (../vectors/falcon_libnifalcon.json; ../vectors/README.md says with which libnifalcon commit).
  * One command per line on stdin, one answer per line on stdout:
  *   ik X Y Z               -> theta1[3] theta2[3] theta3[3]           (rad; IK of FalconKinematicStamper)
  *   jac X Y Z              -> 9 numbers, row-major                     (jacobian(IK(p)))
