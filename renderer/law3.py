@@ -60,7 +60,8 @@ STATUS_SENSOR_INVALID, STATUS_DISCONNECTED = 16, 32
 
 LOG_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "proxy_x_m", "proxy_y_m", "proxy_z_m", "penetration_m", "normal_x",
                "normal_y", "normal_z", "force_x_N", "force_y_N", "force_z_N", "force_wall_N", "force_transient_N",
-               "contact_object", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags")
+               "contact_object", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags", "transient_x_N",
+               "transient_y_N", "transient_z_N")
 N_LOG = len(LOG_COLUMNS)
 
 
@@ -281,6 +282,9 @@ def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
     log[19, li] = grip
     log[20, li] = temp
     log[21, li] = flags
+    log[22, li] = f_t * w[W_ENX]
+    log[23, li] = f_t * w[W_ENY]
+    log[24, li] = f_t * w[W_ENZ]
     li += 1
     if li == int(c[C_CAP]):
         li = 0

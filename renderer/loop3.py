@@ -66,6 +66,45 @@ class RunResult3(RunResult):
     event_columns = EVENT3_COLUMNS
 
 
+def surface_point_above(packed, name: str | None = None, xy_m=None) -> tuple[tuple, tuple, str]:
+    """Where a person tapping straight down meets the scene: the first surface a vertical line crosses.
+
+    Parameters
+    ----------
+    packed : renderer.scene3.PackedScene
+    name : str or None
+        The object to tap (its ``name``, or ``<shape><index>``); the line goes through its centre (x, y)
+        unless ``xy_m`` is given. None: the line through ``xy_m`` (default the origin).
+
+    Returns
+    -------
+    point_m, normal, object : the surface point (m), its outward normal, and the object's name.
+
+    Raises
+    ------
+    ValueError
+        An unknown name, or another object above it on that line.
+    """
+    if name is not None and name not in packed.names:
+        raise ValueError(f"no object named {name!r} in the scene (objects: {', '.join(packed.names)})")
+    if xy_m is None:
+        if name is None:
+            xy_m = (0.0, 0.0)
+        else:
+            j = packed.names.index(name)
+            b = packed.bounds[j]
+            o = packed.obj[j]
+            xy_m = (0.5 * (b[0][0] + b[1][0]), 0.5 * (b[0][1] + b[1][1])) if b is not None else (o[5], o[6])
+    x, y = float(xy_m[0]), float(xy_m[1])
+    stack = np.zeros(STACK_DEPTH, dtype=np.int64)
+    t, j, nx, ny, nz, _, _, _, _, _, _ = PX.first_hit(packed.obj, packed.tri, packed.node, stack, x, y, 1.0, x, y, -1.0)
+    if j < 0:
+        raise ValueError(f"nothing in the scene below ({x:g}, {y:g})")
+    if name is not None and packed.names[j] != name:
+        raise ValueError(f"{name!r} is covered by {packed.names[j]!r} at ({x:g}, {y:g})")
+    return (x, y, 1.0 - 2.0 * t), (float(nx), float(ny), float(nz)), packed.names[j]
+
+
 def make_object_transient(kind: str | None, library: str | None = None, gain: float | None = None):
     """A Table 4.1 transient by name (``none``, ``pulse``, ``sinusoid``, ``hfam`` with its ``library``)."""
     kw = {} if gain is None else {"gain": float(gain)}
