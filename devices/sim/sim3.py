@@ -242,6 +242,7 @@ class Sim3Device(Device):
 
     @motor_enabled.setter
     def motor_enabled(self, on: bool) -> None:
+        """False: commands are ignored (zero force), e.g. for real-sample taps."""
         self.tap.motor_enabled = on
 
     def true_state(self) -> dict:
