@@ -67,6 +67,7 @@ def plot_run3(data: dict):
         ax3.set_xlabel("x (mm)")
         ax3.set_ylabel("y (mm)")
         ax3.set_zlabel("z (mm)")
+        ax3.set_box_aspect(None, zoom=0.82)   # room for the z label beside the traces
         ax3.legend(loc="upper left", frameon=False)
         t = data["t_s"]
         rows = (("depth_mm", "depth behind surface (mm)", "firm"), ("force_normal_N", "force along normal (N)",
