@@ -339,7 +339,9 @@ class ServoLoop3:
         read, command = dev.read, dev.command_force
         tick, clock = L3.law3_tick, time.perf_counter_ns
         period = int(round(1e9 / self.fs_hz))
-        deadline = clock()
+        deadline = prev = clock()
+        # the host watchdog of a real device (not a simulation's): a period this much over nominal stops the run
+        wd_ns = None if self.info.simulated else period + int(self.cfg.watchdog_overrun_s * 1e9)
         every = int(self.cfg.until_every)
         n = 0
         reason = "duration"
@@ -352,6 +354,13 @@ class ServoLoop3:
                 while clock() < deadline:
                     pass
             s = read()
+            now = clock()
+            if wd_ns is not None and n and now - prev > wd_ns:
+                dev.zero()
+                self._err = f"tick {n} period {(now - prev) / 1000:.0f} us exceeds the watchdog bound"
+                reason = "watchdog"
+                break
+            prev = now
             fx, fy, fz = tick(c, w, pk.obj, pk.tri, pk.node, stack, log, s.t_s, s.x_m, s.y_m, s.position_m,
                               s.accel_m_s2, s.grip_N, s.status)
             code = int(w[L3.W_CODE])
