@@ -146,6 +146,7 @@ class ServoLoop3:
         self.time_s = 0.0
         self.result = None
         self.stop_requested = False
+        self.packed = None
 
     # ---------------------------------------------------------------- set-up
     def prepare(self) -> None:
@@ -275,7 +276,8 @@ class ServoLoop3:
             return self._run(duration_s, until, realtime, max_ticks)
 
     def _run(self, duration_s, until, realtime, max_ticks) -> RunResult3:
-        self.prepare()
+        if getattr(self, "packed", None) is None:   # prepared once: the scene does not change under a loop
+            self.prepare()
         dev = self.device
         if not dev.is_open:
             dev.open()

@@ -132,7 +132,7 @@ def test_a_study_can_place_samples_on_a_table_and_tap_each_by_name():
     dev = Sim3Device(seed=0)
     pk = pack_scene(cfg.effective_scene, cfg.stiffness_N_m, dev.info.specs())
     seen = {}
-    for name in ("pulse_firm", "soft", "sinusoid_soft"):
+    for name in ("pulse_firm", "soft", "sinusoid_soft", "hfam_firm"):
         point, normal, hit = surface_point_above(pk, name)
         assert hit == name and normal == pytest.approx((0.0, 0.0, 1.0))
         dev.set_user(TapTrajectory(0.1, n_taps=1), grip_N=2.0, target_m=point)
@@ -140,6 +140,7 @@ def test_a_study_can_place_samples_on_a_table_and_tap_each_by_name():
         assert [e.object for e in res.events] == [name]
         seen[name] = res.events[0]
     assert seen["pulse_firm"].transient == "pulse" and seen["soft"].transient == "none"
+    assert seen["hfam_firm"].transient == "hfam" and seen["hfam_firm"].transient_samples > 0
     assert seen["soft"].max_penetration_m > 1.3 * seen["pulse_firm"].max_penetration_m
     with pytest.raises(ValueError, match="no object named 'cork'"):
         surface_point_above(pk, "cork")
@@ -243,3 +244,23 @@ def test_renderer_run_draws_a_3d_run(tmp_path, capsys):
     assert ",pulse_firm," in text[1]
     res = RunResult.load(out)
     assert "proxy_z_m" in res.log and len(res.events) == 2
+
+
+def test_a_1dof_wall_scene_on_the_3dof_device_renders_along_z_with_x_and_y_held(pairs):
+    """The default scene (one horizontal wall) on sim:3d: the hold channel keeps x and y at their start, and z
+    is the 1-DOF run's (the hold's forces are lateral: the tap axis never sees them)."""
+    dev = Sim3Device(seed=4)
+    dev.set_user(TapTrajectory(SPEEDS, n_taps=3), grip_N=2.0)
+    loop = ServoLoop3(dev, RendererConfig(stiffness_N_m=680.0))
+    res = loop.run(duration_s=2.6)
+    assert res.timing["hold_channel"] is True
+    assert np.max(np.abs(res.log["z_m"] - pairs["none"][0].log["position_m"])) <= 1e-9
+    assert np.max(np.abs(res.log["x_m"])) == 0.0
+    # a tap 17 degrees off vertical: the hold keeps the endpoint within a fifth of the free lateral travel
+    travel = {}
+    for scene in (Scene((loop.scene.objects[0],)), Scene((Plane((0, 0, 0), (0, 0, 1)),))):
+        dev = Sim3Device(seed=4)
+        dev.set_user(TapTrajectory([0.1], n_taps=2), grip_N=2.0, direction=(0.3, 0.0, -1.0))
+        res = ServoLoop3(dev, RendererConfig(stiffness_N_m=680.0, scene=scene)).run(duration_s=1.5)
+        travel[res.timing["hold_channel"]] = np.ptp(res.log["x_m"])
+    assert travel[True] < 0.25 * travel[False]
