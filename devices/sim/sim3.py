@@ -131,14 +131,17 @@ class Sim3Device(Device):
             return c + (link.friction_along(t, e) if link is not None else 0.0)
 
         mu = float(np.asarray(u) @ m_extra @ np.asarray(u))
-        if mu or fric(u):     # untouched when nothing is added: the 1-DOF device's numbers exactly
+        cu = fric(u)
+        if mu or cu:     # untouched when nothing is added: the 1-DOF device's numbers exactly
             p[K.P_MH] += mu
-            p[K.P_CD] += fric(u)
+            p[K.P_CD] += cu
         lp = self.lp
+        nominal = self._p_nominal
+        c_chain = nominal[K.P_CM] + nominal[K.P_CD]      # the chain's Coulomb friction, motor and drum
         lp[L.LP_MV] = mtool + float(np.asarray(v) @ m_extra @ np.asarray(v))
         lp[L.LP_MW] = mtool + float(np.asarray(w) @ m_extra @ np.asarray(w))
-        lp[L.LP_CV] = p[K.P_CM] + p[K.P_CD] - (fric(u) if (mu or fric(u)) else 0.0) + fric(v)
-        lp[L.LP_CW] = p[K.P_CM] + p[K.P_CD] - (fric(u) if (mu or fric(u)) else 0.0) + fric(w)
+        lp[L.LP_CV] = c_chain + fric(v)
+        lp[L.LP_CW] = c_chain + fric(w)
         lp[L.LP_BV] = lp[L.LP_BW] = p[K.P_BM] + p[K.P_BD]
         lp[L.LP_KU_PER_N], lp[L.LP_BU_PER_N] = p[K.P_KU_PER_N], p[K.P_BU_PER_N]
         lp[L.LP_DT], lp[L.LP_NSUB], lp[L.LP_VSTICK] = p[K.P_DT], p[K.P_NSUB], p[K.P_VSTICK]
