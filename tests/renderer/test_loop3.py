@@ -264,3 +264,27 @@ def test_a_1dof_wall_scene_on_the_3dof_device_renders_along_z_with_x_and_y_held(
         res = ServoLoop3(dev, RendererConfig(stiffness_N_m=680.0, scene=scene)).run(duration_s=1.5)
         travel[res.timing["hold_channel"]] = np.ptp(res.log["x_m"])
     assert travel[True] < 0.25 * travel[False]
+
+
+def test_with_force_shading_the_transient_follows_the_interpolated_normal(tmp_path):
+    """An icosphere (80 facets) tapped off a vertex with force shading: its vertex normals are radial, so the
+    shaded normal at the contact is nearly the sphere's; the transient follows it, not the facet's."""
+    from renderer.scene import SurfaceProps
+    path = tmp_path / "ico.stl"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.015).export(path)
+    centre = np.array([0.0, 0.0, -0.015])
+    scene = Scene((Mesh(str(path), offset_m=tuple(centre), props=SurfaceProps(force_shading=True)),))
+    res, _ = _tap_events(scene, (0.0, 0.0, -1.0), (0.004, 0.003, 0.0))
+    assert len(res.events) == 2
+    for ev in res.events:
+        facet = np.array([ev.normal_x, ev.normal_y, ev.normal_z])
+        radial = np.array([ev.x_m, ev.y_m, ev.z_m]) - centre
+        radial /= np.linalg.norm(radial)
+        tv = np.stack([res.log[f"transient_{a}_N"][ev.tick + 1:ev.tick + 20] for a in "xyz"], axis=1)
+        tv = tv[np.linalg.norm(tv, axis=1) > 0]
+        direction = tv[0] / np.linalg.norm(tv[0])
+        off_facet = math.degrees(math.acos(min(1.0, float(facet @ direction))))
+        off_radial = math.degrees(math.acos(min(1.0, float(radial @ direction))))
+        facet_radial = math.degrees(math.acos(min(1.0, float(facet @ radial))))
+        assert off_facet > 1.0                     # shading turned the transient off the facet's normal ...
+        assert off_radial < 0.5 * facet_radial     # ... towards the smooth surface's
