@@ -3,6 +3,8 @@
 ``sim``                 simulated device, Table 3.1 parameters (nonlinear model)
 ``sim:lti``             simulated linear "Phantom-like" device
 ``sim:<params file>``   simulated device from a TOML/JSON parameter file
+``sim:3d``              simulated 3-DOF device (the 1-DOF sim along the tap, docs/sim.md); ``sim:3d-delta``
+                        (Falcon-like linkage), ``sim:3d-serial`` (Phantom-like)
 ``serial:<port>``       hardware over a serial/CDC port (e.g. serial:/dev/ttyACM0)
 ``hid:<vid>:<pid>``     hardware over USB HID (hex ids, e.g. hid:16c0:0486)
 ``fw-sim``              the real AVR firmware on simavr behind a pty (devices/firmware/fw_sim.py)
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 from .base import Device
 
-DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>", "fw-sim")
+DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "sim:3d", "sim:3d-delta", "sim:3d-serial", "serial:<port>", "hid:<vid>:<pid>", "fw-sim")
 
 
 def _split(spec: str) -> tuple[str, str, dict]:
@@ -61,8 +63,10 @@ def make_device(spec: str, **options) -> Device:
     kind, rest, spec_options = _split(spec)
     options = {**spec_options, **options}
     if kind == "sim":
-        from .sim import SimDevice  # deferred: with numpy, 0.12 s CPU that every devices --help would pay
+        from .sim import Sim3Device, SimDevice  # deferred: with numpy, 0.12 s CPU that every devices --help would pay
 
+        if rest in ("3d", "3d-delta", "3d-serial"):
+            return Sim3Device(linkage=rest[3:] or None, **options)
         return SimDevice.from_spec(rest or None, **options)
     if kind == "fw-sim":
         from .firmware.fw_sim import FwSimDevice  # deferred: 19 ms CPU (simavr harness) a sim run does not need

@@ -13,13 +13,13 @@ import importlib
 _EXPORTS = {
     "RendererConfig": "config", "config_from_dict": "config", "load_config": "config", "load_scene": "config",
     "LOG_CHANNELS": "loop", "ContactEvent": "loop", "RunResult": "loop", "ServoLoop": "loop",
-    "run_in_process": "process",
+    "run_in_process": "process", "ServoLoop3": "loop3", "RunResult3": "loop3", "ContactEvent3": "loop3",
     "Box": "scene", "Plane": "scene", "Scene": "scene", "Sphere": "scene", "Wall": "scene", "parse_scene": "scene",
 }
 
 __all__ = ["ServoLoop", "RendererConfig", "RunResult", "ContactEvent", "LOG_CHANNELS", "load_config",
            "config_from_dict", "load_scene", "Scene", "Wall", "Plane", "Sphere", "Box", "parse_scene",
-           "run_in_process"]
+           "run_in_process", "ServoLoop3", "RunResult3", "ContactEvent3"]
 
 
 def __getattr__(name):

@@ -44,6 +44,19 @@ def _velocities(text: str) -> list[float]:
     return out
 
 
+def _vec3(name):
+    def parse(text: str) -> tuple[float, float, float]:
+        parts = text.split(",")
+        try:
+            vec = tuple(float(x) for x in parts)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be three numbers x,y,z, got {text!r}") from None
+        if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
+            raise argparse.ArgumentTypeError(f"{name} must be three finite numbers x,y,z, got {text!r}")
+        return vec
+    return parse
+
+
 def register(subparsers) -> None:
     """Add the ``run`` command.
 
@@ -56,8 +69,11 @@ def register(subparsers) -> None:
                               description="Render a virtual wall under a (simulated or real) user tapping. On a sim device the "
                                           "simulated hand taps --taps times at --velocities-m-s and the run ends when "
                                           "it is done; on hardware it lasts --duration-s (or until Ctrl-C). Outputs: "
-                                          "events.csv, run.json, log.npz.")
-    p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
+                                          "events.csv, run.json, log.npz. A 3-D scene (meshes, objects with their own stiffness, "
+                                          "friction or transient) or a 3-DOF device (sim:3d) renders with the "
+                                          "god-object proxy; the simulated person taps --tap-object from above or "
+                                          "--tap-target-m along --tap-direction.")
+    p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, sim:3d[-delta|-serial], serial:<port>, hid:<vid>:<pid>")
     p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient (default none)")
     p.add_argument("--library", help="HFAM library file (needed for --transient hfam)")
     p.add_argument("--transient-gain", type=float, default=None,
@@ -74,6 +90,14 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
     add_renamed(p, "--duration-s", "--duration", dest="duration", type=_positive("--duration"), default=None,
                    help="run length in s (hardware default: until Ctrl-C; sim default: until the taps are done)")
+    p.add_argument("--tap-object", default=None,
+                   help="sim:3d: the scene object the simulated person taps (its name); default: whatever lies "
+                        "below the tap target")
+    p.add_argument("--tap-target-m", type=_vec3("--tap-target-m"), default=None,
+                   help="sim:3d: the point tapped, x,y,z in m (default: the surface straight below the object's "
+                        "centre, or below the origin)")
+    p.add_argument("--tap-direction", type=_vec3("--tap-direction"), default=(0.0, 0.0, -1.0),
+                   help="sim:3d: the direction the tap moves in, dx,dy,dz (default 0,0,-1: straight down)")
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
     p.add_argument("--in-process", action="store_true",
                    help="hardware: run the servo loop in this process instead of its own")
