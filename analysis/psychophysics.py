@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from analysis.psychometric import Fit, fit
+from psychophysics.fitting import Fit, fit
 
 REQUIRED = ("intensity", "correct")
 OPTIONAL = ("subject", "condition", "staircase", "trial", "is_catch")
@@ -199,7 +199,7 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
     ----------
     trials : Trials
     alternatives, function, lapse, bootstrap, ci_level, reference, seed, equal_asymptote
-        As for :func:`analysis.psychometric.fit`.
+        As for :func:`psychophysics.fitting.fit`.
 
     Returns
     -------

@@ -5,7 +5,7 @@
    each) on the sim device;
    their answers come from what the device rendered (:mod:`study.perception`: force and penetration of their
    own taps with the force and compliance JNDs). A cumulative normal is fitted by maximum likelihood to
-   P("comparison harder") against log10 stiffness (``analysis.psychometric.fit``, lapse fixed at 0 and free);
+   P("comparison harder") against log10 stiffness (``psychophysics.fit``, lapse fixed at 0 and free);
    its JND = x(F = 0.75) - x(F = 0.5) gives the Weber fraction, printed against the participant's
    (16.8 % from 7 % force and 15 % compliance JNDs).
 2. **SIGKILL at every trial.** A warm process forks a session killed by SIGKILL at a durable step
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 import study.data as data
-from analysis import psychometric
+from psychophysics import fitting as psychometric
 from study.__main__ import main as study_main
 from study.participants import SimParticipantConfig
 from study.perception import stiffness_weber_fraction

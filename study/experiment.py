@@ -33,12 +33,12 @@ import numpy as np
 
 from plumbing.fileio import read_text_utf8
 from plumbing.validation import dataclass_from_layers, require_int
+from psychophysics.multistair import Interleaved
 
 from .config import ProtocolConfig, load_dataclass_file
-from .multistair import Interleaved
 
 KINDS = ("real-virtual-2afc", "discrimination", "detection")
-#: adaptive methods (:mod:`study.methods`: Levitt 1971, Kaernbach 1991, Watson 2017, Kontsevich & Tyler 1999)
+#: adaptive methods (:mod:`psychophysics.methods`: Levitt 1971, Kaernbach 1991, Watson 2017, Kontsevich & Tyler 1999)
 ADAPTIVE_METHODS = ("updown", "weighted", "quest+", "psi")
 METHODS = ("constant", *ADAPTIVE_METHODS)
 VARIED = {"discrimination": ("stiffness_N_m", "amplitude_Ns_m", "gain"),
@@ -84,10 +84,10 @@ class ExperimentConfig:
     alternatives : int
         Intervals per trial (2: two-interval forced choice).
     staircases : dict
-        Adaptive methods: label -> the staircase's table (the method's parameters, :mod:`study.methods`:
+        Adaptive methods: label -> the staircase's table (the method's parameters, :mod:`psychophysics.methods`:
         ``start``, ``step_down``, ``max_trials``, ``max_reversals``, ... for up-down; ``intensities``,
         ``thresholds``, ``slopes`` for QUEST+/Psi), in physical units of ``vary``; a table may name its own
-        ``method``. Several labels are interleaved (:class:`study.multistair.Interleaved`).
+        ``method``. Several labels are interleaved (:class:`psychophysics.multistair.Interleaved`).
     order : str
         Interleaving of the staircases: ``random`` (shuffled per round) or ``fixed``.
     catch_rate : float
@@ -203,7 +203,7 @@ class ExperimentConfig:
         return self.method in ADAPTIVE_METHODS
 
     def handler(self, seed: int):
-        """The session's interleaved staircases (:class:`study.multistair.Interleaved`), seeded by ``seed``."""
+        """The session's interleaved staircases (:class:`psychophysics.multistair.Interleaved`), seeded by ``seed``."""
         stairs = {}
         for label, table in self.staircases.items():
             if not isinstance(table, dict):

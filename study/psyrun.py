@@ -11,7 +11,7 @@ answers the question with 1 or 2 (or x to reject the trial); "Stop. Which one?" 
 for the whole session.
 
 Adaptive methods (``method`` ``updown``, ``weighted``, ``quest+``, ``psi``): the interleaved staircases
-(:class:`study.multistair.Interleaved`, seeded from the session's seed and subject) choose each trial's
+(:class:`psychophysics.multistair.Interleaved`, seeded from the session's seed and subject) choose each trial's
 intensity; its stimulus is derived from the experiment's sample at that value and its servo loop made when
 first needed. After each valid trial its row, then the staircase's state after the update
 (``staircase_state.jsonl``), are on disk before the next trial starts; ``--resume`` replays the rows through
@@ -86,7 +86,7 @@ class ForcedChoiceRunner:
         Catalog name -> "real" | "virtual".
     force_per_amp_N_A : float
         The device's force per ampere (the simulated participant's stiffness percept).
-    handler : study.multistair.Interleaved or None
+    handler : psychophysics.multistair.Interleaved or None
         The adaptive method's staircases (``trials`` is then empty).
     base : stimuli.CatalogSample or None
         The varied sample, from which an adaptive trial's stimuli are derived.

@@ -1,9 +1,10 @@
 """Package arrows and import cycles, read from the code (ast): the allowed arrows are written once, here.
 
-plumbing (the foundation) imports none of the others; devices -> plumbing; stimuli -> devices; renderer ->
-devices, stimuli; study -> renderer, devices, stimuli; analysis -> plumbing only (it reads files). Every
-package may import plumbing. The renderer core must not import its demo or teleoperation applications, and
-devices holds no plumbing (the foundation's modules live in plumbing/ only).
+plumbing (the foundation) imports none of the others; psychophysics -> plumbing only (a library on its own);
+devices -> plumbing; stimuli -> devices; renderer -> devices, stimuli; study -> renderer, devices, stimuli,
+psychophysics; analysis -> psychophysics (it reads the study's files through the foundation's definition).
+Every package may import plumbing. The renderer core must not import its demo or teleoperation applications,
+and devices holds no plumbing (the foundation's modules live in plumbing/ only).
 """
 
 import ast
@@ -13,16 +14,20 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("plumbing", "devices", "renderer", "stimuli", "study", "analysis")
+PACKAGES = ("plumbing", "psychophysics", "devices", "renderer", "stimuli", "study", "analysis")
 FOUNDATION = "plumbing"
 ALLOWED = {
     "plumbing": set(),
+    "psychophysics": {FOUNDATION},
     "devices": {FOUNDATION},
     "stimuli": {FOUNDATION, "devices"},
     "renderer": {FOUNDATION, "devices", "stimuli"},
-    "study": {FOUNDATION, "renderer", "devices", "stimuli"},
-    "analysis": {FOUNDATION},
+    "study": {FOUNDATION, "renderer", "devices", "stimuli", "psychophysics"},
+    "analysis": {FOUNDATION, "psychophysics"},
 }
+#: the project's own top-level packages (any other import is the standard library or a third-party package);
+#: figstyle is the one figure style, a leaf that imports no package of the project
+PROJECT = set(PACKAGES) | {"figstyle", "benchmarks", "tests"}
 APPLICATIONS = ("renderer.demo", "renderer.teleop")  # the renderer core (renderer/*.py) must not import these
 
 
@@ -71,6 +76,17 @@ def test_packages_import_only_along_the_allowed_arrows():
             if top in PACKAGES and top != own and top not in ALLOWED[own]:
                 bad.append(f"{path.relative_to(ROOT)}:{line}: {own} imports {mod}")
     assert not bad, "imports against the package arrows:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("package, may_import", [("psychophysics", {FOUNDATION}),
+                                                  ("analysis", {FOUNDATION, "psychophysics", "figstyle"})])
+def test_psychophysics_and_analysis_import_only_the_foundation_and_third_party_code(package, may_import):
+    """psychophysics is a library on its own (psignifit's and questplus' kind): it imports the foundation and
+    third-party code only, no figure style either; analysis adds psychophysics (fits) and the figure style."""
+    bad = [f"{path.relative_to(ROOT)}:{line}: imports {mod}"
+           for path in sorted((ROOT / package).rglob("*.py")) for mod, line, _ in imports_of(path)
+           if mod.split(".")[0] in PROJECT - {package} - may_import]
+    assert not bad, "\n".join(bad)
 
 
 def test_the_foundation_imports_no_domain_package_and_domain_packages_hold_no_plumbing():

@@ -1,4 +1,4 @@
-"""The adaptive methods (issue 34): convergence to their targets, recovery of random observers, exact resume
+"""The adaptive methods: convergence to their targets, recovery of random observers, exact resume
 from a saved state, stopping rules, the first intensity, interleaving with catch trials, and the factory's
 errors. Every observer and response sequence is seeded: the numbers are the same on every run."""
 
@@ -9,16 +9,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy.special import expit
-from scipy.stats import norm, weibull_min
 
-from study.methods import METHODS, method_from_state, method_from_table
-from study.multistair import Interleaved
-from study.observer import ObserverParams, SimulatedObserver
-from study.psychometric import intensity_at, inverse_sigmoid, jnd, psi, sigmoid
-from study.quest import QuestPlus, make_grid
-from study.simulate import SimulationSettings, make_method
-from study.staircase import UpDown, WeightedUpDown
+from psychophysics.methods import METHODS, method_from_state, method_from_table
+from psychophysics.multistair import Interleaved
+from psychophysics.observer import ObserverParams, SimulatedObserver
+from psychophysics.quest import QuestPlus, make_grid
+from psychophysics.simulate import SimulationSettings, make_method
+from psychophysics.staircase import UpDown, WeightedUpDown
 
 
 def random_observers(n: int, seed: int) -> list[ObserverParams]:
@@ -35,29 +32,6 @@ def run(method, observer: ObserverParams, seed: int):
         x = method.next_intensity()
         method.update(x, sim.respond(x))
     return method
-
-
-# -- the psychometric function of the contract ------------------------------------------------------------------
-
-@pytest.mark.parametrize("function", ["logistic", "normal", "weibull"])
-def test_threshold_is_where_f_is_half_and_inverse_round_trips(function):
-    assert sigmoid(2.5, 2.5, 3.0, function) == pytest.approx(0.5, abs=1e-15)
-    f = np.linspace(0.01, 0.99, 25)
-    np.testing.assert_allclose(sigmoid(inverse_sigmoid(f, 2.5, 3.0, function), 2.5, 3.0, function), f, rtol=1e-12)
-    x = intensity_at(0.8, 2.5, 3.0, guess=0.5, lapse=0.02, function=function)
-    assert psi(x, 2.5, 3.0, 0.5, 0.02, function) == pytest.approx(0.8, rel=1e-12)
-
-
-def test_functions_equal_scipy_distributions():
-    x = np.linspace(0.05, 6.0, 60)
-    np.testing.assert_allclose(sigmoid(x, 2.0, 1.7, "logistic"), expit(1.7 * (x - 2.0)), rtol=1e-13)
-    np.testing.assert_allclose(sigmoid(x, 2.0, 1.7, "normal"), norm.cdf(x, loc=2.0, scale=1 / 1.7), rtol=1e-12)
-    # the contract's Weibull: F = 1 - exp(-ln2 (x/alpha)^beta) is weibull_min with scale alpha / ln2^(1/beta)
-    np.testing.assert_allclose(sigmoid(x, 2.0, 3.5, "weibull"),
-                               weibull_min.cdf(x, 3.5, scale=2.0 / math.log(2) ** (1 / 3.5)), rtol=1e-12)
-    # JND of the contract: x(F=0.75) - x(F=0.5); logistic: ln(3)/beta, normal: z(0.75)/beta
-    assert jnd(10.0, 0.5, "logistic") == pytest.approx(math.log(3) / 0.5, rel=1e-12)
-    assert jnd(10.0, 0.5, "normal") == pytest.approx(norm.ppf(0.75) / 0.5, rel=1e-12)
 
 
 # -- convergence and recovery --------------------------------------------------------------------------------

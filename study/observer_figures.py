@@ -1,7 +1,7 @@
 """Figures of the adaptive methods, in the project's figure style (docs/figures.md): a staircase track with
 its reversals marked, and the precision of an estimate against the number of trials.
 
-Plotting only: the numbers come from :mod:`study.simulate` (or a session's trials); each figure is saved
+Plotting only: the numbers come from :mod:`psychophysics.simulate` (or a session's trials); each figure is saved
 with :func:`figstyle.save` as PNG, SVG and the plotted numbers (``.plot.csv``).
 """
 
@@ -88,7 +88,7 @@ def plot_precision(rows: list[dict], path, title: str = "") -> dict:
     Parameters
     ----------
     rows : list of dict
-        :func:`study.simulate.precision_table` rows (``trials``, ``median_abs_error_pct``,
+        :func:`psychophysics.simulate.precision_table` rows (``trials``, ``median_abs_error_pct``,
         ``p90_abs_error_pct``, ``bias_pct``).
     path : str or Path
         Figure file (``precision.png``).

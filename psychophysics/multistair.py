@@ -91,7 +91,7 @@ class Interleaved:
     @classmethod
     def from_table(cls, table: dict, prefix: str = "") -> "Interleaved":
         """Build from a protocol table: ``{"order", "seed", "catch_rate", "catch_intensity",
-        "staircases": {label: <method table>, ...}}`` (:func:`study.methods.method_from_table`)."""
+        "staircases": {label: <method table>, ...}}`` (:func:`psychophysics.methods.method_from_table`)."""
         if not isinstance(table, dict):
             raise ValueError(f"{prefix or 'the staircases '}must be a table, got {type(table).__name__}")
         unknown = sorted(set(table) - {"order", "seed", "catch_rate", "catch_intensity", "staircases"})
@@ -158,7 +158,7 @@ class Interleaved:
         self._pending = None
 
     def estimates(self) -> dict:
-        """Each staircase's :meth:`~study.adaptive.AdaptiveMethod.estimate`, by label."""
+        """Each staircase's :meth:`~psychophysics.adaptive.AdaptiveMethod.estimate`, by label."""
         return {label: m.estimate() for label, m in self.methods.items()}
 
     def state(self) -> dict:

@@ -1,7 +1,7 @@
 """Staircases: transformed up-down (Levitt 1971) and weighted up-down (Kaernbach 1991).
 
 Both move the intensity by fixed steps after runs of responses; the interface, the state/replay and the
-reversal convention are those of :class:`study.adaptive.AdaptiveMethod`.
+reversal convention are those of :class:`psychophysics.adaptive.AdaptiveMethod`.
 
 Steps are in the staircase's ``step_scale``: ``"linear"`` adds and subtracts them, ``"log10"`` multiplies
 and divides the intensity by ``10**step`` (a step of 0.1 is a factor 1.26, about 1 dB of amplitude
@@ -55,7 +55,7 @@ class UpDown(AdaptiveMethod):
     min_intensity, max_intensity : float or None
         The intensity is clipped to these bounds.
     max_trials, max_reversals : int or None
-        Stopping rule (:class:`study.adaptive.AdaptiveMethod`).
+        Stopping rule (:class:`psychophysics.adaptive.AdaptiveMethod`).
     discard_reversals : int
         The estimate ignores this many first reversals (default 2: they mostly reflect the start).
     """

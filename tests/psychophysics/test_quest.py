@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import questplus
 
-from study.observer import ObserverParams, SimulatedObserver
-from study.quest import Psi, QuestPlus
+from psychophysics.observer import ObserverParams, SimulatedObserver
+from psychophysics.quest import Psi, QuestPlus
 
 INTENSITIES = np.linspace(-2.0, 2.0, 21)
 MEANS = np.linspace(-1.5, 1.5, 13)

@@ -1,12 +1,7 @@
-"""Psychometric fits (analysis.psychometric, analysis.psychophysics, `analysis psychometric`): agreement with
-statsmodels' binomial GLM and psignifit 4, recovery and interval calibration on simulated observers, the
-command's files, bad input."""
+"""Psychometric fits (psychophysics.fitting): agreement with statsmodels' binomial GLM and psignifit 4, recovery
+and interval calibration on simulated observers, equal asymptotes; an adaptive method's data fitted back."""
 
-import csv
 import math
-import json
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
@@ -14,9 +9,10 @@ import numpy as np
 import pytest
 import statsmodels.api as sm
 
-from analysis import psychometric as pm
-from analysis.__main__ import main
-from analysis.psychophysics import POOLED, fit_groups, load_trials
+from psychophysics import fitting as pm
+from psychophysics.methods import method_from_table
+from psychophysics.observer import ObserverParams, SimulatedObserver
+from psychophysics.psychometric import FUNCTIONS, inverse_sigmoid, psi, sigmoid
 
 ROOT = Path(__file__).resolve().parents[2]
 LEVELS = np.linspace(1.0, 8.0, 7)
@@ -24,7 +20,7 @@ LEVELS = np.linspace(1.0, 8.0, 7)
 
 def _simulate(rng, threshold, slope, guess, lapse, function="logistic", per_level=60, levels=LEVELS):
     x = np.repeat(levels, per_level)
-    y = (rng.random(len(x)) < pm.psychometric(x, threshold, slope, guess, lapse, function)).astype(int)
+    y = (rng.random(len(x)) < psi(x, threshold, slope, guess, lapse, function)).astype(int)
     return x, y
 
 
@@ -65,12 +61,12 @@ def test_thresholds_with_a_free_lapse_agree_with_psignifit(function, threshold, 
 
 
 def test_threshold_is_where_the_unscaled_sigmoid_is_one_half():
-    for function in pm.FUNCTIONS:
-        assert pm.sigmoid(3.7, 3.7, 2.0, function) == pytest.approx(0.5, abs=1e-12)
-        x = pm.stimulus_at(np.array([0.25, 0.5, 0.75]), 3.7, 2.0, function)
-        assert pm.sigmoid(x, 3.7, 2.0, function) == pytest.approx([0.25, 0.5, 0.75], abs=1e-12)
+    for function in FUNCTIONS:
+        assert sigmoid(3.7, 3.7, 2.0, function) == pytest.approx(0.5, abs=1e-12)
+        x = inverse_sigmoid(np.array([0.25, 0.5, 0.75]), 3.7, 2.0, function)
+        assert sigmoid(x, 3.7, 2.0, function) == pytest.approx([0.25, 0.5, 0.75], abs=1e-12)
         # with guess and lapse, psi at the threshold is halfway between the guess rate and 1 - lapse
-        assert pm.psychometric(3.7, 3.7, 2.0, 0.5, 0.04, function) == pytest.approx(0.5 + 0.46 / 2)
+        assert psi(3.7, 3.7, 2.0, 0.5, 0.04, function) == pytest.approx(0.5 + 0.46 / 2)
 
 
 #: a stiffness-discrimination design (2AFC "which was harder?", comparison stiffness against a 500 N/m
@@ -83,7 +79,7 @@ def _observers(rng, count, levels=STIFFNESS_LEVELS):
     thr = 500.0 * (1.0 + rng.uniform(0.1, 0.4, count))
     slope = rng.uniform(0.02, 0.06, count)
     lapse = rng.uniform(0.0, 0.04, count)
-    p = pm.psychometric(levels[None, :], thr[:, None], slope[:, None], 0.5, lapse[:, None])
+    p = psi(levels[None, :], thr[:, None], slope[:, None], 0.5, lapse[:, None])
     return thr, rng.binomial(60, p).astype(float)
 
 
@@ -132,140 +128,6 @@ def test_jnd_and_weber_fraction_of_a_which_was_harder_task():
     assert f.jnd_ci[0] < f.jnd < f.jnd_ci[1]
 
 
-def test_reversals_are_the_turning_points_of_a_track():
-    track = [10, 8, 6, 6, 8, 6, 4, 4, 4, 6, 8, 10, 8]
-    assert pm.reversals(track).tolist() == [3, 4, 8, 11]   # the last trial before each change of direction
-    assert pm.reversals([1, 1, 1]).tolist() == []
-
-
-def _write_csv(path, rows, header=("subject", "condition", "intensity", "correct")):
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
-
-
-def _rows(seed=3):
-    rng = np.random.default_rng(seed)
-    rows = []
-    for subject in ("A", "B"):
-        for condition, thr in (("hfam_firm", 4.0), ("pulse_firm", 5.5)):
-            x, y = _simulate(rng, thr, 1.8, 0.5, 0.01, per_level=30)
-            rows += [[subject, condition, a, b] for a, b in zip(x, y)]
-    return rows
-
-
-def test_command_fits_a_plain_csv_per_subject_condition_and_pooled(tmp_path, capsys):
-    src = tmp_path / "trials.csv"
-    _write_csv(src, _rows())
-    out = tmp_path / "fits"
-    assert main(["psychometric", str(src), "--alternatives", "2", "--bootstrap", "200", "--out", str(out)]) == 0
-    doc = json.loads((out / "fit.json").read_text())
-    for key in ("threshold", "slope", "lapse", "threshold_ci"):
-        assert key in doc
-    assert len(doc["threshold_ci"]) == 2 and doc["threshold_ci"][0] < doc["threshold"] < doc["threshold_ci"][1]
-    groups = {(g["subject"], g["condition"]): g for g in doc["groups"]}
-    assert set(groups) == {(POOLED, "(all)"), (POOLED, "hfam_firm"), (POOLED, "pulse_firm"), ("A", "hfam_firm"),
-                           ("B", "hfam_firm"), ("A", "pulse_firm"), ("B", "pulse_firm")}
-    assert groups[(POOLED, "hfam_firm")]["threshold"] == pytest.approx(4.0, rel=0.15)
-    assert groups[(POOLED, "pulse_firm")]["threshold"] == pytest.approx(5.5, rel=0.15)
-    with (out / "fits.csv").open() as fh:
-        rows = list(csv.DictReader(fh))
-    assert len(rows) == 7 and float(rows[0]["threshold"]) == pytest.approx(doc["threshold"])
-    assert (out / "fig_psychometric.png").stat().st_size > 0 and (out / "fig_psychometric.plot.csv").exists()
-    assert "threshold" in capsys.readouterr().out
-    # an earlier result is never replaced silently
-    assert main(["psychometric", str(src), "--alternatives", "2", "--out", str(out)]) == 2
-    assert "--force" in capsys.readouterr().err
-
-
-def test_command_reads_a_study_folder_and_draws_staircase_tracks(tmp_path):
-    data = tmp_path / "DATA"
-    rng = np.random.default_rng(9)
-    for subject in ("S01", "S02"):
-        folder = data / subject
-        folder.mkdir(parents=True)
-        (folder / "session.json").write_text(json.dumps({
-            "subject": subject, "experiment": {"kind": "detection", "alternatives": 2, "method": "updown"}}))
-        x, rows = 2.0, []
-        for t in range(1, 61):
-            ok = int(rng.random() < pm.psychometric(x, 1.0, 3.0, 0.5, 0.0))
-            rows.append([t, "s1", x, ok, 0])
-            x = max(0.1, x - 0.1) if ok else x + 0.2
-        _write_csv(folder / "trials.csv", rows, ("trial", "staircase", "intensity", "correct", "is_catch"))
-    out = tmp_path / "fits"
-    assert main(["psychometric", str(data), "--bootstrap", "100", "--out", str(out)]) == 0
-    doc = json.loads((out / "fit.json").read_text())
-    assert doc["alternatives"] == 2 and doc["experiment"]["kind"] == "detection"
-    assert doc["threshold"] == pytest.approx(1.0, rel=0.3)
-    with (out / "fig_staircases.plot.csv").open() as fh:
-        rows = list(csv.DictReader(fh))
-    assert len(rows) == 120 and sum(int(r["reversal"]) for r in rows) >= 6
-
-
-@pytest.mark.parametrize("cell, message", [("2", "correct must be 0 or 1, got '2'"),
-                                           ("", "correct must be 0 or 1, got ''")])
-def test_a_bad_correct_cell_is_one_error_naming_file_and_line(tmp_path, capsys, cell, message):
-    src = tmp_path / "bad.csv"
-    rows = _rows()[:20]
-    rows[6][3] = cell
-    _write_csv(src, rows)
-    assert main(["psychometric", str(src), "--alternatives", "2", "--out", str(tmp_path / "o")]) == 2
-    err = capsys.readouterr().err
-    assert f"{src}:8: {message}" in err and "Traceback" not in err
-    assert not (tmp_path / "o" / "fit.json").exists()
-
-
-def test_bad_inputs_get_one_clear_error(tmp_path, capsys):
-    one_level = tmp_path / "one.csv"
-    _write_csv(one_level, [["A", "c", 3.0, 1], ["A", "c", 3.0, 0]])
-    assert main(["psychometric", str(one_level), "--alternatives", "2", "--out", str(tmp_path / "o1")]) == 2
-    assert "two or more intensities" in capsys.readouterr().err
-    src = tmp_path / "t.csv"
-    _write_csv(src, _rows()[:40])
-    assert main(["psychometric", str(src), "--out", str(tmp_path / "o2")]) == 2
-    assert "--alternatives is required" in capsys.readouterr().err
-    no_col = tmp_path / "nocol.csv"
-    _write_csv(no_col, [["A", 1.0]], ("subject", "intensity"))
-    assert main(["psychometric", str(no_col), "--alternatives", "2", "--out", str(tmp_path / "o3")]) == 2
-    assert f"{no_col}:1: missing column(s) correct" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["psychometric", str(src), "--alternatives", "2", "--lapse", "0.6", "--out", str(tmp_path / "o4")])
-    assert "--lapse: must be 'free' or a number in [0, 0.5)" in capsys.readouterr().err
-    assert main(["psychometric", str(tmp_path / "missing.csv"), "--alternatives", "2",
-                 "--out", str(tmp_path / "o5")]) == 2
-    assert "does not exist" in capsys.readouterr().err
-
-
-def test_help_loads_nothing_heavy():
-    code = ("import sys\nfrom analysis.__main__ import main\ntry:\n    main(['psychometric', '--help'])\n"
-            "except SystemExit:\n    pass\nprint(sorted(m for m in ('numpy', 'scipy', 'pandas', 'matplotlib') "
-            "if m in sys.modules))")
-    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert proc.stdout.strip().splitlines()[-1] == "[]", proc.stdout + proc.stderr
-
-
-def test_fit_groups_excludes_catch_trials():
-    rng = np.random.default_rng(1)
-    x, y = _simulate(rng, 4.0, 2.0, 0.5, 0.0, per_level=40)
-    trials_path = Path(__file__)  # any existing path for the sources field
-    from analysis.psychophysics import Trials
-
-    n = len(x)
-    catch = np.zeros(n, dtype=bool)
-    catch[:70] = True                       # the lowest levels' trials as catch trials, all answered wrong
-    y_with_catch = np.where(catch, 0, y)
-    t = Trials(subject=np.array([""] * n, dtype=object), condition=np.array([""] * n, dtype=object),
-               staircase=np.array([""] * n, dtype=object), trial=np.arange(n), intensity=x,
-               correct=y_with_catch.astype(np.int8), is_catch=catch, experiment={}, sources=(str(trials_path),))
-    fits = fit_groups(t, alternatives=2, bootstrap=0)
-    assert fits[0].fit.n_trials == n - 70
-    direct = pm.fit(x[~catch], y[~catch], alternatives=2, bootstrap=0)
-    assert fits[0].fit.threshold == pytest.approx(direct.threshold, rel=1e-9)
-    with pytest.raises(FileNotFoundError):
-        load_trials(trials_path.parent / "no-such-folder")
-
-
 def _psignifit_equal_asymptote(x, y):
     from psignifit import psignifit
 
@@ -305,7 +167,7 @@ def test_equal_asymptotes_recover_the_pse_and_jnd_of_lapsing_observers_without_b
     pse, slope, lapse = 500.0, 0.04, 0.06
     levels = np.linspace(400.0, 600.0, 9)
     n = np.full(len(levels), 40.0)
-    p = pm.psychometric(levels, pse, slope, lapse / 2, lapse / 2)
+    p = psi(levels, pse, slope, lapse / 2, lapse / 2)
     k = rng.binomial(40, p, size=(200, len(levels))).astype(float)
     eq = pm.fit_counts(levels, n, k, alternatives=1, bootstrap=0, equal_asymptote=True)
     zero = pm.fit_counts(levels, n, k, alternatives=1, bootstrap=0)
@@ -319,3 +181,22 @@ def test_equal_asymptotes_recover_the_pse_and_jnd_of_lapsing_observers_without_b
 def test_equal_asymptotes_are_refused_for_an_n_afc_task():
     with pytest.raises(ValueError, match="equal asymptotes .* are for a yes/no task"):
         pm.fit([1, 2, 3], [0, 1, 1], alternatives=2, equal_asymptote=True, bootstrap=0)
+
+
+def test_a_simulated_observers_staircase_data_fit_back_to_its_threshold():
+    """An observer of the one psychometric function, run by QUEST+, fitted back by maximum likelihood."""
+    params = ObserverParams(threshold=0.8, slope=3.5, lapse=0.02, guess=0.5, function="weibull")
+    obs = SimulatedObserver(params, seed=3)
+    method = method_from_table({"method": "quest+", "intensities": {"min": 0.08, "max": 8.0, "n": 41},
+                                "thresholds": {"min": 0.08, "max": 8.0, "n": 41}, "slopes": [2, 3.5, 5],
+                                "lapses": [0, 0.02, 0.04], "guess": 0.5, "max_trials": 200}, "staircase.")
+    xs, ys = [], []
+    while not method.finished:
+        x = method.next_intensity()
+        y = obs.respond(x)
+        method.update(x, y)
+        xs.append(x)
+        ys.append(int(y))
+    fit = pm.fit(xs, ys, alternatives=2, function="weibull", bootstrap=0)
+    assert fit.threshold == pytest.approx(0.8, rel=0.2)
+    assert fit.threshold_ci[0] < 0.8 < fit.threshold_ci[1]

@@ -1,7 +1,7 @@
-"""Psychometric functions fitted by maximum likelihood, with a parametric bootstrap (issue 34).
+"""Psychometric functions fitted by maximum likelihood, with profile-likelihood and bootstrap intervals.
 
-The function (the same parametrisation as the study's adaptive methods, ``study/psychometric.py``;
-a test checks that the two agree)::
+The function (:mod:`psychophysics.psychometric`, the one the adaptive methods and the simulated observer
+use)::
 
     psi(x) = gamma + (1 - gamma - lambda) * F(x; alpha, beta)
     logistic  F = 1 / (1 + exp(-beta (x - alpha)))
@@ -27,10 +27,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special, stats
+from scipy import stats
 
-FUNCTIONS = ("logistic", "normal", "weibull")
-LN2 = math.log(2.0)
+from .psychometric import base_cdf, base_pdf, base_quantile, check_function, from_axis, guess_rate, stimulus_axis
+
 #: default upper bound of a fitted lapse rate (Wichmann & Hill 2001a bound it at 0.06; psignifit's prior
 #: allows up to 0.5 but concentrates below 0.1)
 LAPSE_MAX = 0.1
@@ -38,131 +38,6 @@ LAPSE_MAX = 0.1
 #: the tested stimuli: data that a step function fits perfectly (all wrong below, all right above) give
 #: the steepest allowed function instead of an infinite slope
 WIDTH_RANGE = (1 / 200, 20.0)
-
-
-def _check_function(function: str) -> None:
-    if function not in FUNCTIONS:
-        raise ValueError(f"psychometric function must be one of {', '.join(FUNCTIONS)}, not {function!r}")
-
-
-def base_cdf(z, function: str):
-    """The standard sigmoid G(z) of ``function``, with G(0) = 0.5.
-
-    Parameters
-    ----------
-    z : array_like
-        Standardised stimulus ``beta (u - a)``.
-    function : {'logistic', 'normal', 'weibull'}
-
-    Returns
-    -------
-    ndarray
-        G(z) in [0, 1].
-    """
-    z = np.asarray(z, dtype=float)
-    if function == "logistic":
-        return special.expit(z)
-    if function == "normal":
-        return special.ndtr(z)
-    _check_function(function)
-    return -np.expm1(-LN2 * np.exp(np.minimum(z, 700.0)))
-
-
-def base_pdf(z, function: str):
-    """dG/dz of :func:`base_cdf`."""
-    z = np.asarray(z, dtype=float)
-    if function == "logistic":
-        e = special.expit(z)
-        return e * (1.0 - e)
-    if function == "normal":
-        return np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
-    _check_function(function)
-    ez = LN2 * np.exp(np.minimum(z, 700.0))
-    return ez * np.exp(-ez)
-
-
-def base_quantile(p, function: str):
-    """Inverse of :func:`base_cdf`: the z where G(z) = ``p`` (0 < p < 1)."""
-    p = np.asarray(p, dtype=float)
-    if function == "logistic":
-        return special.logit(p)
-    if function == "normal":
-        return special.ndtri(p)
-    _check_function(function)
-    return np.log(-np.log1p(-p) / LN2)
-
-
-def stimulus_axis(x, function: str):
-    """The axis the function is a location-scale family on: ``ln x`` for the Weibull, ``x`` otherwise."""
-    x = np.asarray(x, dtype=float)
-    if function == "weibull":
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.log(x)
-    return x
-
-
-def from_axis(u, function: str):
-    """Inverse of :func:`stimulus_axis`."""
-    u = np.asarray(u, dtype=float)
-    return np.exp(u) if function == "weibull" else u
-
-
-def sigmoid(x, threshold: float, slope: float, function: str = "logistic"):
-    """F(x; alpha, beta) of the module docstring, before guess and lapse scaling.
-
-    Parameters
-    ----------
-    x : array_like
-        Stimulus intensities (physical units; > 0 for the Weibull).
-    threshold : float or array_like
-        alpha, the stimulus where F = 0.5 (broadcast against ``x``).
-    slope : float or array_like
-        beta (> 0): per stimulus unit (logistic, normal), or the Weibull's shape.
-    function : {'logistic', 'normal', 'weibull'}
-
-    Returns
-    -------
-    ndarray
-    """
-    a = stimulus_axis(threshold, function)
-    return base_cdf(np.asarray(slope, float) * (stimulus_axis(x, function) - a), function)
-
-
-def psychometric(x, threshold: float, slope: float, guess: float = 0.0, lapse: float = 0.0,
-                 function: str = "logistic"):
-    """psi(x) = gamma + (1 - gamma - lambda) F(x): the probability of a correct (or "yes") response.
-
-    Parameters
-    ----------
-    x : array_like
-        Stimulus intensities.
-    threshold, slope : float
-        alpha and beta of :func:`sigmoid`.
-    guess : float
-        gamma, the guess rate (1/n for n-AFC, 0 for yes/no).
-    lapse : float
-        lambda, the lapse rate.
-    function : {'logistic', 'normal', 'weibull'}
-
-    Returns
-    -------
-    ndarray
-    """
-    return guess + (1.0 - guess - lapse) * sigmoid(x, threshold, slope, function)
-
-
-def stimulus_at(f, threshold: float, slope: float, function: str = "logistic"):
-    """The stimulus where the sigmoid F (not psi) equals ``f`` (0 < f < 1)."""
-    a = stimulus_axis(threshold, function)
-    return from_axis(a + base_quantile(f, function) / slope, function)
-
-
-def guess_rate(alternatives: int) -> float:
-    """gamma for ``alternatives``-AFC: 1/n; ``alternatives = 1`` is a yes/no (or "which was harder?") task, 0."""
-    if isinstance(alternatives, bool) or not isinstance(alternatives, (int, np.integer)) or alternatives < 1:
-        raise ValueError(f"--alternatives must be a whole number >= 1 (1: yes/no, n: n-AFC), got {alternatives!r}")
-    return 0.0 if alternatives == 1 else 1.0 / alternatives
-
 
 # ---------------------------------------------------------------------------------------------------------------
 # maximum likelihood
@@ -279,7 +154,7 @@ def fit_many(k, n, x, guess: float, lapse=None, function: str = "logistic", laps
         (a, ln beta[, lambda]) with a on the fitting axis (:func:`stimulus_axis`).
     loglik : ndarray, shape (B,)
     """
-    _check_function(function)
+    check_function(function, "psychometric function")
     k = np.atleast_2d(np.asarray(k, dtype=float))
     B = k.shape[0]
     n = np.broadcast_to(np.asarray(n, dtype=float), k.shape)
@@ -585,7 +460,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
     list of Fit
         One per data set.
     """
-    _check_function(function)
+    check_function(function, "psychometric function")
     guess = _check_options(alternatives, lapse, lapse_max, ci_level, equal_asymptote)
     yes_no = alternatives == 1
     levels = np.asarray(levels, dtype=float)
@@ -648,28 +523,3 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
                        levels=tuple(levels.tolist()), n_per_level=tuple(n.tolist()), k_per_level=tuple(k[b].tolist())))
     return out
 
-
-def reversals(intensity) -> np.ndarray:
-    """Indices of the trials at which a staircase's direction reversed (its turning points).
-
-    Parameters
-    ----------
-    intensity : array_like, shape (T,)
-        The track's intensities in trial order.
-
-    Returns
-    -------
-    ndarray of int
-        Index of each trial whose intensity is a local extreme of the track: the last trial before the
-        direction of change flips (runs of equal intensity are skipped).
-    """
-    x = np.asarray(intensity, dtype=float)
-    if len(x) < 3:
-        return np.zeros(0, dtype=int)
-    diff = np.diff(x)
-    moves = np.flatnonzero(diff != 0)
-    if len(moves) < 2:
-        return np.zeros(0, dtype=int)
-    signs = np.sign(diff[moves])
-    flips = np.flatnonzero(signs[1:] != signs[:-1])
-    return moves[flips + 1]

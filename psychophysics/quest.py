@@ -1,7 +1,7 @@
 """Bayesian adaptive methods on a parameter grid: QUEST+ (Watson 2017) and Psi (Kontsevich & Tyler 1999).
 
 Both keep a posterior over a grid of psychometric functions of the contract
-(:func:`study.psychometric.psi`: threshold x slope x lapse, guess rate fixed at ``1/n``), multiply it by
+(:func:`psychophysics.psychometric.psi`: threshold x slope x lapse, guess rate fixed at ``1/n``), multiply it by
 the likelihood of each response (Bayes' rule) and put the next trial at the intensity of the stimulus grid
 whose outcome is expected to leave the least posterior entropy:
 
@@ -17,7 +17,7 @@ whose outcome is expected to leave the least posterior entropy:
 The prior is uniform over the grid (uniform in log threshold when the threshold grid is log-spaced). The
 estimates are posterior means (in log10 units with ``threshold_scale="log10"``: a geometric mean) with
 95 % credible intervals from the marginal posterior; the maximum a posteriori parameters are reported too.
-The state is the configuration plus the trial history (:class:`study.adaptive.AdaptiveMethod`): the
+The state is the configuration plus the trial history (:class:`psychophysics.adaptive.AdaptiveMethod`): the
 posterior is rebuilt by replaying the updates in the same order, which gives the same bits.
 
 A grid is given either as a list of values or as ``{"min": a, "max": b, "n": k, "spacing": "log10"}``

@@ -1,6 +1,6 @@
 """The common part of every adaptive method: trial history, reversals, stopping rules, state and replay.
 
-Every method (:mod:`study.staircase`: transformed and weighted up-down; :mod:`study.quest`: QUEST+ and Psi)
+Every method (:mod:`psychophysics.staircase`: transformed and weighted up-down; :mod:`psychophysics.quest`: QUEST+ and Psi)
 has the same interface::
 
     x = method.next_intensity()          # the intensity of the next trial (the first one too)
@@ -19,7 +19,8 @@ version of the method is refused rather than silently continued differently.
 
 Reversals are counted the same way for every method: a reversal is a trial after which the track changes
 direction (the next intensity moves opposite to the last move); its intensity is that trial's
-(PsychoPy's ``StairHandler.reversalIntensities`` convention).
+(PsychoPy's ``StairHandler.reversalIntensities`` convention). The rule is :func:`turn`, the one
+:func:`reversals` also applies to a recorded track.
 """
 
 from __future__ import annotations
@@ -182,14 +183,61 @@ class AdaptiveMethod:
         return {"max_trials": self.max_trials, "max_reversals": self.max_reversals}
 
     def _track_reversal(self, intensity: float, following: float) -> None:
-        """Count a reversal when the move ``intensity -> following`` is opposite to the last move."""
-        move = 0 if following == intensity else (1 if following > intensity else -1)
-        if move == 0:
-            return
-        if self._direction != 0 and move != self._direction:
+        """Count a reversal when the move ``intensity -> following`` is opposite to the last move (:func:`turn`)."""
+        reversal, self._direction = turn(self._direction, intensity, following)
+        if reversal:
             self.reversal_intensities.append(intensity)
             self.reversal_trials.append(len(self.history))
-        self._direction = move
+
+
+def turn(direction: int, intensity: float, following: float) -> tuple[bool, int]:
+    """The reversal rule, one step: is the trial at ``intensity`` a reversal, and the track's direction after it.
+
+    Parameters
+    ----------
+    direction : int
+        The direction of the track's last move: +1 up, -1 down, 0 before any move.
+    intensity : float
+        The trial's intensity.
+    following : float
+        The next trial's intensity (a method's proposal, or the next recorded trial).
+
+    Returns
+    -------
+    (bool, int)
+        True when the move ``intensity -> following`` goes against ``direction`` (a turning point: the
+        trial's intensity is a local extreme of the track); the direction after the move (unchanged by a
+        move of zero).
+    """
+    move = 0 if following == intensity else (1 if following > intensity else -1)
+    if move == 0:
+        return False, direction
+    return direction != 0 and move != direction, move
+
+
+def reversals(intensity) -> np.ndarray:
+    """Indices of the trials at which a recorded staircase track reversed (its turning points, :func:`turn`).
+
+    Parameters
+    ----------
+    intensity : array_like, shape (T,)
+        The track's intensities in trial order.
+
+    Returns
+    -------
+    ndarray of int
+        Index of each trial whose intensity is a local extreme of the track: the last trial before the
+        direction of change flips (runs of equal intensity are skipped). A method counts the same trials
+        (:attr:`AdaptiveMethod.reversal_trials`, 1-based) and, before the track has a next trial, also
+        the last one when its proposal turns.
+    """
+    x = np.asarray(intensity, dtype=float)
+    out, direction = [], 0
+    for i in range(len(x) - 1):
+        reversal, direction = turn(direction, float(x[i]), float(x[i + 1]))
+        if reversal:
+            out.append(i)
+    return np.array(out, dtype=int)
 
 
 def build(cls, kwargs: dict, prefix: str = "") -> AdaptiveMethod:

@@ -1,8 +1,8 @@
-"""``simulate-observer``'s work: run an adaptive method against a simulated observer, once or R times.
+"""An adaptive method against a simulated observer, once or R times (``python -m study simulate-observer``).
 
 Answers the planning question asked before a study: with this method, how many trials give what precision?
-One run writes the trial track and the method's estimate; ``repeat`` runs (seeds ``seed .. seed+R-1``)
-give the error of the estimate after every ``checkpoint`` trials, as a table and a figure.
+One run gives the trial track and the method's estimate; ``repeat`` runs (seeds ``seed .. seed+R-1``)
+give the error of the estimate after every ``checkpoint`` trials (:func:`precision_table`).
 
 Defaults when the user gives only the threshold ``T`` (docs/psychophysics.md):
 
@@ -25,22 +25,16 @@ where the observer is correct with the staircase's target probability for ``updo
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 
-from plumbing.fileio import atomic_write_text
 from plumbing.validation import require_int, require_number
 
 from .adaptive import AdaptiveMethod
 from .methods import METHODS
 from .observer import ObserverParams, SimulatedObserver, check_observer
-from .psyfigures import plot_precision, plot_track
 from .quest import Psi, QuestPlus
 from .staircase import UpDown, WeightedUpDown
 
@@ -208,7 +202,7 @@ def precision_table(errors: dict, within: float = 0.2) -> list[dict]:
 
 
 def simulate(s: SimulationSettings, progress=None) -> dict:
-    """Run ``s.repeat`` runs and collect what :func:`write_results` writes.
+    """Run ``s.repeat`` runs and collect what ``simulate-observer`` writes.
 
     Parameters
     ----------
@@ -242,15 +236,6 @@ def simulate(s: SimulationSettings, progress=None) -> dict:
             "precision": precision_table(errors), "tracks": tracks}
 
 
-def _csv(rows: list[dict]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
-    w.writeheader()
-    for row in rows:
-        w.writerow({k: repr(v) if isinstance(v, float) else v for k, v in row.items()})
-    return buf.getvalue()
-
-
 def estimate_record(result: dict) -> dict:
     """The content of estimate.json: the first run's estimate, the truth, the settings and, for several
     runs, the summary over runs."""
@@ -268,30 +253,3 @@ def estimate_record(result: dict) -> dict:
         last = result["precision"][-1]
         record["repeat"] = {"runs": s.repeat, **{k: v for k, v in last.items() if k != "runs"}}
     return record
-
-
-def write_results(result: dict, out, figures: bool = True) -> list:
-    """Write estimate.json, trials.csv, runs.csv and precision.csv (several runs) and the figures into ``out``.
-
-    Every file is written atomically (a kill leaves the old file or the new one, never half of one).
-
-    Returns
-    -------
-    list of pathlib.Path
-        The files written.
-    """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    s: SimulationSettings = result["settings"]
-    written = [atomic_write_text(out / "estimate.json", json.dumps(estimate_record(result), indent=2) + "\n"),
-               atomic_write_text(out / "trials.csv", _csv(result["tracks"]))]
-    if s.repeat > 1:
-        written += [atomic_write_text(out / "runs.csv", _csv(result["runs"])),
-                    atomic_write_text(out / "precision.csv", _csv(result["precision"]))]
-    if figures:
-        first = result["first"]
-        written += list(plot_track(first["track"], out / "staircase.png", reference=result["reference"],
-                                   estimate=first["estimate"]["threshold"], title=s.method).values())
-        if s.repeat > 1:
-            written += list(plot_precision(result["precision"], out / "precision.png", title=s.method).values())
-    return written

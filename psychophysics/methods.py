@@ -56,7 +56,7 @@ def method_from_table(table: dict, prefix: str = "") -> AdaptiveMethod:
 
 
 def method_from_state(state: dict) -> AdaptiveMethod:
-    """Rebuild any adaptive method from its :meth:`~study.adaptive.AdaptiveMethod.state` (replayed exactly).
+    """Rebuild any adaptive method from its :meth:`~psychophysics.adaptive.AdaptiveMethod.state` (replayed exactly).
 
     Raises
     ------

@@ -2,7 +2,7 @@
 
 Used by ``python -m study simulate-observer`` (planning: how many trials a method needs), by the simulated
 participant of the psychophysics kinds and by the tests. Its parameters are those of
-:func:`study.psychometric.psi`: threshold ``alpha``, slope ``beta``, lapse rate ``lambda``, guess rate
+:func:`psychophysics.psychometric.psi`: threshold ``alpha``, slope ``beta``, lapse rate ``lambda``, guess rate
 ``gamma`` (1/n for n-AFC) and the sigmoid's family.
 """
 
@@ -35,7 +35,7 @@ def check_observer(threshold, slope, lapse, guess, function, names: dict | None 
     guess : float
         ``gamma`` in [0, 1).
     function : str
-        One of :data:`study.psychometric.FUNCTIONS`.
+        One of :data:`psychophysics.psychometric.FUNCTIONS`.
     names : dict or None
         Field -> name used in the message (e.g. ``{"lapse": "--lapse"}``).
 
@@ -62,7 +62,7 @@ def check_observer(threshold, slope, lapse, guess, function, names: dict | None 
 
 @dataclass(frozen=True)
 class ObserverParams:
-    """A simulated observer's psychometric function (contract parametrisation, :mod:`study.psychometric`).
+    """A simulated observer's psychometric function (contract parametrisation, :mod:`psychophysics.psychometric`).
 
     Attributes
     ----------

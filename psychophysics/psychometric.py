@@ -1,4 +1,4 @@
-"""The psychometric function of issue 34's contract (the same parametrisation in ``study`` and ``analysis``).
+"""The psychometric function: one parametrisation for the adaptive methods, the fits and the simulated observer.
 
 .. math::
 
@@ -12,11 +12,16 @@ with the sigmoid ``F`` one of
 
 The threshold ``alpha`` is the stimulus where ``F = 0.5`` (before the guess rate ``gamma`` and the lapse
 rate ``lambda`` scale it), for every function; ``beta`` is the slope parameter as written above. ``gamma`` is
-``1/n`` for an n-alternative forced choice and 0 for yes/no and "which was harder?" tasks
-(/work/briefs/psy-contract.md; Kingdom & Prins 2016, *Psychophysics: a practical introduction*, ch. 4;
-Wichmann & Hill 2001, *Percept. Psychophys.* 63(8)). The thresholds and slopes of the three functions
-are therefore not interchangeable: a logistic slope is per intensity unit, a Weibull slope is
-dimensionless (its shape exponent).
+``1/n`` for an n-alternative forced choice and 0 for yes/no and "which was harder?" tasks (Kingdom & Prins
+2016, *Psychophysics: a practical introduction*, ch. 4; Wichmann & Hill 2001, *Percept. Psychophys.* 63(8)).
+The thresholds and slopes of the three functions are therefore not interchangeable: a logistic slope is per
+intensity unit, a Weibull slope is dimensionless (its shape exponent). For a 2AFC task with no lapses the
+threshold is the 75 %-correct point (psignifit 4's ``thresh_PC = 0.5``).
+
+All three are location-scale families of ``z = beta (u - a)`` with ``u = x, a = alpha`` (logistic, normal)
+or ``u = ln x, a = ln alpha`` (Weibull: a Gumbel in log stimulus): :func:`base_cdf` of ``z`` on
+:func:`stimulus_axis`. That is how :mod:`psychophysics.fitting` fits them; :func:`sigmoid` computes the same
+numbers directly.
 """
 
 from __future__ import annotations
@@ -24,12 +29,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import ndtr, ndtri
+from scipy import special
 
-#: the sigmoid families of the contract
+#: the sigmoid families
 FUNCTIONS = ("logistic", "normal", "weibull")
 
-_LN2 = math.log(2.0)
+LN2 = math.log(2.0)
 
 
 def check_function(function: str, name: str = "function") -> str:
@@ -40,7 +45,7 @@ def check_function(function: str, name: str = "function") -> str:
 
 
 def sigmoid(x, threshold, slope, function: str = "logistic"):
-    """The sigmoid ``F(x; alpha, beta)`` of the contract (module docstring), broadcasting over all arguments.
+    """The sigmoid ``F(x; alpha, beta)`` (module docstring), broadcasting over all arguments.
 
     Parameters
     ----------
@@ -63,10 +68,10 @@ def sigmoid(x, threshold, slope, function: str = "logistic"):
         with np.errstate(over="ignore"):
             return 1.0 / (1.0 + np.exp(-slope * (x - threshold)))
     if function == "normal":
-        return ndtr(slope * (x - threshold))
+        return special.ndtr(slope * (x - threshold))
     if function == "weibull":
         ratio = np.clip(x, 0.0, None) / threshold
-        return -np.expm1(-_LN2 * ratio ** slope)
+        return -np.expm1(-LN2 * ratio ** slope)
     raise ValueError(f"function must be one of {', '.join(FUNCTIONS)}, got {function!r}")
 
 
@@ -92,7 +97,7 @@ def psi(x, threshold, slope, guess=0.0, lapse=0.0, function: str = "logistic"):
 
 
 def inverse_sigmoid(f, threshold, slope, function: str = "logistic"):
-    """The intensity where the sigmoid ``F`` equals ``f`` (0 < f < 1): the inverse of :func:`sigmoid`.
+    """The intensity where the sigmoid ``F`` (not ``psi``) equals ``f`` (0 < f < 1): the inverse of :func:`sigmoid`.
 
     Parameters
     ----------
@@ -110,9 +115,9 @@ def inverse_sigmoid(f, threshold, slope, function: str = "logistic"):
     if function == "logistic":
         return threshold + np.log(f / (1.0 - f)) / slope
     if function == "normal":
-        return threshold + ndtri(f) / slope
+        return threshold + special.ndtri(f) / slope
     if function == "weibull":
-        return threshold * (-np.log1p(-f) / _LN2) ** (1.0 / slope)
+        return threshold * (-np.log1p(-f) / LN2) ** (1.0 / slope)
     raise ValueError(f"function must be one of {', '.join(FUNCTIONS)}, got {function!r}")
 
 
@@ -145,9 +150,80 @@ def intensity_at(p_correct, threshold, slope, guess=0.0, lapse=0.0, function: st
 
 
 def jnd(threshold, slope, function: str = "logistic"):
-    """Just-noticeable difference of the contract: ``x(F = 0.75) - x(F = 0.5)`` (intensity units).
+    """Just-noticeable difference: ``x(F = 0.75) - x(F = 0.5)`` (intensity units).
 
     For a "which was harder?" discrimination with the reference at the PSE ``alpha``; the Weber fraction is
     ``jnd / reference``.
     """
     return inverse_sigmoid(0.75, threshold, slope, function) - threshold
+
+
+def guess_rate(alternatives: int) -> float:
+    """gamma for ``alternatives``-AFC: 1/n; ``alternatives = 1`` is a yes/no (or "which was harder?") task, 0."""
+    if isinstance(alternatives, bool) or not isinstance(alternatives, (int, np.integer)) or alternatives < 1:
+        raise ValueError(f"--alternatives must be a whole number >= 1 (1: yes/no, n: n-AFC), got {alternatives!r}")
+    return 0.0 if alternatives == 1 else 1.0 / alternatives
+
+
+# -- the location-scale view (module docstring): what the fits work on ---------------------------------------
+
+def base_cdf(z, function: str):
+    """The standard sigmoid G(z) of ``function``, with G(0) = 0.5: ``F = G(beta (u - a))``.
+
+    Parameters
+    ----------
+    z : array_like
+        Standardised stimulus ``beta (u - a)``.
+    function : {'logistic', 'normal', 'weibull'}
+
+    Returns
+    -------
+    ndarray
+        G(z) in [0, 1].
+    """
+    z = np.asarray(z, dtype=float)
+    if function == "logistic":
+        return special.expit(z)
+    if function == "normal":
+        return special.ndtr(z)
+    check_function(function)
+    return -np.expm1(-LN2 * np.exp(np.minimum(z, 700.0)))
+
+
+def base_pdf(z, function: str):
+    """dG/dz of :func:`base_cdf`."""
+    z = np.asarray(z, dtype=float)
+    if function == "logistic":
+        e = special.expit(z)
+        return e * (1.0 - e)
+    if function == "normal":
+        return np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+    check_function(function)
+    ez = LN2 * np.exp(np.minimum(z, 700.0))
+    return ez * np.exp(-ez)
+
+
+def base_quantile(p, function: str):
+    """Inverse of :func:`base_cdf`: the z where G(z) = ``p`` (0 < p < 1)."""
+    p = np.asarray(p, dtype=float)
+    if function == "logistic":
+        return special.logit(p)
+    if function == "normal":
+        return special.ndtri(p)
+    check_function(function)
+    return np.log(-np.log1p(-p) / LN2)
+
+
+def stimulus_axis(x, function: str):
+    """The axis the function is a location-scale family on: ``ln x`` for the Weibull, ``x`` otherwise."""
+    x = np.asarray(x, dtype=float)
+    if function == "weibull":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(x)
+    return x
+
+
+def from_axis(u, function: str):
+    """Inverse of :func:`stimulus_axis`."""
+    u = np.asarray(u, dtype=float)
+    return np.exp(u) if function == "weibull" else u
