@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 
 from plumbing.validation import load_dataclass_file, require_int, require_number, require_positive
 
-from .choices import EXPERIENCE, GENDERS, HANDEDNESS
+from plumbing.studyfiles import EXPERIENCE, GENDERS, HANDEDNESS
 from .data import check_subject_id
 
 #: upper bounds of the protocol's numbers, so that a session's time, memory and traces stay bounded

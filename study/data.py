@@ -23,12 +23,10 @@ and host of the holder, which a second runner names in its error.
 
 from __future__ import annotations
 
-import csv
 import datetime as _dt
 import errno
 import io
 import json
-import math
 import os
 import re
 import shutil
@@ -42,15 +40,9 @@ from plumbing.fileio import atomic_temp_target, current_umask, fsync_dir
 from plumbing.fileio import atomic_write_bytes as _atomic_write_bytes
 from plumbing.outdir import FileLock
 
-from .choices import EXPERIENCE  # noqa: F401 (study.data.EXPERIENCE, as before: the choices live in study.choices)
+from plumbing.studyfiles import (RATING, RATING_CORE_COLUMNS, TRACES_DIR, DamagedRow, RowFormat,
+                                 parse_trials, read_session_json, trace_name)
 
-TRIAL_COLUMNS = (
-    "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
-    "valid", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m", "incoming_velocities_m_s",
-    "penetration_depths_m", "started_at", "duration_s", "ends_familiarization",
-)
-# sessions written before ``ends_familiarization`` existed (their transition is in schedule.jsonl)
-LEGACY_TRIAL_COLUMNS = TRIAL_COLUMNS[:-1]
 LOCK_NAME = ".lock"
 
 
@@ -122,9 +114,6 @@ class SubjectLock(FileLock):
 SUBJECT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 #: names Windows reserves for devices, in any case (a folder ``DATA/CON`` cannot be created or copied there)
 RESERVED_NAMES = re.compile(r"^(CON|PRN|AUX|NUL|COM[0-9]|LPT[0-9])$", re.IGNORECASE)
-PHASES = ("familiarization", "demonstration", "testing")
-KINDS = ("real", "virtual")
-RATING_MIN, RATING_MAX = 1, 7
 #: what to do about a damaged trials.csv (docs/study.md, "A damaged trials.csv")
 REPAIR_HINT = ("trials.csv is damaged; nothing was changed. Repair (docs/study.md, \"A damaged trials.csv\"): "
                "restore it from a backup, or keep a copy and move this line and every line after it to "
@@ -160,128 +149,6 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     _atomic_write_bytes(path, data)
 
 
-def _fmt_bool(value: bool) -> str:
-    return "true" if value else "false"
-
-
-def _fmt_float(value: float) -> str:
-    return "" if value is None or value != value else repr(float(value))
-
-
-def format_row(row: dict) -> dict:
-    """Turn an attempt record into CSV strings (lists ';'-joined, booleans true|false, rating empty if None)."""
-    out = {}
-    for key in TRIAL_COLUMNS:
-        value = row.get(key) if key == "ends_familiarization" else row[key]
-        if key in ("rejected", "saturated", "overpowered", "valid"):
-            out[key] = _fmt_bool(value)
-        elif key in ("incoming_velocities_m_s", "penetration_depths_m"):
-            out[key] = ";".join(repr(float(v)) for v in value)
-        elif key in ("incoming_velocity_mean_m_s", "penetration_mean_m", "duration_s"):
-            out[key] = _fmt_float(value)
-        elif key == "rating":
-            out[key] = "" if value is None else str(int(value))
-        elif key == "ends_familiarization":
-            out[key] = _fmt_bool(bool(row.get(key, False)))
-        else:
-            out[key] = str(value)
-    return out
-
-
-def _number(text: str, key: str, empty_ok: bool) -> float | None:
-    """A finite number >= 0 written by :func:`format_row` (``None`` for an empty cell when ``empty_ok``)."""
-    if text == "" and empty_ok:
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{key}={text!r} is not a number") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{key}={text!r} must be a finite number >= 0")
-    return value
-
-
-def _check_values(raw: dict, row: dict) -> None:
-    """Ranges and consistency of one parsed row (what :func:`format_row` can write); ValueError otherwise."""
-    if row["phase"] not in PHASES:
-        raise ValueError(f"phase={raw['phase']!r} is not one of {'|'.join(PHASES)}")
-    if row["kind"] not in KINDS:
-        raise ValueError(f"kind={raw['kind']!r} is not one of {'|'.join(KINDS)}")
-    if not row["sample"]:
-        raise ValueError("sample is empty")
-    for key, low in (("trial", 1), ("attempt", 1), ("n_taps", 0)):
-        if row[key] < low:
-            raise ValueError(f"{key}={raw[key]!r} must be >= {low}")
-    rating = row["rating"]
-    if rating is not None and not RATING_MIN <= rating <= RATING_MAX:
-        raise ValueError(f"rating={raw['rating']!r} is not {RATING_MIN}-{RATING_MAX} (or empty)")
-    if rating is not None and (row["rejected"] or row["phase"] == "familiarization"):
-        raise ValueError(f"rating={raw['rating']!r} on a {'rejected' if row['rejected'] else 'familiarization'} "
-                         "attempt, which has none")
-    if row["valid"] and (row["saturated"] or row["overpowered"] or row["rejected"]):
-        raise ValueError("valid=true on an attempt marked rejected, saturated or overpowered")
-    if row["valid"] and row["phase"] != "familiarization" and (rating is None or not row["n_taps"]):
-        raise ValueError("valid=true on a rated phase's attempt without a rating or without taps")
-    if row["ends_familiarization"] and row["phase"] != "familiarization":
-        raise ValueError(f"ends_familiarization=true on a {row['phase']} attempt")
-    for key in ("incoming_velocity_mean_m_s", "penetration_mean_m"):
-        _number(raw[key], key, empty_ok=True)
-    _number(raw["duration_s"], "duration_s", empty_ok=True)
-    for key in ("incoming_velocities_m_s", "penetration_depths_m"):
-        values = [_number(x, key, empty_ok=False) for x in raw[key].split(";")] if raw[key] else []
-        if len(values) != row["n_taps"]:
-            raise ValueError(f"{key} lists {len(values)} values but n_taps={row['n_taps']}")
-    try:
-        _dt.datetime.fromisoformat(raw["started_at"])
-    except (TypeError, ValueError):
-        raise ValueError(f"started_at={raw['started_at']!r} is not an ISO 8601 time") from None
-
-
-def parse_row(raw: dict, where: str) -> dict:
-    """Inverse of :func:`format_row`, checking every field (count, type, range, consistency: what the
-    runner can write); errors name ``where`` (file and line)."""
-    if None in raw:  # csv.DictReader puts the fields beyond the header under the key None
-        raise ValueError(f"{where}: {len(raw) - 1 + len(raw[None])} fields, the header has {len(raw) - 1}")
-    if any(value is None for value in raw.values()):  # ... and fills a short row's missing fields with None
-        n = sum(value is not None for value in raw.values())
-        raise ValueError(f"{where}: {n} fields, the header has {len(raw)}")
-    row = dict(raw)
-    row.setdefault("ends_familiarization", None)  # legacy file: the transition is in schedule.jsonl
-    try:
-        if row["ends_familiarization"] is not None:
-            if raw["ends_familiarization"] not in ("true", "false"):
-                raise ValueError(f"ends_familiarization={raw['ends_familiarization']!r} is not true|false")
-            row["ends_familiarization"] = raw["ends_familiarization"] == "true"
-        for key in ("rejected", "saturated", "overpowered", "valid"):
-            if raw[key] not in ("true", "false"):
-                raise ValueError(f"{key}={raw[key]!r} is not true|false")
-            row[key] = raw[key] == "true"
-        row["trial"] = int(raw["trial"])
-        row["attempt"] = int(raw["attempt"])
-        row["rating"] = int(raw["rating"]) if raw["rating"] else None
-        row["n_taps"] = int(raw["n_taps"])
-        _check_values(raw, row)
-    except (KeyError, ValueError) as exc:
-        raise ValueError(f"{where}: bad value ({exc})") from None
-    return row
-
-
-def _check_sequence(row: dict, where: str, seen: set, attempts: dict, phase_at: int) -> None:
-    """The row continues the file's sequence: phases in order (familiarization, demonstration, testing),
-    each ``(phase, trial, attempt)`` once, and a trial's attempts numbered 1, 2, ... as they were run."""
-    key = (row["phase"], row["trial"], row["attempt"])
-    if key in seen:
-        raise ValueError(f"{where}: {row['phase']} trial {row['trial']} attempt {row['attempt']} is recorded twice")
-    if PHASES.index(row["phase"]) < phase_at:
-        raise ValueError(f"{where}: a {row['phase']} attempt after the {PHASES[phase_at]} phase began")
-    expected = attempts.get(key[:2], 0) + 1
-    if row["attempt"] != expected:
-        raise ValueError(f"{where}: {row['phase']} trial {row['trial']} attempt {row['attempt']}, expected attempt "
-                         f"{expected} (attempts are numbered 1, 2, ... as they run)")
-    seen.add(key)
-    attempts[key[:2]] = expected
-
-
 def _fd_path(fd: int) -> str:
     """Where the file open as ``fd`` is now (Linux ``/proc``; "" when unknown or deleted)."""
     try:
@@ -289,23 +156,6 @@ def _fd_path(fd: int) -> str:
     except OSError:
         return ""
     return "" if path.endswith(" (deleted)") else path
-
-
-def _whole_last_row(head: bytes, last: bytes, where: str) -> bool:
-    """Whether ``last`` (a trials.csv line without its newline, after the lines ``head``) is a complete,
-    valid row: as many fields as the header and every value parses."""
-    try:
-        head_text, last_text = head.decode("utf-8"), last.decode("utf-8")
-        header = next(csv.reader(io.StringIO(head_text)), None)
-        if header is None:                          # the header line itself lacks its newline
-            return tuple(next(csv.reader([last_text]), ())) in (TRIAL_COLUMNS, LEGACY_TRIAL_COLUMNS)
-        fields = list(csv.reader(io.StringIO(last_text + "\n")))
-        if len(fields) != 1 or len(fields[0]) != len(header):
-            return False
-        parse_row(dict(zip(header, fields[0])), where)
-        return True
-    except (UnicodeDecodeError, ValueError, csv.Error):
-        return False
 
 
 def _append_durably(path: Path, data: bytes) -> None:
@@ -384,8 +234,8 @@ class SessionStore:
         Open an existing, unfinished session instead of creating a new one.
     """
 
-    #: the header ``create`` writes to trials.csv (a psychophysics session's store has its own columns)
-    trial_columns = TRIAL_COLUMNS
+    #: trials.csv's format (plumbing.studyfiles): the rating study's, or the experiment kind's
+    rows: RowFormat = RATING
 
     def __init__(self, root, subject: str, resume: bool = False) -> None:
         self.subject = check_subject_id(subject)
@@ -394,7 +244,7 @@ class SessionStore:
         self.session_path = self.dir / "session.json"
         self.trials_path = self.dir / "trials.csv"
         self.schedule_path = self.dir / "schedule.jsonl"
-        self.traces_dir = self.dir / "traces"
+        self.traces_dir = self.dir / TRACES_DIR
         self.resume = resume
         self.session: dict | None = None
         self.lock: SubjectLock | None = None
@@ -549,27 +399,8 @@ class SessionStore:
 
     # -- session.json ----------------------------------------------------
     def load_session(self) -> dict:
-        """Read ``session.json``; a binary, truncated or non-JSON file gives one line naming the file."""
-        try:
-            data = self.session_path.read_bytes()
-        except OSError as exc:
-            raise ValueError(f"{self.session_path}: cannot be read ({exc.strerror})") from None
-        try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise ValueError(f"{self.session_path}: not a text file (byte {exc.start} is not UTF-8); "
-                             "session.json is damaged") from None
-        if not text.strip():
-            raise ValueError(f"{self.session_path}: empty file; session.json is damaged")
-        try:
-            session = json.loads(text)
-        except json.JSONDecodeError as exc:
-            truncated = exc.pos >= len(text.rstrip())
-            raise ValueError(f"{self.session_path}: {'truncated' if truncated else 'not valid'} JSON "
-                             f"(line {exc.lineno}: {exc.msg})") from None
-        if not isinstance(session, dict):
-            raise ValueError(f"{self.session_path}: expected a JSON object, found {type(session).__name__}")
-        return session
+        """Read ``session.json`` (plumbing.studyfiles.read_session_json: one line naming the file when damaged)."""
+        return read_session_json(self.session_path)
 
     def create(self, session: dict, events=()) -> None:
         """Create the subject folder atomically: build it under a temporary name, then rename it into place.
@@ -587,9 +418,7 @@ class SessionStore:
             self.session = dict(session)
             atomic_write_bytes(tmp / "session.json", (json.dumps(self.session, indent=2) + "\n").encode())
             crash_point("startup: session.json written")
-            buf = io.StringIO()
-            csv.writer(buf, lineterminator="\n").writerow(self.trial_columns)
-            atomic_write_bytes(tmp / "trials.csv", buf.getvalue().encode())
+            atomic_write_bytes(tmp / "trials.csv", self.rows.header_line().encode())
             crash_point("startup: trials.csv written")
             lines = "".join(json.dumps({"at": utc_now(), **e}) + "\n" for e in events)
             atomic_write_bytes(tmp / "schedule.jsonl", lines.encode())
@@ -624,49 +453,24 @@ class SessionStore:
 
     # -- trials.csv ------------------------------------------------------
     def read_trials(self) -> list[dict]:
-        """Read recorded attempts. A last line without its newline is completed if it is a whole, valid
-        row; only one that does not parse (torn by a crash) is dropped: copied to ``trials.csv.torn``,
-        truncated away, with a note naming the file and line."""
-        data = mend_last_line(self.trials_path, self.trials_path.read_bytes(), _whole_last_row)
+        """Read recorded rows (:attr:`rows`' format, every value and the sequence checked). A last line without
+        its newline is completed if it is a whole, valid row; only one that does not parse (torn by a crash) is
+        dropped: copied to ``trials.csv.torn``, truncated away, with a note naming the file and line."""
+        data = mend_last_line(self.trials_path, self.trials_path.read_bytes(), self.rows.whole_last_row)
         try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            line = data[:exc.start].count(b"\n") + 1
-            raise ValueError(f"{self.trials_path} line {line}: not UTF-8 text (byte {exc.start}: "
-                             f"{data[exc.start:exc.start + 1]!r}); trials.csv is damaged") from None
-        reader = csv.DictReader(io.StringIO(text))
-        try:
-            header = tuple(reader.fieldnames or ())
-        except csv.Error as exc:
-            raise ValueError(f"{self.trials_path} line 1: not CSV ({exc}); {REPAIR_HINT}") from None
-        self.legacy_columns = header == LEGACY_TRIAL_COLUMNS
-        if header != TRIAL_COLUMNS and not self.legacy_columns:
-            raise ValueError(f"{self.trials_path}: header {reader.fieldnames} is not {list(TRIAL_COLUMNS)}")
-        rows, seen, attempts, phase_at = [], set(), {}, 0
-        try:
-            for raw in reader:
-                where = f"{self.trials_path} line {reader.line_num}"
-                row = parse_row(raw, where)
-                if row["subject"] != self.subject:
-                    raise ValueError(f"{where}: subject={row['subject']!r}, but the session is {self.subject!r}")
-                _check_sequence(row, where, seen, attempts, phase_at)
-                phase_at = PHASES.index(row["phase"])
-                rows.append(row)
-        except csv.Error as exc:
-            raise ValueError(f"{self.trials_path} line {reader.line_num}: not CSV ({exc}); {REPAIR_HINT}") from None
-        except ValueError as exc:
+            rows, header = parse_trials(self.rows, data, self.trials_path, self.subject)
+        except DamagedRow as exc:
             raise ValueError(f"{exc}; {REPAIR_HINT}") from None
+        self.legacy_columns = header == RATING_CORE_COLUMNS
         return rows
 
     def append_trial(self, row: dict) -> None:
-        """Append one attempt row through the held trials.csv, then fsync (the row is on disk when this
-        returns); :class:`DataFileChanged` first if the file changed under the runner."""
-        formatted = format_row(row)
-        columns = LEGACY_TRIAL_COLUMNS if self.legacy_columns else TRIAL_COLUMNS
-        buf = io.StringIO()
-        csv.DictWriter(buf, columns, lineterminator="\n", extrasaction="ignore").writerow(formatted)
-        self.append_trial_text(buf.getvalue())
-        crash_point(f"row written: {row['phase']} {row['trial']}/{row['attempt']}")
+        """Append one row through the held trials.csv, then fsync (the row is on disk when this returns);
+        :class:`DataFileChanged` first if the file changed under the runner."""
+        columns = RATING_CORE_COLUMNS if self.legacy_columns else None
+        self.append_trial_text(self.rows.line(row, columns))
+        where = f"{row['phase']} " if "phase" in row else "trial "
+        crash_point(f"row written: {where}{row['trial']}/{row['attempt']}")
 
     def append_trial_text(self, text: str) -> None:
         """Append formatted CSV line(s) through the held trials.csv and fsync them; :class:`DataFileChanged`
@@ -700,7 +504,7 @@ class SessionStore:
     # -- traces ----------------------------------------------------------
     def trace_path(self, phase: str, trial: int, attempt: int) -> Path:
         """Path of the trace file of one attempt (``<phase>_t<trial>_a<attempt>.npz``)."""
-        return self.traces_dir / f"{phase}_t{trial:03d}_a{attempt:02d}.npz"
+        return self.traces_dir / trace_name(phase, trial, attempt)
 
     def write_trace(self, phase: str, trial: int, attempt: int, arrays: dict) -> Path:
         """Write one attempt's arrays (``np.savez``) atomically; returns the path."""

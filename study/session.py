@@ -20,7 +20,7 @@ from stimuli import load_catalog
 
 from .config import ProtocolConfig, SubjectInfo, load_protocol
 from .data import SessionStore, check_subject_id, utc_now
-from .psydata import PSY_COLUMNS
+from plumbing.studyfiles import FORCED_CHOICE
 from .experiment import ExperimentConfig, experiment_from_dict, load_protocol_file, stimulus_catalog
 
 
@@ -241,7 +241,7 @@ def plan_session(args) -> SessionPlan:
         _check_same_catalog(previous["catalog"], _catalog_entries(catalog), store.session_path)
 
     if experiment is not None:
-        store.trial_columns = PSY_COLUMNS
+        store.rows = FORCED_CHOICE
     return SessionPlan(subject, store, previous, is_sim, protocol, seed, info, library_dir, catalog_file, catalog,
                        experiment)
 
@@ -304,7 +304,7 @@ def start_session(plan: SessionPlan, args, schedule, device_info: dict, servo_pr
     else:
         store.session = previous
         # every row checked: a damaged file is refused, naming the line
-        rows = store.read_trials() if read_rows is None else read_rows(store)
+        rows = store.read_trials()
         store.hold_trials()
         if plan.experiment is not None:
             fam_ended = True  # no familiarization in a psychophysics session

@@ -6,7 +6,9 @@ import subprocess
 
 import pytest
 
-from study.data import TRIAL_COLUMNS, SessionStore, check_subject_id, format_row
+from plumbing.studyfiles import RATING_COLUMNS as TRIAL_COLUMNS
+from plumbing.studyfiles import format_rating_row as format_row
+from study.data import SessionStore, check_subject_id
 
 from .helpers import run_study, write
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 import study.data
+from plumbing.studyfiles import RATING_COLUMNS
 from analysis.load import load_study
 
 from .helpers import quick_args, read_session, run_study
@@ -116,7 +117,7 @@ def unfinished(tmp_path_factory):
 
 def _edit_cell(line: str, column: str, value: str) -> str:
     cells = line.rstrip("\n").split(",")
-    cells[study.data.TRIAL_COLUMNS.index(column)] = value
+    cells[RATING_COLUMNS.index(column)] = value
     return ",".join(cells) + "\n"
 
 

@@ -119,7 +119,7 @@ def test_bad_npz_named_and_told_apart(tmp_path, content, expected):
 
 
 @pytest.mark.parametrize("content, expected", [
-    (b"\xff\xfe\x00binary", "not a text file"),
+    (b"\xff\xfe\x00binary", "not UTF-8 text"),
     (b'{"subject": "B01", "seed": ', "truncated JSON"),
     (b"", "empty file"),
 ])
@@ -130,7 +130,7 @@ def test_damaged_session_json_named(tmp_path, capsys, content, expected):
     (folder / "trials.csv").write_text("x\n")
     assert run_study("--subject", "B01", "--out", tmp_path / "DATA", "--resume") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"error: {folder / 'session.json'}: ") and expected in err[0], err
+    assert len(err) == 1 and err[0].startswith(f"error: {folder / 'session.json'}:") and expected in err[0], err
 
 
 def test_non_utf8_trials_csv_named(tmp_path):

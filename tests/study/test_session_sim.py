@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from study.data import TRIAL_COLUMNS
+from plumbing.studyfiles import RATING_COLUMNS as TRIAL_COLUMNS
 
 from .helpers import quick_args, read_rows, read_session, run_study
 

@@ -1,7 +1,6 @@
-"""Contract with the study runner: what ``study.data`` writes, ``analysis`` reads (issue 6 schema).
+"""What the study's store writes, the analysis reads and analyses: both sides of plumbing.studyfiles, end to end.
 
-The test imports the study's own writer (the analysis package itself never imports study) so a
-change of the format on either side shows up here.
+The test imports the study's own writer (the analysis package itself never imports study).
 """
 
 from __future__ import annotations
@@ -11,19 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.load import TRIAL_COLUMNS
 from analysis.pipeline import analyse
 from analysis.report import write_report
 from analysis.stats import valid_testing
 from analysis.synthetic import DEFAULT_SAMPLES
 from analysis.traces import typical_taps
-
-
-def test_trial_columns_agree():
-    import study.data as study_data  # imported here: a study mid-edit fails this test, not the collection
-    # the study's files carry one bookkeeping column more (ends_familiarization, crash-safe phase transition),
-    # which the analysis, reading columns by name, does not need
-    assert tuple(study_data.TRIAL_COLUMNS) == TRIAL_COLUMNS + ("ends_familiarization",)
+import study.data as study_data
 
 
 def _trace(v_in: float, fs_hz: float = 10000.0) -> dict:
@@ -44,7 +36,6 @@ def _trace(v_in: float, fs_hz: float = 10000.0) -> dict:
 
 
 def test_files_written_by_the_study_store_are_analysed(tmp_path):
-    import study.data as study_data
     rng = np.random.default_rng(2)
     names = [s.name for s in DEFAULT_SAMPLES]
     for k in range(4):
@@ -85,7 +76,7 @@ def test_files_written_by_the_study_store_are_analysed(tmp_path):
     assert all(abs(tap.v_in_m_s - 0.1) < 0.02 for tap in taps.values())
     out = write_report(res, tmp_path / "report")
     assert [p.name for p in out["figures"]][-1] == "fig_4_20_accelerations.png"
-    # issue 35: the models fit the study's own files; every attempt enters, velocity as the covariate
+    # the models fit the study's own files; every attempt enters, velocity as the covariate
     assert res.models.mixed["fitted"] and res.models.ordinal["fitted"], res.models.notes
     assert res.models.mixed["n_attempts"] == 96 and res.models.mixed["covariates"] == ["velocity_m_s"]
     emm = res.models.emm.set_index("sample")["emm"]
