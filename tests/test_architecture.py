@@ -254,3 +254,53 @@ def test_the_deferred_import_check_finds_an_unmarked_import(tmp_path):
                  "    import y  # just a note\n    return os, json\n")
     hits = _unmarked_function_imports(f, tmp_path)
     assert [h.split(":")[1] for h in hits] == ["4", "7"]
+
+
+#: the attempt's steps (the present/ask sequence): called only by the attempt loop, and by the apparatus that
+#: implements them (its servo process forwards them)
+ATTEMPT_STEPS = {"tap_window", "cue_tap", "cue_rate", "request_confirm", "after_window"}
+STEP_CALLERS = {"study/session/loop.py", "study/session/apparatus.py", "study/session/isolated.py"}
+#: the durable writes of a subject's files: only the store makes them
+STORE = "study/session/store.py"
+
+
+def _calls(path: Path):
+    """(line, callee name, the call node) of every call in ``path``: ``f(...)`` -> ``f``, ``x.f(...)`` -> ``f``."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Call):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            owner = func.value.id if isinstance(func, ast.Attribute) and isinstance(func.value, ast.Name) else ""
+            yield node.lineno, owner, name, node
+
+
+def _append_mode(call: ast.Call) -> bool:
+    """``open(path, "a...")`` (or ``mode="a..."``)."""
+    modes = [a for a in call.args[1:2]] + [k.value for k in call.keywords if k.arg == "mode"]
+    return any(isinstance(m, ast.Constant) and isinstance(m.value, str) and "a" in m.value for m in modes)
+
+
+def test_only_the_session_machinery_runs_an_attempt_and_writes_a_subjects_files():
+    """No module of ``study`` outside ``study/session/`` repeats the store or the loop: the attempt's steps
+    (place and confirm, cue, tapping window, homing after it, the spoken question) are called by the loop only
+    (kinds compose them through ``SessionLoop.present`` and ``ask``), and only the store fsyncs, writes to a
+    descriptor or opens a file for appending (the row log, the JSON-lines files)."""
+    bad = []
+    for path in sorted((ROOT / "study").rglob("*.py")):
+        rel = str(path.relative_to(ROOT))
+        for line, owner, name, call in _calls(path):
+            if name in ATTEMPT_STEPS and rel not in STEP_CALLERS:
+                bad.append(f"{rel}:{line}: calls {name}() (the attempt loop's step: study.session.loop)")
+            if rel != STORE and ((owner == "os" and name in ("fsync", "write", "open")) or
+                                 (name == "open" and _append_mode(call))):
+                bad.append(f"{rel}:{line}: {owner + '.' if owner else ''}{name}(): a durable write outside the store")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_session_rule_finds_a_kind_that_runs_its_own_window(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import os\ndef run(app, fh, path):\n    app.tap_window(5.0, 5.0)\n    os.fsync(fh.fileno())\n"
+                 "    open(path, 'ab')\n    open(path, mode='a')\n    open(path)\n")
+    found = [(line, name) for line, _, name, call in _calls(f)
+             if name in ATTEMPT_STEPS or name == "fsync" or (name == "open" and _append_mode(call))]
+    assert found == [(3, "tap_window"), (4, "fsync"), (5, "open"), (6, "open")]

@@ -15,11 +15,11 @@ from analysis.report import write_report
 from analysis.stats import valid_testing
 from analysis.synthetic import DEFAULT_SAMPLES
 from analysis.traces import typical_taps
-import study.data as study_data
+import study.session.store as study_data
 
 
 def _trace(v_in: float, fs_hz: float = 10000.0) -> dict:
-    """Arrays shaped like study.apparatus.TapResult.trace: one tap at 0.2 s with ringing after it."""
+    """Arrays shaped like study.session.apparatus.TapResult.trace: one tap at 0.2 s with ringing after it."""
     t = np.arange(int(0.5 * fs_hz)) / fs_hz
     tau = np.clip(t - 0.2, 0.0, None)
     acc = np.where(t >= 0.2, 400.0 * v_in * np.exp(-tau / 0.01) * np.sin(2 * np.pi * 120.0 * tau), 0.0)
