@@ -16,32 +16,10 @@ The parser (light: imported for ``--help``); the body is :mod:`renderer.cli_run`
 
 from __future__ import annotations
 
-import argparse
-import math
-
-from plumbing.cliargs import add_renamed, with_examples
+from plumbing.cliargs import add_renamed, positive, positive_list, with_examples
 from plumbing.dispatch import Body
 
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
-
-
-def _positive(name):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
-        return value
-    return parse
-
-
-def _velocities(text: str) -> list[float]:
-    out = []
-    for part in text.split(","):
-        out.append(_positive("--velocity")(part.strip()))
-    return out
 
 
 def register(subparsers) -> None:
@@ -67,12 +45,12 @@ def register(subparsers) -> None:
     add_renamed(p, "--damping-N-s-m", "--damping", dest="damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
     p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md); default: built-in settings")
     p.add_argument("--taps", type=int, default=10, help="sim: number of taps (default 10)")
-    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=_velocities, default=[0.1],
+    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=positive_list("--velocity"), default=[0.1],
                    help="sim: tap speed in m/s (comma list: one per tap, cycled; default 0.1)")
     add_renamed(p, "--grip-N", "--grip", dest="grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
     p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
     p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
-    add_renamed(p, "--duration-s", "--duration", dest="duration", type=_positive("--duration"), default=None,
+    add_renamed(p, "--duration-s", "--duration", dest="duration", type=positive("--duration"), default=None,
                    help="run length in s (hardware default: until Ctrl-C; sim default: until the taps are done)")
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
     p.add_argument("--in-process", action="store_true",
