@@ -14,7 +14,7 @@ from devices.sim import SimDevice
 from stimuli import HfamLibrary
 from stimuli.__main__ import main
 from tests.support.files import sha256
-from tests.stimuli.conftest import (
+from tests.support.stimuli import (
     minimum_phase_model,
     rhp_zero_model,
     synthetic_taps,
