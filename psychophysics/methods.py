@@ -15,11 +15,15 @@ Every error names the key, with the table's name as prefix (``"staircase.A.step_
 from __future__ import annotations
 
 from .adaptive import AdaptiveMethod, build
+from .names import METHOD_NAMES
 from .quest import Psi, QuestPlus
 from .staircase import UpDown, WeightedUpDown
 
-#: method name (protocol ``method``, ``--method``, a state's ``method``) -> class
-METHODS: dict[str, type[AdaptiveMethod]] = {cls.name: cls for cls in (UpDown, WeightedUpDown, QuestPlus, Psi)}
+#: method name (protocol ``method``, ``--method``, a state's ``method``: :data:`psychophysics.names.METHOD_NAMES`)
+#: -> class
+METHODS: dict[str, type[AdaptiveMethod]] = dict(zip(METHOD_NAMES, (UpDown, WeightedUpDown, QuestPlus, Psi)))
+if any(name != cls.name for name, cls in METHODS.items()):  # a state names its method by the class's own name
+    raise RuntimeError(f"psychophysics.names.METHOD_NAMES {METHOD_NAMES} do not name {list(METHODS.values())}")
 
 
 def _class(name, prefix: str) -> type[AdaptiveMethod]:

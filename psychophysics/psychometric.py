@@ -31,8 +31,7 @@ import math
 import numpy as np
 from scipy import special
 
-#: the sigmoid families
-FUNCTIONS = ("logistic", "normal", "weibull")
+from .names import FUNCTIONS
 
 LN2 = math.log(2.0)
 

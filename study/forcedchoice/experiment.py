@@ -27,13 +27,14 @@ from pathlib import Path
 
 from plumbing.validation import require_int
 from psychophysics.multistair import Interleaved
+from psychophysics.names import METHOD_NAMES
 
 from ..session.config import ProtocolConfig, protocol_from, read_protocol_file
 from ..session.rng import seed_sequence, session_rng
 
 KINDS = ("real-virtual-2afc", "discrimination", "detection")
 #: adaptive methods (:mod:`psychophysics.methods`: Levitt 1971, Kaernbach 1991, Watson 2017, Kontsevich & Tyler 1999)
-ADAPTIVE_METHODS = ("updown", "weighted", "quest+", "psi")
+ADAPTIVE_METHODS = METHOD_NAMES
 METHODS = ("constant", *ADAPTIVE_METHODS)
 VARIED = {"discrimination": ("stiffness_N_m", "amplitude_Ns_m", "gain"),
           "detection": ("amplitude_Ns_m", "gain")}
