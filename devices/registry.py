@@ -3,6 +3,8 @@
 ``sim``                 simulated device, Table 3.1 parameters (nonlinear model)
 ``sim:lti``             simulated linear "Phantom-like" device
 ``sim:<params file>``   simulated device from a TOML/JSON parameter file
+``sim:3d``              simulated 3-DOF device (the 1-DOF sim along the tap, docs/sim.md); ``sim:3d-delta``
+                        (Falcon-like linkage), ``sim:3d-serial`` (Phantom-like)
 ``serial:<port>``       hardware over a serial/CDC port (e.g. serial:/dev/ttyACM0)
 ``hid:<vid>:<pid>``     hardware over USB HID (hex ids, e.g. hid:16c0:0486)
 ``fw-sim``              the real AVR firmware on simavr behind a pty (devices/firmware/fw_sim.py)
@@ -23,8 +25,9 @@ from __future__ import annotations
 
 from .base import Device
 
-DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>", "fw-sim",
-                "inverse3:<port>", "falcon:<index>", "woodenhaptics", "dhd:<index>", "touch:<name>")
+DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "sim:3d", "sim:3d-delta", "sim:3d-serial", "serial:<port>",
+                "hid:<vid>:<pid>", "fw-sim", "inverse3:<port>", "falcon:<index>", "woodenhaptics", "dhd:<index>",
+                "touch:<name>")
 #: the 3-DOF research devices (devices/lab_devices.py)
 LAB_KINDS = ("inverse3", "falcon", "woodenhaptics", "dhd", "touch")
 
@@ -94,8 +97,10 @@ def make_device(spec: str, **options) -> Device:
 
         return make_lab_device(kind, rest, options, spec)
     if kind == "sim":
-        from .sim import SimDevice  # deferred: with numpy, 0.12 s CPU that every devices --help would pay
+        from .sim import Sim3Device, SimDevice  # deferred: with numpy, 0.12 s CPU that every devices --help would pay
 
+        if rest in ("3d", "3d-delta", "3d-serial"):
+            return Sim3Device(linkage=rest[3:] or None, **options)
         return SimDevice.from_spec(rest or None, **options)
     if kind == "fw-sim":
         from .firmware.fw_sim import FwSimDevice  # deferred: 19 ms CPU (simavr harness) a sim run does not need

@@ -151,6 +151,9 @@ class RunResult:
     config, device, transient : run metadata for ``run.json``.
     """
 
+    #: the columns of events.csv (a 3-D run adds the object, normal and position: renderer.loop3)
+    event_columns = EVENT_COLUMNS
+
     events: list
     log: dict
     timing: dict
@@ -171,10 +174,10 @@ class RunResult:
         tmp = out / "events.csv.tmp"
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
             writer = csv.writer(fh)
-            writer.writerow(EVENT_COLUMNS)
+            writer.writerow(self.event_columns)
             for ev in self.events:
                 row = []
-                for name in EVENT_COLUMNS:
+                for name in self.event_columns:
                     value = getattr(ev, name)
                     if isinstance(value, (bool, np.bool_)):
                         row.append("true" if value else "false")
@@ -358,6 +361,9 @@ class ServoLoop:
         self.continuous_safe_A = safe_continuous_current(info, ic)
         self.force_per_amp = info.force_per_amp_N_A
         self.scene = cfg.effective_scene
+        if self.scene.needs_3d:
+            raise ValueError(f"{self.scene.source}: meshes and objects with their own stiffness, friction or "
+                             "transient render with the 3-D renderer (renderer.loop3.ServoLoop3), not the 1-DOF loop")
         self.on_device = bool(getattr(dev, "on_device_rendering", False)) and "on_device" in info.capabilities
         self.nbuf = max(1, int(math.ceil(cfg.max_transient_s * fs - 1e-9)))
         tr = self.transient
