@@ -47,7 +47,7 @@ def fake_hd(tmp_path_factory):
 
     from plumbing import sysdeps
 
-    from .needs import need
+    from tests.support.needs import need
 
     need("cc")
     src = Path(__file__).resolve().parent / "devices" / "hardware" / "contract" / "fake_hd" / "fake_hd.c"

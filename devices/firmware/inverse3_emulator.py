@@ -69,6 +69,7 @@ class Inverse3Emulator:
         # the last force requests as decoded and the states answered (for tests; bounded)
         self.forces_received: deque = deque(maxlen=100_000)
         self.states_sent: deque = deque(maxlen=100_000)
+        self.currents_sent: deque = deque(maxlen=1000)   # (currents (A), whether the watchdog had zeroed the motors)
         self.stats = {"requests": 0, "force_requests": 0, "replies": 0, "watchdog_trips": 0, "garbage_sent": 0,
                       "bad_requests": 0, "ticks": 0}
         self.disconnected = False
@@ -177,6 +178,7 @@ class Inverse3Emulator:
             self._reply(bytes((H.TEMPERATURE,)) + H.F32.pack(31.5))
         elif code == H.CURRENTS:
             fx, fy, fz = ep.force
+            self.currents_sent.append(((0.1 * fx, 0.1 * fy, 0.1 * fz), self.tripped))
             self._reply(bytes((H.CURRENTS,)) + H.VEC3.pack(0.1 * fx, 0.1 * fy, 0.1 * fz))
         elif code == H.POWER:
             self._reply(bytes((H.POWER, 1)))

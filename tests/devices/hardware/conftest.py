@@ -7,7 +7,7 @@ import pytest
 
 from plumbing import sysdeps
 
-from ...needs import need
+from tests.support.needs import need
 
 HERE = Path(__file__).resolve().parent / "contract"
 
