@@ -31,6 +31,8 @@ MAX_STIFFNESS_N_M = 1260.0  # Touch: x 1.26, y 2.31, z 1.02 N/mm (the mean of x 
 HALF_BOX_M = (0.035, 0.08, 0.06)
 POSITION_RESOLUTION_M = 5.5e-5   # Touch: > 450 dpi
 WATCHDOG_TICKS = 20
+#: how long opening waits for the servo callback's first tick (1 ms on a working device; a loaded host can delay it)
+FIRST_TICK_TIMEOUT_S = 1.0
 
 
 class TouchDevice(ThreeAxisDevice):
@@ -98,6 +100,14 @@ class TouchDevice(ThreeAxisDevice):
                                                      A.HD_MAX_SCHEDULER_PRIORITY)
             lib.hdStartScheduler()
             self._check_error("starting the scheduler")
+            # no state exists before the callback's first tick (the block holds zeros, not a position): wait for it,
+            # so that the first read is a real sample
+            self._last_tick, deadline = -1.0, time.monotonic() + FIRST_TICK_TIMEOUT_S
+            while self._block[7] < 1.0:
+                if time.monotonic() > deadline:
+                    raise DeviceError(f"{self.name}: the servo loop did not run within {FIRST_TICK_TIMEOUT_S:g} s "
+                                      "of starting the scheduler; is the device powered and calibrated (Touch Setup)?")
+                time.sleep(0.0005)
         except BaseException:
             self._close_link()
             raise

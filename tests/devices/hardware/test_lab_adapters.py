@@ -275,6 +275,11 @@ def test_touch_unknown_name_and_a_fault_mid_run(fake_hd, monkeypatch):
     monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", str(fake_hd))
     with pytest.raises(DeviceError, match="cannot initialise the device .*no such device"):
         TouchDevice("Left Phantom").open()
+    # the first read after opening is a sample, not the empty state before the servo callback's first tick: the
+    # fake's handle starts 10 mm above its workspace centre (HD's y is the device's z)
+    with TouchDevice("Default Device") as dev:
+        st = dev.read()
+        assert dev.stats["callback_ticks"] >= 1 and st.position_m == pytest.approx(0.010, abs=5e-4)
     monkeypatch.setenv("FAKEHD_FAULT_AFTER", "300")
     dev = TouchDevice("Default Device")
     with dev:
