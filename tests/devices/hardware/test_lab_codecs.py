@@ -115,3 +115,24 @@ def test_woodenhaptics_kinematics_round_trip_and_statics():
     # the gravity compensation alone holds the linkage: non-zero, and the same sign as lifting it
     g = W.motor_currents(q, (0.0, 0.0, 0.0))
     assert g[1] * a[1] > 0
+
+
+def test_falcon_fk_newton_uses_the_exact_derivative_of_ik():
+    """fk's Jacobian is the inverse of ik's finite-difference derivative (so Newton converges quadratically);
+    libnifalcon's own jacobian(), which getForces uses and ours reproduces, is not, in its z column."""
+    rng = random.Random(11)
+    h = 1e-7
+    for _ in range(20):
+        p = (rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.08, 0.14))
+        angles = K.ik(p)
+        num = [[0.0] * 3 for _ in range(3)]
+        for c in range(3):
+            q = list(p)
+            q[c] += h
+            t = K.ik(q)[0]
+            for r in range(3):
+                num[r][c] = (t[r] - angles[0][r]) / h
+        for jac, close in ((K._leg_jacobian(angles), True), (K.jacobian(angles), False)):
+            prod = [[sum(jac[r][k] * num[k][c] for k in range(3)) for c in range(3)] for r in range(3)]
+            err = max(abs(prod[r][c] - (r == c)) for r in range(3) for c in range(3))
+            assert (err < 1e-4) == close, (p, err)
