@@ -15,7 +15,8 @@
 ``touch:<name>``        3D Systems Touch through OpenHaptics, e.g. touch:Default Device
 
 The 3-DOF devices also take the address ``emulator`` (``falcon:emulator``: the built-in emulator of the
-device's protocol) and open as their 1-DOF vertical view unless ``?axes=3`` (devices/lab_devices.py).
+device's protocol) and open as their 1-DOF vertical view unless ``?axes=3`` (devices/lab_devices.py); a 3-D
+run (``renderer run`` on a 3-D scene) opens all three axes unless the string says ``axes=1``.
 
 Hardware strings take driver options after ``?`` (``&``-separated ``key=value``,
 numbers converted), e.g. ``serial:/dev/pts/3?mode=on-device&timeout_s=0.05``.
@@ -30,6 +31,17 @@ DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "sim:3d", "sim:3d-delta",
                 "touch:<name>")
 #: the 3-DOF research devices (devices/lab_devices.py)
 LAB_KINDS = ("inverse3", "falcon", "woodenhaptics", "dhd", "touch")
+
+
+def all_axes_options(spec: str) -> dict:
+    """What a 3-D run adds to ``make_device(spec, ...)`` to open every axis of the device.
+
+    ``{"axes": 3}`` for a 3-DOF research device (inverse3, falcon, woodenhaptics, dhd, touch) whose string does not
+    choose its axes itself; nothing for the others (``sim:3d`` is three-axis already, a 1-DOF device has one).
+    ValueError for a malformed string, as :func:`make_device`.
+    """
+    kind, _, options = _split(spec)
+    return {"axes": 3} if kind in LAB_KINDS and "axes" not in options else {}
 
 
 def _split(spec: str) -> tuple[str, str, dict]:

@@ -59,3 +59,30 @@ def test_an_unplugged_device_stops_the_run_and_keeps_its_data(tmp_path, capsys):
     assert "falcon:0" in run["error"] and "disconnected" in run["error"] and "zeroed" in run["error"]
     with open(out / "events.csv") as fh:
         assert len(list(csv.DictReader(fh))) >= 1   # the taps before the cable was pulled
+
+
+def test_a_3d_scene_opens_the_device_with_its_three_axes(tmp_path, capsys):
+    """`renderer run` on a 3-D scene drives all three motors of a 3-DOF device (no ``?axes=3`` needed): a block
+    whose top is where the emulated hand taps, found along its normal, with the hand's speeds."""
+    cfg = tmp_path / "scene.toml"
+    cfg.write_text('watchdog_overrun_s = 0.2\nstiffness_N_m = 680.0\n[scene]\nobjects = [\n  { shape = "box", '
+                   'center_m = [0.0, 0.0, -0.01], half_extents_m = [0.03, 0.03, 0.01], name = "block", '
+                   'stiffness_N_m = 680.0 },\n]\n')
+    out = tmp_path / "run"
+    code = renderer_main(["run", "--in-process", "--device", "falcon:emulator?loss_timeout_s=0.02", "--duration-s",
+                          "2.3", "--config", str(cfg), "--no-figure", "--out", str(out)])
+    stdout = capsys.readouterr().out
+    assert code == 0, stdout
+    run = json.loads((out / "run.json").read_text())
+    assert run["device"]["name"] == "Novint Falcon" and run["device"]["axes"] == 3, run["device"]
+    with open(out / "events.csv") as fh:
+        events = list(csv.DictReader(fh))
+    assert {e["object"] for e in events} == {"block"}, events
+    whole = [e for e in events if int(e["tick"]) < 2300 - 100]   # a tap the run's end cut off has no depth yet
+    assert len(whole) >= 2
+    for e in whole:
+        assert float(e["normal_z"]) == pytest.approx(1.0, abs=1e-6)
+        assert 0.02 < float(e["incoming_velocity_m_s"]) < 0.3 and 0.0003 < float(e["max_penetration_m"]) < 0.01
+    log = __import__("numpy").load(out / "log.npz")
+    # the motors pushed the handle back out along z; x and y carry the proxy's (frictionless) lateral force only
+    assert log["force_z_N"].max() > 0.5 and abs(log["sensor_flags"]).max() == 0   # no accelerometer is no fault
