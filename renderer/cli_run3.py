@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 
 from devices.limits import check_grips, check_tap_speeds
-from devices.registry import make_device
+from devices.registry import all_axes_options, make_device
 from devices.sim import Sim3Device, TapTrajectory
 from plumbing import provenance
 from plumbing.stopsignals import Terminated
@@ -33,7 +33,9 @@ def tap_plan(dev, cfg, args):
 def run_into(args, folder, cfg, transient) -> int:
     """The 3-D run, its files written into ``folder``; returns the exit code (as ``renderer.cli_run``)."""
     simulated = args.device.split(":", 1)[0] == "sim"
-    dev = make_device(args.device, seed=args.seed) if simulated else make_device(args.device)
+    # a 3-DOF research device opens with its three axes here, not as the 1-DOF vertical view of a 1-DOF scene
+    dev = make_device(args.device, seed=args.seed) if simulated else make_device(args.device,
+                                                                                **all_axes_options(args.device))
     loop = ServoLoop3(dev, cfg, transient)
     if simulated:
         provenance.prefetch()

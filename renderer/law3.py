@@ -92,7 +92,9 @@ def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
         x, y, z = w[W_LX], w[W_LY], w[W_LZ]
     else:
         w[W_LX], w[W_LY], w[W_LZ] = x, y, z
-    if not (c[C_AMIN] <= acc <= c[C_AMAX]):
+    if acc != acc:   # NaN: the device has no accelerometer (devices.base.DeviceState), not a sensor fault
+        acc = 0.0
+    elif not (c[C_AMIN] <= acc <= c[C_AMAX]):
         flags |= 2
         acc = w[W_LAST_ACC]
     else:

@@ -14,6 +14,7 @@ The output is zeroed on every exit path (``device.zero()`` in a ``finally``), a 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -23,6 +24,7 @@ import numpy as np
 
 import stimuli
 from stimuli.catalog import load_catalog
+from plumbing import rtpolicy
 from plumbing.stopsignals import holding, stop_if_signalled, stop_on_signals
 
 from . import law3 as L3
@@ -237,6 +239,21 @@ class ServoLoop3:
         return c
 
     def _prime(self) -> None:
+        """Zero force, then the law's initial state (:meth:`_prime_state`). On a real device the law's first call
+        (numba's compile or cache load: seconds on a cold cache, far beyond the host watchdog) is made here, on
+        scratch copies, and the state primed again after it, so that no time passes between the priming read and
+        the first paced tick."""
+        self._prime_state()
+        if self.info.simulated:
+            return
+        scratch_log = np.zeros((L3.N_LOG, 1))
+        s = self.device.read()
+        pk = self.packed
+        L3.law3_tick(self.c, self.w.copy(), pk.obj, pk.tri, pk.node, self.stack.copy(), scratch_log, s.t_s, s.x_m,
+                     s.y_m, s.position_m, 0.0, s.grip_N, 0)
+        self._prime_state()
+
+    def _prime_state(self) -> None:
         """Zero force, then the law's initial state: rings, proxy at the endpoint (or the nearest outside point)."""
         dev, w, c = self.device, self.w, self.c
         dev.read()
@@ -302,8 +319,13 @@ class ServoLoop3:
         wall0, cpu0 = time.perf_counter(), time.process_time()
         self._n = 0
         failure = None
+        # the cyclic collector paused for the paced ticks, as the 1-DOF loop does (plumbing.rtpolicy): a collection
+        # in a large process walks its objects for tens to hundreds of milliseconds, past the host watchdog
+        gc_pause = rtpolicy.gc_paused() if realtime and not compiled else contextlib.nullcontext()
         try:
-            st["stop_reason"] = self._run_compiled(limit, until) if compiled else self._run_ticks(limit, until, realtime)
+            with gc_pause:
+                st["stop_reason"] = (self._run_compiled(limit, until) if compiled
+                                     else self._run_ticks(limit, until, realtime))
         except BaseException as exc:
             st["stop_reason"] = "interrupted" if isinstance(exc, (KeyboardInterrupt, SystemExit)) else "exception"
             st["error"] = f"{type(exc).__name__}: {exc}"

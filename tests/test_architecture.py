@@ -204,8 +204,11 @@ def test_imports_sit_at_the_top_unless_deferred_with_a_reason():
     assert not bad, f"{len(bad)} function-level imports without '# deferred: <why>':\n" + "\n".join(bad)
 
 
-#: the most imports inside functions the source may hold (issue 33): each one a measured start-up figure
-MAX_DEFERRED = 22
+#: the most imports inside functions the source may hold (issue 33): each one a measured start-up figure. The 3-DOF
+#: adapters add three: the registry's branch to them (0.13 s CPU a simulated run does not pay), the optional Force
+#: Dimension bindings (they load the vendor's SDK at import: only a dhd device may) and numba for the Touch's servo
+#: callback (0.3 s CPU, only when a Touch opens)
+MAX_DEFERRED = 24
 #: a deferred import's comment states its measured cost: a number with its unit (``0.3 s``, ``19 ms``)
 MEASURED = re.compile(r"\d+(\.\d+)?\s*(ms|s)\b")
 
@@ -228,7 +231,7 @@ def deferred_imports(path: Path, root: Path = ROOT) -> list[tuple[str, str]]:
     return out
 
 
-def test_at_most_twenty_deferred_imports_each_with_its_measured_cost():
+def test_at_most_max_deferred_imports_each_with_its_measured_cost():
     """A command's body imports at its top (its parser module is apart: plumbing.dispatch.Body); an import
     inside a function is left only where a measured start-up figure needs it, and its comment says how much."""
     found = [hit for path in all_modules() + sorted((ROOT / "benchmarks").rglob("*.py"))
