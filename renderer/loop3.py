@@ -23,14 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 import stimuli
-from stimuli.catalog import load_catalog
 from plumbing.stopsignals import holding, stop_if_signalled, stop_on_signals
 
 from . import law3_layout as L3
 from . import proxy_layout as PX
 from . import sim_aot
 from .config import RendererConfig
-from .loop import EVENT_COLUMNS, ContactEvent, RunResult, transient_name
+from .loop import EVENT_COLUMNS, ContactEvent, RunResult, prefaulted_zeros, transient_name
 from .passivity import passivity_constants
 from .safety import safety_bounds
 from .scene import Wall
@@ -173,7 +172,7 @@ class ServoLoop3:
             where = f"{scene.source}.objects[{j}] ({packed.names[j]})"
             tr = self.transient
             if pr is not None and pr.sample:
-                catalog = catalog if catalog is not None else {c.name: c for c in load_catalog()}
+                catalog = catalog if catalog is not None else {c.name: c for c in stimuli.load_catalog()}
                 smp = catalog.get(pr.sample)
                 if smp is None or smp.kind != "virtual":
                     raise ValueError(f"{where}: sample {pr.sample!r} is not a virtual sample of the catalog "
@@ -298,7 +297,7 @@ class ServoLoop3:
             cap = max(1, min(cap, int(limit)))
         self.cap = cap
         self.c[L3.C_CAP] = cap
-        self.log = np.zeros((L3.N_LOG, cap))
+        self.log = prefaulted_zeros((L3.N_LOG, cap))     # no first-touch page faults inside the loop
         self.events = []
         self._ev = None
         self.stop_requested = False

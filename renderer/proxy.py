@@ -130,7 +130,7 @@ def _seg_mesh(tri, node, stack, n0, ax, ay, az, dx, dy, dz, tbest):
     return best_t, best_i, bu, bv
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def first_hit(obj, tri, node, stack, ax, ay, az, bx, by, bz):
     """The first surface the segment a -> b enters, over all objects.
 
@@ -222,7 +222,7 @@ def first_hit(obj, tri, node, stack, ax, ay, az, bx, by, bz):
     return best_t, best_j, nx, ny, nz, snx, sny, snz, sx, sy, sz
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def _sweep(obj, tri, node, stack, ps, bx, by, bz):
     """Move the proxy from where it is towards b, stopping ``EPS_M`` outside the first surface crossed.
 

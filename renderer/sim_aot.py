@@ -44,6 +44,7 @@ import time
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
@@ -191,9 +192,7 @@ def run_sim_function():
     module = load()
     if module is not None:
         return module.run_sim, module.tick
-    from . import law  # deferred: numba and the JIT law, 0.7 s CPU; a run with an ahead-of-time build needs none of it
-
-    return law.run_sim, None
+    return jit_laws().law.run_sim, None
 
 
 class Kernels3(NamedTuple):
@@ -215,9 +214,16 @@ def loop3_kernels() -> Kernels3:
     module = load(LOOP3)
     if module is not None:
         return Kernels3(module.run_sim3, module.law3_tick, module.proxy_step, module.first_hit, module.tick, True)
-    from . import law3  # deferred: numba, the JIT 3-D law and proxy, 0.5 s CPU; a run with an ahead-of-time build needs none of it
-
+    law3 = jit_laws().law3
     return Kernels3(law3.run_sim3, law3.law3_tick, law3.PX.proxy_step, law3.PX.first_hit, None, False)
+
+
+def jit_laws():
+    """The JIT-compiled laws (``renderer.law``, ``renderer.law3``), imported by the first loop that runs
+    per tick or finds no current ahead-of-time build (both at once: the second costs ~10 ms more)."""
+    from . import law, law3  # deferred: numba and the JIT laws, 0.7 s CPU; a run with ahead-of-time builds needs none of it
+
+    return SimpleNamespace(law=law, law3=law3)
 
 
 def _marker(base: Path, key: str, kind: str) -> Path:
