@@ -31,3 +31,6 @@ LOG_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "proxy_x_m", "proxy_y_m", "proxy_z_m"
                "contact_object", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags", "transient_x_N",
                "transient_y_N", "transient_z_N")
 N_LOG = len(LOG_COLUMNS)
+#: the log's integer channels and their dtype in a run's result and log.npz (the others are float64): the
+#: contacted object's index (-1: none), the saturation bits, the sensor flags
+LOG_INT_DTYPES = {"contact_object": "i2", "clipped": "u1", "sensor_flags": "u1"}

@@ -475,7 +475,9 @@ class ServoLoop3:
         log = {}
         for r, name in enumerate(L3.LOG_COLUMNS):
             row = self.log[r]
-            log[name] = np.concatenate([row[li:], row[:li]]) if wrapped else row[:min(n, self.cap)]
+            row = np.concatenate([row[li:], row[:li]]) if wrapped else row[:min(n, self.cap)]
+            # float64 channels are views of the log; the integer ones narrowed (as the 1-DOF log's flags)
+            log[name] = row.astype(L3.LOG_INT_DTYPES[name]) if name in L3.LOG_INT_DTYPES else row
         sim = n / self.fs_hz
         timing = {"sim_time_s": sim, "wall_time_s": wall_s, "ticks": n, "rate_hz": self.fs_hz,
                   "log_rate_hz": self.fs_hz, "realtime_factor": sim / wall_s if wall_s > 0 else 0.0,
