@@ -135,7 +135,8 @@ class ServoLoop3:
     compiled_sim : bool
         Run law and physics together on a ``Sim3Device`` (not paced).
 
-    Attributes ``ticks``, ``time_s``, ``events`` are readable from an ``until`` callback.
+    Attributes ``ticks``, ``time_s``, ``events`` are readable from an ``until`` callback; ``temp_rise_K`` (the
+    winding model's, K) carries from one run to the next (a study's windows), as ``ServoLoop``'s does.
     """
 
     def __init__(self, device, cfg: RendererConfig | None = None, transient=None, compiled_sim: bool = True):
@@ -149,6 +150,8 @@ class ServoLoop3:
         self.result = None
         self.stop_requested = False
         self.packed = None
+        #: the winding model's temperature rise (K): the config's at first, then where the last run left it
+        self.temp_rise_K = self.cfg.initial_temp_rise_K
 
     # ---------------------------------------------------------------- set-up
     def prepare(self) -> None:
@@ -272,7 +275,7 @@ class ServoLoop3:
         n_c = self.kernels.proxy_step(pk.obj, pk.tri, pk.node, self.stack, ps, x, y, z)
         w[L3.W_ARMED] = 1.0 if n_c == 0 else 0.0
         ps[PX.PS_NC] = 0.0
-        w[L3.W_TEMP] = 0.0
+        w[L3.W_TEMP] = self.temp_rise_K     # the winding's temperature rise carried from the last run
 
     # ---------------------------------------------------------------- run
     def run(self, duration_s: float | None = None, until=None, realtime: bool | None = None,
@@ -467,6 +470,7 @@ class ServoLoop3:
     def _build_result(self, wall_s: float, cpu_s: float, st: dict, realtime: bool) -> RunResult3:
         n = self._n
         w = self.w
+        self.temp_rise_K = float(w[L3.W_TEMP])
         if self._ev is not None:
             self._ev.max_penetration_m, self._ev.peak_accel_m_s2 = float(w[L3.W_EV_PEN]), float(w[L3.W_EV_ACC])
             self._ev.clipped = bool(w[L3.W_EV_CLIP])
