@@ -254,7 +254,7 @@ def _set_timer_slack_ns(ns: int) -> int | None:
         return None
 
 
-def _prefaulted_zeros(shape: tuple[int, int]) -> np.ndarray:
+def prefaulted_zeros(shape: tuple[int, int]) -> np.ndarray:
     """A zeroed float64 array whose pages are already mapped, so the loop never takes a first-touch fault.
 
     On Linux an anonymous ``MAP_POPULATE`` mapping: the kernel maps every page in one call (~0.4 ms/MB
@@ -278,10 +278,9 @@ COMPILED_POLL_TICKS = 10_000
 
 
 def _law():
-    """``renderer.law``: the JIT-compiled law, imported by the first loop that runs it per tick or JIT."""
-    from . import law  # deferred: numba and the JIT law, 0.7 s CPU; a run compiled ahead of time never needs it
-
-    return law
+    """``renderer.law``: the JIT-compiled law, imported by the first loop that runs it per tick or JIT
+    (``renderer.sim_aot.jit_laws``: a run compiled ahead of time never imports it, nor numba)."""
+    return sim_aot.jit_laws().law
 
 
 class ServoLoop:
@@ -413,7 +412,7 @@ class ServoLoop:
         # core while the compiled loop runs, which releases the GIL, measured no faster: the loop slowed by
         # what it saved). A compiled simulated run writes its clock columns once per chunk (compute_ns
         # never): zero pages mapped on demand
-        self._logf = _prefaulted_zeros((LAW.N_LOG, capacity))
+        self._logf = prefaulted_zeros((LAW.N_LOG, capacity))
         if clocks_per_tick:
             self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
         else:

@@ -262,7 +262,8 @@ def test_the_deferred_import_check_finds_an_unmarked_import(tmp_path):
 #: the attempt's steps (the present/ask sequence): called only by the attempt loop, and by the apparatus that
 #: implements them (its servo process forwards them)
 ATTEMPT_STEPS = {"tap_window", "cue_tap", "cue_rate", "request_confirm", "after_window"}
-STEP_CALLERS = {"study/session/loop.py", "study/session/apparatus.py", "study/session/isolated.py"}
+STEP_CALLERS = {"study/session/loop.py", "study/session/apparatus.py", "study/session/apparatus3.py",
+                "study/session/isolated.py"}
 #: the durable writes of a subject's files: only the store makes them
 STORE = "study/session/store.py"
 

@@ -64,6 +64,9 @@ class TapResult:
         out["event_incoming_velocity_m_s"] = np.array(self.velocities, np.float64)
         out["event_max_penetration_m"] = np.array(self.penetrations, np.float64)
         out["event_clipped"] = np.array([bool(e.clipped) for e in self.events], bool)
+        objects = [getattr(e, "object", "") for e in self.events]
+        if any(objects):   # the 3-D renderer's events name the surface touched (study.session.apparatus3)
+            out["event_object"] = np.array(objects)
         out["fs_hz"] = np.float64(self.fs_hz)
         out["window_start_s"] = np.float64(self.window_start_s if self.window_start_s is not None else np.nan)
         out["max_contact_force_N"] = np.float64(self.max_contact_force_N)
@@ -232,12 +235,19 @@ class Apparatus:
             g_hi = self.sim_participant.config.overpower_grip_N
             grip = lambda ts, g0=grip, t1=t_late, g1=g_hi: np.where(np.asarray(ts) >= t1 - 0.05, g1, g0)  # noqa: E731
         hand = None
-        if plan.overpower and getattr(self.device, "params", None) is not None and \
-                self.device.params.model == "nonlinear":
+        params = getattr(self._tap_device(), "params", None)
+        if plan.overpower and params is not None and params.model == "nonlinear":
             # a determined push: the simulated person co-contracts (stiff, damped muscles), so the
-            # homing force cannot hold the late tap back (issue 16: the default person is compliant)
-
+            # homing force cannot hold the late tap back (the default person is compliant)
             hand = DEFAULT_PERSON.replace(muscle_stiffness_N_m=1500.0, muscle_damping_Ns_m=12.0)
+        self._give_hand(traj, grip, hand)
+
+    def _tap_device(self):
+        """The 1-DOF simulated device along which the hand taps (this device; a 3-DOF sim's tap axis)."""
+        return self.device
+
+    def _give_hand(self, traj, grip, hand) -> None:
+        """Hand the simulated person its plan (the 3-DOF apparatus also says where it taps)."""
         self.device.set_user(traj, grip, hand=hand)
 
     # -- homing -------------------------------------------------------------

@@ -39,7 +39,8 @@ from plumbing import rtpolicy
 from plumbing.stopsignals import ParentWatch, Terminated
 from renderer.process import SPAWN, servo_child, servo_process
 
-from .apparatus import Apparatus, ServoStopped
+from .apparatus import ServoStopped
+from .apparatus3 import make_apparatus
 from .rater import tap_features
 
 
@@ -70,7 +71,7 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
             policy = rtpolicy.acquire(core=core)
         else:  # a simulation run as fast as possible: under SCHED_FIFO it would hit RT throttling
             policy = rtpolicy.describe_current()
-        app = Apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
+        app = make_apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
                         realtime=realtime)
         parent_gone = ParentWatch(parent_pid, every=PARENT_CHECK_EVERY)
 

@@ -146,6 +146,10 @@ class SessionLoop:
         health (every kind's page shows them)."""
         if self.ui is not None:
             audio = getattr(self.audio, "cue_source", None) or type(self.audio).__name__
+            # on a 3-DOF device: the samples on the table and where the hand is (study.session.apparatus3)
+            view = getattr(self.apparatus, "table_view", None)
+            if callable(view):
+                fields = {**fields, "table": view()}
             self.ui.set_operator(**fields, audio=audio, link=self.apparatus.link_status())
 
     # -- the one confirm and pause ----------------------------------------------------------------------------

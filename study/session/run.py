@@ -25,7 +25,8 @@ from devices import DeviceError, make_device
 from plumbing.progress import Progress
 from plumbing.stopsignals import Terminated, stop_on_signals
 
-from .apparatus import Apparatus, ServoStopped
+from .apparatus import ServoStopped
+from .apparatus3 import make_apparatus
 from .audio import MaskingAudio, SilentAudio, check_output_device
 from .isolated import IsolatedApparatus
 from .loop import SessionLoop
@@ -151,7 +152,7 @@ def _session(args, plan, say, web) -> int:
     plan.device_info = device_info
     try:
         if apparatus is None:
-            apparatus = Apparatus(device, plan.catalog, protocol, library_dir=plan.library_dir,
+            apparatus = make_apparatus(device, plan.catalog, protocol, library_dir=plan.library_dir,
                                   sim_participant=sim_participant, realtime=True if args.realtime else None)
         participant = sim_participant if args.participant == "simulated" else KeyboardParticipant()
         kind = plan.kind(plan, apparatus)
