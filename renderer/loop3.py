@@ -258,8 +258,8 @@ class ServoLoop3:
         scratch_log = np.zeros((L3.N_LOG, 1))
         s = self.device.read()
         pk = self.packed
-        L3.law3_tick(self.c, self.w.copy(), pk.obj, pk.tri, pk.node, self.stack.copy(), scratch_log, s.t_s, s.x_m,
-                     s.y_m, s.position_m, 0.0, s.grip_N, 0)
+        self.kernels.law3_tick(self.c, self.w.copy(), pk.obj, pk.tri, pk.node, self.stack.copy(), scratch_log,
+                               s.t_s, s.x_m, s.y_m, s.position_m, 0.0, s.grip_N, 0)
         self._prime_state()
 
     def _prime_state(self) -> None:

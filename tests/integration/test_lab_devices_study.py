@@ -91,7 +91,7 @@ def _play(announce: _Announce, stop: threading.Event, seen: dict) -> None:
 def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys):
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL + (DISCRIMINATION if kind == "psychophysics" else ""))
-    spec = spec + "?loss_timeout_s=0.02"
+    spec = spec + "?loss_timeout_s=0.1"
     argv = ["run", "--device", spec, "--participant", "keyboard", "--subject", "L1", "--age", "30", "--gender",
             "female", "--handedness", "right", "--experience", "few", "--audio", "off", "--accept-timing", "--port",
             "0", "--token", "tok", "--protocol", str(proto), "--seed", "1", "--out", str(tmp_path / "data"),
@@ -151,7 +151,7 @@ def test_the_study_apparatus_homes_and_finds_the_taps_on_the_emulated_device(spe
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL)
     protocol = load_protocol(proto)
-    with make_device(spec + "?loss_timeout_s=0.02") as dev:
+    with make_device(spec + "?loss_timeout_s=0.1") as dev:
         assert dev.info.name.endswith("(vertical axis)") and not dev.info.simulated
         app = Apparatus(dev, [catalog["pulse_firm"]], protocol)
         assert app.real_saturation_detection == "none (no force sensor)" and app.link_status().startswith("ok")
