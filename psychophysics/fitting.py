@@ -796,12 +796,19 @@ def _flags(model, theta, derived_b, profile_b, levels, n, k, p_boot, p_chi2, lap
                                           "the model allows, or a function that does not fit"))
     if model.ig is not None and theta[model.ig[0]] >= guess_max - 1e-6:
         out.append(Flag("guess_at_bound", f"the false-alarm rate sits at its bound {guess_max:g}"))
-    s = theta[model.islope[0]]
-    s_lo, s_hi = model.lo[model.islope[0]], model.hi[model.islope[0]]
-    if s <= s_lo + 1e-6 or s >= s_hi - 1e-6:
-        which = "steepest" if s >= s_hi - 1e-6 else "shallowest"
-        out.append(Flag("slope_at_bound", f"the slope sits at its bound (the {which} function allowed): the "
-                                          "data do not pin the slope down"))
+    col = model.islope[0]
+    s = theta[col]
+    s_lo, s_hi = model.lo[col], model.hi[col]
+    # at its bound, or running towards it: the likelihood no worse there (data a step function fits, whose
+    # slope has no finite estimate)
+    ll = _loglik(k[None], n[None], model.predict(theta[None], False)[0])[0]
+    for bound, which in ((s_hi, "steepest"), (s_lo, "shallowest")):
+        t = theta.copy()
+        t[col] = bound
+        if _loglik(k[None], n[None], model.predict(t[None], False)[0])[0] >= ll - 1e-6:
+            out.append(Flag("slope_at_bound", f"the slope runs to its bound (the {which} function allowed): the "
+                                              "data do not pin the slope down"))
+            break
     if not np.all(np.isfinite(profile_b)):
         out.append(Flag("threshold_interval_open", "the threshold's interval is open: the data do not bound it "
                                                    f"within {PROFILE_LIMIT:g} stimulus spans"))
@@ -1099,7 +1106,8 @@ def _fit_joint(data, alternatives, function, lapse, lapse_max, lower, guess_max,
 def fit_multiple(data, alternatives: int = 2, function: str = "logistic", thresholds: str = "unconstrained",
                  slopes: str = "constrained", lapses: str = "constrained", guesses: str = "constrained",
                  lapse=None, lapse_max: float = LAPSE_MAX, lower_asymptote: str = "fixed",
-                 guess_max: float = GUESS_MAX, ci_level: float = 0.95, names=None) -> MultiFit:
+                 guess_max: float = GUESS_MAX, ci_level: float = 0.95, names=None,
+                 intervals: bool = True) -> MultiFit:
     """Fit several conditions at once, each parameter shared or per condition (Palamedes' ``PAL_PFML_FitMultiple``).
 
     Parameters
@@ -1113,6 +1121,8 @@ def fit_multiple(data, alternatives: int = 2, function: str = "logistic", thresh
         The default shares slope and lapse rate and lets the thresholds differ (comparing renderings).
     names : list of str, optional
         The conditions' names.
+    intervals : bool
+        Compute the thresholds' profile intervals (NaN without).
 
     Returns
     -------
@@ -1127,7 +1137,8 @@ def fit_multiple(data, alternatives: int = 2, function: str = "logistic", thresh
     first = [int(np.flatnonzero(cond == c)[0]) for c in range(C)]
     cis = []
     cols = sorted(set(int(model.ia[i]) for i in first))
-    bounds = {col: from_axis(profile_bounds(model, k, n, theta, ll, col, ci_level)[0], function) for col in cols}
+    bounds = {col: (from_axis(profile_bounds(model, k, n, theta, ll, col, ci_level)[0], function) if intervals
+                    else (math.nan, math.nan)) for col in cols}
     for c in range(C):
         lo, hi = bounds[int(model.ia[first[c]])]
         cis.append((float(lo), float(hi)))
@@ -1144,7 +1155,8 @@ def fit_multiple(data, alternatives: int = 2, function: str = "logistic", thresh
 
 @dataclass(frozen=True)
 class ModelComparison:
-    """A likelihood-ratio test of a lesser model against a fuller one (Palamedes' ``PAL_PFLR_ModelComparison``)."""
+    """A likelihood-ratio test of a lesser model against a fuller one (Palamedes' ``PAL_PFLR_ModelComparison``);
+    the two fits carry no intervals (:func:`fit_multiple` gives them)."""
 
     lesser: MultiFit
     fuller: MultiFit
@@ -1153,6 +1165,7 @@ class ModelComparison:
     p_chi2: float
     p_bootstrap: float
     bootstrap: int
+    lr_draws: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def as_dict(self) -> dict:
         def clean(v):
@@ -1199,7 +1212,7 @@ def compare_models(data, lesser: dict, fuller: dict, alternatives: int = 2, func
     if any(opt_l[key] == "unconstrained" and opt_f[key] == "constrained" for key in keys):
         raise ValueError(f"the lesser model {opt_l} is not nested in the fuller {opt_f}")
     common = dict(alternatives=alternatives, function=function, lapse=lapse, lapse_max=lapse_max,
-                  lower_asymptote=lower_asymptote, guess_max=guess_max, names=names)
+                  lower_asymptote=lower_asymptote, guess_max=guess_max, names=names, intervals=False)
     fit_l = fit_multiple(data, **opt_l, **common)
     fit_f = fit_multiple(data, **opt_f, **common)
     lr = max(2.0 * (fit_f.loglik - fit_l.loglik), 0.0)
@@ -1219,4 +1232,5 @@ def compare_models(data, lesser: dict, fuller: dict, alternatives: int = 2, func
             lls.append(ll)
         lr_b = np.maximum(2.0 * (lls[1] - lls[0]), 0.0)
         p_boot = float(np.mean(lr_b >= lr - 1e-9))
-    return ModelComparison(fit_l, fit_f, float(lr), int(df), p_chi2, p_boot, int(bootstrap))
+    return ModelComparison(fit_l, fit_f, float(lr), int(df), p_chi2, p_boot, int(bootstrap),
+                           lr_b if bootstrap else None)
