@@ -312,6 +312,12 @@ class BayesFit:
         return {"pc": float(pc), "unscaled": bool(unscaled), "threshold": x, "ci": list(ci),
                 "ci_method": "posterior"}
 
+    def interval_of(self, fn) -> tuple[float, float]:
+        """Credible interval of any quantity ``fn(t, beta, lambda, gamma)`` (``t`` on the fitting axis) from the
+        posterior over the grid."""
+        values, mass = _derived_on_grid(self._grid, self._mass, self.function, self.lower_asymptote, fn)
+        return weighted_interval(values, mass, self.ci_level)
+
     def as_dict(self) -> dict:
         out = {}
         for name in ("function", "alternatives", "lower_asymptote", "estimator", "threshold", "threshold_mean",

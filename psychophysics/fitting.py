@@ -611,6 +611,20 @@ class Fit:
                 method = "bootstrap percentile"
         return {"pc": float(pc), "unscaled": bool(unscaled), "threshold": x, "ci": list(ci), "ci_method": method}
 
+    def interval_of(self, fn) -> tuple[float, float]:
+        """Percentile interval of any quantity ``fn(a, beta, lambda, gamma)`` (``a`` on the fitting axis, arrays)
+        over the bootstrap's parameters; NaN without a bootstrap (e.g. the physical JND of a log10 axis)."""
+        if self.boot_params is None:
+            return math.nan, math.nan
+        a, beta, lam, gam = (v[:, 0] for v in self._model().parts(self.boot_params))
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            values = np.asarray(fn(a, beta, lam, gam), float)
+        values = values[np.isfinite(values)]
+        if len(values) < 0.99 * len(a):
+            return math.nan, math.nan
+        lo, hi = np.quantile(values, [(1 - self.ci_level) / 2, (1 + self.ci_level) / 2])
+        return float(lo), float(hi)
+
     def as_dict(self) -> dict:
         """JSON-ready dict of every figure (intervals as [low, high]; NaN and infinite ends as None; flags
         as ``[{"name", "message"}]``)."""
