@@ -142,7 +142,8 @@ def _document(args, r) -> dict:
         return d
 
     doc = {"measurement": r["measurement"], "sessions": list(r["sessions"]), "experiment": r["experiment"],
-           "intensity_scale": r["scale"], "estimator": "Bayesian (MAP)" if args.bayesian else "maximum likelihood",
+           "intensity_scale": r["scale"],
+           "fit_method": "Bayesian (maximum a posteriori)" if args.bayesian else "maximum likelihood",
            **entry(r["fits"][0].fit),
            "groups": [{"subject": g.subject, "condition": g.condition, **entry(g.fit)} for g in r["fits"]]}
     if not args.separately:

@@ -32,7 +32,7 @@ def run_psignifit(data, experiment_type, function, eta=None):
     return float(t), ci, res
 
 
-#: what the tests compare (the benchmark ``python -m benchmarks psignifit`` runs every pair with eta free)
+#: what the tests compare (yes/no with eta free takes psignifit ~35 s; the demo data run with eta free)
 TESTED = (("psignifit_demo", "logistic"), ("psignifit_demo", "normal"), ("psignifit_demo", "weibull"),
           ("bliss1935", "logistic"))
 

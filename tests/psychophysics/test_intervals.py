@@ -1,7 +1,7 @@
 """Intervals of the maximum-likelihood fit: the exact profile-likelihood bounds (against an independent profile
-built with scipy), their coverage over hidden observers (a small version of ``python -m benchmarks coverage``),
-the free lower asymptote of a yes/no task with false alarms, BCa against scipy, the chi-square p-value
-withheld on sparse levels."""
+built with scipy), their coverage over hidden observers (a small version of the table in docs/psychophysics.md,
+"Intervals and their coverage"), the free lower asymptote of a yes/no task with false alarms, BCa against scipy,
+the chi-square p-value withheld on sparse levels."""
 
 import math
 
@@ -78,10 +78,10 @@ def _coverage(function, alternatives, lower, n_obs, per_level, levels, seed, fal
 
 
 def test_coverage_of_the_printed_interval_on_hidden_observers():
-    """The small version of the coverage benchmark (docs/psychophysics.md, "Coverage"): a yes/no design of 8 x
-    150 trials with steep observers (the interpolated 81-point grid's interval covered 0.83 of these 160) and
-    a 2AFC 7 x 50, 160 observers each. A true coverage in 93-97 % gives a pooled rate within the binomial
-    bounds below (n = 320, 0.1 % tails: about [0.90, 0.99])."""
+    """The small version of the coverage table (docs/psychophysics.md, "Intervals and their coverage"): a yes/no design
+    of 8 x 150 trials with steep observers (the interpolated 81-point grid's interval covered 0.83 of these 160) and
+    a 2AFC 7 x 50, 160 observers each. A true coverage in 93-97 % gives a pooled rate within the binomial bounds
+    below (n = 320, 0.1 % tails: about [0.90, 0.99])."""
     yn, _ = _coverage("logistic", 1, "fixed", 160, 150, np.linspace(1.0, 4.0, 8), seed=11, widths=(0.2, 0.4))
     two, _ = _coverage("normal", 2, "fixed", 160, 50, LEVELS, seed=12)
     hits = np.concatenate([yn, two])
