@@ -176,6 +176,13 @@ class Apparatus:
         self.samples[sample.name] = sample
         self.loops[sample.name] = loop
 
+    def drop_sample(self, name: str) -> None:
+        """Release the servo loop of a sample added for a while (the method of adjustment's comparisons: each
+        loop holds its log, ~6 MB with 5 s windows); the catalog's own samples are kept. No-op if unknown."""
+        if name in self.loops and self.current is not self.samples.get(name):
+            del self.loops[name]
+            del self.samples[name]
+
     def link_status(self) -> str:
         """One line on the device link's health for the operator page.
 

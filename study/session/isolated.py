@@ -227,6 +227,10 @@ class IsolatedApparatus:
         """Make a catalog sample's servo loop in the servo process (see ``Apparatus.add_sample``)."""
         self._call("add_sample", sample)
 
+    def drop_sample(self, name: str) -> None:
+        """Release a sample's servo loop in the servo process (see ``Apparatus.drop_sample``)."""
+        self._call("drop_sample", name)
+
     def start_hand(self, plan, window_s: float) -> None:
         """Start the simulated hand's plan for a window of ``window_s`` s (servo process)."""
         self._call("start_hand", plan, window_s)
