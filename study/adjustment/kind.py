@@ -101,6 +101,7 @@ class Adjustment(ExperimentKind):
         info = plan.device_info
         self.force_per_amp_N_A = float(info["gear_ratio"] * info["torque_constant_Nm_A"] / info["handle_length_m"])
         self.loaded: OrderedDict = OrderedDict()
+        self.fixed = {s.name for s in plan.catalog}
         self.done, self.next_number, self.invalid = 0, 1, []
 
     # -- what trials exist -------------------------------------------------------------------------------------
@@ -147,6 +148,8 @@ class Adjustment(ExperimentKind):
     def _comparison(self, value: float) -> str:
         """The comparison at ``value``: its servo loop made on first use, the least recently used dropped."""
         sample = varied_sample(self.base, self.exp.vary, value)
+        if sample.name in self.fixed:       # a reference's own value: its loop stays for the whole session
+            return sample.name
         if sample.name in self.loaded:
             self.loaded.move_to_end(sample.name)
             return sample.name
