@@ -392,6 +392,23 @@ class ServoLoop:
         self.impact_velocity.bind(self.law_state[LAW.W_RING:self.tbuf_at])
         self._prepared = True
 
+    def log_since(self, tick: int, columns: tuple, step: int = 1) -> tuple[int, np.ndarray]:
+        """The log's ``columns`` for the ticks from ``tick`` to the last one run, every ``step``-th tick (those
+        whose number is a multiple of it), for a consumer while the loop runs (an ``until`` callback: the Lab
+        Streaming Layer's state stream, :mod:`plumbing.lsl`). At most the ring's last ``capacity`` ticks.
+
+        Returns
+        -------
+        (int, ndarray)
+            The first tick returned and the values, shape ``(len(columns), n)``.
+        """
+        n = self.ticks
+        start = max(int(tick), n - self._cap)
+        start += (-start) % step
+        idx = np.arange(start, n, step) % self._cap
+        rows = [LAW.LOG_COLUMNS.index(c) for c in columns]
+        return start, self._logf[np.ix_(rows, idx)]
+
     def request_stop(self) -> None:
         """Ask a running loop (e.g. from a UI thread) to stop within ``cfg.until_every`` ticks (a compiled
         simulated run without an ``until`` predicate: within ``COMPILED_POLL_TICKS``, a few ms of wall time)."""
@@ -651,6 +668,7 @@ class ServoLoop:
         t0 = time.perf_counter_ns()
         st["t0_ns"] = t0
         self._n = 0
+        self.ticks = 0     # this run's ticks (log_since reads the ring from its first row)
         reason = "duration"
         try:
             with gc_pause:
