@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import queue
 import threading
+import time
 
 import numpy as np
 
@@ -120,10 +121,20 @@ class LslPublisher:
         """Queue the state samples ``values`` (shape (n, channels)) taken at device times ``t_device_s``."""
         if not len(t_device_s):
             return
-        off = pylsl.local_clock() - float(t_device_s[-1])
+        self.device_time(float(t_device_s[-1]))
+        self._put(("state", values, t_device_s + self.offset))
+
+    def device_time(self, t_device_s: float) -> float:
+        """The device's clock now is ``t_device_s``: update the offset (never decreasing); returns it."""
+        off = pylsl.local_clock() - t_device_s
         if self.offset is None or off > self.offset:
             self.offset = off
-        self._put(("state", values, t_device_s + self.offset))
+        return self.offset
+
+    def servo_rows(self, loop, start: int, end: int, step: int, offset: float) -> None:
+        """Queue the servo log's ticks ``start..end`` (every ``step``-th), read by the thread from the loop's ring
+        (:meth:`ServoStream.__call__`: the servo only names them)."""
+        self._put(("rows", (loop, start, end, step), offset))
 
     def contact(self, event: dict) -> None:
         """Queue a contact (``event["t_s"]``: its device time)."""
@@ -146,20 +157,40 @@ class LslPublisher:
             self.dropped += 1
 
     # -- the thread ------------------------------------------------------------------------------------------
+    def settle(self, timeout_s: float = 2.0) -> bool:
+        """Wait until the thread has pushed everything queued (before a loop's ring is written again: a new
+        run); True if it has."""
+        q = self.queue
+        with q.all_tasks_done:
+            return q.all_tasks_done.wait_for(lambda: q.unfinished_tasks == 0, timeout_s)
+
     def _drain(self) -> None:
         while True:
             item = self.queue.get()
-            if item is None:
+            try:
+                if item is None:
+                    return
+                self._push(*item)
+            finally:
+                self.queue.task_done()
+
+    def _push(self, kind, data, ts) -> None:
+        if kind == "rows":    # read the ring here, not in the servo's callback
+            loop, start, end, step = data
+            _, arr = loop.log_since(start, LOG_COLUMNS, step, end)
+            if not arr.shape[1]:
                 return
-            kind, data, ts = item
-            if kind == "state":
-                self.outlets["state"].push_chunk(np.ascontiguousarray(data, dtype=np.float64), ts.tolist())
-                self.samples += len(ts)
-            else:
-                t = max(float(ts), self._last[kind])   # monotone within the stream
-                self._last[kind] = t
-                self.outlets[kind].push_sample([data], t)
-                self.pushed[kind] += 1
+            kind, ts = "state", arr[0] + ts
+            data = np.column_stack([arr[1], arr[2], arr[3] + arr[4], arr[5], arr[6], arr[7]])
+        if kind == "state":
+            self.outlets["state"].push_chunk(np.ascontiguousarray(data, dtype=np.float64), ts.tolist())
+            self.samples += len(ts)
+            time.sleep(0)    # hand the GIL back to the servo's thread between chunks
+        else:
+            t = max(float(ts), self._last[kind])   # monotone within the stream
+            self._last[kind] = t
+            self.outlets[kind].push_sample([data], t)
+            self.pushed[kind] += 1
 
     def close(self, timeout_s: float = 5.0) -> dict:
         """Push what is queued, stop the thread; returns :meth:`record`. The outlets stay open until the process
@@ -202,24 +233,29 @@ class ServoStream:
     Call :meth:`begin` before a run, the object itself from the loop's ``until`` callback (it returns False:
     it never stops the loop), and :meth:`flush` after the run (the last ticks)."""
 
-    def __init__(self, publisher: LslPublisher, servo_rate_hz: float) -> None:
+    def __init__(self, publisher: LslPublisher, servo_rate_hz: float | None = None) -> None:
         self.publisher = publisher
-        self.step = max(1, int(round(servo_rate_hz / publisher.rate_hz)))
+        self.servo_rate_hz = servo_rate_hz
+        self.step = 0
         self.tick = self.events = 0
 
     def begin(self, loop) -> None:
-        """A run starts: from its first tick and first event."""
+        """A run starts: from its first tick and first event (the servo's rate, if not given, is the loop's);
+        the thread has first pushed what an earlier run of the same loop left queued (its ring is reused)."""
+        self.publisher.settle()
+        self.step = 0      # set at the first call: a loop knows its rate once it runs
         self.tick = self.events = 0
 
     def __call__(self, loop) -> bool:
+        if not self.step:
+            rate = self.servo_rate_hz or float(loop.fs_hz)
+            self.step = max(1, int(round(rate / self.publisher.rate_hz)))
         n = loop.ticks
         if n > self.tick:
-            start, arr = loop.log_since(self.tick, LOG_COLUMNS, self.step)
-            if arr.shape[1]:
-                vals = np.column_stack([arr[1], arr[2], arr[3] + arr[4], arr[5], arr[6], arr[7]])
-                self.publisher.device_chunk(arr[0], vals)
-                if self.tick == 0 and start == 0:
-                    self.publisher.clock_pair(float(arr[0, 0]))
+            offset = self.publisher.device_time(float(loop.time_s))
+            if self.tick == 0:
+                self.publisher.clock_pair(float(loop.time_s) - n / float(loop.fs_hz))
+            self.publisher.servo_rows(loop, self.tick, n, self.step, offset)
             self.tick = n
         evs = loop.events
         while self.events < len(evs):
