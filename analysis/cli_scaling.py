@@ -55,6 +55,13 @@ def _plain(v):
     return None if isinstance(v, float) and not math.isfinite(v) else float(v)
 
 
+def _interval(low, high, fmt: str) -> str:
+    """``[low, high]``, or why there is none (one subject: a pooled interval needs two)."""
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return "(no interval: one subject)"
+    return f"[{low:{fmt}}, {high:{fmt}}]"
+
+
 def _records(df) -> list:
     return [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
             for r in json.loads(df.to_json(orient="records"))]
@@ -79,7 +86,7 @@ def run_adjustment(args: argparse.Namespace) -> int:
     for note in result["skipped"]:
         print(f"note: {note} is not a method-of-adjustment session; left out", file=sys.stderr)
     for _, p in result["pooled"].iterrows():
-        print(f"{p['condition']}: PSE {p['pse']:.4g} {unit} [{p['pse_low']:.4g}, {p['pse_high']:.4g}] over "
+        print(f"{p['condition']}: PSE {p['pse']:.4g} {unit} {_interval(p['pse_low'], p['pse_high'], '.4g')} over "
               f"{p['subjects']} subject(s), constant error {100 * p['ce_rel']:+.1f} %, Weber fraction "
               f"{p['weber']:.3f}")
     print(f"wrote {args.out}")
@@ -106,7 +113,7 @@ def run_magnitude(args: argparse.Namespace) -> int:
     for note in result["skipped"]:
         print(f"note: {note} is not a magnitude-estimation session; left out", file=sys.stderr)
     for _, p in result["pooled"].iterrows():
-        print(f"{p['condition']}: exponent {p['exponent']:.3f} [{p['exponent_low']:.3f}, {p['exponent_high']:.3f}] "
+        print(f"{p['condition']}: exponent {p['exponent']:.3f} {_interval(p['exponent_low'], p['exponent_high'], '.3f')} "
               f"over {p['subjects']} subject(s); group curve {p['curve_exponent']:.3f}")
     print(f"wrote {args.out}")
     return 0

@@ -111,6 +111,10 @@ def test_the_commands_write_a_whole_folder_or_nothing(studies, tmp_path, capsys)
     assert analysis_main(["adjustment", str(studies / "ADJ"), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "500: PSE" in printed and "constant error" in printed
+    line = printed.split("500: PSE ", 1)[1]
+    pse = float(line.split(" ", 1)[0])
+    low, high = (float(v) for v in line.split("[", 1)[1].split("]", 1)[0].split(","))
+    assert low < pse < high and 500 < pse < 700                     # the pooled interval over three subjects
     names = {p.name for p in out.iterdir()}
     assert {"subjects.csv", "pooled.csv", "trials.csv", "order_effects.csv", "summary.json",
             "fig_adjustment_subjects.png", "fig_adjustment_pooled.svg"} <= names
@@ -136,3 +140,11 @@ def test_the_commands_write_a_whole_folder_or_nothing(studies, tmp_path, capsys)
     assert analysis_main(["adjustment", str(tmp_path / "D"), "--out", str(tmp_path / "Z")]) == 2
     err = capsys.readouterr().err
     assert f"{damaged / 'trials.csv'} line 3" in err and "start_side='sideways'" in err and err.count("\n") == 1
+    # one subject: the pooled values without an interval (not "[nan, nan]")
+    one = tmp_path / "ONE" / "S0"
+    one.mkdir(parents=True)
+    for f in ("session.json", "trials.csv"):
+        (one / f).write_bytes((studies / "ADJ" / "S0" / f).read_bytes())
+    assert analysis_main(["adjustment", str(tmp_path / "ONE"), "--out", str(tmp_path / "O"), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("(no interval: one subject) over 1 subject(s)") == 2 and "nan" not in printed

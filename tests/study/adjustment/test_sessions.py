@@ -5,13 +5,18 @@ the servo process, and SIGKILL then ``--resume`` giving the uninterrupted run's 
 import json
 import math
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from devices.sim import SimDevice
+from stimuli import load_catalog
 from study.__main__ import main
 from study.adjustment.experiment import AdjustmentConfig, plan_trials
+from study.adjustment.kind import Adjustment
+from study.design.blocks import block_order
+from study.session.config import protocol_from, read_protocol_file
 from study.forcedchoice.perception import tap_stiffness_N_m
 from study.varied import varied_name
 
@@ -25,6 +30,7 @@ sample = "firm"
 references = [500.0, 800.0]
 trials_per_reference = 2
 """
+ROOT = Path(__file__).resolve().parents[3]
 KEY = ("trial", "attempt", "block", "condition", "start_value", "start_side", "final_value", "matched", "n_steps",
        "values")
 
@@ -33,6 +39,23 @@ def run(tmp, subject, protocol, *extra, seed=2):
     proto = write(tmp / f"{subject}.toml", protocol)
     return main(["run", "--device", "sim", "--participant", "simulated", "--quiet", "--subject", subject,
                  "--seed", str(seed), "--out", str(tmp / "DATA"), "--protocol", str(proto), *map(str, extra)])
+
+
+def test_the_shipped_example_loads_and_plans():
+    """examples/adjustment.toml: the protocol's keys, the kind's settings, the references derived from the
+    default catalog at 400, 700 and 1000 N/m, and 18 trials (6 per reference: 3 above, 3 below)."""
+    path = ROOT / "examples" / "adjustment.toml"
+    data, table = read_protocol_file(path)
+    assert protocol_from(data, path).tap_window_s == 3.0
+    exp = Adjustment.configure(table, str(path))
+    refs = Adjustment.samples(exp, lambda _: load_catalog(None), str(path))
+    assert exp.conditions == ["400", "700", "1000"] and len(refs) == 3
+    assert sorted(s.stiffness_N_m for s in refs) == [400.0, 700.0, 1000.0]
+    _, order = block_order(exp.conditions, exp.order, exp.design, "S01", 1, str(path))
+    plan = plan_trials(exp, order, 1, "S01")
+    assert len(plan) == 18 and sorted(order) == sorted(exp.conditions)
+    for cond in exp.conditions:
+        assert sorted(t.side for t in plan if t.condition == cond) == ["above"] * 3 + ["below"] * 3
 
 
 def test_the_plan_starts_half_above_half_below_seeded_per_subject():

@@ -5,12 +5,17 @@ tables, and SIGKILL then ``--resume`` giving the uninterrupted run's rows."""
 import json
 import math
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
 from playwright.sync_api import sync_playwright
 
+from stimuli import load_catalog
 from study.__main__ import main
+from study.design.blocks import block_order
+from study.magnitude.kind import Magnitude
+from study.session.config import protocol_from, read_protocol_file
 from study.magnitude.experiment import MagnitudeConfig, plan_trials
 from study.session.uistate import NUMBER_HINT, UiState, number_key
 from study.session.webui import WebUI
@@ -33,6 +38,25 @@ def run(tmp, subject, protocol, *extra, seed=2):
     proto = write(tmp / f"{subject}.toml", protocol)
     return main(["run", "--device", "sim", "--participant", "simulated", "--quiet", "--subject", subject,
                  "--seed", str(seed), "--out", str(tmp / "DATA"), "--protocol", str(proto), *map(str, extra)])
+
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def test_the_shipped_example_loads_and_plans():
+    """examples/magnitude.toml: two samples at six stiffnesses, 4 repetitions (48 trials), the standard
+    (630 N/m, "10") first in each block and every 6 trials; every stimulus derived from the default catalog."""
+    path = ROOT / "examples" / "magnitude.toml"
+    data, table = read_protocol_file(path)
+    assert protocol_from(data, path).tap_window_s == 3.0
+    exp = Magnitude.configure(table, str(path))
+    stimuli = Magnitude.samples(exp, lambda _: load_catalog(None), str(path))
+    assert len(stimuli) == 2 * 6 and {s.stiffness_N_m for s in stimuli} == set(exp.levels)   # the modulus is a level
+    _, order = block_order(exp.conditions, exp.order, exp.design, "S01", 1, str(path))
+    plan = plan_trials(exp, order, 1, "S01")
+    assert len(plan) == 48 and sorted(order) == ["firm", "pulse_firm"]
+    for block in (1, 2):
+        assert [t.modulus_shown for t in plan if t.block == block] == [1, 0, 0, 0, 0, 0] * 4
 
 
 def test_the_plan_shows_the_standard_first_in_each_block_and_every_k_trials():
