@@ -114,6 +114,25 @@ def _save_partial(result, folder, why: str) -> None:
         print(f"{why}: partial run saved to {folder.commit()}", file=sys.stderr)
 
 
+def _begin_stream(args, loop):
+    """``renderer run --lsl`` (:mod:`renderer.cli_run_lsl` sets ``args.servo_stream``): the loop's ``until``
+    callback that publishes its log and contacts; None without it."""
+    stream = getattr(args, "servo_stream", None)
+    if stream is not None:
+        stream.begin(loop)
+        stream.publisher.marker({"event": "run_start"})
+    return stream
+
+
+def _end_stream(args, loop, result) -> None:
+    """After the run: the last ticks and contacts, the run's end, and the streams' record in run.json."""
+    stream = getattr(args, "servo_stream", None)
+    if stream is not None:
+        stream.flush(loop)
+        stream.publisher.marker({"event": "run_end", "stop_reason": result.stop_reason})
+        result.timing["lsl"] = stream.publisher.close()
+
+
 def _run(args) -> int:
     check_run_size(args.taps, args.duration)   # time and memory bounded: refused before anything is written
     # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): a failed or
@@ -132,6 +151,8 @@ def _run_into(args, folder) -> int:
 
         return cli_run3.run_into(args, folder, cfg, transient)
     simulated = args.device.split(":", 1)[0] == "sim"
+    if getattr(args, "servo_stream", None) is not None and not (simulated or args.in_process):
+        raise ValueError("--lsl streams a hardware run with --in-process (the servo loop in this process)")
     if simulated:
         provenance.prefetch()  # run.json's versions and git state, while the simulation runs
 
@@ -149,8 +170,10 @@ def _run_into(args, folder) -> int:
                 loop.rt_request = {"core": None}
             # --duration-s: that long (the hand rests after its last tap); else the plan's length
             duration = args.duration if args.duration is not None else traj.duration_s
+            stream = _begin_stream(args, loop)
             try:
-                result = loop.run(duration_s=duration, realtime=args.realtime)
+                result = loop.run(duration_s=duration, realtime=args.realtime, until=stream)
+                _end_stream(args, loop, result)
             except KeyboardInterrupt:
                 _save_partial(loop.result, folder, "interrupted")
                 return 130
@@ -164,8 +187,10 @@ def _run_into(args, folder) -> int:
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
                 loop.rt_request = {"core": None}  # SCHED_FIFO and mlockall around the ticks (plumbing.rtpolicy)
+                stream = _begin_stream(args, loop)
                 try:
-                    result = loop.run(duration_s=args.duration, realtime=True)
+                    result = loop.run(duration_s=args.duration, realtime=True, until=stream)
+                    _end_stream(args, loop, result)
                 except KeyboardInterrupt:
                     result = loop.result
         except Terminated as exc:  # the output was zeroed by the loop and again on closing

@@ -148,6 +148,8 @@ class Apparatus:
         # polled by every homing and servo loop here (with their stop checks); it raises to abort the loop,
         # whose output is then zeroed on the way out (the servo process: its parent died, study.session.isolated)
         self.stop_check = None
+        #: the Lab Streaming Layer's servo callback (plumbing.lsl.ServoStream) when the session streams, else None
+        self.monitor = None
         if self.is_sim:
             self.real_saturation_detection = "sim contact force (true_state)"
         else:
@@ -178,6 +180,24 @@ class Apparatus:
         loop.prepare()  # raises ValueError now (e.g. a library unusable on this device), not mid-session
         self.samples[sample.name] = sample
         self.loops[sample.name] = loop
+
+    def drop_sample(self, name: str) -> None:
+        """Release the servo loop of a sample added for a while (the method of adjustment's comparisons: each
+        loop holds its log, ~6 MB with 5 s windows); the catalog's own samples are kept. No-op if unknown."""
+        if name in self.loops and self.current is not self.samples.get(name):
+            del self.loops[name]
+            del self.samples[name]
+
+    def wait_streams(self, timeout_s: float) -> bool:
+        """Wait for consumers of the servo's Lab Streaming Layer streams (True: connected, or none streamed)."""
+        return True if self.monitor is None else self.monitor.publisher.wait_for_consumers(timeout_s)
+
+    def close_streams(self) -> dict | None:
+        """Stop the Lab Streaming Layer's servo streams (pushing what is queued); their record, or None."""
+        if self.monitor is None:
+            return None
+        record, self.monitor = self.monitor.publisher.close(), None
+        return record
 
     def link_status(self) -> str:
         """One line on the device link's health for the operator page.
@@ -322,9 +342,13 @@ class Apparatus:
                 if on_clip is not None:
                     on_clip()
 
+        monitor = self.monitor
+
         def until(lp) -> bool:
             if check is not None:
                 check()
+            if monitor is not None:
+                monitor(lp)
             evs = lp.events
             current = len(evs) - 1
             if force_of is not None:
@@ -345,9 +369,13 @@ class Apparatus:
             return lp.time_s - t_start >= first_tap_timeout_s
 
         loop.temp_rise_K = self.temp_rise_K
+        if monitor is not None:
+            monitor.begin(loop)
         try:
             result = loop.run(duration_s=first_tap_timeout_s + window_s + 0.5, until=until, realtime=self.realtime)
         finally:
+            if monitor is not None:
+                monitor.flush(loop)
             self.temp_rise_K = loop.temp_rise_K
             if self.is_sim:
                 dev.motor_enabled = True
