@@ -1,6 +1,8 @@
 """Device strings: the one way every command selects a device.
 
-``sim``                 simulated device, Table 3.1 parameters (nonlinear model)
+``sim``                 simulated device, Table 3.1 parameters (nonlinear model: the joystick)
+``sim:joystick``        the same, by name
+``sim:onedof``          the section 4.4.3 one-dof testbed: Table 3.1 with a linear linkage (chapter 4's device)
 ``sim:lti``             simulated linear "Phantom-like" device
 ``sim:<params file>``   simulated device from a TOML/JSON parameter file
 ``serial:<port>``       hardware over a serial/CDC port (e.g. serial:/dev/ttyACM0)
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 from .base import Device
 
-DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>", "fw-sim")
+DEVICE_KINDS = ("sim", "sim:joystick", "sim:onedof", "sim:lti", "sim:<params file>", "serial:<port>", "hid:<vid>:<pid>", "fw-sim")
 
 
 def _split(spec: str) -> tuple[str, str, dict]:

@@ -51,10 +51,10 @@ from scipy import signal
 
 from devices.limits import check_grips, check_tap_speeds
 from devices.sim import Person, SimDevice, SimParams, default_params, load_sim_params
-from devices.sim.linear import linear_linkage_params
+from devices.sim.presets import onedof_params
 
 from ..library import HfamLibrary
-from .pipeline import build_from_folder
+from .pipeline import SETTINGS_FILE, build_from_folder
 from .inversion import forward_simulate
 from .refine import AT_LIMIT, aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, LINKAGES,  # noqa: F401
@@ -134,7 +134,7 @@ class ScoreSettings:
     max_lag_s: float = 3e-3
     pre_s: float = 0.01
     eval_s: float = 0.1
-    linkage: str = "hysteretic"
+    linkage: str = "linear"
 
     def __post_init__(self) -> None:
         if self.linkage not in LINKAGES:
@@ -207,7 +207,7 @@ class CellScore:
         return dataclasses.asdict(self)
 
 
-def device_params(linkage: str = "hysteretic") -> SimParams:
+def device_params(linkage: str = "linear") -> SimParams:
     """The sim device of a scoring run: the Table 3.1 joystick (``hysteretic``, section 3.5.3's linkage) or the
     same device with a linear linkage at its small-signal stiffness (``linear``,
     :func:`devices.sim.linear.linear_linkage_params`: 7817.5 N/m; no amplitude-dependent resonance).
@@ -219,10 +219,10 @@ def device_params(linkage: str = "hysteretic") -> SimParams:
     """
     if linkage not in LINKAGES:
         raise ValueError(f"linkage must be one of {', '.join(LINKAGES)}, got {linkage!r}")
-    return default_params() if linkage == "hysteretic" else linear_linkage_params(default_params())
+    return default_params() if linkage == "hysteretic" else onedof_params()
 
 
-def default_device_factory(seed: int = 1, linkage: str = "hysteretic") -> Callable[[], SimDevice]:
+def default_device_factory(seed: int = 1, linkage: str = "linear") -> Callable[[], SimDevice]:
     """A factory of fresh sim devices (:func:`device_params` of ``linkage``) with sensor-noise ``seed`` (one per
     tap: reproducible)."""
     params = device_params(linkage)
@@ -230,7 +230,7 @@ def default_device_factory(seed: int = 1, linkage: str = "hysteretic") -> Callab
 
 
 def raised_limit_device_factory(transient_limit_A: float, seed: int = 1,
-                                linkage: str = "hysteretic") -> Callable[[], SimDevice]:
+                                linkage: str = "linear") -> Callable[[], SimDevice]:
     """Fresh sim devices whose amplifier lets a transient reach ``transient_limit_A`` (the thermal option).
 
     Section 4.4.2 (Figure 4.9): "separate current saturation levels can be used for steady-state and transient
@@ -582,7 +582,7 @@ class HfamScores:
     person_floor: list
     model_mismatch: list
     target_floor: list
-    linkage: str = "hysteretic"
+    linkage: str = "linear"
     unseen_dropped_m_s: tuple = ()
     refined_range_m_s: tuple = ()
 
@@ -864,8 +864,10 @@ def device_linkage(device: str) -> str | None:
     kind, _, rest = device.partition(":")
     if kind != "sim":
         return None
-    if rest in ("", "nonlinear"):
+    if rest in ("", "nonlinear", "joystick"):
         return "hysteretic"
+    if rest == "onedof":
+        return "linear"
     if rest == "lti":
         return None
     return _params_linkage(load_sim_params(rest))
@@ -884,27 +886,23 @@ def _params_linkage(params: SimParams) -> str | None:
 def pipeline_device(folder, linkage: str) -> str:
     """The device string a pipeline run into ``folder`` uses for ``linkage`` (:data:`LINKAGES`).
 
-    ``hysteretic``: ``sim`` (the default device; nothing written). ``linear``: the parameters of
-    :func:`device_params` are written to ``folder/`` :data:`DEVICE_FILE` and the string is ``sim:<that file>``,
-    so the folder says which device built it (:func:`pipeline_linkage`).
+    ``linear``: ``sim:onedof``; ``hysteretic``: ``sim:joystick`` (the pipeline records its device in the folder,
+    :data:`stimuli.hfam.pipeline.SETTINGS_FILE`, which :func:`pipeline_linkage` reads). ``folder`` is kept for
+    callers that pass it (nothing is written there).
 
     Raises
     ------
     ValueError
         An unknown ``linkage``.
     """
-    params = device_params(linkage)
-    if linkage == "hysteretic":
-        return "sim"
-    path = Path(folder) / DEVICE_FILE
-    path.write_text(json.dumps(params.to_dict(), indent=1) + "\n")
-    return f"sim:{path.resolve()}"
+    device_params(linkage)                       # an unknown linkage: ValueError
+    return "sim:onedof" if linkage == "linear" else "sim:joystick"
 
 
 def pipeline_linkage(folder) -> str:
     """Which :data:`LINKAGES` device a pipeline folder was run on: the variant whose parameters its
-    :data:`DEVICE_FILE` holds (score-hfam's own runs); else, for a demo cache entry, the device its
-    ``manifest.json`` settings name (:func:`device_linkage`); else ``hysteretic`` (a default run).
+    :data:`DEVICE_FILE` holds (older score-hfam runs); else the device its settings name (a demo cache entry's
+    ``manifest.json``, or the pipeline's own record; :func:`device_linkage`); else ``hysteretic``.
 
     Raises
     ------
@@ -929,15 +927,25 @@ def pipeline_linkage(folder) -> str:
 
 
 def _manifest_linkage(folder: Path) -> str:
-    """The :data:`LINKAGES` device of a demo cache entry's ``manifest.json`` (``settings.device``); ``hysteretic``
-    without one. ValueError for a device the scoring cannot play (the demo writes those claims "not measured")."""
-    try:
-        device = json.loads((folder / "manifest.json").read_text())["settings"]["device"]
-    except (OSError, ValueError, KeyError, TypeError):
+    """The :data:`LINKAGES` device a pipeline folder's settings name: a demo cache entry's ``manifest.json``
+    (``settings.device``), else the pipeline's own record (:data:`stimuli.hfam.pipeline.SETTINGS_FILE`);
+    ``hysteretic`` without either (a folder of the pipeline from before it ran on the one-dof device by default).
+    ValueError for a device the scoring cannot play (the demo writes those claims "not measured")."""
+    device = None
+    for name, keys in (("manifest.json", ("settings", "device")), (SETTINGS_FILE, ("device",))):
+        try:
+            value = json.loads((folder / name).read_text())
+            for k in keys:
+                value = value[k]
+            device = str(value)
+            break
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if device is None:
         return "hysteretic"
-    linkage = device_linkage(str(device))
+    linkage = device_linkage(device)
     if linkage is None:
-        raise ValueError(f"{folder}: this pipeline ran on {device} (manifest.json); the scoring plays its taps only on "
+        raise ValueError(f"{folder}: this pipeline ran on {device} (its settings); the scoring plays its taps only on "
                          f"the default sim or its linear-linkage variant ({', '.join(LINKAGES)}), so its libraries "
                          "cannot be scored")
     return linkage

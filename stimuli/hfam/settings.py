@@ -147,7 +147,8 @@ class PipelineSettings:
     Attributes
     ----------
     device : str
-        Sim device string (``sim``, ``sim:lti``, ``sim:<params file>``).
+        Sim device string: ``sim:onedof`` (default: the section 4.4.3 one-dof testbed chapter 4's claims run
+        on), ``sim`` / ``sim:joystick`` (Table 3.1), ``sim:lti``, ``sim:<params file>``.
     identify_grips_N : tuple of float
         Grip levels identified (strictly increasing, N).
     identify_trials : int
@@ -184,7 +185,7 @@ class PipelineSettings:
         Sensor-noise seed of the sim device.
     """
 
-    device: str = "sim"
+    device: str = "sim:onedof"
     identify_grips_N: tuple = (0.0, 1.0, 2.0, 3.0, 5.0, 10.0)
     identify_trials: int = 2
     sweep_amplitude_A: float = 0.25
@@ -242,6 +243,7 @@ GRIPS_N = (1.0, 2.0, 3.0)
 #: the raised transient-only limit the thermal option reports by default (A): twice the sim's 4 A peak
 DEFAULT_TRANSIENT_LIMIT_A = 8.0
 #: the sim device variants the scoring can run on (``--linkage``; :func:`stimuli.hfam.scoring.device_params`):
-#: ``hysteretic``, the Table 3.1 joystick as it is (section 3.5.3's linkage), and ``linear``, the same device
-#: with the linkage a linear spring at its small-signal stiffness (``devices.sim.linear.linear_linkage_params``)
+#: ``hysteretic``, the Table 3.1 joystick as it is (section 3.5.3's linkage; ``sim:joystick``), and ``linear``,
+#: the same device with the linkage a linear spring at its small-signal stiffness (``sim:onedof``, the section
+#: 4.4.3 one-dof testbed, chapter 4's device and the default; ``devices.sim.presets``)
 LINKAGES = ("hysteretic", "linear")
