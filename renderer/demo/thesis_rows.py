@@ -180,7 +180,8 @@ def grip_resonance_claim(device: str = "sim:joystick") -> Claim:
                  f"resonance within {lo:.1f}-{hi:.1f} Hz (70 Hz +/- {RES70_TOL:.0%}) at every grip 1-5 N",
                  float(np.nanmedian(vals)) if np.isfinite(vals).any() else math.nan,
                  f"current -> motor position of {device} held still by the default person, 10-200 Hz sweep at "
-                 f"0.25 A: " + ", ".join(f"{g:g} N {f:.0f} Hz" for g, f in res.items())
+                 f"0.25 A: " + ", ".join(f"{g:g} N {f:.0f} Hz" if np.isfinite(f) else f"{g:g} N no peak 1 dB above its sides"
+                             for g, f in res.items())
                  + f" (highest / lowest {spread:.2f})", ok)
 
 

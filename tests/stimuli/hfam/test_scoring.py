@@ -98,10 +98,10 @@ def test_open_loop_target(scores):
     assert len(scores.open_loop) == 18 and not any(c.saturated for c in scores.open_loop)
     m = S.summarise(scores.open_loop)
     assert m["median_nrmse"] <= 0.30 and m["worst_nrmse"] <= 0.40 and m["min_corr"] >= 0.9, m
-    # the smoothed targets themselves sit 0.15-0.3 from the real tap (one per library velocity: 9 of the 12
-    # recordings were selected)
+    # the smoothed targets themselves sit 0.15-0.3 from the real tap (one per library velocity: all 12 recordings
+    # are selected since the "high incoming acceleration" check looks before the impact only; it dropped 3)
     floor = [r["nrmse"] for r in scores.target_floor]
-    assert len(floor) == 9 and all(0.1 < f < 0.3 for f in floor), floor
+    assert len(floor) == 12 and all(0.1 < f < 0.3 for f in floor), floor
 
 
 def test_open_loop_scores_follow_the_model_mismatch_on_the_joystick(joystick):
@@ -166,10 +166,10 @@ def test_refined_library_generalises_for_the_recording_person(scores):
     assert m["min_corr"] >= 0.9
 
 
-@pytest.mark.xfail(strict=True, reason="the second person's real taps are 0.18-0.25 from the recording person's, and "
-                                       "the refined library reproduces the recordings (test below); "
-                                       "docs/hfam_library.md 'Scoring'")
 def test_refined_target_over_both_persons(scores):
+    """Item 5's refined target at unseen conditions over both persons: met on the one-dof device with the fingertip
+    person (measured median 0.246, worst 0.357; it missed, median 0.281 / worst 0.412, while the grip impedance sat
+    on the handle itself and the two persons' real taps differed by 0.32-0.36 instead of 0.18-0.25)."""
     m = S.summarise(scores.refined)
     assert m["median_nrmse"] <= 0.28 and m["worst_nrmse"] <= 0.38
 
