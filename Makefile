@@ -32,7 +32,7 @@ $(STAMP): pyproject.toml
 	@# scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker, per study report)
 	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
 	$(PY) -m compileall -q -j 0 -x '$(LATER)|$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
-	    plumbing analysis devices renderer stimuli study benchmarks figstyle > /dev/null
+	    plumbing psychophysics analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
 
 $(COMPILED): $(STAMP)
@@ -58,7 +58,7 @@ bench: $(STAMP) $(COMPILED)
 
 # every shipped artefact derived from the sim, rebuilt and stamped (plumbing/artefacts.py): the default HFAM
 # library, then the docs gallery (a simulated 16-subject study's report and the sim demo) and the README's
-# figures; tests/test_artefacts.py fails when one no longer matches the code that made it. About 5 minutes.
+# figures; tests/plumbing/test_artefacts.py fails when one no longer matches the code that made it. About 5 minutes.
 artefacts: $(STAMP) $(COMPILED)
 	$(PY) -m plumbing.artefacts rebuild
 

@@ -8,7 +8,7 @@ rebuild`` (``make artefacts``) runs every command, in order, and writes beside e
 (``stamp``, JSON): the SHA-256 of its inputs and of every file it wrote. :func:`check` compares the stamps
 with the sources and the files as they are now -- no rebuild, a fraction of a second -- and names every
 artefact whose code or parameters changed since it was made, or whose files were edited by hand
-(``tests/test_artefacts.py`` runs it).
+(``tests/plumbing/test_artefacts.py`` runs it).
 
 The commands run the other packages' own commands in subprocesses (``python -m ...``); this module imports
 none of them.

@@ -36,3 +36,23 @@ def default_demo(tmp_path_factory):
                                 progress=Progress(5, quiet=True))
     res.cfg, res.out = cfg, out
     return res
+
+
+@pytest.fixture(scope="session")
+def fake_hd(tmp_path_factory):
+    """libfakehd.so, a fake OpenHaptics HD library (tests/devices/hardware/contract/fake_hd/fake_hd.c), compiled
+    once: the Touch adapter's tests and its ``renderer run`` load it through ``$HFAM_OPENHAPTICS_LIB``."""
+    import subprocess
+    from pathlib import Path
+
+    from plumbing import sysdeps
+
+    from tests.support.needs import need
+
+    need("cc")
+    src = Path(__file__).resolve().parent / "devices" / "hardware" / "contract" / "fake_hd" / "fake_hd.c"
+    out = tmp_path_factory.mktemp("fakehd") / "libfakehd.so"
+    r = subprocess.run(["cc", "-shared", "-fPIC", "-O2", "-o", str(out), str(src), "-lpthread", "-lm"],
+                       capture_output=True, text=True, timeout=60, env=sysdeps.tool_env())
+    assert r.returncode == 0, r.stderr
+    return out

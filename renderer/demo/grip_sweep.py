@@ -219,7 +219,7 @@ def measure(scaling: HandScaling, library, velocities_m_s=(0.05, 0.08, 0.11, 0.1
 def meets(row: dict, fig413_band: tuple[float, float] = (0.5, 1.0)) -> tuple[bool, bool]:
     """Whether a :func:`measure` row meets (grip claim, Figure 4.13).
 
-    The grip claim: every real sample's median NRMSE <= 0.3 and peaks within +/- 25 % (issue 36). Figure
+    The grip claim: every real sample's median NRMSE <= 0.3 and peaks within +/- 25 %. Figure
     4.13: the medium transient at the firmest grip gives a peak ratio inside ``fig413_band`` (the range the
     thesis's saturation pattern implies, docs/sim.md) and at the softest grip a ratio above 1.
     """

@@ -13,8 +13,8 @@ from devices.recording import record_taps, write_tap_recording
 from devices.sim import SimDevice
 from stimuli import HfamLibrary
 from stimuli.__main__ import main
-from tests.files import sha256
-from tests.stimuli.conftest import (
+from tests.support.files import sha256
+from tests.support.stimuli import (
     minimum_phase_model,
     rhp_zero_model,
     synthetic_taps,
@@ -302,7 +302,7 @@ def test_sim_library_refuses_an_existing_out_unless_forced(tmp_path):
     res = _stimuli(tmp_path, "sim-library", "--out", "adir", "--force")
     assert res.returncode == 2 and "error: --out adir is a folder" in res.stderr
     # with --force an existing file passes the check (the whole pipeline the command then runs, ~30 s, is
-    # exercised by `make artefacts` and checked by tests/test_artefacts.py's stamp of the shipped library)
+    # exercised by `make artefacts` and checked by tests/plumbing/test_artefacts.py's stamp of the shipped library)
     from plumbing.fileio import check_output_file
     check_output_file(mine, True)
     assert mine.read_text() == "my precious library\n"

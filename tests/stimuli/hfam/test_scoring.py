@@ -1,4 +1,4 @@
-"""HFAM scoring (issue 36 item 5): the open-loop and refined libraries against the real tap on the sim, the
+"""HFAM scoring: the open-loop and refined libraries against the real tap on the sim, the
 unseen conditions, saturation flagging and the thermal option (stimuli/hfam/scoring.py, docs/hfam_library.md).
 
 One pipeline (identify, record, build, refine: the demo's defaults, on the one-dof device ``sim:onedof``) and one
@@ -279,7 +279,7 @@ def test_score_hfam_command(pipe, tmp_path, capsys):
             "--grips-N", "3", "--unseen-grips-N", "1.5"]
     assert main(argv) == 0
     text = capsys.readouterr().out
-    assert "Open-loop library" in text and "Claims (issue 36 item 5)" in text and "SAT (excluded)" in text
+    assert "Open-loop library" in text and "Claims:" in text and "SAT (excluded)" in text
     rows = (out / "scores.csv").read_text().splitlines()
     assert rows[0].startswith("set,person,velocity_m_s,grip_N")
     assert sum(r.startswith("open_loop,") for r in rows) == 2
