@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import json
 import os
 import platform
 import re
@@ -13,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis import figures, report_models, workers
+from analysis import figures, ranking, report_models, workers
 from analysis.load import catalog_labels
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
@@ -450,6 +451,10 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     fig_paths, notes = make_figures(res, out, target_v_m_s, pool, accelerations) if figures else \
         ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
+    # Figure 4.17's ordering and section 4.5.4's saturations, as yes/no lines and ranking.json
+    checks = ranking.figure_4_17_checks(res.summary, res.study.trials)
+    lines += ranking.ranking_lines(ranking.figure_4_17_checks(res.summary, res.study.trials, _name), _name)
+    (out / "ranking.json").write_text(json.dumps(checks, indent=1, default=str) + "\n", encoding="utf-8")
     sections = report_models.sections(res, out, draw=figures)
     cfg = res.config
     md = ["# Realism study analysis", "",

@@ -54,7 +54,7 @@ def _run_demo(out: Path, cache: Path, env_extra: dict | None = None) -> float:
     env = dict(os.environ)
     env.update(env_extra or {})
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "renderer", "demo", "--device", "sim", "--out", str(out),
+    proc = subprocess.run([sys.executable, "-m", "renderer", "demo", "--device", "sim:onedof", "--out", str(out),
                            "--cache-dir", str(cache), "--force"], cwd=ROOT, env=env, capture_output=True, text=True)
     dt = time.perf_counter() - t0
     if proc.returncode != 0:

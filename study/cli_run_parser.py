@@ -41,7 +41,8 @@ def register(subparsers) -> None:
                                           "and a token-protected operator page). --resume continues a killed or "
                                           "aborted session exactly where it stopped.")
     p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
-                                                 "hid:<vid>:<pid> (default: sim, or the resumed session's)")
+                                                 "hid:<vid>:<pid> (default: sim:onedof, the one-dof testbed of the thesis's study "
+                                                 "chapter, or the resumed session's)")
     p.add_argument("--participant", choices=("simulated", "keyboard"), default=None,
                    help="simulated (sim devices only: simulated hand and synthetic rater) or keyboard (a person "
                         "using the subject view; with a sim device the simulated hand still taps); default: "

@@ -24,7 +24,7 @@ from devices.sim import DEFAULT_PERSON, ScriptedTrajectory, TapTrajectory
 from renderer import RendererConfig, ServoLoop
 from renderer.homing import SAFETY_STOPS, HomingConfig, HomingController
 
-from .rater import Reference, tap_features
+from .rater import REFERENCE_SAMPLE, Reference, tap_features
 
 # full-rate channels kept in the per-attempt trace files (float32 except t_s)
 TRACE_CHANNELS = ("position_m", "force_prop_N", "force_transient_N", "current_A", "accel_m_s2", "grip_N")
@@ -404,8 +404,9 @@ class Apparatus:
         """The rater's features of a tap window (acceleration spectrum around the impacts; :func:`study.session.rater.tap_features`)."""
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], tap.fs_hz)
 
-    def record_reference(self, reference_sample: str = "wood_on_foam") -> Reference:
-        """Tap the real wood-on-foam (sim) at several velocities with the motor off; fit the rater's reference."""
+    def record_reference(self, reference_sample: str = REFERENCE_SAMPLE) -> Reference:
+        """Tap the real reference sample (sim; the rater's :data:`study.session.rater.REFERENCE_SAMPLE`, the real wood) at
+        several velocities with the motor off; fit the rater's reference."""
         dev = self.device
         dev.set_sample(reference_sample)
         dev.motor_enabled = False

@@ -32,7 +32,7 @@ from renderer.scene import Box, Plane, Scene, SurfaceProps
 from renderer.scene3 import pack_scene
 
 from .apparatus import REFERENCE_VELOCITIES_M_S, Apparatus, TapResult
-from .rater import Reference, tap_features
+from .rater import REFERENCE_SAMPLE, Reference, tap_features
 
 #: the table: its height (m, device frame), stiffness (N/m) and friction (static, dynamic)
 TABLE_Z_M = -0.03
@@ -240,9 +240,9 @@ class Apparatus3(Apparatus):
             / self.info.force_per_amp_N_A
         return out
 
-    def record_reference(self, reference_sample: str = "wood_on_foam") -> Reference:
-        """As :meth:`Apparatus.record_reference`: the real wood on foam tapped from above, motor off, at the
-        block of the catalog's real sample (else the first block)."""
+    def record_reference(self, reference_sample: str = REFERENCE_SAMPLE) -> Reference:
+        """As :meth:`Apparatus.record_reference`: the rater's real reference sample (the real wood) tapped from
+        above, motor off, at the block of the catalog's real sample (else the first block)."""
         dev = self._device3
         real = [name for name, smp in self.blocks.items() if smp.kind == "real" and smp.real_sample == reference_sample]
         block = real[0] if real else next(iter(self.blocks), None)

@@ -42,7 +42,7 @@ from renderer.process import SPAWN, servo_child, servo_process
 
 from .apparatus import ServoStopped
 from .apparatus3 import make_apparatus
-from .rater import tap_features
+from .rater import REFERENCE_SAMPLE, tap_features
 
 
 def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
@@ -291,7 +291,7 @@ class IsolatedApparatus:
         """The rater's features of a tap window, computed here from the returned log."""
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], tap.fs_hz)
 
-    def record_reference(self, reference_sample: str = "wood_on_foam"):
+    def record_reference(self, reference_sample: str = REFERENCE_SAMPLE):
         """Record the rater's reference taps in the servo process; returns and keeps the reference."""
         self.reference = self._call("record_reference", reference_sample)
         return self.reference
