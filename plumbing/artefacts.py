@@ -17,6 +17,7 @@ none of them.
 from __future__ import annotations
 
 import argparse
+import ast
 import hashlib
 import json
 import subprocess
@@ -82,13 +83,33 @@ def _files(rel: str, suffixes=None, root: Path = ROOT) -> list[Path]:
                   and (suffixes is None or f.suffix in suffixes))
 
 
+def _code_of(data: bytes) -> bytes:
+    """A Python module's code without its comments, docstrings and layout (the AST's dump): rewording a comment
+    or a docstring does not make an artefact stale, a changed statement or constant does. A module that does not
+    parse is taken as its bytes."""
+    try:
+        tree = ast.parse(data)
+    except (SyntaxError, ValueError):
+        return data.replace(b"\r\n", b"\n")
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree).encode()
+
+
 def inputs_digest(artefact: Artefact, root: Path = ROOT) -> str:
-    """SHA-256 over the names and contents of the artefact's input files (line endings normalised)."""
+    """SHA-256 over the names and contents of the artefact's input files (line endings normalised; Python
+    modules by their code, :func:`_code_of`)."""
     h = hashlib.sha256()
     for rel in artefact.inputs:
         for f in _files(rel, INPUT_SUFFIXES, root):
             h.update(f.relative_to(root).as_posix().encode())
             data = f.read_bytes()
+            if f.suffix == ".py":
+                data = _code_of(data)
             h.update(data if f.suffix == ".npz" else data.replace(b"\r\n", b"\n"))
     return h.hexdigest()
 

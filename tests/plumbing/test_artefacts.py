@@ -43,6 +43,8 @@ def test_a_stamp_notices_changed_code_and_edited_files(tmp_path: Path):
     (tmp_path / "out" / "r.csv").write_text("1\n")
     (tmp_path / "src" / "m.py").write_text("K = 2\n")
     assert A.stale(art, tmp_path) == ["its inputs (src) changed since it was made"]
+    (tmp_path / "src" / "m.py").write_text('"""A docstring."""\nK = 1  # a comment reworded\n')
+    assert A.stale(art, tmp_path) == []    # words are not code: the artefact is still what this code makes
     (tmp_path / "src" / "m.py").write_text("K = 1\n")
     (tmp_path / "out" / "new.png").write_bytes(b"x")
     assert A.stale(art, tmp_path) == ["out/new.png added since the stamp"]
