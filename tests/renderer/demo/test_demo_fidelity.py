@@ -5,7 +5,7 @@ run per session (tests/conftest.py ``default_demo``). The operating point is sec
 0.05-0.15 m/s weighted by a normal density of mean 0.10 and s.d. 0.042 m/s, grips 1-3 N.
 
 Targets the default sim meets are asserted as targets; those it does not are asserted at the measured value
-(so a change shows) and as reported "no" in fidelity.csv: docs/sim.md, "Issue 36: the thesis's operating
+(so a change shows) and as reported "no" in fidelity.csv: docs/sim.md, "The thesis's operating
 point", shows with measurements why they contradict each other on this sim.
 """
 
