@@ -1,4 +1,4 @@
-"""``python -m analysis psychometric DATA --out DIR``: psychometric fits of forced-choice data (issue 34).
+"""``python -m analysis psychometric DATA --out DIR``: psychometric fits of forced-choice data.
 
 The body; the parser is :mod:`analysis.cli_psychometric_parser`.
 """

@@ -1,4 +1,4 @@
-"""Ratings modelled as what they are (issue 35): a linear mixed model and an ordinal model of every attempt.
+"""Ratings modelled as what they are: a linear mixed model and an ordinal model of every attempt.
 
 The paired t-tests of :mod:`analysis.stats` average each subject's attempts first. The models here use
 every valid testing attempt, so unbalanced cells (redraws, missed samples) weigh as much as they hold,

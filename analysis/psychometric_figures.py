@@ -1,4 +1,4 @@
-"""Figures of the psychometric fits (issue 34), in the project style (figstyle), each as PNG + SVG + CSV.
+"""Figures of the psychometric fits, in the project style (figstyle), each as PNG + SVG + CSV.
 
 * :func:`build_curves`: proportion correct per intensity (points sized by their trial count) and the
   fitted psi per condition, with the threshold and its bootstrap interval drawn at psi(threshold);

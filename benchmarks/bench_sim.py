@@ -71,7 +71,7 @@ def main() -> dict:
 
 
 def tap_setup() -> dict:
-    """Set-up cost of a simulated tapping hand per tap (issue 21 item 2: linear in the number of taps).
+    """Set-up cost of a simulated tapping hand per tap (target: linear in the number of taps).
 
     Times ``TapTrajectory(...)`` plus ``set_user`` (sampling the plan and the
     grip onto the 10 kHz grid) for 10 taps and for 400 taps (the set-up of

@@ -1,4 +1,4 @@
-"""``python -m stimuli score-hfam``: how well the HFAM libraries reproduce the real tap on the sim (issue 36 item 5).
+"""``python -m stimuli score-hfam``: how well the HFAM libraries reproduce the real tap on the sim.
 
 The parser (light: imported for ``--help``); the body is :mod:`stimuli.cli_score`.
 """
@@ -28,7 +28,7 @@ def register(subparsers) -> None:
     """
     p = subparsers.add_parser(
         "score-hfam",
-        help="score the open-loop and refined HFAM libraries against the real tap on the sim (issue 36)",
+        help="score the open-loop and refined HFAM libraries against the real tap on the sim",
         description=(
             "Score the HFAM pipeline's libraries on the sim device (docs/hfam_library.md, 'Scoring'): the open-loop "
             "library (record, smooth, invert, high-pass, taper; no playback refinement) over --speeds-m-s x "

@@ -12,7 +12,7 @@ streamed: the device holds a window of :data:`PLAN_WINDOW_TICKS` ticks of it
 and computes the next window (``TapTrajectory.sample_range``) when the ticks
 reach its end, in ``command()`` or between the chunks of a compiled loop
 (:meth:`SimDevice.fused_span`), so memory does not grow with the number of
-taps (issue 38). The kernel sees the same numbers as with the whole plan
+taps. The kernel sees the same numbers as with the whole plan
 (windows overlap by a tick and the last one ends where the plan does).
 """
 

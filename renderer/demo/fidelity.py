@@ -1,4 +1,4 @@
-"""The sim's claims against the thesis: what ``fidelity.csv`` says (issue 36; thesis sections 4.4.1, 4.5.4, 4.5.5).
+"""The sim's claims against the thesis: what ``fidelity.csv`` says (thesis sections 4.4.1, 4.5.4, 4.5.5).
 
 Each :class:`Claim` is one sentence of the thesis, the number the issue
 derived from it (the target), what the demo's simulated taps measured and
@@ -300,7 +300,7 @@ def grip_independence(traces: dict, name: str, fs_hz: float, reference_grip_N: f
 
 
 def sinusoid_against_pulse(traces: dict, real: str = "real_wood_on_foam") -> dict:
-    """Table 4.1's sinusoid against the pulse and the real wood-on-foam tap (issue 36, item 4).
+    """Table 4.1's sinusoid against the pulse and the real wood-on-foam tap.
 
     Cells: operating-point speeds x grips 1-3 N x walls (firm, soft). Each
     rendering's ``correlation`` metric is against the real sample's tap at
@@ -341,7 +341,7 @@ def _op_text(velocities) -> str:
 
 
 def measure_claims(traces: dict, renderings, fs_hz: float, medium_grip_N: float = 2.0) -> list[Claim]:
-    """The sim's claims (issue 36, items 1-4) measured on the demo's taps.
+    """The sim's claims measured on the demo's taps.
 
     Parameters
     ----------

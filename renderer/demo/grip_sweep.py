@@ -1,11 +1,11 @@
-"""Experiment: how strongly may the hand impedance follow grip? (issue 36 item 3; thesis 3.4.6, 4.4.1, 4.4.3)
+"""Experiment: how strongly may the hand impedance follow grip? (thesis 3.4.6, 4.4.1, 4.4.3)
 
 Two thesis statements pull the grip dependence of the simulated hand in
 opposite directions:
 
 * section 4.4.1: "Contact accelerations are generally independent of grip
   force" -- a real sample's taps at 1 N and 3 N should match its 2 N tap
-  (issue 36: median NRMSE <= 0.3, peak within +/- 25 %;
+  (target: median NRMSE <= 0.3, peak within +/- 25 %;
   :func:`renderer.demo.fidelity.grip_independence`);
 * section 4.4.3, Figure 4.13: "if the system were to blindly apply the medium
   grip current transient regardless of grip force, the acceleration would be
@@ -215,7 +215,7 @@ def measure(scaling: HandScaling, library, velocities_m_s=(0.05, 0.08, 0.11, 0.1
 def meets(row: dict, fig413_band: tuple[float, float] = (0.5, 1.0)) -> tuple[bool, bool]:
     """Whether a :func:`measure` row meets (grip claim, Figure 4.13).
 
-    The grip claim: every real sample's median NRMSE <= 0.3 and peaks within +/- 25 % (issue 36). Figure
+    The grip claim: every real sample's median NRMSE <= 0.3 and peaks within +/- 25 %. Figure
     4.13: the medium transient at the firmest grip gives a peak ratio inside ``fig413_band`` (the range the
     thesis's saturation pattern implies, docs/sim.md) and at the softest grip a ratio above 1.
     """
@@ -270,7 +270,7 @@ def sweep(settings=SWEEP, library=None, stop_time_s=None) -> list[dict]:
 
 def fingertip_emulation(library, finger_mass_kg: float = 0.005, pad_stiffness_N_m: float = 300.0,
                         pad_damping_Ns_m: float = 1.5, stop_time_s=None) -> dict:
-    """A fingertip mass between handle and grip impedance, emulated with the existing kernel (issue 36 C).
+    """A fingertip mass between handle and grip impedance, emulated with the existing kernel.
 
     handle --[finger pad, grip independent]-- fingertip mass --[Table 3.1's k_u, b_u, linear in grip]-- plan:
     the sim's handle-side spring-damper becomes the finger pad (Hajian & Howe 1997 [53]: ~4-6 g, 50-400 N/m,

@@ -1,4 +1,4 @@
-"""Calibration of the slave's unheld-handle damping on the thesis's natural-impact datum (issue 37).
+"""Calibration of the slave's unheld-handle damping on the thesis's natural-impact datum.
 
 Table 3.1's linkage damping b_l = 0 was identified by successive isolation with the handle locked, and the
 handle and user impedance with the handle held (section 3.5.2): there the user's b_u = 23 N s/m dominates

@@ -106,7 +106,7 @@ def register(sub) -> None:
                         "natural impact at every bandwidth)")
     r.add_argument("--grace", action="store_true",
                    help="classify counting only the contact losses later than 30 ms after the impact (the slave's "
-                        "own bounce), a measured variant of issue 37's count from the impact on")
+                        "own bounce), a measured variant of the default count from the impact on")
     r.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: the "
                    "simulated master identified by successive isolation, cached; 'stand-in': marked Table 3.1)")
     r.add_argument("--washout-hz", type=float, default=0.0, help="high-pass on the CIMM model output (0: off)")

@@ -45,7 +45,7 @@ TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_h
 HOLDS_CONTACT = ("settles", "buzzes")
 # pd+hfam is section 4.3.1's architecture: bilateral PD plus the acceleration-matching channel, nothing else. The
 # position-command low-pass K_mu (40 Hz) and the master-PD low-pass (150 Hz) it once had by default were tuned
-# against issue 18's 600 N/m slave; with the rule's 8 Hz servos they lowered the match over three operators
+# against the first testbed's 600 N/m slave; with the rule's 8 Hz servos they lowered the match over three operators
 # (correlation 0.843-0.885 against 0.884-0.912) and added bounces (docs/teleop.md). Both remain options.
 
 

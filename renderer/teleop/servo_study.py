@@ -1,4 +1,4 @@
-"""Servo-bandwidth study (issue 37): do section 5.7's targets hold at any natural frequency of the servo rule?
+"""Servo-bandwidth study: do section 5.7's targets hold at any natural frequency of the servo rule?
 
 The servo rule (docs/teleop.md, "Gains") puts every joystick servo's natural frequency at the user's
 motion-control bandwidth, 8 Hz (damping ratio 0.7). The thesis gives no gains for section 5.7's slave; its one
@@ -7,7 +7,7 @@ filter with a bandwidth of 22 hertz, well matched to the second-order low-pass b
 controller and significantly above the range of human intention". Humans "cannot move or position their
 fingertips at frequencies above eight to ten hertz" (section 1.1).
 
-:func:`servo_study` measures issue 37's section 5.7 targets at each natural frequency of a grid spanning both
+:func:`servo_study` measures the section 5.7 targets at each natural frequency of a grid spanning both
 (6-22 Hz by default). At each it first re-identifies the slave's unheld-handle damping on the natural impact
 (:func:`renderer.teleop.calibration.calibrate_slave_handle_damping`: a lambda = 0 tap settles in 50 ms), so every
 point is the testbed as the project would build it had the rule chosen that frequency; then it runs the
@@ -54,7 +54,7 @@ STUDY_DAMPING_BRACKET = (0.0, 6.0)
 PD_TAPS = 3
 CONDITIONS = ("pf", "pf+cimm")
 
-#: issue 37's section 5.7 targets checked at every point: key -> the issue's words
+#: the section 5.7 targets checked at every point: key -> the target in words
 TARGETS = {
     "pf_1_settles": "Fig. 5.10: pf, lambda = 1 settles in 40-60 ms",
     "pf_3_buzzes": "Fig. 5.10: pf, lambda = 3 holds contact and buzzes > 100 ms",
@@ -173,7 +173,7 @@ def after_grace(rows) -> list[dict]:
 
 
 def check_targets(rows, backlash_rows, pd_losses) -> tuple[TargetCheck, ...]:
-    """Issue 37's section 5.7 targets (``TARGETS``) on one point's sweeps.
+    """The section 5.7 targets (``TARGETS``) on one point's sweeps.
 
     Parameters
     ----------

@@ -120,7 +120,7 @@ def tap_approach_height_m(velocity_m_s: float) -> float:
 
     The same for the recordings and every rendering: the simulated person's
     arm has its own slow dynamics (the 8 Hz compensation), so the state it
-    arrives in depends on how long it has travelled (issue 16).
+    arrives in depends on how long it has travelled.
     """
     return max(0.004, 0.04 * float(velocity_m_s))
 

@@ -1,8 +1,8 @@
-"""How well an HFAM library reproduces the real tap, measured on the sim (issue 36 item 5; sections 4.4.1-4.4.3).
+"""How well an HFAM library reproduces the real tap, measured on the sim (sections 4.4.1-4.4.3).
 
 Every number here is recomputed from a library and the sim; nothing is a stored constant. The sim is the Table 3.1
 joystick (``linkage="hysteretic"``) or the same device with its linkage a linear spring at the small-signal
-stiffness (``linkage="linear"``, :func:`device_params`): on the second the open-loop library meets issue 36's
+stiffness (``linkage="linear"``, :func:`device_params`): on the second the open-loop library meets its
 target, which shows the default device's miss is its hysteretic linkage (docs/hfam_library.md, "Why the open
 loop misses").
 
@@ -533,7 +533,7 @@ def format_cells(cells: Sequence[CellScore], title: str) -> str:
 
 @dataclass(frozen=True)
 class HfamScores:
-    """Everything :func:`score_pipeline` measured (issue 36 item 5).
+    """Everything :func:`score_pipeline` measured.
 
     Attributes
     ----------
@@ -615,7 +615,7 @@ def model_mismatch(library: HfamLibrary, models: Sequence[tuple[float, object]],
     grip level) is what the inversion assumed. Both band-passed as the scoring compares, the sim's increment
     aligned to the prediction within +/- 1 ms (the identified models' delays, e.g. 0.55 ms at 1 N, are
     discarded by the inverse; :func:`stimuli.hfam.refine.aligned`). An open-loop library cannot be closer to the real tap than the device is to its
-    model at the transient's amplitude (issue 36: why the open-loop pipeline stays above its target).
+    model at the transient's amplitude (why the open-loop pipeline stays above its target).
 
     Parameters
     ----------
@@ -688,7 +688,7 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
                    saturation_speeds_m_s: Sequence[float] | None = None,
                    transient_limit_A: float = DEFAULT_TRANSIENT_LIMIT_A,
                    settings: ScoreSettings = ScoreSettings()) -> HfamScores:
-    """Score a pipeline's three libraries (issue 36 item 5).
+    """Score a pipeline's three libraries.
 
     Parameters
     ----------
@@ -1029,7 +1029,7 @@ def format_scores(scores: HfamScores) -> str:
     for name, th in (("default limit", scores.thermal_default), (f"{scores.transient_limit_A:g} A", scores.thermal)):
         parts.append(f"thermal ({name}): hardest tap {th['max_heat_A2s']:.3f} A^2 s, winding +{th['max_temp_rise_K']:.2f} K "
                      f"from cold (limit {th['limit_K']:g} K), {th['taps_per_min']:.0f} such taps/min sustainable")
-    parts.append("Claims (issue 36 item 5):")
+    parts.append("Claims (as in the demo's fidelity.csv):")
     for c in hfam_claims(scores):
         parts.append(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['id']} (section {c['section']}): {c['target']}; "
                      f"measured {c['measured_text']}")

@@ -282,7 +282,7 @@ def test_score_hfam_command(pipe, tmp_path, capsys):
             "--grips-N", "3", "--unseen-grips-N", "1.5"]
     assert main(argv) == 0
     text = capsys.readouterr().out
-    assert "Open-loop library" in text and "Claims (issue 36 item 5)" in text and "SAT (excluded)" in text
+    assert "Open-loop library" in text and "Claims (as in the demo's fidelity.csv)" in text and "SAT (excluded)" in text
     rows = (out / "scores.csv").read_text().splitlines()
     assert rows[0].startswith("set,person,velocity_m_s,grip_N")
     assert sum(r.startswith("open_loop,") for r in rows) == 2
