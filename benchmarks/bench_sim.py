@@ -3,7 +3,7 @@
 Figures: for the nonlinear (Table 3.1) and the LTI (Phantom-like) models,
 (a) the numba kernel called once per 10 kHz tick, (b) the full device path
 ``read()`` + ``command()`` as the renderer uses it. Medians of several runs;
-the issue asks for >= 50x real time for the nonlinear device on one core.
+the target is >= 50x real time for the nonlinear device on one core.
 Rates are given from CPU time of this process (what one core delivers, robust
 to other processes on a shared machine) and from wall-clock time.
 """

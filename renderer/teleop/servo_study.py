@@ -13,7 +13,7 @@ fingertips at frequencies above eight to ten hertz" (section 1.1).
 point is the testbed as the project would build it had the rule chosen that frequency; then it runs the
 blind-randomised sweep of Figure 5.10 (no backlash) and of Figure 5.11 (its condition: the backlash, and "a
 simpler, less-accurate model" for the cancellation, :func:`figure_5_11_model`), and bilateral PD taps on wood. It never changes the model: the default stays the rule's 8 Hz whatever the table shows. Its purpose
-is the issue's "If a target cannot be met without fitting, say which and show why with measurements": a target
+is the rule "if a target cannot be met without fitting, say which and show why with measurements": a target
 that no point of the grid meets cannot be met by choosing the servo bandwidth either.
 
 Compute and present are separate (:func:`servo_study` / :func:`study_table`); the command is
@@ -146,7 +146,7 @@ def _all(taps: list[dict], pred) -> bool:
 def after_grace(rows) -> list[dict]:
     """Sweep rows re-classified counting only the contact losses later than ``GRACE_S`` (30 ms) after the impact.
 
-    A variant of the issue's classification, measured, not the model's: the project's ``stable`` definition already
+    A variant of the default classification, measured, not the model's: the project's ``stable`` definition already
     lets "the impact's own bounce" pass in those 30 ms, and the slave's natural impact (lambda = 0, no feedback
     loop, so nothing that could be unstable) bounces 1-3 times within them on the rule's 8 Hz servo, which the
     literal count of "contact lost >= 2 times" classes as make-break.
@@ -274,7 +274,7 @@ def study_point(servo_bandwidth_hz: float, cimm: CimmModel, *, taps: int = 2, se
         None (default): identify the slave handle's damping on the natural impact at this servo; a number: use
         it as given (to separate the servo's effect from the identification's).
     grace : bool
-        Classify the taps by :func:`after_grace` (losses later than 30 ms after the impact) instead of the issue's
+        Classify the taps by :func:`after_grace` (losses later than 30 ms after the impact) instead of the default
         count from the impact on; the bilateral PD count likewise.
 
     Returns

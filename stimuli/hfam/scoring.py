@@ -83,7 +83,7 @@ DEVICE_FILE = "device_params.json"
 MIN_SPEED_M_S = 0.02
 
 
-#: the issue's targets (item 5)
+#: the HFAM targets
 TARGETS = MappingProxyType({"open_loop_median": 0.30, "open_loop_worst": 0.40, "open_loop_min_corr": 0.9,
                             "refined_median": 0.28, "refined_worst": 0.38})
 
@@ -565,7 +565,7 @@ class HfamScores:
     linkage : str
         The device every tap was played on (:data:`LINKAGES`).
     unseen_dropped_m_s : tuple of float
-        The issue's unseen-speed examples left out: outside the refined library's velocity range (m/s).
+        The example unseen speeds left out: outside the refined library's velocity range (m/s).
     refined_range_m_s : tuple of float
         The refined library's (lowest, highest) velocity, m/s (empty if not recorded).
     """
@@ -702,7 +702,7 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
     speeds_m_s, grips_N : sequence of float
         The open-loop grid (m/s, N).
     unseen_speeds_m_s, unseen_grips_N : sequence of float
-        The refined library's unseen conditions (None: :func:`unseen_speeds_in_range` of the issue's speeds;
+        The refined library's unseen conditions (None: :func:`unseen_speeds_in_range` of the example speeds;
         those outside the library's velocity range are left out, ``HfamScores.unseen_dropped_m_s``).
     saturation_speeds_m_s : sequence of float or None
         The saturation grid's speeds (None: ``speeds_m_s`` plus 0.25 and 0.3 m/s, the speeds where the
@@ -715,7 +715,7 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
     -------
     HfamScores
     """
-    # the issue's speeds outside the refined library's range have no unseen speed near them: left out, and said
+    # the example speeds outside the refined library's range have no unseen speed near them: left out, and said
     unseen, dropped = (unseen_speeds_in_range(refined) if unseen_speeds_m_s is None
                        else (tuple(unseen_speeds_m_s), ()))
     sat_speeds = (tuple(sorted(set(speeds_m_s) | {0.25, 0.3})) if saturation_speeds_m_s is None
@@ -773,7 +773,7 @@ def _refined_claim(scores: HfamScores, device: str) -> dict:
     lo_hi = scores.refined_range_m_s
     dropped = ""
     if scores.unseen_dropped_m_s:
-        dropped = (f"; the issue's {', '.join(f'{v:g}' for v in scores.unseen_dropped_m_s)} m/s left out: outside "
+        dropped = (f"; the example speeds {', '.join(f'{v:g}' for v in scores.unseen_dropped_m_s)} m/s left out: outside "
                    "the refined library's velocities" + (f" {lo_hi[0]:.4f}-{lo_hi[1]:.4f} m/s" if lo_hi else "")
                    + " (no two library velocities around each)")
     if not unseen:
@@ -793,11 +793,11 @@ def _refined_claim(scores: HfamScores, device: str) -> dict:
 
 
 def hfam_claims(scores: HfamScores) -> list[dict]:
-    """One row per issue-36 item-5 target: ``id, section, thesis, target, measured, measured_text, holds``.
+    """One row per HFAM target: ``id, section, thesis, target, measured, measured_text, holds``.
 
     ``measured`` is the number the target is about (the worst of the two NRMSE figures' margins is in the
     text); ``holds`` is whether every part of the target holds. The refined library's row is "not measured"
-    (``measured`` NaN, not holding, the reason in ``measured_text``) when none of the issue's unseen speeds
+    (``measured`` NaN, not holding, the reason in ``measured_text``) when none of the example unseen speeds
     lies inside its velocity range (``scores.unseen_dropped_m_s``; the ones left out are named).
     """
     ol = summarise(scores.open_loop)

@@ -230,9 +230,9 @@ class PipelineSettings:
 
 
 # -- the HFAM scoring's grids (stimuli.hfam.scoring, ``python -m stimuli score-hfam``) --------
-#: the issue's open-loop grid: 0.03-0.2 m/s x 1-3 N (the demo's rows inside that range, plus 0.03 and 0.14)
+#: the open-loop scoring grid: 0.03-0.2 m/s x 1-3 N (the demo's rows inside that range, plus 0.03 and 0.14)
 OPEN_LOOP_SPEEDS_M_S = (0.03, 0.05, 0.08, 0.11, 0.14, 0.2)
-#: the issue's examples of speeds between the library's velocities; :func:`stimuli.hfam.scoring.unseen_speeds` moves each to the
+#: example speeds between the library's velocities; :func:`stimuli.hfam.scoring.unseen_speeds` moves each to the
 #: middle of the two library velocities around it (the library's velocities are the recordings' measured
 #: incoming speeds, e.g. 0.138 m/s: 0.14 itself would be a refined condition)
 ISSUE_UNSEEN_SPEEDS_M_S = (0.065, 0.095, 0.14)
