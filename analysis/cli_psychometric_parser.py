@@ -1,4 +1,4 @@
-"""``python -m analysis psychometric DATA --out DIR``: psychometric fits of forced-choice data (issue 34).
+"""``python -m analysis psychometric DATA --out DIR``: psychometric fits of forced-choice data.
 
 The parser (light: imported for ``--help``); the body is :mod:`analysis.cli_psychometric`.
 """

@@ -1,4 +1,4 @@
-"""Ratings modelled as what they are (issue 35): a linear mixed model and an ordinal model of every attempt.
+"""Ratings modelled as what they are: a linear mixed model and an ordinal model of every attempt.
 
 The paired t-tests of :mod:`analysis.stats` average each subject's attempts first. The models here use
 every valid testing attempt, so unbalanced cells (redraws, missed samples) weigh as much as they hold,
@@ -40,7 +40,7 @@ MODELS_MAX_SUBJECTS = 400
 #: the data do not support a random slope, and the random-intercept model is reported
 SLOPE_VARIANCE_FLOOR = 1e-6
 #: the per-attempt grip column (N) used when the study table has it: the study runner keeps grip in the traces
-#: only and the loader reads the issue-6 columns, so today the report says grip is not in the models
+#: only and the loader reads the study's trial columns, so today the report says grip is not in the models
 GRIP_COLUMN = "grip_mean_N"
 RATING_LEVELS = tuple(range(1, 8))
 

@@ -1,4 +1,4 @@
-"""Planning the next study's size (issue 35; command :mod:`analysis.cli_plan`).
+"""Planning the next study's size (command :mod:`analysis.cli_plan`).
 
 Every number comes from statsmodels' power of the one-sample t-test (``TTestPower``, the paired
 t-test on the per-subject differences: noncentral t with df = n - 1, noncentrality d_z sqrt(n)):

@@ -1,6 +1,6 @@
 """The figure of one ``renderer run``: position against the wall, forces, acceleration and the contact events.
 
-Issue 39 part 3: a user sees what happened in a run beside its ``events.csv`` / ``log.npz``. Drawn in the
+A user sees what happened in a run beside its ``events.csv`` / ``log.npz``. Drawn in the
 command's own process after the run is saved (never in the servo process), in the project style (figstyle,
 docs/figures.md), as ``run.png`` / ``run.svg`` and the plotted numbers as ``run.plot.csv``. A long log is
 reduced to a min/max envelope per bucket (:func:`envelope`), so every peak (an impact's acceleration spike, a

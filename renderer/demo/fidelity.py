@@ -1,6 +1,6 @@
 """The sim's claims against the thesis: what ``fidelity.csv`` says (thesis sections 4.4.1, 4.5.4, 4.5.5).
 
-Each :class:`Claim` is one sentence of the thesis, the number the issue
+Each :class:`Claim` is one sentence of the thesis, the number
 derived from it (the target), what the demo's simulated taps measured and
 whether it holds. Compute (:func:`measure_claims`, from the demo's taps) is
 separate from writing (:func:`write_fidelity`); the writer also takes claims
@@ -31,7 +31,7 @@ from .runs import ALIGN, POST_S, PRE_S
 #: section 4.5.4: mean and standard deviation of the study's incoming velocities (m/s)
 OPERATING_MEAN_M_S = 0.10
 OPERATING_SD_M_S = 0.042
-#: the issue's operating range of tap speeds (m/s) and grips (N)
+#: the operating range (section 4.5.4) of tap speeds (m/s) and grips (N)
 OPERATING_RANGE_M_S = (0.05, 0.15)
 OPERATING_GRIPS_N = (1.0, 3.0)
 
@@ -81,7 +81,7 @@ class Claim:
     thesis : str
         The thesis's words.
     target : str
-        The number the issue derived from them (``< 0.25 mm``).
+        The number derived from them (``< 0.25 mm``).
     measured : float
         The measured number, in the unit of ``target`` (NaN if it could not be measured).
     measured_text : str
@@ -404,7 +404,7 @@ def measure_claims(traces: dict, renderings, fs_hz: float, medium_grip_N: float 
     fs_hz : float
         Servo rate of the traces (Hz).
     medium_grip_N : float
-        The grip the section 4.4.1 comparison uses as its reference (the issue's 2 N).
+        The grip the section 4.4.1 comparison uses as its reference (2 N).
 
     Returns
     -------
