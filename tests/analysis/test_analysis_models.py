@@ -354,3 +354,44 @@ def test_new_figures_follow_the_figure_style(analysed):
     assert figstyle.unlabelled_axes(fig) == [] and figstyle.legend_overlaps(fig) == []
     assert set(data["test"]) == {"difference", "equivalence"} and data["power"].between(0, 1).all()
     plt.close(fig)
+
+
+def test_contrasts_beside_the_t_tests_are_worded_as_agreement_or_disagreement():
+    from analysis.report_models import caution_line, comparison_line
+    c = pd.DataFrame({"sample_a": ["a", "a", "b"], "sample_b": ["b", "c", "c"], "estimate": [0.9, 0.2, 0.10],
+                      "p_holm": [0.01, 0.40, 0.90], "ttest_mean_diff": [0.8, 0.3, -0.05],
+                      "ttest_p_holm": [0.20, 0.60, 0.95], "same_direction": [True, True, False]})
+    text = comparison_line(c, 0.05).replace("\x02", "").replace("\x03", "")     # the sample-name markers
+    assert "**disagree on 1 of 3 pairs**: the model alone finds 1 different (a–b), the t-tests alone 0; they agree " \
+           "on 0 pairs being different and 2 not." in text
+    assert text.endswith("opposite directions for 1 pair(s): b–c (+0.10 vs -0.05).")
+    agree = c.assign(p_holm=[0.30, 0.40, 0.90])
+    assert comparison_line(agree, 0.05).startswith("The mixed model and the paired t-tests on per-subject means give "
+                                                   "the same verdict on all 3 pairs (0 different, 3 not).")
+    assert caution_line(models.CAUTION_SUBJECTS) is None
+    assert caution_line(3).startswith("**Caution: 3 subject(s)**, fewer than 10.")
+
+
+def test_ordinal_cut_points_increase_with_delta_method_errors(analysed):
+    """The cut points are statsmodels' thresholds in their own form (cumulative), and their standard errors
+    the delta method's: checked against a numerical Jacobian of statsmodels' transform."""
+    data, samples, _ = models.attempt_data(analysed.study)
+    cov, data, _ = models._covariates(data)
+    fixed, _, info, _ = _quiet(models.ordinal_model, data, samples, samples.index(REF), cov)
+    cuts = fixed[fixed["term"].str.startswith("cut ")]
+    assert len(cuts) == len(info["levels"]) - 1 and np.all(np.diff(cuts["estimate"].to_numpy()) > 0)
+    assert cuts["p"].isna().all() and cuts["se"].gt(0).all()
+    # the delta method on a made-up covariance: J V J' with J from central differences of the transform
+    from statsmodels.miscmodels.ordinal_model import OrderedModel
+    y = pd.Series(pd.Categorical([1, 2, 3, 1, 2, 3, 3, 2], categories=[1, 2, 3], ordered=True))
+    m = OrderedModel(y, pd.DataFrame({"x": [0.1, 0.5, 0.9, 0.2, 0.3, 1.1, 0.7, 0.4]}), distr="logit")
+    params = np.array([0.7, -0.3, 0.2])
+    V = np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.3]])
+    got, se = models.cut_points(m, params, V)
+    np.testing.assert_allclose(got, [-0.3, -0.3 + np.exp(0.2)])
+    J = np.zeros((2, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1e-6
+        J[:, j] = (m.transform_threshold_params(params + e)[1:-1] - m.transform_threshold_params(params - e)[1:-1]) / 2e-6
+    np.testing.assert_allclose(se, np.sqrt(np.diag(J @ V @ J.T)), rtol=1e-6)
