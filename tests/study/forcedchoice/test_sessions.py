@@ -413,3 +413,17 @@ def test_a_torn_state_line_is_kept_aside_and_written_again(tmp_path, capsys):
     assert (out / "K" / "staircase_state.jsonl.torn").read_bytes() == data[len(whole):len(whole) + 40] + b"\n"
     lines = [json.loads(ln) for ln in states.read_text().splitlines()]
     assert lines == harness.reference_states
+
+
+def test_summary_lines_print_an_intensity_only_where_one_is_varied(capsys):
+    """Real vs virtual varies no intensity: its lines name the rendering, its trials and proportion correct."""
+    from types import SimpleNamespace
+    from study.forcedchoice.kind import ForcedChoice
+    rows = [{"condition": "firm", "intensity_physical": 1.0, "correct": k % 4 != 0} for k in range(20)]
+    store = SimpleNamespace(subject="S01", dir="DATA/S01")
+    lines = []
+    for kind, unit in (("real-virtual-2afc", "1"), ("discrimination", "N/m")):
+        fake = SimpleNamespace(exp=SimpleNamespace(kind=kind, unit=unit), handler=None)
+        ForcedChoice.summary(fake, rows, store, lines.append)
+    assert lines[0].split() == ["firm", "trials", "20", "correct", "0.75"]
+    assert lines[1].split() == ["firm", "1", "N/m", "trials", "20", "comparison", "harder", "0.75"]
