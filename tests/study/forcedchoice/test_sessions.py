@@ -263,13 +263,21 @@ def test_sigkill_at_every_trial_then_resume_loses_nothing(tmp_path):
     ("psy_discrimination.toml", "discrimination", 7, 140),
     ("psy_detection.toml", "detection", 8, 140),
     ("psy_detection_quest.toml", "detection", 1, 0),
+    ("psy_discrimination_staircase.toml", "discrimination", 1, 0),
 ])
 def test_the_examples_load_and_plan(name, kind, n_samples, n_trials):
     protocol, exp = load_protocol_file(ROOT / "examples" / name)
     assert exp.kind == kind and protocol.familiarization_sample == "" and protocol.tap_window_s == 3.0
     assert len(stimulus_catalog(load_catalog(None), exp)) == n_samples
-    if exp.adaptive:   # the staircases' first trial, at QUEST+'s most informative intensity on the grid
-        assert exp.method == "quest+" and 0.1 <= exp.handler(1).next_trial().intensity <= 10.0
+    if exp.adaptive and exp.method == "quest+":   # the first trial, at QUEST+'s most informative intensity
+        assert 0.1 <= exp.handler(1).next_trial().intensity <= 10.0
+    elif exp.adaptive:   # the stiffness JND: one track settling above the reference, one below, in N/m
+        methods = exp.handler(1).methods
+        assert exp.method == "updown" and exp.vary == "stiffness_N_m" and exp.intensity_scale == "log10"
+        assert methods["A"].target_probability() == pytest.approx(2 ** -0.5)
+        assert methods["B"].target_probability() == pytest.approx(1 - 2 ** -0.5)
+        assert methods["A"].intensities == [] and methods["A"].next_intensity() == 950.0 > exp.reference
+        assert methods["B"].next_intensity() == 480.0 < exp.reference
     else:
         assert len(plan_trials(exp, 1, "S01")) == n_trials
 
