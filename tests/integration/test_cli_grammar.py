@@ -116,3 +116,8 @@ def test_a_bad_value_of_a_renamed_flag_names_the_flag_as_written_today(module, c
     assert f"{flag} must be" in err or f"{flag}: " in err
     old = flag.rsplit("-", 1)[0] if flag != "--velocities-m-s" else "--velocity"
     assert f"{old} must" not in err and f"{old}:" not in err.replace(f"{flag}:", "")
+
+
+def test_timing_check_help_promises_only_what_out_writes():
+    text = " ".join(parser_of("renderer.cli_timing_check_parser", "timing-check").format_help().split())
+    assert "to this JSON file; no plot is drawn" in text and "figures" not in text
