@@ -48,7 +48,7 @@ SLOPE_VARIANCE_FLOOR = 1e-6
 #: studies' contrasts fall to 4, and the contrasts conservative)
 SLOPE_TEST_ALPHA = 0.2
 #: the per-attempt grip column (N) used when the study table has it: the study runner keeps grip in the traces
-#: only and the loader reads the issue-6 columns, so today the report says grip is not in the models
+#: only and the loader reads the study's own columns, so today the report says grip is not in the models
 GRIP_COLUMN = "grip_mean_N"
 RATING_LEVELS = tuple(range(1, 8))
 #: below this many subjects the report cautions that the models' variances rest on few subjects (the

@@ -28,7 +28,7 @@ class Analysis:
     attempts: pd.DataFrame
     exclusions: pd.DataFrame
     warnings: tuple
-    models: models.ModelResults | None = None   # issue 35: mixed and ordinal models of every attempt
+    models: models.ModelResults | None = None   # mixed and ordinal models of every attempt
     #: the parts that could not be computed: ``{table attribute: [plain reasons]}`` (their tables are empty and
     #: the report says why in their sections; analysis.failures)
     failures: dict = field(default_factory=dict)
@@ -64,7 +64,7 @@ def _exclusion_table(matrix: stats.RatingMatrix, group_names) -> pd.DataFrame:
 
 def analyse(data_dir, config: AnalysisConfig | None = None, sessions: tuple | None = None,
             loaded=None) -> Analysis:
-    """Run every table of issue 7 on the study in ``data_dir``.
+    """Run every table of the report on the study in ``data_dir``.
 
     Parameters
     ----------
@@ -157,7 +157,7 @@ TABLE_FILES = {
 }
 
 
-#: the models' tables (issue 35): attribute of :class:`analysis.models.ModelResults` per file
+#: the models' tables: attribute of :class:`analysis.models.ModelResults` per file
 MODEL_TABLE_FILES = {
     "models_fixed_effects.csv": "fixed", "models_emm.csv": "emm", "models_contrasts.csv": "contrasts",
     "models_ordinal_probabilities.csv": "probabilities",

@@ -54,7 +54,7 @@ FIGURES = {
 
 # a name from the data (sample, subject) in a summary line: kept as a marked field until the line is
 # written, then escaped for its format (markdown: md_escape; HTML: html.escape), so a name cannot add
-# emphasis, links, table cells or tags to report.md (issue 38)
+# emphasis, links, table cells or tags to report.md
 _NAME_OPEN, _NAME_CLOSE = "\x02", "\x03"
 _NAME_RE = re.compile("\x02([^\x02\x03]*)\x03")
 _MD_SPECIAL = re.compile(r"([\\`*\[\]<>|#!~])")
@@ -367,7 +367,7 @@ def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
         ("session seeds", seed_text),
         ("study software", ", ".join(soft) or "not recorded"),
         ("devices", ", ".join(devices) or "not recorded"),
-        # issue 40: whether each session's servo met p99 <= 20 us, p99.9 <= 50 us, no period > 1 ms (+ link)
+        # whether each session's servo met p99 <= 20 us, p99.9 <= 50 us, no period > 1 ms (+ link)
         ("servo timing", timing_text or "not recorded"),
         ("analysis settings", f"reference {cfg.reference}, margin ±{cfg.margin:g}, groups {cfg.group}, "
                               f"α = {cfg.alpha}, Holm correction across the pairs of each group"),
@@ -427,7 +427,7 @@ def _table_html(df, csv_name: str = "") -> str:
 
 def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Path],
                 prov: list[tuple[str, str]], sections: list | None = None) -> str:
-    """The self-contained ``report.html``: summary, pairs, the sections of issue 35 (``sections``:
+    """The self-contained ``report.html``: summary, pairs, the models' sections (``sections``:
     :func:`analysis.report_models.sections`, "Models" and "Evidence for no difference"), captioned figures
     (embedded PNG), tables, provenance; responsive (tables scroll inside their box, never the page) with a
     print stylesheet."""

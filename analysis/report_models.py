@@ -1,4 +1,4 @@
-"""The report's sections of issue 35: "Models" and "Evidence for no difference" (text, tables, figure).
+"""The report's sections "Models" and "Evidence for no difference" (text, tables, figure).
 
 Each section is a :class:`Section` (title, plain-language lines, tables, figures) that
 :mod:`analysis.report` renders into report.md and report.html like its other sections.
