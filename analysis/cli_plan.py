@@ -56,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
                                 comparisons=_given(args.comparisons, k * (k - 1) // 2),
                                 equivalence_comparisons=_given(args.equivalence_comparisons, k - 1))
         matrix = rating_matrix(study)
-        if len(matrix.subjects) < 2:
-            raise ValueError(f"--pilot {args.pilot}: {len(matrix.subjects)} subject(s); a pilot needs 2 or more to "
-                             "estimate d_z")
+        if len(matrix.subjects) < 2:     # every row says why it has no sample size; the plan is still written
+            print(f"warning: --pilot {args.pilot}: {len(matrix.subjects)} subject(s); a pilot needs 2 or more to "
+                  "estimate d_z: no row gets a sample size (plan with --dz instead)")
         plan = pilot_plan(matrix, args.reference, settings)
     else:
         if not args.sd_diff > 0:

@@ -231,3 +231,24 @@ def test_a_test_and_a_figure_that_fail_are_said_in_their_places(monkeypatch, rep
     pw = pd.read_csv(tmp_path / "r" / "pairwise_ttests.csv")
     assert pw["p"].notna().sum() >= 6
     assert len(pd.read_csv(tmp_path / "r" / "equivalence.csv")) >= 3
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_plan_from_each_adversarial_pilot_is_written(case, reports, tmp_path, capsys):
+    """``plan --pilot`` completes on every data set: the rows that cannot be planned say why."""
+    out, _, _ = reports[case]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["plan", "--pilot", str(out.parent / "data"), "--margin", "0.5", "--out", str(tmp_path / "p")]) == 0
+    plan = pd.read_csv(tmp_path / "p" / "plan.csv", keep_default_na=False, na_values=[""])
+    assert len(plan) == 6 + 3 and (tmp_path / "p" / "fig_power_curves.png").exists()
+    # a row has a sample size or a reason, never neither
+    assert (plan["n_required"].notna() | (plan["note"].fillna("") != "")).all()
+    printed = capsys.readouterr().out
+    assert sum(ln.startswith(("difference ", "equivalence ")) for ln in printed.splitlines()) == 9
+    if case == "one_subject":
+        assert plan["n_required"].isna().all() and "1 subject(s); a pilot needs 2 or more" in printed
+        assert plan["note"].str.contains("1 subject(s) rated both samples: a pilot pair needs 2 or more for an SD", regex=False).all()
+    if case == "all_equal":
+        assert plan[plan["test"] == "difference"]["note"].str.startswith("every one of the 6 subjects gave the same "
+                                                                        "difference (+0 rating points, SD 0)").all()
