@@ -8,6 +8,8 @@ Small catalogs (4 samples) keep each report to a few seconds.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import re
 import warnings
 
@@ -122,8 +124,6 @@ def reports(tmp_path_factory):
         build(root / "data")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            import contextlib
-            import io
             buf = io.StringIO()
             with contextlib.redirect_stdout(buf):
                 rc = main(["report", str(root / "data"), "--out", str(root / "out")])

@@ -19,6 +19,7 @@ import pytest
 import statsmodels.formula.api as smf
 from scipy import stats
 from statsmodels.miscmodels.ordinal_model import OrderedModel
+from statsmodels.regression.mixed_linear_model import MixedLMParams
 from statsmodels.tools.numdiff import approx_fprime
 
 from analysis import models
@@ -27,6 +28,7 @@ from analysis.load import load_study
 from analysis.ordinal import OrderedLogit
 from analysis.pipeline import analyse
 from analysis.report import write_report
+from analysis.report_models import caution_line, comparison_line
 from analysis.synthetic import DEFAULT_SAMPLES, expected_ratings, write_synthetic_study
 
 from tests.support.models import coverage_study
@@ -123,7 +125,6 @@ def test_mixed_model_equals_statsmodels_formula_model(analysed):
     cells, velocity slope where kept) are statsmodels' formula model of the same terms: at our variances its REML
     log-likelihood and its GLS fixed effects equal ours, and its own fit is not better than ours (statsmodels'
     optimisers stop short on these data; analysis.lmm's own cross-checks: tests/analysis/test_analysis_lmm.py)."""
-    from statsmodels.regression.mixed_linear_model import MixedLMParams
     data, samples, _ = models.attempt_data(analysed.study)
     cov, data, _ = models._covariates(data)
     res, info, _ = _quiet(models.mixed_model, data, samples, samples.index(REF), cov)
@@ -357,7 +358,6 @@ def test_new_figures_follow_the_figure_style(analysed):
 
 
 def test_contrasts_beside_the_t_tests_are_worded_as_agreement_or_disagreement():
-    from analysis.report_models import caution_line, comparison_line
     c = pd.DataFrame({"sample_a": ["a", "a", "b"], "sample_b": ["b", "c", "c"], "estimate": [0.9, 0.2, 0.10],
                       "p_holm": [0.01, 0.40, 0.90], "ttest_mean_diff": [0.8, 0.3, -0.05],
                       "ttest_p_holm": [0.20, 0.60, 0.95], "same_direction": [True, True, False]})
@@ -382,7 +382,6 @@ def test_ordinal_cut_points_increase_with_delta_method_errors(analysed):
     assert len(cuts) == len(info["levels"]) - 1 and np.all(np.diff(cuts["estimate"].to_numpy()) > 0)
     assert cuts["p"].isna().all() and cuts["se"].gt(0).all()
     # the delta method on a made-up covariance: J V J' with J from central differences of the transform
-    from statsmodels.miscmodels.ordinal_model import OrderedModel
     y = pd.Series(pd.Categorical([1, 2, 3, 1, 2, 3, 3, 2], categories=[1, 2, 3], ordered=True))
     m = OrderedModel(y, pd.DataFrame({"x": [0.1, 0.5, 0.9, 0.2, 0.3, 1.1, 0.7, 0.4]}), distr="logit")
     params = np.array([0.7, -0.3, 0.2])
