@@ -89,7 +89,9 @@ def _read_csv(path: Path, subject_default: str) -> dict:
     """Columns of one trials CSV, validated cell by cell (streamed: the file is never held twice)."""
     cols = {name: [] for name in REQUIRED + OPTIONAL}
     try:
-        fh = path.open(newline="", encoding="utf-8")
+        # utf-8-sig: a spreadsheet's "CSV UTF-8" export starts with a byte-order mark, which would otherwise
+        # be part of the first column's name
+        fh = path.open(newline="", encoding="utf-8-sig")
     except FileNotFoundError:
         raise FileNotFoundError(f"{path} does not exist") from None
     with fh:
@@ -101,10 +103,19 @@ def _read_csv(path: Path, subject_default: str) -> dict:
         except UnicodeDecodeError as exc:
             raise ValueError(f"{path}: not UTF-8 text ({exc.reason})") from None
         header = [h.strip() for h in header]
+        twice = sorted({h for h in header if header.count(h) > 1 and h})
+        if twice:
+            raise ValueError(f"{path}:1: column(s) {', '.join(twice)} appear more than once in the header; keep one "
+                             "of each")
         missing = [c for c in REQUIRED if c not in header]
         if missing:
+            hint = ""
+            if len(header) == 1 and any(sep in header[0] for sep in ";\t"):
+                sep = "';'" if ";" in header[0] else "a tab"
+                hint = (f"; the header is one field holding {sep}: the file is separated by {sep}, not commas "
+                        "(a spreadsheet's regional CSV export): save it as CSV with commas")
             raise ValueError(f"{path}:1: missing column(s) {', '.join(missing)} (a psychometric fit needs "
-                             "intensity and correct, 0/1)")
+                             f"intensity and correct, 0/1){hint}")
         where = {name: header.index(name) for name in REQUIRED + OPTIONAL if name in header}
         try:
             for line, row in enumerate(reader, start=2):

@@ -60,12 +60,12 @@ def register(subparsers) -> None:
     add_renamed(p, "--damping-N-s-m", "--damping", dest="damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
     p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md); default: built-in settings")
     p.add_argument("--taps", type=int, default=10, help="sim: number of taps (default 10)")
-    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=positive_list("--velocity"), default=[0.1],
+    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=positive_list("--velocities-m-s"), default=[0.1],
                    help="sim: tap speed in m/s (comma list: one per tap, cycled; default 0.1)")
     add_renamed(p, "--grip-N", "--grip", dest="grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
     p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
     p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
-    add_renamed(p, "--duration-s", "--duration", dest="duration", type=positive("--duration"), default=None,
+    add_renamed(p, "--duration-s", "--duration", dest="duration", type=positive("--duration-s"), default=None,
                    help="run length in s (hardware default: until Ctrl-C; sim default: until the taps are done)")
     p.add_argument("--tap-object", default=None,
                    help="sim:3d: the scene object the simulated person taps (its name); default: whatever lies "
