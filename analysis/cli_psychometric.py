@@ -11,10 +11,19 @@ import math
 import sys
 from pathlib import Path
 
-from plumbing.fileio import atomic_write_text, check_output_dir
+from plumbing.fileio import atomic_write_text
+from plumbing.outdir import output_folder
+from plumbing.textsafe import csv_text
 
 from analysis.psychometric_figures import fig_curves, fig_proportions, fig_tracks
 from analysis.psychophysics import fit_groups, fits_table, load_trials, physical_summary, proportions_correct
+
+#: what the command writes into --out (a folder of these alone, without the output marker, was written by an
+#: older version and is replaced by --force)
+PSYCHOMETRIC_FILES = ("fit.json", "fits.csv", "proportions.csv", "fig_*")
+#: the most distinct intensities of one fit (each is a level of the likelihood; a CSV with 10^6 of them is not
+#: a psychometric experiment but a typo or a continuous covariate, and its fit would not fit in memory)
+MAX_FIT_LEVELS = 10_000
 
 
 def _alternatives(args, experiment: dict) -> int:
@@ -42,10 +51,25 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--ci must be in [0.5, 1), got {args.ci}")
     if args.reference is not None and not (math.isfinite(args.reference) and args.reference > 0):
         raise ValueError(f"--reference must be a finite number > 0, got {args.reference}")
-    out = check_output_dir(args.out, force=args.force)
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted or
+    # failed fit leaves the earlier results as they were; an --out that is, holds or lies in DATA is refused
+    folder = output_folder(args.out, args.force, inputs=[(args.data, "DATA")], command="analysis psychometric",
+                           own=PSYCHOMETRIC_FILES).open()
+    with folder:
+        said = _fit(args, folder.path, folder.out)
+    print(said)
+    return 0
+
+
+def _fit(args: argparse.Namespace, out: Path, final: Path) -> str:
+    """Fit DATA and write the results into ``out`` (swapped in later as ``final``); returns the line to print."""
     trials = load_trials(args.data)
+    levels = len(set(trials.intensity.tolist()))
+    if levels > MAX_FIT_LEVELS:
+        raise ValueError(f"{args.data}: {levels} distinct intensities; a fit takes at most {MAX_FIT_LEVELS} "
+                         "(group the intensities into levels first)")
     if trials.experiment.get("kind") == "real-virtual-2afc":
-        return _real_virtual(args, trials, out)
+        return _real_virtual(args, trials, out, final)
     alternatives = _alternatives(args, trials.experiment)
     reference = args.reference if args.reference is not None else trials.experiment.get("reference")
     scale = trials.experiment.get("intensity_scale", "linear")
@@ -78,13 +102,12 @@ def run(args: argparse.Namespace) -> int:
     lo, hi = f.threshold_ci
     ci = f"[{lo:.4g}, {hi:.4g}]" if math.isfinite(lo) else "(no bootstrap)"
     task = "yes/no" if alternatives == 1 else f"{alternatives}-AFC"
-    print(f"{f.n_trials} trials at {f.n_levels} intensities, {f.function}, {task}: threshold {f.threshold:.4g} {ci} ({f.ci_level:.0%} CI), "
-          f"slope {f.slope:.4g}, lapse {f.lapse:.3g}, deviance {f.deviance:.3g} (bootstrap p = "
-          f"{f.deviance_p_bootstrap:.3g}); {len(fits)} fit(s) in {out / 'fits.csv'}")
-    return 0
+    return (f"{f.n_trials} trials at {f.n_levels} intensities, {f.function}, {task}: threshold {f.threshold:.4g} {ci} "
+            f"({f.ci_level:.0%} CI), slope {f.slope:.4g}, lapse {f.lapse:.3g}, deviance {f.deviance:.3g} (bootstrap p "
+            f"= {f.deviance_p_bootstrap:.3g}); {len(fits)} fit(s) in {final / 'fits.csv'}")
 
 
-def _real_virtual(args, trials, out: Path) -> int:
+def _real_virtual(args, trials, out: Path, final: Path) -> str:
     """Real-vs-virtual 2AFC: proportion correct per rendering with its exact interval and a test against 0.5."""
 
 
@@ -103,18 +126,15 @@ def _real_virtual(args, trials, out: Path) -> int:
     if not args.no_figures:
 
         fig_proportions(props, out / "fig_real_virtual")
-    for p in props:
-        if p.subject == "(pooled)":
-            print(f"{p.condition}: {p.n_correct}/{p.n_trials} correct = {p.proportion:.2f} "
-                  f"[{p.ci_low:.2f}, {p.ci_high:.2f}], p = {p.p_vs_chance:.3g} against chance")
-    print(f"{len(props)} proportion(s) in {out / 'proportions.csv'}")
-    return 0
+    lines = [f"{p.condition}: {p.n_correct}/{p.n_trials} correct = {p.proportion:.2f} [{p.ci_low:.2f}, "
+             f"{p.ci_high:.2f}], p = {p.p_vs_chance:.3g} against chance" for p in props if p.subject == "(pooled)"]
+    return "\n".join(lines + [f"{len(props)} proportion(s) in {final / 'proportions.csv'}"])
 
 
 def _cell(v) -> str:
     if isinstance(v, float):
         return "" if not math.isfinite(v) else repr(v)
-    text = str(v)
+    text = csv_text(str(v))   # a name from the data is never a spreadsheet formula (plumbing.textsafe)
     return '"' + text.replace('"', '""') + '"' if any(c in text for c in ',"\n') else text
 
 

@@ -9,16 +9,18 @@ import pandas as pd
 from analysis import figures
 from analysis.power import power_curves
 from plumbing.fileio import atomic_write_text
+from plumbing.textsafe import safe_frame
 
 
 def write_plan(plan: pd.DataFrame, out_dir) -> list[Path]:
     """Write ``plan.csv`` and ``fig_power_curves.png/.svg/.plot.csv`` into ``out_dir`` (created); returns the paths.
 
-    The caller checked ``out_dir`` (:func:`plumbing.fileio.check_output_dir`: an earlier plan is replaced only
-    with ``--force``).
+    ``out_dir`` is the staging folder of the caller's :func:`plumbing.outdir.output_folder` (an earlier plan is
+    replaced only with ``--force``, once the new one is whole). Sample names are written as text a
+    spreadsheet never runs (:func:`plumbing.textsafe.safe_frame`).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    csv_path = atomic_write_text(out / "plan.csv", plan.to_csv(index=False, float_format="%.6g"))
+    csv_path = atomic_write_text(out / "plan.csv", safe_frame(plan).to_csv(index=False, float_format="%.6g"))
     fig = figures.fig_power_curves(power_curves(plan), plan, out / "fig_power_curves.png")
     return [csv_path] + [Path(p) for p in fig.values()]

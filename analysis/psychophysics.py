@@ -24,6 +24,7 @@ import numpy as np
 from scipy.stats import binomtest
 
 from plumbing.studyfiles import FIT_COLUMNS, FIT_OPTIONAL_COLUMNS, SESSION_JSON, read_session_json
+from plumbing.textsafe import read_cell
 from psychophysics.fitting import Fit, fit
 
 #: the columns a fit reads (plumbing.studyfiles: the forced-choice trials.csv holds them all)
@@ -98,9 +99,10 @@ def _read_csv(path: Path, subject_default: str) -> dict:
                 cols["correct"].append(_zero_one(row[where["correct"]], path, line, "correct"))
                 cols["is_catch"].append(_zero_one(row[where["is_catch"]], path, line, "is_catch")
                                         if "is_catch" in where else 0)
-                cols["subject"].append(row[where["subject"]] if "subject" in where else subject_default)
-                cols["condition"].append(row[where["condition"]] if "condition" in where else "")
-                cols["staircase"].append(row[where["staircase"]] if "staircase" in where else "")
+                # names as written, without the quote that kept a formula-like name from running in a spreadsheet
+                cols["subject"].append(read_cell(row[where["subject"]]) if "subject" in where else subject_default)
+                cols["condition"].append(read_cell(row[where["condition"]]) if "condition" in where else "")
+                cols["staircase"].append(read_cell(row[where["staircase"]]) if "staircase" in where else "")
                 if "trial" in where:
                     try:
                         cols["trial"].append(int(row[where["trial"]]))

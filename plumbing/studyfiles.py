@@ -22,7 +22,9 @@ import datetime as _dt
 import io
 import json
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 SESSION_JSON = "session.json"
@@ -71,6 +73,78 @@ FORCED_CHOICE_FLOAT_COLUMNS = ("intensity", "intensity_physical", "incoming_velo
 #: the columns a psychometric fit reads (``analysis psychometric``; a CSV from any software needs the first two)
 FIT_COLUMNS = ("intensity", "correct")
 FIT_OPTIONAL_COLUMNS = ("subject", "condition", "staircase", "trial", "is_catch")
+
+
+# -- where study data lives ---------------------------------------------------------------------------------
+
+#: the subject lock's file name (``DATA/<subject>/.lock``)
+LOCK_NAME = ".lock"
+#: children of a folder looked at to tell whether it is a study folder (a folder of subject folders); a folder
+#: with more entries is judged by its first ones (a study folder's first entries are its subjects)
+STUDY_SCAN_LIMIT = 5000
+
+
+def is_subject_folder(path) -> bool:
+    """True when ``path`` is a subject's folder of a study (``session.json`` with ``trials.csv`` or
+    ``schedule.jsonl`` beside it, or a subject lock with ``trials.csv``): data no other command may write into."""
+    p = Path(path)
+    try:
+        if (p / SESSION_JSON).is_file():
+            return (p / TRIALS_CSV).exists() or (p / SCHEDULE_JSONL).exists()
+        return (p / LOCK_NAME).is_file() and (p / TRIALS_CSV).is_file()
+    except OSError:
+        return False
+
+
+def is_study_folder(path, limit: int = STUDY_SCAN_LIMIT) -> bool:
+    """True when ``path`` holds a subject folder (:func:`is_subject_folder`) among its first ``limit`` entries:
+    a study's data folder (``study run --out DATA``)."""
+    try:
+        with os.scandir(path) as entries:
+            for n, entry in enumerate(entries):
+                if n >= limit:
+                    return False
+                if not entry.name.startswith(".") and entry.is_dir(follow_symlinks=False) \
+                        and is_subject_folder(entry.path):
+                    return True
+    except OSError:
+        return False
+    return False
+
+
+def study_data_at(path) -> tuple[Path, str] | None:
+    """The study data ``path`` is or lies inside: ``(folder, "subject folder" | "study folder")``, or None.
+
+    ``path`` itself, or any folder above it, being a subject folder or a study folder counts: an output written
+    there would sit among, or replace, a study's records.
+    """
+    p = Path(os.path.abspath(path))
+    try:
+        p = p.resolve()
+    except (OSError, RuntimeError):
+        pass
+    for k, folder in enumerate([p, *p.parents]):
+        if k == 0 and not folder.is_dir():
+            continue
+        if is_subject_folder(folder):
+            return folder, "subject folder"
+        if is_study_folder(folder):
+            return folder, "study folder"
+    return None
+
+
+def study_data_within(path, limit: int = 200_000) -> Path | None:
+    """The first subject folder at or below the folder ``path`` (None if there is none among its first
+    ``limit`` folders; a folder with more is reported as itself, since it cannot be vouched for)."""
+    root = Path(path)
+    seen = 0
+    for folder, dirs, _files in os.walk(root):
+        seen += 1
+        if is_subject_folder(folder):
+            return Path(folder)
+        if seen >= limit:
+            return root
+    return None
 
 
 # -- reading session.json ------------------------------------------------------------------------------------
