@@ -76,6 +76,8 @@ def _read_csv(path: Path, subject_default: str) -> dict:
             raise ValueError(f"{path}: empty file (expected a header with columns intensity, correct)") from None
         except UnicodeDecodeError as exc:
             raise ValueError(f"{path}: not UTF-8 text ({exc.reason})") from None
+        except csv.Error as exc:   # e.g. a 50 MB first line: one error line, not a traceback
+            raise ValueError(f"{path}:1: not CSV ({exc})") from None
         header = [h.strip() for h in header]
         missing = [c for c in REQUIRED if c not in header]
         if missing:

@@ -175,6 +175,8 @@ def read_json_file(path, what: str):
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    except RecursionError:   # nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{path}: not valid JSON here (nested too deeply)") from None
 
 
 def refuse_overwrite(path, force: bool, flag: str = "--force") -> Path:

@@ -51,7 +51,7 @@ def test_older_rating_files_without_the_familiarization_flag_are_read():
 @pytest.mark.parametrize("tail, says", [
     ("S01,2," + "x" * 200_000 + "\n", "line 3: not CSV (field larger than field limit (131072))"),
     ("S01,3,1" + ",0" * (len(FORCED_CHOICE_COLUMNS) - 3) + "\n", "line 3: bad value"),
-    (FORCED_CHOICE.line({**FC_ROW, "trial": 3}), "line 3: trial 3, expected 2 (trials are consecutive)"),
+    (FORCED_CHOICE.line({**FC_ROW, "trial": 1}), "line 3: trial 1 after trial 1 (trials are in order, one row each)"),
     (FORCED_CHOICE.line({**FC_ROW, "trial": 2, "subject": "S02"}), "line 3: subject='S02', but the session is 'S01'"),
 ])
 def test_a_damaged_row_is_one_error_naming_the_line(tail, says):
