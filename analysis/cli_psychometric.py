@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--reference must be a finite number > 0, got {args.reference}")
     # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted or
     # failed fit leaves the earlier results as they were; an --out that is, holds or lies in DATA is refused
-    folder = output_folder(args.out, args.force, inputs=[(args.data, "DATA")], command="analysis psychometric",
+    folder = output_folder(args.out, args.force, inputs=[(args.data, "the data")], command="analysis psychometric",
                            own=PSYCHOMETRIC_FILES).open()
     with folder:
         said = _fit(args, folder.path, folder.out)
