@@ -1,5 +1,6 @@
 """plumbing.studyfiles: the study's files defined once (rows written and read back, the readers' errors)."""
 
+import csv
 import math
 
 import pytest
@@ -93,3 +94,17 @@ def test_a_missing_or_folder_session_json(tmp_path):
 def _write(path, text):
     path.write_text(text)
     return path
+
+
+@pytest.mark.parametrize("fmt, row, names", [
+    (RATING, RATING_ROW, {"sample": "=HYPERLINK(\"http://e.example\")"}),
+    (FORCED_CHOICE, FC_ROW, {"condition": "+cond", "staircase": "@A", "sample_1": "-x", "sample_2": "'quoted"}),
+])
+def test_names_a_spreadsheet_would_run_are_quoted_and_read_back(fmt, row, names):
+    """A name beginning with = + - @ (or a quote) is written with a quote first, and read back as named."""
+    row = {**row, **names}
+    line = fmt.line(row)
+    cells = next(csv.reader([line]))
+    assert all(cells[fmt.columns.index(k)] == "'" + v for k, v in names.items())
+    rows, _ = parse_trials(fmt, (fmt.header_line() + line).encode(), "t.csv", "S01")
+    assert all(rows[0][k] == v for k, v in names.items())
