@@ -48,3 +48,18 @@ def test_a_run_stopped_while_writing_keeps_the_earlier_results(tmp_path, monkeyp
     assert got == code and "Traceback" not in err and len(err.strip().splitlines()) == 1, (got, err)
     assert tree_hashes(out) == before                                    # the earlier results, byte for byte
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []   # no staging, no lock
+
+
+def test_synthetic_data_appears_whole_or_not_at_all_and_its_size_is_bounded(tmp_path, monkeypatch, capsys):
+    import analysis.cli_synthetic
+    out = tmp_path / "DATA"
+    assert main(["synthetic", str(out), "--subjects", "100000000"]) == 2
+    assert capsys.readouterr().err == "error: --subjects must be 1..1000, got 100000000\n"
+    real = analysis.cli_synthetic.write_synthetic_study
+
+    def interrupted(folder, *a, **k):
+        real(folder, *a, **k)
+        raise KeyboardInterrupt
+    monkeypatch.setattr(analysis.cli_synthetic, "write_synthetic_study", interrupted)
+    assert main(["synthetic", str(out), "--subjects", "2"]) == 130
+    assert list(tmp_path.iterdir()) == []                                # no half-written study, no debris
