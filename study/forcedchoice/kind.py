@@ -134,8 +134,8 @@ class ForcedChoice(ExperimentKind):
         self.device = info
         # eq. 3.17, as DeviceInfo.force_per_amp_N_A: the simulated participant's stiffness percept
         self.force_per_amp_N_A = float(info["gear_ratio"] * info["torque_constant_Nm_A"] / info["handle_length_m"])
-        #: attempts of one trial before it is recorded as not renderable (the protocol's ``max_attempts``)
-        self.max_attempts = int(getattr(self.protocol, "max_attempts", 10))
+        if self.max_attempts is None:   # a session begun without the cap (ExperimentKind): no cap
+            self.max_attempts = math.inf
         self.done = 0              # rows on disk (valid trials)
         self.position = 0          # trials settled: a row, or recorded as not renderable
         self.skipped: list = []    # the not_renderable events

@@ -110,7 +110,7 @@ class Ratings(ExperimentKind):
         super().__init__(plan, apparatus)
         self.schedule = Schedule([s.name for s in plan.catalog], self.protocol.repetitions, plan.seed,
                                  self.protocol.familiarization_sample or None, plan.subject,
-                                 getattr(self.protocol, "max_attempts", None))
+                                 self.max_attempts)
         self.subject = plan.subject
         self.fam_taps = 0
         self.attempts_run = 0

@@ -91,6 +91,12 @@ class ExperimentKind(ABC):
         self.session_plan = plan
         self.apparatus = apparatus
         self.protocol = plan.protocol
+        #: attempts of one trial before it is recorded as not renderable (the protocol's ``max_attempts``); None
+        #: for a session begun by a version without the cap (its session.json's protocol has no such key), so
+        #: that its resumption replays its rows as they were run
+        self.max_attempts = getattr(plan.protocol, "max_attempts", None)
+        if plan.previous is not None and "max_attempts" not in (plan.previous.get("protocol") or {}):
+            self.max_attempts = None
         #: catalog name -> "real" | "virtual" of every sample the session presents (a kind adds the ones it derives)
         self.sample_kinds = {s.name: s.kind for s in plan.catalog}
         #: what the operator puts on the stand (the loop asks it; a resumed session restores it)

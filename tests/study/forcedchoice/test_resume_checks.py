@@ -247,3 +247,16 @@ def test_lost_state_lines_are_written_again_from_trials_csv(finished, tmp_path, 
     assert _resume(folder) == 0
     assert path.read_text() == whole
     assert f"note: {path} had 1 staircase states for {len(lines)} trials" in capsys.readouterr().out
+
+
+def test_a_session_begun_without_the_attempt_cap_resumes_without_it(finished, tmp_path, capsys):
+    """session.json's protocol without max_attempts (a session begun by a version before the cap): its rows are
+    replayed as they were run, a trial's 11th attempt included."""
+    folder = _unfinished(finished, "C", tmp_path)
+    _edit_row(0, attempt=11)(folder)
+    session = json.loads((folder / "session.json").read_text())
+    del session["protocol"]["max_attempts"]
+    (folder / "session.json").write_text(json.dumps(session, indent=2) + "\n")
+    capsys.readouterr()
+    assert _resume(folder) == 0, capsys.readouterr().err
+    assert json.loads((folder / "session.json").read_text())["finished_at"]
