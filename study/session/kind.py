@@ -95,7 +95,8 @@ class ExperimentKind(ABC):
         #: for a session begun by a version without the cap (its session.json's protocol has no such key), so
         #: that its resumption replays its rows as they were run
         self.max_attempts = getattr(plan.protocol, "max_attempts", None)
-        if plan.previous is not None and "max_attempts" not in (plan.previous.get("protocol") or {}):
+        previous = getattr(plan, "previous", None)
+        if previous is not None and "max_attempts" not in (previous.get("protocol") or {}):
             self.max_attempts = None
         #: catalog name -> "real" | "virtual" of every sample the session presents (a kind adds the ones it derives)
         self.sample_kinds = {s.name: s.kind for s in plan.catalog}
