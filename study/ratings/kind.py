@@ -136,6 +136,14 @@ class Ratings(ExperimentKind):
         if not rows:
             return None
         self.schedule.replay(rows, fam_ended)
+        # a trial the replay closes as not renderable whose event a kill lost (between the last attempt's row and
+        # the event): logged now, as it would have been
+        logged = {(e.get("phase"), e.get("trial")) for e in events if e.get("event") == "not_renderable"}
+        for sched in self.schedule.phases.values():
+            for record in sched.abandoned:
+                if (record["phase"], record["trial"]) not in logged:
+                    store.log_event({"event": "not_renderable",
+                                     **{k: v for k, v in record.items() if k != "not_renderable"}})
         for row in rows:
             if row["phase"] == "familiarization":
                 self.fam_taps += row["n_taps"]

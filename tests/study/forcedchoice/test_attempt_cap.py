@@ -143,14 +143,23 @@ def test_a_staircase_whose_level_never_renders_stops_and_the_others_go_on(tmp_pa
     assert [r.get("error") for r in results] == [None] * 3, results          # the staircases replay the skip
 
 
-def test_the_rating_study_caps_attempts_too(tmp_path):
+def _rating_args(tmp_path: Path, out: Path) -> list:
     proto = write(tmp_path / "p.toml", "tap_window_s = 0.4\nfamiliarization_window_s = 0.4\n"
                                        "familiarization_max_windows = 1\nhoming_after_s = 0.3\n"
                                        "homing_before_max_s = 0.1\nmax_attempts = 2\n")
     rejecting = write(tmp_path / "rejecting.toml", "p_reject = 1.0\n")
-    assert main(["run", "--device", "sim", "--participant", "simulated", "--quiet", "--subject", "R1", "--seed", "3",
-                 "--out", str(tmp_path / "DATA"), "--protocol", str(proto), "--samples", "wood,firm",
-                 "--repetitions", "1", "--participant-config", str(rejecting)]) == 0
+    return ["run", "--device", "sim", "--participant", "simulated", "--quiet", "--subject", "R1", "--seed", "3",
+            "--out", str(out), "--protocol", str(proto), "--samples", "wood,firm", "--repetitions", "1",
+            "--participant-config", str(rejecting)]
+
+
+def _without_times(events: list) -> list:
+    return [{k: v for k, v in e.items() if k != "at"} for e in events]
+
+
+def test_the_rating_study_caps_attempts_too(tmp_path):
+    log = tmp_path / "steps.log"
+    assert forked(_rating_args(tmp_path, tmp_path / "DATA"), {"STUDY_CRASH_LOG": str(log)}) == 0
     folder = tmp_path / "DATA" / "R1"
     rows = [r for r in read_rows(folder) if r["phase"] != "familiarization"]
     assert len(rows) == 2 * 2 * 2 and all(r["valid"] == "false" and r["rejected"] == "true" for r in rows)
@@ -158,6 +167,17 @@ def test_the_rating_study_caps_attempts_too(tmp_path):
     assert sorted((s["phase"], s["sample"], s["attempts"]) for s in skips) == [
         ("demonstration", "firm", 2), ("demonstration", "wood", 2), ("testing", "firm", 2), ("testing", "wood", 2)]
     assert json.loads((folder / "session.json").read_text())["finished_at"]
+    # killed between a trial's last invalid attempt (its row) and its not_renderable event: --resume logs it
+    steps = log.read_text().splitlines()
+    step = next(i for i, s in enumerate(steps, start=1) if s.split(" ", 1)[1] == "event logged: not_renderable") - 1
+    assert steps[step - 1].split(" ", 1)[1].startswith("row written")
+    out = tmp_path / "KILLED"
+    assert forked(_rating_args(tmp_path, out), {"STUDY_CRASH_AT": str(step)}) == -signal.SIGKILL
+    assert _events(out / "R1", "not_renderable") == []
+    assert forked(["run", "--quiet", "--subject", "R1", "--out", str(out), "--resume"], {}) == 0
+    assert _without_times(_events(out / "R1", "not_renderable")) == _without_times(skips)
+    keys = ("phase", "trial", "attempt", "sample", "rejected", "valid")
+    assert [[r[k] for k in keys] for r in read_rows(out / "R1")] == [[r[k] for k in keys] for r in read_rows(folder)]
 
 
 @pytest.mark.parametrize("table, says", [
