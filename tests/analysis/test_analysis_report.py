@@ -147,12 +147,14 @@ def test_figure_4_20_skipped_with_note_without_traces(complete_dir, tmp_path, ca
 
 
 def test_cli_errors_exit_2(tmp_path, capsys):
-    assert main(["report", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
+    data = tmp_path / "data"      # the report goes beside the study, never into it
+    data.mkdir()
+    assert main(["report", str(data), "--out", str(tmp_path / "r")]) == 2
     assert "error:" in capsys.readouterr().err
-    (tmp_path / "S1").mkdir()
-    (tmp_path / "S1" / "session.json").write_text("{\n  \"subject\": \"S1\",\n  oops\n}\n")
-    (tmp_path / "S1" / "trials.csv").write_text(",".join(["subject"]) + "\n")
-    assert main(["report", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
+    (data / "S1").mkdir()
+    (data / "S1" / "session.json").write_text("{\n  \"subject\": \"S1\",\n  oops\n}\n")
+    (data / "S1" / "trials.csv").write_text(",".join(["subject"]) + "\n")
+    assert main(["report", str(data), "--out", str(tmp_path / "r")]) == 2
     assert "session.json:3: not valid JSON" in capsys.readouterr().err
 
 
@@ -198,7 +200,8 @@ def test_analysis_imports_no_other_package():
 
 def test_out_must_not_be_data(complete_dir, capsys):
     assert main(["report", str(complete_dir), "--out", str(complete_dir)]) == 2
-    assert "must not be the data folder" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"--out {complete_dir} is the study folder" in err and "not even with --force" in err
 
 
 def test_trace_reader_is_tolerant(tmp_path):

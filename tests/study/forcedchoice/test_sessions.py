@@ -66,7 +66,7 @@ def run(tmp: Path, subject: str, protocol: str, *extra, seed: int = 2) -> int:
 @pytest.mark.parametrize("table, message", [
     ('kind = "discrimination"\nsample = "firm"\nreference = 700.0\nlevles = [1.0, 2.0]',
      "unknown [experiment] key(s) ['levles']"),
-    ('kind = "staircase"', "[experiment] kind must be one of ['real-virtual-2afc', 'discrimination', 'detection']"),
+    ('kind = "staircase"', "[experiment] kind must be one of ['real-virtual-2afc', 'discrimination', 'detection', 'adjustment', 'magnitude']"),
     ('kind = "detection"\nsample = "pulse_firm"\nlevels = [1.0, 2.0]\nmethod = "quest+"',
      "[experiment] levels are for method \"constant\"; method 'quest+' chooses the intensities"),
     ('kind = "detection"\nsample = "pulse_firm"\nmethod = "updown"',
@@ -433,7 +433,7 @@ def test_summary_lines_print_an_intensity_only_where_one_is_varied(capsys):
     store = SimpleNamespace(subject="S01", dir="DATA/S01")
     lines = []
     for kind, unit in (("real-virtual-2afc", "1"), ("discrimination", "N/m")):
-        fake = SimpleNamespace(exp=SimpleNamespace(kind=kind, unit=unit), handler=None)
+        fake = SimpleNamespace(exp=SimpleNamespace(kind=kind, unit=unit), handler=None, skipped=[])
         ForcedChoice.summary(fake, rows, store, lines.append)
     assert lines[0].split() == ["firm", "trials", "20", "correct", "0.75"]
     assert lines[1].split() == ["firm", "1", "N/m", "trials", "20", "comparison", "harder", "0.75"]
