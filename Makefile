@@ -46,8 +46,11 @@ demo: $(STAMP)
 	@# itself refuses an --out that holds earlier results unless --force
 	$(PY) -m renderer demo --device sim --force
 
+# on TEST_WORKERS cores (pytest-xdist): modules are the units of work, costly ones first, the numba cache
+# filled once while the workers start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
+TEST_WORKERS ?= 2
 test: $(STAMP) $(COMPILED) deps
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 # once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
 deps: $(STAMP)

@@ -17,22 +17,62 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-import pytest  # noqa: E402 (after the settings above, which must come first)
+import importlib.util  # noqa: E402 (after the settings above, which must come first)
+
+import pytest  # noqa: E402
+
+from tests.support import cpuprofile, parallel  # noqa: E402
+from tests.support.shared import shared_value  # noqa: E402
+
+_warmup: list = []
+
+
+@pytest.hookimpl(trylast=True)  # after the tmp_path plugin has set up the base folder
+def pytest_configure(config):
+    cpuprofile.register(config)
+    if parallel.controller_or_alone(config):
+        # before any xdist worker exists: the workers wait for it (tests/support/parallel.py)
+        _warmup.extend(parallel.start_jit_warmup(config))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    parallel.add_folder_groups(items)       # before xdist reads the groups (its hook runs after this one)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session):
+    if not (parallel.controller_or_alone(session.config) and session.config.getoption("dist", "no") != "no"):
+        parallel.wait_for_jit_warmup(session.config)      # a worker, or a run without xdist
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    line = parallel.report_jit_warmup(_warmup, config) if _warmup else None
+    if line:
+        terminalreporter.write_line(line, yellow=True)
+
+
+if importlib.util.find_spec("xdist") is not None:
+    def pytest_xdist_make_scheduler(config, log):
+        return parallel.make_scheduler(config, log)
 
 
 @pytest.fixture(scope="session")
 def default_demo(tmp_path_factory):
-    """The sim demo with its default settings (``make demo``'s taps, no figures), run once per session.
+    """The sim demo with its default settings (``make demo``'s taps, no figures), run once per test run.
 
-    Shared by the fidelity tests (tests/renderer/demo/test_demo_fidelity.py) and the README's printed table
-    (tests/integration/test_readme_demo_table.py). Its own cache folder: built once (~15-40 s), then the taps.
+    Shared by the fidelity tests (tests/renderer/demo/test_demo_fidelity.py, test_grip_sweep.py) and the
+    README's printed table (tests/integration/test_readme_demo_table.py), on whichever xdist worker they run
+    (tests/support/shared.py). Its own cache folder: built once (~15-40 s), then the taps.
     """
     from renderer.demo import config as demo_config, sim_demo
     from stimuli.hfam.pipeline import Progress
 
-    out = tmp_path_factory.mktemp("default_demo")
-    cfg = demo_config.DemoConfig()
-    res = sim_demo.run_sim_demo(cfg, out, tmp_path_factory.mktemp("default_demo_cache"), figures=False,
-                                progress=Progress(5, quiet=True))
-    res.cfg, res.out = cfg, out
-    return res
+    def run(folder):
+        cfg = demo_config.DemoConfig()
+        res = sim_demo.run_sim_demo(cfg, folder / "out", folder / "cache", figures=False,
+                                    progress=Progress(5, quiet=True))
+        res.cfg, res.out = cfg, folder / "out"
+        return res
+
+    return shared_value(tmp_path_factory, "default_demo", run)

@@ -115,6 +115,25 @@ def test_wilcoxon_columns_equal_scipy_per_pair(analysed):
                                rtol=1e-12)
 
 
+@pytest.mark.parametrize("n,ties", [(12, True), (9, True), (12, False), (14, True)])
+def test_wilcoxon_of_all_pairs_at_once_is_scipys_to_the_last_bit(n, ties):
+    """Small studies with tied or zero differences take scipy's permutation test (run here vectorised): the
+    statistic and p of every column equal ``stats.wilcoxon`` on the same matrix exactly, zeros and ties
+    included; without ties (exact distribution) and above 13 subjects (normal approximation) scipy runs."""
+    from analysis.stats import _wilcoxon
+    rng = np.random.default_rng(n)
+    d = rng.normal(0.0, 1.0, (n, 3))
+    if ties:
+        d = np.round(d * 2) / 2
+        d[0, 0] = 0.0
+    d = np.column_stack([d, np.zeros(n)])            # all zero: no test
+    w, p = _wilcoxon(d)
+    want = _quiet(stats.wilcoxon, d[:, :3], axis=0, zero_method="wilcox")
+    assert np.array_equal(w[:3], want.statistic) and np.array_equal(p[:3], want.pvalue)
+    assert np.isnan(w[3]) and np.isnan(p[3])
+    assert np.all((p[:3] > 0) & (p[:3] <= 1))
+
+
 # ------------------------------------------------------------------------------ mixed model
 def test_mixed_model_equals_statsmodels_formula_fit(analysed):
     """The design (treatment coding, centred and scaled velocity) gives the formula API's random-intercept fit."""
