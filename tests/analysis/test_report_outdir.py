@@ -14,6 +14,7 @@ import pytest
 
 from analysis.synthetic import write_synthetic_study
 from tests.files import tree_hashes
+from tests.support.cli import run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -41,10 +42,11 @@ def _writing(parent: Path, name: str) -> bool:
     (signal.SIGTERM, 143, None),
     (signal.SIGINT, 130, "interrupted"),
 ])
-def test_a_stopped_forced_report_leaves_the_earlier_one_exactly(studies, tmp_path, sig, code, last_line):
+def test_a_stopped_forced_report_leaves_the_earlier_one_exactly(studies, tmp_path, capsys, sig, code, last_line):
     out = tmp_path / "R"
-    first = _report(studies / "S1", out)
-    assert first.wait() == 0, first.communicate()
+    # the earlier report: made in this process (the process stopped by a signal is the forced second one)
+    first = run_cli(capsys, "analysis", "report", studies / "S1", "--out", out, cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
     before = tree_hashes(out)
     second = _report(studies / "S2", out, "--force")
     try:
