@@ -37,6 +37,8 @@ $(STAMP): pyproject.toml
 
 $(COMPILED): $(STAMP)
 	$(PY) -m compileall -q -j 0 -x '$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") > /dev/null
+	@# the tests too: each xdist worker imports all of them, and so do the processes they start
+	$(PY) -m compileall -q -j 0 tests > /dev/null
 	touch $(COMPILED)
 
 venv: $(STAMP)

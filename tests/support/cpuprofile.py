@@ -1,7 +1,8 @@
 """Per-test CPU of the suite, child processes included: where ``make test``'s CPU time goes.
 
 ``HFAM_TEST_CPU_LOG=<file>`` makes each pytest process (each xdist worker) append one JSON line per test
-phase: ``{"nodeid", "phase", "wall_s", "self_s", "children_s", "worker"}``, where ``self_s`` is the user
+phase: ``{"nodeid", "phase", "wall_s", "self_s", "children_s", "worker"}`` (and ``{"nodeid", "phase",
+"failed": true, "worker"}`` for a phase that failed), where ``self_s`` is the user
 plus system time of the pytest process itself (``RUSAGE_SELF``) and ``children_s`` that of the child
 processes it started and reaped during the phase (``RUSAGE_CHILDREN``: a child still running when the phase
 ends is counted in the phase that reaps it). Session-scoped fixtures count in the setup of the first test
@@ -46,6 +47,10 @@ class CpuLog:
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_teardown(self, item):
         yield from self._measure(item, "teardown")
+
+    def pytest_runtest_logreport(self, report):
+        if report.failed:                # a failure is known at once, before the run's summary
+            self._write({"nodeid": report.nodeid, "phase": report.when, "failed": True, "worker": self.worker})
 
     def _measure(self, item, phase: str):
         t0, s0, c0 = time.perf_counter(), _cpu(resource.RUSAGE_SELF), _cpu(resource.RUSAGE_CHILDREN)
