@@ -52,7 +52,7 @@ demo: $(STAMP)
 # filled once while the workers start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
 TEST_WORKERS ?= 2
 test: $(STAMP) $(COMPILED) deps
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 # once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
 deps: $(STAMP)

@@ -1,4 +1,6 @@
-"""How ``make test`` runs on two cores (pytest-xdist, ``-n 2 --dist loadgroup``), wired by ``tests/conftest.py``.
+"""How ``make test`` runs on two cores (pytest-xdist ``-n 2``; ``--dist loadgroup`` is in pyproject.toml).
+
+Wired by ``tests/conftest.py``:
 
 * **Work units are modules**, not single tests (:class:`ModuleScheduling`): a module's tests run on one worker,
   so a module-scoped fixture (a successive isolation, a report, a firmware build) is made once, and tests that
