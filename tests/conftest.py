@@ -22,6 +22,7 @@ import importlib.util  # noqa: E402 (after the settings above, which must come f
 import pytest  # noqa: E402
 
 from tests.support import cpuprofile, parallel  # noqa: E402
+from tests.support.demo import default_pipeline_cache  # noqa: E402
 from tests.support.shared import shared_value  # noqa: E402
 
 _warmup: list = []
@@ -63,15 +64,17 @@ def default_demo(tmp_path_factory):
 
     Shared by the fidelity tests (tests/renderer/demo/test_demo_fidelity.py, test_grip_sweep.py) and the
     README's printed table (tests/integration/test_readme_demo_table.py), on whichever xdist worker they run
-    (tests/support/shared.py). Its own cache folder: built once (~15-40 s), then the taps.
+    (tests/support/shared.py). The pipeline (~15 s) comes from the run's shared cache of the default pipeline
+    (tests/support/demo.py), then the taps.
     """
     from renderer.demo import config as demo_config, sim_demo
     from stimuli.hfam.pipeline import Progress
 
+    cache = default_pipeline_cache(tmp_path_factory)
+
     def run(folder):
         cfg = demo_config.DemoConfig()
-        res = sim_demo.run_sim_demo(cfg, folder / "out", folder / "cache", figures=False,
-                                    progress=Progress(5, quiet=True))
+        res = sim_demo.run_sim_demo(cfg, folder / "out", cache, figures=False, progress=Progress(5, quiet=True))
         res.cfg, res.out = cfg, folder / "out"
         return res
 
