@@ -43,8 +43,8 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtestloop(session):
-    if not (parallel.controller_or_alone(session.config) and session.config.getoption("dist", "no") != "no"):
-        parallel.wait_for_jit_warmup(session.config)      # a worker, or a run without xdist
+    if not session.config.pluginmanager.has_plugin("dsession"):   # not the xdist controller, which runs no test
+        parallel.wait_for_jit_warmup(session.config)
 
 
 def pytest_terminal_summary(terminalreporter, config):
