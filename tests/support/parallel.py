@@ -73,7 +73,7 @@ def start_jit_warmup(config) -> list[subprocess.Popen]:
     (an ``flock`` belongs to the open file, not to a process): no worker can take its shared lock first.
     ``HFAM_TEST_JIT_WARMUP=0`` turns it off (each kernel is then compiled by its first caller).
     """
-    if os.environ.get("HFAM_TEST_JIT_WARMUP", "1") == "0" or config.option.collectonly:
+    if os.environ.get("HFAM_TEST_JIT_WARMUP", "1") == "0" or config.option.collectonly or _cache_filled():
         return []
     base = run_base(config)
     fd = os.open(base / WARMUP_LOCK, os.O_WRONLY | os.O_CREAT, 0o644)
@@ -89,6 +89,22 @@ def start_jit_warmup(config) -> list[subprocess.Popen]:
     finally:
         os.close(fd)                 # the children hold the lock now (released when the last one ends)
     return procs
+
+
+def _cache_filled() -> bool:
+    """Whether numba's cache holds an entry for every kernel of :mod:`tests.support.jitwarm` (an index file
+    newer than the kernel's source; a kernel whose imports were edited since is recompiled by its first caller,
+    as it would be anyway). Then there is nothing to warm: a developer's second run starts at once."""
+    import importlib.util
+
+    from tests.support.jitwarm import KERNELS
+
+    for module, function, _ in (k for part in KERNELS for k in part):
+        source = Path(importlib.util.find_spec(module).origin)
+        index = list((source.parent / "__pycache__").glob(f"{source.stem}.{function}-*.nbi"))
+        if not index or max(p.stat().st_mtime for p in index) < source.stat().st_mtime:
+            return False
+    return True
 
 
 def wait_for_jit_warmup(config) -> None:
