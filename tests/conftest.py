@@ -15,6 +15,11 @@ os.environ.setdefault("HFAM_SIM_AOT", "off")
 # in the children on exec, so they meet Ctrl-C as a user's terminal would deliver it.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+# Likewise SIGHUP under ``nohup``: ignored, it would stay ignored in every command a test starts, and the
+# commands rightly keep an ignored SIGHUP (plumbing.stopsignals), so the SIGHUP tests would see nothing happen.
+# This process keeps ignoring it (a handler that does nothing); its children start with the default.
+if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+    signal.signal(signal.SIGHUP, lambda signum, frame: None)
 
 
 import importlib.util  # noqa: E402 (after the settings above, which must come first)
