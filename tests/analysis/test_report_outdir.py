@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -14,7 +15,6 @@ import pytest
 
 from analysis.synthetic import write_synthetic_study
 from tests.files import tree_hashes
-from tests.support.cli import run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -25,6 +25,16 @@ def studies(tmp_path_factory):
     write_synthetic_study(root / "S1", 4, seed=3)
     write_synthetic_study(root / "S2", 6, seed=7)
     return root
+
+
+@pytest.fixture(scope="module")
+def earlier_report(studies, tmp_path_factory):
+    """S1's report, made once in this process by the command's own ``main``; each test copies it."""
+    from analysis.__main__ import main
+
+    out = tmp_path_factory.mktemp("earlier") / "R"
+    assert main(["report", str(studies / "S1"), "--out", str(out)]) == 0
+    return out
 
 
 def _report(data: Path, out: Path, *extra) -> subprocess.Popen:
@@ -42,11 +52,10 @@ def _writing(parent: Path, name: str) -> bool:
     (signal.SIGTERM, 143, None),
     (signal.SIGINT, 130, "interrupted"),
 ])
-def test_a_stopped_forced_report_leaves_the_earlier_one_exactly(studies, tmp_path, capsys, sig, code, last_line):
+def test_a_stopped_forced_report_leaves_the_earlier_one_exactly(earlier_report, tmp_path, studies, sig, code,
+                                                               last_line):
     out = tmp_path / "R"
-    # the earlier report: made in this process (the process stopped by a signal is the forced second one)
-    first = run_cli(capsys, "analysis", "report", studies / "S1", "--out", out, cwd=tmp_path)
-    assert first.returncode == 0, first.stderr
+    shutil.copytree(earlier_report, out)          # S1's report (the process stopped is the forced second one)
     before = tree_hashes(out)
     second = _report(studies / "S2", out, "--force")
     try:
