@@ -32,7 +32,7 @@ $(STAMP): pyproject.toml
 	@# scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker, per study report)
 	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
 	$(PY) -m compileall -q -j 0 -x '$(LATER)|$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
-	    plumbing analysis devices renderer stimuli study benchmarks figstyle > /dev/null
+	    plumbing psychophysics analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
 
 $(COMPILED): $(STAMP)

@@ -9,8 +9,7 @@ import argparse
 
 from plumbing.cliargs import with_examples
 from plumbing.dispatch import Body
-
-FUNCTION_CHOICES = ("logistic", "normal", "weibull")
+from psychophysics.names import FUNCTIONS
 
 
 def _lapse(text: str):
@@ -47,7 +46,7 @@ def register(subparsers) -> None:
     p.add_argument("--alternatives", type=int, default=None, metavar="N",
                    help="n of the n-AFC task: guess rate 1/N; 1 for yes/no or 'which was harder?' (guess rate 0). "
                         "Default: the sessions' experiment.alternatives (required for a CSV)")
-    p.add_argument("--function", choices=FUNCTION_CHOICES, default="logistic",
+    p.add_argument("--function", choices=FUNCTIONS, default="logistic",
                    help="F: logistic, cumulative normal or Weibull (intensities > 0) (default logistic)")
     p.add_argument("--lapse", type=_lapse, default=None, metavar="free|RATE",
                    help="lapse rate: 'free' (fitted in [0, 0.1], the default) or a fixed rate such as 0")

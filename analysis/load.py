@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import difflib
 import io
-import json
 import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -27,22 +26,13 @@ import pyarrow.csv as pa_csv
 
 from analysis import workers
 from analysis.config import check_data_folder
+from plumbing.studyfiles import (BOOL_COLUMNS, EXPERIENCE, EXPERIENCE_ALIASES, FLOAT_COLUMNS, INT_COLUMNS, KINDS,
+                                 LIST_COLUMNS, PHASES, RATING_CORE_COLUMNS, RATING_MAX, RATING_MIN, read_file_text,
+                                 read_session_json)
 
-TRIAL_COLUMNS = (
-    "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
-    "valid", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m", "incoming_velocities_m_s",
-    "penetration_depths_m", "started_at", "duration_s",
-)
-BOOL_COLUMNS = ("rejected", "saturated", "overpowered", "valid")
-INT_COLUMNS = ("trial", "attempt", "n_taps")
-FLOAT_COLUMNS = ("incoming_velocity_mean_m_s", "penetration_mean_m", "duration_s")
-LIST_COLUMNS = ("incoming_velocities_m_s", "penetration_depths_m")
-PHASES = ("familiarization", "demonstration", "testing")
-KINDS = ("real", "virtual")
-EXPERIENCE = ("none", "few", "regular")
-# spellings of the subject-info form (section 4.5.3) accepted for the stored codes
-_EXPERIENCE_ALIASES = {"never": "none", "a few times": "few", "regularly": "regular"}
-RATING_MIN, RATING_MAX = 1, 7
+# the rating study's columns as every trials.csv holds them (ends_familiarization, the study's own bookkeeping,
+# is not read), their types and ranges: plumbing.studyfiles, the definition the study writes with
+TRIAL_COLUMNS = RATING_CORE_COLUMNS
 
 
 class AnalysisWarning(UserWarning):
@@ -146,38 +136,13 @@ def _catalog_cached(raw, path: Path) -> tuple[list[str], dict, dict]:
     return result
 
 
-def _read_text(path, encoding: str) -> str:
-    """The text of a subject's session.json or trials.csv; a missing file, a directory in its place, an
-    unreadable or non-UTF-8 file give one error naming the file (and the line of a bad byte)."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path} is missing (every subject folder needs session.json and trials.csv)") from None
-    except IsADirectoryError:
-        raise ValueError(f"{path}: is a directory, expected a file") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot be read ({exc.strerror})") from None
-    try:
-        return data.decode(encoding)
-    except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-
-
 def read_session(path) -> dict:
     """Read and check one ``session.json`` (``path``: str or Path); errors name the file, line or key.
 
     Returns a dict with ``subject, experience, catalog (list), kinds, labels, age, gender, handedness,
     finished, seed, software_version, device, servo_timing`` (:func:`servo_timing_text`).
     """
-    text = _read_text(path, "utf-8")
-    try:
-        raw = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}, column {exc.colno})") from None
-    if not isinstance(raw, dict):
-        raise ValueError(f"{path}:1: session.json must hold a JSON object")
+    raw = read_session_json(path)
     for key in ("subject", "experience", "catalog"):
         if key not in raw:
             raise ValueError(f"{path}: missing key {key!r}")
@@ -185,7 +150,7 @@ def read_session(path) -> dict:
     if not isinstance(subject, str) or not subject:
         raise ValueError(f"{path}: key 'subject' must be a non-empty string")
     exp = raw["experience"]
-    exp = _EXPERIENCE_ALIASES.get(exp, exp) if isinstance(exp, str) else exp
+    exp = EXPERIENCE_ALIASES.get(exp, exp) if isinstance(exp, str) else exp
     if exp not in EXPERIENCE:
         raise ValueError(f"{path}: key 'experience' is {raw['experience']!r}, expected one of {'|'.join(EXPERIENCE)}")
     names, kinds, labels = _catalog_cached(raw["catalog"], path)
@@ -238,7 +203,7 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
     The third value is True when a torn last line (a crash mid-write, no final newline, wrong
     number of fields) was left out; the caller warns.
     """
-    text = _read_text(path, "utf-8-sig")  # -sig: tolerate a spreadsheet BOM
+    text = read_file_text(path, "utf-8-sig")  # -sig: tolerate a spreadsheet BOM
     reader = csv.reader(io.StringIO(text, newline=""))
     header = next(reader, None)
     if header is None:

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 import figstyle
-from analysis.psychometric import aggregate, psychometric, reversals
+from psychophysics.adaptive import reversals
+from psychophysics.fitting import aggregate
+from psychophysics.psychometric import psi
 from analysis.psychophysics import ALL, POOLED, GroupFit, Proportion, Trials
 
 #: the most tracks drawn in one staircase figure (the rest are listed in its title)
@@ -62,7 +64,7 @@ def build_curves(trials: Trials, fits: list[GroupFit], intensity_label: str = "i
             else:
                 pad = 0.05 * (hi - lo)
                 xs = np.linspace(lo - pad, hi + pad, 300)
-            ax.plot(xs, psychometric(xs, f.threshold, f.slope, f.guess, f.lapse, f.function), color=st["color"],
+            ax.plot(xs, psi(xs, f.threshold, f.slope, f.guess, f.lapse, f.function), color=st["color"],
                     linestyle=st["linestyle"], label=f"{_label(g.condition)}: threshold {f.threshold:.3g}")
             y_thr = f.guess + (1 - f.guess - f.lapse) * 0.5
             if np.isfinite(f.threshold_ci).all():

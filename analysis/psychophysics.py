@@ -16,7 +16,6 @@ bad cell is one ``ValueError`` naming the file and line.
 from __future__ import annotations
 
 import csv
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,10 +23,11 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
-from analysis.psychometric import Fit, fit
+from plumbing.studyfiles import FIT_COLUMNS, FIT_OPTIONAL_COLUMNS, SESSION_JSON, read_session_json
+from psychophysics.fitting import Fit, fit
 
-REQUIRED = ("intensity", "correct")
-OPTIONAL = ("subject", "condition", "staircase", "trial", "is_catch")
+#: the columns a fit reads (plumbing.studyfiles: the forced-choice trials.csv holds them all)
+REQUIRED, OPTIONAL = FIT_COLUMNS, FIT_OPTIONAL_COLUMNS
 POOLED = "(pooled)"
 ALL = "(all)"
 
@@ -116,19 +116,6 @@ def _read_csv(path: Path, subject_default: str) -> dict:
     return cols
 
 
-def _session(folder: Path) -> dict:
-    path = folder / "session.json"
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text ({exc.reason})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object")
-    return data
-
-
 def load_trials(path) -> Trials:
     """Read forced-choice trials from a study folder, one subject's folder or a plain CSV.
 
@@ -154,7 +141,7 @@ def load_trials(path) -> Trials:
             p for p in path.iterdir() if p.is_dir() and (p / "session.json").is_file())
         skipped = []
         for folder in folders:
-            session = _session(folder)
+            session = read_session_json(folder / SESSION_JSON)
             exp = session.get("experiment")
             if not isinstance(exp, dict):
                 skipped.append(folder.name)
@@ -199,7 +186,7 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
     ----------
     trials : Trials
     alternatives, function, lapse, bootstrap, ci_level, reference, seed, equal_asymptote
-        As for :func:`analysis.psychometric.fit`.
+        As for :func:`psychophysics.fitting.fit`.
 
     Returns
     -------

@@ -24,9 +24,9 @@ import time
 
 import numpy as np
 
-from study.observer import ObserverParams, SimulatedObserver
-from study.quest import Psi, QuestPlus
-from study.staircase import UpDown
+from psychophysics.observer import ObserverParams, SimulatedObserver
+from psychophysics.quest import Psi, QuestPlus
+from psychophysics.staircase import UpDown
 
 TARGET_MS = 10.0
 TRIALS = 80

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import time
 
-from devices.cli_hardware import measure_latency, percentiles_us, set_realtime_priority
+from devices.cli_hardware import measure_latency, percentiles_us, realtime_priority
 from devices.firmware.emulator import start_emulator
 from devices.hardware import wire_protocol as P
 from devices.hardware.serial_device import SerialDevice
@@ -20,16 +20,8 @@ from stimuli.transients import Pulse
 def _streaming(n: int = 5000, process: bool = True, rt_priority: int | None = None) -> dict:
     port, handle = start_emulator("streaming", process=process, rt_priority=rt_priority)
     try:
-        with SerialDevice(port) as dev:
-            note = set_realtime_priority(rt_priority)
-            try:
-                return {"sched": note, **measure_latency(dev, n=n, warmup=500)}
-            finally:
-                if rt_priority is not None:
-                    try:
-                        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-                    except OSError:
-                        pass
+        with SerialDevice(port) as dev, realtime_priority(rt_priority) as note:
+            return {"sched": note, **measure_latency(dev, n=n, warmup=500)}
     finally:
         handle.stop()
 
@@ -38,8 +30,7 @@ def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict
     """A host loop paced at 1 kHz (sleep then spin): achieved rate and round trips."""
     port, handle = start_emulator("streaming", process=True, rt_priority=rt_priority)
     try:
-        with SerialDevice(port) as dev:
-            note = set_realtime_priority(rt_priority)
+        with SerialDevice(port) as dev, realtime_priority(rt_priority) as note:
             period = 1e-3
             n = int(duration_s / period)
             rtt = []
@@ -58,12 +49,8 @@ def _paced_1khz(duration_s: float = 2.0, rt_priority: int | None = None) -> dict
                 dev.command(0.0)
                 dev.read()
                 rtt.append(time.perf_counter() - t1)
-            if rt_priority is not None:
-                try:
-                    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-                except OSError:
-                    pass
-            return {"sched": note, "rate_hz": n / (time.perf_counter() - t0), **percentiles_us(rtt)}
+            rate_hz = n / (time.perf_counter() - t0)
+            return {"sched": note, "rate_hz": rate_hz, **percentiles_us(rtt)}
     finally:
         handle.stop()
 

@@ -3,41 +3,33 @@
 1. **JND recovery.** Simulated subjects run a stiffness-discrimination session (method of constant stimuli,
    7 comparison stiffnesses from 400 to 1225 N/m around a 700 N/m reference, ``TRIALS_PER_LEVEL`` trials
    each) on the sim device;
-   their answers come from what the device rendered (:mod:`study.perception`: force and penetration of their
+   their answers come from what the device rendered (:mod:`study.forcedchoice.perception`: force and penetration of their
    own taps with the force and compliance JNDs). A cumulative normal is fitted by maximum likelihood to
-   P("comparison harder") against log10 stiffness (``analysis.psychometric.fit``, lapse fixed at 0 and free);
+   P("comparison harder") against log10 stiffness (``psychophysics.fit``, lapse fixed at 0 and free);
    its JND = x(F = 0.75) - x(F = 0.5) gives the Weber fraction, printed against the participant's
    (16.8 % from 7 % force and 15 % compliance JNDs).
 2. **SIGKILL at every trial.** A warm process forks a session killed by SIGKILL at a durable step
-   (:func:`study.data.crash_point`) and a ``--resume`` to the end; the finished trials.csv must equal an
+   (:func:`study.session.store.crash_point`) and a ``--resume`` to the end; the finished trials.csv must equal an
    uninterrupted run's trial by trial (the :mod:`benchmarks.bench_study_kill` harness' forking).
 """
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import signal
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-import study.data as data
-from analysis import psychometric
+from psychophysics import fitting as psychometric
 from study.__main__ import main as study_main
-from study.participants import SimParticipantConfig
-from study.perception import stiffness_weber_fraction
+from study.session.participants import SimParticipantConfig
+from study.forcedchoice.perception import stiffness_weber_fraction
 
-from .bench_study_kill import _forked, read_rows
+from tests.support.kills import (QUICK, REAL_VIRTUAL, ForcedChoiceKillHarness, read_rows, session_args,
+                                 state_lines)
 
-QUICK = """
-tap_window_s = 0.6
-homing_after_s = 0.3
-homing_before_max_s = 0.1
-"""
 DISCRIMINATION = QUICK + """
 [experiment]
 kind = "discrimination"
@@ -47,25 +39,6 @@ reference = 700.0
 levels = {levels}
 trials_per_level = {n}
 intensity_scale = "log10"
-"""
-ADAPTIVE_DETECTION = QUICK + """
-[experiment]
-kind = "detection"
-sample = "pulse_firm"
-method = "updown"
-intensity_scale = "log10"
-catch_rate = 0.2
-catch_intensity = 0.0
-
-[experiment.staircases.A]
-start = 4.0
-step_down = [0.3, 0.15]
-max_trials = {n}
-
-[experiment.staircases.B]
-start = 0.5
-step_down = [0.3, 0.15]
-max_trials = {n}
 """
 DETECTION_CONSTANT = QUICK + """
 [experiment]
@@ -91,28 +64,8 @@ guess = 0.5
 function = "weibull"
 max_trials = {n}
 """
-REAL_VIRTUAL = QUICK + """
-[experiment]
-kind = "real-virtual-2afc"
-real_sample = "wood_on_foam"
-renderings = ["firm", "sinusoid_firm"]
-trials_per_level = {n}
-"""
 LEVELS = [400.0, 500.0, 600.0, 700.0, 820.0, 980.0, 1225.0]   # to 0.57 and 1.75 x: the lapses show
 TRIALS_PER_LEVEL = 60
-KEY = ("trial", "attempt", "condition", "staircase", "intensity", "is_catch", "target_interval", "sample_1",
-       "sample_2", "response", "correct", "n_taps_1", "n_taps_2")
-# (not the percepts: they differ in the last digits after a resume, the sim device's state after a restart)
-
-
-def session_args(protocol: Path, out: Path, subject: str, seed: int, resume: bool = False, *extra) -> list:
-    """``python -m study run`` arguments of a simulated psychophysics session (or its ``--resume``)."""
-    if resume:
-        return ["run", "--quiet", "--subject", subject, "--out", str(out), "--resume"]
-    return ["run", "--quiet", "--device", "sim", "--participant", "simulated", "--subject", subject,
-            "--seed", str(seed), "--out", str(out), "--protocol", str(protocol), *extra]
-
-
 def fit_probit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """Maximum-likelihood cumulative normal ``P = Phi(beta (x - alpha))`` (guess and lapse 0), by
     ``analysis psychometric``'s fit (which equals statsmodels' probit GLM, tests/analysis/test_psychometric.py).
@@ -170,12 +123,6 @@ def jnd_recovery(work: Path, subjects: int = 4, n: int = TRIALS_PER_LEVEL) -> li
     return out
 
 
-def _states(folder: Path) -> list:
-    """The staircase state lines of a subject folder (``[]`` for constant stimuli)."""
-    path = folder / "staircase_state.jsonl"
-    return [json.loads(ln) for ln in path.read_text().splitlines()] if path.exists() else []
-
-
 def fit_2afc_threshold(x: np.ndarray, y: np.ndarray) -> float:
     """Maximum likelihood of ``P = 0.5 + (0.5 - lapse) Phi(beta (x - alpha))`` (2AFC, lapse in [0, 0.1]) on
     ``x`` = log10 intensity, by ``analysis psychometric``'s fit; returns the threshold ``10**alpha`` (F = 0.5)."""
@@ -200,72 +147,12 @@ def detection_and_real_virtual(work: Path, n_constant: int = 40, n_quest: int = 
             x = np.array([float(r["intensity"]) for r in rows])
             out["constant"] = fit_2afc_threshold(x, np.array([int(r["correct"]) for r in rows]))
         elif name == "quest":
-            last = _states(work / "DATA2" / name)[-1]["estimate"]
+            last = state_lines(work / "DATA2" / name)[-1]["estimate"]
             out["quest"], out["quest_ci"] = last["threshold"], last["threshold_ci"]
         else:
             out["rv"] = {c: (float(np.mean([int(r["correct"]) for r in rows if r["condition"] == c])),
                              sum(r["condition"] == c for r in rows)) for c in sorted({r["condition"] for r in rows})}
     return out
-
-
-class PsyKillHarness:
-    """A warm process, an uninterrupted reference session and kill/resume cases at chosen durable steps."""
-
-    def __init__(self, work: Path, protocol_text: str, seed: int = 4) -> None:
-        self.work = Path(work)
-        self.protocol = self.work / "protocol.toml"
-        self.protocol.write_text(protocol_text)
-        self.seed = seed
-        log = self.work / "steps.log"
-        data._CRASH_COUNT = 0
-        os.environ["STUDY_CRASH_LOG"] = str(log)
-        try:
-            code = study_main(session_args(self.protocol, self.work / "ref", "K", seed))
-        finally:
-            os.environ.pop("STUDY_CRASH_LOG", None)
-        if code != 0:
-            raise RuntimeError(f"the reference session failed with {code}")
-        self.steps = log.read_text().splitlines()
-        self.reference = [tuple(r[k] for k in KEY) for r in read_rows(self.work / "ref" / "K")]
-        self.reference_states = _states(self.work / "ref" / "K")
-
-    def step_of(self, name: str) -> int:
-        """The 1-based number of the durable step called ``name`` (e.g. ``row written: trial 2/1``)."""
-        return next(int(n) for n, w in (s.split(" ", 1) for s in self.steps) if w == name)
-
-    def case(self, step: int, index: int) -> dict:
-        """Kill a fresh session at durable step ``step``, resume it, compare with the reference."""
-        out = self.work / f"case{index:03d}"
-        folder = out / "K"
-        killed = _forked(session_args(self.protocol, out, "K", self.seed), {"STUDY_CRASH_AT": str(step)})
-        result = {"step": step, "where": self.steps[step - 1].split(" ", 1)[1], "killed": killed}
-        if killed != -signal.SIGKILL:
-            result["error"] = f"the session was not killed (exit {killed})"
-            return result
-        before = (folder / "trials.csv").read_bytes() if folder.exists() else b""
-        result["rows_before"] = max(0, before.count(b"\n") - 1)
-        if not folder.exists():
-            resumed = _forked(session_args(self.protocol, out, "K", self.seed), {})
-        elif json.loads((folder / "session.json").read_text())["finished_at"]:
-            resumed = 0
-        else:
-            resumed = _forked(session_args(self.protocol, out, "K", self.seed, resume=True), {})
-        result["resumed"] = resumed
-        if resumed != 0:
-            result["error"] = f"--resume exited {resumed}"
-            return result
-        after = (folder / "trials.csv").read_bytes()
-        if not after.startswith(before[:before.rfind(b"\n") + 1]):
-            result["error"] = "rows on disk before the kill changed"
-        rows = [tuple(r[k] for k in KEY) for r in read_rows(folder)]
-        if rows != self.reference:
-            result["error"] = f"{len(rows)} rows differ from the reference's {len(self.reference)}"
-        if _states(folder) != self.reference_states:
-            result["error"] = "staircase_state.jsonl differs from the reference's"
-        if list(folder.rglob("*.tmp")):
-            result["error"] = "temporary files left"
-        result["folder"] = folder
-        return result
 
 
 def main(subjects: int = 4) -> None:
@@ -294,7 +181,7 @@ def main(subjects: int = 4) -> None:
               f"{d['quest'] / d['constant']:.2f}")
         print("   real vs virtual (wood_on_foam), proportion correct per rendering: " +
               ", ".join(f"{c} {p:.2f} (n {n})" for c, (p, n) in d["rv"].items()))
-        harness = PsyKillHarness(Path(tmp), REAL_VIRTUAL.format(n=2))
+        harness = ForcedChoiceKillHarness(Path(tmp), REAL_VIRTUAL.format(n=2))
         rows = [harness.step_of(f"row written: trial {k}/1") for k in range(1, len(harness.reference) + 1)
                 if any(s.endswith(f"row written: trial {k}/1") for s in harness.steps)]
         picks = sorted(set(rows + [2, len(harness.steps)] + [r - 1 for r in rows]))

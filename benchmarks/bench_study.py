@@ -25,13 +25,13 @@ import numpy as np
 from devices.sim import SimDevice
 from stimuli import load_catalog
 from study.__main__ import main as study_main
-from study.apparatus import Apparatus
-from study.audio import MaskingAudio
-from study.config import ProtocolConfig
-from study.isolated import IsolatedApparatus
-from study.participants import SimulatedParticipant
-from study.uistate import UiState
-from study.webui import WebUI
+from study.session.apparatus import Apparatus
+from study.session.audio import MaskingAudio
+from study.session.config import ProtocolConfig
+from study.session.isolated import IsolatedApparatus
+from study.session.participants import SimulatedParticipant
+from study.session.uistate import UiState
+from study.session.webui import WebUI
 
 
 def one_session(seed: int) -> dict:

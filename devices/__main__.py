@@ -23,6 +23,10 @@ COMMANDS = (
     Command("firmware-report", "devices.cli_firmware_parser",
             "timing of the real AVR firmware on simavr (tick cycles, ISRs, RAM, encoder)"),
     Command("fw-sim", "devices.cli_firmware_parser", "run the real firmware on simavr behind a pty (connect with serial:<pty>)"),
+    Command("list", "devices.cli_lab_parser",
+            "list the haptic devices this machine can see (serial, HID, FTDI, vendor libraries)"),
+    Command("probe", "devices.cli_lab_parser",
+            "a short, safe check of one device: workspace, sensors, and a small force pulse after a prompt"),
 )
 
 

@@ -10,31 +10,8 @@ The parser (light: imported for ``--help``); the body is :mod:`devices.cli_calib
 
 from __future__ import annotations
 
-import argparse
-import math
-
-from plumbing.cliargs import with_examples
+from plumbing.cliargs import integer, with_examples, within
 from plumbing.dispatch import Body
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--known-position-m must be a number, got {text!r}") from None
-    if not (math.isfinite(value) and abs(value) <= 0.1):
-        raise argparse.ArgumentTypeError(f"--known-position-m must be within +-0.1 m, got {text!r}")
-    return value
-
-
-def _samples(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--samples must be an integer, got {text!r}") from None
-    if not 10 <= value <= 100_000:
-        raise argparse.ArgumentTypeError(f"--samples must be 10..100000, got {text!r}")
-    return value
 
 
 def register(subparsers) -> None:
@@ -50,9 +27,9 @@ def register(subparsers) -> None:
     p.add_argument("--device", required=True, help="the board: serial:<port> (e.g. serial:/dev/ttyACM0)")
     p.add_argument("--out", required=True, help="calibration JSON file (other boards' entries are kept)")
     p.add_argument("--force", action="store_true", help="replace this board's entry if --out already holds one")
-    p.add_argument("--known-position-m", type=_finite, default=0.0,
+    p.add_argument("--known-position-m", type=within("--known-position-m", 0.1, "m"), default=0.0,
                    help="height the handle is held at, m above the wall height (default 0)")
-    p.add_argument("--samples", type=_samples, default=200, help="reads averaged per step (default 200)")
+    p.add_argument("--samples", type=integer("--samples", 10, 100_000), default=200, help="reads averaged per step (default 200)")
     p.add_argument("--skip-accel", action="store_true", help="keep the accelerometer offset")
     p.add_argument("--skip-grip", action="store_true", help="keep the grip-sensor offset (e.g. the grip is held)")
     with_examples(p, "hfam-devices calibrate --device serial:/dev/ttyACM0 --known-position-m 0.0 --out calibration.json")

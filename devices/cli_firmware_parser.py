@@ -5,21 +5,8 @@ The parser (light: imported for ``--help``); the body is :mod:`devices.cli_firmw
 
 from __future__ import annotations
 
-import argparse
-
-from plumbing.cliargs import with_examples
+from plumbing.cliargs import positive_numbers, with_examples
 from plumbing.dispatch import Body
-
-
-def _speeds(text: str) -> list[float]:
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated speeds in m/s, got {text!r}") from None
-    if not values or any(not v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"speeds must be > 0 m/s, got {text!r}")
-    return values
-
 
 
 def register(subparsers) -> None:
@@ -37,7 +24,7 @@ def register(subparsers) -> None:
                     "at the given speeds) on a simulated ATmega328P at 16 MHz, and print cycles per servo tick "
                     "against the 4,000-cycle budget, interrupt worst cases, RAM high-water (stack painting) and "
                     "encoder counts missed per speed.")
-    p.add_argument("--speeds", type=_speeds, default=[0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0],
+    p.add_argument("--speeds", type=positive_numbers("speeds", "m/s", items="speeds in m/s"), default=[0.1, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0],
                    help="paddle speeds to sweep, m/s (default 0.1,...,6)")
     p.add_argument("--decimation", type=int, default=2,
                    help="telemetry every N servo ticks (default 2: a STATE every 250 us tick needs 92 %% of the "

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import gc
+import contextlib
 import os
 import signal
 import sys
@@ -18,24 +18,28 @@ from .firmware.emulator import FaultSpec, build_emulator
 from .registry import open_device
 
 
-def set_realtime_priority(priority: int | None) -> str:
-    """SCHED_FIFO at ``priority`` for this process (:func:`plumbing.rtpolicy.acquire`), and freeze the GC's
-    view of start-up objects.
+@contextlib.contextmanager
+def realtime_priority(priority: int | None):
+    """SCHED_FIFO at ``priority`` for the block (:func:`plumbing.rtpolicy.realtime`: asked for, recorded, undone
+    after it), the start-up objects kept out of the collector (:func:`plumbing.rtpolicy.freeze_startup_objects`);
+    the block gets a note for the user. Our loops block in select(), so FIFO cannot starve the machine.
 
-    Returns a note for the user. Our loops block in select(), so FIFO cannot starve the machine.
-    A full garbage collection walks every object numba/numpy created at import (milliseconds):
-    ``gc.freeze()`` keeps them out of later collections, which removes those pauses.
+    Raises
+    ------
+    ValueError
+        ``priority`` outside 1..99.
     """
-    gc.collect()
-    gc.freeze()
+    rtpolicy.freeze_startup_objects()
     if priority is None:
-        return "default scheduling"
+        yield "default scheduling"
+        return
     if not 1 <= priority <= 99:
         raise ValueError(f"--rt-priority must be within 1..99, got {priority}")
-    rec = rtpolicy.acquire(priority, lock_memory=False)
-    if rec["policy"] == "SCHED_FIFO":
-        return f"SCHED_FIFO priority {priority}"
-    return f"SCHED_FIFO refused ({'; '.join(rec['missing'])}); default scheduling"
+    with rtpolicy.realtime(priority, lock_memory=False) as rec:
+        if rec["policy"] == "SCHED_FIFO":
+            yield f"SCHED_FIFO priority {priority}"
+        else:
+            yield f"SCHED_FIFO refused ({'; '.join(rec['missing'])}); default scheduling"
 
 
 def run_emulate(args) -> int:
@@ -103,7 +107,12 @@ def _serve_emulator(args, timers: list) -> int:
         print(report(), file=sys.stderr, flush=True)
         return 0
     port = emu.open_pty()
-    sched = set_realtime_priority(args.rt_priority)
+    with realtime_priority(args.rt_priority) as sched:
+        return _serve_pty(args, emu, port, faults, sched, stop, state, report)
+
+
+def _serve_pty(args, emu, port: str, faults, sched: str, stop, state: dict, report) -> int:
+    """Serve the emulator on ``port`` until ``stop`` (or ``--duration-s``); release the pty and say why."""
     print(f"PORT {port}", flush=True)
     print(f"emulating {emu.wire.info.name} ({args.mode}, watchdog {args.watchdog_ms} ms"
           f"{', faults ' + faults.to_text() if faults.to_text() else ''}, {sched}) on {port}", file=sys.stderr,
@@ -173,15 +182,8 @@ def _run_latency(args) -> int:
     with open_device(args.device) as dev:
         if getattr(dev, "on_device_rendering", False):
             raise ValueError("latency measures streaming round trips; open the device in streaming mode")
-        sched = set_realtime_priority(args.rt_priority)
-        try:
+        with realtime_priority(args.rt_priority) as sched:
             res = measure_latency(dev, args.n, args.warmup)
-        finally:
-            if args.rt_priority is not None:
-                try:
-                    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-                except OSError:
-                    pass
     print(f"device {args.device}: {res['n']} command->state round trips ({sched})")
     print(f"  round trip: median {res['median_us']:.0f} us, p90 {res['p90_us']:.0f} us, p99 {res['p99_us']:.0f} us, "
           f"max {res['max_us']:.0f} us")

@@ -5,23 +5,8 @@ The parser (light: imported for ``--help``); the body is :mod:`devices.cli_hardw
 
 from __future__ import annotations
 
-import argparse
-
-from plumbing.cliargs import with_examples
+from plumbing.cliargs import positive_numbers, with_examples
 from plumbing.dispatch import Body
-
-
-def _float_list(text: str) -> list[float]:
-    if text.strip().lower() == "none":
-        return []
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if any(not v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"tap velocities must be > 0 m/s, got {text!r}")
-    return values
-
 
 
 def register(subparsers) -> None:
@@ -48,7 +33,7 @@ def register(subparsers) -> None:
     p.add_argument("--pace", choices=("realtime", "host"), default="realtime",
                    help="on-device tick pacing: wall clock, or as fast as the host reads telemetry")
     p.add_argument("--sim", default=None, help="sim parameters: omitted (Table 3.1), 'lti', or a TOML/JSON file")
-    p.add_argument("--taps", type=_float_list, default=[0.05, 0.1, 0.2],
+    p.add_argument("--taps", type=positive_numbers("tap velocities", "m/s", none=True), default=[0.05, 0.1, 0.2],
                    help="velocities (m/s) the simulated hand taps with, cycled forever (default 0.05,0.1,0.2); "
                         "'none': the hand holds the handle still 1 cm above the surface (identify, calibration)")
     p.add_argument("--grip-N", type=float, default=2.0, help="simulated grip force (N)")

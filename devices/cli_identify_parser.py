@@ -8,34 +8,15 @@ from __future__ import annotations
 
 import argparse
 
-from plumbing.cliargs import add_renamed, float_list, with_examples
+from plumbing.cliargs import add_renamed, auto_or, float_list, with_examples
 from plumbing.dispatch import Body
 
 
-def _order(text: str):
-    if text == "auto":
-        return "auto"
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--order must be 'auto' or an integer, got {text!r}") from None
-    return n
-
-
-def _delay(text: str):
-    if text == "auto":
-        return "auto"
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--delay must be 'auto' or a number of seconds, got {text!r}") from None
-
-
 def _fit_options_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--order", type=_order, default="auto", help="number of poles, or 'auto' (default): "
+    p.add_argument("--order", type=auto_or("--order", int, "an integer"), default="auto", help="number of poles, or 'auto' (default): "
                    "chosen from the error-versus-order table")
     p.add_argument("--max-order", type=int, default=14, help="largest order tried by --order auto (default 14)")
-    add_renamed(p, "--delay-s", "--delay", dest="delay", type=_delay, default="auto", help="pure delay in s, or 'auto' (default)")
+    add_renamed(p, "--delay-s", "--delay", dest="delay", type=auto_or("--delay", float, "a number of seconds"), default="auto", help="pure delay in s, or 'auto' (default)")
     p.add_argument("--max-rms-db", type=float, default=3.0,
                    help="requested RMS magnitude error; a worse fit writes nothing (default 3 dB)")
     p.add_argument("--max-rms-phase-deg", type=float, default=20.0,

@@ -40,7 +40,16 @@ DEMO_CAPTIONS = {
 # `make gallery` fails the tests instead of leaving the committed gallery stale
 FIGURE_SOURCES = ("figstyle/__init__.py", "figstyle/project.mplstyle", "figstyle/palette.json", "figstyle/gallery.py",
                   "analysis/figures.py", "renderer/demo/figures.py", "stimuli/cli_show.py",
-                  "devices/identify/figures.py")
+                  "devices/identify/figures.py", "renderer/demo/table3d.py")
+#: the 3-D demo's caption (``python -m renderer.demo.table3d``)
+TABLE3D_CAPTION = ("Figure 4.19's virtual samples side by side on a virtual table (examples/samples_table.toml), "
+                   "tapped by the simulated person on the 3-DOF sim at 0.08, 0.1 and 0.12 m/s: from above (pulse over "
+                   "the firm wall, the soft wall), 30 degrees off vertical (decaying sinusoid over the firm wall) and "
+                   "into the side of the very firm block. Left: the endpoint's paths and the contacts over the blocks' "
+                   "tops. Right: per tap the endpoint's depth behind the contacted surface and the force along the "
+                   "contact normal, aligned at contact; look at the transients (the pulse's step, the sinusoid's "
+                   "first cycle) acting along the normal whatever the tap's direction, and at the soft wall letting "
+                   "the tap in three times deeper.")
 SOURCES_FILE = "sources.sha256"
 
 
@@ -110,7 +119,8 @@ def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "
               str(seed), "--traces", "2"], root)
         _run([py, "-m", "analysis", "report", str(tmp / "data"), "--out", str(tmp / "report")], root)
         _run([py, "-m", "renderer", "demo", "--device", "sim", "--out", str(tmp / "demo"), "--scope", "none"], root)
-        for sub in ("study", "demo"):
+        _run([py, "-m", "renderer.demo.table3d", "--out", str(tmp / "table3d")], root)
+        for sub in ("study", "demo", "dof3"):
             shutil.rmtree(out / sub, ignore_errors=True)
             (out / sub).mkdir(parents=True)
         captions = _study_captions(tmp / "report" / "report.md")
@@ -135,6 +145,10 @@ def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "
                 continue
             md += [f"![{stem}](demo/{stem}.png)", "", caption, "",
                    "Files: " + ", ".join(f"[{n.rsplit('.', 1)[1].upper()}](demo/{n})" for n in files), ""]
+        md += ["## Three degrees of freedom (docs/renderer.md, \"3-D rendering\")", ""]
+        files = _copy(tmp / "table3d", "table3d", out / "dof3", formats)
+        md += ["![table3d](dof3/table3d.png)", "", TABLE3D_CAPTION, "",
+               "Files: " + ", ".join(f"[{n.rsplit('.', 1)[1].upper()}](dof3/{n})" for n in files), ""]
     readme = out / "README.md"
     readme.write_text("\n".join(md) + "\n", encoding="utf-8")
     (out / SOURCES_FILE).write_text(sources_digest(root), encoding="utf-8")

@@ -11,6 +11,7 @@ with a deprecation notice on stderr (:func:`add_renamed`).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 
@@ -82,3 +83,109 @@ def float_list(text: str) -> tuple[float, ...]:
         return tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+# -- argparse types: a bad value is one usage error line naming the flag ---------------------------------------
+
+def positive(flag: str):
+    """An argparse ``type``: a finite number > 0 (``--duration-s 2.5``).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        ``"<flag> must be a number, got '...'"`` or ``"<flag> must be > 0, got '...'"``.
+    """
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be a number, got {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{flag} must be > 0, got {text!r}")
+        return value
+    return parse
+
+
+def positive_list(flag: str):
+    """An argparse ``type``: comma-separated numbers, each finite and > 0 (the message names ``flag``)."""
+    item = positive(flag)
+    return lambda text: [item(part.strip()) for part in text.split(",")]
+
+
+def vector3(flag: str):
+    """An argparse type: three finite numbers ``x,y,z`` (a point in m or a direction), named by ``flag``."""
+    def parse(text: str) -> tuple[float, float, float]:
+        try:
+            vec = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be three numbers x,y,z, got {text!r}") from None
+        if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
+            raise argparse.ArgumentTypeError(f"{flag} must be three finite numbers x,y,z, got {text!r}")
+        return vec
+    return parse
+
+
+def integer(flag: str, low: int, high: int):
+    """An argparse ``type``: a whole number in ``low..high`` (``"<flag> must be low..high, got '...'"``)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be an integer, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{flag} must be {low}..{high}, got {text!r}")
+        return value
+    return parse
+
+
+def within(flag: str, limit: float, unit: str):
+    """An argparse ``type``: a finite number within ``+-limit`` (``"<flag> must be within +-<limit> <unit>"``)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be a number, got {text!r}") from None
+        if not (math.isfinite(value) and abs(value) <= limit):
+            raise argparse.ArgumentTypeError(f"{flag} must be within +-{limit:g} {unit}, got {text!r}")
+        return value
+    return parse
+
+
+def positive_numbers(what: str, unit: str, items: str = "numbers", none: bool = False):
+    """An argparse ``type``: comma-separated numbers > 0 (empty items skipped), at least one unless ``none``.
+
+    Parameters
+    ----------
+    what : str
+        What the numbers are, in the message (``"speeds"``: "speeds must be > 0 m/s").
+    unit : str
+        Their unit.
+    items : str
+        What a list item is, in the message of a list that does not parse ("expected comma-separated <items>").
+    none : bool
+        Accept ``none`` (and an empty list) for no values at all.
+    """
+    def parse(text: str) -> list[float]:
+        if none and text.strip().lower() == "none":
+            return []
+        try:
+            values = [float(x) for x in text.split(",") if x.strip()]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {items}, got {text!r}") from None
+        if (not values and not none) or any(not v > 0 for v in values):
+            raise argparse.ArgumentTypeError(f"{what} must be > 0 {unit}, got {text!r}")
+        return values
+    return parse
+
+
+def auto_or(flag: str, convert, what: str):
+    """An argparse ``type``: ``auto``, or a value ``convert`` accepts (``int``, ``float``); else
+    ``"<flag> must be 'auto' or <what>, got '...'"``."""
+    def parse(text: str):
+        if text == "auto":
+            return "auto"
+        try:
+            return convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} must be 'auto' or {what}, got {text!r}") from None
+    return parse

@@ -273,6 +273,24 @@ def release(rec: dict | None) -> None:
 
 
 @contextlib.contextmanager
+def realtime(priority: int = RT_PRIORITY, core: int | None = None, lock_memory: bool = True, fifo: bool = True):
+    """:func:`acquire` for the block and :func:`release` after it; the block gets the policy record."""
+    rec = acquire(priority, core=core, lock_memory=lock_memory, fifo=fifo)
+    try:
+        yield rec
+    finally:
+        release(rec)
+
+
+def freeze_startup_objects() -> None:
+    """Collect once, then keep every object now alive out of later collections (``gc.freeze``): a full
+    collection walks every object numba and numpy created at import (milliseconds), a pause a loop that runs
+    for the whole process (an emulator, a latency measurement) does not need. The collector stays on."""
+    gc.collect()
+    gc.freeze()
+
+
+@contextlib.contextmanager
 def gc_paused():
     """Freeze every object now alive out of the collector's generations and disable the cyclic collector for
     the block (a collection walks ~10^5 objects: milliseconds at a random tick); restored afterwards."""

@@ -68,11 +68,11 @@ class Component:
 
 COMPONENTS: dict[str, Component] = {c.name: c for c in (
     Component("portaudio", "PortAudio library (masking audio)", ("libportaudio2", "libjack-jackd2-0"),
-              "tests/study/test_audio.py"),
+              "tests/study/session/test_audio.py"),
     Component("espeak-ng", "espeak-ng speech synthesizer (spoken cues)", ("espeak-ng",),
-              "tests/study/test_audio.py (spoken cues)"),
+              "tests/study/session/test_audio.py (spoken cues)"),
     Component("chromium", "Chromium browser (headless view tests)", ("chromium",),
-              "tests/study/test_views_browser.py, tests/analysis/test_analysis_report.py"),
+              "tests/study/session/test_views_browser.py, tests/analysis/test_analysis_report.py"),
     Component("avr-toolchain", "AVR toolchain avr-gcc + avr-libc (firmware build)",
               ("gcc-avr", "binutils-avr", "avr-libc"), "tests/devices/firmware/test_c_firmware.py (AVR build)"),
     Component("simavr", "simavr AVR simulator and libsimavr (running the firmware)",

@@ -8,25 +8,17 @@ The names are loaded on first use (PEP 562 ``__getattr__``), so ``python -m rend
 import the servo loop.
 """
 
-import importlib
+from plumbing.lazy import lazy_exports
 
 _EXPORTS = {
     "RendererConfig": "config", "config_from_dict": "config", "load_config": "config", "load_scene": "config",
     "LOG_CHANNELS": "loop", "ContactEvent": "loop", "RunResult": "loop", "ServoLoop": "loop",
-    "run_in_process": "process",
+    "run_in_process": "process", "ServoLoop3": "loop3", "RunResult3": "loop3", "ContactEvent3": "loop3",
     "Box": "scene", "Plane": "scene", "Scene": "scene", "Sphere": "scene", "Wall": "scene", "parse_scene": "scene",
 }
 
 __all__ = ["ServoLoop", "RendererConfig", "RunResult", "ContactEvent", "LOG_CHANNELS", "load_config",
            "config_from_dict", "load_scene", "Scene", "Wall", "Plane", "Sphere", "Box", "parse_scene",
-           "run_in_process"]
+           "run_in_process", "ServoLoop3", "RunResult3", "ContactEvent3"]
 
-
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'renderer' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -127,6 +127,10 @@ def _run_into(args, folder) -> int:
     """The run, its files written into ``folder`` (an open :class:`plumbing.outdir.OutputFolder`)."""
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)
+    if cfg.effective_scene.needs_3d or args.device.startswith("sim:3d"):
+        from . import cli_run3  # deferred: numba, the 3-D law and trimesh, 0.6 s CPU that a 1-DOF run never pays
+
+        return cli_run3.run_into(args, folder, cfg, transient)
     simulated = args.device.split(":", 1)[0] == "sim"
     if simulated:
         provenance.prefetch()  # run.json's versions and git state, while the simulation runs

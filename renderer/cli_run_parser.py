@@ -16,32 +16,10 @@ The parser (light: imported for ``--help``); the body is :mod:`renderer.cli_run`
 
 from __future__ import annotations
 
-import argparse
-import math
-
-from plumbing.cliargs import add_renamed, with_examples
+from plumbing.cliargs import add_renamed, positive, positive_list, vector3, with_examples
 from plumbing.dispatch import Body
 
 TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
-
-
-def _positive(name):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
-        return value
-    return parse
-
-
-def _velocities(text: str) -> list[float]:
-    out = []
-    for part in text.split(","):
-        out.append(_positive("--velocity")(part.strip()))
-    return out
 
 
 def register(subparsers) -> None:
@@ -56,8 +34,11 @@ def register(subparsers) -> None:
                               description="Render a virtual wall under a (simulated or real) user tapping. On a sim device the "
                                           "simulated hand taps --taps times at --velocities-m-s and the run ends when "
                                           "it is done; on hardware it lasts --duration-s (or until Ctrl-C). Outputs: "
-                                          "events.csv, run.json, log.npz.")
-    p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, serial:<port>, hid:<vid>:<pid>")
+                                          "events.csv, run.json, log.npz. A 3-D scene (meshes, objects with their own stiffness, "
+                                          "friction or transient) or a 3-DOF device (sim:3d) renders with the "
+                                          "god-object proxy; the simulated person taps --tap-object from above or "
+                                          "--tap-target-m along --tap-direction.")
+    p.add_argument("--device", default="sim", help="device string: sim (default), sim:lti, sim:<file>, sim:3d[-delta|-serial], serial:<port>, hid:<vid>:<pid>")
     p.add_argument("--transient", default="none", choices=TRANSIENTS, help="contact transient (default none)")
     p.add_argument("--library", help="HFAM library file (needed for --transient hfam)")
     p.add_argument("--transient-gain", type=float, default=None,
@@ -67,13 +48,21 @@ def register(subparsers) -> None:
     add_renamed(p, "--damping-N-s-m", "--damping", dest="damping", type=float, default=None, help="virtual damping on entry (N s/m); default 0 or the config file's")
     p.add_argument("--config", help="renderer config/scene file (TOML or JSON, see docs/renderer.md); default: built-in settings")
     p.add_argument("--taps", type=int, default=10, help="sim: number of taps (default 10)")
-    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=_velocities, default=[0.1],
+    add_renamed(p, "--velocities-m-s", "--velocity", dest="velocity", type=positive_list("--velocity"), default=[0.1],
                    help="sim: tap speed in m/s (comma list: one per tap, cycled; default 0.1)")
     add_renamed(p, "--grip-N", "--grip", dest="grip", type=float, default=2.0, help="sim: grip force in N (default 2)")
     p.add_argument("--sample", default="placeholder", help="sim: real sample under the stylus (default placeholder)")
     p.add_argument("--seed", type=int, default=0, help="sim: noise seed (default 0)")
-    add_renamed(p, "--duration-s", "--duration", dest="duration", type=_positive("--duration"), default=None,
+    add_renamed(p, "--duration-s", "--duration", dest="duration", type=positive("--duration"), default=None,
                    help="run length in s (hardware default: until Ctrl-C; sim default: until the taps are done)")
+    p.add_argument("--tap-object", default=None,
+                   help="sim:3d: the scene object the simulated person taps (its name); default: whatever lies "
+                        "below the tap target")
+    p.add_argument("--tap-target-m", type=vector3("--tap-target-m"), default=None,
+                   help="sim:3d: the point tapped, x,y,z in m (default: the surface straight below the object's "
+                        "centre, or below the origin)")
+    p.add_argument("--tap-direction", type=vector3("--tap-direction"), default=(0.0, 0.0, -1.0),
+                   help="sim:3d: the direction the tap moves in, dx,dy,dz (default 0,0,-1: straight down)")
     p.add_argument("--realtime", action="store_true", help="sim: pace to wall-clock time (hardware always is)")
     p.add_argument("--in-process", action="store_true",
                    help="hardware: run the servo loop in this process instead of its own")

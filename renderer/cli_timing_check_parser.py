@@ -10,33 +10,8 @@ The parser (light: imported for ``--help``); the body is :mod:`renderer.cli_timi
 
 from __future__ import annotations
 
-import argparse
-import math
-
-from plumbing.cliargs import with_examples
+from plumbing.cliargs import integer, positive, with_examples
 from plumbing.dispatch import Body
-
-
-def _positive(name: str):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
-        return value
-    return parse
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--load-cores must be an integer, got {text!r}") from None
-    if not 0 <= value <= 64:
-        raise argparse.ArgumentTypeError(f"--load-cores must be 0..64, got {text!r}")
-    return value
 
 
 def register(subparsers) -> None:
@@ -49,18 +24,18 @@ def register(subparsers) -> None:
     """
     p = subparsers.add_parser("timing-check", help="check this machine's servo timing (cyclictest-like)",
                               description=__doc__.split("\n\n")[1].replace("\n", " ").replace("``", ""))
-    p.add_argument("--duration-s", type=_positive("--duration-s"), default=30.0, help="length of the check in s (default 30)")
-    p.add_argument("--rate-hz", type=_positive("--rate-hz"), default=10000.0, help="servo rate in Hz (default 10000)")
-    p.add_argument("--load-cores", type=_count, default=0,
+    p.add_argument("--duration-s", type=positive("--duration-s"), default=30.0, help="length of the check in s (default 30)")
+    p.add_argument("--rate-hz", type=positive("--rate-hz"), default=10000.0, help="servo rate in Hz (default 10000)")
+    p.add_argument("--load-cores", type=integer("--load-cores", 0, 64), default=0,
                    help="busy-looping processes to run beside the loop, the worst case of a busy PC (default 0)")
     p.add_argument("--device", default="quiet",
                    help="quiet (default: the loop alone) or a device string such as serial:/dev/ttyACM0 (motor "
                         "off, zero current; the link's round trip and gaps join the verdict)")
-    p.add_argument("--max-p99-us", type=_positive("--max-p99-us"), default=20.0,
+    p.add_argument("--max-p99-us", type=positive("--max-p99-us"), default=20.0,
                    help="threshold: period error p99 in us (default 20)")
-    p.add_argument("--max-p999-us", type=_positive("--max-p999-us"), default=50.0,
+    p.add_argument("--max-p999-us", type=positive("--max-p999-us"), default=50.0,
                    help="threshold: period error p99.9 in us (default 50)")
-    p.add_argument("--max-period-ms", type=_positive("--max-period-ms"), default=1.0,
+    p.add_argument("--max-period-ms", type=positive("--max-period-ms"), default=1.0,
                    help="threshold: longest period in ms (default 1; at least two nominal periods)")
     p.add_argument("--out", help="also write the check's figures and verdict to this JSON file")
     p.add_argument("--force", action="store_true", help="replace --out if it exists")

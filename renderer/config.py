@@ -233,7 +233,7 @@ class RendererConfig:
 CONFIG_KEYS = tuple(f.name for f in dataclasses.fields(RendererConfig))
 
 
-def config_from_dict(data: Mapping[str, Any], where: str = "config") -> RendererConfig:
+def config_from_dict(data: Mapping[str, Any], where: str = "config", base_dir: str = ".") -> RendererConfig:
     """Validate a mapping of :class:`RendererConfig` keys (``scene`` as a table) into a config.
 
     Raises
@@ -248,7 +248,7 @@ def config_from_dict(data: Mapping[str, Any], where: str = "config") -> Renderer
         if key not in CONFIG_KEYS:
             raise ValueError(f"{where}: unknown key {key!r} (known: {', '.join(CONFIG_KEYS)})")
         if key == "scene":
-            value = parse_scene(value, where=f"{where}: scene")
+            value = parse_scene(value, where=f"{where}: scene", base_dir=base_dir)
         elif isinstance(value, int) and not isinstance(value, bool) and key not in ("max_bad_samples", "until_every"):
             try:
                 value = float(value)
@@ -292,7 +292,7 @@ def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
                          f"{type(data).__name__} {data!r:.60}")
     data = dict(data)
     data.update(overrides)
-    return config_from_dict(data, where=str(path))
+    return config_from_dict(data, where=str(path), base_dir=str(path.parent))
 
 
 def load_scene(path: str | pathlib.Path) -> Scene:
@@ -308,5 +308,5 @@ def load_scene(path: str | pathlib.Path) -> Scene:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML: {exc}") from None
     if isinstance(data, dict) and "scene" in data:
-        return config_from_dict(data, where=str(path)).effective_scene
-    return parse_scene(data, where=str(path))
+        return config_from_dict(data, where=str(path), base_dir=str(path.parent)).effective_scene
+    return parse_scene(data, where=str(path), base_dir=str(path.parent))

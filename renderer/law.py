@@ -188,7 +188,10 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     # wall only leaks a little through sampling (of order k T v^2 per tap); an unstable loop keeps
     # generating energy, every cycle
     u = _wall_energy(c[C_K], c[C_PO_FC], d, nz)
-    e_po = w[W_PO_E] * c[C_PO_DECAY] + w[W_PO_F] * (pos - w[W_PO_X]) + u - w[W_PO_U]
+    if w[W_PO_U] == w[W_PO_U]:
+        e_po = w[W_PO_E] * c[C_PO_DECAY] + w[W_PO_F] * (pos - w[W_PO_X]) + u - w[W_PO_U]
+    else:   # the first tick after priming (NaN): the account starts here (renderer.loop.ServoLoop._prime)
+        e_po = 0.0
     w[W_PO_E] = e_po
     w[W_PO_X] = pos
     w[W_PO_U] = u

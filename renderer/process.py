@@ -29,6 +29,7 @@ Every way out zeroes the output (``plumbing.stopsignals``):
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import signal
@@ -46,17 +47,47 @@ from .loop import ServoLoop
 
 #: s the parent waits for the child at each step of ending it (stop event, SIGTERM, SIGKILL)
 STOP_GRACE_S = 5.0
+#: the start method of every servo process (this module's, the hardware demo's, the study's apparatus): "spawn",
+#: because forking a process that runs audio or UI threads is unsafe
+SPAWN = mp.get_context("spawn")
+
+
+def servo_process(target, args: tuple, name: str, duplex: bool = False):
+    """A servo child process, not yet started, and both ends of its pipe: ``target(child_conn, *args)``.
+
+    The one way every servo process of the project is made (``run_in_process``, the hardware demo's taps, the
+    study's apparatus): spawned (:data:`SPAWN`), a daemon. Start it, then close ``child_conn`` in the parent.
+
+    Returns
+    -------
+    (multiprocessing.Process, Connection, Connection)
+        The process, the parent's end and the child's end of the pipe.
+    """
+    parent_conn, child_conn = SPAWN.Pipe(duplex=duplex)
+    proc = SPAWN.Process(target=target, name=name, args=(child_conn, *args), daemon=True)
+    return proc, parent_conn, child_conn
+
+
+@contextlib.contextmanager
+def servo_child(parent_pid: int):
+    """The child side of every servo process, around its work: Ctrl-C is ignored (the parent decides and tells
+    it), SIGTERM and SIGHUP raise :class:`plumbing.stopsignals.Terminated` (the work's own ``finally`` zeroes
+    and closes the device; uncaught, the exit status is 128 + the signal's number), and the kernel sends SIGTERM
+    when the parent dies (``PR_SET_PDEATHSIG``; where that is missing the work polls
+    :class:`plumbing.stopsignals.ParentWatch`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with stop_on_signals(own_process=True):
+        die_with_parent(parent_pid)
+        yield
 
 
 def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, realtime, stop_event,
            nice, parent_pid, rt_request=None) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
     loop = None
     terminated = None
     try:
         # SIGTERM (the parent's timeout path, the parent's death) and SIGHUP: the loop's zeroing path
-        with stop_on_signals(own_process=True):
-            die_with_parent(parent_pid)
+        with servo_child(parent_pid):
             if nice:
                 try:  # a higher CFS priority until the loop asks for SCHED_FIFO around its paced ticks (rtpolicy)
                     os.nice(nice)
@@ -172,12 +203,10 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
 def _run_child(device, cfg, transient, duration_s, max_ticks, realtime, device_options, stop_event, timeout_s,
                nice, rt_request):
     """The body of :func:`run_in_process`: start the child, wait for its result, end it."""
-    ctx = mp.get_context("spawn")
-    stop = stop_event if stop_event is not None else ctx.Event()
-    parent_conn, child_conn = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, name="renderer-servo",
-                       args=(child_conn, device, device_options, cfg or RendererConfig(), transient,
-                             duration_s, max_ticks, realtime, stop, nice, os.getpid(), rt_request), daemon=True)
+    stop = stop_event if stop_event is not None else SPAWN.Event()
+    proc, parent_conn, child_conn = servo_process(_child, (device, device_options, cfg or RendererConfig(), transient,
+                                                           duration_s, max_ticks, realtime, stop, nice, os.getpid(),
+                                                           rt_request), "renderer-servo")
     message = None
     interrupted = False
     terminated = None

@@ -15,7 +15,8 @@ call and that ``renderer.law`` compiles into the servo law.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 Vec3 = tuple[float, float, float]
@@ -91,6 +92,7 @@ class Wall:
     """Horizontal 1-DOF wall: solid below ``height_m``, normal +z (a tap comes from above)."""
 
     height_m: float = 0.0
+    props: "SurfaceProps | None" = None
     shape = "wall"
 
     def penetration(self, p: Vec3) -> tuple[float, Vec3]:
@@ -112,6 +114,7 @@ class Plane:
 
     point_m: Vec3 = (0.0, 0.0, 0.0)
     normal: Vec3 = (0.0, 0.0, 1.0)
+    props: "SurfaceProps | None" = None
     shape = "plane"
 
     def __post_init__(self) -> None:
@@ -141,6 +144,7 @@ class Sphere:
 
     center_m: Vec3 = (0.0, 0.0, 0.0)
     radius_m: float = 0.05
+    props: "SurfaceProps | None" = None
     shape = "sphere"
 
     def penetration(self, p: Vec3) -> tuple[float, Vec3]:
@@ -173,6 +177,7 @@ class Box:
 
     center_m: Vec3 = (0.0, 0.0, 0.0)
     half_extents_m: Vec3 = (0.05, 0.05, 0.05)
+    props: "SurfaceProps | None" = None
     shape = "box"
 
     def penetration(self, p: Vec3) -> tuple[float, Vec3]:
@@ -198,12 +203,81 @@ class Box:
         return (*self.center_m, *self.half_extents_m)
 
 
+@dataclass(frozen=True)
+class Mesh:
+    """A closed triangle mesh read from an OBJ or STL file (3-D rendering only; ``renderer.mesh`` loads and checks it).
+
+    ``path`` is resolved against the scene file's folder; the file's coordinates are multiplied by
+    ``scale`` (e.g. 0.001 for a file in millimetres) and shifted by ``offset_m`` (device frame, m).
+    """
+
+    path: str = ""
+    scale: float = 1.0
+    offset_m: Vec3 = (0.0, 0.0, 0.0)
+    props: "SurfaceProps | None" = None
+    shape = "mesh"
+
+    def penetration_1d(self, z: float) -> tuple[float, float]:
+        """Not defined: a mesh renders only on the 3-D renderer (``renderer.loop3``)."""
+        raise ValueError(f"mesh {self.path!r}: meshes render only with the 3-D renderer")
+
+    def numbers(self) -> tuple[float, ...]:
+        """Not defined for the 1-DOF law (see :meth:`penetration_1d`)."""
+        raise ValueError(f"mesh {self.path!r}: meshes render only with the 3-D renderer")
+
+
+#: transients a scene object may name (``transient = "..."``); an HFAM object also names its ``library``
+OBJECT_TRANSIENTS = ("none", "pulse", "sinusoid", "hfam")
+
+
+@dataclass(frozen=True)
+class SurfaceProps:
+    """How one object of a 3-D scene feels: its own stiffness, friction and contact transient.
+
+    Attributes
+    ----------
+    name : str
+        The object's name (in errors, events and a study's trial table); default ``<shape><index>``.
+    stiffness_N_m : float or None
+        Its wall stiffness (N/m); None: the config's ``stiffness_N_m``.
+    mu_static, mu_dynamic : float
+        Coulomb friction coefficients (static >= dynamic >= 0) of the proxy on it (stick-slip).
+    transient : str or None
+        ``none``, ``pulse``, ``sinusoid`` or ``hfam`` (Table 4.1's parameters); None: the run's transient.
+    library : str or None
+        The HFAM library (.npz) of ``transient = "hfam"``.
+    sample : str or None
+        A virtual sample of the catalog (``stimuli.load_catalog``, Table 4.1: ``pulse_firm``, ...): its
+        stiffness and transient, unless given here.
+    force_shading : bool
+        Meshes: the force and the transient along the normal interpolated from the vertex normals.
+    """
+
+    name: str = ""
+    stiffness_N_m: float | None = None
+    mu_static: float = 0.0
+    mu_dynamic: float = 0.0
+    transient: str | None = None
+    library: str | None = None
+    sample: str | None = None
+    force_shading: bool = False
+
+    def is_default(self) -> bool:
+        """True when nothing here differs from a 1-DOF scene's object."""
+        return self == SurfaceProps(name=self.name)
+
+
+#: keys every object may carry besides its shape's own (``SurfaceProps``)
+PROP_KEYS = {"name": "str", "stiffness_N_m": "nonneg", "mu_static": "nonneg", "mu_dynamic": "nonneg",
+             "transient": "str", "library": "str", "sample": "str", "force_shading": "bool"}
+
 SHAPES: dict[str, tuple[type, dict[str, str]]] = {
-    # shape name -> (class, {key: kind}); kind "vec3" | "float" | "positive" | "vec3+"
+    # shape name -> (class, {key: kind}); kind "vec3" | "float" | "positive" | "vec3+" | "str"
     "wall": (Wall, {"height_m": "float"}),
     "plane": (Plane, {"point_m": "vec3", "normal": "vec3"}),
     "sphere": (Sphere, {"center_m": "vec3", "radius_m": "positive"}),
     "box": (Box, {"center_m": "vec3", "half_extents_m": "vec3+"}),
+    "mesh": (Mesh, {"path": "str", "scale": "positive", "offset_m": "vec3"}),
 }
 
 
@@ -212,11 +286,26 @@ class Scene:
     """A set of solid objects; :meth:`penetration` returns the deepest one's depth and normal."""
 
     objects: tuple = (Wall(0.0),)
+    source: str = field(default="scene", compare=False)
+    base_dir: str = field(default=".", compare=False)
 
     def __post_init__(self) -> None:
         if not self.objects:
             raise ValueError("scene.objects must contain at least one object")
         object.__setattr__(self, "_fns_1d", tuple(obj.penetration_1d for obj in self.objects))
+
+    @property
+    def needs_3d(self) -> bool:
+        """True if the scene needs the 3-D renderer (``renderer.loop3``): a mesh, or an object with its own
+        stiffness, friction, transient or sample."""
+        return any(isinstance(o, Mesh) or (o.props is not None and not o.props.is_default()) for o in self.objects)
+
+    def object_name(self, index: int) -> str:
+        """Object ``index``'s name (its ``name`` key, else ``<shape><index>``)."""
+        obj = self.objects[index]
+        if obj.props is not None and obj.props.name:
+            return obj.props.name
+        return f"{obj.shape}{index}"
 
     @property
     def single_wall(self) -> Wall | None:
@@ -256,12 +345,36 @@ class Scene:
             for key in SHAPES[obj.shape][1]:
                 value = getattr(obj, key)
                 entry[key] = list(value) if isinstance(value, tuple) else value
+            if obj.props is not None:
+                for key in PROP_KEYS:
+                    value = getattr(obj.props, key)
+                    if value != getattr(SurfaceProps(), key):
+                        entry[key] = value
             out.append(entry)
         return {"objects": out}
 
 
-def parse_scene(data: Mapping[str, Any], where: str = "scene") -> Scene:
+def _prop(value: Any, kind: str, where: str):
+    if kind == "str":
+        if not isinstance(value, str) or not value:
+            raise ValueError(f"{where} must be a non-empty text, got {value!r}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ValueError(f"{where} must be true or false, got {value!r}")
+        return value
+    v = _finite(value, where)
+    if v < 0:
+        raise ValueError(f"{where} must be >= 0, got {value!r}")
+    return v
+
+
+def parse_scene(data: Mapping[str, Any], where: str = "scene", base_dir: str = ".") -> Scene:
     """Build a :class:`Scene` from ``{"objects": [{"shape": ..., ...}, ...]}``.
+
+    Besides its shape's keys every object may carry :class:`SurfaceProps`' keys (``name``,
+    ``stiffness_N_m``, ``mu_static``, ``mu_dynamic``, ``transient``, ``library``, ``sample``,
+    ``force_shading``); a mesh's ``path`` and an HFAM ``library`` are resolved against ``base_dir``.
 
     Raises
     ------
@@ -287,13 +400,20 @@ def parse_scene(data: Mapping[str, Any], where: str = "scene") -> Scene:
             raise ValueError(f"{here}.shape: unknown shape {shape!r} (known: {', '.join(SHAPES)})")
         cls, keys = SHAPES[shape]
         kwargs = {}
+        props = {}
         for key, value in raw.items():
             if key == "shape":
                 continue
+            if key in PROP_KEYS:
+                props[key] = _prop(value, PROP_KEYS[key], f"{here}.{key}")
+                continue
             if key not in keys:
-                raise ValueError(f"{here}: unknown key {key!r} for shape {shape!r} (allowed: {', '.join(keys)})")
+                raise ValueError(f"{here}: unknown key {key!r} for shape {shape!r} (allowed: "
+                                 f"{', '.join([*keys, *PROP_KEYS])})")
             kind = keys[key]
-            if kind == "float":
+            if kind == "str":
+                kwargs[key] = _prop(value, "str", f"{here}.{key}")
+            elif kind == "float":
                 kwargs[key] = _finite(value, f"{here}.{key}")
             elif kind == "positive":
                 kwargs[key] = _finite(value, f"{here}.{key}", positive=True)
@@ -304,5 +424,22 @@ def parse_scene(data: Mapping[str, Any], where: str = "scene") -> Scene:
                 if key == "normal" and not math.hypot(*vec) > 0:
                     raise ValueError(f"{here}.normal must be a non-zero vector")
                 kwargs[key] = vec
+        if shape == "mesh" and "path" not in kwargs:
+            raise ValueError(f"{here}: a mesh needs its 'path' (an OBJ or STL file)")
+        if props:
+            mu_s, mu_d = props.get("mu_static", 0.0), props.get("mu_dynamic", 0.0)
+            if mu_d > mu_s:
+                raise ValueError(f"{here}: mu_dynamic={mu_d:g} exceeds mu_static={mu_s:g} (Coulomb friction: "
+                                 "static >= dynamic)")
+            tr = props.get("transient")
+            if tr is not None and tr not in OBJECT_TRANSIENTS:
+                raise ValueError(f"{here}.transient: unknown transient {tr!r} (known: {', '.join(OBJECT_TRANSIENTS)})")
+            if tr == "hfam" and "library" not in props:
+                raise ValueError(f"{here}: transient 'hfam' needs its 'library' (an HFAM library .npz)")
+            if "library" in props:
+                props["library"] = os.path.join(base_dir, props["library"])
+            kwargs["props"] = SurfaceProps(**props)
+        if shape == "mesh":
+            kwargs["path"] = os.path.join(base_dir, kwargs["path"])
         built.append(cls(**kwargs))
-    return Scene(tuple(built))
+    return Scene(tuple(built), source=where, base_dir=base_dir)

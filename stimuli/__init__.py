@@ -4,7 +4,7 @@ See docs/architecture.md ("stimuli") for the contract and docs/hfam_library.md f
 The names are loaded on first use (PEP 562 ``__getattr__``), so ``python -m stimuli --help`` stays fast.
 """
 
-import importlib
+from plumbing.lazy import lazy_exports
 
 _EXPORTS = {"CatalogSample": "catalog", "load_catalog": "catalog", "HfamLibrary": "library",
             "DecayingSinusoid": "transients", "NoTransient": "transients", "Pulse": "transients",
@@ -12,11 +12,4 @@ _EXPORTS = {"CatalogSample": "catalog", "load_catalog": "catalog", "HfamLibrary"
 
 __all__ = ["Pulse", "DecayingSinusoid", "NoTransient", "HfamLibrary", "Transient", "CatalogSample", "load_catalog"]
 
-
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'stimuli' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,14 +1,14 @@
-"""Blind realism study runner (thesis section 4.5): protocol, apparatus, masking audio, views, crash-safe data.
+"""Sessions with people (or a simulated participant) on the haptic device: thesis section 4.5 and its
+psychophysics (``python -m study run``, docs/study.md).
 
-Command: ``python -m study run`` (see docs/study.md). Modules:
-
-``protocol``      replayable seeded schedule (familiarization, demonstration, testing, redraws)
-``data``          session folder: session.json, trials.csv, schedule.jsonl, traces/*.npz
-``apparatus``     device + one renderer.ServoLoop per sample + homing (renderer.homing); sim hand and samples
-``isolated``      the apparatus in its own process (hardware default)
-``audio``         white-noise masker with cues through sounddevice/PortAudio
-``uistate``       state shared by the runner and the views; the abort signal
-``webui``         subject and operator views (local HTTP server)
-``participants``  simulated participant; ``rater``: synthetic rater (pipeline test, not perception)
-``runner``        one attempt and the session loop; ``cli_run``: the ``run`` command
+``session``       the machinery every experiment shares: set-up of device, audio, timing check and views on one
+                  path (``run``), the record and resume checks (``setup``), the crash-safe store (``store``),
+                  the attempt loop (``loop``), the interface an experiment kind implements (``kind``),
+                  apparatus (device, servo loops, homing; ``isolated``: in its own process), masking audio,
+                  the views (``webui``, ``uistate``), participants and the synthetic rater, servo timing, seeds
+``ratings``       the blind real-vs-virtual rating study: its schedule and its attempt
+``forcedchoice``  the forced-choice experiments (real vs virtual, discrimination, detection): the
+                  ``[experiment]`` table, the plan, the simulated participant's judgments, the attempt
+``cli_run``       the ``run`` command (parser: ``cli_run_parser``); ``cli_simulate_observer`` and
+                  ``observer_figures``: an adaptive method against a simulated observer (psychophysics)
 """

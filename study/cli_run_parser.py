@@ -22,7 +22,7 @@ from __future__ import annotations
 from plumbing.cliargs import add_renamed, with_examples
 from plumbing.dispatch import Body
 
-from .choices import EXPERIENCE, GENDERS, HANDEDNESS
+from plumbing.studyfiles import EXPERIENCE, GENDERS, HANDEDNESS
 
 
 def register(subparsers) -> None:

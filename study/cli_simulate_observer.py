@@ -13,10 +13,15 @@ The body; the parser is :mod:`study.cli_simulate_observer_parser`.
 from __future__ import annotations
 
 import argparse
+import csv
+import io
+import json
+from pathlib import Path
 
-from plumbing.fileio import check_output_dir, clear_products
+from plumbing.fileio import atomic_write_text, check_output_dir, clear_products
+from psychophysics.simulate import SimulationSettings, estimate_record, simulate
 
-from study.simulate import SimulationSettings, simulate, write_results
+from .observer_figures import plot_precision, plot_track
 
 #: what the command writes (replaced with --force)
 PRODUCTS = ("estimate.json", "trials.csv", "runs.csv", "precision.csv", "precision.png", "precision.svg",
@@ -43,3 +48,39 @@ def run(args: argparse.Namespace) -> int:
         print(f"{settings.repeat} runs: median |error| {last['median_abs_error_pct']:.1f} %, 90th percentile "
               f"{last['p90_abs_error_pct']:.1f} %, within 20 %: {100 * last['within_20pct']:.0f} % of runs")
     return 0
+
+
+def _csv(rows: list[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+    w.writeheader()
+    for row in rows:
+        w.writerow({k: repr(v) if isinstance(v, float) else v for k, v in row.items()})
+    return buf.getvalue()
+
+
+def write_results(result: dict, out, figures: bool = True) -> list:
+    """Write estimate.json, trials.csv, runs.csv and precision.csv (several runs) and the figures into ``out``.
+
+    Every file is written atomically (a kill leaves the old file or the new one, never half of one).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s: SimulationSettings = result["settings"]
+    written = [atomic_write_text(out / "estimate.json", json.dumps(estimate_record(result), indent=2) + "\n"),
+               atomic_write_text(out / "trials.csv", _csv(result["tracks"]))]
+    if s.repeat > 1:
+        written += [atomic_write_text(out / "runs.csv", _csv(result["runs"])),
+                    atomic_write_text(out / "precision.csv", _csv(result["precision"]))]
+    if figures:
+        first = result["first"]
+        written += list(plot_track(first["track"], out / "staircase.png", reference=result["reference"],
+                                   estimate=first["estimate"]["threshold"], title=s.method).values())
+        if s.repeat > 1:
+            written += list(plot_precision(result["precision"], out / "precision.png", title=s.method).values())
+    return written

@@ -14,9 +14,8 @@ import argparse
 
 from plumbing.cliargs import with_examples
 from plumbing.dispatch import Body
+from psychophysics.names import METHOD_NAMES
 
-#: the methods (kept here: the parser loads no numpy or scipy)
-METHOD_NAMES = ("updown", "weighted", "quest+", "psi")
 
 def register(subparsers) -> None:
     """Add the ``simulate-observer`` command.

@@ -28,7 +28,7 @@ import pytest  # noqa: E402
 
 from tests.support import cpuprofile, parallel  # noqa: E402
 from tests.support.demo import default_pipeline_cache  # noqa: E402
-from tests.support.shared import shared_value  # noqa: E402
+from tests.support.shared import shared_folder, shared_value  # noqa: E402
 
 _warmup: list = []
 
@@ -84,3 +84,26 @@ def default_demo(tmp_path_factory):
         return res
 
     return shared_value(tmp_path_factory, "default_demo", run)
+
+
+@pytest.fixture(scope="session")
+def fake_hd(tmp_path_factory):
+    """libfakehd.so, a fake OpenHaptics HD library (tests/devices/hardware/contract/fake_hd/fake_hd.c), compiled
+    once per test run for every worker (tests/support/shared.py): the Touch adapter's tests and its
+    ``renderer run`` load it through ``$HFAM_OPENHAPTICS_LIB``."""
+    import subprocess
+    from pathlib import Path
+
+    from plumbing import sysdeps
+
+    from tests.support.needs import need
+
+    need("cc")
+    src = Path(__file__).resolve().parent / "devices" / "hardware" / "contract" / "fake_hd" / "fake_hd.c"
+
+    def build(folder):
+        r = subprocess.run(["cc", "-shared", "-fPIC", "-O2", "-o", str(folder / "libfakehd.so"), str(src),
+                            "-lpthread", "-lm"], capture_output=True, text=True, timeout=60, env=sysdeps.tool_env())
+        assert r.returncode == 0, r.stderr
+
+    return shared_folder(tmp_path_factory, "fakehd", build) / "libfakehd.so"

@@ -13,10 +13,11 @@ See ``docs/sim.md`` and ``docs/architecture.md`` ("Sim device")::
 """
 
 from .device import SimDevice
+from .sim3 import Sim3Device, tap_frame
 from .hand import HoldTrajectory, ReactiveHand, ScriptedTrajectory, TapTrajectory
 from .person import DEFAULT_PERSON, PRESCRIBED, Person
 from .params import SimParams, default_params, load_sim_params, params_from_dict
 from .samples import SAMPLES, SampleParams, get_sample
 
-__all__ = ["SimDevice", "SimParams", "TapTrajectory", "ScriptedTrajectory", "HoldTrajectory", "ReactiveHand", "Person", "DEFAULT_PERSON", "PRESCRIBED", "SAMPLES",
+__all__ = ["SimDevice", "Sim3Device", "tap_frame", "SimParams", "TapTrajectory", "ScriptedTrajectory", "HoldTrajectory", "ReactiveHand", "Person", "DEFAULT_PERSON", "PRESCRIBED", "SAMPLES",
            "SampleParams", "get_sample", "load_sim_params", "default_params", "params_from_dict"]

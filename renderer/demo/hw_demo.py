@@ -16,9 +16,7 @@ per tap (velocity and grip as measured).
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import os
-import signal
 import sys
 from pathlib import Path
 
@@ -28,12 +26,12 @@ import numpy as np
 
 from devices.registry import make_device
 from plumbing.outdir import output_folder
-from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, stop_on_signals
+from plumbing.stopsignals import ParentWatch, Terminated, stop_on_signals
 from stimuli import HfamLibrary
 
 from ..config import RendererConfig
 from ..loop import ServoLoop
-from ..process import end_child
+from ..process import SPAWN, end_child, servo_child, servo_process
 from . import figures as figs
 from . import metrics as dm
 from . import runs
@@ -48,14 +46,11 @@ SPARK = " ▁▂▃▄▅▆▇█"
 def _child(conn, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop, parent_pid) -> None:
     """Servo process: run the loop until ``n_taps`` contacts are over, ``timeout_s`` or ``stop``.
 
-    SIGTERM/SIGHUP, and the parent's death, stop it with the output zeroed (as in renderer.process)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
+    SIGTERM/SIGHUP, and the parent's death, stop it with the output zeroed (renderer.process.servo_child)."""
     loop = None
     terminated = None
     try:
-        with stop_on_signals(own_process=True):
-            die_with_parent(parent_pid)
+        with servo_child(parent_pid):
             dev = make_device(spec)
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
@@ -186,16 +181,13 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
     ring for the scope. Ctrl-C stops the run cleanly (the child zeroes the device); so do SIGTERM and
     SIGHUP, after which :class:`plumbing.stopsignals.Terminated` is raised (``partial_result``: the run).
     """
-    ctx = mp.get_context("spawn")
-    ring = ctx.RawArray("d", 3 * RING)
-    ring_n = ctx.RawValue("q", 0)
-    events = ctx.RawArray("d", 1 + 2 * MAX_EVENTS)
-    stop = ctx.Event()
-    parent, child = ctx.Pipe(duplex=False)
+    ring = SPAWN.RawArray("d", 3 * RING)
+    ring_n = SPAWN.RawValue("q", 0)
+    events = SPAWN.RawArray("d", 1 + 2 * MAX_EVENTS)
+    stop = SPAWN.Event()
     cfg = cfg.replace(until_every=1)
-    proc = ctx.Process(target=_child, name="demo-servo",
-                       args=(child, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop, os.getpid()),
-                       daemon=True)
+    proc, parent, child = servo_process(_child, (spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop,
+                                                 os.getpid()), "demo-servo")
     msg = None
     terminated = None
     with stop_on_signals():

@@ -12,7 +12,7 @@
               ``python -m stimuli score-hfam``)
 """
 
-import importlib
+from plumbing.lazy import lazy_exports
 
 _EXPORTS = {"BuildReport": "build", "build_library": "build", "file_digest": "build",
             "format_verification": "build", "source_entry": "build", "band_sos": "inversion",
@@ -26,11 +26,4 @@ __all__ = ["MAX_SMOOTH_HZ", "BuildReport", "BuildSettings", "Selection", "band_s
            "file_digest", "format_verification", "forward_simulate", "highpass_target", "invert", "make_proper",
            "hfam_claims", "nrmse_corr", "pipeline_libraries", "score_pipeline", "select_taps", "source_entry"]
 
-
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'stimuli.hfam' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

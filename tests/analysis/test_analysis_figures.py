@@ -17,7 +17,7 @@ from analysis.report import write_report
 from analysis.stats import valid_testing
 from analysis.traces import typical_taps
 
-from ..needs import chromium
+from tests.support.needs import chromium
 
 
 @pytest.fixture(scope="module")

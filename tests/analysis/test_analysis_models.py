@@ -29,6 +29,8 @@ from analysis.pipeline import AnalysisConfig, analyse
 from analysis.report import write_report
 from analysis.synthetic import DEFAULT_SAMPLES, expected_ratings, write_synthetic_study
 
+from tests.support.models import coverage_study
+
 REF = "wood_on_foam"
 
 
@@ -164,19 +166,14 @@ def test_mixed_model_equals_statsmodels_formula_fit(analysed):
     assert c["estimate"] == pytest.approx(e[c["sample_a"]] - e[c["sample_b"]], abs=1e-12)
 
 
-def test_mixed_model_recovers_the_generators_effects():
+def test_mixed_model_recovers_the_generators_effects(tmp_path):
     """8 synthetic studies (the benchmark runs 50: benchmarks/bench_models.py) of 12 subjects: the true effects
     on the generator's 1-7 scale lie inside the 95 % CIs in >= 90 % of the 88 (study, effect) cases."""
-    import tempfile
-    from pathlib import Path
-
-    from benchmarks.bench_models import coverage_study
     covered = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(8):
-            got, info, _ = coverage_study(Path(tmp), 1000 + seed, 12)
-            assert info["fitted"]
-            covered += list(got.values())
+    for seed in range(8):
+        got, info, _ = coverage_study(tmp_path, 1000 + seed, 12)
+        assert info["fitted"]
+        covered += list(got.values())
     assert len(covered) == 88
     assert np.mean(covered) >= 0.90
 

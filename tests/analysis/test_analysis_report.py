@@ -235,7 +235,7 @@ def test_report_html_renders_in_chromium(report):
     """The self-contained report opens in Debian's headless Chromium with every figure decoded."""
     from playwright.sync_api import sync_playwright
 
-    from ..needs import chromium
+    from tests.support.needs import chromium
     out, _ = report
     exe = chromium()
     with sync_playwright() as p:

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from analysis.synthetic import write_synthetic_study
-from tests.files import tree_hashes
+from tests.support.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[2]
 

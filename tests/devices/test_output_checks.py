@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.files import sha256
-from tests.stimuli.conftest import minimum_phase_model
 from tests.support.cli import run_cli
+from tests.support.files import sha256
+from tests.support.stimuli import minimum_phase_model
 
 
 @pytest.fixture

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 
 from analysis.synthetic import write_synthetic_study
-from tests.files import tree_hashes
 from tests.support.cli import run_cli
+from tests.support.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.emulated import drain, recording_emulator
-from tests.procs import running
+from tests.support.emulated import drain, recording_emulator
+from tests.support.procs import running
 
 ROOT = Path(__file__).resolve().parents[2]
 

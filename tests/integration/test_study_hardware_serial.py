@@ -19,7 +19,7 @@ import pytest
 
 from devices.firmware.emulator import start_emulator
 
-from tests.study.helpers import read_rows, read_session, write
+from tests.support.study import read_rows, read_session, write
 
 ROOT = Path(__file__).resolve().parents[2]
 

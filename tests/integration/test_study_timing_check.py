@@ -12,7 +12,7 @@ from pathlib import Path
 
 from devices.firmware.emulator import start_emulator
 
-from tests.study.helpers import write
+from tests.support.study import write
 
 ROOT = Path(__file__).resolve().parents[2]
 MUST_FAIL = ('familiarization_sample = ""\ntap_window_s = 2.0\nservo_watchdog_s = 0.25\ntiming_check_s = 1.5\n'

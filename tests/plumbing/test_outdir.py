@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from plumbing.outdir import FileLock, OutputBusy, output_folder
-from tests.files import tree_hashes
-from tests.procs import kill
+from tests.support.files import tree_hashes
+from tests.support.procs import kill
 
 #: a writer in its own process: writes one file into the staging folder, says so, then waits for a line
 WRITER = textwrap.dedent("""

@@ -11,7 +11,7 @@ from renderer.demo.config import DemoConfig
 from renderer.homing import HomingConfig
 from renderer.teleop.session import TeleopConfig
 from stimuli.hfam.settings import BuildSettings, PipelineSettings
-from study.config import ProtocolConfig
+from study.session.config import ProtocolConfig
 
 
 class _Cfg:

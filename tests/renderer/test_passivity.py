@@ -114,3 +114,22 @@ def test_even_a_wall_that_saturates_within_micrometres_is_not_stopped_for_tappin
         res, ratio, _ = _run(1e6, (TapTrajectory(TAPS), grip), duration_s=TAPS_S)
         assert res.stop_reason == "duration" and len(res.events) >= len(TAPS)
         assert ratio < 0.5, (grip, ratio)
+
+
+def test_a_handle_that_entered_the_wall_before_the_first_tick_is_no_instability(monkeypatch):
+    """The account starts at the first tick: energy the wall stores because the hand pushed in between the
+    priming read and that tick (the law's warm-up, a loaded machine) was put in against no force."""
+    prime = ServoLoop._prime
+
+    def slow_prime(self, warm_law=True):
+        prime(self, warm_law)
+        self.device.set_user(-0.01, 2.0, "prescribed")   # the hand, above the wall at priming, is now 10 mm in
+        for _ in range(10):
+            self.device.command(0.0)
+            self.device.read()
+
+    monkeypatch.setattr(ServoLoop, "_prime", slow_prime)
+    res, ratio, loop = _run(680.0, (0.005, 2.0, "prescribed"), duration_s=0.5, compiled=False)
+    assert res.stop_reason == "duration" and ratio < 0.5, res.error
+    # the wall stores more at tick 0 than the observer's limit: counted as generated, it would stop the run there
+    assert wall_energy(680.0, loop._law_c[LAW.C_PO_FC], res.log["penetration_m"][0], 1.0) > loop._law_c[LAW.C_PO_LIMIT]

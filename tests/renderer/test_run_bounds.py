@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from renderer.__main__ import main
-from tests.files import tree_hashes
+from tests.support.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))   # the code of this tree, not another installed copy

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from renderer import RendererConfig, run_in_process
-from tests.procs import kill
+from tests.support.procs import kill
 from tests.renderer.fakes import make_recording_device, recorded_currents
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.files import sha256
-from tests.stimuli.conftest import minimum_phase_model, synthetic_taps, write_taps_csv
+from tests.support.files import sha256
+from tests.support.stimuli import minimum_phase_model, synthetic_taps, write_taps_csv
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -13,9 +13,9 @@ from devices.recording import record_taps, write_tap_recording
 from devices.sim import SimDevice
 from stimuli import HfamLibrary
 from stimuli.__main__ import main
-from tests.files import sha256
 from tests.support.cli import run_cli
-from tests.stimuli.conftest import (
+from tests.support.files import sha256
+from tests.support.stimuli import (
     minimum_phase_model,
     rhp_zero_model,
     synthetic_taps,

@@ -14,8 +14,8 @@ import pytest
 
 import figstyle
 from study.__main__ import main
-from study.methods import method_from_state
-from study.observer import ObserverParams
+from psychophysics.methods import method_from_state
+from psychophysics.observer import ObserverParams
 
 ROOT = Path(__file__).resolve().parents[2]
 

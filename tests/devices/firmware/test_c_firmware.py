@@ -9,7 +9,7 @@ import pytest
 from plumbing import sysdeps
 from devices.hardware import wire_protocol as P
 
-from ...needs import need
+from tests.support.needs import need
 
 FIRMWARE = Path(__file__).resolve().parents[3] / "devices" / "firmware"
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from plumbing import sysdeps
 
-from ...needs import need
+from tests.support.needs import need
 
 FIRMWARE = Path(__file__).resolve().parents[3] / "devices" / "firmware"
 PLAIN_PATH = "/usr/bin:/bin"   # what a new user's shell has: no .deps/bin

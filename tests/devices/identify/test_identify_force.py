@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from devices.__main__ import main as devices_main
-from tests.files import tree_hashes
+from tests.support.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[3]
 FAST = ["--device", "sim", "--grips-N", "2", "--trials", "2", "--duration-s", "0.5", "--workers", "1"]

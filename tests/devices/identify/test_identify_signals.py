@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.files import tree_hashes
-from tests.procs import kill, running
+from tests.support.files import tree_hashes
+from tests.support.procs import kill, running
 
 ROOT = Path(__file__).resolve().parents[3]
 ARGS = ["--device", "sim", "--grips-N", "1,2,3", "--trials", "2", "--duration-s", "1", "--workers", "2"]

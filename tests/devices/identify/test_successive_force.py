@@ -10,7 +10,7 @@ from pathlib import Path
 import devices.identify.successive.procedure as procedure
 from devices.__main__ import main as devices_main
 from devices.identify.successive import StageError
-from tests.files import tree_hashes
+from tests.support.files import tree_hashes
 
 QUICK = ["identify", "--method", "successive", "--device", "sim", "--stages", "timing,amplifier", "--no-figures"]
 

@@ -10,7 +10,7 @@ from devices.model import ZpkModel
 from stimuli.hfam import (BuildSettings, band_sos, build_library, format_verification, highpass_target, invert,
                           make_proper, nrmse_corr, select_taps)
 from stimuli.recordings import Tap, read_tap_csv
-from tests.stimuli.conftest import (FS_HZ, minimum_phase_model, pair, rhp_zero_model, synthetic_accel, synthetic_taps,
+from tests.support.stimuli import (FS_HZ, minimum_phase_model, pair, rhp_zero_model, synthetic_accel, synthetic_taps,
                                     write_taps_csv)
 
 VELOCITIES = (0.04, 0.07, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3)

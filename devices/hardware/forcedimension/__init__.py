@@ -1,0 +1,1 @@
+"""Force Dimension devices (omega, sigma, delta, and the Falcon through their SDK) via ``forcedimension-core``."""

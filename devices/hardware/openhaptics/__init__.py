@@ -1,0 +1,1 @@
+"""3D Systems Touch / Phantom through OpenHaptics' HD API (ctypes; the vendor's library is optional)."""

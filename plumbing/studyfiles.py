@@ -1,0 +1,431 @@
+"""The study's files, defined once: what ``study`` writes and ``analysis`` reads (format: docs/study.md).
+
+One folder per subject::
+
+    DATA/<subject>/session.json            subject details and settings (read_session_json)
+    DATA/<subject>/trials.csv              the rating study: one row per attempt (RATING);
+                                           a forced-choice session: one row per trial (FORCED_CHOICE)
+    DATA/<subject>/schedule.jsonl          planned orders, redraws, invalid attempts, resumes (a JSON object
+                                           per line)
+    DATA/<subject>/staircase_state.jsonl   an adaptive forced-choice session: each trial's staircase state
+    DATA/<subject>/traces/<phase>_t<trial:03d>_a<attempt:02d>.npz
+
+Here are the columns and their types, the subject details' choices, the row formats (a row's values as
+written and read back, every value checked) and the readers of ``session.json`` and of a ``trials.csv``'s
+text. Light on purpose (the standard library only): ``python -m study run --help`` lists the choices.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import io
+import json
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+SESSION_JSON = "session.json"
+TRIALS_CSV = "trials.csv"
+SCHEDULE_JSONL = "schedule.jsonl"
+STATE_JSONL = "staircase_state.jsonl"
+TRACES_DIR = "traces"
+
+# -- subject details (section 4.5.3's form) ------------------------------------------------------------------
+GENDERS = ("female", "male", "other", "unspecified")
+HANDEDNESS = ("right", "left", "ambidextrous", "unspecified")
+#: prior haptic experience: never, a few times, regularly
+EXPERIENCE = ("none", "few", "regular")
+#: spellings of the form accepted for the stored codes
+EXPERIENCE_ALIASES = {"never": "none", "a few times": "few", "regularly": "regular"}
+
+# -- the rating study's trials.csv -------------------------------------------------------------------------
+PHASES = ("familiarization", "demonstration", "testing")
+KINDS = ("real", "virtual")
+RATING_MIN, RATING_MAX = 1, 7
+RATING_COLUMNS = (
+    "subject", "phase", "trial", "attempt", "sample", "kind", "rating", "rejected", "saturated", "overpowered",
+    "valid", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m", "incoming_velocities_m_s",
+    "penetration_depths_m", "started_at", "duration_s", "ends_familiarization",
+)
+#: every column but ``ends_familiarization``: what every rating trials.csv holds (the whole header of the
+#: sessions recorded before the flag existed; their familiarization's end is in schedule.jsonl)
+RATING_CORE_COLUMNS = RATING_COLUMNS[:-1]
+BOOL_COLUMNS = ("rejected", "saturated", "overpowered", "valid")
+INT_COLUMNS = ("trial", "attempt", "n_taps")
+FLOAT_COLUMNS = ("incoming_velocity_mean_m_s", "penetration_mean_m", "duration_s")
+#: ';'-joined lists, one value per tap
+LIST_COLUMNS = ("incoming_velocities_m_s", "penetration_depths_m")
+
+# -- a forced-choice session's trials.csv -----------------------------------------------------------------
+FORCED_CHOICE_COLUMNS = (
+    "subject", "trial", "attempt", "condition", "staircase", "intensity", "intensity_physical", "correct",
+    "is_catch", "response", "target_interval", "sample_1", "sample_2", "n_taps_1", "n_taps_2",
+    "incoming_velocity_mean_1_m_s", "incoming_velocity_mean_2_m_s", "penetration_mean_1_m", "penetration_mean_2_m",
+    "sim_percept_1", "sim_percept_2", "started_at", "duration_s",
+)
+FORCED_CHOICE_INT_COLUMNS = ("trial", "attempt", "correct", "is_catch", "target_interval", "n_taps_1", "n_taps_2")
+FORCED_CHOICE_FLOAT_COLUMNS = ("intensity", "intensity_physical", "incoming_velocity_mean_1_m_s",
+                               "incoming_velocity_mean_2_m_s", "penetration_mean_1_m", "penetration_mean_2_m",
+                               "sim_percept_1", "sim_percept_2", "duration_s")
+#: the columns a psychometric fit reads (``analysis psychometric``; a CSV from any software needs the first two)
+FIT_COLUMNS = ("intensity", "correct")
+FIT_OPTIONAL_COLUMNS = ("subject", "condition", "staircase", "trial", "is_catch")
+
+
+# -- reading session.json ------------------------------------------------------------------------------------
+
+def read_file_text(path, encoding: str = "utf-8") -> str:
+    """The text of a subject's file; a missing file, a directory in its place, an unreadable or non-UTF-8 file
+    give one error naming the file (and the line of a bad byte).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``"<path> is missing (every subject folder needs session.json and trials.csv)"``.
+    ValueError
+        ``"<path>: is a directory, expected a file"``, ``"<path>: cannot be read (...)"``,
+        ``"<path>:<line>: not UTF-8 text (<reason> at byte <n>)"``.
+    """
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} is missing (every subject folder needs {SESSION_JSON} and "
+                                f"{TRIALS_CSV})") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a directory, expected a file") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror})") from None
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
+def read_session_json(path) -> dict:
+    """Read one ``session.json`` (the one reader: the study on ``--resume``, the analysis' loaders).
+
+    Returns
+    -------
+    dict
+        The JSON object as written (the readers check the keys they use).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file and, where there is one, the line: not UTF-8, empty, truncated or not valid
+        JSON, not an object.
+    """
+    text = read_file_text(path)
+    if not text.strip():
+        raise ValueError(f"{path}: empty file; {SESSION_JSON} is damaged")
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as exc:
+        if exc.pos >= len(text.rstrip()):
+            raise ValueError(f"{path}:{exc.lineno}: truncated JSON ({exc.msg}, column {exc.colno}); "
+                             f"{SESSION_JSON} is damaged") from None
+        raise ValueError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}, column {exc.colno})") from None
+    if not isinstance(raw, dict):
+        raise ValueError(f"{path}:1: {SESSION_JSON} must hold a JSON object, found {type(raw).__name__}")
+    return raw
+
+
+# -- the row formats ---------------------------------------------------------------------------------------
+
+def _fmt_bool(value: bool) -> str:
+    return "true" if value else "false"
+
+
+def _fmt_float(value) -> str:
+    return "" if value is None or value != value else repr(float(value))
+
+
+def format_rating_row(row: dict) -> dict:
+    """A rating study's attempt as CSV strings (lists ';'-joined, booleans true|false, rating empty if None)."""
+    out = {}
+    for key in RATING_COLUMNS:
+        value = row.get(key) if key == "ends_familiarization" else row[key]
+        if key in BOOL_COLUMNS:
+            out[key] = _fmt_bool(value)
+        elif key in LIST_COLUMNS:
+            out[key] = ";".join(repr(float(v)) for v in value)
+        elif key in FLOAT_COLUMNS:
+            out[key] = _fmt_float(value)
+        elif key == "rating":
+            out[key] = "" if value is None else str(int(value))
+        elif key == "ends_familiarization":
+            out[key] = _fmt_bool(bool(row.get(key, False)))
+        else:
+            out[key] = str(value)
+    return out
+
+
+def _number(text: str, key: str, empty_ok: bool) -> float | None:
+    """A finite number >= 0 written by :func:`format_rating_row` (``None`` for an empty cell when ``empty_ok``)."""
+    if text == "" and empty_ok:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{key}={text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{key}={text!r} must be a finite number >= 0")
+    return value
+
+
+def _check_rating_values(raw: dict, row: dict) -> None:
+    """Ranges and consistency of one parsed row (what :func:`format_rating_row` can write); ValueError otherwise."""
+    if row["phase"] not in PHASES:
+        raise ValueError(f"phase={raw['phase']!r} is not one of {'|'.join(PHASES)}")
+    if row["kind"] not in KINDS:
+        raise ValueError(f"kind={raw['kind']!r} is not one of {'|'.join(KINDS)}")
+    if not row["sample"]:
+        raise ValueError("sample is empty")
+    for key, low in (("trial", 1), ("attempt", 1), ("n_taps", 0)):
+        if row[key] < low:
+            raise ValueError(f"{key}={raw[key]!r} must be >= {low}")
+    rating = row["rating"]
+    if rating is not None and not RATING_MIN <= rating <= RATING_MAX:
+        raise ValueError(f"rating={raw['rating']!r} is not {RATING_MIN}-{RATING_MAX} (or empty)")
+    if rating is not None and (row["rejected"] or row["phase"] == "familiarization"):
+        raise ValueError(f"rating={raw['rating']!r} on a {'rejected' if row['rejected'] else 'familiarization'} "
+                         "attempt, which has none")
+    if row["valid"] and (row["saturated"] or row["overpowered"] or row["rejected"]):
+        raise ValueError("valid=true on an attempt marked rejected, saturated or overpowered")
+    if row["valid"] and row["phase"] != "familiarization" and (rating is None or not row["n_taps"]):
+        raise ValueError("valid=true on a rated phase's attempt without a rating or without taps")
+    if row["ends_familiarization"] and row["phase"] != "familiarization":
+        raise ValueError(f"ends_familiarization=true on a {row['phase']} attempt")
+    for key in ("incoming_velocity_mean_m_s", "penetration_mean_m", "duration_s"):
+        _number(raw[key], key, empty_ok=True)
+    for key in LIST_COLUMNS:
+        values = [_number(x, key, empty_ok=False) for x in raw[key].split(";")] if raw[key] else []
+        if len(values) != row["n_taps"]:
+            raise ValueError(f"{key} lists {len(values)} values but n_taps={row['n_taps']}")
+    try:
+        _dt.datetime.fromisoformat(raw["started_at"])
+    except (TypeError, ValueError):
+        raise ValueError(f"started_at={raw['started_at']!r} is not an ISO 8601 time") from None
+
+
+def _check_field_count(raw: dict, where: str) -> None:
+    if None in raw:  # csv.DictReader puts the fields beyond the header under the key None
+        raise ValueError(f"{where}: {len(raw) - 1 + len(raw[None])} fields, the header has {len(raw) - 1}")
+    if any(value is None for value in raw.values()):  # ... and fills a short row's missing fields with None
+        n = sum(value is not None for value in raw.values())
+        raise ValueError(f"{where}: {n} fields, the header has {len(raw)}")
+
+
+def parse_rating_row(raw: dict, where: str) -> dict:
+    """Inverse of :func:`format_rating_row`, checking every field (count, type, range, consistency: what the
+    runner can write); errors name ``where`` (file and line)."""
+    _check_field_count(raw, where)
+    row = dict(raw)
+    row.setdefault("ends_familiarization", None)  # an older file: the transition is in schedule.jsonl
+    try:
+        if row["ends_familiarization"] is not None:
+            if raw["ends_familiarization"] not in ("true", "false"):
+                raise ValueError(f"ends_familiarization={raw['ends_familiarization']!r} is not true|false")
+            row["ends_familiarization"] = raw["ends_familiarization"] == "true"
+        for key in BOOL_COLUMNS:
+            if raw[key] not in ("true", "false"):
+                raise ValueError(f"{key}={raw[key]!r} is not true|false")
+            row[key] = raw[key] == "true"
+        row["trial"] = int(raw["trial"])
+        row["attempt"] = int(raw["attempt"])
+        row["rating"] = int(raw["rating"]) if raw["rating"] else None
+        row["n_taps"] = int(raw["n_taps"])
+        _check_rating_values(raw, row)
+    except (KeyError, ValueError) as exc:
+        raise ValueError(f"{where}: bad value ({exc})") from None
+    return row
+
+
+def _rating_sequence(row: dict, where: str, state: dict) -> None:
+    """The row continues the file's sequence: phases in order (familiarization, demonstration, testing),
+    each ``(phase, trial, attempt)`` once, and a trial's attempts numbered 1, 2, ... as they were run."""
+    seen, attempts = state.setdefault("seen", set()), state.setdefault("attempts", {})
+    phase_at = state.get("phase_at", 0)
+    key = (row["phase"], row["trial"], row["attempt"])
+    if key in seen:
+        raise ValueError(f"{where}: {row['phase']} trial {row['trial']} attempt {row['attempt']} is recorded twice")
+    if PHASES.index(row["phase"]) < phase_at:
+        raise ValueError(f"{where}: a {row['phase']} attempt after the {PHASES[phase_at]} phase began")
+    expected = attempts.get(key[:2], 0) + 1
+    if row["attempt"] != expected:
+        raise ValueError(f"{where}: {row['phase']} trial {row['trial']} attempt {row['attempt']}, expected attempt "
+                         f"{expected} (attempts are numbered 1, 2, ... as they run)")
+    seen.add(key)
+    attempts[key[:2]] = expected
+    state["phase_at"] = PHASES.index(row["phase"])
+
+
+def format_forced_choice_row(row: dict) -> dict:
+    """A forced-choice trial as CSV strings (floats by repr, NaN/None as empty, ints as ints)."""
+    out = {}
+    for key in FORCED_CHOICE_COLUMNS:
+        value = row[key]
+        if key in FORCED_CHOICE_FLOAT_COLUMNS:
+            out[key] = "" if value is None or (isinstance(value, float) and math.isnan(value)) else repr(float(value))
+        elif key in FORCED_CHOICE_INT_COLUMNS:
+            out[key] = str(int(value))
+        else:
+            out[key] = str(value)
+    return out
+
+
+def parse_forced_choice_row(raw: dict, where: str) -> dict:
+    """Inverse of :func:`format_forced_choice_row`; a bad value raises ValueError naming ``where``."""
+    _check_field_count(raw, where)
+    row = dict(raw)
+    try:
+        for key in FORCED_CHOICE_INT_COLUMNS:
+            row[key] = int(raw[key])
+        for key in FORCED_CHOICE_FLOAT_COLUMNS:
+            row[key] = float(raw[key]) if raw[key] != "" else math.nan
+        if row["correct"] not in (0, 1) or row["is_catch"] not in (0, 1) or row["target_interval"] not in (1, 2):
+            raise ValueError("correct/is_catch must be 0|1 and target_interval 1|2")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: bad value ({exc})") from None
+    return row
+
+
+def _forced_choice_sequence(row: dict, where: str, state: dict) -> None:
+    """Trials are consecutive, one row each (an invalid attempt is in schedule.jsonl, not here)."""
+    expected = state.get("trials", 0) + 1
+    if row["trial"] != expected:
+        raise ValueError(f"{where}: trial {row['trial']}, expected {expected} (trials are consecutive)")
+    state["trials"] = expected
+
+
+@dataclass(frozen=True)
+class RowFormat:
+    """One kind of trials.csv: its columns, the headers a file may have, a row written and read back.
+
+    Attributes
+    ----------
+    what : str
+        What the file records, for messages ("rating study", "forced-choice session").
+    columns : tuple of str
+        The header a new file gets.
+    headers : tuple of tuple
+        Every header a file may have (``columns`` and those of older versions).
+    format : callable
+        ``format(row) -> dict`` of CSV strings (:func:`format_rating_row`, ...).
+    parse : callable
+        ``parse(raw, where) -> row``, every value checked; ValueError naming ``where``.
+    follows : callable
+        ``follows(row, where, state)``: the row continues the file (``state``, a dict, carries what came before).
+    """
+
+    what: str
+    columns: tuple
+    headers: tuple
+    format: Callable[[dict], dict]
+    parse: Callable[[dict, str], dict]
+    follows: Callable[[dict, str, dict], None]
+
+    def line(self, row: dict, columns: tuple | None = None) -> str:
+        """``row`` as one CSV line (with its newline) under ``columns`` (default: :attr:`columns`)."""
+        buf = io.StringIO()
+        csv.DictWriter(buf, columns or self.columns, lineterminator="\n", extrasaction="ignore").writerow(
+            self.format(row))
+        return buf.getvalue()
+
+    def header_line(self) -> str:
+        """The header of a new file, with its newline."""
+        buf = io.StringIO()
+        csv.writer(buf, lineterminator="\n").writerow(self.columns)
+        return buf.getvalue()
+
+    def whole_last_row(self, head: bytes, last: bytes, where: str) -> bool:
+        """Whether ``last`` (a line without its newline, after the lines ``head``) is a complete, valid row
+        (or, with nothing before it, a complete header)."""
+        try:
+            first = head.split(b"\n", 1)[0].decode("utf-8") if head else None
+            header = next(csv.reader([first]), None) if first is not None else None
+            fields = list(csv.reader(io.StringIO(last.decode("utf-8") + "\n")))
+            if header is None:
+                return len(fields) == 1 and tuple(fields[0]) in self.headers
+            if len(fields) != 1 or len(fields[0]) != len(header):
+                return False
+            self.parse(dict(zip(header, fields[0])), where)
+            return True
+        except (UnicodeDecodeError, ValueError, csv.Error):
+            return False
+
+
+RATING = RowFormat("rating study", RATING_COLUMNS, (RATING_COLUMNS, RATING_CORE_COLUMNS), format_rating_row,
+                   parse_rating_row, _rating_sequence)
+FORCED_CHOICE = RowFormat("forced-choice session", FORCED_CHOICE_COLUMNS, (FORCED_CHOICE_COLUMNS,),
+                          format_forced_choice_row, parse_forced_choice_row, _forced_choice_sequence)
+
+
+class DamagedRow(ValueError):
+    """A trials.csv row that does not parse, or does not follow the rows before it (the message names the
+    file and line)."""
+
+
+def parse_trials(fmt: RowFormat, data: bytes, path, subject: str | None = None) -> tuple[list[dict], tuple]:
+    """Every row of a trials.csv's bytes, parsed and checked: the one reader of the study's trials files.
+
+    Parameters
+    ----------
+    fmt : RowFormat
+        :data:`RATING` or :data:`FORCED_CHOICE`.
+    data : bytes
+        The file's content (a last line torn by a crash already dealt with: the study's store mends it).
+    path : str or Path
+        The file, named in messages.
+    subject : str or None
+        The session's subject: every row must name it.
+
+    Returns
+    -------
+    (list of dict, tuple)
+        The rows (typed by ``fmt.parse``) and the file's header.
+
+    Raises
+    ------
+    ValueError
+        Not UTF-8, or a header that is none of ``fmt.headers`` (naming the file).
+    DamagedRow
+        A line that is not CSV, a row with a bad value or out of sequence (naming file and line).
+    """
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path} line {line}: not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r}); "
+                         f"{TRIALS_CSV} is damaged") from None
+    reader = csv.DictReader(io.StringIO(text))
+    try:
+        header = tuple(reader.fieldnames or ())
+    except csv.Error as exc:
+        raise DamagedRow(f"{path} line 1: not CSV ({exc})") from None
+    if header not in fmt.headers:
+        raise ValueError(f"{path}: header {list(header)} is not the {fmt.what}'s {list(fmt.columns)}")
+    rows, state = [], {}
+    try:
+        for raw in reader:
+            where = f"{path} line {reader.line_num}"
+            try:
+                row = fmt.parse(raw, where)
+                if subject is not None and row["subject"] != subject:
+                    raise ValueError(f"{where}: subject={row['subject']!r}, but the session is {subject!r}")
+                fmt.follows(row, where, state)
+            except ValueError as exc:
+                raise DamagedRow(str(exc)) from None
+            rows.append(row)
+    except csv.Error as exc:  # the DictReader's own line_num is that of the last row it returned
+        raise DamagedRow(f"{path} line {reader.reader.line_num}: not CSV ({exc})") from None
+    return rows, header
+
+
+def trace_name(phase: str, trial: int, attempt: int) -> str:
+    """The file name of one attempt's (or interval's) traces: ``<phase>_t<trial:03d>_a<attempt:02d>.npz``."""
+    return f"{phase}_t{trial:03d}_a{attempt:02d}.npz"
+
