@@ -17,7 +17,7 @@ LATER  := /site-packages/(pandas|statsmodels|patsy|pyarrow|playwright|_pytest|py
 # files; ~3 s of the first compile on 2 cores): nothing here imports them
 THEIRTESTS := /site-packages/.*/tests/
 
-.PHONY: demo test bench venv deps system-deps clean gallery
+.PHONY: demo test bench venv deps system-deps clean gallery artefacts
 
 $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
@@ -46,7 +46,7 @@ venv: $(STAMP)
 demo: $(STAMP)
 	@# the README's demo, repeatable: it replaces its own out/demo (and says so); `python -m renderer demo`
 	@# itself refuses an --out that holds earlier results unless --force
-	$(PY) -m renderer demo --device sim --force
+	$(PY) -m renderer demo --device sim:onedof --force
 
 # on TEST_WORKERS cores (pytest-xdist): modules are the units of work, costly ones first, the numba cache
 # filled once while the workers start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
@@ -61,9 +61,15 @@ deps: $(STAMP)
 bench: $(STAMP) $(COMPILED)
 	$(PY) -m benchmarks
 
-# the figure gallery of the docs (docs/gallery/): a synthetic study's report and the sim demo
+# every shipped artefact derived from the sim, rebuilt and stamped (plumbing/artefacts.py): the default HFAM
+# library, then the docs gallery (a simulated 16-subject study's report and the sim demo) and the README's
+# figures; tests/plumbing/test_artefacts.py fails when one no longer matches the code that made it. About 5 minutes.
+artefacts: $(STAMP) $(COMPILED)
+	$(PY) -m plumbing.artefacts rebuild
+
+# the gallery alone (docs/gallery/, docs/img/), stamped
 gallery: $(STAMP) $(COMPILED)
-	$(PY) -m figstyle.gallery --out docs/gallery
+	$(PY) -m plumbing.artefacts rebuild gallery
 
 # Debian packages: PortAudio for sounddevice, espeak-ng for the study's spoken cues,
 # Chromium for the browser tests, the AVR toolchain to build the reference firmware.

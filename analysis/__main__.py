@@ -16,6 +16,12 @@ COMMANDS = (
             "number of subjects for the next study (difference and equivalence tests)", blas_threads=1),
     Command("psychometric", "analysis.cli_psychometric_parser",
             "psychometric fits (threshold, slope, lapse, PSE, JND) of forced-choice data", blas_threads=1),
+    Command("adjustment", "analysis.cli_adjustment_parser",
+            "method of adjustment: PSE, spread (JND estimate) and constant error", blas_threads=1),
+    Command("magnitude", "analysis.cli_magnitude_parser", "magnitude estimation: Stevens' power law per subject and pooled",
+            blas_threads=1),
+    Command("export-bids", "analysis.cli_export_bids_parser",
+            "write the study as a BIDS dataset (beh events, motion traces, participants)", blas_threads=1),
     Command("synthetic", "analysis.cli_synthetic_parser", "write a synthetic study folder in the study's data format",
             blas_threads=1),
 )

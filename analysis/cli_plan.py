@@ -6,6 +6,7 @@ The body; the parser is :mod:`analysis.cli_plan_parser`.
 from __future__ import annotations
 
 import argparse
+import math
 import warnings
 from pathlib import Path
 
@@ -32,8 +33,12 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_dir(args.out, args.force)
     if args.pilot is not None:
         check_data_folder(args.pilot)
+    if args.dz is not None and not math.isfinite(args.dz):
+        raise ValueError(f"--dz must be a finite number (an effect size d_z), got {args.dz}")
     if args.dz is not None and args.dz == 0:
         raise ValueError("--dz must not be 0: there is no effect to detect")
+    if not math.isfinite(args.sd_diff):
+        raise ValueError(f"--sd-diff must be a finite number of rating points, got {args.sd_diff}")
 
     if args.pilot is not None:
 
@@ -51,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
                                 comparisons=_given(args.comparisons, k * (k - 1) // 2),
                                 equivalence_comparisons=_given(args.equivalence_comparisons, k - 1))
         matrix = rating_matrix(study)
-        if len(matrix.subjects) < 2:
-            raise ValueError(f"--pilot {args.pilot}: {len(matrix.subjects)} subject(s); a pilot needs 2 or more to "
-                             "estimate d_z")
+        if len(matrix.subjects) < 2:     # every row says why it has no sample size; the plan is still written
+            print(f"warning: --pilot {args.pilot}: {len(matrix.subjects)} subject(s); a pilot needs 2 or more to "
+                  "estimate d_z: no row gets a sample size (plan with --dz instead)")
         plan = pilot_plan(matrix, args.reference, settings)
     else:
         if not args.sd_diff > 0:
@@ -63,8 +68,11 @@ def run(args: argparse.Namespace) -> int:
                                 equivalence_comparisons=_given(args.equivalence_comparisons, DEFAULT_EQUIVALENCE))
         plan = assumed_plan(args.dz, args.sd_diff, settings)
 
-    written = write_plan(plan, out)
+    notes: list[str] = []
+    written = write_plan(plan, out, notes)
     for r in plan.itertuples():
         print(plan_line(r))
+    for n in notes:
+        print(f"warning: {n}")
     print(f"wrote {', '.join(p.name for p in written)} into {out}")
     return 0

@@ -27,7 +27,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "plan", help="number of subjects for the next study (difference and equivalence tests)",
         description="Subjects needed for a target power: for two-sided paired t-tests at an assumed d_z "
-                    "(--dz) or at every pair's d_z observed in a pilot study folder (--pilot, with its 95 %% CI), "
+                    "(--dz) or at every pair's d_z observed in a pilot study folder (--pilot, with its 95 % CI), "
                     "and for paired TOST equivalence at ±--margin rating points; α is Holm-corrected over the "
                     "planned comparisons (planned at α/m, Holm's first step). Numbers from statsmodels' "
                     "TTestPower. Prints one line per comparison and writes plan.csv and a power-curve figure "

@@ -27,7 +27,7 @@ class AnalysisConfig:
     alpha : float
         Significance level of the summary and of ``equivalent``.
     models : bool
-        Fit the mixed and ordinal models of every attempt (issue 35; skipped above
+        Fit the mixed and ordinal models of every attempt (skipped above
         ``analysis.models.MODELS_MAX_SUBJECTS`` subjects with a note).
     """
 

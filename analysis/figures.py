@@ -144,7 +144,7 @@ def _matrices(pairwise: pd.DataFrame, samples) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _bf10_matrix(pairwise: pd.DataFrame, samples) -> np.ndarray:
-    """Symmetric matrix (k, k) of the pairs' JZS BF10 (issue 35), NaN where untested or without the column."""
+    """Symmetric matrix (k, k) of the pairs' JZS BF10, NaN where untested or without the column."""
     k = len(samples)
     bf = np.full((k, k), np.nan)
     if "bf10" in pairwise:
@@ -369,7 +369,7 @@ def fig_accelerations(taps: dict, samples, target_v_m_s: float, path: Path, labe
     return figstyle.save(fig, path, data, force=True)   # into the report folder the command owns
 
 
-# ------------------------------------------------------------------ issue 35: ordinal model, planning
+# ------------------------------------------------------------------ ordinal model, planning
 def build_ordinal_probs(probabilities: pd.DataFrame):
     """Probability of each rating 1-7 per sample from the proportional-odds model, as stacked bars.
 

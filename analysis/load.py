@@ -1,4 +1,4 @@
-"""Load and validate a folder of study sessions (schema of issue 6, docs/study.md).
+"""Load and validate a folder of study sessions (the study's files, docs/study.md).
 
 ``DATA/<subject>/session.json`` + ``DATA/<subject>/trials.csv`` per subject.
 Plain files (the study runner's format) are read as one buffer by pyarrow's typed CSV
@@ -164,7 +164,7 @@ def read_session(path) -> dict:
 
 
 def servo_timing_text(raw: dict) -> str:
-    """Whether a session's servo met the timing thresholds, in words, from its session.json (issue 40).
+    """Whether a session's servo met the timing thresholds, in words, from its session.json.
 
     Reads ``timing_check`` / ``timing_checks`` (the check before a hardware session, with
     ``accepted_override``) and ``servo_timing`` (its tapping windows' verdicts); written by ``study run``.
@@ -528,8 +528,8 @@ def _check_consistency(t: pd.DataFrame, kinds: dict) -> None:
 
 
 def _check_tap_values(numbers: np.ndarray, row: np.ndarray, files, lines, column: str) -> None:
-    """Every listed velocity (m/s, a magnitude) and penetration (m) is a finite number >= 0 (issue 38:
-    inf, nan or a negative value flowed into sample_summary.csv); ValueError names file, line and value."""
+    """Every listed velocity (m/s, a magnitude) and penetration (m) is a finite number >= 0 (so
+    inf, nan or a negative value never flows into sample_summary.csv); ValueError names file, line and value."""
     bad = ~(np.isfinite(numbers) & (numbers >= 0))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
@@ -674,7 +674,7 @@ def _bad_list_cell(cells, files, lines, column) -> None:
 def _string_trials(folders: list) -> tuple[pd.DataFrame, list] | None:
     """Every trials.csv as text columns (Arrow-backed strings, no Python object per cell), or None.
 
-    The error path of plain files (issue 38, item 4: a 367 MB trials.csv with one bad cell peaked at
+    The error path of plain files (a 367 MB trials.csv with one bad cell peaked at
     9.3 GB in the exact reader, which holds every cell as a Python string, twice): pyarrow reads the
     cells untyped, so a value the typed read refused is kept as written for the checks and their message,
     at about the file's size in memory. Plain as for :func:`_fast_trials` (a file at a time); anything

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
 
 from analysis import models, stats
+from analysis.failures import attempt
 from analysis.config import DEFAULT_MARGIN, DEFAULT_REFERENCE, AnalysisConfig  # noqa: F401 (re-export)
 from analysis.load import AnalysisWarning, Study, load_study
 
@@ -27,7 +28,25 @@ class Analysis:
     attempts: pd.DataFrame
     exclusions: pd.DataFrame
     warnings: tuple
-    models: models.ModelResults | None = None   # issue 35: mixed and ordinal models of every attempt
+    models: models.ModelResults | None = None   # mixed and ordinal models of every attempt
+    #: the parts that could not be computed: ``{table attribute: [plain reasons]}`` (their tables are empty and
+    #: the report says why in their sections; analysis.failures)
+    failures: dict = field(default_factory=dict)
+
+
+#: the columns of each table, for the empty table of a part that could not be computed
+EMPTY_COLUMNS = {
+    "summary": ("sample", "kind", "n_subjects", "n_attempts", "mean_rating", "median_rating", "sem_rating",
+                "ci95_low_rating", "ci95_high_rating", "sd_rating_attempts", "n_taps", "penetration_mean_m",
+                "penetration_sd_m", "incoming_velocity_mean_m_s", "incoming_velocity_sd_m_s"),
+    "pairwise": stats.PAIRWISE_COLUMNS, "anova": stats.ANOVA_COLUMNS, "equivalence": stats.EQUIVALENCE_COLUMNS,
+    "velocity": ("sample", "n_attempts", "n_subjects", "r", "p", "r_rm", "df_rm", "p_rm"),
+    "attempts": ("subject", "attempts", "valid", "saturated", "rejected", "overpowered", "invalid_other"),
+}
+
+
+def _empty(attr: str) -> pd.DataFrame:
+    return pd.DataFrame(columns=list(EMPTY_COLUMNS[attr]))
 
 
 def _exclusion_table(matrix: stats.RatingMatrix, group_names) -> pd.DataFrame:
@@ -45,7 +64,7 @@ def _exclusion_table(matrix: stats.RatingMatrix, group_names) -> pd.DataFrame:
 
 def analyse(data_dir, config: AnalysisConfig | None = None, sessions: tuple | None = None,
             loaded=None) -> Analysis:
-    """Run every table of issue 7 on the study in ``data_dir``.
+    """Run every table of the report on the study in ``data_dir``.
 
     Parameters
     ----------
@@ -86,26 +105,49 @@ def analyse(data_dir, config: AnalysisConfig | None = None, sessions: tuple | No
         detail = "; ".join(f"{r.subject} ({r.missing_samples.replace(';', ', ')})" for r in exclusions.itertuples())
         warn(f"{len(exclusions)} subject(s) miss sample(s) and are excluded from the tests needing them "
              f"(RM-ANOVA/Friedman need every sample; pairwise and equivalence tests need both samples): {detail}")
+    # every table is its own part: one that cannot be computed on these data is said (failures), the others are
+    # still computed (analysis.failures)
+    failures: dict = {}
+
+    def part(attr, what, fn, *args):
+        notes = []
+        got = attempt(what, notes, fn, *args)
+        if notes:
+            failures.setdefault(attr, []).extend(notes)
+            return _empty(attr) if attr in EMPTY_COLUMNS else None
+        return got
+
     pair_tables, anova_tables, eq_tables = [], [], []
     for name, m in selected.items():
         if len(m.subjects) < 2:
             warn(f"group {name!r} has {len(m.subjects)} subject(s): its tests give no result (need 2 or more)")
-        pair_tables.append(stats.pairwise_ttests(m, name))
-        anova_tables.append(stats.omnibus(m, name))
-        eq_tables.append(stats.equivalence(m, name, config.reference, config.margin, config.alpha))
-    pairwise = pd.concat(pair_tables, ignore_index=True)
+        pair_tables.append(part("pairwise", f"paired t-tests ({name} subjects)", stats.pairwise_ttests, m, name))
+        anova_tables.append(part("anova", f"RM-ANOVA and Friedman test ({name} subjects)", stats.omnibus, m, name))
+        eq_tables.append(part("equivalence", f"equivalence tests ({name} subjects)", stats.equivalence, m, name,
+                              config.reference, config.margin, config.alpha))
+    pairwise = pd.concat(pair_tables, ignore_index=True) if any(len(t) for t in pair_tables) else _empty("pairwise")
     # the models use every subject (as the group 'all'); their directions are compared with its t-tests
     if config.models:
         all_pairs = pairwise[pairwise["group"] == "all"] if "all" in selected else \
-            stats.pairwise_ttests(matrix, "all")
-        fitted = models.fit_models(study, config.reference, all_pairs, config.alpha)
+            part("pairwise", "paired t-tests (all subjects, for the models)", stats.pairwise_ttests, matrix, "all")
+        model_notes = []
+        fitted = attempt("models", model_notes, models.fit_models, study, config.reference, all_pairs, config.alpha)
+        if fitted is None:
+            fitted = models.skipped(model_notes[0])
     else:
         fitted = models.skipped("models not requested (--no-models)")
+
+    def joined(tables, attr):
+        kept = [t for t in tables if len(t)]
+        return pd.concat(kept, ignore_index=True) if kept else _empty(attr)
+
     return Analysis(
-        study=study, config=config, matrix=matrix, summary=stats.sample_summary(study, matrix),
-        pairwise=pairwise, anova=pd.concat(anova_tables, ignore_index=True),
-        equivalence=pd.concat(eq_tables, ignore_index=True), velocity=stats.velocity_rating(study),
-        attempts=stats.attempt_counts(study), exclusions=exclusions, warnings=tuple(messages), models=fitted)
+        study=study, config=config, matrix=matrix,
+        summary=part("summary", "sample summary", stats.sample_summary, study, matrix),
+        pairwise=pairwise, anova=joined(anova_tables, "anova"), equivalence=joined(eq_tables, "equivalence"),
+        velocity=part("velocity", "velocity-rating correlations", stats.velocity_rating, study),
+        attempts=part("attempts", "attempt counts", stats.attempt_counts, study), exclusions=exclusions,
+        warnings=tuple(messages), models=fitted, failures=failures)
 
 
 TABLE_FILES = {
@@ -115,7 +157,7 @@ TABLE_FILES = {
 }
 
 
-#: the models' tables (issue 35): attribute of :class:`analysis.models.ModelResults` per file
+#: the models' tables: attribute of :class:`analysis.models.ModelResults` per file
 MODEL_TABLE_FILES = {
     "models_fixed_effects.csv": "fixed", "models_emm.csv": "emm", "models_contrasts.csv": "contrasts",
     "models_ordinal_probabilities.csv": "probabilities",

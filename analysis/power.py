@@ -1,4 +1,4 @@
-"""Planning the next study's size (issue 35; command :mod:`analysis.cli_plan`).
+"""Planning the next study's size (command :mod:`analysis.cli_plan`).
 
 Every number comes from statsmodels' power of the one-sample t-test (``TTestPower``, the paired
 t-test on the per-subject differences: noncentral t with df = n - 1, noncentrality d_z sqrt(n)):
@@ -13,6 +13,10 @@ t-test on the per-subject differences: noncentral t with df = n - 1, noncentrali
   3.1.9; TOSTER's ``powerTOSTpaired``), a lower bound of the exact TOST power;
 * from a pilot, each pair's observed d_z with its 95 % CI (noncentral-t inversion, Steiger & Fouladi
   1997) and, for equivalence, its observed mean difference and SD of the differences.
+
+Every row of a plan fails alone: a pilot pair whose d_z or interval cannot be computed (every subject
+gave the same difference, a noncentral t that scipy cannot evaluate) gets no sample size and a plain
+``note`` saying why; the other rows, the table and the figure are still written.
 """
 
 from __future__ import annotations
@@ -26,12 +30,16 @@ from scipy import optimize
 from scipy import stats as sps
 from statsmodels.stats.power import TTestPower
 
+from analysis.failures import reason
 from plumbing.validation import require_number
 
 PLAN_COLUMNS = ("test", "sample_a", "sample_b", "source", "n_pilot", "dz", "dz_ci_low", "dz_ci_high",
                 "mean_diff", "sd_diff", "margin", "comparisons", "alpha_each", "power_target", "n_required",
                 "power_at_n", "note")
 N_MAX = 100_000      # above this many subjects a plan is reported as not reachable
+#: an SD of the differences below this share of their magnitude is rounding (per-subject means of whole-number
+#: ratings that differ by the same amount give an SD of ~1e-16, not 0, and a d_z of ~1e16)
+ZERO_SD_RELATIVE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -112,6 +120,15 @@ def power_tost(delta_dz: float, margin_dz: float, n: int, alpha_each: float) -> 
 
 def smallest_n(power_of, target: float, n_max: int = N_MAX) -> int | None:
     """Smallest n >= 2 with ``power_of(n) >= target`` (power rising with n), or None above ``n_max``."""
+    raw = power_of
+
+    def checked(n):
+        p = raw(n)
+        if not np.isfinite(p):
+            raise ValueError(f"the power at n = {n} is not a number (statsmodels' noncentral t returned {p})")
+        return p
+
+    power_of = checked
     if power_of(n_max) < target:
         return None
     lo, hi = 2, 2
@@ -138,11 +155,23 @@ def dz_ci(dz: float, n: int, level: float = 0.95) -> tuple[float, float]:
     tail = (1 - level) / 2
 
     def at(q):
-        f = lambda ncp: sps.nct.sf(t, df, ncp) - q    # noqa: E731  rises with ncp
+        def f(ncp):      # rises with ncp
+            v = float(sps.nct.sf(t, df, ncp)) - q
+            if not np.isfinite(v):
+                raise ValueError(f"the noncentral t (df {df}, t = {t:.4g}) cannot be evaluated at noncentrality "
+                                 f"{ncp:.4g}")
+            return v
+        # the interval of a small pilot is wide (with 3 subjects its upper end can be several times t): widen
+        # the bracket until it holds the root
         width = 10.0 + abs(t)
-        return optimize.brentq(f, t - width, t + width, xtol=1e-10)
+        for _ in range(40):
+            if f(t - width) < 0 < f(t + width):
+                return optimize.brentq(f, t - width, t + width, xtol=1e-10)
+            width *= 2.0
+        raise ValueError(f"no noncentrality within ±{width:.3g} of t = {t:.4g} puts it at the {q:g} tail")
 
-    return at(tail) / math.sqrt(n), at(1 - tail) / math.sqrt(n)
+    with np.errstate(all="ignore"):
+        return at(tail) / math.sqrt(n), at(1 - tail) / math.sqrt(n)
 
 
 def difference_row(sample_a: str, sample_b: str, dz: float, settings: PlanSettings, source: str,
@@ -206,10 +235,12 @@ def pilot_plan(matrix, reference: str, settings: PlanSettings) -> pd.DataFrame:
         for j in range(i + 1, len(samples)):
             d = m[:, i] - m[:, j]
             d = d[np.isfinite(d)]
-            n = d.size
-            sd = float(np.std(d, ddof=1)) if n > 1 else np.nan
-            dz = float(np.mean(d) / sd) if n > 1 and sd > 0 else np.nan
-            rows.append(difference_row(samples[i], samples[j], dz, settings, "pilot", n, dz_ci(dz, n)))
+            sd, why = _pilot_sd(d)
+            dz = float(np.mean(d) / sd) if np.isfinite(sd) else np.nan
+            rows.append(_one_row([
+                ("95 % CI of d_z", lambda: difference_row(samples[i], samples[j], dz, settings, "pilot", d.size, dz_ci(dz, d.size))),
+                ("sample size", lambda: difference_row(samples[i], samples[j], dz, settings, "pilot", d.size)),
+                ("", lambda: _failed_row("difference", samples[i], samples[j], settings, d.size))], why))
     if reference in samples:
         r = samples.index(reference)
         for j, s in enumerate(samples):
@@ -217,10 +248,53 @@ def pilot_plan(matrix, reference: str, settings: PlanSettings) -> pd.DataFrame:
                 continue
             d = m[:, j] - m[:, r]
             d = d[np.isfinite(d)]
-            sd = float(np.std(d, ddof=1)) if d.size > 1 else np.nan
-            rows.append(equivalence_row(s, reference, float(np.mean(d)) if d.size else np.nan,
-                                        sd if sd > 0 else np.nan, settings, "pilot", int(d.size)))
+            sd, why = _pilot_sd(d)
+            mean = float(np.mean(d)) if d.size else np.nan
+            rows.append(_one_row([
+                ("sample size", lambda: equivalence_row(s, reference, mean, sd, settings, "pilot", int(d.size))),
+                ("", lambda: _failed_row("equivalence", s, reference, settings, int(d.size)))], why))
     return pd.DataFrame(rows, columns=list(PLAN_COLUMNS))
+
+
+def _pilot_sd(d: np.ndarray) -> tuple[float, str]:
+    """SD of a pilot pair's per-subject differences (NaN where it is not a spread) and, then, why in words."""
+    if d.size < 2:
+        return np.nan, f"{d.size} subject(s) rated both samples: a pilot pair needs 2 or more for an SD"
+    sd = float(np.std(d, ddof=1))
+    if not sd > ZERO_SD_RELATIVE * max(float(np.max(np.abs(d))), 1.0):
+        return np.nan, (f"every one of the {d.size} subjects gave the same difference ({float(np.mean(d)):+.3g} "
+                        "rating points, SD 0): d_z is not defined; plan this pair with --dz")
+    return sd, ""
+
+
+def _failed_row(test: str, sample_a: str, sample_b: str, settings: PlanSettings, n_pilot: int) -> dict:
+    """A row without numbers (its note is set by the caller)."""
+    m = settings.comparisons if test == "difference" else settings.equivalence_comparisons
+    return {"test": test, "sample_a": sample_a, "sample_b": sample_b, "source": "pilot", "n_pilot": n_pilot,
+            "dz": np.nan, "dz_ci_low": np.nan, "dz_ci_high": np.nan, "mean_diff": np.nan, "sd_diff": np.nan,
+            "margin": settings.margin if test == "equivalence" else np.nan, "comparisons": m,
+            "alpha_each": settings.alpha / m, "power_target": settings.power, "n_required": np.nan,
+            "power_at_n": np.nan, "note": ""}
+
+
+def _one_row(tries, why: str) -> dict:
+    """The first of ``tries`` ((what it leaves out, builder) pairs, fullest first) that builds; the parts left out
+    and why in its note. ``why`` (the pilot's own reason, e.g. SD 0) replaces a generic note."""
+    failed = []
+    row = None
+    for what, build in tries:
+        try:
+            row = build()
+            break
+        except Exception as exc:         # one row's failure is its own (analysis.failures)
+            failed.append(f"{what} not computed: {reason(exc)}")
+    note = row.get("note", "")
+    if why and note in ("", "d_z not available", "no SD of the differences"):
+        note = why
+    elif why:
+        note = f"{why}; {note}"
+    row["note"] = "; ".join([n for n in [note] if n] + failed)
+    return row
 
 
 def power_curves(plan: pd.DataFrame, n_max: int | None = None) -> pd.DataFrame:

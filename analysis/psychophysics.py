@@ -9,8 +9,11 @@ Two inputs (docs/analysis.md, "Psychometric fits"):
 * a plain CSV from any software: columns ``intensity`` and ``correct`` (0/1), optional ``subject``,
   ``condition``, ``is_catch``, ``trial``, ``staircase``.
 
-Catch trials (``is_catch = 1``) are kept for the staircase figure and left out of every fit. Each
-bad cell is one ``ValueError`` naming the file and line.
+Catch trials (``is_catch = 1``) are kept for the staircase figure and left out of every fit; a catch
+trial of a log10 session has no intensity (an empty cell). Each bad cell is one ``ValueError`` naming the
+file and line. Sessions are pooled only when they are the same measurement (:data:`MEASUREMENT_FIELDS`):
+:func:`measurements` groups them, :func:`check_poolable` refuses a mixture, naming the sessions and the
+field.
 """
 
 from __future__ import annotations
@@ -24,12 +27,18 @@ import numpy as np
 from scipy.stats import binomtest
 
 from plumbing.studyfiles import FIT_COLUMNS, FIT_OPTIONAL_COLUMNS, SESSION_JSON, read_session_json
-from psychophysics.fitting import Fit, fit
+from psychophysics.bayes import fit_bayes
+from psychophysics.fitting import Fit, fit, fit_multiple, compare_models
+from psychophysics.psychometric import base_quantile, from_axis
+from psychophysics.sdt import dprime
 
 #: the columns a fit reads (plumbing.studyfiles: the forced-choice trials.csv holds them all)
 REQUIRED, OPTIONAL = FIT_COLUMNS, FIT_OPTIONAL_COLUMNS
 POOLED = "(pooled)"
 ALL = "(all)"
+#: what must be equal for sessions to be one measurement: the experiment's keys, then its config's
+MEASUREMENT_FIELDS = ("kind", "alternatives", "guess_rate", "intensity_scale", "intensity_unit", "reference")
+MEASUREMENT_CONFIG_FIELDS = ("vary", "sample", "real_sample", "renderings")
 
 
 @dataclass(frozen=True)
@@ -37,7 +46,9 @@ class Trials:
     """Trial-by-trial forced-choice data, one entry per trial (arrays of equal length T).
 
     ``experiment`` is the ``experiment`` entry of the sessions' ``session.json`` (the first subject's;
-    empty for a plain CSV); ``sources`` names the files read.
+    empty for a plain CSV); ``sources`` names the files read; ``session`` is each trial's session (the
+    index into ``sessions``, whose entries are ``(session.json path, experiment)``; one empty entry for a
+    plain CSV).
     """
 
     subject: np.ndarray
@@ -49,9 +60,23 @@ class Trials:
     is_catch: np.ndarray
     experiment: dict
     sources: tuple
+    session: np.ndarray | None = None
+    sessions: tuple = ()
 
     def __len__(self) -> int:
         return len(self.intensity)
+
+    def subset(self, mask) -> "Trials":
+        """The trials where ``mask`` holds (the first chosen session's experiment becomes ``experiment``)."""
+        mask = np.asarray(mask, dtype=bool)
+        sess = self.session[mask] if self.session is not None else None
+        exp = self.experiment
+        if sess is not None and len(sess) and self.sessions:
+            exp = self.sessions[int(sess[0])][1]
+        return Trials(subject=self.subject[mask], condition=self.condition[mask], staircase=self.staircase[mask],
+                      trial=self.trial[mask], intensity=self.intensity[mask], correct=self.correct[mask],
+                      is_catch=self.is_catch[mask], experiment=exp, sources=self.sources, session=sess,
+                      sessions=self.sessions)
 
 
 def _zero_one(text: str, path: Path, line: int, column: str) -> int:
@@ -64,7 +89,9 @@ def _read_csv(path: Path, subject_default: str) -> dict:
     """Columns of one trials CSV, validated cell by cell (streamed: the file is never held twice)."""
     cols = {name: [] for name in REQUIRED + OPTIONAL}
     try:
-        fh = path.open(newline="", encoding="utf-8")
+        # utf-8-sig: a spreadsheet's "CSV UTF-8" export starts with a byte-order mark, which would otherwise
+        # be part of the first column's name
+        fh = path.open(newline="", encoding="utf-8-sig")
     except FileNotFoundError:
         raise FileNotFoundError(f"{path} does not exist") from None
     with fh:
@@ -76,10 +103,19 @@ def _read_csv(path: Path, subject_default: str) -> dict:
         except UnicodeDecodeError as exc:
             raise ValueError(f"{path}: not UTF-8 text ({exc.reason})") from None
         header = [h.strip() for h in header]
+        twice = sorted({h for h in header if header.count(h) > 1 and h})
+        if twice:
+            raise ValueError(f"{path}:1: column(s) {', '.join(twice)} appear more than once in the header; keep one "
+                             "of each")
         missing = [c for c in REQUIRED if c not in header]
         if missing:
+            hint = ""
+            if len(header) == 1 and any(sep in header[0] for sep in ";\t"):
+                sep = "';'" if ";" in header[0] else "a tab"
+                hint = (f"; the header is one field holding {sep}: the file is separated by {sep}, not commas "
+                        "(a spreadsheet's regional CSV export): save it as CSV with commas")
             raise ValueError(f"{path}:1: missing column(s) {', '.join(missing)} (a psychometric fit needs "
-                             "intensity and correct, 0/1)")
+                             f"intensity and correct, 0/1){hint}")
         where = {name: header.index(name) for name in REQUIRED + OPTIONAL if name in header}
         try:
             for line, row in enumerate(reader, start=2):
@@ -87,17 +123,20 @@ def _read_csv(path: Path, subject_default: str) -> dict:
                     continue
                 if len(row) != len(header):
                     raise ValueError(f"{path}:{line}: {len(row)} fields, the header has {len(header)}")
+                catch = _zero_one(row[where["is_catch"]], path, line, "is_catch") if "is_catch" in where else 0
                 text = row[where["intensity"]]
-                try:
-                    x = float(text)
-                except ValueError:
-                    raise ValueError(f"{path}:{line}: intensity must be a number, got {text!r}") from None
-                if not math.isfinite(x):
-                    raise ValueError(f"{path}:{line}: intensity must be finite, got {text!r}")
+                if catch and not text.strip():
+                    x = math.nan        # a catch trial of a log10 session: a blank has no log10 intensity
+                else:
+                    try:
+                        x = float(text)
+                    except ValueError:
+                        raise ValueError(f"{path}:{line}: intensity must be a number, got {text!r}") from None
+                    if not math.isfinite(x):
+                        raise ValueError(f"{path}:{line}: intensity must be finite, got {text!r}")
                 cols["intensity"].append(x)
                 cols["correct"].append(_zero_one(row[where["correct"]], path, line, "correct"))
-                cols["is_catch"].append(_zero_one(row[where["is_catch"]], path, line, "is_catch")
-                                        if "is_catch" in where else 0)
+                cols["is_catch"].append(catch)
                 cols["subject"].append(row[where["subject"]] if "subject" in where else subject_default)
                 cols["condition"].append(row[where["condition"]] if "condition" in where else "")
                 cols["staircase"].append(row[where["staircase"]] if "staircase" in where else "")
@@ -132,10 +171,11 @@ def load_trials(path) -> Trials:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist")
-    chunks, sources, experiment = [], [], {}
+    chunks, sources, experiment, sessions = [], [], {}, []
     if path.is_file():
         chunks.append(_read_csv(path, ""))
         sources.append(str(path))
+        sessions.append(("", {}))
     else:
         folders = [path] if (path / "session.json").is_file() else sorted(
             p for p in path.iterdir() if p.is_dir() and (p / "session.json").is_file())
@@ -156,6 +196,7 @@ def load_trials(path) -> Trials:
                 continue   # a session that never ran a trial
             chunks.append(_read_csv(trials, str(session.get("subject") or folder.name)))
             sources.append(str(trials))
+            sessions.append((str(folder / SESSION_JSON), exp))
         if not chunks:
             extra = (f" ({len(skipped)} rating session(s) without an 'experiment' entry: analyse those with "
                      "'analysis report')") if skipped else ""
@@ -163,10 +204,67 @@ def load_trials(path) -> Trials:
     cols = {k: [v for c in chunks for v in c[k]] for k in REQUIRED + OPTIONAL}
     if not cols["intensity"]:
         raise ValueError(f"{', '.join(sources)}: no trials")
+    session = np.concatenate([np.full(len(c["intensity"]), i, dtype=np.int64) for i, c in enumerate(chunks)])
     return Trials(subject=np.array(cols["subject"], dtype=object), condition=np.array(cols["condition"], dtype=object),
                   staircase=np.array(cols["staircase"], dtype=object), trial=np.array(cols["trial"], dtype=np.int64),
                   intensity=np.array(cols["intensity"], dtype=float), correct=np.array(cols["correct"], dtype=np.int8),
-                  is_catch=np.array(cols["is_catch"], dtype=bool), experiment=experiment, sources=tuple(sources))
+                  is_catch=np.array(cols["is_catch"], dtype=bool), experiment=experiment, sources=tuple(sources),
+                  session=session, sessions=tuple(sessions))
+
+
+def _measurement_key(exp: dict) -> tuple:
+    config = exp.get("config") if isinstance(exp.get("config"), dict) else {}
+    return tuple(("experiment." + f, _hashable(exp.get(f))) for f in MEASUREMENT_FIELDS) + tuple(
+        ("experiment.config." + f, _hashable(config.get(f))) for f in MEASUREMENT_CONFIG_FIELDS)
+
+
+def _hashable(v):
+    return tuple(v) if isinstance(v, list) else v
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Sessions that are one measurement: the same task, stimulus, scale, unit and reference."""
+
+    index: int
+    sessions: tuple       # session.json paths
+    experiment: dict
+    mask: np.ndarray      # the trials of these sessions
+
+
+def measurements(trials: Trials) -> list[Measurement]:
+    """The sessions grouped by measurement (:data:`MEASUREMENT_FIELDS`), in the order first met."""
+    if trials.session is None or len(trials.sessions) <= 1:
+        return [Measurement(1, tuple(p for p, _ in trials.sessions), trials.experiment,
+                            np.ones(len(trials), dtype=bool))]
+    groups: dict = {}
+    for i, (path, exp) in enumerate(trials.sessions):
+        groups.setdefault(_measurement_key(exp), []).append(i)
+    out = []
+    for j, idx in enumerate(groups.values(), start=1):
+        out.append(Measurement(j, tuple(trials.sessions[i][0] for i in idx), trials.sessions[idx[0]][1],
+                               np.isin(trials.session, idx)))
+    return out
+
+
+def check_poolable(trials: Trials) -> None:
+    """Refuse sessions that are not one measurement, naming two of them and the field that differs.
+
+    Raises
+    ------
+    ValueError
+        ``"<session.json>: experiment.<field> <value> differs from <value> in <session.json>; ..."``.
+    """
+    groups = measurements(trials)
+    if len(groups) <= 1:
+        return
+    first, other = groups[0], groups[1]
+    for (name, a), (_, b) in zip(_measurement_key(first.experiment), _measurement_key(other.experiment)):
+        if a != b:
+            raise ValueError(f"{other.sessions[0]}: {name} {b!r} differs from {a!r} in {first.sessions[0]}: these "
+                             f"sessions are not the same measurement ({len(groups)} different ones among "
+                             f"{len(trials.sessions)} sessions) and are not pooled; fit each on its own with "
+                             "--separately")
 
 
 @dataclass(frozen=True)
@@ -178,15 +276,42 @@ class GroupFit:
     fit: Fit
 
 
-def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", lapse=None, bootstrap: int = 1000,
-               ci_level: float = 0.95, reference=None, seed: int = 0, equal_asymptote: bool = False) -> list[GroupFit]:
+@dataclass(frozen=True)
+class FitOptions:
+    """How :func:`fit_groups` fits (the command's flags)."""
+
+    alternatives: int
+    function: str = "logistic"
+    lapse: float | None = None
+    bootstrap: int = 1000
+    ci_level: float = 0.95
+    reference: float | None = None
+    seed: int = 0
+    lower_asymptote: str = "fixed"
+    bayesian: bool = False
+
+
+def _fit_one(intensity, correct, o: FitOptions):
+    if o.bayesian:
+        return fit_bayes(intensity, correct, alternatives=o.alternatives, function=o.function,
+                         lower_asymptote=o.lower_asymptote, lapse=o.lapse, ci_level=o.ci_level, reference=o.reference)
+    return fit(intensity, correct, alternatives=o.alternatives, function=o.function, lapse=o.lapse,
+               bootstrap=o.bootstrap, ci_level=o.ci_level, reference=o.reference, seed=o.seed,
+               lower_asymptote=o.lower_asymptote)
+
+
+def fit_groups(trials: Trials, alternatives, function: str = "logistic", lapse=None, bootstrap: int = 1000,
+               ci_level: float = 0.95, reference=None, seed: int = 0, equal_asymptote: bool = False,
+               options: FitOptions | None = None) -> list[GroupFit]:
     """Fit every (subject, condition) group, each condition pooled over subjects, and all trials pooled.
 
     Parameters
     ----------
     trials : Trials
     alternatives, function, lapse, bootstrap, ci_level, reference, seed, equal_asymptote
-        As for :func:`psychophysics.fitting.fit`.
+        As for :func:`psychophysics.fitting.fit` (ignored when ``options`` is given).
+    options : FitOptions, optional
+        Every option at once (the lower asymptote, a Bayesian fit).
 
     Returns
     -------
@@ -195,6 +320,8 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
         condition pooled, then each subject x condition (groups with fewer than two intensities are
         reported as errors).
     """
+    o = options or FitOptions(alternatives, function, lapse, bootstrap, ci_level, reference, seed,
+                              "equal" if equal_asymptote else "fixed")
     keep = ~trials.is_catch
     subjects = sorted(set(trials.subject[keep]))
     conditions = sorted(set(trials.condition[keep]))
@@ -208,9 +335,7 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
         if not mask.any():
             continue
         try:
-            f = fit(trials.intensity[mask], trials.correct[mask], alternatives=alternatives, function=function,
-                    lapse=lapse, bootstrap=bootstrap, ci_level=ci_level, reference=reference, seed=seed + i,
-                    equal_asymptote=equal_asymptote)
+            f = _fit_one(trials.intensity[mask], trials.correct[mask], FitOptions(**{**o.__dict__, "seed": o.seed + i}))
         except ValueError as exc:
             who = f"subject {subject!r}, condition {condition!r}"
             raise ValueError(f"{who}: {exc}") from None
@@ -218,12 +343,75 @@ def fit_groups(trials: Trials, alternatives: int, function: str = "logistic", la
     return out
 
 
-def physical_summary(f: Fit, reference=None) -> dict:
-    """Threshold, PSE, JND and Weber fraction in physical units of a fit on a log10 intensity axis.
+def compare_conditions(trials: Trials, o: FitOptions, subject: str = POOLED) -> dict | None:
+    """Conditions fitted together with a shared slope and lapse rate (Palamedes' ``PAL_PFML_FitMultiple``) and
+    two likelihood-ratio tests (``PAL_PFLR_ModelComparison``): do the thresholds differ (one threshold for all
+    against one per condition), and does sharing the slope fit (one slope against one per condition)?
+
+    Returns
+    -------
+    dict or None
+        ``shared`` (the fit), ``thresholds_differ`` and ``slopes_differ`` (the tests); None with fewer than two
+        conditions.
+    """
+    keep = ~trials.is_catch
+    if subject != POOLED:
+        keep &= trials.subject == subject
+    conditions = sorted(set(trials.condition[keep]))
+    if len(conditions) < 2:
+        return None
+    data = []
+    for c in conditions:
+        mask = keep & (trials.condition == c)
+        data.append(_counts(trials.intensity[mask], trials.correct[mask]))
+    common = dict(alternatives=o.alternatives, function=o.function, lapse=o.lapse, lower_asymptote=o.lower_asymptote,
+                  names=conditions)
+    shared = fit_multiple(data, ci_level=o.ci_level, **common)
+    boot = min(o.bootstrap, 1000)
+    thresholds = compare_models(data, {"thresholds": "constrained"}, {"thresholds": "unconstrained"},
+                                bootstrap=boot, seed=o.seed, **common)
+    slopes = compare_models(data, {"thresholds": "unconstrained"},
+                            {"thresholds": "unconstrained", "slopes": "unconstrained"},
+                            bootstrap=boot, seed=o.seed + 1, **common)
+    return {"subject": subject, "shared": shared, "thresholds_differ": thresholds, "slopes_differ": slopes}
+
+
+def _counts(intensity, correct):
+    levels, inverse = np.unique(intensity, return_inverse=True)
+    n = np.bincount(inverse, minlength=len(levels)).astype(float)
+    k = np.bincount(inverse, weights=correct, minlength=len(levels))
+    return levels, n, k
+
+
+def dprime_table(trials: Trials) -> list[dict]:
+    """d' and criterion per subject, condition and level of a yes/no task with catch trials (blanks): each
+    level's "yes" rate against the catch trials' of the same subject and condition (:func:`psychophysics.sdt.dprime`,
+    log-linear correction); empty without catch trials."""
+    out = []
+    for subject in sorted(set(trials.subject)):
+        for condition in sorted(set(trials.condition)):
+            sel = (trials.subject == subject) & (trials.condition == condition)
+            noise = sel & trials.is_catch
+            signal = sel & ~trials.is_catch
+            if not noise.any() or not signal.any():
+                continue
+            f, nn = float(trials.correct[noise].sum()), float(noise.sum())
+            levels, n, k = _counts(trials.intensity[signal], trials.correct[signal])
+            r = dprime(k, n, f, nn)
+            for i, level in enumerate(levels):
+                out.append({"subject": subject, "condition": condition, "intensity": float(level),
+                            "n_signal": int(n[i]), "hits": int(k[i]), "n_catch": int(nn), "false_alarms": int(f),
+                            "hit_rate": float(r["hit_rate"][i]), "false_alarm_rate": float(r["false_alarm_rate"]),
+                            "dprime": float(r["dprime"][i]), "criterion": float(r["criterion"][i])})
+    return out
+
+
+def physical_summary(f, reference=None) -> dict:
+    """Threshold, PSE, JND and Weber fraction in physical units, with intervals, of a fit on a log10 axis.
 
     Parameters
     ----------
-    f : Fit
+    f : Fit or BayesFit
         Fitted on ``log10`` of the physical stimulus (a session with ``intensity_scale = "log10"``).
     reference : float, optional
         The reference stimulus in physical units.
@@ -231,45 +419,90 @@ def physical_summary(f: Fit, reference=None) -> dict:
     Returns
     -------
     dict
-        ``threshold_physical`` (= 10**threshold) and its interval, ``jnd_physical`` = 10**x(F=0.75) -
-        10**x(F=0.5), and ``weber_physical``: ``jnd_physical / reference`` for a yes/no task, ``(10**threshold
-        - reference) / reference`` for an n-AFC task (None without a reference).
+        ``threshold_physical`` (= 10**threshold) and ``threshold_ci_physical`` (the threshold's interval, mapped:
+        exact); ``pse_physical`` (yes/no) with its interval; ``jnd_physical``: ``10**x(F=0.75) - 10**x(F=0.5)``
+        for a yes/no task (interval from the bootstrap or the posterior), ``10**threshold - reference`` for an
+        n-AFC task (interval mapped from the threshold's); ``weber_physical`` = ``jnd_physical / reference``
+        with its interval; None where undefined.
     """
     thr = 10.0 ** f.threshold
-    x75 = 10.0 ** (f.threshold + f.jnd)
-    jnd = x75 - thr
-    weber = None
-    if reference is not None and math.isfinite(reference) and reference > 0:
-        weber = jnd / reference if f.alternatives == 1 else (thr - reference) / reference
     lo, hi = f.threshold_ci
-    return {"threshold_physical": thr, "pse_physical": thr, "jnd_physical": jnd, "weber_physical": weber,
-            "reference_physical": reference,
-            "threshold_ci_physical": [10.0 ** lo if math.isfinite(lo) else None,
-                                      10.0 ** hi if math.isfinite(hi) else None]}
+    tci = [10.0 ** lo if not math.isnan(lo) else None, 10.0 ** hi if not math.isnan(hi) else None]
+    has_ref = reference is not None and math.isfinite(reference) and reference > 0
+    q75 = float(base_quantile(0.75, f.function))
+    if f.alternatives == 1:
+        jnd = 10.0 ** (f.threshold + q75 / f.slope) - thr
+
+        def jnd_of(t, beta, lam, gam):
+            u = from_axis(t, f.function)
+            return 10.0 ** from_axis(t + q75 / beta, f.function) - 10.0 ** u
+
+        jci = list(f.interval_of(jnd_of))
+    elif has_ref:
+        jnd = thr - reference
+        jci = [None if v is None else v - reference for v in tci]
+    else:
+        jnd, jci = None, [None, None]
+    jci = [None if v is None or not math.isfinite(v) else float(v) for v in jci]
+    weber = wci = None
+    if has_ref and jnd is not None:
+        weber = jnd / reference
+        wci = [None if v is None else v / reference for v in jci]
+    yes_no = f.alternatives == 1
+    return {"threshold_physical": thr, "threshold_ci_physical": tci,
+            "pse_physical": thr if yes_no else None, "pse_ci_physical": tci if yes_no else [None, None],
+            "jnd_physical": jnd, "jnd_ci_physical": jci, "weber_physical": weber,
+            "weber_ci_physical": wci if wci is not None else [None, None], "reference_physical": reference}
 
 
-def fits_table(fits: list[GroupFit], reference_physical=None) -> tuple[list[str], list[list]]:
+def _ci(f, name):
+    return tuple(getattr(f, name, (math.nan, math.nan)))
+
+
+def fits_table(fits: list[GroupFit], reference_physical=None, physical: bool = False, threshold_pcs=(),
+               measurement: int | None = None) -> tuple[list[str], list[list]]:
     """``fits.csv``'s header and rows: one row per group, intervals as ``*_ci_low``/``*_ci_high``.
 
-    With ``reference_physical`` (a fit on a log10 axis), the physical threshold, JND and Weber fraction
-    (:func:`physical_summary`) follow as extra columns.
+    With ``physical`` (a fit on a log10 axis), the physical threshold, PSE, JND and Weber fraction with their
+    intervals (:func:`physical_summary`) follow; ``threshold_pcs`` adds the threshold at each proportion
+    (psignifit's ``threshold(pc)``) with its interval; ``flags`` holds the fit's flags (``;``-joined names);
+    ``measurement`` (with ``--separately``) numbers the measurement the row belongs to.
     """
-    header = ["subject", "condition", "function", "alternatives", "n_trials", "n_levels", "threshold",
-              "threshold_ci_low", "threshold_ci_high", "slope", "slope_ci_low", "slope_ci_high", "lapse",
-              "lapse_ci_low", "lapse_ci_high", "pse", "jnd", "jnd_ci_low", "jnd_ci_high", "weber", "weber_ci_low",
-              "weber_ci_high", "deviance", "deviance_p_bootstrap", "deviance_p_chi2"]
+    header = (["measurement"] if measurement is not None else []) + [
+        "subject", "condition", "function", "alternatives", "lower_asymptote", "n_trials", "n_levels", "threshold",
+        "threshold_ci_low", "threshold_ci_high", "threshold_ci_bca_low", "threshold_ci_bca_high", "slope",
+        "slope_ci_low", "slope_ci_high", "slope_at_threshold", "lapse", "lapse_ci_low", "lapse_ci_high", "guess",
+        "guess_ci_low", "guess_ci_high", "eta", "pse", "pse_ci_low", "pse_ci_high", "jnd", "jnd_ci_low",
+        "jnd_ci_high", "weber", "weber_ci_low", "weber_ci_high", "deviance", "deviance_p_bootstrap",
+        "deviance_p_chi2", "flags"]
+    for pc in threshold_pcs:
+        header += [f"threshold_at_{pc:g}", f"threshold_at_{pc:g}_ci_low", f"threshold_at_{pc:g}_ci_high"]
+    if physical:
+        header += ["threshold_physical", "threshold_physical_ci_low", "threshold_physical_ci_high", "pse_physical",
+                   "pse_physical_ci_low", "pse_physical_ci_high", "jnd_physical", "jnd_physical_ci_low",
+                   "jnd_physical_ci_high", "weber_physical", "weber_physical_ci_low", "weber_physical_ci_high"]
     rows = []
     for g in fits:
         f = g.fit
-        rows.append([g.subject, g.condition, f.function, f.alternatives, f.n_trials, f.n_levels, f.threshold,
-                     *f.threshold_ci, f.slope, *f.slope_ci, f.lapse, *f.lapse_ci, f.pse, f.jnd, *f.jnd_ci, f.weber,
-                     *f.weber_ci, f.deviance, f.deviance_p_bootstrap, f.deviance_p_chi2])
-        if reference_physical is not None:
+        row = ([measurement] if measurement is not None else []) + [
+            g.subject, g.condition, f.function, f.alternatives, f.lower_asymptote, f.n_trials, f.n_levels,
+            f.threshold, *f.threshold_ci, *_ci(f, "threshold_ci_bca"), f.slope, *f.slope_ci, f.slope_at_threshold,
+            f.lapse, *f.lapse_ci, f.guess, *f.guess_ci, getattr(f, "eta", math.nan), f.pse, *f.pse_ci, f.jnd,
+            *f.jnd_ci, f.weber, *f.weber_ci, f.deviance, f.deviance_p_bootstrap, f.deviance_p_chi2,
+            ";".join(flag.name for flag in f.flags)]
+        for pc in threshold_pcs:
+            try:
+                t = f.threshold_at(pc)
+                row += [t["threshold"], *t["ci"]]
+            except ValueError:
+                row += [math.nan, math.nan, math.nan]
+        if physical:
             ph = physical_summary(f, reference_physical)
-            rows[-1] += [ph["threshold_physical"], ph["jnd_physical"],
-                         math.nan if ph["weber_physical"] is None else ph["weber_physical"]]
-    if reference_physical is not None:
-        header += ["threshold_physical", "jnd_physical", "weber_physical"]
+            for key in ("threshold", "pse", "jnd", "weber"):
+                v = ph[f"{key}_physical"]
+                row += [math.nan if v is None else v,
+                        *[math.nan if c is None else c for c in ph[f"{key}_ci_physical"]]]
+        rows.append(row)
     return header, rows
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import json
 import os
 import platform
 import re
@@ -13,7 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis import figures, report_models, workers
+from analysis import figures, ranking, report_models, workers
+from analysis.failures import attempt
 from analysis.load import catalog_labels
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
@@ -53,7 +55,7 @@ FIGURES = {
 
 # a name from the data (sample, subject) in a summary line: kept as a marked field until the line is
 # written, then escaped for its format (markdown: md_escape; HTML: html.escape), so a name cannot add
-# emphasis, links, table cells or tags to report.md (issue 38)
+# emphasis, links, table cells or tags to report.md
 _NAME_OPEN, _NAME_CLOSE = "\x02", "\x03"
 _NAME_RE = re.compile("\x02([^\x02\x03]*)\x03")
 _MD_SPECIAL = re.compile(r"([\\`*\[\]<>|#!~])")
@@ -113,69 +115,107 @@ def summary_text(res: Analysis, fig_notes: list[str]) -> tuple[list[str], dict]:
     """Plain-language findings: omnibus, equivalence, significant pairs, velocity, exclusions.
 
     Returns the summary lines (markdown emphasis with ``**``) and, per group, one line per
-    significantly different pair.
+    significantly different pair. Each finding is its own part: a table that could not be computed
+    (``res.failures``) is said in its place, and a line that cannot be written says why (the others are
+    still written; analysis.failures).
     """
     cfg, out, pairs = res.config, [], {}
-    subj = res.study.subjects
-    exp_counts = subj["experience"].value_counts()
-    experience_words = {"none": "never used a haptic device", "few": "used one a few times",
-                        "regular": "use one regularly"}
-    out.append(f"{len(subj)} subjects ({', '.join(f'{n} {experience_words.get(e, e)}' for e, n in exp_counts.items())}); {len(res.study.catalog)} samples; {int(res.matrix.counts.sum())} valid testing "
-               f"attempts analysed.")
-    for g, sub in res.anova.groupby("group", sort=False):
-        a = sub[sub["test"] == "rm_anova"].iloc[0]
-        f = sub[sub["test"] == "friedman"].iloc[0]
-        if not np.isfinite(a["statistic"]):
-            out.append(f"**{g}**: not enough complete subjects for the omnibus tests.")
-            continue
-        verdict = "differ significantly" if a["p_gg"] < cfg.alpha else "do not differ significantly"
-        out.append(f"**{g} subjects** (n = {a['n_subjects']}): ratings {verdict} between samples "
-                   f"(repeated-measures ANOVA F({a['df1']:.0f}, {a['df2']:.0f}) = {a['statistic']:.2f}, "
-                   f"Greenhouse–Geisser ε = {a['epsilon_gg']:.2f}, corrected {_p(a['p_gg'])}; "
-                   f"Friedman χ²({f['df1']:.0f}) = {f['statistic']:.1f}, {_p(f['p'])}).")
-    for g, sub in res.equivalence.groupby("group", sort=False):
-        eq = sub[sub["equivalent"]]["sample"].tolist()
-        out.append(f"**{g} subjects**: equivalent to {cfg.reference} within ±{cfg.margin:g} rating points "
-                   f"(paired TOST, p < {cfg.alpha}): {', '.join(map(_name, eq)) if eq else 'none'}. Samples not shown "
-                   "equivalent are not thereby shown different; that may just be too few subjects.")
-    for g, sub in res.pairwise.groupby("group", sort=False):
-        sig = sub[sub["p_holm"] < cfg.alpha]
-        untestable = sub[sub["not_testable"].astype(bool)] if "not_testable" in sub else sub.iloc[:0]
-        out.append(f"**{g} subjects**: {len(sig)} of {len(sub) - len(untestable)} testable sample pairs differ "
-                   f"significantly (paired t-test, Holm-adjusted p < {cfg.alpha}; listed under 'Significantly "
-                   "different pairs')."
-                   + (f" {len(untestable)} pair(s) not testable (fewer than 3 subjects rated both, or every "
-                      "subject gave the same difference, SD 0): never counted as significant; hatched in "
-                      "Figure 4.18." if len(untestable) else ""))
-        pairs[g] = []
-        for r in sig.itertuples():
-            hi, lo = (_name(r.sample_a), _name(r.sample_b)) if r.mean_diff > 0 else (_name(r.sample_b),
-                                                                                   _name(r.sample_a))
-            pairs[g].append(f"{hi} rated higher than {lo} by {abs(r.mean_diff):.2f} points "
-                            f"(95 % CI {abs(r.ci_low if r.mean_diff > 0 else r.ci_high):.2f}–"
-                            f"{abs(r.ci_high if r.mean_diff > 0 else r.ci_low):.2f}, n = {r.n}, "
-                            f"Holm {_p(r.p_holm)})")
-    vr = res.velocity[res.velocity["sample"] != "(all)"]
-    sig_v = vr[vr["p"] < cfg.alpha]["sample"].tolist()
-    out.append("Incoming velocity vs rating within each sample (Pearson, uncorrected): "
-               + (f"significant for {', '.join(map(_name, sig_v))}." if sig_v else "no significant correlation.")
-               + " Repeated-measures correlation over all samples: "
-               + (f"r = {res.velocity.iloc[-1]['r_rm']:.2f}, {_p(res.velocity.iloc[-1]['p_rm'])}."
-                  if np.isfinite(res.velocity.iloc[-1]["r_rm"]) else "not computable."))
-    att = res.attempts
-    inv = int((att["attempts"] - att["valid"]).sum())
-    out.append(f"**Excluded attempts**: {inv} invalid testing attempts were left out (saturated "
-               f"{int(att['saturated'].sum())}, rejected {int(att['rejected'].sum())}, overpowered "
-               f"{int(att['overpowered'].sum())}, other {int(att['invalid_other'].sum())}); each was redrawn, so "
-               "its sample was rated again later.")
-    if len(res.exclusions):
-        out.append("**Excluded subjects**: " + "; ".join(
-            f"{_name(r.subject)} misses {', '.join(map(_name, r.missing_samples.split(';')))} and is left out of "
-            "the RM-ANOVA/Friedman "
-            f"tests and of the pairwise/equivalence tests with those samples" for r in res.exclusions.itertuples())
-                   + ".")
-    else:
-        out.append("**Excluded subjects**: none; every subject rated every sample.")
+
+    def block(attr, what, fn):
+        for reason in res.failures.get(attr, ()):
+            out.append(f"**{what}**: {reason}.")
+        problems = []
+        attempt("its summary", problems, fn, failed="not written")
+        out.extend(f"**{what}**: {p}." for p in problems)
+
+    def subjects():
+        subj = res.study.subjects
+        exp_counts = subj["experience"].value_counts()
+        experience_words = {"none": "never used a haptic device", "few": "used one a few times",
+                            "regular": "use one regularly"}
+        out.append(f"{len(subj)} subjects ({', '.join(f'{n} {experience_words.get(e, e)}' for e, n in exp_counts.items())}); "
+                   f"{len(res.study.catalog)} samples; {int(res.matrix.counts.sum())} valid testing attempts analysed.")
+
+    def omnibus():
+        for g, sub in res.anova.groupby("group", sort=False):
+            a, f = sub[sub["test"] == "rm_anova"], sub[sub["test"] == "friedman"]
+            if not len(a) or not np.isfinite(a.iloc[0]["statistic"]):
+                out.append(f"**{g}**: not enough complete subjects for the omnibus tests (every sample rated by 2 or "
+                           "more subjects, and ratings that vary)." if not len(a) or a.iloc[0]["n_subjects"] < 2 else
+                           f"**{g}**: the omnibus tests give no result: the ratings do not vary between or within "
+                           "the samples beyond a constant.")
+                continue
+            a, f = a.iloc[0], f.iloc[0]
+            verdict = "differ significantly" if a["p_gg"] < cfg.alpha else "do not differ significantly"
+            out.append(f"**{g} subjects** (n = {a['n_subjects']}): ratings {verdict} between samples "
+                       f"(repeated-measures ANOVA F({a['df1']:.0f}, {a['df2']:.0f}) = {a['statistic']:.2f}, "
+                       f"Greenhouse–Geisser ε = {a['epsilon_gg']:.2f}, corrected {_p(a['p_gg'])}; "
+                       f"Friedman χ²({f['df1']:.0f}) = {f['statistic']:.1f}, {_p(f['p'])}).")
+
+    def equivalence():
+        for g, sub in res.equivalence.groupby("group", sort=False):
+            eq = sub[sub["equivalent"].astype(bool)]["sample"].tolist()
+            out.append(f"**{g} subjects**: equivalent to {_name(cfg.reference)} within ±{cfg.margin:g} rating points "
+                       f"(paired TOST, p < {cfg.alpha}): {', '.join(map(_name, eq)) if eq else 'none'}. Samples not "
+                       "shown equivalent are not thereby shown different; that may just be too few subjects.")
+
+    def pairwise():
+        for g, sub in res.pairwise.groupby("group", sort=False):
+            sig = sub[sub["p_holm"] < cfg.alpha]
+            untestable = sub[sub["not_testable"].astype(bool)] if "not_testable" in sub else sub.iloc[:0]
+            out.append(f"**{g} subjects**: {len(sig)} of {len(sub) - len(untestable)} testable sample pairs differ "
+                       f"significantly (paired t-test, Holm-adjusted p < {cfg.alpha}; listed under 'Significantly "
+                       "different pairs')."
+                       + (f" {len(untestable)} pair(s) not testable (fewer than 3 subjects rated both, or every "
+                          "subject gave the same difference, SD 0): never counted as significant; hatched in "
+                          "Figure 4.18." if len(untestable) else ""))
+            pairs[g] = []
+            for r in sig.itertuples():
+                hi, lo = (_name(r.sample_a), _name(r.sample_b)) if r.mean_diff > 0 else (_name(r.sample_b),
+                                                                                       _name(r.sample_a))
+                pairs[g].append(f"{hi} rated higher than {lo} by {abs(r.mean_diff):.2f} points "
+                                f"(95 % CI {abs(r.ci_low if r.mean_diff > 0 else r.ci_high):.2f}–"
+                                f"{abs(r.ci_high if r.mean_diff > 0 else r.ci_low):.2f}, n = {r.n}, "
+                                f"Holm {_p(r.p_holm)})")
+
+    def velocity():
+        vr = res.velocity[res.velocity["sample"] != "(all)"]
+        sig_v = vr[vr["p"] < cfg.alpha]["sample"].tolist()
+        whole = res.velocity[res.velocity["sample"] == "(all)"]
+        rm = whole.iloc[0] if len(whole) else None
+        out.append("Incoming velocity vs rating within each sample (Pearson, uncorrected): "
+                   + (f"significant for {', '.join(map(_name, sig_v))}." if sig_v else "no significant correlation.")
+                   + " Repeated-measures correlation over all samples: "
+                   + (f"r = {rm['r_rm']:.2f}, {_p(rm['p_rm'])}." if rm is not None and np.isfinite(rm["r_rm"])
+                      else "not computable (no velocity that varies within a subject's samples)."))
+
+    def attempts():
+        att = res.attempts
+        inv = int((att["attempts"] - att["valid"]).sum())
+        out.append(f"**Excluded attempts**: {inv} invalid testing attempts were left out (saturated "
+                   f"{int(att['saturated'].sum())}, rejected {int(att['rejected'].sum())}, overpowered "
+                   f"{int(att['overpowered'].sum())}, other {int(att['invalid_other'].sum())}); each was redrawn, so "
+                   "its sample was rated again later.")
+
+    def exclusions():
+        if len(res.exclusions):
+            out.append("**Excluded subjects**: " + "; ".join(
+                f"{_name(r.subject)} misses {', '.join(map(_name, r.missing_samples.split(';')))} and is left out of "
+                "the RM-ANOVA/Friedman "
+                f"tests and of the pairwise/equivalence tests with those samples" for r in res.exclusions.itertuples())
+                       + ".")
+        else:
+            out.append("**Excluded subjects**: none; every subject rated every sample.")
+
+    block("subjects", "Subjects", subjects)
+    block("anova", "RM-ANOVA and Friedman test", omnibus)
+    block("equivalence", "Equivalence tests", equivalence)
+    block("pairwise", "Paired t-tests", pairwise)
+    block("velocity", "Velocity-rating correlations", velocity)
+    block("attempts", "Attempt counts", attempts)
+    block("exclusions", "Exclusions", exclusions)
+    for reason in res.failures.get("summary", ()):
+        out.append(f"**Sample summary**: {reason} (Figures 4.17 and 4.19 need it).")
     for w in res.warnings:
         out.append(f"Warning: {w}")
     out.extend(fig_notes)
@@ -203,16 +243,43 @@ def make_figures(res: Analysis, out: Path, target_v_m_s: float | None = None,
     ratings = (figures.fig_ratings, res.summary, out / "fig_4_17_ratings.png", labels)
     pvalues = (figures.fig_pvalues, res.pairwise, res.study.catalog, out / "fig_4_18_pvalues.png", alpha, labels)
     penetration = (figures.fig_penetration, res.summary, out / "fig_4_19_penetration.png", labels)
+    notes: list[str] = []
     if pool is None:
-        written = [fn(*args) for fn, *args in (ratings, pvalues, penetration)]
-        acc, notes = start_accelerations(res.study, out, target_v_m_s)
-        return [w["png"] for w in written + ([_finish(*acc)] if acc else [])], notes
-    acc, notes = accelerations if accelerations is not None else \
-        start_accelerations(res.study, out, target_v_m_s, pool)
-    there = workers.submit(pool, *penetration)          # queued behind Figure 4.20
-    here = [fn(*args) for fn, *args in (ratings, pvalues)]
-    written = here + [_finish(there, penetration)] + ([_finish(*acc)] if acc else [])
-    return [w["png"] for w in written], notes
+        acc, acc_notes = attempt_figure(out / "fig_4_20_accelerations.png", notes, start_accelerations,
+                                         res.study, out, target_v_m_s) or (None, [])
+        jobs = [(None, ratings), (None, pvalues), (None, penetration)] + ([acc] if acc else [])
+    else:
+        acc, acc_notes = accelerations if accelerations is not None else \
+            (attempt_figure(out / "fig_4_20_accelerations.png", notes, start_accelerations, res.study, out,
+                             target_v_m_s, pool) or (None, []))
+        there = workers.submit(pool, *penetration)          # queued behind Figure 4.20
+        jobs = [(None, ratings), (None, pvalues), (there, penetration)] + ([acc] if acc else [])
+    written = []
+    for future, job in jobs:
+        # each figure fails alone: its note says why, the others and the tables are still written
+        png = next(a for a in job if isinstance(a, Path) and a.suffix == ".png")
+        got = attempt_figure(png, notes, _finish, future, job)
+        if got is not None:
+            written.append(got["png"])
+    return written, acc_notes + notes
+
+
+def _figure_name(png: Path) -> str:
+    """"Figure 4.17" for ``fig_4_17_ratings.png``; the caption's first words otherwise."""
+    return FIGURES.get(Path(png).name, Path(png).stem).split(":")[0]
+
+
+def attempt_figure(png: Path, notes: list, fn, *args):
+    """``fn(*args)``, or None with "<figure> not drawn: <reason>" in ``notes`` and its partly written files removed."""
+    problems: list[str] = []
+    got = attempt(_figure_name(png), problems, fn, *args, failed="not drawn")
+    if problems:
+        notes.extend(p + "." for p in problems)
+        for ext in (".png", ".svg", ".plot.csv", ".csv"):
+            stale = Path(png).with_suffix(ext)
+            if stale.exists():
+                stale.unlink()
+    return got
 
 
 def _finish(future, job: tuple) -> dict:
@@ -301,7 +368,7 @@ def provenance(res: Analysis, out: Path) -> list[tuple[str, str]]:
         ("session seeds", seed_text),
         ("study software", ", ".join(soft) or "not recorded"),
         ("devices", ", ".join(devices) or "not recorded"),
-        # issue 40: whether each session's servo met p99 <= 20 us, p99.9 <= 50 us, no period > 1 ms (+ link)
+        # whether each session's servo met p99 <= 20 us, p99.9 <= 50 us, no period > 1 ms (+ link)
         ("servo timing", timing_text or "not recorded"),
         ("analysis settings", f"reference {cfg.reference}, margin ±{cfg.margin:g}, groups {cfg.group}, "
                               f"α = {cfg.alpha}, Holm correction across the pairs of each group"),
@@ -361,7 +428,7 @@ def _table_html(df, csv_name: str = "") -> str:
 
 def report_html(res: Analysis, lines: list[str], pairs: dict, fig_paths: list[Path],
                 prov: list[tuple[str, str]], sections: list | None = None) -> str:
-    """The self-contained ``report.html``: summary, pairs, the sections of issue 35 (``sections``:
+    """The self-contained ``report.html``: summary, pairs, the models' sections (``sections``:
     :func:`analysis.report_models.sections`, "Models" and "Evidence for no difference"), captioned figures
     (embedded PNG), tables, provenance; responsive (tables scroll inside their box, never the page) with a
     print stylesheet."""
@@ -442,14 +509,19 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     """Write tables, figures, ``report.md`` and a self-contained ``report.html`` into ``out_dir``.
 
     ``pool``, ``accelerations``: see :func:`make_figures`. ``final_dir``: the folder the report will be
-    found in, named in its provenance (``out_dir`` is then the staging folder swapped in as it later). Returns a dict with ``tables``, ``figures``
-    (paths), ``notes`` and ``md``/``html`` paths.
+    found in, named in its provenance (``out_dir`` is then the staging folder swapped in as it later). Returns a dict
+    with ``tables``, ``figures`` (the PNG of every figure written, the sections' figures included), ``notes`` and
+    ``md``/``html`` paths.
     """
     out = Path(out_dir)
     tables = write_tables(res, out)
     fig_paths, notes = make_figures(res, out, target_v_m_s, pool, accelerations) if figures else \
         ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
+    # Figure 4.17's ordering and section 4.5.4's saturations, as yes/no lines and ranking.json
+    checks = ranking.figure_4_17_checks(res.summary, res.study.trials)
+    lines += ranking.ranking_lines(ranking.figure_4_17_checks(res.summary, res.study.trials, _name), _name)
+    (out / "ranking.json").write_text(json.dumps(checks, indent=1, default=str) + "\n", encoding="utf-8")
     sections = report_models.sections(res, out, draw=figures)
     cfg = res.config
     md = ["# Realism study analysis", "",
@@ -475,4 +547,6 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
     html_path = out / "report.html"
     html_path.write_text(report_html(res, lines, pairs, fig_paths, prov, sections), encoding="utf-8")
-    return {"tables": tables, "figures": fig_paths, "notes": notes, "md": md_path, "html": html_path}
+    # in the report's order: the sections' figures come before Figures 4.17-4.20
+    every_figure = [Path(png) for sec in sections for png, _ in sec.figures] + list(fig_paths)
+    return {"tables": tables, "figures": every_figure, "notes": notes, "md": md_path, "html": html_path}

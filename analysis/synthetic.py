@@ -1,4 +1,4 @@
-"""Synthetic study folders in exactly the schema of issue 6 (for tests, benchmarks and demos).
+"""Synthetic study folders in exactly the study's format (for tests, benchmarks and demos).
 
 Ratings are drawn from a fixed per-sample realism profile loosely shaped like
 Figure 4.17 plus a per-subject bias and per-attempt noise (novices noisier).

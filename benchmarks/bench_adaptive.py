@@ -1,4 +1,4 @@
-"""Adaptive methods: one QUEST+/Psi update (Bayes + next intensity) on 3-parameter grids (issue 34: < 10 ms).
+"""Adaptive methods: one QUEST+/Psi update (Bayes + next intensity) on 3-parameter grids (target: < 10 ms).
 
 An update is what happens between a response and the next trial: the posterior times the response's
 likelihood, normalised, and the choice of the next intensity by minimum expected entropy

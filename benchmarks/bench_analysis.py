@@ -1,6 +1,6 @@
 """Benchmark: the full study report (load, validate, every table, four figures, report.md/.html) as a
-whole process at 40 / 100 / 1,000 / 10,000 synthetic subjects, against the targets of issue 21 (10,000
-subjects: under 5 s and under 1 GB peak memory) and issue 35 (40 subjects, the mixed and ordinal models
+whole process at 40 / 100 / 1,000 / 10,000 synthetic subjects, against the targets (10,000
+subjects: under 5 s and under 1 GB peak memory; 40 subjects, the mixed and ordinal models
 included: under 10 s; the models are skipped above 400 subjects), plus the paired t-test matrix alone
 (linear in subjects).
 
@@ -39,7 +39,7 @@ from analysis.synthetic import write_synthetic_study
 
 SIZES = (40, 100, 1000, 10000)
 TARGET_S = 5.0            # full report of 10,000 subjects, whole process (models skipped above 400 subjects)
-TARGET_MODELS_S = 10.0    # issue 35: the whole report including the mixed and ordinal models, 40 subjects
+TARGET_MODELS_S = 10.0    # the whole report including the mixed and ordinal models, 40 subjects
 TARGET_MB = 1024.0        # peak resident memory of that process (and of the one drawing figures)
 ROOT = Path(__file__).resolve().parents[1]
 

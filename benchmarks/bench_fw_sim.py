@@ -1,6 +1,6 @@
 """fw-sim: simavr's speed bare and in the harness (x real time), and a 10 s lockstep streaming run over it.
 
-Issue 39 (item 3) asked whether fw-sim can keep real time on one core or must run in lockstep. Figures:
+Whether fw-sim can keep real time on one core or must run in lockstep. Figures:
 ``bare``: the firmware ELF on libsimavr with nothing attached (MCU cycles per CPU second / 16 MHz);
 ``harness``: the fw-sim harness (paddle physics every 10 us, interrupt and tick instrumentation per
 instruction), no host attached, per CPU second and per wall second; ``lockstep``: ``renderer``'s servo

@@ -1,7 +1,7 @@
 """Hardware path over a real pty: streaming command->state round trip and rate, on-device telemetry rate.
 
 The firmware emulator runs in a child process (its own core, like a
-microcontroller); the host is SerialDevice. Targets (issue 8): streaming
+microcontroller); the host is SerialDevice. Targets: streaming
 >= 1 kHz with p99 round trip < 1 ms.
 """
 

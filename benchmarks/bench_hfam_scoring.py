@@ -1,4 +1,4 @@
-"""HFAM scoring benchmark (issue 36 item 5): one scored cell and a whole grid of the shipped library on the sim.
+"""HFAM scoring benchmark: one scored cell and a whole grid of the shipped library on the sim.
 
 One scored cell (``stimuli.hfam.scoring.score_cell``) plays two simulated taps (one to measure the incoming
 speed, one with the transient looked up at it) and compares the second with a real-sample reference; a grid is

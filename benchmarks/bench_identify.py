@@ -69,7 +69,7 @@ def main() -> None:
 
 
 def whole_process_grips(runs: int = 3) -> None:
-    """``python -m devices identify`` with the default six grips, whole process (target < 5 s, issue 21):
+    """``python -m devices identify`` with the default six grips, whole process (target < 5 s):
     grips in parallel processes (``--workers`` = cores) against one process. Also the CPU time of all its
     processes (user + system): on a machine shared with other work the wall time follows the cores left."""
     for workers in (os.cpu_count() or 1, 1):

@@ -1,10 +1,10 @@
-"""Benchmark: the mixed model's recovery of known rendering effects over 50 synthetic studies (issue 35).
+"""Benchmark: the mixed model's recovery of known rendering effects over 50 synthetic studies.
 
 Each study is written by :func:`analysis.synthetic.write_synthetic_study` with its own seed; the
 generator's true effect of each sample against the reference is the difference of its expected
 ratings on the 1-7 scale it writes (:func:`analysis.synthetic.expected_ratings`: rounding and
 clipping included). A rendering effect is recovered in a study when the truth lies inside the mixed
-model's 95 % CI. Printed: the share of (study, effect) pairs covered (issue 35: >= 90 %), the
+model's 95 % CI. Printed: the share of (study, effect) pairs covered (target: >= 90 %), the
 worst effect's share, the studies whose every effect was covered, how often the random slope was
 kept, and the median fit time.
 

@@ -1,4 +1,4 @@
-"""Psychophysics sessions on the sim device (issue 34): JND recovered vs the simulated participant, SIGKILL/resume.
+"""Psychophysics sessions on the sim device: JND recovered vs the simulated participant, SIGKILL/resume.
 
 1. **JND recovery.** Simulated subjects run a stiffness-discrimination session (method of constant stimuli,
    7 comparison stiffnesses from 400 to 1225 N/m around a 700 N/m reference, ``TRIALS_PER_LEVEL`` trials

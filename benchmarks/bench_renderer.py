@@ -119,7 +119,7 @@ def bench_compute(repeats=5):
 def bench_closed_loop(repeats=3, seconds=5.0):
     """As fast as possible on the nonlinear sim: the compiled loop (law and physics in renderer.law.run_sim,
     the default for simulated devices) and the per-tick loop (one law_tick between read() and command(),
-    what hardware runs), inside the process; then a whole 30 s ``renderer run`` process (issue 21: >= 100x)."""
+    what hardware runs), inside the process; then a whole 30 s ``renderer run`` process (target: >= 100x)."""
     out = {}
     for label, compiled in (("compiled", True), ("per tick", False)):
         dev, _ = _sim()
@@ -219,7 +219,7 @@ def bench_gil(seconds=3.0):
 
 
 def bench_run_figure(repeats=3):
-    """The run figure ``renderer run`` draws after a 30 s simulated run (issue 39; ``--no-figure`` skips it)."""
+    """The run figure ``renderer run`` draws after a 30 s simulated run (``--no-figure`` skips it)."""
     dev, _ = _sim(n_taps=40)
     res = ServoLoop(dev, RendererConfig()).run(duration_s=30.0)
     times, cpu = [], []

@@ -1,4 +1,4 @@
-"""Peak memory of ``renderer run --device sim`` against the number of taps and the run's length (issue 38, item 4).
+"""Peak memory of ``renderer run --device sim`` against the number of taps and the run's length.
 
 Each run is a fresh ``python -m renderer run --device sim --taps N --out DIR`` process; its peak resident set
 (``ru_maxrss`` from ``os.wait4``) is taken, three runs per N, and the medians are printed with the growth per

@@ -3,7 +3,7 @@
 Figures: for the nonlinear (Table 3.1) and the LTI (Phantom-like) models,
 (a) the numba kernel called once per 10 kHz tick, (b) the full device path
 ``read()`` + ``command()`` as the renderer uses it. Medians of several runs;
-the issue asks for >= 50x real time for the nonlinear device on one core.
+the target is >= 50x real time for the nonlinear device on one core.
 Rates are given from CPU time of this process (what one core delivers, robust
 to other processes on a shared machine) and from wall-clock time.
 """
@@ -71,7 +71,7 @@ def main() -> dict:
 
 
 def tap_setup() -> dict:
-    """Set-up cost of a simulated tapping hand per tap (issue 21 item 2: linear in the number of taps).
+    """Set-up cost of a simulated tapping hand per tap (target: linear in the number of taps).
 
     Times ``TapTrajectory(...)`` plus ``set_user`` (sampling the plan and the
     grip onto the 10 kHz grid) for 10 taps and for 400 taps (the set-up of

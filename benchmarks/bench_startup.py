@@ -1,4 +1,4 @@
-"""Start-up of every command (issue 21 item 1): ``python -m <package> --help`` and a 2 s simulated run.
+"""Start-up of every command: ``python -m <package> --help`` and a 2 s simulated run.
 
 ``python -m benchmarks startup`` (or ``.venv/bin/python benchmarks/bench_startup.py [--quick]``).
 Whole-process wall time, median of 5 runs each (after one warm-up run, so the

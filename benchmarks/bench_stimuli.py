@@ -1,6 +1,6 @@
 """Stimuli benchmarks: HFAM library build time and run-time lookup cost.
 
-Targets (issue 4): 8 velocities x 5 grip models x 100 ms at 10 kHz built in < 1 s;
+Targets: 8 velocities x 5 grip models x 100 ms at 10 kHz built in < 1 s;
 ``current(v, grip)`` < 20 us per call.
 """
 

@@ -1,4 +1,4 @@
-"""Study runner benchmark: a full simulated session (issue 6 target: < 30 s wall on this machine).
+"""Study runner benchmark: a full simulated session (target: < 30 s wall on this machine).
 
 Default protocol: familiarization on wood, 12 demonstration and 36 testing
 attempts plus redraws, 5 s of tapping from the first impact each, on the

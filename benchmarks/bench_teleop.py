@@ -1,6 +1,6 @@
 """Teleoperation testbed speed: a whole simulated session vs real time, and the CIMM model step per tick.
 
-Master + slave + controller + CIMM model at 5 kHz (issue 18 targets: >= 10x real time for the whole
+Master + slave + controller + CIMM model at 5 kHz (targets: >= 10x real time for the whole
 session; CIMM model step <= 5 us per servo tick).
 """
 

@@ -1,4 +1,4 @@
-"""Servo timing on this machine (issue 40): timing-check quiet and beside two busy loops, with and without the RT policy.
+"""Servo timing on this machine: timing-check quiet and beside two busy loops, with and without the RT policy.
 
 Each figure is a ``renderer timing-check`` run (``renderer.timing_check.run_check``: the servo loop in its own
 process, paced at 10 kHz, motor off). Targets as root beside two busy loops: period error p99 <= 20 us,
@@ -27,7 +27,7 @@ def main() -> None:
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; uid {os.getuid()}; "
           f"{duration:g} s per run at 10 kHz", flush=True)
     for label, load, policy in (("quiet, RT policy", 0, True), ("2 busy loops, RT policy", 2, True),
-                                ("2 busy loops, no RT policy (as before issue 40)", 2, False)):
+                                ("2 busy loops, no RT policy", 2, False)):
         rec = run_check(duration_s=duration, rate_hz=10000.0, load_cores=load, realtime_policy=policy)
         print(_line(label, rec), flush=True)
 

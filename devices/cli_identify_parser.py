@@ -16,7 +16,7 @@ def _fit_options_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--order", type=auto_or("--order", int, "an integer"), default="auto", help="number of poles, or 'auto' (default): "
                    "chosen from the error-versus-order table")
     p.add_argument("--max-order", type=int, default=14, help="largest order tried by --order auto (default 14)")
-    add_renamed(p, "--delay-s", "--delay", dest="delay", type=auto_or("--delay", float, "a number of seconds"), default="auto", help="pure delay in s, or 'auto' (default)")
+    add_renamed(p, "--delay-s", "--delay", dest="delay", type=auto_or("--delay-s", float, "a number of seconds"), default="auto", help="pure delay in s, or 'auto' (default)")
     p.add_argument("--max-rms-db", type=float, default=3.0,
                    help="requested RMS magnitude error; a worse fit writes nothing (default 3 dB)")
     p.add_argument("--max-rms-phase-deg", type=float, default=20.0,

@@ -1,4 +1,4 @@
-"""Plausibility of a user's numbers against the device's own limits (issue 39, part 5).
+"""Plausibility of a user's numbers against the device's own limits.
 
 A grip outside what the grip sensor measures, a tap faster than the device is rated for, or a wall so stiff
 that one encoder count already commands the whole continuous force are not experiments the device can run:

@@ -1,6 +1,8 @@
 """Device strings: the one way every command selects a device.
 
-``sim``                 simulated device, Table 3.1 parameters (nonlinear model)
+``sim``                 simulated device, Table 3.1 parameters (nonlinear model: the joystick)
+``sim:joystick``        the same, by name
+``sim:onedof``          the section 4.4.3 one-dof testbed: Table 3.1 with a linear linkage (chapter 4's device)
 ``sim:lti``             simulated linear "Phantom-like" device
 ``sim:<params file>``   simulated device from a TOML/JSON parameter file
 ``sim:3d``              simulated 3-DOF device (the 1-DOF sim along the tap, docs/sim.md); ``sim:3d-delta``
@@ -26,9 +28,9 @@ from __future__ import annotations
 
 from .base import Device
 
-DEVICE_KINDS = ("sim", "sim:lti", "sim:<params file>", "sim:3d", "sim:3d-delta", "sim:3d-serial", "serial:<port>",
-                "hid:<vid>:<pid>", "fw-sim", "inverse3:<port>", "falcon:<index>", "woodenhaptics", "dhd:<index>",
-                "touch:<name>")
+DEVICE_KINDS = ("sim", "sim:joystick", "sim:onedof", "sim:lti", "sim:<params file>", "sim:3d", "sim:3d-delta",
+                "sim:3d-serial", "serial:<port>", "hid:<vid>:<pid>", "fw-sim", "inverse3:<port>", "falcon:<index>",
+                "woodenhaptics", "dhd:<index>", "touch:<name>")
 #: the 3-DOF research devices (devices/lab_devices.py)
 LAB_KINDS = ("inverse3", "falcon", "woodenhaptics", "dhd", "touch")
 

@@ -1,16 +1,22 @@
-"""``python -m figstyle.gallery [--out docs/gallery]``: regenerate the figure gallery of the docs.
+"""``python -m figstyle.gallery [--out docs/gallery] [--readme-figures docs/img]``: regenerate the figure gallery.
 
 Runs the project's own commands in subprocesses (so this leaf package imports none of the
-others): a synthetic study (``python -m analysis synthetic``) analysed by ``python -m analysis
-report``, and the simulated demo (``python -m renderer demo --device sim``, which also draws the
-identification's Bode plot and the HFAM library). Copies every figure (PNG, SVG, .plot.csv) into
-``OUT/study`` and ``OUT/demo`` and writes ``OUT/README.md`` with the captions.
+others): a simulated realism study of the thesis's size -- sixteen subjects, each a ``python -m study run``
+session of the simulated participant on the one-dof sim (seven who never used a haptic device, seven a few
+times, two regularly: section 4.5.4) -- analysed by ``python -m analysis report`` (whose ``ranking.json`` holds
+Figure 4.17's ordering and section 4.5.4's saturations), and the simulated demo (``python -m renderer demo``
+on ``sim:onedof``, which also draws the identification's Bode plot and the HFAM library). Copies every figure
+(PNG, SVG, .plot.csv) into ``OUT/study`` and ``OUT/demo`` and writes ``OUT/README.md`` with the captions.
+``--readme-figures DIR`` also writes the README's two figures there: the demo's penetration figure and Figure
+5.11 from ``python -m renderer teleop-sweep`` in Figure 5.11's condition. ``make artefacts``
+(``plumbing.artefacts``) runs this and stamps the result.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -98,7 +104,38 @@ def _copy(src_dir: Path, stem: str, dst_dir: Path, formats) -> list[str]:
     return names
 
 
-def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "plot.csv")) -> Path:
+#: the study's subjects' prior experience, as section 4.5.4 reports the sixteen: "Seven of the subjects had never
+#: used a haptic device before. Seven had used such systems a few times, and two reported using haptic interfaces
+#: on a regular basis."
+EXPERIENCE_16 = ("none",) * 7 + ("few",) * 7 + ("regular",) * 2
+
+
+def _experience(k: int, n: int) -> str:
+    """Subject ``k`` of ``n``'s experience: the thesis's 7/7/2 mix, scaled to ``n``."""
+    return EXPERIENCE_16[min(len(EXPERIENCE_16) - 1, (k * len(EXPERIENCE_16)) // max(n, 1))]
+
+
+def _run_sessions(py: str, data: Path, subjects: int, seed: int, root: Path, workers: int = 2) -> None:
+    """One simulated session per subject (``python -m study run``), ``workers`` at a time."""
+    cmds = [[py, "-m", "study", "run", "--participant", "simulated", "--subject", f"S{k + 1:02d}", "--seed",
+             str(seed + k + 1), "--experience", _experience(k, subjects), "--out", str(data), "--quiet"]
+            for k in range(subjects)]
+    pending, running = list(cmds), []
+    while pending or running:
+        while pending and len(running) < workers:
+            cmd = pending.pop(0)
+            print("$ " + " ".join(cmd[1:]), flush=True)
+            running.append((cmd, subprocess.Popen(cmd, cwd=root, text=True, stdout=subprocess.PIPE,
+                                                  stderr=subprocess.PIPE)))
+        cmd, proc = running.pop(0)
+        so, se = proc.communicate()
+        if proc.returncode != 0:
+            sys.stderr.write(so[-2000:] + se[-4000:])
+            raise SystemExit(f"error: {' '.join(cmd[1:4])} failed with exit code {proc.returncode}")
+
+
+def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "plot.csv"),
+          readme_figures: Path | None = None) -> Path:
     """Regenerate the gallery into ``out``; returns the path of its README.md.
 
     Parameters
@@ -106,31 +143,38 @@ def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "
     out : Path
         Gallery folder (``study/`` and ``demo/`` inside are replaced).
     subjects, seed : int
-        Size and seed of the synthetic study (its session seeds follow from ``seed``).
+        Size of the simulated study and the seed of its first session (subject k runs with ``seed + k``).
     formats : tuple of str
         File kinds copied per figure.
+    readme_figures : Path or None
+        Also write the README's figures (``demo_penetration.png``, ``teleop_figure_5_11.png``) into this folder.
     """
     root = Path(__file__).resolve().parents[1]
     out = Path(out).resolve()
     py = sys.executable
     with tempfile.TemporaryDirectory(prefix="gallery-") as tmp:
         tmp = Path(tmp)
-        _run([py, "-m", "analysis", "synthetic", str(tmp / "data"), "--subjects", str(subjects), "--seed",
-              str(seed), "--traces", "2"], root)
+        _run_sessions(py, tmp / "data", subjects, seed, root)
         _run([py, "-m", "analysis", "report", str(tmp / "data"), "--out", str(tmp / "report")], root)
-        _run([py, "-m", "renderer", "demo", "--device", "sim", "--out", str(tmp / "demo"), "--scope", "none"], root)
+        _run([py, "-m", "renderer", "demo", "--device", "sim:onedof", "--out", str(tmp / "demo"), "--scope", "none",
+              "--cache-dir", str(tmp / "cache")], root)
         _run([py, "-m", "renderer.demo.table3d", "--out", str(tmp / "table3d")], root)
         for sub in ("study", "demo", "dof3"):
             shutil.rmtree(out / sub, ignore_errors=True)
             (out / sub).mkdir(parents=True)
         captions = _study_captions(tmp / "report" / "report.md")
+        checks = json.loads((tmp / "report" / "ranking.json").read_text(encoding="utf-8"))
+        shutil.copyfile(tmp / "report" / "ranking.json", out / "study" / "ranking.json")
         md = ["# Figure gallery", "",
-              "Generated by `make gallery` (`python -m figstyle.gallery`) from a synthetic study "
-              f"({subjects} subjects, seed {seed}; `python -m analysis synthetic`, not a model of human "
-              "perception) and the simulated demo (`python -m renderer demo --device sim`). Every figure is "
-              "drawn in the project style (`figstyle`, docs/figures.md) and saved as PNG and SVG with the "
-              "plotted numbers as CSV beside it (CSVs over 400 kB are left out of the committed gallery; "
-              "the commands write them).", "", "## Realism study (thesis section 4.5)", ""]
+              "Generated by `make gallery` (`python -m figstyle.gallery`) from a simulated realism study "
+              f"({subjects} subjects, seeds {seed + 1}-{seed + subjects}: `python -m study run --participant "
+              "simulated` on the one-dof sim, with the synthetic rater, which is not a model of human perception) "
+              "and the simulated demo (`python -m renderer demo --device sim:onedof`). Every figure is drawn in the "
+              "project style (`figstyle`, docs/figures.md) and saved as PNG and SVG with the plotted numbers as CSV "
+              "beside it (CSVs over 400 kB are left out of the committed gallery; the commands write them).", "",
+              "## Realism study (thesis section 4.5)", "",
+              "The study's ranking against the thesis's (`study/ranking.json`, from `python -m analysis report`):", ""]
+        md += [f"- {line}" for line in _ranking_md(checks)] + [""]
         for stem in STUDY_ORDER:
             files = _copy(tmp / "report", stem, out / "study", formats)
             if not files:
@@ -149,21 +193,43 @@ def build(out: Path, subjects: int = 16, seed: int = 0, formats=("png", "svg", "
         files = _copy(tmp / "table3d", "table3d", out / "dof3", formats)
         md += ["![table3d](dof3/table3d.png)", "", TABLE3D_CAPTION, "",
                "Files: " + ", ".join(f"[{n.rsplit('.', 1)[1].upper()}](dof3/{n})" for n in files), ""]
+        if readme_figures is not None:
+            img = Path(readme_figures).resolve()
+            img.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(tmp / "demo" / "fig_penetration.png", img / "demo_penetration.png")
+            _run([py, "-m", "renderer", "teleop-sweep", "--lambda", "1,1.5,2,2.5,3,3.5,4,4.5,5,6", "--conditions",
+                  "pf,pf+cimm", "--backlash-mm", "0.1", "--lambda-by-speed", "--cimm-model", "linear-linkage",
+                  "--taps", "2", "--out", str(tmp / "fig511")], root)
+            shutil.copyfile(tmp / "fig511" / "figure_5_11.png", img / "teleop_figure_5_11.png")
     readme = out / "README.md"
     readme.write_text("\n".join(md) + "\n", encoding="utf-8")
     (out / SOURCES_FILE).write_text(sources_digest(root), encoding="utf-8")
     return readme
 
 
+def _ranking_md(checks: dict) -> list[str]:
+    """The ranking lines of the gallery's README from ``ranking.json`` (``analysis.ranking``)."""
+    lines = ["mean ratings, best first: " + ", ".join(f"{s} {m:.2f}" for s, m in checks["order"])]
+    for key, words in (("real_wood_first", "real wood rated highest"),
+                       ("hfam_first_virtual", "HFAM first among the virtual samples"),
+                       ("proportional_near_foam", "proportional walls comparable to foam, below every event-based sample"),
+                       ("saturations", "about six saturations per subject, mostly real wood and event-based")):
+        c = checks[key]
+        lines.append(f"{'met' if c['met'] else 'not met'}: {words} ({c['text']})")
+    return lines
+
+
 def main(argv=None) -> int:
     """Command line of :func:`build`."""
     p = argparse.ArgumentParser(prog="python -m figstyle.gallery", description=__doc__.splitlines()[0])
     p.add_argument("--out", default="docs/gallery", help="gallery folder (default docs/gallery)")
-    p.add_argument("--subjects", type=int, default=16, help="synthetic subjects (default 16)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic study (default 0)")
+    p.add_argument("--subjects", type=int, default=16, help="simulated subjects (default 16, the thesis's)")
+    p.add_argument("--seed", type=int, default=0, help="subject k's session runs with seed SEED + k (default 0)")
+    p.add_argument("--readme-figures", default=None, metavar="DIR",
+                   help="also write the README's figures into DIR (docs/img)")
     args = p.parse_args(argv)
     os.environ.setdefault("MPLBACKEND", "Agg")
-    print(f"wrote {build(Path(args.out), args.subjects, args.seed)}")
+    print(f"wrote {build(Path(args.out), args.subjects, args.seed, readme_figures=args.readme_figures)}")
     return 0
 
 

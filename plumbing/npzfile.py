@@ -141,8 +141,8 @@ def load_npz(path, what: str = ".npz file"):
     if head.startswith(b"\x93NUMPY"):
         raise ValueError(f"{path}: {what} is a single-array .npy file, not an .npz archive")
     if not head.startswith(b"PK"):
-        # what kind of file, never its bytes: the path may name any file the user can read (issue 38:
-        # a catalog's library = "../../etc/passwd" echoed the file's first bytes)
+        # what kind of file, never its bytes: the path may name any file the user can read (a catalog's
+        # library = "../../etc/passwd" must not echo the file's first bytes)
         kind = "a text file" if all(32 <= b < 127 or b in (9, 10, 13) for b in head) else "another binary format"
         raise ValueError(f"{path}: {what} is not an .npz (zip) archive ({kind}, without the zip signature)")
     try:

@@ -1,4 +1,4 @@
-"""Worker pools whose workers die with their parent (issue 38): a SIGKILLed or signalled parent leaves no
+"""Worker pools whose workers die with their parent: a SIGKILLed or signalled parent leaves no
 orphaned worker waiting forever. Apart from :mod:`plumbing.stopsignals` because it loads multiprocessing's
 pool machinery (~26 ms), which only the commands that start a pool need."""
 

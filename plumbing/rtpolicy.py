@@ -1,11 +1,11 @@
 """Real-time treatment of the servo process: ask the OS for what it allows, record what was obtained.
 
-Issue 40. The thesis ran its loops under RTAI; here the servo process (``renderer.process``, the study's
+The thesis ran its loops under RTAI; here the servo process (``renderer.process``, the study's
 ``study.isolated``) asks Linux for
 
 * ``SCHED_FIFO`` at :data:`RT_PRIORITY` (80: above every ordinary process and the kernel's threaded
   interrupt handlers at 50, below the kernel's own watchdog/migration threads at 99; ``chrt -f 80``
-  gave p99 102.7 us in the issue's measurement);
+  gave p99 102.7 us in our measurement);
 * ``mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT)``: no page of the loop is paged out or faulted in
   from disk;
 * CPU affinity to :func:`servo_core` (the last allowed CPU), which the rest of the program avoids

@@ -4,11 +4,16 @@ One folder per subject::
 
     DATA/<subject>/session.json            subject details and settings (read_session_json)
     DATA/<subject>/trials.csv              the rating study: one row per attempt (RATING);
-                                           a forced-choice session: one row per trial (FORCED_CHOICE)
+                                           a forced-choice session: one row per trial (FORCED_CHOICE);
+                                           method of adjustment and magnitude estimation: one row per trial
+                                           (ADJUSTMENT, MAGNITUDE)
     DATA/<subject>/schedule.jsonl          planned orders, redraws, invalid attempts, resumes (a JSON object
                                            per line)
     DATA/<subject>/staircase_state.jsonl   an adaptive forced-choice session: each trial's staircase state
     DATA/<subject>/traces/<phase>_t<trial:03d>_a<attempt:02d>.npz
+
+and the counterbalancing design a lab writes before the sessions (``python -m study design``): ``design.csv``
+(DESIGN_COLUMNS: the order of conditions each participant gets).
 
 Here are the columns and their types, the subject details' choices, the row formats (a row's values as
 written and read back, every value checked) and the readers of ``session.json`` and of a ``trials.csv``'s
@@ -362,6 +367,161 @@ RATING = RowFormat("rating study", RATING_COLUMNS, (RATING_COLUMNS, RATING_CORE_
                    parse_rating_row, _rating_sequence)
 FORCED_CHOICE = RowFormat("forced-choice session", FORCED_CHOICE_COLUMNS, (FORCED_CHOICE_COLUMNS,),
                           format_forced_choice_row, parse_forced_choice_row, _forced_choice_sequence)
+
+
+# -- typed row formats of the newer kinds (method of adjustment, magnitude estimation) -----------------------
+
+def _typed_format(columns: tuple, ints: tuple, floats: tuple, lists: tuple = ()):
+    """``(format, parse)`` of a row whose columns are strings but for ``ints``, ``floats`` (repr; NaN/None
+    empty) and ``lists`` (floats, ';'-joined)."""
+    def fmt(row: dict) -> dict:
+        out = {}
+        for key in columns:
+            value = row[key]
+            if key in floats:
+                out[key] = _fmt_float(value)
+            elif key in ints:
+                out[key] = str(int(value))
+            elif key in lists:
+                out[key] = ";".join(repr(float(v)) for v in value)
+            else:
+                out[key] = str(value)
+        return out
+
+    def parse(raw: dict, where: str) -> dict:
+        _check_field_count(raw, where)
+        row = dict(raw)
+        try:
+            for key in ints:
+                row[key] = int(raw[key])
+            for key in floats:
+                row[key] = float(raw[key]) if raw[key] != "" else math.nan
+                if math.isinf(row[key]):
+                    raise ValueError(f"{key}={raw[key]!r} is not finite")
+            for key in lists:
+                row[key] = [float(v) for v in raw[key].split(";")] if raw[key] else []
+                if not all(math.isfinite(v) for v in row[key]):
+                    raise ValueError(f"{key}={raw[key]!r} holds a value that is not finite")
+            if row["trial"] < 1 or row["attempt"] < 1:
+                raise ValueError("trial and attempt must be >= 1")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: bad value ({exc})") from None
+        return row
+    return fmt, parse
+
+
+ADJUSTMENT_COLUMNS = (
+    "subject", "trial", "attempt", "block", "condition", "sequence", "reference_sample", "reference_value",
+    "comparison_sample", "vary", "start_value", "start_side", "final_value", "matched", "n_steps",
+    "n_comparisons", "n_references", "values", "sim_percept_reference", "started_at", "duration_s",
+)
+ADJUSTMENT_INT_COLUMNS = ("trial", "attempt", "block", "matched", "n_steps", "n_comparisons", "n_references")
+ADJUSTMENT_FLOAT_COLUMNS = ("reference_value", "start_value", "final_value", "sim_percept_reference", "duration_s")
+#: the side of the reference a trial's comparison starts on
+START_SIDES = ("above", "below")
+
+
+def _check_adjustment(row: dict, where: str) -> None:
+    if row["start_side"] not in START_SIDES:
+        raise ValueError(f"{where}: bad value (start_side={row['start_side']!r} is not above|below)")
+    if row["matched"] not in (0, 1):
+        raise ValueError(f"{where}: bad value (matched must be 0|1, got {row['matched']})")
+    for key in ("reference_value", "start_value", "final_value"):
+        if not row[key] > 0:
+            raise ValueError(f"{where}: bad value ({key} must be a number > 0, got {row[key]!r})")
+    if len(row["values"]) != row["n_comparisons"] or (row["values"] and row["values"][-1] != row["final_value"]):
+        raise ValueError(f"{where}: bad value (values must list the {row['n_comparisons']} comparisons presented, "
+                         "the last one the final value)")
+
+
+def _sequence_of_trials(what: str):
+    def follows(row: dict, where: str, state: dict) -> None:
+        _forced_choice_sequence(row, where, state)
+        if what == "adjustment":
+            _check_adjustment(row, where)
+        elif not (row["number"] > 0 and math.isfinite(row["number"])):
+            raise ValueError(f"{where}: bad value (number must be a finite number > 0, got {row['number']!r})")
+    return follows
+
+
+MAGNITUDE_COLUMNS = (
+    "subject", "trial", "attempt", "block", "condition", "sequence", "sample", "vary", "level", "modulus",
+    "modulus_number", "modulus_shown", "number", "n_taps", "incoming_velocity_mean_m_s", "penetration_mean_m",
+    "sim_percept", "started_at", "duration_s",
+)
+MAGNITUDE_INT_COLUMNS = ("trial", "attempt", "block", "modulus_shown", "n_taps")
+MAGNITUDE_FLOAT_COLUMNS = ("level", "modulus", "modulus_number", "number", "incoming_velocity_mean_m_s",
+                           "penetration_mean_m", "sim_percept", "duration_s")
+
+ADJUSTMENT = RowFormat("method-of-adjustment session", ADJUSTMENT_COLUMNS, (ADJUSTMENT_COLUMNS,),
+                       *_typed_format(ADJUSTMENT_COLUMNS, ADJUSTMENT_INT_COLUMNS, ADJUSTMENT_FLOAT_COLUMNS,
+                                      ("values",)), _sequence_of_trials("adjustment"))
+MAGNITUDE = RowFormat("magnitude-estimation session", MAGNITUDE_COLUMNS, (MAGNITUDE_COLUMNS,),
+                      *_typed_format(MAGNITUDE_COLUMNS, MAGNITUDE_INT_COLUMNS, MAGNITUDE_FLOAT_COLUMNS),
+                      _sequence_of_trials("magnitude"))
+
+
+# -- the counterbalancing design (python -m study design) ---------------------------------------------------
+
+DESIGN_CSV = "design.csv"
+DESIGN_COLUMNS = ("participant", "sequence", "order")
+#: characters a condition's name may not hold (the order column joins names with ';')
+CONDITION_FORBIDDEN = (";", ",", "\n", "\r", '"')
+
+
+def format_design(rows: list[dict]) -> str:
+    """design.csv's text: ``participant, sequence (1-based), order`` (the conditions, ';'-joined, first first)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(DESIGN_COLUMNS)
+    for r in rows:
+        w.writerow((r["participant"], int(r["sequence"]), ";".join(r["order"])))
+    return buf.getvalue()
+
+
+def parse_design(text: str, path) -> list[dict]:
+    """Every row of a design.csv (:func:`format_design`), checked: the header, one row per participant, a
+    sequence number >= 1 and every order a permutation of the same conditions.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and line.
+    """
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader, None)
+        rows, seen, conditions = [], set(), None
+        if header is None or tuple(h.strip() for h in header) != DESIGN_COLUMNS:
+            raise ValueError(f"{path}: header {header} is not {list(DESIGN_COLUMNS)} (written by python -m study design)")
+        for fields in reader:
+            where = f"{path} line {reader.line_num}"
+            if not fields:
+                continue
+            if len(fields) != len(DESIGN_COLUMNS):
+                raise ValueError(f"{where}: {len(fields)} fields, the header has {len(DESIGN_COLUMNS)}")
+            participant, sequence, order = fields
+            if participant in seen:
+                raise ValueError(f"{where}: participant {participant!r} is listed twice")
+            try:
+                number = int(sequence)
+            except ValueError:
+                raise ValueError(f"{where}: sequence {sequence!r} is not a whole number") from None
+            names = order.split(";")
+            if number < 1 or not all(names) or len(set(names)) != len(names):
+                raise ValueError(f"{where}: sequence must be >= 1 and order a list of distinct conditions, "
+                                 f"got {sequence!r}, {order!r}")
+            if conditions is None:
+                conditions = sorted(names)
+            elif sorted(names) != conditions:
+                raise ValueError(f"{where}: order {order!r} is not an order of the conditions {conditions}")
+            seen.add(participant)
+            rows.append({"participant": participant, "sequence": number, "order": names})
+    except csv.Error as exc:
+        raise ValueError(f"{path} line {reader.line_num}: not CSV ({exc})") from None
+    if not rows:
+        raise ValueError(f"{path}: no participant rows")
+    return rows
 
 
 class DamagedRow(ValueError):

@@ -18,7 +18,8 @@ sessions (the study runs its methods, the analysis fits and draws with it)::
     print(method.estimate()["threshold"], fit(xs, ys, alternatives=2, function="weibull").threshold)
 
 Modules: ``psychometric`` (the function), ``fitting`` (maximum likelihood, profile and bootstrap intervals,
-goodness of fit), ``adaptive`` (the methods' common part: history, reversals, state and replay),
+goodness of fit, flags, several conditions and their comparison), ``bayes`` (psignifit 4's Bayesian fit with
+priors and overdispersion), ``sdt`` (d' and criterion), ``datasets`` (published data for checking fits), ``adaptive`` (the methods' common part: history, reversals, state and replay),
 ``staircase`` (up-down, weighted up-down), ``quest`` (QUEST+, Psi), ``multistair`` (interleaving, catch
 trials), ``methods`` (by name, from a protocol table or a saved state), ``observer`` (the simulated
 observer) and ``simulate`` (a method against an observer, R times: precision against trials).
@@ -34,7 +35,11 @@ _EXPORTS = {
     "inverse_sigmoid": "psychometric", "intensity_at": "psychometric", "jnd": "psychometric",
     "guess_rate": "psychometric",
     "Fit": "fitting", "fit": "fitting", "fit_counts": "fitting", "aggregate": "fitting", "deviance": "fitting",
-    "profile_interval": "fitting", "LAPSE_MAX": "fitting",
+    "profile_interval": "fitting", "LAPSE_MAX": "fitting", "GUESS_MAX": "fitting", "Flag": "fitting",
+    "FLAG_NAMES": "fitting", "bca_interval": "fitting", "fit_multiple": "fitting", "MultiFit": "fitting",
+    "compare_models": "fitting", "ModelComparison": "fitting",
+    "fit_bayes": "bayes", "fit_bayes_counts": "bayes", "BayesFit": "bayes", "default_priors": "bayes",
+    "dprime": "sdt", "DATASETS": "datasets",
     "AdaptiveMethod": "adaptive", "reversals": "adaptive",
     "UpDown": "staircase", "WeightedUpDown": "staircase",
     "QuestPlus": "quest", "Psi": "quest", "make_grid": "quest",

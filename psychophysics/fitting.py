@@ -1,4 +1,4 @@
-"""Psychometric functions fitted by maximum likelihood, with profile-likelihood and bootstrap intervals.
+"""Psychometric functions fitted by maximum likelihood, with exact profile-likelihood and bootstrap intervals.
 
 The function (:mod:`psychophysics.psychometric`, the one the adaptive methods and the simulated observer
 use)::
@@ -14,11 +14,30 @@ the 75 %-correct point). All three are location-scale families of ``z = beta (u 
 ``u = x, a = alpha`` (logistic, normal) or ``u = ln x, a = ln alpha`` (Weibull, a Gumbel in log
 stimulus), which is how they are fitted.
 
-Fitting (Wichmann & Hill 2001a): binomial maximum likelihood over ``(a, ln beta, lambda)`` with
-gamma = 1/n for n-AFC (0 for yes/no, or gamma = lambda, "equal asymptotes", for a yes/no or "which was
-harder?" task whose lapses flip answers either way) and lambda either fixed or fitted in ``[0, lapse_max]``; Fisher scoring with Levenberg-Marquardt damping, vectorised over data sets so
-that a parametric bootstrap (Wichmann & Hill 2001b) refits 1,000 resamples at once. Goodness of fit is
-the deviance, with its p-value from the bootstrap's deviances (and the chi-square approximation).
+The lower asymptote (Wichmann & Hill 2001a; psignifit 4's experiment types; Palamedes' guess-rate options):
+
+* ``"fixed"``: gamma = 1/n for an n-alternative forced choice, 0 for a yes/no task whose answers have no
+  false alarms;
+* ``"equal"``: gamma = lambda, one fitted rate at both ends (psignifit's "equal asymptote"): a "which was
+  harder?" task whose lapses flip answers either way;
+* ``"free"``: gamma fitted in ``[0, guess_max]`` (psignifit's "yes/no"): a yes/no task with false alarms.
+
+Fitting: binomial maximum likelihood over ``(a, ln beta[, lambda][, gamma])``, Fisher scoring with
+Levenberg-Marquardt damping and an active set for parameters at their bounds, vectorised over data sets
+(a parametric bootstrap, Wichmann & Hill 2001b, refits 1,000 resamples at once) and over conditions that
+share parameters (:func:`fit_multiple`, Palamedes' ``PAL_PFML_FitMultiple``). The threshold's interval is
+the profile likelihood's (Wilks), its ends found by root finding on the profile; the bootstrap gives
+percentile and BCa intervals (Efron 1987) of every derived quantity. Goodness of fit is the deviance, with
+its p-value from the bootstrap's deviances and the chi-square approximation (withheld where a level holds
+fewer than :data:`CHI2_MIN_TRIALS` trials). :func:`compare_models` is a likelihood-ratio test between two
+such models (Palamedes' ``PAL_PFLR_ModelComparison``).
+
+Derived quantities, one definition each (docs/psychophysics.md, "Thresholds, PSE, JND and Weber fraction"):
+``threshold`` = alpha (F = 0.5); ``threshold_at(pc)`` = where psi = pc (psignifit's ``threshold(pc)``;
+``unscaled=True``: where F = pc); ``slope_at_threshold`` = d psi / dx at alpha (per stimulus unit);
+``pse`` = alpha for a yes/no task (undefined for n-AFC); ``jnd`` = x(F = 0.75) - x(F = 0.5) for a yes/no
+task and ``threshold - reference`` for an n-AFC task whose stimulus is the comparison's value; ``weber`` =
+``jnd / reference`` always.
 """
 
 from __future__ import annotations
@@ -27,17 +46,170 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from .psychometric import base_cdf, base_pdf, base_quantile, check_function, from_axis, guess_rate, stimulus_axis
 
 #: default upper bound of a fitted lapse rate (Wichmann & Hill 2001a bound it at 0.06; psignifit's prior
 #: allows up to 0.5 but concentrates below 0.1)
 LAPSE_MAX = 0.1
+#: default upper bound of a fitted lower asymptote (false-alarm rate) of a yes/no task (psignifit's bound)
+GUESS_MAX = 0.5
+#: the lower-asymptote models (module docstring)
+LOWER_ASYMPTOTES = ("fixed", "equal", "free")
 #: the slope is bounded so that the function's 25-75 % width stays between 1/200 and 20 times the span of
 #: the tested stimuli: data that a step function fits perfectly (all wrong below, all right above) give
 #: the steepest allowed function instead of an infinite slope
 WIDTH_RANGE = (1 / 200, 20.0)
+#: the profile's search for an interval's end stops this many stimulus spans (fitting axis) from the
+#: estimate: an end not reached there is open (reported as -inf / +inf)
+PROFILE_LIMIT = 5.0
+#: a chi-square p-value of the deviance is withheld where a level holds fewer trials than this (the
+#: chi-square approximation needs a few trials per level; the bootstrap p-value does not)
+CHI2_MIN_TRIALS = 3
+#: a level is "on the slope" where the fitted F lies in this range
+SLOPE_RANGE = (0.1, 0.9)
+#: fewer levels on the slope than this is flagged
+MIN_LEVELS_ON_SLOPE = 2
+#: bootstrap data sets refitted in one vectorised call (bounds the memory of many observers x resamples)
+CHUNK = 20_000
+
+# ---------------------------------------------------------------------------------------------------------------
+# the model: which parameter column gives each level its location, slope, lapse and guess rate
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A psychometric model of one or several conditions, as the fitting engine sees it.
+
+    Each stimulus level ``l`` (all conditions' levels concatenated) takes its location from column
+    ``ia[l]`` of the parameter vector, its ln-slope from ``islope[l]``, its lapse rate from ``il[l]`` (or
+    the fixed ``lapse``) and its guess rate from ``ig[l]`` (or the fixed ``guess``, or the lapse rate with
+    ``equal``). ``offset`` shifts the standardised stimulus, ``z = beta (u - a) + offset``: with
+    ``offset = G^-1(q)`` the location column is the point where ``F = q`` (a profile of that point).
+    """
+
+    u: np.ndarray
+    function: str
+    ia: np.ndarray
+    islope: np.ndarray
+    il: np.ndarray | None
+    ig: np.ndarray | None
+    lapse: float | None
+    guess: float | None
+    equal: bool
+    lo: np.ndarray
+    hi: np.ndarray
+    offset: float = 0.0
+
+    @property
+    def n_params(self) -> int:
+        return len(self.lo)
+
+    def with_offset(self, offset: float) -> "Model":
+        return Model(self.u, self.function, self.ia, self.islope, self.il, self.ig, self.lapse, self.guess,
+                     self.equal, self.lo, self.hi, float(offset))
+
+    def parts(self, theta):
+        """a, beta, lambda, gamma per level, each (B, L)."""
+        a = theta[:, self.ia]
+        beta = np.exp(theta[:, self.islope])
+        lam = theta[:, self.il] if self.il is not None else np.full_like(a, self.lapse)
+        if self.equal:
+            gam = lam
+        elif self.ig is not None:
+            gam = theta[:, self.ig]
+        else:
+            gam = np.full_like(a, self.guess)
+        return a, beta, lam, gam
+
+    def predict(self, theta, jacobian: bool = True):
+        """p (B, L) and dp/dtheta (B, L, P) for parameters ``theta`` (B, P)."""
+        a, beta, lam, gam = self.parts(theta)
+        zc = beta * (self.u[None, :] - a)
+        z = zc + self.offset
+        g = base_cdf(z, self.function)
+        scale = 1.0 - gam - lam
+        p = gam + scale * g
+        if not jacobian:
+            return p, None
+        B, L = p.shape
+        dg = base_pdf(z, self.function)
+        jac = np.zeros((B, L, self.n_params))
+        ar = np.arange(L)
+        jac[:, ar, self.ia] += scale * dg * (-beta)
+        jac[:, ar, self.islope] += scale * dg * zc
+        if self.il is not None:
+            jac[:, ar, self.il] += (1.0 - 2.0 * g) if self.equal else -g
+        if self.ig is not None:
+            jac[:, ar, self.ig] += 1.0 - g
+        return p, jac
+
+
+def _slope_bounds(u) -> tuple[float, float]:
+    """Bounds of ln beta from :data:`WIDTH_RANGE` and the span of the stimuli on the fitting axis."""
+    span = float(np.ptp(u)) or 1.0
+    # the 25-75 % width of every family is (q75 - q25) / beta with q75 - q25 of order 1-2: 2 is used
+    lo = math.log(2.0 / (WIDTH_RANGE[1] * span))
+    hi = math.log(2.0 / (WIDTH_RANGE[0] * span))
+    return lo, hi
+
+
+def _columns(mode: str, n_cond: int, cond: np.ndarray, start: int):
+    """Column index per level and the number of columns for one parameter kind: ``constrained`` (one shared
+    column) or ``unconstrained`` (one per condition)."""
+    if mode == "constrained":
+        return np.full(len(cond), start), 1
+    return start + cond, n_cond
+
+
+def build_model(u_levels, function: str, lower: str, guess: float, lapse, lapse_max: float = LAPSE_MAX,
+                guess_max: float = GUESS_MAX, condition=None, thresholds: str = "unconstrained",
+                slopes: str = "unconstrained", lapses: str = "unconstrained",
+                guesses: str = "unconstrained") -> Model:
+    """The :class:`Model` of one condition, or of several that share parameters (Palamedes' options).
+
+    Parameters
+    ----------
+    u_levels : array_like, shape (L,)
+        Levels on the fitting axis (:func:`psychophysics.psychometric.stimulus_axis`), all conditions'
+        concatenated.
+    function : str
+    lower : {'fixed', 'equal', 'free'}
+        Lower-asymptote model (module docstring); ``guess`` is its value when fixed.
+    guess : float
+    lapse : float or None
+        Fixed lapse rate, or None to fit it in ``[0, lapse_max]``.
+    lapse_max, guess_max : float
+    condition : array_like of int, shape (L,), optional
+        Condition index of each level (0..C-1); default one condition.
+    thresholds, slopes, lapses, guesses : {'constrained', 'unconstrained'}
+        Shared across conditions (``constrained``) or one per condition (Palamedes' terms).
+    """
+    u = np.asarray(u_levels, dtype=float)
+    cond = np.zeros(len(u), dtype=int) if condition is None else np.asarray(condition, dtype=int)
+    n_cond = int(cond.max()) + 1 if len(cond) else 1
+    for name, mode in (("thresholds", thresholds), ("slopes", slopes), ("lapses", lapses), ("guesses", guesses)):
+        if mode not in ("constrained", "unconstrained"):
+            raise ValueError(f"{name} must be 'constrained' or 'unconstrained', got {mode!r}")
+    s_lo, s_hi = _slope_bounds(u)
+    ia, na = _columns(thresholds, n_cond, cond, 0)
+    islope, ns = _columns(slopes, n_cond, cond, na)
+    lo = [-np.inf] * na + [s_lo] * ns
+    hi = [np.inf] * na + [s_hi] * ns
+    il = ig = None
+    if lapse is None:
+        il, nl = _columns(lapses, n_cond, cond, len(lo))
+        lo += [0.0] * nl
+        hi += [lapse_max] * nl
+    if lower == "free":
+        ig, ng = _columns(guesses, n_cond, cond, len(lo))
+        lo += [0.0] * ng
+        hi += [guess_max] * ng
+    return Model(u=u, function=function, ia=ia, islope=islope, il=il, ig=ig,
+                 lapse=None if lapse is None else float(lapse), guess=None if lower != "fixed" else float(guess),
+                 equal=lower == "equal", lo=np.array(lo, float), hi=np.array(hi, float))
+
 
 # ---------------------------------------------------------------------------------------------------------------
 # maximum likelihood
@@ -72,108 +244,44 @@ def deviance(k, n, p):
     return 2.0 * np.sum(t1 + t2, axis=-1)
 
 
-def _predict(theta, u, guess, lapse_fixed, function):
-    """p (B, L) and dp/dtheta (B, L, P) for theta = (a, ln beta[, lambda]) of shape (B, P).
+def solve(model: Model, k, n, start, hold=None, max_iter: int = 200):
+    """Maximum-likelihood parameters of B data sets under ``model``, from ``start``.
 
-    ``guess`` None: equal asymptotes, gamma = lambda (psignifit's "equal asymptote" type).
-    """
-    a, s = theta[:, :1], theta[:, 1:2]
-    beta = np.exp(s)
-    lam = theta[:, 2:3] if lapse_fixed is None else np.full_like(a, lapse_fixed)
-    gam = lam if guess is None else guess
-    z = beta * (u[None, :] - a)
-    g, dg = base_cdf(z, function), base_pdf(z, function)
-    scale = 1.0 - gam - lam
-    p = gam + scale * g
-    cols = [scale * dg * (-beta), scale * dg * z]
-    if lapse_fixed is None:
-        cols.append(1.0 - 2.0 * g if guess is None else -g)
-    return p, np.stack(cols, axis=-1)
-
-
-def _slope_bounds(u) -> tuple[float, float]:
-    """Bounds of ln beta from :data:`WIDTH_RANGE` and the span of the stimuli on the fitting axis."""
-    span = float(np.ptp(u)) or 1.0
-    # the 25-75 % width of every family is (q75 - q25) / beta with q75 - q25 of order 1-2: 2 is used
-    lo = math.log(2.0 / (WIDTH_RANGE[1] * span))
-    hi = math.log(2.0 / (WIDTH_RANGE[0] * span))
-    return lo, hi
-
-
-def _start(k, n, u, guess, lapse_fixed, lapse_max, function):
-    """Best (a, ln beta[, lambda]) of a coarse grid for each of the B data sets (shape (B, P))."""
-    s_lo, s_hi = _slope_bounds(u)
-    a_grid = np.linspace(u.min(), u.max(), 15)
-    s_grid = np.linspace(s_lo + 0.2 * (s_hi - s_lo), s_hi - 0.2 * (s_hi - s_lo), 9)
-    l_grid = [lapse_fixed] if lapse_fixed is not None else sorted({0.0, min(0.02, lapse_max), lapse_max / 2})
-    A, S, L = np.meshgrid(a_grid, s_grid, l_grid, indexing="ij")
-    A, S, L = A.ravel(), S.ravel(), L.ravel()
-    z = np.exp(S)[:, None] * (u[None, :] - A[:, None])
-    G = L if guess is None else np.full_like(L, guess)                    # guess None: gamma = lambda
-    p = G[:, None] + (1 - G - L)[:, None] * base_cdf(z, function)         # (G, L)
-    p = np.clip(p, 1e-12, 1 - 1e-12)
-    ll = k @ np.log(p).T + (n - k) @ np.log1p(-p).T                       # (B, G)
-    best = np.argmax(ll, axis=1)
-    cols = [A[best], S[best]] + ([L[best]] if lapse_fixed is None else [])
-    return np.stack(cols, axis=1)
-
-
-def fit_many(k, n, x, guess: float, lapse=None, function: str = "logistic", lapse_max: float = LAPSE_MAX,
-             start=None, max_iter: int = 200, fixed_location=None):
-    """Maximum-likelihood fits of B data sets at the same stimulus levels, vectorised.
-
-    Fisher scoring (expected information) with Levenberg-Marquardt damping; lambda is projected onto
-    ``[0, lapse_max]`` and ln beta onto the bounds of :data:`WIDTH_RANGE`.
+    Fisher scoring (expected information) with Levenberg-Marquardt damping; parameters are projected onto
+    their bounds, and one at a bound whose score points outward is held there (active set) so that the
+    others take full Newton steps.
 
     Parameters
     ----------
-    k : array_like, shape (B, L) or (L,)
-        Correct responses per level, per data set.
+    model : Model
+    k : array_like, shape (B, L)
     n : array_like, shape (L,) or (B, L)
-        Trials per level.
-    x : array_like, shape (L,)
-        Stimulus levels (> 0 for the Weibull).
-    guess : float or None
-        gamma; None for equal asymptotes (gamma = lambda, a yes/no task whose lapses flip answers
-        either way).
-    lapse : float or None
-        Fixed lambda, or None to fit it.
-    function : {'logistic', 'normal', 'weibull'}
-    lapse_max : float
-        Upper bound of a fitted lambda.
-    start : array_like, shape (B, P) or (P,), optional
-        Starting (a, ln beta[, lambda]); default: the best point of a coarse grid.
+    start : array_like, shape (B, P)
+    hold : (int, array_like of shape (B,)), optional
+        Hold parameter column ``hold[0]`` at these values (a profile likelihood).
     max_iter : int
-    fixed_location : array_like, shape (B,), optional
-        Hold a (the threshold on the fitting axis) at these values and fit the rest: the profile
-        likelihood of the threshold.
 
     Returns
     -------
     theta : ndarray, shape (B, P)
-        (a, ln beta[, lambda]) with a on the fitting axis (:func:`stimulus_axis`).
     loglik : ndarray, shape (B,)
     """
-    check_function(function, "psychometric function")
     k = np.atleast_2d(np.asarray(k, dtype=float))
     B = k.shape[0]
     n = np.broadcast_to(np.asarray(n, dtype=float), k.shape)
-    u = stimulus_axis(x, function)
-    s_lo, s_hi = _slope_bounds(u)
-    theta = (_start(k, n, u, guess, lapse, lapse_max, function) if start is None
-             else np.array(np.broadcast_to(np.asarray(start, float), (B, 2 if lapse is not None else 3))))
-    P = theta.shape[1]
-
-    lo = np.tile(np.array([-np.inf, s_lo, 0.0][:P]), (B, 1))
-    hi = np.tile(np.array([np.inf, s_hi, lapse_max][:P]), (B, 1))
-    if fixed_location is not None:
-        lo[:, 0] = hi[:, 0] = theta[:, 0] = np.broadcast_to(np.asarray(fixed_location, float), (B,))
+    P = model.n_params
+    theta = np.array(np.broadcast_to(np.asarray(start, float), (B, P)))
+    lo = np.tile(model.lo, (B, 1))
+    hi = np.tile(model.hi, (B, 1))
+    if hold is not None:
+        col, values = hold
+        lo[:, col] = hi[:, col] = theta[:, col] = np.broadcast_to(np.asarray(values, float), (B,))
 
     def project(t, rows=slice(None)):
         return np.clip(t, lo[rows], hi[rows])
 
     theta = project(theta)
-    p, d = _predict(theta, u, guess, lapse, function)
+    p, d = model.predict(theta)
     ll = _loglik(k, n, p)
     mu = np.full(B, 1e-3)
     active = np.ones(B, dtype=bool)
@@ -187,8 +295,6 @@ def fit_many(k, n, x, guess: float, lapse=None, function: str = "logistic", laps
         da = d[idx]
         info = np.einsum("bl,bli,blj->bij", w, da, da)
         score = np.einsum("bl,bli->bi", (k[idx] - n[idx] * pa) / (pa * (1 - pa)), da)
-        # active set: a parameter at its bound whose score points outward is held there (its row and
-        # column replaced by the identity), so the others take full Newton steps instead of zig-zagging
         t_now = theta[idx]
         held = (((t_now <= lo[idx] + 1e-12) & (score < 0)) | ((t_now >= hi[idx] - 1e-12) & (score > 0))
                 | (lo[idx] == hi[idx]))
@@ -199,7 +305,7 @@ def fit_many(k, n, x, guess: float, lapse=None, function: str = "logistic", laps
         lhs = info + (mu[idx, None, None] * (diag[:, :, None] * eye + 1e-9 * eye))
         step = np.linalg.solve(lhs, score[:, :, None])[:, :, 0]
         trial = project(theta[idx] + step, idx)
-        p_t, d_t = _predict(trial, u, guess, lapse, function)
+        p_t, d_t = model.predict(trial)
         ll_t = _loglik(k[idx], n[idx], p_t)
         better = ll_t >= ll[idx] - 1e-12
         gain = ll_t - ll[idx]
@@ -214,17 +320,172 @@ def fit_many(k, n, x, guess: float, lapse=None, function: str = "logistic", laps
     return theta, ll
 
 
+def start_values(model: Model, k, n):
+    """Best parameters of a coarse grid for each of B data sets of a one-condition model (shape (B, P))."""
+    k = np.atleast_2d(np.asarray(k, float))
+    n = np.broadcast_to(np.asarray(n, float), k.shape)
+    u = model.u
+    s_lo, s_hi = model.lo[model.islope[0]], model.hi[model.islope[0]]
+    a_grid = np.linspace(u.min(), u.max(), 15)
+    s_grid = np.linspace(s_lo + 0.2 * (s_hi - s_lo), s_hi - 0.2 * (s_hi - s_lo), 9)
+    cols = [a_grid, s_grid]
+    if model.il is not None:
+        lmax = model.hi[model.il[0]]
+        cols.append(np.array(sorted({0.0, min(0.02, lmax), lmax / 2})))
+    if model.ig is not None:
+        gmax = model.hi[model.ig[0]]
+        cols.append(np.array(sorted({0.0, min(0.05, gmax), min(0.2, gmax)})))
+    mesh = np.meshgrid(*cols, indexing="ij")
+    grid = np.stack([m.ravel() for m in mesh], axis=1)                   # (G, P)
+    p = np.clip(model.predict(grid, jacobian=False)[0], 1e-12, 1 - 1e-12)  # (G, L)
+    ll = k @ np.log(p).T + (n - k) @ np.log1p(-p).T if n.ndim == 1 else (
+        np.einsum("bl,gl->bg", k, np.log(p)) + np.einsum("bl,gl->bg", n - k, np.log1p(-p)))
+    return grid[np.argmax(ll, axis=1)]
+
+
+def _info_se(model: Model, k, n, theta, col: int) -> np.ndarray:
+    """Wald standard error of parameter ``col`` at ``theta`` (B,), from the expected information of the
+    parameters not at a bound; NaN where ``col`` is at a bound or the information is singular."""
+    k = np.atleast_2d(k)
+    n = np.broadcast_to(np.asarray(n, float), k.shape)
+    p, d = model.predict(theta)
+    p = np.clip(p, 1e-12, 1 - 1e-12)
+    info = np.einsum("bl,bli,blj->bij", n / (p * (1 - p)), d, d)
+    at_bound = (theta <= model.lo + 1e-9) | (theta >= model.hi - 1e-9)
+    out = np.full(len(theta), np.nan)
+    for b in range(len(theta)):
+        free = ~at_bound[b]
+        if not free[col]:
+            continue
+        sub = info[b][np.ix_(free, free)]
+        try:
+            cov = np.linalg.inv(sub)
+        except np.linalg.LinAlgError:
+            continue
+        j = int(np.sum(free[:col]))
+        if cov[j, j] > 0:
+            out[b] = math.sqrt(cov[j, j])
+    return out
+
+
+def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: float = 0.95) -> np.ndarray:
+    """Ends of the profile-likelihood (Wilks) interval of parameter ``col``, found by root finding.
+
+    The interval holds the values v whose profile log-likelihood (every other parameter refitted with
+    ``col`` held at v) is within ``chi2_1(ci_level) / 2`` of the maximum. Each end is bracketed by steps
+    growing from the Wald standard error, then found by regula falsi with the Illinois modification
+    (converged to 1e-9 of the stimulus span). An end not bracketed within :data:`PROFILE_LIMIT` stimulus
+    spans of the estimate is open: -inf or +inf.
+
+    Parameters
+    ----------
+    model : Model
+    k : array_like, shape (B, L)
+    n : array_like, shape (L,) or (B, L)
+    theta : ndarray, shape (B, P)
+        Maximum-likelihood parameters.
+    loglik : ndarray, shape (B,)
+    col : int
+        The parameter's column.
+    ci_level : float
+
+    Returns
+    -------
+    ndarray, shape (B, 2)
+        Low and high ends on the parameter's own scale (the fitting axis for a location).
+    """
+    k = np.atleast_2d(np.asarray(k, float))
+    n = np.broadcast_to(np.asarray(n, float), k.shape)
+    B = k.shape[0]
+    crit = stats.chi2.ppf(ci_level, 1) / 2.0
+    span = float(np.ptp(model.u)) or 1.0
+    limit = PROFILE_LIMIT * span
+    tol = 1e-9 * span
+    est = theta[:, col].copy()
+    se = _info_se(model, k, n, theta, col)
+    step0 = np.where(np.isfinite(se) & (se > 0), np.clip(1.5 * se, 1e-3 * span, span), 0.1 * span)
+    out = np.empty((B, 2))
+
+    def drop(rows, values, warm):
+        th, lp = solve(model, k[rows], n[rows], warm, hold=(col, values))
+        return th, loglik[rows] - lp - crit
+
+    for side, sign in enumerate((-1.0, 1.0)):
+        # bracket: (x_in, d_in < 0) towards the estimate, (x_out, d_out > 0) beyond the end
+        x_in, d_in, th_in = est.copy(), np.full(B, -crit), theta.copy()
+        step = step0.copy()
+        x_out = est + sign * step
+        th_out, d_out = drop(np.arange(B), x_out, theta)
+        searching = d_out < 0
+        for _ in range(40):
+            if not searching.any():
+                break
+            r = np.flatnonzero(searching)
+            x_in[r], d_in[r], th_in[r] = x_out[r], d_out[r], th_out[r]
+            at_limit = step[r] >= limit
+            step[r] = np.minimum(step[r] * 3.0, limit)
+            x_out[r] = est[r] + sign * step[r]
+            th_out[r], d_out[r] = drop(r, x_out[r], th_in[r])
+            searching[r] = (d_out[r] < 0) & ~at_limit
+        open_end = d_out < 0
+        # regula falsi, Illinois: neg = the point inside (d < 0), pos = outside (d > 0)
+        x_neg, d_neg, th_neg = x_in, d_in, th_in
+        x_pos, d_pos, th_pos = x_out, d_out.copy(), th_out
+        root = np.where(open_end, sign * np.inf, np.nan)
+        last = np.zeros(B, dtype=int)
+        active = ~open_end
+        for _ in range(100):
+            if not active.any():
+                break
+            r = np.flatnonzero(active)
+            c = (x_neg[r] * d_pos[r] - x_pos[r] * d_neg[r]) / (d_pos[r] - d_neg[r])
+            inside = np.minimum(x_neg[r], x_pos[r]), np.maximum(x_neg[r], x_pos[r])
+            c = np.where((c > inside[0]) & (c < inside[1]), c, 0.5 * (x_neg[r] + x_pos[r]))
+            th_c, d_c = drop(r, c, th_neg[r])
+            neg = d_c < 0
+            rn, rp = r[neg], r[~neg]
+            x_neg[rn], d_neg[rn], th_neg[rn] = c[neg], d_c[neg], th_c[neg]
+            d_pos[rn] = np.where(last[rn] == -1, 0.5 * d_pos[rn], d_pos[rn])
+            last[rn] = -1
+            x_pos[rp], d_pos[rp], th_pos[rp] = c[~neg], d_c[~neg], th_c[~neg]
+            d_neg[rp] = np.where(last[rp] == 1, 0.5 * d_neg[rp], d_neg[rp])
+            last[rp] = 1
+            done = (np.abs(d_c) < 1e-9) | (np.abs(x_pos[r] - x_neg[r]) < tol)
+            root[r[done]] = c[done]
+            active[r[done]] = False
+        left = np.flatnonzero(active)
+        root[left] = 0.5 * (x_neg[left] + x_pos[left])
+        out[:, side] = root
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the fit of one condition
+
+
+@dataclass(frozen=True)
+class Flag:
+    """A reason not to trust a fit as it stands: ``name`` (stable, for tables) and ``message`` (words)."""
+
+    name: str
+    message: str
+
+
+#: the flags a fit can carry (docs/psychophysics.md, "Flags")
+FLAG_NAMES = ("lapse_at_bound", "guess_at_bound", "slope_at_bound", "threshold_interval_open",
+              "threshold_outside_range", "few_levels_on_slope", "poor_fit", "one_response")
+
+
 @dataclass(frozen=True)
 class Fit:
-    """One psychometric fit: estimates, bootstrap intervals and goodness of fit.
+    """One psychometric fit: estimates, intervals, goodness of fit and flags.
 
-    Attributes are in the stimulus's units; ``slope`` is beta of the module docstring; ``jnd`` is
-    x(F = 0.75) - x(F = 0.5); ``weber`` is ``jnd / reference`` for a yes/no ("which was harder?")
-    task and ``(threshold - reference) / reference`` for an n-AFC task whose intensity is the
-    comparison's value (``reference`` given), else NaN. With ``equal_asymptote`` the guess rate is the
-    fitted lapse rate (gamma = lambda). ``threshold_ci`` is the profile-likelihood
-    interval (:func:`profile_interval`), ``threshold_ci_bootstrap`` the bootstrap's percentile interval;
-    the other intervals are the bootstrap's.
+    Attributes are in the stimulus's units (the definitions are the module docstring's); ``slope`` is beta;
+    ``guess`` is gamma (fixed, the lapse rate with ``lower_asymptote = "equal"``, or fitted with
+    ``"free"``). ``threshold_ci`` is the exact profile-likelihood interval (an open end is -inf/+inf);
+    ``*_ci`` of the other quantities are the bootstrap's percentile intervals and ``*_ci_bca`` its BCa
+    intervals (NaN without a bootstrap); ``pse_ci`` is ``threshold_ci`` for a yes/no task; ``jnd_ci`` and
+    ``weber_ci`` of an n-AFC task with a reference follow from ``threshold_ci`` (exact).
     """
 
     function: str
@@ -254,24 +515,131 @@ class Fit:
     levels: tuple = field(default=(), repr=False)
     n_per_level: tuple = field(default=(), repr=False)
     k_per_level: tuple = field(default=(), repr=False)
-    equal_asymptote: bool = False
+    lower_asymptote: str = "fixed"
+    pse: float = math.nan
+    pse_ci: tuple = (math.nan, math.nan)
+    guess_ci: tuple = (math.nan, math.nan)
+    slope_at_threshold: float = math.nan
+    slope_at_threshold_ci: tuple = (math.nan, math.nan)
+    threshold_ci_bca: tuple = (math.nan, math.nan)
+    slope_ci_bca: tuple = (math.nan, math.nan)
+    jnd_ci_bca: tuple = (math.nan, math.nan)
+    weber_ci_bca: tuple = (math.nan, math.nan)
+    deviance_p_chi2_withheld: str = ""
+    flags: tuple = ()
+    lapse_max: float = LAPSE_MAX
+    guess_max: float = GUESS_MAX
+    slope_bounds: tuple = field(default=(math.nan, math.nan), repr=False)
+    boot_params: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
-    def pse(self) -> float:
-        """Point of subjective equality: the threshold (F = 0.5) of a yes/no or "which was harder?" fit."""
-        return self.threshold
+    def equal_asymptote(self) -> bool:
+        """True for the equal-asymptote model (gamma = lambda)."""
+        return self.lower_asymptote == "equal"
+
+    @property
+    def yes_no(self) -> bool:
+        """A yes/no or "which was harder?" task (``alternatives = 1``)."""
+        return self.alternatives == 1
+
+    def _model(self, offset: float = 0.0) -> Model:
+        u = stimulus_axis(np.asarray(self.levels), self.function)
+        m = build_model(u, self.function, self.lower_asymptote, self.guess,
+                        None if self.lapse_fitted else self.lapse, self.lapse_max, self.guess_max)
+        return m.with_offset(offset) if offset else m
+
+    def _theta(self) -> np.ndarray:
+        a = float(stimulus_axis(self.threshold, self.function))
+        t = [a, math.log(self.slope)]
+        if self.lapse_fitted:
+            t.append(self.lapse)
+        if self.lower_asymptote == "free":
+            t.append(self.guess)
+        return np.array([t])
+
+    def threshold_at(self, pc: float, unscaled: bool = False, interval: bool = True) -> dict:
+        """The stimulus where psi = ``pc`` (psignifit's ``threshold(pc)``), or where F = ``pc`` (``unscaled``).
+
+        Parameters
+        ----------
+        pc : float
+            Proportion correct (or "yes"): in (gamma, 1 - lambda), or in (0, 1) with ``unscaled``.
+        unscaled : bool
+            Take ``pc`` as a value of the sigmoid F before guess and lapse scale it.
+        interval : bool
+            Compute its interval: the exact profile likelihood where the point's F-value is fixed by
+            ``pc`` (``unscaled``, or gamma and lambda both fixed), else the bootstrap's percentile interval
+            (NaN without a bootstrap).
+
+        Returns
+        -------
+        dict
+            ``pc``, ``unscaled``, ``threshold``, ``ci`` ([low, high]), ``ci_method``.
+
+        Raises
+        ------
+        ValueError
+            ``pc`` outside the function's range.
+        """
+        lam, gam = self.lapse, self.guess
+        lo, hi = (0.0, 1.0) if unscaled else (gam, 1.0 - lam)
+        if not (lo < pc < hi):
+            raise ValueError(f"a threshold at {pc:g} needs a proportion in ({lo:g}, {hi:g}) for this fit"
+                             f"{'' if unscaled else f' (guess rate {gam:.3g}, lapse rate {lam:.3g})'}")
+        q = pc if unscaled else (pc - gam) / (1.0 - gam - lam)
+        a = float(stimulus_axis(self.threshold, self.function))
+        zq = float(base_quantile(q, self.function))
+        x = float(from_axis(a + zq / self.slope, self.function))
+        ci, method = (math.nan, math.nan), "none"
+        fixed_q = unscaled or (not self.lapse_fitted and self.lower_asymptote == "fixed")
+        if interval and fixed_q:
+            model = self._model(zq)
+            theta = self._theta()
+            theta[0, 0] = a + zq / self.slope
+            n, k = np.asarray(self.n_per_level), np.asarray(self.k_per_level)
+            ll = _loglik(k[None], n[None], model.predict(theta, False)[0])
+            b = profile_bounds(model, k[None], n, theta, ll, 0, self.ci_level)[0]
+            ci, method = (float(from_axis(b[0], self.function)), float(from_axis(b[1], self.function))), "profile"
+        elif interval and self.boot_params is not None:
+            a_b, beta_b, lam_b, gam_b = (v[:, 0] for v in self._model().parts(self.boot_params))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                q_b = np.full(len(a_b), q) if unscaled else (pc - gam_b) / (1.0 - gam_b - lam_b)
+                ok = (q_b > 0) & (q_b < 1)
+                xb = from_axis(a_b[ok] + base_quantile(q_b[ok], self.function) / beta_b[ok], self.function)
+            if ok.mean() >= 0.99:     # nearly every resample's function reaches pc
+                ci = tuple(float(v) for v in np.quantile(xb, [(1 - self.ci_level) / 2, (1 + self.ci_level) / 2]))
+                method = "bootstrap percentile"
+        return {"pc": float(pc), "unscaled": bool(unscaled), "threshold": x, "ci": list(ci), "ci_method": method}
+
+    def interval_of(self, fn) -> tuple[float, float]:
+        """Percentile interval of any quantity ``fn(a, beta, lambda, gamma)`` (``a`` on the fitting axis, arrays)
+        over the bootstrap's parameters; NaN without a bootstrap (e.g. the physical JND of a log10 axis)."""
+        if self.boot_params is None:
+            return math.nan, math.nan
+        a, beta, lam, gam = (v[:, 0] for v in self._model().parts(self.boot_params))
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            values = np.asarray(fn(a, beta, lam, gam), float)
+        values = values[np.isfinite(values)]
+        if len(values) < 0.99 * len(a):
+            return math.nan, math.nan
+        lo, hi = np.quantile(values, [(1 - self.ci_level) / 2, (1 + self.ci_level) / 2])
+        return float(lo), float(hi)
 
     def as_dict(self) -> dict:
-        """JSON-ready dict of every figure (intervals as [low, high])."""
+        """JSON-ready dict of every figure (intervals as [low, high]; NaN and infinite ends as None; flags
+        as ``[{"name", "message"}]``)."""
         out = {}
-        for name in ("function", "alternatives", "guess", "equal_asymptote", "threshold", "slope", "lapse",
-                     "lapse_fitted", "pse",
-                     "jnd", "weber", "reference", "deviance", "deviance_p_chi2", "deviance_p_bootstrap", "loglik",
+        for name in ("function", "alternatives", "lower_asymptote", "guess", "equal_asymptote", "threshold",
+                     "slope", "lapse", "lapse_fitted", "pse", "jnd", "weber", "reference", "slope_at_threshold",
+                     "deviance", "deviance_p_chi2", "deviance_p_chi2_withheld", "deviance_p_bootstrap", "loglik",
                      "n_trials", "n_levels", "bootstrap", "ci_level"):
             v = getattr(self, name)
             out[name] = None if isinstance(v, float) and not math.isfinite(v) else v
-        for name in ("threshold_ci", "threshold_ci_bootstrap", "slope_ci", "lapse_ci", "jnd_ci", "weber_ci"):
+        for name in ("threshold_ci", "threshold_ci_bootstrap", "threshold_ci_bca", "pse_ci", "slope_ci",
+                     "slope_ci_bca", "lapse_ci", "guess_ci", "jnd_ci", "jnd_ci_bca", "weber_ci", "weber_ci_bca",
+                     "slope_at_threshold_ci"):
             out[name] = [None if not math.isfinite(v) else float(v) for v in getattr(self, name)]
+        out["flags"] = [{"name": f.name, "message": f.message} for f in self.flags]
         return out
 
 
@@ -295,108 +663,103 @@ def aggregate(intensity, correct) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return levels, n, k
 
 
-def _derived(theta, function, yes_no, reference):
-    """threshold, slope, lapse, jnd, weber (each shape (B,)) from fitted theta (B, P); ``yes_no``: a yes/no
-    ("which was harder?") task, whose Weber fraction is JND / reference."""
-    a, beta = theta[:, 0], np.exp(theta[:, 1])
-    lam = theta[:, 2] if theta.shape[1] == 3 else None
-    threshold = from_axis(a, function)
-    x75 = from_axis(a + base_quantile(0.75, function) / beta, function)
-    jnd = x75 - threshold
-    if reference is None or not math.isfinite(reference) or reference == 0:
-        weber = np.full_like(threshold, np.nan)
-    elif yes_no:
-        weber = jnd / reference
+def derived(model: Model, theta, yes_no: bool, reference) -> dict:
+    """The one set of derived quantities (module docstring) of one-condition parameters ``theta`` (B, P).
+
+    Returns
+    -------
+    dict of ndarray, shape (B,)
+        ``threshold``, ``slope``, ``lapse``, ``guess``, ``pse``, ``jnd``, ``weber``, ``slope_at_threshold``.
+    """
+    a, beta, lam, gam = (v[:, 0] for v in model.parts(theta))
+    f = model.function
+    threshold = from_axis(a, f)
+    scale = 1.0 - gam - lam
+    # d psi / dx at alpha: (1 - gamma - lambda) G'(0) beta / (dx/du); dx/du = x on the Weibull's log axis
+    slope_thr = scale * float(base_pdf(0.0, f)) * beta / (threshold if f == "weibull" else 1.0)
+    has_ref = reference is not None and math.isfinite(reference) and reference != 0
+    if yes_no:
+        pse = threshold
+        jnd = from_axis(a + base_quantile(0.75, f) / beta, f) - threshold
     else:
-        weber = (threshold - reference) / reference
-    return threshold, beta, lam, jnd, weber
+        pse = np.full_like(threshold, np.nan)
+        jnd = threshold - reference if has_ref else np.full_like(threshold, np.nan)
+    weber = jnd / reference if has_ref else np.full_like(threshold, np.nan)
+    return {"threshold": threshold, "slope": beta, "lapse": lam, "guess": gam, "pse": pse, "jnd": jnd,
+            "weber": weber, "slope_at_threshold": slope_thr}
 
 
-#: points of the profile-likelihood grid, spread over the fitted threshold +- PROFILE_SPAN x the stimulus span
-PROFILE_POINTS = 81
-PROFILE_SPAN = 1.0
-
-
-def profile_interval(levels, n, k, theta, loglik, guess: float, lapse=None, function: str = "logistic",
-                     lapse_max: float = LAPSE_MAX, ci_level: float = 0.95):
-    """Profile-likelihood (Wilks) interval of the threshold, for B data sets at once.
-
-    The interval holds the thresholds a whose profile log-likelihood (slope and lapse refitted with a
-    held) is within chi2_1(ci_level) / 2 of the maximum; its ends are interpolated between the points of a
-    grid of :data:`PROFILE_POINTS` over the fitted threshold +- :data:`PROFILE_SPAN` times the span of the
-    levels (an end beyond the grid is reported as the grid's end).
+def bca_interval(estimate: float, boot, jackknife, weights=None, ci_level: float = 0.95) -> tuple[float, float]:
+    """Bias-corrected and accelerated bootstrap interval (Efron 1987; Efron & Tibshirani 1993, ch. 14).
 
     Parameters
     ----------
-    levels, n : array_like, shape (L,)
-    k : array_like, shape (B, L)
-    theta : ndarray, shape (B, P)
-        The maximum-likelihood fits (:func:`fit_many`).
-    loglik : ndarray, shape (B,)
-    guess, lapse, function, lapse_max
-        As for :func:`fit_many`.
+    estimate : float
+        The statistic on the data.
+    boot : array_like, shape (R,)
+        The statistic on R bootstrap resamples.
+    jackknife : array_like, shape (J,)
+        The statistic with each observation left out (distinct values, see ``weights``).
+    weights : array_like, shape (J,), optional
+        How many observations give each jackknife value (e.g. the trials at a level with a given answer).
     ci_level : float
 
     Returns
     -------
-    ndarray, shape (B, 2)
-        Low and high end, in stimulus units.
+    (low, high)
+        NaN when the bootstrap distribution is degenerate (every resample on one side of the estimate).
     """
-    k = np.atleast_2d(np.asarray(k, float))
-    B = k.shape[0]
-    u = stimulus_axis(levels, function)
-    span = float(np.ptp(u)) or 1.0
-    offsets = np.linspace(-PROFILE_SPAN, PROFILE_SPAN, PROFILE_POINTS) * span
-    grid = theta[:, :1] + offsets[None, :]                                   # (B, G)
-    kk = np.repeat(k, PROFILE_POINTS, axis=0)
-    start = np.repeat(theta, PROFILE_POINTS, axis=0)
-    lp = np.empty(B * PROFILE_POINTS)
-    for c in range(0, B * PROFILE_POINTS, CHUNK):
-        sl = slice(c, c + CHUNK)
-        lp[sl] = fit_many(kk[sl], n, levels, guess, lapse, function, lapse_max, start=start[sl],
-                          fixed_location=grid.ravel()[sl])[1]
-    drop = loglik[:, None] - lp.reshape(B, PROFILE_POINTS)                  # >= 0 up to the fit's tolerance
-    crit = stats.chi2.ppf(ci_level, 1) / 2.0
-    out = np.empty((B, 2))
-    centre = PROFILE_POINTS // 2
-    for b in range(B):
-        d, g = drop[b], grid[b]
-        outside = np.flatnonzero(d[:centre] > crit)
-        if len(outside):
-            i = outside[-1]
-            lo = np.interp(crit, [d[i + 1], d[i]], [g[i + 1], g[i]]) if d[i] != d[i + 1] else g[i]
-        else:
-            lo = g[0]
-        outside = np.flatnonzero(d[centre:] > crit)
-        if len(outside):
-            i = centre + outside[0]
-            hi = np.interp(crit, [d[i - 1], d[i]], [g[i - 1], g[i]]) if d[i] != d[i - 1] else g[i]
-        else:
-            hi = g[-1]
-        out[b] = (lo, hi)
-    return from_axis(out, function)
+    boot = np.asarray(boot, float)
+    boot = boot[np.isfinite(boot)]
+    jack = np.asarray(jackknife, float)
+    w = np.ones_like(jack) if weights is None else np.asarray(weights, float)
+    if len(boot) < 10 or not np.isfinite(estimate):
+        return math.nan, math.nan
+    frac = (np.sum(boot < estimate) + 0.5 * np.sum(boot == estimate)) / len(boot)
+    if frac <= 0.0 or frac >= 1.0:
+        return math.nan, math.nan
+    z0 = special.ndtri(frac)
+    ok = np.isfinite(jack)
+    jack, w = jack[ok], w[ok]
+    mean = np.sum(w * jack) / np.sum(w)
+    dev = mean - jack
+    den = np.sum(w * dev ** 2)
+    acc = np.sum(w * dev ** 3) / (6.0 * den ** 1.5) if den > 0 else 0.0
+    alpha = (1 - ci_level) / 2
+    zs = special.ndtri(np.array([alpha, 1 - alpha]))
+    adj = special.ndtr(z0 + (z0 + zs) / (1 - acc * (z0 + zs)))
+    lo, hi = np.quantile(boot, adj)
+    return float(lo), float(hi)
 
 
-def _check_options(alternatives, lapse, lapse_max, ci_level, equal_asymptote=False) -> float | None:
-    """The guess rate (None: equal asymptotes), after checking the options of :func:`fit` (one ``ValueError``
-    per bad value)."""
+def _check_options(alternatives, lapse, lapse_max, ci_level, lower_asymptote, guess_max) -> float:
+    """The fixed guess rate, after checking the options of :func:`fit` (one ``ValueError`` per bad value)."""
     guess = guess_rate(alternatives)
-    if equal_asymptote and alternatives != 1:
+    if lower_asymptote not in LOWER_ASYMPTOTES:
+        raise ValueError(f"the lower asymptote must be one of {', '.join(LOWER_ASYMPTOTES)}, "
+                         f"got {lower_asymptote!r}")
+    if lower_asymptote == "equal" and alternatives != 1:
         raise ValueError(f"equal asymptotes (gamma = lambda) are for a yes/no task (alternatives 1); a "
                          f"{alternatives}-AFC task guesses at 1/{alternatives}")
-    top = 0.5 if equal_asymptote else 1.0 - guess   # gamma = lambda: the function must still rise
+    if lower_asymptote == "free" and alternatives != 1:
+        raise ValueError(f"a free lower asymptote (false-alarm rate) is for a yes/no task (alternatives 1); a "
+                         f"{alternatives}-AFC task guesses at 1/{alternatives}")
+    top = 0.5 if lower_asymptote == "equal" else 1.0 - guess   # gamma = lambda: the function must still rise
     if lapse is not None and not (0.0 <= lapse < top):
         raise ValueError(f"a fixed lapse rate must be in [0, {top:g}), got {lapse!r}")
     if not (0.0 < lapse_max < top):
         raise ValueError(f"lapse_max must be in (0, {top:g}), got {lapse_max!r}")
+    if lower_asymptote == "free" and not (0.0 < guess_max < 1.0 - lapse_max):
+        raise ValueError(f"guess_max must be in (0, {1.0 - lapse_max:g}), got {guess_max!r}")
     if not (0.5 <= ci_level < 1.0):
         raise ValueError(f"the confidence level must be in [0.5, 1), got {ci_level!r}")
-    return None if equal_asymptote else guess
+    return guess
 
 
 def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", lapse=None,
         lapse_max: float = LAPSE_MAX, bootstrap: int = 1000, ci_level: float = 0.95, reference=None,
-        seed: int = 0, equal_asymptote: bool = False) -> Fit:
+        seed: int = 0, equal_asymptote: bool = False, lower_asymptote: str | None = None,
+        guess_max: float = GUESS_MAX) -> Fit:
     """Fit psi to trial-by-trial responses by maximum likelihood, with a parametric bootstrap.
 
     Parameters
@@ -406,7 +769,7 @@ def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", l
     correct : array_like of 0/1, shape (T,)
         1 for a correct response (n-AFC) or a "yes" / "comparison harder" response (yes/no).
     alternatives : int
-        n of the n-AFC task (gamma = 1/n); 1 for yes/no (gamma = 0).
+        n of the n-AFC task (gamma = 1/n); 1 for yes/no.
     function : {'logistic', 'normal', 'weibull'}
     lapse : float or None
         Fixed lapse rate, or None (default) to fit it in ``[0, lapse_max]``.
@@ -414,17 +777,21 @@ def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", l
     bootstrap : int
         Parametric bootstrap resamples (Wichmann & Hill 2001b); 0 for none.
     ci_level : float
-        Coverage of the percentile intervals.
+        Coverage of the intervals.
     reference : float, optional
-        The reference stimulus of a discrimination task (for the Weber fraction).
+        The reference stimulus of a discrimination task (for the JND of an n-AFC task and the Weber
+        fraction).
     seed : int
         Seed of the bootstrap's generator.
     equal_asymptote : bool
-        A yes/no task (``alternatives = 1``) whose lapses flip answers either way: gamma = lambda, one
-        fitted rate at both asymptotes (psignifit 4's "equal asymptote" type; Wichmann & Hill 2001a
-        section 2.2). A "which was harder?" discrimination is the case: a lapse says "harder" to a
-        much softer comparison as often as "softer" to a much harder one, and a lapse only at the top
-        would bias the PSE and JND.
+        Shorthand for ``lower_asymptote="equal"``.
+    lower_asymptote : {'fixed', 'equal', 'free'}, optional
+        The lower-asymptote model (module docstring); default ``"fixed"`` (gamma = 1/n, 0 for yes/no).
+        ``"equal"`` suits a "which was harder?" discrimination (a lapse says "harder" to a much softer
+        comparison as often as "softer" to a much harder one); ``"free"`` a yes/no detection with false
+        alarms.
+    guess_max : float
+        Upper bound of a free lower asymptote.
 
     Returns
     -------
@@ -432,16 +799,65 @@ def fit(intensity, correct, alternatives: int = 2, function: str = "logistic", l
     """
     levels, n, k = aggregate(intensity, correct)
     return fit_counts(levels, n, k, alternatives, function, lapse, lapse_max, bootstrap, ci_level, reference,
-                      seed, equal_asymptote)[0]
+                      seed, equal_asymptote, lower_asymptote, guess_max)[0]
 
 
-#: bootstrap data sets refitted in one vectorised call (bounds the memory of many observers x resamples)
-CHUNK = 20_000
+def _flags(model, theta, derived_b, profile_b, levels, n, k, p_boot, p_chi2, lapse_max, guess_max) -> tuple:
+    """The flags of one fit (:data:`FLAG_NAMES`); arguments are that fit's own."""
+    out = []
+    if model.il is not None and theta[model.il[0]] >= lapse_max - 1e-6:
+        out.append(Flag("lapse_at_bound", f"the lapse rate sits at its bound {lapse_max:g}: more lapses than "
+                                          "the model allows, or a function that does not fit"))
+    if model.ig is not None and theta[model.ig[0]] >= guess_max - 1e-6:
+        out.append(Flag("guess_at_bound", f"the false-alarm rate sits at its bound {guess_max:g}"))
+    col = model.islope[0]
+    s = theta[col]
+    s_lo, s_hi = model.lo[col], model.hi[col]
+    # at its bound, or running towards it: the likelihood no worse there (data a step function fits, whose
+    # slope has no finite estimate)
+    ll = _loglik(k[None], n[None], model.predict(theta[None], False)[0])[0]
+    for bound, which in ((s_hi, "steepest"), (s_lo, "shallowest")):
+        t = theta.copy()
+        t[col] = bound
+        if _loglik(k[None], n[None], model.predict(t[None], False)[0])[0] >= ll - 1e-6:
+            out.append(Flag("slope_at_bound", f"the slope runs to its bound (the {which} function allowed): the "
+                                              "data do not pin the slope down"))
+            break
+    if not np.all(np.isfinite(profile_b)):
+        out.append(Flag("threshold_interval_open", "the threshold's interval is open: the data do not bound it "
+                                                   f"within {PROFILE_LIMIT:g} stimulus spans"))
+    thr = derived_b["threshold"]
+    if not (levels[0] <= thr <= levels[-1]):
+        out.append(Flag("threshold_outside_range", f"the threshold {thr:.4g} lies outside the tested range "
+                                                   f"{levels[0]:.4g}..{levels[-1]:.4g}"))
+    a, beta = theta[model.ia[0]], math.exp(s)
+    f_levels = base_cdf(beta * (model.u - a), model.function)
+    on_slope = int(np.sum((f_levels >= SLOPE_RANGE[0]) & (f_levels <= SLOPE_RANGE[1])))
+    if on_slope < MIN_LEVELS_ON_SLOPE:
+        out.append(Flag("few_levels_on_slope", f"{on_slope} tested level(s) on the slope (F between "
+                                               f"{SLOPE_RANGE[0]:g} and {SLOPE_RANGE[1]:g}); at least "
+                                               f"{MIN_LEVELS_ON_SLOPE} are needed to measure it"))
+    p = p_boot if math.isfinite(p_boot) else p_chi2
+    if math.isfinite(p) and p < 0.05:
+        which = "bootstrap" if math.isfinite(p_boot) else "chi-square"
+        out.append(Flag("poor_fit", f"the deviance says the function does not fit the data ({which} p = {p:.3g} "
+                                    "< 0.05)"))
+    if np.all(k == 0) or np.all(k == n):
+        word = "correct (or 'yes')" if np.all(k == n) else "wrong (or 'no')"
+        out.append(Flag("one_response", f"every answer is {word}: the data hold no psychometric function"))
+    return tuple(out)
+
+
+def _bootstrap_draws(streams, n, p_hat, R):
+    L = len(n)
+    return np.stack([g.binomial(n.astype(np.int64), np.clip(p, 0, 1), size=(R, L)) for g, p in
+                     zip(streams, p_hat)]).astype(float)
 
 
 def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", lapse=None,
                lapse_max: float = LAPSE_MAX, bootstrap: int = 1000, ci_level: float = 0.95, reference=None,
-               seed: int = 0, equal_asymptote: bool = False) -> list[Fit]:
+               seed: int = 0, equal_asymptote: bool = False, lower_asymptote: str | None = None,
+               guess_max: float = GUESS_MAX) -> list[Fit]:
     """:func:`fit` for counts per level, of one data set or of B data sets at the same levels at once.
 
     Parameters
@@ -452,7 +868,8 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         Trials per level (the same for every data set).
     k : array_like, shape (L,) or (B, L)
         Correct (or "yes") responses per level, per data set.
-    alternatives, function, lapse, lapse_max, bootstrap, ci_level, reference, seed, equal_asymptote
+    alternatives, function, lapse, lapse_max, bootstrap, ci_level, reference, seed, equal_asymptote,
+    lower_asymptote, guess_max
         As for :func:`fit`; data set b's bootstrap draws from the b-th stream of ``seed``.
 
     Returns
@@ -461,7 +878,10 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         One per data set.
     """
     check_function(function, "psychometric function")
-    guess = _check_options(alternatives, lapse, lapse_max, ci_level, equal_asymptote)
+    lower = lower_asymptote or ("equal" if equal_asymptote else "fixed")
+    if equal_asymptote and lower != "equal":
+        raise ValueError("equal_asymptote=True contradicts lower_asymptote={lower!r}")
+    guess = _check_options(alternatives, lapse, lapse_max, ci_level, lower, guess_max)
     yes_no = alternatives == 1
     levels = np.asarray(levels, dtype=float)
     n = np.asarray(n, dtype=float)
@@ -471,55 +891,360 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
         raise ValueError(f"a psychometric function needs trials at two or more intensities, got {L}")
     if function == "weibull" and levels[0] <= 0:
         raise ValueError(f"the Weibull function needs intensities > 0, got {levels[0]:g}")
+    if reference is not None and not math.isfinite(reference):
+        reference = None
     u = stimulus_axis(levels, function)
-    theta, ll = fit_many(k, n, levels, guess, lapse, function, lapse_max)
-    est = _derived(theta, function, yes_no, reference)
-    p_hat = _predict(theta, u, guess, lapse, function)[0]
+    model = build_model(u, function, lower, guess, lapse, lapse_max, guess_max)
+    theta, ll = solve(model, k, n, start_values(model, k, n))
+    est = derived(model, theta, yes_no, reference)
+    p_hat = model.predict(theta, False)[0]
     dev = deviance(k, n[None, :], p_hat)
-    dof = L - theta.shape[1]
-    p_chi2 = stats.chi2.sf(dev, dof) if dof > 0 else np.full(B, np.nan)
-    names = ("threshold", "slope", "lapse", "jnd", "weber")
-    cis = [{name: (math.nan, math.nan) for name in names + ("threshold_bootstrap",)} for _ in range(B)]
-    profile = profile_interval(levels, n, k, theta, ll, guess, lapse, function, lapse_max, ci_level)
+    dof = L - model.n_params
+    withheld = ""
+    if dof <= 0:
+        p_chi2 = np.full(B, np.nan)
+        withheld = f"{L} levels leave no degrees of freedom"
+    elif n.min() < CHI2_MIN_TRIALS:
+        p_chi2 = np.full(B, np.nan)
+        withheld = (f"{int(np.sum(n < CHI2_MIN_TRIALS))} of {L} levels hold fewer than {CHI2_MIN_TRIALS} trials: "
+                    "the chi-square approximation does not hold (see the bootstrap p-value)")
+    else:
+        p_chi2 = stats.chi2.sf(dev, dof)
+    profile = profile_bounds(model, k, n, theta, ll, 0, ci_level)
+    thr_ci = from_axis(profile, function)
+    names = ("threshold", "slope", "lapse", "guess", "jnd", "weber", "slope_at_threshold")
+    pct = [{name: (math.nan, math.nan) for name in names} for _ in range(B)]
+    bca = [{name: (math.nan, math.nan) for name in names} for _ in range(B)]
     p_boot = np.full(B, np.nan)
+    boot_params = [None] * B
     if bootstrap:
         R = int(bootstrap)
         streams = np.random.default_rng(seed).spawn(B) if B > 1 else [np.random.default_rng(seed)]
-        kb = np.stack([g.binomial(n.astype(np.int64), np.clip(p, 0, 1), size=(R, L)) for g, p in
-                       zip(streams, p_hat)]).astype(float).reshape(B * R, L)
+        kb = _bootstrap_draws(streams, n, p_hat, R).reshape(B * R, L)
         start = np.repeat(theta, R, axis=0)
         tb = np.empty_like(start)
         for c in range(0, B * R, CHUNK):
-            tb[c:c + CHUNK] = fit_many(kb[c:c + CHUNK], n, levels, guess, lapse, function, lapse_max,
-                                       start=start[c:c + CHUNK])[0]
-        devb = deviance(kb, n[None, :], _predict(tb, u, guess, lapse, function)[0]).reshape(B, R)
+            tb[c:c + CHUNK] = solve(model, kb[c:c + CHUNK], n, start[c:c + CHUNK])[0]
+        devb = deviance(kb, n[None, :], model.predict(tb, False)[0]).reshape(B, R)
         p_boot = np.mean(devb >= dev[:, None] - 1e-9, axis=1)
-        q = [(1 - ci_level) / 2 * 100, (1 + ci_level) / 2 * 100]
-        boot = [None if v is None else v.reshape(B, R) for v in _derived(tb, function, yes_no, reference)]
-        for name, v in zip(("threshold_bootstrap",) + names[1:], boot):
-            if v is None:
-                continue
-            ok = np.isfinite(v).all(axis=1)
-            bounds = np.percentile(v, q, axis=1)
-            for b in np.flatnonzero(ok):
-                cis[b][name] = (float(bounds[0, b]), float(bounds[1, b]))
-        if lapse is not None:
-            for c in cis:
-                c["lapse"] = (float(lapse), float(lapse))
-    threshold, beta, lam, jnd, weber = est
+        q = [(1 - ci_level) / 2, (1 + ci_level) / 2]
+        boot = {name: v.reshape(B, R) for name, v in derived(model, tb, yes_no, reference).items()}
+        jack_theta, jack_w, jack_owner = _jackknife(model, levels, n, k, theta)
+        jack = derived(model, jack_theta, yes_no, reference)
+        for b in range(B):
+            boot_params[b] = tb[b * R:(b + 1) * R]
+            own = jack_owner == b
+            for name in names:
+                v = boot[name][b]
+                if not np.isfinite(v).all():
+                    continue
+                pct[b][name] = tuple(float(x) for x in np.quantile(v, q))
+                bca[b][name] = bca_interval(float(est[name][b]), v, jack[name][own], jack_w[own], ci_level)
     out = []
     for b in range(B):
-        lapse_b = float(lam[b] if lam is not None else lapse)
-        out.append(Fit(function=function, alternatives=int(alternatives), guess=lapse_b if guess is None else guess,
-                       threshold=float(threshold[b]), slope=float(beta[b]),
-                       lapse=lapse_b, lapse_fitted=lapse is None, equal_asymptote=guess is None,
-                       jnd=float(jnd[b]), weber=float(weber[b]),
+        lapse_b = float(est["lapse"][b])
+        guess_b = float(est["guess"][b])
+        tci = (float(thr_ci[b, 0]), float(thr_ci[b, 1]))
+        jnd_ci, weber_ci = pct[b]["jnd"], pct[b]["weber"]
+        jnd_bca, weber_bca = bca[b]["jnd"], bca[b]["weber"]
+        if not yes_no and reference is not None and reference != 0:
+            # JND = threshold - reference: its interval is the threshold's, exact
+            jnd_ci = jnd_bca = (tci[0] - reference, tci[1] - reference)
+            weber_ci = weber_bca = tuple(sorted((jnd_ci[0] / reference, jnd_ci[1] / reference)))
+        flags = _flags(model, theta[b], {key: float(v[b]) for key, v in est.items()}, profile[b], levels, n, k[b],
+                       float(p_boot[b]), float(p_chi2[b]), lapse_max, guess_max)
+        out.append(Fit(function=function, alternatives=int(alternatives), guess=guess_b,
+                       threshold=float(est["threshold"][b]), slope=float(est["slope"][b]),
+                       lapse=lapse_b, lapse_fitted=lapse is None, lower_asymptote=lower,
+                       jnd=float(est["jnd"][b]), weber=float(est["weber"][b]), pse=float(est["pse"][b]),
+                       pse_ci=tci if yes_no else (math.nan, math.nan),
+                       slope_at_threshold=float(est["slope_at_threshold"][b]),
                        reference=math.nan if reference is None else float(reference), deviance=float(dev[b]),
-                       deviance_p_chi2=float(p_chi2[b]), deviance_p_bootstrap=float(p_boot[b]),
+                       deviance_p_chi2=float(p_chi2[b]), deviance_p_chi2_withheld=withheld,
+                       deviance_p_bootstrap=float(p_boot[b]),
                        loglik=float(ll[b]), n_trials=int(n.sum()), n_levels=L, bootstrap=int(bootstrap),
-                       ci_level=ci_level, threshold_ci=(float(profile[b, 0]), float(profile[b, 1])),
-                       threshold_ci_bootstrap=cis[b]["threshold_bootstrap"], slope_ci=cis[b]["slope"],
-                       lapse_ci=cis[b]["lapse"], jnd_ci=cis[b]["jnd"], weber_ci=cis[b]["weber"],
-                       levels=tuple(levels.tolist()), n_per_level=tuple(n.tolist()), k_per_level=tuple(k[b].tolist())))
+                       ci_level=ci_level, threshold_ci=tci,
+                       threshold_ci_bootstrap=pct[b]["threshold"], threshold_ci_bca=bca[b]["threshold"],
+                       slope_ci=pct[b]["slope"], slope_ci_bca=bca[b]["slope"],
+                       lapse_ci=(float(lapse), float(lapse)) if lapse is not None and bootstrap else pct[b]["lapse"],
+                       guess_ci=pct[b]["guess"] if lower != "fixed" else (guess_b, guess_b),
+                       jnd_ci=jnd_ci, jnd_ci_bca=jnd_bca, weber_ci=weber_ci, weber_ci_bca=weber_bca,
+                       slope_at_threshold_ci=pct[b]["slope_at_threshold"],
+                       levels=tuple(levels.tolist()), n_per_level=tuple(n.tolist()), k_per_level=tuple(k[b].tolist()),
+                       flags=flags, lapse_max=lapse_max, guess_max=guess_max,
+                       slope_bounds=(float(model.lo[1]), float(model.hi[1])), boot_params=boot_params[b]))
     return out
 
+
+def _jackknife(model, levels, n, k, theta):
+    """Leave-one-trial-out refits of B data sets: one per (data set, level, answer) with trials, weighted by
+    how many trials share it (the BCa acceleration's jackknife, without refitting identical sets).
+
+    Returns
+    -------
+    theta : ndarray, shape (J, P)
+    weights : ndarray, shape (J,)
+    owner : ndarray of int, shape (J,)
+        The data set each refit belongs to.
+    """
+    B, L = k.shape
+    rows_k, rows_n, weights, owner, starts = [], [], [], [], []
+    for b in range(B):
+        for lvl in range(L):
+            for correct, count in ((1.0, k[b, lvl]), (0.0, n[lvl] - k[b, lvl])):
+                if count <= 0:
+                    continue
+                kk, nn = k[b].copy(), n.copy()
+                kk[lvl] -= correct
+                nn[lvl] -= 1.0
+                rows_k.append(kk)
+                rows_n.append(nn)
+                weights.append(count)
+                owner.append(b)
+                starts.append(theta[b])
+    kk, nn = np.array(rows_k), np.array(rows_n)
+    th = np.empty((len(kk), theta.shape[1]))
+    for c in range(0, len(kk), CHUNK):
+        th[c:c + CHUNK] = solve(model, kk[c:c + CHUNK], nn[c:c + CHUNK], np.array(starts[c:c + CHUNK]))[0]
+    return th, np.array(weights), np.array(owner)
+
+
+def profile_interval(levels, n, k, alternatives: int = 2, function: str = "logistic", lapse=None,
+                     lapse_max: float = LAPSE_MAX, ci_level: float = 0.95, lower_asymptote: str = "fixed",
+                     guess_max: float = GUESS_MAX) -> np.ndarray:
+    """The exact profile-likelihood interval of the threshold of B data sets (:func:`profile_bounds`).
+
+    Parameters
+    ----------
+    levels, n : array_like, shape (L,)
+    k : array_like, shape (L,) or (B, L)
+    alternatives, function, lapse, lapse_max, ci_level, lower_asymptote, guess_max
+        As for :func:`fit`.
+
+    Returns
+    -------
+    ndarray, shape (B, 2)
+        Low and high end in stimulus units (an open end is -inf or +inf; 0 for an open low end of a
+        Weibull).
+    """
+    guess = _check_options(alternatives, lapse, lapse_max, ci_level, lower_asymptote, guess_max)
+    k = np.atleast_2d(np.asarray(k, float))
+    n = np.asarray(n, float)
+    model = build_model(stimulus_axis(np.asarray(levels, float), function), function, lower_asymptote, guess, lapse,
+                        lapse_max, guess_max)
+    theta, ll = solve(model, k, n, start_values(model, k, n))
+    return from_axis(profile_bounds(model, k, n, theta, ll, 0, ci_level), function)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# several conditions: shared parameters and likelihood-ratio model comparison (Palamedes)
+
+
+@dataclass(frozen=True)
+class MultiFit:
+    """Fits of several conditions with some parameters shared (Palamedes' ``PAL_PFML_FitMultiple``).
+
+    ``thresholds``, ``slopes``, ``lapses``, ``guesses`` hold one value per condition (equal where the
+    parameter is constrained); ``threshold_ci`` the exact profile interval of each condition's threshold
+    (one interval, repeated, when the thresholds are constrained).
+    """
+
+    conditions: tuple
+    function: str
+    alternatives: int
+    options: dict
+    thresholds: tuple
+    slopes: tuple
+    lapses: tuple
+    guesses: tuple
+    threshold_ci: tuple
+    loglik: float
+    n_params: int
+    n_trials: int
+    deviance: float
+
+    def as_dict(self) -> dict:
+        def clean(v):
+            return None if isinstance(v, float) and not math.isfinite(v) else v
+        return {"conditions": list(self.conditions), "function": self.function, "alternatives": self.alternatives,
+                **self.options, "thresholds": [clean(v) for v in self.thresholds],
+                "slopes": [clean(v) for v in self.slopes], "lapses": [clean(v) for v in self.lapses],
+                "guesses": [clean(v) for v in self.guesses],
+                "threshold_ci": [[clean(a), clean(b)] for a, b in self.threshold_ci],
+                "loglik": self.loglik, "n_params": self.n_params, "n_trials": self.n_trials,
+                "deviance": self.deviance}
+
+
+def _stack(data, function):
+    """Concatenated levels (fitting axis), trials, correct and condition index of ``data``."""
+    if len(data) < 2:
+        raise ValueError(f"a fit of several conditions needs two or more, got {len(data)}")
+    us, ns, ks, cs = [], [], [], []
+    for c, (levels, n, k) in enumerate(data):
+        levels = np.asarray(levels, float)
+        if function == "weibull" and np.any(levels <= 0):
+            raise ValueError(f"condition {c + 1}: the Weibull function needs intensities > 0")
+        us.append(stimulus_axis(levels, function))
+        ns.append(np.asarray(n, float))
+        ks.append(np.asarray(k, float))
+        cs.append(np.full(len(levels), c))
+    return np.concatenate(us), np.concatenate(ns), np.concatenate(ks), np.concatenate(cs)
+
+
+def _fit_joint(data, alternatives, function, lapse, lapse_max, lower, guess_max, options, k_all=None):
+    """Joint maximum-likelihood fit: (model, theta (B, P), loglik (B,), stacked n, stacked k (B, L))."""
+    guess = _check_options(alternatives, lapse, lapse_max, 0.95, lower, guess_max)
+    u, n, k, cond = _stack(data, function)
+    model = build_model(u, function, lower, guess, lapse, lapse_max, guess_max, cond, **options)
+    kk = np.atleast_2d(k if k_all is None else k_all)
+    # start: each condition alone, then shared parameters at the mean of the conditions' own
+    singles = []
+    for c in range(int(cond.max()) + 1):
+        m1 = build_model(u[cond == c], function, lower, guess, lapse, lapse_max, guess_max)
+        kc = kk[:, cond == c]
+        t1, _ = solve(m1, kc, n[cond == c], start_values(m1, kc, n[cond == c]))
+        singles.append(t1)
+    B = kk.shape[0]
+    start = np.zeros((B, model.n_params))
+    for kind, idx, col1 in (("a", model.ia, 0), ("s", model.islope, 1), ("l", model.il, 2),
+                            ("g", model.ig, 2 + (model.il is not None))):
+        if idx is None:
+            continue
+        for j in np.unique(idx):
+            conds = np.unique(cond[idx == j])
+            start[:, j] = np.mean([singles[c][:, col1] for c in conds], axis=0)
+    theta, ll = solve(model, kk, n, start)
+    return model, theta, ll, n, kk, cond
+
+
+def fit_multiple(data, alternatives: int = 2, function: str = "logistic", thresholds: str = "unconstrained",
+                 slopes: str = "constrained", lapses: str = "constrained", guesses: str = "constrained",
+                 lapse=None, lapse_max: float = LAPSE_MAX, lower_asymptote: str = "fixed",
+                 guess_max: float = GUESS_MAX, ci_level: float = 0.95, names=None,
+                 intervals: bool = True) -> MultiFit:
+    """Fit several conditions at once, each parameter shared or per condition (Palamedes' ``PAL_PFML_FitMultiple``).
+
+    Parameters
+    ----------
+    data : list of (levels, n, k)
+        Each condition's levels (stimulus units), trials and correct (or "yes") answers per level.
+    alternatives, function, lapse, lapse_max, lower_asymptote, guess_max, ci_level
+        As for :func:`fit` (a fixed ``lapse`` is every condition's).
+    thresholds, slopes, lapses, guesses : {'constrained', 'unconstrained'}
+        ``constrained``: one value shared by every condition; ``unconstrained``: one per condition.
+        The default shares slope and lapse rate and lets the thresholds differ (comparing renderings).
+    names : list of str, optional
+        The conditions' names.
+    intervals : bool
+        Compute the thresholds' profile intervals (NaN without).
+
+    Returns
+    -------
+    MultiFit
+    """
+    check_function(function, "psychometric function")
+    options = {"thresholds": thresholds, "slopes": slopes, "lapses": lapses, "guesses": guesses}
+    model, theta, ll, n, k, cond = _fit_joint(data, alternatives, function, lapse, lapse_max, lower_asymptote,
+                                              guess_max, options)
+    a, beta, lam, gam = (v[0] for v in model.parts(theta))
+    C = len(data)
+    first = [int(np.flatnonzero(cond == c)[0]) for c in range(C)]
+    cis = []
+    cols = sorted(set(int(model.ia[i]) for i in first))
+    bounds = {col: (from_axis(profile_bounds(model, k, n, theta, ll, col, ci_level)[0], function) if intervals
+                    else (math.nan, math.nan)) for col in cols}
+    for c in range(C):
+        lo, hi = bounds[int(model.ia[first[c]])]
+        cis.append((float(lo), float(hi)))
+    p = model.predict(theta, False)[0]
+    return MultiFit(conditions=tuple(names) if names is not None else tuple(str(c + 1) for c in range(C)),
+                    function=function, alternatives=int(alternatives),
+                    options={**options, "lower_asymptote": lower_asymptote,
+                             "lapse": None if lapse is None else float(lapse)},
+                    thresholds=tuple(float(from_axis(a[i], function)) for i in first),
+                    slopes=tuple(float(beta[i]) for i in first), lapses=tuple(float(lam[i]) for i in first),
+                    guesses=tuple(float(gam[i]) for i in first), threshold_ci=tuple(cis), loglik=float(ll[0]),
+                    n_params=model.n_params, n_trials=int(n.sum()), deviance=float(deviance(k, n, p)[0]))
+
+
+@dataclass(frozen=True)
+class ModelComparison:
+    """A likelihood-ratio test of a lesser model against a fuller one (Palamedes' ``PAL_PFLR_ModelComparison``);
+    the two fits carry no intervals (:func:`fit_multiple` gives them)."""
+
+    lesser: MultiFit
+    fuller: MultiFit
+    lr: float
+    df: int
+    p_chi2: float
+    p_bootstrap: float
+    bootstrap: int
+    lr_draws: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def as_dict(self) -> dict:
+        def clean(v):
+            return None if isinstance(v, float) and not math.isfinite(v) else v
+        return {"lesser": self.lesser.as_dict(), "fuller": self.fuller.as_dict(), "lr": clean(self.lr),
+                "df": self.df, "p_chi2": clean(self.p_chi2), "p_bootstrap": clean(self.p_bootstrap),
+                "bootstrap": self.bootstrap}
+
+
+def compare_models(data, lesser: dict, fuller: dict, alternatives: int = 2, function: str = "logistic",
+                   lapse=None, lapse_max: float = LAPSE_MAX, lower_asymptote: str = "fixed",
+                   guess_max: float = GUESS_MAX, bootstrap: int = 1000, seed: int = 0,
+                   names=None) -> ModelComparison:
+    """Likelihood-ratio test between two nested multi-condition models (Palamedes' ``PAL_PFLR_ModelComparison``).
+
+    ``LR = 2 (lnL_fuller - lnL_lesser)``, compared with chi-square on ``df`` = the difference in free
+    parameters, and with its distribution over ``bootstrap`` data sets simulated from the lesser model's
+    fit, each fitted by both models (Palamedes' Monte Carlo p-value: the fraction of simulated LRs at least
+    as large as the observed).
+
+    Parameters
+    ----------
+    data : list of (levels, n, k)
+    lesser, fuller : dict
+        Options of :func:`fit_multiple` (``thresholds``, ``slopes``, ``lapses``, ``guesses``); the lesser
+        model must be nested in the fuller (each parameter at least as constrained).
+    alternatives, function, lapse, lapse_max, lower_asymptote, guess_max
+        As for :func:`fit_multiple`.
+    bootstrap : int
+        Simulated data sets (0: chi-square only).
+    seed : int
+    names : list of str, optional
+
+    Returns
+    -------
+    ModelComparison
+    """
+    keys = ("thresholds", "slopes", "lapses", "guesses")
+    opt_l = {key: lesser.get(key, "constrained" if key != "thresholds" else "unconstrained") for key in keys}
+    opt_f = {key: fuller.get(key, "constrained" if key != "thresholds" else "unconstrained") for key in keys}
+    unknown = (set(lesser) | set(fuller)) - set(keys)
+    if unknown:
+        raise ValueError(f"model options are {', '.join(keys)}; got {sorted(unknown)}")
+    if any(opt_l[key] == "unconstrained" and opt_f[key] == "constrained" for key in keys):
+        raise ValueError(f"the lesser model {opt_l} is not nested in the fuller {opt_f}")
+    common = dict(alternatives=alternatives, function=function, lapse=lapse, lapse_max=lapse_max,
+                  lower_asymptote=lower_asymptote, guess_max=guess_max, names=names, intervals=False)
+    fit_l = fit_multiple(data, **opt_l, **common)
+    fit_f = fit_multiple(data, **opt_f, **common)
+    lr = max(2.0 * (fit_f.loglik - fit_l.loglik), 0.0)
+    df = fit_f.n_params - fit_l.n_params
+    p_chi2 = float(stats.chi2.sf(lr, df)) if df > 0 else math.nan
+    p_boot = math.nan
+    if bootstrap:
+        model_l, theta_l, _, n, _, _ = _fit_joint(data, alternatives, function, lapse, lapse_max, lower_asymptote,
+                                                  guess_max, opt_l)
+        p_l = model_l.predict(theta_l, False)[0][0]
+        rng = np.random.default_rng(seed)
+        kb = rng.binomial(n.astype(np.int64), np.clip(p_l, 0, 1), size=(int(bootstrap), len(n))).astype(float)
+        lls = []
+        for opts in (opt_l, opt_f):
+            _, _, ll, _, _, _ = _fit_joint(data, alternatives, function, lapse, lapse_max, lower_asymptote,
+                                           guess_max, opts, k_all=kb)
+            lls.append(ll)
+        lr_b = np.maximum(2.0 * (lls[1] - lls[0]), 0.0)
+        p_boot = float(np.mean(lr_b >= lr - 1e-9))
+    return ModelComparison(fit_l, fit_f, float(lr), int(df), p_chi2, p_boot, int(bootstrap),
+                           lr_b if bootstrap else None)

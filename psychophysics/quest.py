@@ -14,7 +14,12 @@ whose outcome is expected to leave the least posterior entropy:
   marginalised out before the entropy is taken (the psi-marginal method, Prins 2013, *J. Vision* 13(7):3),
   so trials are not spent on pinning the lapse down; with one lapse rate it is Kontsevich & Tyler's method.
 
-The prior is uniform over the grid (uniform in log threshold when the threshold grid is log-spaced). The
+The prior is uniform over the grid (uniform in log threshold when the threshold grid is log-spaced) unless
+``prior`` gives one per parameter (weights over its grid, or a Gaussian ``{"mean", "sd", "scale"}``); the
+joint prior is their product (questplus's convention). The method stops on ``max_trials``, ``max_reversals``
+or, with ``stop_sd``, once the threshold's posterior SD falls to it. ``choose_among = n > 1`` puts each trial
+at one of the n intensities of lowest expected entropy, drawn at random (questplus's ``min_n_entropy``, with
+its ``max_consecutive_reps`` as ``max_repeats``): a track that cannot be anticipated. The
 estimates are posterior means (in log10 units with ``threshold_scale="log10"``: a geometric mean) with
 95 % credible intervals from the marginal posterior; the maximum a posteriori parameters are reported too.
 The state is the configuration plus the trial history (:class:`psychophysics.adaptive.AdaptiveMethod`): the
@@ -106,6 +111,64 @@ def _jsonable(spec):
     return [float(v) for v in spec]
 
 
+PRIOR_KEYS = ("thresholds", "slopes", "lapses")
+
+
+def _prior_jsonable(prior, prefix: str) -> dict:
+    if not isinstance(prior, dict):
+        raise ValueError(f"{prefix}prior must be a table of thresholds, slopes and lapses, got {prior!r}")
+    unknown = set(prior) - set(PRIOR_KEYS)
+    if unknown:
+        raise ValueError(f"{prefix}prior.{sorted(unknown)[0]} is not a parameter (the prior is over "
+                         f"{', '.join(PRIOR_KEYS)})")
+    return {key: (dict(v) if isinstance(v, dict) else [float(x) for x in v]) for key, v in prior.items()}
+
+
+def prior_weights(name: str, spec, values: np.ndarray, log_scale: bool, prefix: str = "") -> np.ndarray:
+    """One parameter's prior over its grid ``values``: a list of weights (one per value, >= 0), or a Gaussian
+    ``{"mean": m, "sd": s, "scale": "linear" | "log10"}`` (log10: of log10 of the values; default the
+    threshold's scale for thresholds, linear otherwise); normalised to sum 1."""
+    where = f"{prefix}prior.{name}"
+    if isinstance(spec, dict):
+        unknown = set(spec) - {"mean", "sd", "scale"}
+        if unknown:
+            raise ValueError(f"{where} has unknown key(s) {sorted(unknown)}; a Gaussian prior is "
+                             "{mean, sd, scale}")
+        for key in ("mean", "sd"):
+            if key not in spec:
+                raise ValueError(f"{where}.{key} is missing (a Gaussian prior is {{mean, sd, scale}})")
+        mean = require_number("mean", spec["mean"], prefix=f"{where}.")
+        sd = require_number("sd", spec["sd"], minimum=0.0, strict=True, prefix=f"{where}.")
+        scale = spec.get("scale", "log10" if log_scale else "linear")
+        if scale not in SPACINGS:
+            raise ValueError(f"{where}.scale must be one of {', '.join(SPACINGS)}, got {scale!r}")
+        if scale == "log10" and values[0] <= 0:
+            raise ValueError(f"{where}.scale log10 needs values > 0, got {values[0]!r}")
+        v = np.log10(values) if scale == "log10" else values
+        w = np.exp(-0.5 * ((v - mean) / sd) ** 2)
+    elif isinstance(spec, (list, tuple)):
+        if len(spec) != len(values):
+            raise ValueError(f"{where} has {len(spec)} weights for {len(values)} grid values")
+        for i, x in enumerate(spec):
+            require_number(f"{name}[{i}]", x, minimum=0.0, prefix=f"{prefix}prior.")
+        w = np.asarray(spec, dtype=float)
+    else:
+        raise ValueError(f"{where} must be a list of weights or a {{mean, sd, scale}} table, got {spec!r}")
+    if not w.sum() > 0:
+        raise ValueError(f"{where} gives every grid value zero weight")
+    return w / w.sum()
+
+
+def joint_prior(prior: dict, grids: dict, threshold_scale: str, prefix: str = "") -> np.ndarray:
+    """The joint prior over (threshold, slope, lapse), flattened like the posterior: the product of the
+    parameters' priors (uniform for a parameter not given)."""
+    _prior_jsonable(prior, prefix)
+    parts = [prior_weights(key, prior[key], grids[key], key == "thresholds" and threshold_scale == "log10", prefix)
+             if key in prior else np.full(len(grids[key]), 1.0 / len(grids[key])) for key in PRIOR_KEYS]
+    joint = parts[0][:, None, None] * parts[1][None, :, None] * parts[2][None, None, :]
+    return (joint / joint.sum()).ravel()
+
+
 class _GridPosterior(AdaptiveMethod):
     """The Bayesian grid engine of :class:`QuestPlus` and :class:`Psi` (module docstring).
 
@@ -122,11 +185,24 @@ class _GridPosterior(AdaptiveMethod):
         How the threshold's posterior mean and SD are taken (log10: geometric mean, SD in log10 units).
     max_trials, max_reversals : int or None
         Stopping rule.
+    prior : dict or None
+        ``thresholds``, ``slopes``, ``lapses`` -> weights over the grid or ``{mean, sd, scale}``
+        (:func:`prior_weights`); None: uniform.
+    stop_sd : float or None
+        Also stop once the threshold's posterior SD (log10 units on a log10 threshold scale) is at most
+        this (needs ``max_trials`` as a cap).
+    choose_among : int
+        1: the intensity of lowest expected entropy; n > 1: one of the n lowest at random (seeded).
+    max_repeats : int
+        With ``choose_among > 1``: at most this many trials in a row at one intensity.
+    seed : int
+        The random choice's seed.
     """
 
     def __init__(self, intensities, thresholds, slopes, lapses=(0.02,), guess: float = 0.5,
                  function: str = "weibull", threshold_scale: str = "log10", max_trials: int | None = None,
-                 max_reversals: int | None = None, prefix: str = ""):
+                 max_reversals: int | None = None, prior: dict | None = None, stop_sd: float | None = None,
+                 choose_among: int = 1, max_repeats: int = 2, seed: int = 0, prefix: str = ""):
         super().__init__(max_trials, max_reversals, prefix)
         check_function(function, f"{prefix}function")
         require_number("guess", guess, minimum=0.0, prefix=prefix)
@@ -135,6 +211,14 @@ class _GridPosterior(AdaptiveMethod):
         if threshold_scale not in SPACINGS:
             raise ValueError(f"{prefix}threshold_scale must be one of {', '.join(SPACINGS)}, "
                              f"got {threshold_scale!r}")
+        require_number("stop_sd", stop_sd, minimum=0.0, strict=True, optional=True, prefix=prefix)
+        if stop_sd is not None and max_trials is None:
+            raise ValueError(f"{prefix}stop_sd needs {prefix}max_trials too (a cap for an observer whose "
+                             "threshold never gets that precise)")
+        self.choose_among = require_int("choose_among", choose_among, minimum=1, prefix=prefix)
+        self.max_repeats = require_int("max_repeats", max_repeats, minimum=1, prefix=prefix)
+        self.seed = require_int("seed", seed, minimum=0, prefix=prefix)
+        self.stop_sd = None if stop_sd is None else float(stop_sd)
         weib = function == "weibull"
         self.x = make_grid("intensities", intensities, positive=weib, prefix=prefix)
         self.t = make_grid("thresholds", thresholds, positive=weib or threshold_scale == "log10", prefix=prefix)
@@ -150,14 +234,56 @@ class _GridPosterior(AdaptiveMethod):
         self.p_correct = np.ascontiguousarray(pc.reshape(len(self.x), -1))
         self.p_wrong = 1.0 - self.p_correct
         k = self.p_correct.shape[1]
-        self.posterior = np.full(k, 1.0 / k)
+        self._prior_spec = None if prior is None else _prior_jsonable(prior, prefix)
+        if prior is None:
+            self.posterior = np.full(k, 1.0 / k)
+        else:
+            self.posterior = joint_prior(prior, {"thresholds": self.t, "slopes": self.s, "lapses": self.lam},
+                                         threshold_scale, prefix)
+        # questplus's min_n_entropy draws with numpy's legacy generator: the same draws, the same choices
+        self._rng = np.random.RandomState(self.seed) if self.choose_among > 1 else None
+        self._applying = None
         self._prepare()
         self._next_index = self._choose()
+        self._sd = self._threshold_sd()
 
     def config(self) -> dict:
-        """The constructor's keyword arguments (JSON-serialisable)."""
-        return {**self._spec, "guess": self.guess, "function": self.function,
-                "threshold_scale": self.threshold_scale, **self._stop_config()}
+        """The constructor's keyword arguments (JSON-serialisable; the optional ones only when set)."""
+        out = {**self._spec, "guess": self.guess, "function": self.function,
+               "threshold_scale": self.threshold_scale, **self._stop_config()}
+        if self._prior_spec is not None:
+            out["prior"] = self._prior_spec
+        if self.stop_sd is not None:
+            out["stop_sd"] = self.stop_sd
+        if self.choose_among > 1:
+            out.update(choose_among=self.choose_among, max_repeats=self.max_repeats, seed=self.seed)
+        return out
+
+    @property
+    def finished(self) -> bool:
+        """True once ``max_trials`` or ``max_reversals`` is reached, or the threshold's posterior SD falls to
+        ``stop_sd``."""
+        return super().finished or (self.stop_sd is not None and self._sd <= self.stop_sd)
+
+    def _threshold_sd(self) -> float:
+        pt = self.posterior.reshape(self.shape).sum(axis=(1, 2))
+        tt = np.log10(self.t) if self.threshold_scale == "log10" else self.t
+        m = float(pt @ tt)
+        return float(np.sqrt(max(pt @ (tt - m) ** 2, 0.0)))
+
+    def _select(self, expected: np.ndarray) -> int:
+        """The stimulus index of lowest expected entropy, or one of the ``choose_among`` lowest at random
+        (never the same intensity more than ``max_repeats`` times in a row while another is possible)."""
+        if self._rng is None:
+            return int(np.argmin(expected))
+        candidates = np.argsort(expected)[:self.choose_among]
+        # the trials so far, the one being applied included (history gets it after _apply)
+        shown = self.intensities + ([self._applying] if self._applying is not None else [])
+        recent = shown[-self.max_repeats:]
+        while True:
+            i = int(self._rng.choice(candidates))
+            if len(shown) < 2 or len(candidates) < 2 or not all(self.x[i] == x for x in recent):
+                return i
 
     def _prepare(self) -> None:
         """Precompute what the stimulus choice needs (subclasses)."""
@@ -184,7 +310,10 @@ class _GridPosterior(AdaptiveMethod):
                              "impossible under every psychometric function of the grid; give the lapse grid a "
                              "value > 0 (or a guess rate > 0)")
         self.posterior = post / total
+        self._applying = intensity
         self._next_index = self._choose()
+        self._applying = None
+        self._sd = self._threshold_sd()
 
     def _proposal(self) -> float:
         return self.x[self._next_index]
@@ -250,7 +379,8 @@ class QuestPlus(_GridPosterior):
     minimises the expected entropy of the joint posterior (module docstring for the arithmetic).
 
     Parameters are those of the grid engine: ``intensities``, ``thresholds``, ``slopes``, ``lapses``,
-    ``guess``, ``function``, ``threshold_scale``, ``max_trials``, ``max_reversals``.
+    ``guess``, ``function``, ``threshold_scale``, ``max_trials``, ``max_reversals``, ``prior``, ``stop_sd``,
+    ``choose_among``, ``max_repeats``, ``seed``.
     """
 
     name = "quest+"
@@ -268,7 +398,7 @@ class QuestPlus(_GridPosterior):
         return float(np.sum(entr(self.posterior))) - _binary_entropy(pc) + prod[n:]
 
     def _choose(self) -> int:
-        return int(np.argmin(self.expected_entropy()))
+        return self._select(self.expected_entropy())
 
 
 class Psi(_GridPosterior):
@@ -277,7 +407,8 @@ class Psi(_GridPosterior):
     entropy of the posterior over threshold and slope.
 
     Parameters are those of the grid engine: ``intensities``, ``thresholds``, ``slopes``, ``lapses``,
-    ``guess``, ``function``, ``threshold_scale``, ``max_trials``, ``max_reversals``.
+    ``guess``, ``function``, ``threshold_scale``, ``max_trials``, ``max_reversals``, ``prior``, ``stop_sd``,
+    ``choose_among``, ``max_repeats``, ``seed``.
     """
 
     name = "psi"
@@ -303,4 +434,4 @@ class Psi(_GridPosterior):
         return _neg_xlogx_sum(joint_c) - entr(p_c) + _neg_xlogx_sum(joint_w) - entr(p_w)
 
     def _choose(self) -> int:
-        return int(np.argmin(self.expected_entropy()))
+        return self._select(self.expected_entropy())

@@ -13,9 +13,13 @@ Defaults when the user gives only the threshold ``T`` (docs/psychophysics.md):
 * staircases start at the top of the range (the easy end) with log10 steps 0.4, 0.2, then 0.1 after the
   second reversal; ``updown`` is 1-up-2-down (tracks the 70.7 % point), ``weighted`` tracks the point
   midway between chance and 1 (0.75 in 2AFC);
-* QUEST+ and Psi: thresholds on the stimulus grid, Weibull slopes 1.5..8 (10 log-spaced: the range of
-  2AFC detection and discrimination slopes, wide enough not to presume the observer's), lapses
-  0, 0.01, ..., 0.05 (Psi marginalises the lapse);
+* QUEST+ and Psi: thresholds on the stimulus grid, Weibull slopes 0.7..10 (12 log-spaced: beyond the
+  range of 2AFC detection and discrimination slopes on both sides, so that a shallow observer's slope is
+  inside the grid, not at its edge), lapses 0, 0.02, ..., 0.1 (Psi marginalises the lapse), with priors:
+  log10 slope Gaussian around log10 3 (SD 0.5: the 2AFC range 2-5 at the centre, a factor 3 either way
+  still likely) and lapse weights (1 - lambda)^9 (psignifit's Beta(1, 10)); with a flat grid ending at
+  slope 1.5 and lapse 0.05, observers of slope 1.5 and lapse 0.05 were estimated 22-26 % high, with a
+  flat wide grid typical observers lost precision (docs/psychophysics.md);
 * 80 trials.
 
 Each method's estimate is compared with its own target: the threshold ``T`` for QUEST+/Psi, the intensity
@@ -46,8 +50,11 @@ DEFAULT_TRIALS = 80
 RANGE_FACTOR = 10.0
 LEVELS = 41
 STAIR_STEPS_LOG10 = [0.4, 0.2, 0.1]
-SLOPE_GRID = {"min": 1.5, "max": 8.0, "n": 10, "spacing": "log10"}
-LAPSE_GRID = [0.0, 0.01, 0.02, 0.03, 0.04, 0.05]
+SLOPE_GRID = {"min": 0.7, "max": 10.0, "n": 12, "spacing": "log10"}
+LAPSE_GRID = [0.0, 0.02, 0.04, 0.06, 0.08, 0.1]
+#: priors of QUEST+ and Psi (module docstring)
+PRIOR = {"slopes": {"mean": math.log10(3.0), "sd": 0.5, "scale": "log10"},
+         "lapses": [(1.0 - lam) ** 9 for lam in LAPSE_GRID]}
 #: the command's flags, named in messages about the observer
 FLAGS = {"threshold": "--threshold", "slope": "--slope", "lapse": "--lapse", "guess": "--alternatives",
          "function": "--function"}
@@ -129,7 +136,8 @@ def make_method(s: SimulationSettings) -> AdaptiveMethod:
     grid = {"min": lo, "max": hi, "n": LEVELS, "spacing": "log10"}
     cls = QuestPlus if s.method == "quest+" else Psi
     return cls(intensities=grid, thresholds=grid, slopes=dict(SLOPE_GRID), lapses=list(LAPSE_GRID), guess=guess,
-               function="weibull", threshold_scale="log10", max_trials=s.trials)
+               function="weibull", threshold_scale="log10", max_trials=s.trials,
+               prior={key: (dict(v) if isinstance(v, dict) else list(v)) for key, v in PRIOR.items()})
 
 
 def reference_intensity(method: AdaptiveMethod, observer: ObserverParams) -> float:

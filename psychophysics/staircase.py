@@ -8,6 +8,13 @@ and divides the intensity by ``10**step`` (a step of 0.1 is a factor 1.26, about
 x 2). A step may be a list: the step after ``k`` reversals is ``steps[min(k, len - 1)]`` (PsychoPy's
 ``stepSizes``; the move that makes the k-th reversal already takes ``steps[k]``, as in PsychoPy), e.g.
 large steps to find the threshold region, then small ones to track it.
+
+``initial_rule = True`` moves after every response until the first reversal (1-up-1-down), then follows
+the staircase's own rule: PsychoPy's ``StairHandler(applyInitialRule=True)``, which saves the first trials
+of a start far from threshold. A staircase stopped by reversals only (no ``max_trials``) also stops after
+``max_trials_at_bound`` trials in a row at ``min_intensity`` or ``max_intensity`` (default 20): an observer
+who cannot do the task at the easiest intensity never makes a reversal there, and the session would run
+for ever.
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ from .adaptive import AdaptiveMethod, mean_sd
 
 #: the step scales
 STEP_SCALES = ("linear", "log10")
+#: a staircase stopped by reversals only stops after this many trials in a row at an intensity bound
+DEFAULT_TRIALS_AT_BOUND = 20
 
 
 def _steps(name: str, value, prefix: str) -> list[float]:
@@ -58,6 +67,11 @@ class UpDown(AdaptiveMethod):
         Stopping rule (:class:`psychophysics.adaptive.AdaptiveMethod`).
     discard_reversals : int
         The estimate ignores this many first reversals (default 2: they mostly reflect the start).
+    initial_rule : bool
+        1-up-1-down until the first reversal (PsychoPy's ``applyInitialRule``); default False.
+    max_trials_at_bound : int or None
+        Stop after this many trials in a row at ``min_intensity`` or ``max_intensity``; None: 20 when the
+        staircase has no ``max_trials`` (stopped by reversals only), else no such stop.
     """
 
     name = "updown"
@@ -65,8 +79,17 @@ class UpDown(AdaptiveMethod):
     def __init__(self, start: float, step_down, step_up=None, n_down: int = 2, n_up: int = 1,
                  step_scale: str = "log10", min_intensity: float | None = None,
                  max_intensity: float | None = None, max_trials: int | None = None,
-                 max_reversals: int | None = None, discard_reversals: int = 2, prefix: str = ""):
+                 max_reversals: int | None = None, discard_reversals: int = 2, initial_rule: bool = False,
+                 max_trials_at_bound: int | None = None, prefix: str = ""):
         super().__init__(max_trials, max_reversals, prefix)
+        if not isinstance(initial_rule, bool):
+            raise ValueError(f"{prefix}initial_rule must be true or false, got {initial_rule!r}")
+        if max_trials_at_bound is not None:
+            require_int("max_trials_at_bound", max_trials_at_bound, minimum=1, prefix=prefix)
+        self.initial_rule = initial_rule
+        self._bound_cap_given = max_trials_at_bound
+        self.max_trials_at_bound = (max_trials_at_bound if max_trials_at_bound is not None
+                                    else (DEFAULT_TRIALS_AT_BOUND if max_trials is None else None))
         if step_scale not in STEP_SCALES:
             raise ValueError(f"{prefix}step_scale must be one of {', '.join(STEP_SCALES)}, got {step_scale!r}")
         log = step_scale == "log10"
@@ -96,7 +119,34 @@ class UpDown(AdaptiveMethod):
                 "step_up": None if self._step_up_given is None else list(self.steps_up),
                 "n_down": self.n_down, "n_up": self.n_up, "step_scale": self.step_scale,
                 "min_intensity": self.min_intensity, "max_intensity": self.max_intensity,
-                "discard_reversals": self.discard_reversals, **self._stop_config()}
+                "discard_reversals": self.discard_reversals, **self._stop_config(), **self._new_keys()}
+
+    def _new_keys(self) -> dict:
+        """The options a state holds only when set (states written without them replay unchanged)."""
+        out = {}
+        if self.initial_rule:
+            out["initial_rule"] = True
+        if self._bound_cap_given is not None:
+            out["max_trials_at_bound"] = self._bound_cap_given
+        return out
+
+    @property
+    def finished(self) -> bool:
+        """True once ``max_trials`` or ``max_reversals`` is reached, or after ``max_trials_at_bound`` trials in a
+        row at an intensity bound."""
+        return super().finished or self.stopped_at_bound is not None
+
+    @property
+    def stopped_at_bound(self) -> str | None:
+        """``"min_intensity"`` or ``"max_intensity"`` when the track has sat there for ``max_trials_at_bound``
+        trials in a row (and the next trial would be there too), else None."""
+        cap = self.max_trials_at_bound
+        if cap is None or len(self.history) < cap:
+            return None
+        for name, bound in (("min_intensity", self.min_intensity), ("max_intensity", self.max_intensity)):
+            if bound is not None and self._next == bound and all(x == bound for x, _ in self.history[-cap:]):
+                return name
+        return None
 
     def target_probability(self) -> float | None:
         """The probability correct the track converges to, for the current (last) steps.
@@ -133,9 +183,12 @@ class UpDown(AdaptiveMethod):
             xs = self.intensities or [self._next]
             used = xs[len(xs) // 2:]
         threshold, sd = mean_sd(used, log)
-        return {"threshold": threshold, "threshold_sd": sd, "basis": basis, "n_used": len(used),
-                "trials": self.trials, "reversals": len(self.reversal_intensities),
-                "target_p": self.target_probability()}
+        out = {"threshold": threshold, "threshold_sd": sd, "basis": basis, "n_used": len(used),
+               "trials": self.trials, "reversals": len(self.reversal_intensities),
+               "target_p": self.target_probability()}
+        if self.stopped_at_bound is not None:
+            out["stopped_at_bound"] = self.stopped_at_bound
+        return out
 
     def _clip(self, x: float) -> float:
         if self.min_intensity is not None:
@@ -153,6 +206,15 @@ class UpDown(AdaptiveMethod):
     def _apply(self, intensity: float, correct: bool) -> None:
         # counts of the current runs, committed only when the step is accepted (a refused update changes nothing)
         nxt = intensity
+        if self.initial_rule and not self.reversal_intensities:
+            # 1-up-1-down until the first reversal (the move making it included), as PsychoPy's initial rule
+            nxt = self._clip(self._step(intensity, self.steps_down if correct else self.steps_up,
+                                        -1 if correct else 1))
+            if not math.isfinite(nxt):
+                raise ValueError(f"{self.name}: the next intensity is {nxt!r} (the track ran off the number "
+                                 "range); set max_intensity (and min_intensity) to the stimulus range")
+            self._run_correct, self._run_wrong, self._next = 0, 0, nxt
+            return
         if correct:
             run_correct, run_wrong = self._run_correct + 1, 0
             if run_correct >= self.n_down:
@@ -191,8 +253,8 @@ class WeightedUpDown(UpDown):
         Step down (``step_scale`` units); the up steps follow from ``target``.
     target : float
         Probability correct to track, in (0, 1) (default 0.75, midway in a 2AFC).
-    step_scale, min_intensity, max_intensity, max_trials, max_reversals, discard_reversals
-        As :class:`UpDown`.
+    step_scale, min_intensity, max_intensity, max_trials, max_reversals, discard_reversals, max_trials_at_bound
+        As :class:`UpDown` (the weighted rule steps after every response: it has no initial rule).
     """
 
     name = "weighted"
@@ -200,7 +262,7 @@ class WeightedUpDown(UpDown):
     def __init__(self, start: float, step_down, target: float = 0.75, step_scale: str = "log10",
                  min_intensity: float | None = None, max_intensity: float | None = None,
                  max_trials: int | None = None, max_reversals: int | None = None, discard_reversals: int = 2,
-                 prefix: str = ""):
+                 max_trials_at_bound: int | None = None, prefix: str = ""):
         require_number("target", target, minimum=0.0, strict=True, prefix=prefix)
         if not target < 1.0:
             raise ValueError(f"{prefix}target must be in (0, 1), got {target!r}")
@@ -208,7 +270,8 @@ class WeightedUpDown(UpDown):
         super().__init__(start, downs, [s * target / (1.0 - target) for s in downs], n_down=1, n_up=1,
                          step_scale=step_scale, min_intensity=min_intensity, max_intensity=max_intensity,
                          max_trials=max_trials, max_reversals=max_reversals,
-                         discard_reversals=discard_reversals, prefix=prefix)
+                         discard_reversals=discard_reversals, max_trials_at_bound=max_trials_at_bound,
+                         prefix=prefix)
         self.target = float(target)
 
     def config(self) -> dict:
@@ -216,5 +279,5 @@ class WeightedUpDown(UpDown):
         return {"start": self.start, "step_down": list(self.steps_down), "target": self.target,
                 "step_scale": self.step_scale, "min_intensity": self.min_intensity,
                 "max_intensity": self.max_intensity, "discard_reversals": self.discard_reversals,
-                **self._stop_config()}
+                **self._stop_config(), **self._new_keys()}
 

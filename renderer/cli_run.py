@@ -55,6 +55,26 @@ def make_transient(kind: str, library: str | None = None, gain: float | None = N
     return stimuli.HfamLibrary.load(library, **kwargs)
 
 
+#: a simulated tap whose measured incoming speed is off its planned speed by more than this share is said
+SPEED_TOLERANCE = 0.15
+
+
+def tap_speed_warnings(events, planned_m_s) -> list[str]:
+    """Warnings for simulated taps whose measured incoming speed missed the planned one (cycled over the taps).
+
+    The simulated hand plans each tap's approach speed, but the speed measured at contact (what the wall and the
+    transient saw) can fall short of it, e.g. the slower taps of an alternating 0.2/0.3 m/s plan reached
+    0.13 m/s: a run that meant 0.2 m/s and got 0.13 m/s must say so.
+    """
+    out = []
+    for k, ev in enumerate(events):
+        want = planned_m_s[k % len(planned_m_s)]
+        got = ev.incoming_velocity_m_s
+        if abs(got - want) > SPEED_TOLERANCE * want:
+            out.append(f"tap {k + 1} reached {got:.3g} m/s at contact, planned {want:g} m/s ({100 * (got / want - 1):+.0f} %)")
+    return out
+
+
 def _warn_outside_library(transient, velocities_m_s) -> None:
     """Say so (one ``warning:`` line on stderr) when a tap speed lies outside an HFAM library's velocities: its
     transient is then extrapolated from the nearest recordings (capped by the library's extrapolation limit), not
@@ -114,6 +134,25 @@ def _save_partial(result, folder, why: str) -> None:
         print(f"{why}: partial run saved to {folder.commit()}", file=sys.stderr)
 
 
+def _begin_stream(args, loop):
+    """``renderer run --lsl`` (:mod:`renderer.cli_run_lsl` sets ``args.servo_stream``): the loop's ``until``
+    callback that publishes its log and contacts; None without it."""
+    stream = getattr(args, "servo_stream", None)
+    if stream is not None:
+        stream.begin(loop)
+        stream.publisher.marker({"event": "run_start"})
+    return stream
+
+
+def _end_stream(args, loop, result) -> None:
+    """After the run: the last ticks and contacts, the run's end, and the streams' record in run.json."""
+    stream = getattr(args, "servo_stream", None)
+    if stream is not None:
+        stream.flush(loop)
+        stream.publisher.marker({"event": "run_end", "stop_reason": result.stop_reason})
+        result.timing["lsl"] = stream.publisher.close()
+
+
 def _run(args) -> int:
     check_run_size(args.taps, args.duration)   # time and memory bounded: refused before anything is written
     # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): a failed or
@@ -128,10 +167,12 @@ def _run_into(args, folder) -> int:
     cfg = _build_config(args)
     transient = make_transient(args.transient, args.library, args.transient_gain)
     if cfg.effective_scene.needs_3d or args.device.startswith("sim:3d"):
-        from . import cli_run3  # deferred: numba, the 3-D law and trimesh, 0.6 s CPU that a 1-DOF run never pays
+        from . import cli_run3  # deferred: the 3-D loop's modules, 10 ms CPU that a 1-DOF run never pays
 
         return cli_run3.run_into(args, folder, cfg, transient)
     simulated = args.device.split(":", 1)[0] == "sim"
+    if getattr(args, "servo_stream", None) is not None and not (simulated or args.in_process):
+        raise ValueError("--lsl streams a hardware run with --in-process (the servo loop in this process)")
     if simulated:
         provenance.prefetch()  # run.json's versions and git state, while the simulation runs
 
@@ -149,8 +190,10 @@ def _run_into(args, folder) -> int:
                 loop.rt_request = {"core": None}
             # --duration-s: that long (the hand rests after its last tap); else the plan's length
             duration = args.duration if args.duration is not None else traj.duration_s
+            stream = _begin_stream(args, loop)
             try:
-                result = loop.run(duration_s=duration, realtime=args.realtime)
+                result = loop.run(duration_s=duration, realtime=args.realtime, until=stream)
+                _end_stream(args, loop, result)
             except KeyboardInterrupt:
                 _save_partial(loop.result, folder, "interrupted")
                 return 130
@@ -164,8 +207,10 @@ def _run_into(args, folder) -> int:
             with dev:
                 loop = ServoLoop(dev, cfg, transient)
                 loop.rt_request = {"core": None}  # SCHED_FIFO and mlockall around the ticks (plumbing.rtpolicy)
+                stream = _begin_stream(args, loop)
                 try:
-                    result = loop.run(duration_s=args.duration, realtime=True)
+                    result = loop.run(duration_s=args.duration, realtime=True, until=stream)
+                    _end_stream(args, loop, result)
                 except KeyboardInterrupt:
                     result = loop.result
         except Terminated as exc:  # the output was zeroed by the loop and again on closing
@@ -194,6 +239,11 @@ def _run_into(args, folder) -> int:
             print(f"warning: the run's figure was not drawn ({exc})", file=sys.stderr)
     folder.commit()
     print(format_table(result))
+    if simulated:
+        missed = tap_speed_warnings(result.events, args.velocity)
+        if missed:
+            print(f"warning: {len(missed)} of {len(result.events)} taps missed their planned speed by more than "
+                  f"{100 * SPEED_TOLERANCE:.0f} % (measured at contact; events.csv has each tap's speed): " + "; ".join(missed), file=sys.stderr)
     print(f"saved {args.out}/events.csv, run.json, log.npz")
     if args.figure and (Path(args.out) / "run.png").is_file():
         print(f"saved {args.out}/run.png, run.svg, run.plot.csv (the run drawn)")

@@ -16,6 +16,7 @@ from devices.sim import Sim3Device, TapTrajectory
 from plumbing import provenance
 from plumbing.stopsignals import Terminated
 
+from . import sim_aot
 from .loop3 import ServoLoop3, surface_point_above
 from .scene3 import pack_scene
 
@@ -77,6 +78,10 @@ def run_into(args, folder, cfg, transient) -> int:
     folder.commit()
     print(format_table(result))
     print(f"saved {args.out}/events.csv, run.json, log.npz" + (", run.png, run.svg, run.plot.csv" if args.figure else ""))
+    if simulated and result.timing.get("compiled_sim") and not result.timing.get("aot"):
+        if sim_aot.schedule_build(sim_aot.LOOP3):
+            print("compiling the simulated 3-D loop ahead of time in the background (once, ~15 s): later simulated "
+                  "3-D runs start without numba (docs/renderer.md, 'Compiled ahead of time')", file=sys.stderr)
     return 0 if result.stop_reason in ("duration", "until", "stopped") else 1
 
 

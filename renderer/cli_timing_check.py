@@ -1,4 +1,4 @@
-"""``python -m renderer timing-check``: check this machine's servo timing as the loop would run (issue 40).
+"""``python -m renderer timing-check``: check this machine's servo timing as the loop would run.
 
 Runs the servo loop in its own process with the real-time policy (SCHED_FIFO, mlockall, its own core) for
 ``--duration-s`` at ``--rate-hz``, optionally beside ``--load-cores`` busy processes, and prints the period

@@ -1,4 +1,4 @@
-"""``python -m renderer timing-check``: check this machine's servo timing as the loop would run (issue 40).
+"""``python -m renderer timing-check``: check this machine's servo timing as the loop would run.
 
 Runs the servo loop in its own process with the real-time policy (SCHED_FIFO, mlockall, its own core) for
 ``--duration-s`` at ``--rate-hz``, optionally beside ``--load-cores`` busy processes, and prints the period
@@ -37,7 +37,8 @@ def register(subparsers) -> None:
                    help="threshold: period error p99.9 in us (default 50)")
     p.add_argument("--max-period-ms", type=positive("--max-period-ms"), default=1.0,
                    help="threshold: longest period in ms (default 1; at least two nominal periods)")
-    p.add_argument("--out", help="also write the check's figures and verdict to this JSON file")
+    p.add_argument("--out", help="also write the check's numbers (period-error histogram, p99, p99.9, max, "
+                                     "overruns, the policy granted) and its verdict to this JSON file; no plot is drawn")
     p.add_argument("--force", action="store_true", help="replace --out if it exists")
     with_examples(p, "hfam-renderer timing-check --duration-s 10",
                   "hfam-renderer timing-check --duration-s 30 --rate-hz 10000 --load-cores 2 --out timing.json")

@@ -41,7 +41,7 @@ MAX_RUN_DURATION_S = 86400.0
 
 
 def check_run_size(taps: int, duration_s: float | None) -> None:
-    """Refuse a run whose time or memory would be unbounded, naming the limit (issue 38, item 4).
+    """Refuse a run whose time or memory would be unbounded, naming the limit.
 
     Parameters
     ----------

@@ -36,33 +36,23 @@ from devices.sim.layout import (D_ACC, D_GRIP, D_HELD, D_LAST, D_LIMIT, D_PERIOD
                                 D_T, D_TICK, D_USER_TICK, HOT_STATUS, P_MOTOR_ON)
 
 from . import proxy as PX
+# the arrays' layout (numba-free, shared with renderer.loop3)
+from .law3_layout import (  # noqa: F401 -- re-exported: law3.C_*, law3.W_*, law3.LOG_COLUMNS, ...
+    CODE_CLOSED, CODE_DISCONNECTED, CODE_IMPACT, CODE_OK, CODE_SENSOR, CODE_UNSTABLE, C_ALPHA, C_AMAX, C_AMIN,
+    C_CAP, C_C_SCALE, C_C_SHIFT, C_DEV_FPK, C_FC, C_FPK, C_GMAX, C_GMIN, C_HEAT, C_HOLD_B, C_HOLD_K, C_HOLD_N,
+    C_HOLD_ON, C_INV_KF, C_INV_SPAN, C_MARGIN, C_MAX_BAD, C_MOTOR, C_NRING, C_PLIM, C_PO_DECAY, C_PO_LIMIT,
+    C_TBUF, C_T_ATT, C_T_END, C_WV, LOG_COLUMNS, N_C, N_LOG, STATUS_DISCONNECTED, STATUS_SENSOR_INVALID, W_ARMED,
+    W_BAD_TOTAL, W_CLOSED_ACC, W_CLOSED_CLIP, W_CLOSED_PEN, W_CODE, W_ENX, W_ENY, W_ENZ, W_EV_ACC, W_EV_CLIP,
+    W_EV_OBJ, W_EV_ON, W_EV_PEN, W_FLAGS, W_GRIP, W_GTH, W_HX, W_HY, W_LAST_ACC, W_LAST_GRIP, W_LI, W_LNX, W_LNY,
+    W_LNZ, W_LSX, W_LSY, W_LSZ, W_LX, W_LY, W_LZ, W_N, W_NBAD, W_OUT_N, W_PI, W_PNEW, W_PO, W_PO_E, W_PO_F,
+    W_PO_U, W_PO_X, W_PO_Y, W_PO_Z, W_PS, W_RING, W_S0X, W_S0Y, W_S0Z, W_S1X, W_S1Y, W_S1Z, W_T, W_TEMP, W_TJ,
+    W_TLEN, W_VX, W_VY, W_VZ,
+)
 from .passivity import wall_energy
 from .scene3 import O_K
 
 _wall_energy = njit(cache=True, _nrt=False, inline="always")(wall_energy)
 _lateral_step = njit(cache=True, _nrt=False)(LAT.lateral_step)
-
-# ---- constants
-(C_FC, C_FPK, C_INV_KF, C_MARGIN, C_HOLD_N, C_MOTOR, C_PLIM, C_MAX_BAD, C_WV, C_NRING, C_C_SHIFT, C_C_SCALE,
- C_CAP, C_TBUF, C_PO_DECAY, C_PO_LIMIT, C_HEAT, C_ALPHA, C_T_ATT, C_T_END, C_INV_SPAN, C_DEV_FPK, C_HOLD_K,
- C_HOLD_B, C_HOLD_ON, C_AMIN, C_AMAX, C_GMIN, C_GMAX) = range(29)
-N_C = 32
-# ---- state
-(W_ARMED, W_OUT_N, W_TJ, W_TLEN, W_GTH, W_EV_ON, W_EV_PEN, W_EV_ACC, W_EV_CLIP, W_CLOSED_PEN, W_CLOSED_ACC,
- W_CLOSED_CLIP, W_LX, W_LY, W_LZ, W_LAST_ACC, W_LAST_GRIP, W_NBAD, W_BAD_TOTAL, W_PI, W_PO, W_PNEW, W_N, W_LI,
- W_CODE, W_VX, W_VY, W_VZ, W_T, W_GRIP, W_PO_E, W_PO_F, W_PO_X, W_PO_U, W_TEMP, W_FLAGS, W_ENX, W_ENY, W_ENZ,
- W_LNX, W_LNY, W_LNZ, W_LSX, W_LSY, W_LSZ, W_EV_OBJ, W_HX, W_HY, W_S0X, W_S1X, W_S0Y, W_S1Y, W_S0Z, W_S1Z,
- W_PO_Y, W_PO_Z) = range(56)
-W_PS = 64                       # the proxy's state (renderer.proxy.PS_*)
-W_RING = W_PS + PX.N_PS         # three double-written rings (x, y, z), 2 nring each
-CODE_OK, CODE_IMPACT, CODE_CLOSED, CODE_SENSOR, CODE_DISCONNECTED, CODE_UNSTABLE = 0, 1, 2, 4, 8, 16
-STATUS_SENSOR_INVALID, STATUS_DISCONNECTED = 16, 32
-
-LOG_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "proxy_x_m", "proxy_y_m", "proxy_z_m", "penetration_m", "normal_x",
-               "normal_y", "normal_z", "force_x_N", "force_y_N", "force_z_N", "force_wall_N", "force_transient_N",
-               "contact_object", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags", "transient_x_N",
-               "transient_y_N", "transient_z_N")
-N_LOG = len(LOG_COLUMNS)
 
 
 @njit(cache=True, _nrt=False, inline="always")

@@ -254,7 +254,7 @@ def _set_timer_slack_ns(ns: int) -> int | None:
         return None
 
 
-def _prefaulted_zeros(shape: tuple[int, int]) -> np.ndarray:
+def prefaulted_zeros(shape: tuple[int, int]) -> np.ndarray:
     """A zeroed float64 array whose pages are already mapped, so the loop never takes a first-touch fault.
 
     On Linux an anonymous ``MAP_POPULATE`` mapping: the kernel maps every page in one call (~0.4 ms/MB
@@ -278,10 +278,9 @@ COMPILED_POLL_TICKS = 10_000
 
 
 def _law():
-    """``renderer.law``: the JIT-compiled law, imported by the first loop that runs it per tick or JIT."""
-    from . import law  # deferred: numba and the JIT law, 0.7 s CPU; a run compiled ahead of time never needs it
-
-    return law
+    """``renderer.law``: the JIT-compiled law, imported by the first loop that runs it per tick or JIT
+    (``renderer.sim_aot.jit_laws``: a run compiled ahead of time never imports it, nor numba)."""
+    return sim_aot.jit_laws().law
 
 
 class ServoLoop:
@@ -392,6 +391,25 @@ class ServoLoop:
         self.impact_velocity.bind(self.law_state[LAW.W_RING:self.tbuf_at])
         self._prepared = True
 
+    def log_since(self, tick: int, columns: tuple, step: int = 1, end: int | None = None) -> tuple[int, np.ndarray]:
+        """The log's ``columns`` for the ticks from ``tick`` to ``end`` (default: the last one run), every
+        ``step``-th tick (those whose number is a multiple of it), for a consumer while the loop runs (the Lab
+        Streaming Layer's state stream, :mod:`plumbing.lsl`, reads it from its own thread: the ring keeps the
+        last ``capacity`` ticks, seconds, far more than the thread lags). At most the ring's last ``capacity``
+        ticks before the last one run.
+
+        Returns
+        -------
+        (int, ndarray)
+            The first tick returned and the values, shape ``(len(columns), n)``.
+        """
+        n = self.ticks if end is None else min(int(end), self.ticks)
+        start = max(int(tick), self.ticks - self._cap)
+        start += (-start) % step
+        idx = np.arange(start, n, step) % self._cap
+        rows = [LAW.LOG_COLUMNS.index(c) for c in columns]
+        return start, self._logf[np.ix_(rows, idx)]
+
     def request_stop(self) -> None:
         """Ask a running loop (e.g. from a UI thread) to stop within ``cfg.until_every`` ticks (a compiled
         simulated run without an ``until`` predicate: within ``COMPILED_POLL_TICKS``, a few ms of wall time)."""
@@ -413,7 +431,7 @@ class ServoLoop:
         # core while the compiled loop runs, which releases the GIL, measured no faster: the loop slowed by
         # what it saved). A compiled simulated run writes its clock columns once per chunk (compute_ns
         # never): zero pages mapped on demand
-        self._logf = _prefaulted_zeros((LAW.N_LOG, capacity))
+        self._logf = prefaulted_zeros((LAW.N_LOG, capacity))
         if clocks_per_tick:
             self._log_ns = {name: array.array("q", [0]) * capacity for name in ("wall_ns", "compute_ns")}
         else:
@@ -653,6 +671,7 @@ class ServoLoop:
         t0 = time.perf_counter_ns()
         st["t0_ns"] = t0
         self._n = 0
+        self.ticks = 0     # this run's ticks (log_since reads the ring from its first row)
         reason = "duration"
         try:
             with gc_pause:

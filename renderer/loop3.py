@@ -4,7 +4,8 @@
 own stiffness, friction and transient: ``SurfaceProps``) with the god-object proxy (``renderer.proxy``) and
 the 3-D law (``renderer.law3``): per tick ``read()``, the law, ``command_force()``. On the 3-DOF simulated
 device (``devices.sim.Sim3Device``), as fast as possible, law and physics run together in
-``renderer.law3.run_sim3``. On a 1-axis device the endpoint is ``(0, 0, z)`` and only the force's z
+``renderer.law3.run_sim3`` (from the ahead-of-time build when there is one for these sources,
+``renderer.sim_aot``: then the process never imports numba). On a 1-axis device the endpoint is ``(0, 0, z)`` and only the force's z
 reaches the motor (``Device.command_force``). A scene of horizontal walls only on a 3-axis device holds
 x and y with a stiff virtual spring-damper (docs/architecture.md, "A 1-DOF scene on a 3-DOF device").
 
@@ -23,14 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 
 import stimuli
-from stimuli.catalog import load_catalog
 from plumbing import rtpolicy
 from plumbing.stopsignals import holding, stop_if_signalled, stop_on_signals
 
-from . import law3 as L3
-from . import proxy as PX
+from . import law3_layout as L3
+from . import proxy_layout as PX
+from . import sim_aot
 from .config import RendererConfig
-from .loop import EVENT_COLUMNS, ContactEvent, RunResult, transient_name
+from .loop import EVENT_COLUMNS, ContactEvent, RunResult, prefaulted_zeros, transient_name
 from .passivity import passivity_constants
 from .safety import safety_bounds
 from .scene import Wall
@@ -99,7 +100,8 @@ def surface_point_above(packed, name: str | None = None, xy_m=None) -> tuple[tup
             xy_m = (0.5 * (b[0][0] + b[1][0]), 0.5 * (b[0][1] + b[1][1])) if b is not None else (o[5], o[6])
     x, y = float(xy_m[0]), float(xy_m[1])
     stack = np.zeros(STACK_DEPTH, dtype=np.int64)
-    t, j, nx, ny, nz, _, _, _, _, _, _ = PX.first_hit(packed.obj, packed.tri, packed.node, stack, x, y, 1.0, x, y, -1.0)
+    first_hit = sim_aot.loop3_kernels().first_hit
+    t, j, nx, ny, nz, _, _, _, _, _, _ = first_hit(packed.obj, packed.tri, packed.node, stack, x, y, 1.0, x, y, -1.0)
     if j < 0:
         raise ValueError(f"nothing in the scene below ({x:g}, {y:g})")
     if name is not None and packed.names[j] != name:
@@ -135,7 +137,8 @@ class ServoLoop3:
     compiled_sim : bool
         Run law and physics together on a ``Sim3Device`` (not paced).
 
-    Attributes ``ticks``, ``time_s``, ``events`` are readable from an ``until`` callback.
+    Attributes ``ticks``, ``time_s``, ``events`` are readable from an ``until`` callback; ``temp_rise_K`` (the
+    winding model's, K) carries from one run to the next (a study's windows), as ``ServoLoop``'s does.
     """
 
     def __init__(self, device, cfg: RendererConfig | None = None, transient=None, compiled_sim: bool = True):
@@ -149,12 +152,18 @@ class ServoLoop3:
         self.result = None
         self.stop_requested = False
         self.packed = None
+        #: the winding model's temperature rise (K): the config's at first, then where the last run left it
+        self.temp_rise_K = self.cfg.initial_temp_rise_K
 
     # ---------------------------------------------------------------- set-up
     def prepare(self) -> None:
         """Check the scene against the device and build the arrays; ValueError (file, object) before any motion."""
         cfg, info = self.cfg, self.device.info
         self.info = info
+        # the compiled law, proxy and (on the simulated device) physics: ahead of time or JIT (renderer.sim_aot)
+        self.kernels = kn = sim_aot.loop3_kernels()
+        if kn.tick is not None and callable(getattr(self.device, "use_compiled_step", None)):
+            self.device.use_compiled_step(kn.tick)
         self.specs = specs = info.specs()
         fs = float(cfg.rate_hz) if cfg.rate_hz is not None else float(info.servo_rate_hz)
         if info.simulated and abs(fs - info.servo_rate_hz) > 1e-9 * fs:
@@ -168,7 +177,7 @@ class ServoLoop3:
             where = f"{scene.source}.objects[{j}] ({packed.names[j]})"
             tr = self.transient
             if pr is not None and pr.sample:
-                catalog = catalog if catalog is not None else {c.name: c for c in load_catalog()}
+                catalog = catalog if catalog is not None else {c.name: c for c in stimuli.load_catalog()}
                 smp = catalog.get(pr.sample)
                 if smp is None or smp.kind != "virtual":
                     raise ValueError(f"{where}: sample {pr.sample!r} is not a virtual sample of the catalog "
@@ -249,8 +258,8 @@ class ServoLoop3:
         scratch_log = np.zeros((L3.N_LOG, 1))
         s = self.device.read()
         pk = self.packed
-        L3.law3_tick(self.c, self.w.copy(), pk.obj, pk.tri, pk.node, self.stack.copy(), scratch_log, s.t_s, s.x_m,
-                     s.y_m, s.position_m, 0.0, s.grip_N, 0)
+        self.kernels.law3_tick(self.c, self.w.copy(), pk.obj, pk.tri, pk.node, self.stack.copy(), scratch_log,
+                               s.t_s, s.x_m, s.y_m, s.position_m, 0.0, s.grip_N, 0)
         self._prime_state()
 
     def _prime_state(self) -> None:
@@ -280,10 +289,10 @@ class ServoLoop3:
         # start outside: from far above the scene straight down to the endpoint (a start inside an object
         # leaves the proxy on its surface, and the run starts in contact, unarmed)
         ps[PX.PS_PX], ps[PX.PS_PY], ps[PX.PS_PZ] = x, y, z + 1.0
-        n_c = PX.proxy_step(pk.obj, pk.tri, pk.node, self.stack, ps, x, y, z)
+        n_c = self.kernels.proxy_step(pk.obj, pk.tri, pk.node, self.stack, ps, x, y, z)
         w[L3.W_ARMED] = 1.0 if n_c == 0 else 0.0
         ps[PX.PS_NC] = 0.0
-        w[L3.W_TEMP] = 0.0
+        w[L3.W_TEMP] = self.temp_rise_K     # the winding's temperature rise carried from the last run
 
     # ---------------------------------------------------------------- run
     def run(self, duration_s: float | None = None, until=None, realtime: bool | None = None,
@@ -308,7 +317,7 @@ class ServoLoop3:
             cap = max(1, min(cap, int(limit)))
         self.cap = cap
         self.c[L3.C_CAP] = cap
-        self.log = np.zeros((L3.N_LOG, cap))
+        self.log = prefaulted_zeros((L3.N_LOG, cap))     # no first-touch page faults inside the loop
         self.events = []
         self._ev = None
         self.stop_requested = False
@@ -361,7 +370,7 @@ class ServoLoop3:
         dev, c, w, log = self.device, self.c, self.w, self.log
         pk, stack = self.packed, self.stack
         read, command = dev.read, dev.command_force
-        tick, clock = L3.law3_tick, time.perf_counter_ns
+        tick, clock = self.kernels.law3_tick, time.perf_counter_ns
         period = int(round(1e9 / self.fs_hz))
         deadline = prev = clock()
         # the host watchdog of a real device (not a simulation's): a period this much over nominal stops the run
@@ -412,11 +421,12 @@ class ServoLoop3:
         n = 0
         reason = "duration"
         tap = dev.tap
+        run_sim3 = self.kernels.run_sim3
         while n < limit:
             sp, ss, srs, traj, grip, lat, lp, frame, igrav = dev.fused3()
             dv = tap.fused_state()
             span = tap.fused_span()
-            k = L3.run_sim3(c, w, pk.obj, pk.tri, pk.node, stack, log, dv, sp, ss, srs, traj, grip, lat, lp, frame,
+            k = run_sim3(c, w, pk.obj, pk.tri, pk.node, stack, log, dv, sp, ss, srs, traj, grip, lat, lp, frame,
                             igrav, int(min(every, limit - n, max(span, 1))))
             tap.fused_sync(dv)
             dev._refresh()
@@ -482,6 +492,7 @@ class ServoLoop3:
     def _build_result(self, wall_s: float, cpu_s: float, st: dict, realtime: bool) -> RunResult3:
         n = self._n
         w = self.w
+        self.temp_rise_K = float(w[L3.W_TEMP])
         if self._ev is not None:
             self._ev.max_penetration_m, self._ev.peak_accel_m_s2 = float(w[L3.W_EV_PEN]), float(w[L3.W_EV_ACC])
             self._ev.clipped = bool(w[L3.W_EV_CLIP])
@@ -490,12 +501,15 @@ class ServoLoop3:
         log = {}
         for r, name in enumerate(L3.LOG_COLUMNS):
             row = self.log[r]
-            log[name] = np.concatenate([row[li:], row[:li]]) if wrapped else row[:min(n, self.cap)]
+            row = np.concatenate([row[li:], row[:li]]) if wrapped else row[:min(n, self.cap)]
+            # float64 channels are views of the log; the integer ones narrowed (as the 1-DOF log's flags)
+            log[name] = row.astype(L3.LOG_INT_DTYPES[name]) if name in L3.LOG_INT_DTYPES else row
         sim = n / self.fs_hz
         timing = {"sim_time_s": sim, "wall_time_s": wall_s, "ticks": n, "rate_hz": self.fs_hz,
                   "log_rate_hz": self.fs_hz, "realtime_factor": sim / wall_s if wall_s > 0 else 0.0,
                   "realtime_factor_cpu": sim / cpu_s if cpu_s > 0 else 0.0, "realtime": realtime,
                   "cpu_time_s": cpu_s, "log_wrapped": wrapped, "compiled_sim": bool(st.get("compiled")),
+                  "aot": bool(self.kernels.aot),
                   "bad_sensor_samples": int(w[L3.W_BAD_TOTAL]), "max_temp_rise_K": float(w[L3.W_TEMP]),
                   "peak_passivity_energy_J": float(np.max(w[L3.W_PO_E:L3.W_PO_E + 1])),
                   "renderer": "3d", "objects": list(self.names), "hold_channel": bool(self.hold),

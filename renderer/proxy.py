@@ -14,7 +14,8 @@ tangential force ``k |t|`` within the static cone), else it slides to ``mu_d d_n
 position (the tangential force ``mu_d`` times the normal force); once sliding, the dynamic cone decides
 when it sticks again.
 
-Scene arrays: ``renderer.scene3`` (object table, triangles, BVH nodes). Proxy state ``ps`` (``PS_*``).
+Scene arrays: ``renderer.scene3`` (object table, triangles, BVH nodes). Proxy state ``ps`` (``PS_*``,
+``renderer.proxy_layout``).
 """
 
 from __future__ import annotations
@@ -23,18 +24,14 @@ import math
 
 from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plumbing/jitcache.py
 
+# the proxy state's layout (numba-free, shared with renderer.law3 and renderer.loop3)
+from .proxy_layout import (  # noqa: F401 -- re-exported: proxy.PS_*, proxy.N_PS, proxy.EPS_M
+    BARY_TOL, EPS_M, N_PS, PS_NC, PS_NX, PS_NY, PS_NZ, PS_OBJ, PS_PX, PS_PY, PS_PZ, PS_SLIP, PS_SNX, PS_SNY,
+    PS_SNZ, PS_SX, PS_SY, PS_SZ, PS_WAS,
+)
 from .scene3 import K_MESH, K_PLANE, K_SPHERE, O_A0, O_A1, O_KIND, O_MUD, O_MUS, O_SHADE
 
-#: how far outside the surface the proxy rests (m): far below an encoder count, far above rounding at 0.1 m
-EPS_M = 1e-9
-#: barycentric slack of the segment-triangle test: a segment through a shared edge hits one of its triangles
-BARY_TOL = 1e-9
 INF = math.inf
-
-# ---- proxy state
-(PS_PX, PS_PY, PS_PZ, PS_NC, PS_OBJ, PS_NX, PS_NY, PS_NZ, PS_SNX, PS_SNY, PS_SNZ, PS_SX, PS_SY, PS_SZ,
- PS_SLIP, PS_WAS) = range(16)
-N_PS = 16
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -133,7 +130,7 @@ def _seg_mesh(tri, node, stack, n0, ax, ay, az, dx, dy, dz, tbest):
     return best_t, best_i, bu, bv
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def first_hit(obj, tri, node, stack, ax, ay, az, bx, by, bz):
     """The first surface the segment a -> b enters, over all objects.
 
@@ -225,7 +222,7 @@ def first_hit(obj, tri, node, stack, ax, ay, az, bx, by, bz):
     return best_t, best_j, nx, ny, nz, snx, sny, snz, sx, sy, sz
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def _sweep(obj, tri, node, stack, ps, bx, by, bz):
     """Move the proxy from where it is towards b, stopping ``EPS_M`` outside the first surface crossed.
 

@@ -1,6 +1,6 @@
 """The figure of one ``renderer run``: position against the wall, forces, acceleration and the contact events.
 
-Issue 39 part 3: a user sees what happened in a run beside its ``events.csv`` / ``log.npz``. Drawn in the
+A user sees what happened in a run beside its ``events.csv`` / ``log.npz``. Drawn in the
 command's own process after the run is saved (never in the servo process), in the project style (figstyle,
 docs/figures.md), as ``run.png`` / ``run.svg`` and the plotted numbers as ``run.plot.csv``. A long log is
 reduced to a min/max envelope per bucket (:func:`envelope`), so every peak (an impact's acceleration spike, a
@@ -65,7 +65,8 @@ def run_figure_data(result) -> dict:
         ``t_s``, ``position_mm``, ``force_N`` (the commanded force after saturation: ``current_A`` x the
         device's ``rho k_t / h``, eq. 3.17), ``force_prop_N``, ``force_transient_N``, ``accel_m_s2`` (each
         the envelope of :func:`envelope`, sampled at the position's bucket times), ``wall_mm`` (the wall's
-        height), ``event_t_s``, ``event_v_m_s``, ``title``.
+        height), ``event_t_s``, ``event_v_m_s``, ``title``, ``on_device`` (the board rendered the wall and the
+        transient: their forces are NaN, not zero, since the board does not report them).
     """
     log = result.log
     t = np.asarray(log["t_s"], float)
@@ -86,10 +87,17 @@ def run_figure_data(result) -> dict:
                 "force_prop_N": np.asarray(log["force_prop_N"], float),
                 "force_transient_N": np.asarray(log["force_transient_N"], float),
                 "accel_m_s2": np.asarray(log["accel_m_s2"], float)}
+    # on-device rendering: the board computes the wall and the transient and sends only what it commanded (the
+    # current); the host's log holds zeros for the parts, which must not be drawn as forces of zero
+    on_device = bool((result.timing or {}).get("on_device"))
     for name, y in channels.items():
         te, ye = envelope(t, y) if len(t) else (t, y)
         out.setdefault("t_s", te)
         out[name] = ye
+    if on_device:
+        out["force_prop_N"] = np.full(len(out["t_s"]), np.nan)
+        out["force_transient_N"] = np.full(len(out["t_s"]), np.nan)
+    out["on_device"] = on_device
     out["wall_mm"] = 1000.0 * float(wall)
     out["event_t_s"] = np.array([e.t_s for e in result.events], float)
     out["event_v_m_s"] = np.array([e.incoming_velocity_m_s for e in result.events], float)
@@ -116,10 +124,15 @@ def plot_run(data: dict):
         ax.set_ylabel("position (mm)")
         ax = axes[1]
         ax.plot(t, data["force_N"], color="black", lw=0.8, label="commanded force (after saturation)")
-        ax.plot(t, data["force_prop_N"], color=figstyle.color("firm"), lw=0.6, ls="--",
-                label="wall (proportional) force")
-        ax.plot(t, data["force_transient_N"], color=figstyle.color("pulse_firm"), lw=0.6,
-                label="transient force")
+        if data.get("on_device"):
+            ax.text(0.01, 0.97, "wall and transient forces computed on the board (not reported to the host):\n"
+                    "the line is the total force it commanded", transform=ax.transAxes, va="top", ha="left",
+                    fontsize="small", color="0.3")
+        else:
+            ax.plot(t, data["force_prop_N"], color=figstyle.color("firm"), lw=0.6, ls="--",
+                    label="wall (proportional) force")
+            ax.plot(t, data["force_transient_N"], color=figstyle.color("pulse_firm"), lw=0.6,
+                    label="transient force")
         ax.set_ylabel("force (N)")
         ax = axes[2]
         ax.plot(t, data["accel_m_s2"], color=figstyle.color("hfam_firm"), lw=0.6, label="measured acceleration")

@@ -1,9 +1,10 @@
 """A scene compiled for the 3-D proxy (``renderer.proxy``): meshes read and checked, BVHs built, arrays packed.
 
-Meshes are read with trimesh (OBJ, STL) and refused when empty, not watertight (non-manifold: an edge not
-shared by exactly two faces, or inconsistent winding) or with a degenerate triangle (area below
-``DEGENERATE_AREA_M2``); every object must fit inside the device's workspace and be no stiffer than the
-device renders stably. Each refusal is a ``ValueError`` naming the scene file and the object (the
+Mesh files are read with trimesh (OBJ, STL; ``renderer.meshfile``, imported only for a scene that has
+one) and refused when empty, not watertight (non-manifold: an edge not shared by exactly two faces, or
+inconsistent winding) or with a degenerate triangle (area below ``meshfile.DEGENERATE_AREA_M2``); boxes are built
+here (trimesh's box, ``tests/renderer/test_proxy.py`` checks them against it); every object must fit inside
+the device's workspace and be no stiffer than the device renders stably. Each refusal is a ``ValueError`` naming the scene file and the object (the
 dispatcher prints it as one ``error:`` line); nothing reaches a motor, since this runs before the loop.
 
 Arrays (float64, read by the compiled proxy):
@@ -22,19 +23,15 @@ Boxes become 12-triangle meshes, walls planes with normal +z.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 
-from .scene import Box, Mesh, Plane, Scene, Sphere, Wall
+from .scene import Box, Plane, Scene, Sphere, Wall
 
 K_PLANE, K_SPHERE, K_MESH = 1.0, 2.0, 3.0
 OBJ_W = 12
 (O_KIND, O_K, O_MUS, O_MUD, O_SHADE, O_A0, O_A1, O_A2, O_A3, O_A4, O_A5) = range(11)
-#: a triangle smaller than this is degenerate (m^2: a 10 um x 10 um right triangle's is 5e-11)
-DEGENERATE_AREA_M2 = 1e-12
 #: triangles per BVH leaf
 LEAF_SIZE = 4
 #: the deepest BVH the proxy's traversal stack holds
@@ -53,44 +50,30 @@ class PackedScene:
     bounds: list
 
 
-def _box_mesh(box: Box) -> trimesh.Trimesh:
-    m = trimesh.creation.box(extents=[2 * h for h in box.half_extents_m])
-    m.apply_translation(box.center_m)
-    return m
+#: trimesh's unit box (``trimesh.creation.box``): corners, triangles (outward winding), face normals
+_BOX_CORNERS = np.array([[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 1], [1, 0, 0], [1, 0, 1], [1, 1, 0], [1, 1, 1]],
+                        dtype=np.float64)
+_BOX_FACES = np.array([[1, 3, 0], [4, 1, 0], [0, 3, 2], [2, 4, 0], [1, 7, 3], [5, 1, 4], [5, 7, 1], [3, 7, 2],
+                       [6, 4, 2], [2, 7, 6], [6, 5, 4], [7, 5, 6]])
+_BOX_NORMALS = np.array([[-1, 0, 0], [0, -1, 0], [-1, 0, 0], [0, 0, -1], [0, 0, 1], [0, -1, 0], [0, 0, 1], [0, 1, 0],
+                         [0, 0, -1], [0, 1, 0], [1, 0, 0], [1, 0, 0]], dtype=np.float64)
 
 
-def load_mesh(obj: Mesh, where: str) -> trimesh.Trimesh:
-    """Read and check a mesh object (module doc); ``where`` names it in errors."""
-    if not os.path.isfile(obj.path):
-        raise ValueError(f"{where}: mesh file not found: {obj.path}")
-    try:
-        m = trimesh.load(obj.path, force="mesh", process=True)
-    except Exception as exc:  # trimesh raises many kinds for a bad file: one message naming it
-        raise ValueError(f"{where}: cannot read mesh {obj.path}: {exc}") from None
-    if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
-        raise ValueError(f"{where}: mesh {obj.path} is empty (no triangles)")
-    m.apply_scale(obj.scale)
-    m.apply_translation(obj.offset_m)
-    check_mesh(m, where)
-    return m
+def box_arrays(box: Box) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A box as 12 triangles, as trimesh builds it (``trimesh.creation.box`` then translated).
 
-
-def check_mesh(m: trimesh.Trimesh, where: str) -> None:
-    """Refuse an empty, non-manifold or inconsistently wound mesh, or one with a degenerate triangle."""
-    if len(m.faces) == 0:
-        raise ValueError(f"{where}: mesh is empty (no triangles)")
-    area = m.area_faces
-    bad = np.flatnonzero(~(area > DEGENERATE_AREA_M2))
-    if bad.size:
-        raise ValueError(f"{where}: degenerate triangle {int(bad[0])} (area {float(area[bad[0]]):.3g} m^2; "
-                         f"{bad.size} such): remove it or repair the mesh")
-    if not m.is_watertight:
-        raise ValueError(f"{where}: mesh is not closed (non-manifold: an edge not shared by exactly two "
-                         "triangles): the proxy needs a closed surface")
-    if not m.is_winding_consistent:
-        raise ValueError(f"{where}: mesh triangles are not consistently wound (non-manifold orientation)")
-    if m.volume < 0:
-        m.invert()   # inward normals: turn them out
+    Returns
+    -------
+    tri : ndarray (12, 3, 3)
+        Triangle corners (m).
+    face_normals : ndarray (12, 3)
+        Outward unit normals.
+    vertex_normals : ndarray (12, 3, 3)
+        Each triangle's corners' normals (the mean of the three faces meeting there, unit length).
+    """
+    vertices = (_BOX_CORNERS - 0.5) * (2.0 * np.asarray(box.half_extents_m, float)) + np.asarray(box.center_m, float)
+    corner_normals = (2.0 * _BOX_CORNERS - 1.0) / math.sqrt(3.0)
+    return vertices[_BOX_FACES], _BOX_NORMALS.copy(), corner_normals[_BOX_FACES]
 
 
 def build_bvh(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -185,14 +168,16 @@ def pack_scene(scene: Scene, default_k_N_m: float, specs=None, shading_default: 
             c, r = np.asarray(o.center_m), o.radius_m
             bounds.append((c - r, c + r))
         else:
-            m = _box_mesh(o) if isinstance(o, Box) else load_mesh(o, where)
-            tri = np.asarray(m.triangles, float)
+            if isinstance(o, Box):
+                tri, fn, vn = box_arrays(o)
+            else:
+                from .meshfile import mesh_arrays  # deferred: trimesh and scipy, 0.4 s CPU that scenes without a mesh file never pay
+
+                tri, fn, vn = mesh_arrays(o, where)
             node, order = build_bvh(tri)
             if _depth(node) >= STACK_DEPTH:
                 raise ValueError(f"{where}: mesh too deep for the proxy's BVH stack ({len(tri)} triangles)")
-            tri = tri[order]
-            fn = np.asarray(m.face_normals, float)[order]
-            vn = np.asarray(m.vertex_normals, float)[np.asarray(m.faces)[order]]      # (T, 3, 3)
+            tri, fn, vn = tri[order], fn[order], vn[order]
             packed = np.empty((len(tri), 21))
             packed[:, 0:3] = tri[:, 0]
             packed[:, 3:6] = tri[:, 1] - tri[:, 0]

@@ -1,12 +1,14 @@
 """Building the ahead-of-time extension of :mod:`renderer.sim_aot` (numba.pycc): imported by a build only.
 
-A module of its own so that its imports (numba's compiler, the JIT law and kernel whose sources are
-compiled: ~1.1 s CPU) sit at its top and a simulated run, which only loads a finished build, never pays them.
+A module of its own so that its imports (numba's compiler, the JIT laws, proxy and kernel whose sources
+are compiled: ~1.1 s CPU) sit at its top and a simulated run, which only loads a finished build, never pays
+them.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib
 import warnings
 from pathlib import Path
 
@@ -16,9 +18,9 @@ with warnings.catch_warnings():
     from numba.pycc import CC
     from numba.pycc import compiler as pycc_compiler
 
-from devices.sim import kernel
-
-from . import law
+# the modules whose JIT functions are compiled (renderer.sim_aot.TARGETS names them as "module:function")
+from devices.sim import kernel  # noqa: F401
+from . import law, law3, proxy  # noqa: F401
 
 
 def sha256_hex(path: Path) -> str:
@@ -26,18 +28,25 @@ def sha256_hex(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def compile_extension(out_dir: Path, module: str, signature: str, tick_signature: str) -> None:
-    """numba.pycc: ``renderer.law.run_sim`` (and everything it calls, inlined) and the device's physics step
-    ``devices.sim.kernel.tick``, compiled into the extension module ``module`` in ``out_dir``.
+def _jit_function(where: str):
+    """The JIT-compiled function ``module:function`` (:data:`renderer.sim_aot.TARGETS`' exports)."""
+    module, _, name = where.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def compile_extension(out_dir: Path, module: str, exports) -> None:
+    """numba.pycc: the JIT functions ``exports`` names (and everything they call, inlined) compiled into
+    the extension module ``module`` in ``out_dir``.
 
     Parameters
     ----------
     out_dir : Path
         Folder the extension is written to.
     module : str
-        The extension's module name (:data:`renderer.sim_aot.MODULE`).
-    signature, tick_signature : str
-        numba signatures of ``run_sim`` and ``tick`` (:data:`renderer.sim_aot.SIGNATURE`, ``TICK_SIGNATURE``).
+        The extension's module name (:attr:`renderer.sim_aot.Target.module`).
+    exports : sequence of (str, str, str)
+        Per exported function: its name in the extension, the JIT function (``module:function``) and its
+        numba signature (:attr:`renderer.sim_aot.Target.exports`).
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba.pycc's pending deprecation, also when it is used
@@ -47,8 +56,8 @@ def compile_extension(out_dir: Path, module: str, signature: str, tick_signature
         # the kernels never allocate (each is compiled with _nrt=False): no runtime to link in, and a kernel
         # that did need it would make the build fail to load (an undefined NRT symbol), not run slower
         cc.use_nrt = False
-        cc.export("run_sim", signature)(law.run_sim.py_func)
-        cc.export("tick", tick_signature)(kernel.tick.py_func)
+        for name, where, signature in exports:
+            cc.export(name, signature)(_jit_function(where).py_func)
         # numba.pycc has no switch for numba's ``release_gil`` flag (what ``nogil=True`` sets for the JIT):
         # its compiler makes its flags with ``Flags()``, so it gets a subclass that sets it, for this build
         # only. tests/renderer/test_sim_aot.py checks that a build's run_sim lets another thread run.

@@ -1,4 +1,4 @@
-"""``renderer timing-check``: a cyclictest-like check of this machine as the servo loop would run (issue 40).
+"""``renderer timing-check``: a cyclictest-like check of this machine as the servo loop would run.
 
 The check runs the servo loop itself (``renderer.ServoLoop``, same pacing and law) in its own process with the
 real-time policy (``renderer.process.run_in_process``, ``plumbing.rtpolicy``), the motor disabled, for

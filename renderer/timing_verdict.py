@@ -1,4 +1,4 @@
-"""Whether a servo run's timing met the thresholds the protocol claims (issue 40): figures and verdict.
+"""Whether a servo run's timing met the thresholds the protocol claims: figures and verdict.
 
 Thresholds (docs/renderer.md, "Timing check"): the period error ``|period - 1/rate|`` at p99 <= 20 us and at
 p99.9 <= 50 us, and no period above ``max(1 ms, 2 nominal periods)`` (at 10 kHz: no period above 1 ms, a 10-tick

@@ -13,7 +13,7 @@ COMMANDS = (
     Command("sim-library", "stimuli.cli_sim_library_parser",
             "record simulated taps and build the shipped default library through the sim's LTI models"),
     Command("score-hfam", "stimuli.cli_score_parser",
-            "score the open-loop and refined HFAM libraries against the real tap on the sim (issue 36)"),
+            "score the open-loop and refined HFAM libraries against the real tap on the sim"),
 )
 
 

@@ -55,7 +55,7 @@ def _linkage(args) -> str:
     """The device variant to score on: ``--linkage`` (default hysteretic), or the ``--pipeline`` folder's own
     (ValueError if ``--linkage`` names another: its library was built on that folder's device)."""
     if args.pipeline is None:
-        return args.linkage or "hysteretic"
+        return args.linkage or "linear"
     found = scoring.pipeline_linkage(args.pipeline)
     if args.linkage is not None and args.linkage != found:
         raise ValueError(f"--linkage {args.linkage}: the pipeline folder {args.pipeline} was run on the {found} "

@@ -1,4 +1,4 @@
-"""``python -m stimuli score-hfam``: how well the HFAM libraries reproduce the real tap on the sim (issue 36 item 5).
+"""``python -m stimuli score-hfam``: how well the HFAM libraries reproduce the real tap on the sim.
 
 The parser (light: imported for ``--help``); the body is :mod:`stimuli.cli_score`.
 """
@@ -28,7 +28,7 @@ def register(subparsers) -> None:
     """
     p = subparsers.add_parser(
         "score-hfam",
-        help="score the open-loop and refined HFAM libraries against the real tap on the sim (issue 36)",
+        help="score the open-loop and refined HFAM libraries against the real tap on the sim",
         description=(
             "Score the HFAM pipeline's libraries on the sim device (docs/hfam_library.md, 'Scoring'): the open-loop "
             "library (record, smooth, invert, high-pass, taper; no playback refinement) over --speeds-m-s x "
@@ -62,12 +62,13 @@ def register(subparsers) -> None:
                         "between the device's peak current and what a 100 ms transient may hold under its "
                         "thermal model)")
     p.add_argument("--linkage", choices=LINKAGES, default=None,
-                   help="the sim device the pipeline and every tap run on: 'hysteretic' (the Table 3.1 joystick, "
-                        "section 3.5.3's linkage) or 'linear' (the same device, its linkage a linear spring at the "
-                        "small-signal stiffness: no amplitude-dependent resonance). Default: hysteretic, or with "
-                        "--pipeline the device that folder was run on (refused if it differs)")
+                   help="the sim device the pipeline and every tap run on: 'linear' (sim:onedof, the section 4.4.3 "
+                        "one-dof testbed: Table 3.1 with its linkage a linear spring at the small-signal stiffness, "
+                        "no amplitude-dependent resonance) or 'hysteretic' (sim:joystick, the Table 3.1 joystick, "
+                        "section 3.5.3's linkage). Default: linear, or with --pipeline the device that folder was "
+                        "run on (refused if it differs)")
     with_examples(p, "python -m stimuli score-hfam --out out/hfam_scores",
-                  "python -m stimuli score-hfam --out out/hfam_linear --linkage linear",
+                  "python -m stimuli score-hfam --out out/hfam_joystick --linkage hysteretic",
                   "python -m stimuli score-hfam --out out/hfam_scores --force --speeds-m-s 0.05,0.1,0.15 --grips-N 1,2,3",
                   "python -m stimuli score-hfam --out out/s2 --pipeline out/hfam_scores/pipeline --transient-limit-A 6")
     p.set_defaults(func=Body("stimuli.cli_score", "run"))

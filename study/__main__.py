@@ -14,6 +14,8 @@ COMMANDS = (
             blas_threads=1),
     Command("simulate-observer", "study.cli_simulate_observer_parser",
             "run an adaptive method against a simulated observer", blas_threads=1),
+    Command("design", "study.cli_design_parser",
+            "counterbalanced condition orders for the participant list (Williams or Latin square)"),
 )
 
 

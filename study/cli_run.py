@@ -19,13 +19,15 @@ The body; the parser is :mod:`study.cli_run_parser`. Every experiment kind runs 
 
 from __future__ import annotations
 
+from .adjustment.kind import Adjustment
 from .forcedchoice.kind import ForcedChoice
+from .magnitude.kind import Magnitude
 from .ratings.kind import Ratings
 from .session.run import run_session
 
 #: the experiment kinds ``run`` knows: the rating study (the default, no ``[experiment]`` table) and the kinds an
 #: ``[experiment]`` table names (study.session.kind.ExperimentKind.names)
-KINDS = (Ratings, ForcedChoice)
+KINDS = (Ratings, ForcedChoice, Adjustment, Magnitude)
 
 
 def run_command(args) -> int:

@@ -41,7 +41,8 @@ def register(subparsers) -> None:
                                           "and a token-protected operator page). --resume continues a killed or "
                                           "aborted session exactly where it stopped.")
     p.add_argument("--device", default=None, help="device string: sim, sim:lti, sim:<file>, serial:<port>, "
-                                                 "hid:<vid>:<pid> (default: sim, or the resumed session's)")
+                                                 "hid:<vid>:<pid> (default: sim:onedof, the one-dof testbed of the thesis's study "
+                                                 "chapter, or the resumed session's)")
     p.add_argument("--participant", choices=("simulated", "keyboard"), default=None,
                    help="simulated (sim devices only: simulated hand and synthetic rater) or keyboard (a person "
                         "using the subject view; with a sim device the simulated hand still taps); default: "
@@ -80,6 +81,14 @@ def register(subparsers) -> None:
     p.add_argument("--accept-timing", action="store_true",
                    help="start a hardware session even if the servo timing check before it fails (recorded in "
                         "session.json; docs/study.md 'Servo timing')")
+    p.add_argument("--lsl", action="store_true",
+                   help="publish the device's state and every event (attempt, tap cue, contact, question, answer) as "
+                        "Lab Streaming Layer streams (docs/study.md); without pylsl the session runs without them "
+                        "and says so")
+    p.add_argument("--lsl-rate-hz", type=float, default=1000.0, help="the state stream's rate, Hz (default 1000)")
+    p.add_argument("--lsl-wait-s", type=float, default=0.0,
+                   help="wait up to this long for a recorder (LabRecorder, an inlet) on every stream before the "
+                        "first attempt (default 0: start at once)")
     p.add_argument("--serve", action="store_true", help="serve the views also for a simulated participant")
     p.add_argument("--host", default="127.0.0.1", help="bind address of the views (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="port of the views (default: any free port)")

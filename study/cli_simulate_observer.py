@@ -41,8 +41,14 @@ def run(args: argparse.Namespace) -> int:
     result = simulate(settings)
     write_results(result, out)
     est = result["first"]["estimate"]
-    print(f"{settings.method}: threshold estimate {est['threshold']:.4g} after {result['first']['method'].trials} "
-          f"trials (true {result['reference']:.4g}); wrote {out}")
+    method = result["first"]["method"]
+    # an up-down staircase converges on the intensity of its target probability (70.7 % for 2-down 1-up),
+    # not on the psychometric threshold: say which point the truth is
+    target = getattr(method, "target_probability", None)
+    truth = (f"true {100 * target():.1f} % correct point {result['reference']:.4g}" if callable(target)
+             else f"true threshold {result['reference']:.4g}")
+    print(f"{settings.method}: threshold estimate {est['threshold']:.4g} after {method.trials} "
+          f"trials ({truth}); wrote {out}")
     if settings.repeat > 1:
         last = result["precision"][-1]
         print(f"{settings.repeat} runs: median |error| {last['median_abs_error_pct']:.1f} %, 90th percentile "

@@ -8,7 +8,9 @@ and devices holds no plumbing (the foundation's modules live in plumbing/ only).
 """
 
 import ast
+import io
 import re
+import tokenize
 from pathlib import Path
 
 import pytest
@@ -262,7 +264,8 @@ def test_the_deferred_import_check_finds_an_unmarked_import(tmp_path):
 #: the attempt's steps (the present/ask sequence): called only by the attempt loop, and by the apparatus that
 #: implements them (its servo process forwards them)
 ATTEMPT_STEPS = {"tap_window", "cue_tap", "cue_rate", "request_confirm", "after_window"}
-STEP_CALLERS = {"study/session/loop.py", "study/session/apparatus.py", "study/session/isolated.py"}
+STEP_CALLERS = {"study/session/loop.py", "study/session/apparatus.py", "study/session/apparatus3.py",
+                "study/session/isolated.py"}
 #: the durable writes of a subject's files: only the store makes them
 STORE = "study/session/store.py"
 
@@ -307,3 +310,68 @@ def test_the_session_rule_finds_a_kind_that_runs_its_own_window(tmp_path):
     found = [(line, name) for line, _, name, call in _calls(f)
              if name in ATTEMPT_STEPS or name == "fsync" or (name == "open" and _append_mode(call))]
     assert found == [(3, "tap_window"), (4, "fsync"), (5, "open"), (6, "open")]
+
+
+# -- words for users: the README, docs/ and the packages' strings speak of the product, not of its history --------
+
+#: "issue 16", "issues 34-35", "issue #38", "(#38)": the tracker's numbers belong in CHANGELOG.md's history at most
+#: (not an HTML entity "&#42;", a CSS colour "color:#222", a hex colour "#1f77b4" or a C preprocessor "#if 0")
+ISSUE_REF = re.compile(r"\b[Ii]ssues?\s*#?\d+|(?<![\w&:])#\d{1,3}\b(?![\w-])")
+#: a working folder of the developers' machines (ships with nobody)
+DEV_PATH = re.compile(r"/work/(?:main|wt)\b|/tmp/bash_jobs|\.\./shared/")
+USER_DOCS = ("README.md", "docs")
+
+
+def _user_doc_files():
+    out = [ROOT / "README.md"]
+    out += sorted(p for p in (ROOT / "docs").rglob("*.md"))
+    return out
+
+
+def _string_constants(path: Path):
+    """(line, text) of every string constant (docstrings included) and every comment of a module."""
+    src = path.read_text(encoding="utf-8")
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            yield node.lineno, node.value
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):   # comments only: a '#' inside a string is not one
+        if tok.type == tokenize.COMMENT:
+            yield tok.start[0], tok.string
+
+
+def issue_words(text: str) -> list[str]:
+    return [m.group(0) for m in ISSUE_REF.finditer(text)] + [m.group(0) for m in DEV_PATH.finditer(text)]
+
+
+def test_no_issue_numbers_or_working_paths_in_the_readme_docs_or_the_packages_strings():
+    found = []
+    for path in _user_doc_files():
+        for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            found += [f"{path.relative_to(ROOT)}:{i}: {w!r}" for w in issue_words(line)]
+    for path in all_modules() + sorted((ROOT / "benchmarks").rglob("*.py")) + sorted((ROOT / "figstyle").rglob("*.py")):
+        for line, text in _string_constants(path):
+            found += [f"{path.relative_to(ROOT)}:{line}: {w!r}" for w in issue_words(text)]
+    assert not found, "history belongs in CHANGELOG.md:\n" + "\n".join(found[:60])
+
+
+@pytest.mark.parametrize("text, hits", [
+    ("as issue 16 measured", 1), ("(issues 34 and 35)", 1), ("see #38.", 1), ("Issue #4's rule", 1),
+    ("Table 3.1, eq. 5.14, section 4.4.3", 0), ("colour #1f77b4", 0), ("a C++ #include", 0), ("&#38;", 0),
+    ("/work/main/study/x.py", 1), ("../shared/seed", 1), ("body{color:#222;margin:0}", 0), ("#if 0", 0),
+])
+def test_the_history_check_finds_what_it_should(text, hits):
+    assert len(issue_words(text)) == hits
+
+
+def test_the_history_check_reads_comments_not_hashes_inside_strings(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text('x = "&#42;"  # as issue 16 measured\ny = 1\n', encoding="utf-8")
+    found = [(line, w) for line, text in _string_constants(f) for w in issue_words(text)]
+    assert found == [(1, "issue 16")]
+
+
+def test_the_readme_is_a_front_door():
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) < 250, f"README.md has {len(lines)} lines: reference material belongs in docs/"
+    text = "\n".join(lines)
+    assert "make demo" in text and "make test" in text

@@ -56,7 +56,7 @@ class FaultSpec:
     protocol 1.0 firmware, which takes only the 16-byte WALL, without the passivity observer). Scripted (deterministic, counted over the frames sent):
     ``drop_every=N`` drops every N-th frame, ``corrupt_every=N`` flips a bit in every N-th,
     ``drop_burst=K`` with ``drop_burst_at=N`` drops K frames in a row from the N-th on.
-    Malformed but CRC-valid frames (issue 38): ``bad_length_every=N`` sends every N-th STATE one byte too
+    Malformed but CRC-valid frames: ``bad_length_every=N`` sends every N-th STATE one byte too
     long, ``bad_type_every=N`` sends every N-th STATE as a host-to-device type (CURRENT), both with a
     correct CRC. A broken device: ``clock_back_at=N`` turns the clock 1 s back at the N-th STATE,
     ``clock_freeze_at=N`` stops it there; ``info_servo_rate_hz=X`` claims servo rate X in INFO (the
@@ -744,7 +744,7 @@ def build_emulator(mode: str = "streaming", faults: FaultSpec | str | None = Non
     emu = Emulator(phys, mode=mode, faults=faults, watchdog_ms=watchdog_ms, pace=pace, seed=seed, t0_us=t0_us)
     if taps_m_s:
         # the test harness's tapping hand: the prescribed (velocity-source) hand, one clean event per tap
-        # (issue 16: the default simulated person bounces and its taps depend on its reflex state)
+        # (the default simulated person bounces and its taps depend on its reflex state)
         emu.set_hand(TapTrajectory(list(taps_m_s), n_taps=len(taps_m_s)), grip_N=grip_N, hand="prescribed")
     else:
         emu.set_hand(0.01, grip_N=grip_N)

@@ -133,7 +133,7 @@ def simavr_flags() -> tuple[list[str], list[str]]:
             cflags = [f"-I{inc / 'simavr'}"]
             break
     else:
-        raise FwSimError("simavr headers (simavr/sim_avr.h) not found: run `make test` (provisions simavr into "
+        raise FwSimError("simavr headers (simavr/sim_avr.h) not found: run `make deps` (provisions simavr into "
                          ".deps) or install the Debian packages simavr libsimavr-dev libsimavrparts1")
     for lib in (root / "lib" / "x86_64-linux-gnu", root / "lib"):
         if (lib / "libsimavr.so").exists() or (lib / "libsimavr.so.2").exists():
@@ -210,7 +210,7 @@ def build(force: bool = False) -> Build:
     """
     for name in ("avr-gcc", "avr-nm", "cc", "make"):
         if tool(name) is None:
-            raise FwSimError(f"{name} not found: run `make test` (provisions the AVR toolchain and simavr into .deps) "
+            raise FwSimError(f"{name} not found: run `make deps` (provisions the AVR toolchain and simavr into .deps) "
                              "or install gcc-avr binutils-avr avr-libc simavr libsimavr-dev libsimavrparts1 gcc")
     folder = _cache_base() / _digest()
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""Calibrating a real board from the command line (``python -m devices calibrate``; issue 39 part 3).
+"""Calibrating a real board from the command line (``python -m devices calibrate``).
 
 The steps are the driver's calibration API (:class:`devices.hardware.serial_device.SerialDevice`): with the
 handle held still at a known height, the encoder zero (eq. 3.3); with the handle at rest and the grip not

@@ -759,8 +759,8 @@ class ProtocolDevice(Device):
 
     def _check_clock(self, last: int, t_us: int) -> None:
         """A fresh state's device clock must advance: backwards (by less than half the 2^32 us wrap, beyond
-        which it is the wrap) or unchanged for :data:`CLOCK_FREEZE_STATES` states in a row is a device fault
-        (issue 38): events would get wrong times and every velocity estimate divides by the clock."""
+        which it is the wrap) or unchanged for :data:`CLOCK_FREEZE_STATES` states in a row is a device fault:
+        events would get wrong times and every velocity estimate divides by the clock."""
         delta = ((t_us - last + 0x80000000) & 0xFFFFFFFF) - 0x80000000
         if delta < 0:
             raise self._fault(f"its clock went backwards from t_us={last} to t_us={t_us} ({delta} us)")

@@ -136,13 +136,13 @@ INFO_STRUCT = struct.Struct("<5BI9fhfh6f2HIH")
 
 #: payload sizes of the device -> host frames at this host's protocol version: (exact size, or None for a
 #: variable one, minimum size). A frame of another size, or of a type a device never sends, is malformed:
-#: the host drops and counts it like a frame with a bad CRC (issue 38: one malformed frame is a loss)
+#: the host drops and counts it like a frame with a bad CRC (one malformed frame is a loss)
 DEVICE_FRAME_SIZES = {INFO: (None, INFO_STRUCT.size + 2), STATE: (STATE_STRUCT.size, STATE_STRUCT.size),
                       EVENT: (EVENT_STRUCT.size, EVENT_STRUCT.size), ACK: (ACK_STRUCT.size, ACK_STRUCT.size),
                       NAK: (None, NAK_STRUCT.size), PONG: (None, 0)}
 
 #: the physical range of each INFO value (inclusive; unit in the name). A device reporting a value outside
-#: is refused at the handshake (issue 38: a servo rate of 1e9 Hz hung the renderer's set-up). The bounds
+#: is refused at the handshake (a servo rate of 1e9 Hz would hang the renderer's set-up). The bounds
 #: are generous: the simulated testbed (devices/sim/default_params.toml: 10 kHz, 2000 lines, rho 15,
 #: h 0.15 m, k_t 0.0235 N m/A, 1.26-4 A), the AVR board (4 kHz) and any desktop haptic interface lie
 #: well inside them.

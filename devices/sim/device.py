@@ -12,7 +12,7 @@ streamed: the device holds a window of :data:`PLAN_WINDOW_TICKS` ticks of it
 and computes the next window (``TapTrajectory.sample_range``) when the ticks
 reach its end, in ``command()`` or between the chunks of a compiled loop
 (:meth:`SimDevice.fused_span`), so memory does not grow with the number of
-taps (issue 38). The kernel sees the same numbers as with the whole plan
+taps. The kernel sees the same numbers as with the whole plan
 (windows overlap by a tick and the last one ends where the plan does).
 """
 
@@ -29,6 +29,7 @@ from .hand import HoldTrajectory, ReactiveHand, sample_grip
 from .mechconfig import ASSEMBLED, LOCKED_MASS_KG, get_config
 from .params import SimParams, default_params, load_sim_params
 from .person import DEFAULT_PERSON, PRESCRIBED, Person
+from .presets import PRESETS, preset_params
 from .samples import KIND_BLOCK_ON_FOAM, get_sample
 
 _HOT = int(Status.OVER_TEMPERATURE)
@@ -100,19 +101,21 @@ class SimDevice(Device):
     def from_spec(cls, spec: str | None = None, seed: int = 0, **options) -> "SimDevice":
         """Device from the part after ``sim:`` of a device string.
 
-        ``None``/``""``: Table 3.1 nonlinear model; ``"lti"``: Phantom-like
-        LTI model; anything else: a ``.toml``/``.json`` parameter file.
+        ``None``/``""``: Table 3.1 nonlinear model (the joystick); a named device of
+        :data:`devices.sim.presets.PRESETS` (``"joystick"``, ``"onedof"``: the section 4.4.3 one-dof
+        testbed, ``"lti"``: Phantom-like LTI model); anything else: a ``.toml``/``.json`` parameter file.
         """
         if spec in (None, "", "nonlinear"):
             params = default_params("nonlinear")
-        elif spec == "lti":
-            params = default_params("lti")
+        elif spec in PRESETS:
+            params = preset_params(spec)
         else:
             try:
                 params = load_sim_params(spec)
             except FileNotFoundError:
                 raise FileNotFoundError(f"sim parameter file not found: {spec!r} (valid device strings: sim, "
-                                        f"sim:lti, sim:<params file .toml|.json>)") from None
+                                        + ", ".join(f"sim:{n}" for n in PRESETS)
+                                        + ", sim:<params file .toml|.json>)") from None
         return cls(params, seed=seed, **options)
 
     def _build_param_array(self) -> np.ndarray:
@@ -390,6 +393,10 @@ class SimDevice(Device):
                 p[K.P_HAND_BTOOL] = p[K.P_BM] + p[K.P_BD]
                 p[K.P_HAND_KCOMP] = hand_obj.compensation_stiffness_N_m
                 p[K.P_HAND_CALPHA] = 1.0 - math.exp(-2 * math.pi * hand_obj.compensation_bandwidth_hz * p[K.P_DT])
+        ft = hand_obj if isinstance(hand_obj, Person) else None
+        p[K.P_FT_MASS] = ft.fingertip_mass_kg if ft is not None else 0.0
+        p[K.P_FT_K] = ft.fingertip_stiffness_N_m if ft is not None else 0.0
+        p[K.P_FT_B] = ft.fingertip_damping_Ns_m if ft is not None else 0.0
         self.hand = hand_obj if hand_obj is not None else PRESCRIBED
         self._place_at(traj[0])
 
@@ -438,6 +445,7 @@ class SimDevice(Device):
         s[K.S_XA], s[K.S_VA] = x0, 0.0            # reactive hand (unused otherwise)
         s[K.S_RFX_T], s[K.S_RFX_X], s[K.S_RFX_ON] = -1.0, x0, 0.0
         s[K.S_EF] = 0.0
+        s[K.S_XF], s[K.S_VF] = x0, 0.0            # the person's fingertip (unused without one)
         s[K.S_FM] = 0.0
         self._refresh_state()
 

@@ -34,7 +34,7 @@ class TapTrajectory:
 
     The plan is kept as its tap schedule (a few numbers per tap, ~80 bytes),
     never as samples: :meth:`sample_range` computes any stretch of servo ticks
-    on demand, so a simulated device streams it (issue 38: memory constant in
+    on demand, so a simulated device streams it (memory constant in
     the number of taps).
 
     Parameters
@@ -170,7 +170,7 @@ class TapTrajectory:
         The same values as :meth:`position` at those times, bit for bit; because the times are in
         order, each tap's samples and each of its segments are contiguous, so every segment's formula
         runs once over its own slice (no per-sample gathering or selection): ~10x faster, linear in taps
-        and samples (issue 21 item 2). ``sample_range(fs_hz, 0, n_ticks(fs_hz))``.
+        and samples. ``sample_range(fs_hz, 0, n_ticks(fs_hz))``.
         """
         return self.sample_range(fs_hz, 0, self.n_ticks(fs_hz))
 

@@ -225,6 +225,15 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
     ef, kcomp, calpha = s[S_EF], p[P_HAND_KCOMP], p[P_HAND_CALPHA]
     ctool, btool = p[P_HAND_CTOOL], p[P_HAND_BTOOL]
     iamp, accf, xb, vb = s[S_IAMP], s[S_ACCF], s[S_XB], s[S_VB]
+    # the person's fingertip (Person.fingertip_mass_kg > 0): handle -[contact k_f, b_f]- fingertip -[grip
+    # impedance k_u(g), b_u(g)]- hand; without one the grip impedance acts on the handle itself (eq. 3.34)
+    # (handle and fingertip move together at the fingertip's rest: xf = xh, vf = vh at every set_user)
+    mf = p[P_FT_MASS]
+    # a hand that does not hold the handle (grip 0, section 3.5.2) does not touch it either
+    finger = reactive and mf > 0.0 and g > 0.0
+    kft, bft = p[P_FT_K], p[P_FT_B]
+    inv_mf = 1.0 / mf if finger else 0.0
+    xf, vf = s[S_XF], s[S_VF]
     ah = 0.0
     fs = 0.0
     contact_any = 0.0
@@ -238,7 +247,15 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
         fs, ab, flag, fmx = _contact(kind, sk, salpha, smb, skf, sbf, sk1, mxdecay, dt, xh, vh, xb, vb, fmx)
         if flag > 0.0:
             contact_any = 1.0
-        if reactive:
+        if finger:
+            # the grip impedance pulls the fingertip; the fingertip's contact pushes the handle
+            fw, xa, va, rt, rx, ron, ef = _reactive_hand_step(xf, vf, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
+                                                              ma, km, bmu, rdelay, fthr, mtool, dt,
+                                                              ef, kcomp, calpha, ctool, btool)
+            fu = -kft * (xh - xf) - bft * (vh - vf)
+            vf += (fw - fu) * inv_mf * dt
+            xf += vf * dt
+        elif reactive:
             fu, xa, va, rt, rx, ron, ef = _reactive_hand_step(xh, vh, xu, vu, au, ku, bu, xa, va, rt, rx, ron,
                                                               ma, km, bmu, rdelay, fthr, mtool, dt,
                                                               ef, kcomp, calpha, ctool, btool)
@@ -274,6 +291,10 @@ def _substeps_nonlinear(s, p, xu0, xu1, au, g, i_cmd):
     if reactive:
         s[S_XA], s[S_VA], s[S_RFX_T], s[S_RFX_X], s[S_RFX_ON] = xa, va, rt, rx, ron
         s[S_EF] = ef
+    if finger:
+        s[S_XF], s[S_VF] = xf, vf
+    else:
+        s[S_XF], s[S_VF] = xh, vh      # a fingertip that takes hold later starts at rest on the handle
     s[S_FM] = fmx
     s[S_AH] = ah
     s[S_FCONTACT] = fs

@@ -54,6 +54,13 @@ def lateral_step(lat, lp, fv, fw, g):
         f_ext = (av_f if axis == 0 else aw_f) + lp[12 + axis]
         q = lat[2 * axis]
         v = lat[2 * axis + 1]
+        if v == 0.0 and c > 0.0 and vstick > 0.0 and abs(f_ext - ku * q - (bu + b) * v) <= c:
+            # at rest and held by static friction: every substep below would find it stuck again, with the
+            # same force (q and v unchanged), so the period's result is known without them (the common case:
+            # no force across the tap). ``q + 0.0`` as the substeps' ``q += 0.0 * dt`` gives (-0.0 -> 0.0)
+            lat[2 * axis] = q + 0.0
+            lat[2 * axis + 1] = 0.0
+            continue
         for _ in range(nsub):
             f = f_ext - ku * q - (bu + b) * v
             # Karnopp stick-slip Coulomb friction (the 1-DOF kernel's rule, eq. 3.35)

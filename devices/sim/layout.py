@@ -29,6 +29,7 @@ S_LTI_TMP = 44                               # scratch for the LTI state update
 LTI_MAX_ORDER = 16
 S_FM = 64                                    # samples: Maxwell-branch force of the viscoelastic foam (N)
 S_EF = 65                                    # person: low-passed position error of the compensation (m)
+S_XF, S_VF = 66, 67                          # person with a fingertip: fingertip position (m) and velocity (m/s)
 N_STATE = 72
 
 # ---- parameter indices ------------------------------------------------------
@@ -56,6 +57,9 @@ P_HAND_KCOMP, P_HAND_CALPHA = N_PARAM - 9, N_PARAM - 10
 P_S_K1, P_S_MXDECAY = N_PARAM - 11, N_PARAM - 12
 # person's internal model of the tool's drag: Coulomb friction (N) and viscous damping (N s/m) in handle space
 P_HAND_CTOOL, P_HAND_BTOOL = N_PARAM - 13, N_PARAM - 14
+# person's fingertip between the handle and the grip impedance (devices.sim.person.Person.fingertip_mass_kg;
+# mass 0: none, the grip impedance acts on the handle itself): mass kg, contact stiffness N/m, damping N s/m
+P_FT_MASS, P_FT_K, P_FT_B = N_PARAM - 15, N_PARAM - 16, N_PARAM - 17
 
 # the device's Python-side state as a vector (SimDevice.fused_state / fused_sync), for compiled loops that
 # stand in for SimDevice.command (renderer.law.run_sim, stimuli.hfam's taps on a wall)

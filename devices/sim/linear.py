@@ -20,6 +20,8 @@ import numpy as np
 from scipy import signal
 
 from ..model import ZpkModel
+# the linear-linkage variant and its stiffness live with the named devices (no scipy there); re-exported here
+from .presets import linear_linkage_params, linkage_stiffness_N_m  # noqa: F401
 
 OUTPUTS = ("accel_m_s2", "position_m")
 
@@ -120,66 +122,6 @@ def _cancel(z: np.ndarray, p: np.ndarray, rtol: float = 1e-6, atol: float = 1e-6
         else:
             keep_p.append(pole)
     return np.array(z, dtype=complex), np.array(keep_p, dtype=complex)
-
-
-def linkage_stiffness_N_m(mechanics, linkage: str = "small_signal") -> float:
-    """Linear stiffness standing in for the hysteretic linkage (section 3.5.3).
-
-    ``"asymptotic"``: the mean slope of the two asymptotes, (k_lp + k_ln)/2:
-    the loop's mean slope for deflection swings much larger than 1/gamma.
-    ``"small_signal"``: the mean slope of the minor loops traced by swings
-    much smaller than 1/gamma (~0.1 mm for Table 3.1), the regime of
-    high-frequency transients. After each reversal the filtered force moves
-    toward the other (offset) asymptote at dF/dx = gamma*(F_hat - F) (eq.
-    3.24), so a small symmetric oscillation settles midway between the
-    offset asymptotes and sees the slope
-    ``(k_lp + k_ln)/2 + gamma*(f_lp - f_ln)/2`` (the g_p/g_n offsets of eq.
-    3.30-3.31 contribute the first term). With ``hysteresis = false`` both
-    give the mean slope.
-    """
-    k_mean = 0.5 * (mechanics["k_lp_N_m"] + mechanics["k_ln_N_m"])
-    if linkage == "asymptotic" or not mechanics["hysteresis"]:
-        return k_mean
-    if linkage != "small_signal":
-        raise ValueError(f"linkage must be 'small_signal' or 'asymptotic', got {linkage!r}")
-    return k_mean + 0.5 * mechanics["gamma_l_rad_m"] * (mechanics["f_lp_N"] - mechanics["f_ln_N"])
-
-
-def linear_linkage_params(params, linkage: str = "small_signal"):
-    """The same nonlinear device with its hysteretic linkage (section 3.5.3) replaced by a linear spring.
-
-    A device variant, not a model: the kernel still integrates eq. 3.32-3.35 with Coulomb friction, the
-    hand and the samples, but the linkage force is ``k x`` with ``k = linkage_stiffness_N_m(mechanics,
-    linkage)`` (``mechanics.hysteresis = false`` and ``k_lp_N_m = k_ln_N_m = k``; the offsets f_lp, f_ln
-    and gamma are then unused). With ``"small_signal"`` (7817.5 N/m for Table 3.1) the variant's analytic
-    model equals the hysteretic device's small-signal :func:`linear_model`; it stands for a transmission
-    without the joystick's amplitude-dependent resonance (section 3.5.3), such as the section 4.4.3 one-dof
-    testbed (a Maxon RE025, one LTI model per grip in section 3.4.6; the thesis reports no hysteresis for it).
-
-    Parameters
-    ----------
-    params : devices.sim.params.SimParams
-        A ``nonlinear`` model's parameters.
-    linkage : str
-        ``"small_signal"`` or ``"asymptotic"`` (:func:`linkage_stiffness_N_m`).
-
-    Returns
-    -------
-    devices.sim.params.SimParams
-        Re-validated copy, named ``<name>-linear-linkage``.
-
-    Raises
-    ------
-    ValueError
-        An ``lti`` model (it has no linkage) or an unknown ``linkage``.
-    """
-    if params.model != "nonlinear":
-        raise ValueError(f"{params.source}: a linear linkage needs the nonlinear model, got model {params.model!r}")
-    if linkage not in ("small_signal", "asymptotic"):
-        raise ValueError(f"linkage must be 'small_signal' or 'asymptotic', got {linkage!r}")
-    k = linkage_stiffness_N_m(params.mechanics, linkage)
-    return params.replace(name=f"{params.name}-linear-linkage",
-                          mechanics={"hysteresis": False, "k_lp_N_m": k, "k_ln_N_m": k})
 
 
 def nonlinear_tf(params, grip_N: float, output: str, linkage: str = "small_signal"):

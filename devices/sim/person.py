@@ -99,6 +99,9 @@ class Person:
     compensation_bandwidth_hz: float = 8.0
     reflex_delay_s: float = 0.04
     reflex_force_N: float = 0.3
+    fingertip_mass_kg: float = 0.005
+    fingertip_stiffness_N_m: float = 6240.0
+    fingertip_damping_Ns_m: float = 23.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -110,6 +113,9 @@ class Person:
                     raise ValueError(f"Person: {f.name} must be > 0, got {val!r}")
             elif val < 0:
                 raise ValueError(f"Person: {f.name} must be >= 0, got {val!r}")
+        if self.fingertip_mass_kg > 0 and not self.fingertip_stiffness_N_m > 0:
+            raise ValueError("Person: a fingertip (fingertip_mass_kg > 0) needs fingertip_stiffness_N_m > 0, got "
+                             f"{self.fingertip_stiffness_N_m!r}")
 
     def replace(self, **changes) -> "Person":
         """A copy with some parameters changed (validated).

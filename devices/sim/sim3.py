@@ -261,6 +261,11 @@ class Sim3Device(Device):
                 "tap_motor_position_m": qu, "tap_motor_velocity_m_s": vu,
                 "lateral_position_m": (float(lat[L.LAT_QV]), float(lat[L.LAT_QW]))}
 
+    def use_compiled_step(self, step) -> None:
+        """Advance the tap axis's physics with ``step`` (``devices.sim.kernel.tick`` compiled ahead of time,
+        ``renderer.sim_aot``): :meth:`SimDevice.use_compiled_step` of the tap axis."""
+        self.tap.use_compiled_step(step)
+
     # -- the compiled loop (renderer.law3.run_sim3) ------------------------------
     def fused3(self):
         """The arrays the compiled 3-D loop advances: the tap axis's (``SimDevice.fused_arrays``), the

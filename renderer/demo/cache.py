@@ -235,7 +235,7 @@ def keep_figures(pipe: Pipeline, out: Path) -> bool:
         return False
 
 
-#: the HFAM accuracy claims of an entry (issue 36 item 5), computed once: the scoring code and the sim are in the key
+#: the HFAM accuracy claims of an entry, computed once: the scoring code and the sim are in the key
 HFAM_CLAIMS_FILE = "hfam_claims.json"
 
 

@@ -13,6 +13,9 @@ from plumbing.dispatch import Body
 from plumbing.fileio import user_cache_dir
 from stimuli.hfam.settings import PipelineSettings
 
+#: the demo's default device (devices.sim.presets.CHAPTER_4_DEVICE; the parser stays light: no devices.sim import)
+CHAPTER_4_DEVICE = PipelineSettings.device
+
 from .config import DemoConfig
 from .renderings import RENDERINGS
 
@@ -32,8 +35,9 @@ def register(subparsers) -> None:
                     "grips, record real taps on wood on foam, build the HFAM library (cached), tap soft/firm/very "
                     "firm walls, pulse, decaying sinusoid and HFAM renderings and the real sample, print a table, "
                     "write DIR/summary.csv and figures. With a hardware device a person taps. See docs/demo.md.")
-    p.add_argument("--device", default="sim", help="sim (default), sim:lti, sim:<params file>, serial:<port>, "
-                                                  "hid:<vid>:<pid>")
+    p.add_argument("--device", default=CHAPTER_4_DEVICE,
+                   help=f"{CHAPTER_4_DEVICE} (default: the section 4.4.3 one-dof testbed, linear linkage), sim or "
+                        "sim:joystick (the Table 3.1 joystick), sim:lti, sim:<params file>, serial:<port>, hid:<vid>:<pid>")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default ./out/demo)")
     p.add_argument("--force", action="store_true",
                    help="replace an earlier demo's results in --out (summary.csv, traces.npz, figures)")

@@ -1,31 +1,29 @@
-"""Experiment: how strongly may the hand impedance follow grip? (issue 36 item 3; thesis 3.4.6, 4.4.1, 4.4.3)
+"""Experiment: which part of the simulated hand carries grip into a hard contact? (thesis 3.4.6, 3.5.2, 4.4.1, 4.4.3)
 
-Two thesis statements pull the grip dependence of the simulated hand in
-opposite directions:
+Two thesis statements pull the grip dependence of the simulated hand in opposite directions:
 
-* section 4.4.1: "Contact accelerations are generally independent of grip
-  force" -- a real sample's taps at 1 N and 3 N should match its 2 N tap
-  (issue 36: median NRMSE <= 0.3, peak within +/- 25 %;
-  :func:`renderer.demo.fidelity.grip_independence`);
-* section 4.4.3, Figure 4.13: "if the system were to blindly apply the medium
-  grip current transient regardless of grip force, the acceleration would be
-  too large for softer grips and too weak for firmer grip forces" -- the
-  device's current -> acceleration response depends on grip.
+* section 4.4.1: "Contact accelerations are generally independent of grip force" -- a real sample's taps at 1 N
+  and 3 N should match its 2 N tap over the contact's first 10-20 ms
+  (:func:`renderer.demo.fidelity.grip_independence`, median NRMSE <= 0.3, peak within +/- 25 %);
+* section 4.4.3, Figure 4.13: "if the system were to blindly apply the medium grip current transient regardless
+  of grip force, the acceleration would be too large for softer grips and too weak for firmer grip forces" --
+  the device's current -> acceleration response depends on grip.
 
-The sim's hand has one grip impedance (Table 3.1's k_u, b_u between handle and
-hand, eq. 3.34) that shapes both. This module sweeps how it scales with grip,
-``k_u(g) = k_u (g / g_nom)^alpha_k`` and ``b_u(g) = b_u (g / g_nom)^alpha_b``
-(the sim's default is alpha = 1, after the thesis's wrist study [84]), and
-measures for each setting both sides: the grip claim of the real samples and
-the Figure 4.13 ratio, the peak (and band-passed RMS) acceleration of the
-medium-grip (2 N) HFAM transient played over the firm wall at 1 N and 3 N
-divided by that at 2 N. The sim's 2 N hand is the same for every setting
-(the factor is 1 at the nominal grip), so one HFAM library (the demo's,
-identified with the default hand) serves them all.
+The simulated person (``devices.sim.person.Person``) holds the handle through a fingertip: the stylus-to-fingertip
+contact (``fingertip_*``: the flesh, grip independent, section 3.5.2's "handle and mechanism vibrating against
+the flesh of the user's hand", which "was found not to change significantly with variations in grip force"),
+the fingertip's mass, then the grip impedance of Table 3.1 scaled linearly with grip (section 3.5.2's wrist model,
+[84]) to the arm. This module measures both claims for:
 
-Not a product feature: the measured table is in docs/sim.md ("The thesis's
-operating point", grip-independent real contact) and
-``tests/renderer/demo/test_grip_sweep.py`` asserts its corners.
+* :data:`ISOLATION`: each element of the grip impedance made grip independent in turn,
+  ``k_u (g / g_nom)^alpha_k`` and ``b_u (g / g_nom)^alpha_b`` (alpha 1: linear in grip, 0: independent), on the
+  hand without a fingertip (the grip impedance on the handle itself, as before the fingertip) and on the default
+  person: which part carries grip into the contact;
+* :data:`FINGERTIPS`: the fingertip contact's stiffness and damping around the default's.
+
+The sim's 2 N hand is the same in every row of a sweep (the scaling is 1 at the nominal grip), so one HFAM library
+(the demo's) serves them all. Not a product feature: the measured tables are in docs/sim.md ("The hand in hard
+contact") and ``tests/renderer/demo/test_grip_sweep.py`` asserts their corners.
 """
 
 from __future__ import annotations
@@ -35,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from devices.sim import Person, SimDevice, default_params
+from devices.sim import Person, SimDevice, preset_params
 
 from . import fidelity
 from . import metrics as dm
@@ -73,6 +71,11 @@ class HandScaling:
     def label(self) -> str:
         """``alpha_k / alpha_b`` as printed in the table."""
         return f"{self.alpha_k:g} / {self.alpha_b:g}"
+
+
+def device_params():
+    """The demo's device (its default ``PipelineSettings.device``, the one-dof testbed)."""
+    return preset_params(DemoConfig().pipeline.device.partition(":")[2] or "joystick")
 
 
 def params_at_grip(base, grip_N: float, scaling: HandScaling):
@@ -113,26 +116,27 @@ def tap_grips(scaling: HandScaling, library, velocities_m_s, grips_N, base=None,
     velocities_m_s, grips_N : sequence of float
         Tap speeds (m/s) and grips (N); the grips must include the 2 N reference.
     base : devices.sim.SimParams or None
-        Sim parameters (default: the default parameter file).
+        Sim parameters (default: the demo's device, :func:`device_params`).
     seed : int
         Sensor-noise seed (one device per grip, seeded ``seed + index``).
     stop_time_s : float or None
         The tap's stop time (:func:`renderer.demo.runs.tap_sim`; None: its default, the demo's).
-    person : callable or None
-        grip (N) -> :class:`devices.sim.Person` holding the device at that grip (None: the default person).
+    person : Person or callable or None
+        The person holding the device (a :class:`devices.sim.Person`, or grip (N) -> Person; None: the default
+        person).
 
     Returns
     -------
     dict
         (rendering name, velocity, grip) -> [TapTrace], as the demo's traces.
     """
-    base = default_params() if base is None else base
+    base = device_params() if base is None else base
     opts = {} if stop_time_s is None else {"stop_time_s": stop_time_s}
     fixed = FixedGripTransient(library, 2.0)
     traces = {}
     for k, g in enumerate(grips_N):
         with SimDevice(params_at_grip(base, g, scaling), seed=seed + k) as dev:
-            hand = {} if person is None else {"hand": person(g)}
+            hand = {} if person is None else {"hand": person(g) if callable(person) else person}
             for v in velocities_m_s:
                 for r in REAL_SAMPLES:
                     traces[(r.name, v, g)] = [tap_sim(dev, r, None, v, g, library.fs_hz, **opts, **hand)]
@@ -215,7 +219,7 @@ def measure(scaling: HandScaling, library, velocities_m_s=(0.05, 0.08, 0.11, 0.1
 def meets(row: dict, fig413_band: tuple[float, float] = (0.5, 1.0)) -> tuple[bool, bool]:
     """Whether a :func:`measure` row meets (grip claim, Figure 4.13).
 
-    The grip claim: every real sample's median NRMSE <= 0.3 and peaks within +/- 25 % (issue 36). Figure
+    The grip claim: every real sample's median NRMSE <= 0.3 and peaks within +/- 25 %. Figure
     4.13: the medium transient at the firmest grip gives a peak ratio inside ``fig413_band`` (the range the
     thesis's saturation pattern implies, docs/sim.md) and at the softest grip a ratio above 1.
     """
@@ -228,13 +232,13 @@ def meets(row: dict, fig413_band: tuple[float, float] = (0.5, 1.0)) -> tuple[boo
 
 def format_table(rows) -> str:
     """The sweep as a Markdown table (one line per setting)."""
-    lines = ["| alpha_k / alpha_b | NRMSE wood / w-on-foam / foam | worst peak dev. | "
+    lines = ["| hand | NRMSE wood / w-on-foam / foam (20 ms) | worst peak dev. | "
              "Fig. 4.13 peak 1 N / 3 N (RMS) | Fig. 4.13 NRMSE | grip claim | Fig. 4.13 |",
              "|---|---|---|---|---|---|---|"]
     for row in rows:
         grip, fig = meets(row)
         lo, hi = row["fig413_low"], row["fig413_high"]
-        lines.append(f"| {row['scaling'].label} | {row['nrmse_wood']:.2f} / {row['nrmse_wood_on_foam']:.2f} / "
+        lines.append(f"| {row.get('label', row['scaling'].label)} | {row['nrmse_wood']:.2f} / {row['nrmse_wood_on_foam']:.2f} / "
                      f"{row['nrmse_foam']:.2f} | "
                      f"{100 * max(row['peak_dev_wood'], row['peak_dev_wood_on_foam'], row['peak_dev_foam']):.0f} % | "
                      f"{lo['peak_median']:.2f} / {hi['peak_median']:.2f} ({lo['rms_median']:.2f} / "
@@ -243,11 +247,16 @@ def format_table(rows) -> str:
     return "\n".join(lines)
 
 
-#: the settings of docs/sim.md's table: both exponents together, then each alone
-SWEEP = (HandScaling(1.0, 1.0), HandScaling(0.75, 0.75), HandScaling(0.5, 0.5), HandScaling(0.4, 0.4),
-         HandScaling(0.35, 0.35), HandScaling(0.3, 0.3), HandScaling(0.2, 0.2), HandScaling(0.1, 0.1),
-         HandScaling(0.0, 0.0), HandScaling(1.0, 0.5), HandScaling(1.0, 0.3), HandScaling(1.0, 0.0),
-         HandScaling(0.0, 1.0))
+#: which element of the grip impedance carries grip: both linear in grip (section 3.5.2), the stiffness alone, the
+#: damping alone, neither
+ISOLATION = (HandScaling(1.0, 1.0), HandScaling(1.0, 0.0), HandScaling(0.0, 1.0), HandScaling(0.0, 0.0))
+#: the hand without a fingertip: Table 3.1's grip impedance on the handle itself (the person before the fingertip)
+NO_FINGERTIP = Person(fingertip_mass_kg=0.0)
+#: the fingertip contacts of docs/sim.md's table: (mass kg, stiffness N/m, damping N s/m); the default person's
+#: first (5 g, section 3.5.2's 70 Hz on the flesh, Table 3.1's 23 N s/m), then its damping from a finger pad's
+#: (Hajian & Howe 1997: 1-2 N s/m) up, and its stiffness halved and doubled
+FINGERTIPS = ((0.005, 6240.0, 23.0), (0.005, 6240.0, 1.5), (0.005, 6240.0, 6.0), (0.005, 6240.0, 11.5),
+              (0.005, 3120.0, 23.0), (0.005, 12480.0, 23.0), (0.01, 6240.0, 23.0))
 
 
 def demo_library(cache_base=None):
@@ -256,48 +265,31 @@ def demo_library(cache_base=None):
     return build_or_load(cfg.pipeline, cache_base).library, cfg.pipeline.tap_stop_time_s
 
 
-def sweep(settings=SWEEP, library=None, stop_time_s=None) -> list[dict]:
-    """:func:`measure` for every setting (default :data:`SWEEP`, the demo's library and tap): docs/sim.md's table.
+def isolation(library=None, stop_time_s=None) -> list[dict]:
+    """:func:`measure` for every :data:`ISOLATION` scaling, on the hand without a fingertip and on the default
+    person (``label`` says which): docs/sim.md's isolation table.
 
-    Reproduce it with
-    ``python -c "from renderer.demo import grip_sweep as g; print(g.format_table(g.sweep()))"``
-    (about 0.4 s per setting after the demo's cache is built).
+    Reproduce it with ``python -c "from renderer.demo import grip_sweep as g; print(g.format_table(g.isolation()))"``
+    (about 0.5 s per row after the demo's cache is built).
     """
     if library is None:
         library, stop_time_s = demo_library()
-    return [measure(s, library, stop_time_s=stop_time_s) for s in settings]
+    rows = []
+    for name, person in (("no fingertip", NO_FINGERTIP), ("fingertip (default)", None)):
+        for s in ISOLATION:
+            rows.append({**measure(s, library, stop_time_s=stop_time_s, person=person),
+                         "label": f"{name}, alpha_k / alpha_b {s.label}"})
+    return rows
 
 
-def fingertip_emulation(library, finger_mass_kg: float = 0.005, pad_stiffness_N_m: float = 300.0,
-                        pad_damping_Ns_m: float = 1.5, stop_time_s=None) -> dict:
-    """A fingertip mass between handle and grip impedance, emulated with the existing kernel (issue 36 C).
-
-    handle --[finger pad, grip independent]-- fingertip mass --[Table 3.1's k_u, b_u, linear in grip]-- plan:
-    the sim's handle-side spring-damper becomes the finger pad (Hajian & Howe 1997 [53]: ~4-6 g, 50-400 N/m,
-    1-2 N s/m), the person's mass the fingertip and its muscles the grip impedance at each grip. The arm mass
-    behind the grip is left out (the kernel has one mass behind the handle), so this measures what a fingertip
-    does to the two claims, not the depths.
-
-    Parameters
-    ----------
-    library : stimuli.HfamLibrary
-    finger_mass_kg, pad_stiffness_N_m, pad_damping_Ns_m : float
-        Fingertip mass (kg) and finger-pad stiffness (N/m) and damping (N s/m).
-    stop_time_s : float or None
-        As for :func:`tap_grips`.
-
-    Returns
-    -------
-    dict
-        As :func:`measure`.
-    """
-    base = default_params()
-    u = base.user
-    pad = base.replace(user={"k_u_N_m": pad_stiffness_N_m, "b_u_Ns_m": pad_damping_Ns_m})
-
-    def person(g):
-        r = g / u["nominal_grip_N"]
-        return Person(arm_mass_kg=finger_mass_kg, muscle_stiffness_N_m=u["k_u_N_m"] * r,
-                      muscle_damping_Ns_m=u["b_u_Ns_m"] * r)
-
-    return measure(HandScaling(0.0, 0.0), library, base=pad, person=person, stop_time_s=stop_time_s)
+def fingertip_sweep(library=None, stop_time_s=None, fingertips=FINGERTIPS) -> list[dict]:
+    """:func:`measure` for every fingertip contact of ``fingertips`` (mass kg, stiffness N/m, damping N s/m), the
+    grip impedance linear in grip: docs/sim.md's fingertip table."""
+    if library is None:
+        library, stop_time_s = demo_library()
+    rows = []
+    for m, k, b in fingertips:
+        person = Person(fingertip_mass_kg=m, fingertip_stiffness_N_m=k, fingertip_damping_Ns_m=b)
+        rows.append({**measure(HandScaling(), library, stop_time_s=stop_time_s, person=person),
+                     "label": f"fingertip {m * 1e3:g} g, {k:g} N/m, {b:g} N s/m"})
+    return rows

@@ -4,7 +4,7 @@ The same comparison as the sim demo (section 4.5.5), with a person instead of
 the simulated hand: first the real wood-on-foam sample (motor off), then each
 virtual rendering over the placeholder. Each rendering's taps run in a servo
 process of their own (the loop never shares an interpreter lock with the
-scope or the prompts, issue 3 item 8); the child copies every tick's time,
+scope or the prompts); the child copies every tick's time,
 position and acceleration into a shared-memory ring that the parent shows as
 a live scope: a matplotlib window when a display is available
 (``$DISPLAY``/``$WAYLAND_DISPLAY`` and an interactive backend), otherwise a

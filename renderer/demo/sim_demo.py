@@ -19,6 +19,9 @@ See ``docs/demo.md``.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import math
 import multiprocessing as mp
 import os
@@ -31,13 +34,16 @@ import numpy as np
 
 from devices.registry import make_device
 from devices.sim import ReactiveHand
+from plumbing.fileio import user_cache_dir
 from plumbing.pools import worker_dies_with_parent
 from stimuli.hfam.pipeline import Progress
 
+from ..teleop import claims as teleop_claims
 from . import fidelity
 from . import figures as figs
 from . import runs
-from .cache import Pipeline, build_or_load, entry_hfam_claims, keep_figures, restore_figures
+from . import study_rows, thesis_rows
+from .cache import Pipeline, build_or_load, code_digest, entry_hfam_claims, keep_figures, restore_figures
 from .config import DemoConfig, DemoResult
 from .report import write_summary, write_traces
 
@@ -327,6 +333,69 @@ def reactive_hand_cuts(cfg: DemoConfig, pipe: Pipeline) -> dict:
             "penetration_m": pen, "cuts": cuts}
 
 
+def _is_nonlinear_sim(device: str) -> bool:
+    """True for a sim device string whose device has the person (the nonlinear model: joystick or one-dof)."""
+    if not device.startswith("sim"):
+        return False
+    return getattr(getattr(make_device(device), "params", None), "model", None) == "nonlinear"
+
+
+def population(cfg: DemoConfig, pipe: Pipeline) -> dict:
+    """The > 2 mm rows' population of persons (:func:`renderer.demo.thesis_rows.population_penetration`) on the
+    demo's device and library; empty on a device without the simulated person or without operating-point speeds."""
+    if not _is_nonlinear_sim(cfg.pipeline.device) or not fidelity.operating_weights(cfg.velocities_m_s):
+        return {}
+    return thesis_rows.population_penetration(cfg.pipeline.device, pipe.library, cfg.velocities_m_s,
+                                              cfg.pipeline.tap_stop_time_s)
+
+
+def more_claims(cfg: DemoConfig) -> list:
+    """:func:`device_and_teleop_claims` and the simulated study's rows (:func:`renderer.demo.study_rows.study_claims`,
+    read afresh: they depend on the gallery's stamp).
+
+    The device and teleoperation rows depend on nothing but the code that computes them and the device, so they
+    are kept in the user cache (``claims-<key>.json``, ``key`` hashing that code and the device; not in
+    ``cache_base``, so demos with other pipeline caches share them) and read back by later demos."""
+    key = hashlib.sha256((code_digest(paths=_MORE_CLAIMS_CODE) + cfg.pipeline.device
+                          + repr(cfg.pipeline.tap_stop_time_s)).encode()).hexdigest()[:16]
+    path = user_cache_dir() / f"claims-{key}.json"
+    rows = None
+    try:
+        rows = fidelity.claims_from_dicts(json.loads(path.read_text()))
+    except (OSError, ValueError):
+        pass
+    if rows is None:
+        rows = device_and_teleop_claims(cfg)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+            tmp.write_text(json.dumps([dataclasses.asdict(c) for c in rows], allow_nan=True) + "\n")
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return rows + study_rows.study_claims()
+
+
+#: the code the device and teleoperation rows depend on (their cache key)
+_MORE_CLAIMS_CODE = ("devices", "renderer", "stimuli")
+
+
+def device_and_teleop_claims(cfg: DemoConfig) -> list:
+    """The rows beyond the demo's taps: section 2.2.1's wall, 3.4.6's slopes (on the demo's device), 3.5.2's
+    grip-independent resonance (the joystick, chapter 3's device), chapter 5's and section 4.3.2's teleoperation
+    rows (the joystick testbed). On a device without the simulated person the device rows are "not measured"."""
+    out = []
+    if _is_nonlinear_sim(cfg.pipeline.device):
+        out += [thesis_rows.wall_resonance_claim(cfg.pipeline.device), thesis_rows.held_slopes_claim(cfg.pipeline.device)]
+    else:
+        out += [fidelity.Claim(cid, sec, "", "", math.nan, f"not measured: {cfg.pipeline.device} has no simulated "
+                               "person", False) for cid, sec in (("wall_resonance", "2.2.1"),
+                                                                 ("held_device_slopes", "3.4.6, Figure 3.12"))]
+    out.append(thesis_rows.grip_resonance_claim())
+    out += fidelity.claims_from_dicts(teleop_claims.teleop_claims() + [teleop_claims.delay_claim()])
+    return out
+
+
 def make_figures(cfg: DemoConfig, result: DemoResult, out: Path, pipeline_figures: bool = True,
                  parallel: bool = True) -> dict:
     """Write the four figures into ``out`` (the library and Bode ones only if ``pipeline_figures``); with
@@ -414,6 +483,10 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         aside["reactive"] = reactive_hand_cuts(cfg, pipe)
         # the HFAM libraries' accuracy (open loop, unseen conditions, saturation): fidelity.csv's item-5 rows
         aside["hfam_claims"] = fidelity.claims_from_dicts(entry_hfam_claims(pipe, cfg.pipeline))
+        # the thesis's other claims: the population of persons for the > 2 mm rows, the held device, the
+        # teleoperation testbed and the simulated study
+        aside["population"] = population(cfg, pipe)
+        aside["more_claims"] = more_claims(cfg)
 
     traces, refs = simulate(cfg, pipe, progress, meanwhile=meanwhile)
     reactive = aside["reactive"]
@@ -421,7 +494,9 @@ def run_sim_demo(cfg: DemoConfig, out: Path, cache_base: Path | None = None, reb
         progress.say(f"{'reactive hand':22s} {reactive['taps']} taps on firm, pulse and HFAM over firm")
     t_sim = progress.done()
     rows = summarize(cfg, traces, pipe.library)
-    claims = fidelity.measure_claims(traces, cfg.renderings, pipe.fs_hz, cfg.medium_grip_N) + aside["hfam_claims"]
+    claims = (thesis_rows.with_population(fidelity.measure_claims(traces, cfg.renderings, pipe.fs_hz,
+                                                                  cfg.medium_grip_N), aside["population"])
+              + aside["hfam_claims"] + aside["more_claims"])
     result = DemoResult(rows, traces, refs, pipe, {}, {}, pipe.fs_hz, reactive, claims)
     write_summary(rows, out / "summary.csv")
     fidelity.write_fidelity(claims, out / "fidelity.csv")

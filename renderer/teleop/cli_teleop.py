@@ -35,7 +35,8 @@ def _add_common(p) -> None:
                    default=SLAVE_HANDLE_DAMPING_N_S_M,
                    help=f"viscous damping between the slave's unheld handle and its linkage, N s/m (default "
                         f"{SLAVE_HANDLE_DAMPING_N_S_M:g}: calibrated so that the slave's natural impact settles "
-                        f"in 50 ms, Figure 5.10; 0: Table 3.1 as identified, with the handle held)")
+                        f"in 40 ms, below Figure 5.10's lambda = 1 value; 0: Table 3.1 as identified, with the "
+                        f"handle held)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty)")
 
 
@@ -87,12 +88,22 @@ def register(sub) -> None:
     q.add_argument("--seed", type=int, default=1, help="seed of the blind randomisation")
     q.add_argument("--robustness", action="store_true",
                    help="also the CIMM table with +/-30 %% error in user stiffness and hand mass")
+    q.add_argument("--press-depth-mm", default=None, metavar="LIST",
+                   help="comma list of how far below the surface the operator presses, mm (default 2; the thesis "
+                        "gives none: e.g. 2,3,4)")
+    q.add_argument("--lambda-by-speed", action="store_true",
+                   help="Figure 5.11's protocol: each lambda's taps come in at a speed inversely proportional to "
+                        "lambda, the feedback's peak held at the device's limit (default: 0.08-0.12 m/s at every "
+                        "lambda)")
     _add_common(q)
     with_examples(q, "hfam-renderer teleop-sweep --lambda 0.25,0.5,1,1.5,2,3,4,6,8,10,15 --taps 2 --out sweep/",
                   "hfam-renderer teleop-sweep --lambda 1,3,6,10 --conditions pf,pf+cimm --servo-bandwidth-hz 12 "
                   "--out sweep_12hz/",
                   "hfam-renderer teleop-sweep --lambda 1,4,8 --conditions pf,pf+cimm --robustness --out sweep/",
-                  "hfam-renderer teleop-sweep --lambda 1:6 --conditions pf,pf+cimm --backlash-mm 0.1 --out sweep_fig511/")
+                  "hfam-renderer teleop-sweep --lambda 1:6 --conditions pf,pf+cimm --backlash-mm 0.1 --lambda-by-speed "
+                  "--cimm-model linear-linkage --out sweep_fig511/",
+                  "hfam-renderer teleop-sweep --lambda 0,1,3,6,10,15 --conditions pf,pf+cimm --press-depth-mm 2,3,4 "
+                  "--out sweep_press/")
     q.set_defaults(func=Body("renderer.teleop.commands", "run_sweep"))
     r = sub.add_parser("teleop-servo-study",
                        help="section 5.7's targets at each servo bandwidth, slave handle re-identified at each")
@@ -104,9 +115,9 @@ def register(sub) -> None:
     r.add_argument("--fixed-slave-handle-damping-N-s-m", dest="fixed_slave_handle_damping", type=float, default=None,
                    help="hold the slave handle's damping at this value, N s/m (default: re-identify it on the "
                         "natural impact at every bandwidth)")
-    r.add_argument("--grace", action="store_true",
-                   help="classify counting only the contact losses later than 30 ms after the impact (the slave's "
-                        "own bounce), a measured variant of issue 37's count from the impact on")
+    r.add_argument("--count-from-impact", action="store_true",
+                   help="classify counting every contact loss from the impact on, the slave's own bounce included "
+                        "(default: only the losses later than 30 ms after the impact)")
     r.add_argument("--cimm-model", default=None, help="parameter file of the identified master (default: the "
                    "simulated master identified by successive isolation, cached; 'stand-in': marked Table 3.1)")
     r.add_argument("--washout-hz", type=float, default=0.0, help="high-pass on the CIMM model output (0: off)")

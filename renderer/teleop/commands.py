@@ -32,11 +32,12 @@ from plumbing.fileio import atomic_write_text, check_output_dir
 from plumbing.progress import Progress
 from plumbing.stopsignals import stop_on_signals
 
-from .hfam import accel_match, design_hfam, figure_45, identify_master_hha
+from .calibration import feedback_limit_speed
+from .hfam import accel_match, accel_match_target, design_hfam, figure_45, identify_master_hha
 from .models import cimm_params, underestimation_check
 from .options import SWEEP_CONDITIONS, parse_lambdas
 from .serial_master import run_serial_session
-from .session import (SERVO_BANDWIDTH_HZ, TeleopConfig, default_path, resolve_gains, run_session,
+from .session import (PRESS_DEPTH_M, SERVO_BANDWIDTH_HZ, TeleopConfig, default_path, resolve_gains, run_session,
                       session_metrics)
 
 TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_hf_m", "a_m_m_s2", "a_s_m_s2",
@@ -45,7 +46,7 @@ TRACE_COLUMNS = ("t_s", "x_m_m", "x_s_m", "x_c_m", "F_e_N", "F_f_N", "x_hat_mi_h
 HOLDS_CONTACT = ("settles", "buzzes")
 # pd+hfam is section 4.3.1's architecture: bilateral PD plus the acceleration-matching channel, nothing else. The
 # position-command low-pass K_mu (40 Hz) and the master-PD low-pass (150 Hz) it once had by default were tuned
-# against issue 18's 600 N/m slave; with the rule's 8 Hz servos they lowered the match over three operators
+# against an earlier 600 N/m slave; with the rule's 8 Hz servos they lowered the match over three operators
 # (correlation 0.843-0.885 against 0.884-0.912) and added bounces (docs/teleop.md). Both remain options.
 
 
@@ -184,6 +185,9 @@ def run_teleop(args) -> int:
     if cfg.controller.startswith("pd"):
         match = accel_match(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
         run["accel_match_22_1000Hz"] = match
+        # eq. 4.4: the master's high-passed acceleration against the smoothed, high-passed tip acceleration it
+        # must replicate, and what the smoothing itself takes out
+        run["accel_match_eq_4_4"] = accel_match_target(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
         if hfam is not None:
             run["hfam"] = {"check": hfam.check, "max_current_A": hfam.max_current_A, "gain": hfam.gain}
         print(f"master handle vs slave tip (22-1000 Hz, delay {match['delay_s'] * 1e3:.1f} ms removed): "
@@ -306,37 +310,59 @@ def figure_510(res, path: Path, title: str) -> None:
 
 
 def sweep(tb: Testbed, cimm: CimmModel, lambdas, conditions, *, taps: int = 2, mu: float = 1.0,
-          seed: int = 1, progress=None, servo_bandwidth_hz: float = SERVO_BANDWIDTH_HZ) -> list[dict]:
-    """Blind-randomised lambda sweep: one single-tap session per (condition, lambda, tap), random order.
+          seed: int = 1, progress=None, servo_bandwidth_hz: float = SERVO_BANDWIDTH_HZ,
+          press_depths_m=(PRESS_DEPTH_M,), lambda_speed_m_s: float | None = None) -> list[dict]:
+    """Blind-randomised lambda sweep: one single-tap session per (condition, lambda, press depth, tap), random order.
 
     ``servo_bandwidth_hz`` is the servo-gain rule's natural frequency (``TeleopConfig.servo_bandwidth_hz``).
+    ``press_depths_m``: how far below the surface the operator presses (the thesis gives none; the default path's
+    2 mm). ``lambda_speed_m_s``: Figure 5.11's protocol, "the force feedback gain, lambda, was varied inversely
+    with incoming velocity to keep the total magnitude of the haptic feedback within the device's limits"
+    (section 5.7.2): each lambda's taps come in at ``lambda_speed_m_s / lambda`` (m/s; clipped to
+    :data:`INVERSE_SPEED_RANGE_M_S`, :func:`renderer.teleop.calibration.feedback_limit_speed` gives the
+    device's), instead of the fixed 0.08-0.12 m/s.
 
     The analysis (:func:`session_metrics`) sees only force traces; the condition is attached after.
 
     Returns
     -------
-    list of dict (condition, lambda, speed_m_s, settling_s, stable, breaks, contact_losses, contact_class,
-    hf_energy_fraction)
+    list of dict (condition, lambda, speed_m_s, press_depth_mm, settling_s, stable, breaks, contact_losses,
+    contact_class, hf_energy_fraction)
     """
     speeds = np.linspace(0.08, 0.12, taps) if taps > 1 else np.array([0.1])
-    trials = [(c, lam, float(v)) for c in conditions for lam in lambdas for v in speeds]
+    trials = []
+    for c in conditions:
+        for lam in lambdas:
+            if lambda_speed_m_s is not None and lam > 0:
+                v = min(max(lambda_speed_m_s / lam, INVERSE_SPEED_RANGE_M_S[0]), INVERSE_SPEED_RANGE_M_S[1])
+                lam_speeds = [v] * taps
+            else:
+                lam_speeds = list(speeds)
+            trials += [(c, lam, float(v), float(d)) for d in press_depths_m for v in lam_speeds]
     random.Random(seed).shuffle(trials)
     rows = []
-    for j, (cond, lam, v) in enumerate(trials):
+    for j, (cond, lam, v, depth) in enumerate(trials):
         controller, extra = SWEEP_CONDITIONS[cond]
         cfg = TeleopConfig(controller=controller, mu=mu, lam=lam, servo_bandwidth_hz=servo_bandwidth_hz, **extra)
-        path, cr = default_path(tb.servo_rate_hz, mu, n_taps=1, speed_m_s=v)
+        path, cr = default_path(tb.servo_rate_hz, mu, n_taps=1, speed_m_s=v, press_depth_m=depth)
         res = run_session(tb, cfg, path, cimm=cimm, impact_ticks=cr, seed=j + 1)
         m = session_metrics(res)[0]
-        rows.append({"condition": cond, "lambda": lam, "speed_m_s": v,
+        rows.append({"condition": cond, "lambda": lam, "speed_m_s": v, "press_depth_mm": depth * 1e3,
                      "settling_s": (m.settling_s if m else math.inf),
                      "stable": bool(m.stable) if m else False, "breaks": m.breaks if m else -1,
                      "contact_losses": m.contact_losses if m else -1,
                      "contact_class": m.contact_class if m else "no contact",
+                     "quasi_static_N": m.quasi_static_N if m else float("nan"),
+                     "oscillation_N": m.oscillation_N if m else float("nan"),
                      "hf_energy_fraction": m.hf_energy_fraction if m else float("nan")})
         if progress is not None:
             progress(j + 1, len(trials))
     return rows
+
+
+#: the incoming speeds Figure 5.11's lambda-by-speed protocol may ask of the operator (m/s): the demo's slowest
+#: tap to the device's rated speed
+INVERSE_SPEED_RANGE_M_S = (0.02, 0.5)
 
 
 def largest_lambda(rows: list[dict], cond: str, classes=("settles",)) -> float:
@@ -387,7 +413,7 @@ def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: floa
     Returns
     -------
     dict name -> {"largest_stable_lambda": float, "largest_settling_lambda": float,
-    "mean_contact_losses": float (per tap over the grid)}
+    "mean_contact_losses": float (per tap over the grid, after the impact's own 30 ms)}
     """
     out = {}
     for name, model in model_variants(cimm, error).items():
@@ -395,8 +421,55 @@ def robustness(tb: Testbed, cimm: CimmModel, lambdas, *, taps: int = 2, mu: floa
                      servo_bandwidth_hz=servo_bandwidth_hz)
         out[name] = {"largest_stable_lambda": largest_stable(rows, "pf+cimm"),
                      "largest_settling_lambda": largest_lambda(rows, "pf+cimm", ("settles",)),
-                     "mean_contact_losses": float(np.mean([r["contact_losses"] for r in rows]))}
+                     "mean_contact_losses": float(np.mean([r["breaks"] for r in rows]))}
     return out
+
+
+def parse_press_depths(text: str | None) -> tuple:
+    """``--press-depth-mm``: a comma list of press depths (mm) -> metres; None: the default path's 2 mm."""
+    if text is None:
+        return (PRESS_DEPTH_M,)
+    try:
+        vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"--press-depth-mm: expected a comma list of depths in mm, got {text!r}") from None
+    if not vals or any(not (math.isfinite(v) and 0.0 < v <= 20.0) for v in vals):
+        raise ValueError(f"--press-depth-mm: every depth must be > 0 and <= 20 mm, got {text!r}")
+    return tuple(v * 1e-3 for v in vals)
+
+
+def sweep_table(rows: list[dict], conds, depths_m) -> tuple[list[str], dict]:
+    """The sweep's Markdown table (one line per condition and press depth) and its summary.
+
+    Columns: the largest lambda that settles and that holds contact (the contact classes, counting the losses after
+    the impact's own 30 ms), F_f's energy above 50 Hz at the latter, the mean contact losses per tap after the
+    impact's bounce and from the impact on, and at lambda = 3 the static contact force against the oscillation
+    it must outweigh (means over the taps)."""
+    table = ["| controller | press depth (mm) | largest lambda that settles | largest lambda that holds contact | "
+             "F_f energy above 50 Hz at that lambda | contact losses per tap after the impact's 30 ms (from the "
+             "impact on) | lambda = 3: static contact force / oscillation (N) |",
+             "|---|---|---|---|---|---|---|"]
+    summary = {}
+    for c in conds:
+        for d in depths_m:
+            sel = [r for r in rows if r["condition"] == c and abs(r["press_depth_mm"] - d * 1e3) < 1e-9]
+            ls = largest_lambda(sel, c, ("settles",))
+            lm = largest_stable(sel, c)
+            hf = [r["hf_energy_fraction"] for r in sel if r["lambda"] == lm]
+            breaks = float(np.mean([r["breaks"] for r in sel]))
+            losses = float(np.mean([r["contact_losses"] for r in sel]))
+            at3 = [r for r in sel if r["lambda"] == 3.0]
+            f3 = (float(np.mean([r["quasi_static_N"] for r in at3])), float(np.mean([r["oscillation_N"] for r in at3]))) \
+                if at3 else None
+            key = f"{c} @ {d * 1e3:g} mm"
+            summary[key] = {"condition": c, "press_depth_mm": d * 1e3, "largest_settling_lambda": ls,
+                            "largest_contact_lambda": lm, "hf_energy_fraction": float(np.nanmean(hf)) if hf else None,
+                            "mean_contact_losses_after_bounce": breaks, "mean_contact_losses": losses,
+                            "lambda_3_static_N": f3[0] if f3 else None, "lambda_3_oscillation_N": f3[1] if f3 else None}
+            table.append(f"| {c} | {d * 1e3:g} | {ls:g} | {lm:g} | "
+                         f"{summary[key]['hf_energy_fraction'] if hf else float('nan'):.2f} | {breaks:.1f} ({losses:.1f}) | "
+                         + (f"{f3[0]:.2f} / {f3[1]:.2f} |" if f3 else "- |"))
+    return table, summary
 
 
 def run_sweep(args) -> int:
@@ -408,51 +481,48 @@ def run_sweep(args) -> int:
             raise ValueError(f"--conditions: unknown {c!r} (valid: {', '.join(SWEEP_CONDITIONS)})")
     if args.taps < 1:
         raise ValueError(f"--taps must be >= 1, got {args.taps}")
+    depths = parse_press_depths(args.press_depth_mm)
     tb = build_testbed(args)
     cimm = build_cimm(args)
     check = underestimation_check(cimm, tb.master)
     if check["warning"]:
         print(check["warning"])
+    lam_speed = feedback_limit_speed(tb) if args.lambda_by_speed else None
     out = _new_dir(Path(args.out))
     # a bar on a terminal, plain lines in a log (a tqdm bar wrote \r-separated redraws into a file)
-    bar = Progress(len(conds) * len(lambdas) * args.taps, "teleop-sweep", unit="tap")
+    bar = Progress(len(conds) * len(lambdas) * args.taps * len(depths), "teleop-sweep", unit="tap")
     rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
-                 progress=lambda i, n: bar.update(i), servo_bandwidth_hz=args.servo_bandwidth_hz)
+                 progress=lambda i, n: bar.update(i), servo_bandwidth_hz=args.servo_bandwidth_hz,
+                 press_depths_m=depths, lambda_speed_m_s=lam_speed)
     bar.close()
-    lines = ["condition,lambda,speed_m_s,settling_s,contact_class,contact_losses,stable,breaks,hf_energy_fraction"]
-    for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
-        lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['settling_s']:.4f},"
-                     f"{r['contact_class']},{r['contact_losses']},{int(r['stable'])},{r['breaks']},"
+    lines = ["condition,lambda,speed_m_s,press_depth_mm,settling_s,contact_class,breaks,contact_losses,stable,"
+             "quasi_static_N,oscillation_N,hf_energy_fraction"]
+    for r in sorted(rows, key=lambda r: (r["condition"], r["press_depth_mm"], r["lambda"], r["speed_m_s"])):
+        lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['press_depth_mm']:g},"
+                     f"{r['settling_s']:.4f},{r['contact_class']},{r['breaks']},{r['contact_losses']},"
+                     f"{int(r['stable'])},{r['quasi_static_N']:.3f},{r['oscillation_N']:.3f},"
                      f"{r['hf_energy_fraction']:.3f}")
     atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
-    table = ["| controller | largest lambda that settles | largest lambda that holds contact | "
-             "F_f energy above 50 Hz at that lambda | contact losses per tap (mean over the grid) |",
-             "|---|---|---|---|---|"]
-    summary = {}
-    for c in conds:
-        ls = largest_lambda(rows, c, ("settles",))
-        lm = largest_stable(rows, c)
-        hf = [r["hf_energy_fraction"] for r in rows if r["condition"] == c and r["lambda"] == lm]
-        losses = float(np.mean([r["contact_losses"] for r in rows if r["condition"] == c]))
-        summary[c] = {"largest_settling_lambda": ls, "largest_contact_lambda": lm,
-                      "hf_energy_fraction": float(np.nanmean(hf)) if hf else None, "mean_contact_losses": losses}
-        table.append(f"| {c} | {ls:g} | {lm:g} | {summary[c]['hf_energy_fraction'] if hf else float('nan'):.2f} | "
-                     f"{losses:.1f} |")
+    table, summary = sweep_table(rows, conds, depths)
     atomic_write_text(out / "table.md", "\n".join(table) + "\n")
     atomic_write_text(out / "run.json", json.dumps({
         "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
         "taps": args.taps, "seed": args.seed, "mu": args.mu, "environment": args.environment,
+        "press_depths_mm": [d * 1e3 for d in depths], "lambda_times_speed_m_s": lam_speed,
         "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m,
         "servo_bandwidth_hz": args.servo_bandwidth_hz,
         "cimm_model": {"source": cimm.source, "underestimation_check": check}, "summary": summary,
         "versions": software_versions()}, indent=1, default=str))
     figure_511(rows, conds, out / "figure_5_11.png")
+    if lam_speed is not None:
+        print(f"Figure 5.11's protocol: lambda x incoming speed = {lam_speed:.3f} m/s (the feedback at its "
+              f"{TeleopConfig().ff_max_N:.2f} N limit)")
     print("\n".join(table))
     if args.robustness:
         rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed,
                          servo_bandwidth_hz=args.servo_bandwidth_hz)
         lines = ["| CIMM model | largest lambda that settles | largest lambda that holds contact | "
-                 "contact losses per tap (mean over the grid) |", "|---|---|---|---|"]
+                 "contact losses per tap after the impact's 30 ms (mean over the grid) |", "|---|---|---|---|"]
         lines += [f"| {k} | {v['largest_settling_lambda']:g} | {v['largest_stable_lambda']:g} | "
                   f"{v['mean_contact_losses']:.1f} |" for k, v in rob.items()]
         atomic_write_text(out / "robustness.md", "\n".join(lines) + "\n")

@@ -191,8 +191,10 @@ def identify_master_hha(master_params, fs_hz: float, grip_N: float = 2.0, trials
         recs = record_condition(dev, sweep, float(grip_N), trials)
     else:
         # the operator's hand/arm behind the grip (zero mass: the grip tied to a held position)
+        # (and no fingertip: the teleoperation operator's grip impedance acts on the handle itself)
         hand = (Person(arm_mass_kg=operator.hand_mass_kg, muscle_stiffness_N_m=operator.muscle_k_N_m,
-                       muscle_damping_Ns_m=operator.muscle_b_Ns_m) if operator.hand_mass_kg > 0 else PRESCRIBED)
+                       muscle_damping_Ns_m=operator.muscle_b_Ns_m, fingertip_mass_kg=0.0)
+                if operator.hand_mass_kg > 0 else PRESCRIBED)
         dev.set_user(None, grip_N=float(grip_N), hand=hand)
         # grip None: record_condition would otherwise hand the handle to the default person before each trial
         recs = record_condition(dev, sweep, None, trials)
@@ -229,6 +231,60 @@ def accel_match(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_h
     return {"correlation": best_c, "nrmse": float(np.sqrt(np.mean((y - x) ** 2)) / rms) if rms > 0 else float("nan"),
             "delay_s": best_d / fs_hz, "delay_samples": best_d,
             "rms_ratio": float(np.sqrt(np.mean(y ** 2)) / rms) if rms > 0 else float("nan")}
+
+
+def _highpass(fs_hz: float) -> np.ndarray:
+    """Section 4.3.1's high-pass: "a second-order linear filter with a bandwidth of 22 hertz" (Butterworth, sos)."""
+    return signal.butter(2, HIGHPASS_HZ, btype="highpass", fs=fs_hz, output="sos")
+
+
+def hfam_target(slave_tip_m_s2: np.ndarray, fs_hz: float) -> np.ndarray:
+    """ã_st, the signal the master must replicate (eq. 4.4): the slave tip acceleration smoothed by the 15-point
+    modified Bartlett-Hanning window and high-passed at 22 Hz, causally, as the HFAM channel computes it before
+    the inverse model (section 4.3.1)."""
+    a = np.convolve(np.asarray(slave_tip_m_s2, float), bartlett_hann_fir())[:len(slave_tip_m_s2)]
+    return signal.sosfilt(_highpass(fs_hz), a)
+
+
+def _match(ref: np.ndarray, x: np.ndarray, fs_hz: float, max_delay_s: float) -> dict:
+    """``x`` against ``ref``: correlation, NRMSE (of ``ref``'s RMS), RMS ratio at the delay in 0..``max_delay_s``
+    that maximises the correlation."""
+    n = len(ref)
+    best_c, best_d = -2.0, 0
+    for d in range(0, int(max_delay_s * fs_hz) + 1):
+        a, b = ref[:n - d], x[d:]
+        sa, sb = np.std(a), np.std(b)
+        c = float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb)) if sa > 0 and sb > 0 else 0.0
+        if c > best_c:
+            best_c, best_d = c, d
+    a, b = ref[:n - best_d], x[best_d:]
+    rms = float(np.sqrt(np.mean(a ** 2)))
+    return {"correlation": best_c, "nrmse": float(np.sqrt(np.mean((b - a) ** 2)) / rms) if rms > 0 else float("nan"),
+            "delay_s": best_d / fs_hz, "delay_samples": best_d,
+            "rms_ratio": float(np.sqrt(np.mean(b ** 2)) / rms) if rms > 0 else float("nan")}
+
+
+def accel_match_target(slave_tip_m_s2: np.ndarray, master_handle_m_s2: np.ndarray, fs_hz: float,
+                       max_delay_s: float = 0.02) -> dict:
+    """HFAM scored against what it must replicate, eq. 4.4 ``ã_mh(t) = ã_st(t)``, and the smoothing's loss apart.
+
+    ``match``: the master handle acceleration high-passed at 22 Hz (ã_mh) against :func:`hfam_target` (ã_st), the
+    delay (0..``max_delay_s``) that maximises their correlation removed. ``smoothing_loss``: ã_st against the tip
+    acceleration high-passed the same way without the smoothing: what the prescribed 15-point window (and its
+    7-sample delay, removed) takes out before the inverse model sees the signal, which no inverse can restore.
+
+    Returns
+    -------
+    dict
+        ``match`` and ``smoothing_loss``, each ``correlation``, ``nrmse``, ``delay_s``, ``delay_samples``,
+        ``rms_ratio``.
+    """
+    hp = _highpass(fs_hz)
+    target = hfam_target(slave_tip_m_s2, fs_hz)
+    master = signal.sosfilt(hp, np.asarray(master_handle_m_s2, float))
+    tip = signal.sosfilt(hp, np.asarray(slave_tip_m_s2, float))
+    return {"match": _match(target, master, fs_hz, max_delay_s),
+            "smoothing_loss": _match(tip, target, fs_hz, max_delay_s)}
 
 
 def figure_45(slave_tip_m_s2, master_handle_m_s2, fs_hz: float, delay_samples: int, path, title: str = "") -> None:

@@ -4,7 +4,7 @@ The CIMM model must come from the project's own identification of the master, ne
 simulator's true parameters. Default (:func:`identified_params`): successive isolation
 (``devices.identify.successive.identify_successive``, thesis section 3.5) of the simulated master,
 cached as a ``model.json`` under ``$XDG_CACHE_HOME/hfam-haptics/teleop/`` keyed by the simulator's
-parameter file. Alternatives: a parameter file (``--cimm-model FILE``, loadable by
+parameter file and the code of ``devices/sim`` and ``devices/identify``. Alternatives: a parameter file (``--cimm-model FILE``, loadable by
 ``load_sim_params``) or ``--cimm-model stand-in``: **clearly marked perturbed Table 3.1 parameters**
 (every mechanical parameter off by 5-20 %), for quick runs and a harder robustness case.
 """
@@ -31,6 +31,8 @@ STAND_IN_ERRORS = {"m_m_kg": 1.08, "m_d_kg": 0.92, "m_h_kg": 1.10, "k_c_N_m": 0.
                    "b_d_Ns_m": 1.2}
 STAND_IN_SOURCE = "stand-in: Table 3.1 with 5-20 % errors (not identified)"
 SUCCESSIVE_SOURCE = "successive isolation (devices.identify.successive) of the simulated master"
+#: the code the cached identification depends on (part of its cache key)
+_IDENTIFIED_BY = (Path(DEFAULT_PARAMS_FILE).parent, Path(DEFAULT_PARAMS_FILE).parents[1] / "identify")
 
 
 def identified_params(log=print) -> tuple[SimParams, str]:
@@ -44,7 +46,14 @@ def identified_params(log=print) -> tuple[SimParams, str]:
     source : str
     """
 
-    key = hashlib.sha256(Path(DEFAULT_PARAMS_FILE).read_bytes()).hexdigest()[:16]
+    # the parameter file and the code of the simulated master, its person and the identification: a cached model
+    # is never one an earlier simulator made
+    h = hashlib.sha256(Path(DEFAULT_PARAMS_FILE).read_bytes())
+    for folder in _IDENTIFIED_BY:
+        for f in sorted(folder.rglob("*.py")):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    key = h.hexdigest()[:16]
     base = user_cache_dir() / "teleop" / key
     model = base / "model.json"
     if not model.is_file():

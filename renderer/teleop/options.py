@@ -14,7 +14,7 @@ CONTROLLER_NAMES = ("pd", "pd+hfam", "pf", "pf+cimm")
 #: ``devices.sim.teleop.SLAVE_HANDLE_DAMPING_N_S_M`` (the calibrated damping of the slave's unheld handle) and
 #: ``renderer.teleop.session.SERVO_BANDWIDTH_HZ`` (the servo rule's natural frequency), as plain numbers for the
 #: parsers' defaults (a test checks they match)
-SLAVE_HANDLE_DAMPING_N_S_M = 1.8
+SLAVE_HANDLE_DAMPING_N_S_M = 3.2
 SERVO_BANDWIDTH_HZ = 8.0
 
 # sweep conditions: name -> (controller, extra TeleopConfig fields)

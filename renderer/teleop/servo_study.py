@@ -1,4 +1,4 @@
-"""Servo-bandwidth study (issue 37): do section 5.7's targets hold at any natural frequency of the servo rule?
+"""Servo-bandwidth study: do section 5.7's targets hold at any natural frequency of the servo rule?
 
 The servo rule (docs/teleop.md, "Gains") puts every joystick servo's natural frequency at the user's
 motion-control bandwidth, 8 Hz (damping ratio 0.7). The thesis gives no gains for section 5.7's slave; its one
@@ -7,9 +7,9 @@ filter with a bandwidth of 22 hertz, well matched to the second-order low-pass b
 controller and significantly above the range of human intention". Humans "cannot move or position their
 fingertips at frequencies above eight to ten hertz" (section 1.1).
 
-:func:`servo_study` measures issue 37's section 5.7 targets at each natural frequency of a grid spanning both
+:func:`servo_study` measures section 5.7's targets at each natural frequency of a grid spanning both
 (6-22 Hz by default). At each it first re-identifies the slave's unheld-handle damping on the natural impact
-(:func:`renderer.teleop.calibration.calibrate_slave_handle_damping`: a lambda = 0 tap settles in 50 ms), so every
+(:func:`renderer.teleop.calibration.calibrate_slave_handle_damping`: a lambda = 0 tap settles in 40 ms), so every
 point is the testbed as the project would build it had the rule chosen that frequency; then it runs the
 blind-randomised sweep of Figure 5.10 (no backlash) and of Figure 5.11 (its condition: the backlash, and "a
 simpler, less-accurate model" for the cancellation, :func:`figure_5_11_model`), and bilateral PD taps on wood. It never changes the model: the default stays the rule's 8 Hz whatever the table shows. Its purpose
@@ -47,14 +47,15 @@ STUDY_BANDWIDTHS_HZ = (6.0, 8.0, 10.0, 12.6, 16.0, 20.0, 22.0)
 FIG_5_10_LAMBDAS = (0.0, 1.0, 3.0, 6.0, 10.0, 15.0)
 #: Figure 5.11 (backlash): fine enough to place a limit within 2-3.5 or 4-6
 FIG_5_11_LAMBDAS = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 6.0, 8.0, 10.0)
-#: damping interval searched at every frequency (N s/m): the natural impact settles in 33 ms at 6 N s/m and
-#: 6 Hz, and in 40 ms at 6 N s/m and 25 Hz
+#: damping interval searched at every frequency (N s/m): the natural impact settles in 40 ms with 2.4-3.1 N s/m at
+#: 6-8 Hz and 1.3-2.4 N s/m at 12.6-22 Hz; at 10 Hz in no less than 46 ms at 6 N s/m (43 ms at 12 N s/m): not
+#: identifiable there
 STUDY_DAMPING_BRACKET = (0.0, 6.0)
 #: bilateral PD taps on wood per point ("at most one bounce per tap")
 PD_TAPS = 3
 CONDITIONS = ("pf", "pf+cimm")
 
-#: issue 37's section 5.7 targets checked at every point: key -> the issue's words
+#: section 5.7's targets checked at every point: key -> the target in words
 TARGETS = {
     "pf_1_settles": "Fig. 5.10: pf, lambda = 1 settles in 40-60 ms",
     "pf_3_buzzes": "Fig. 5.10: pf, lambda = 3 holds contact and buzzes > 100 ms",
@@ -143,37 +144,35 @@ def _all(taps: list[dict], pred) -> bool:
     return bool(taps) and all(pred(r) for r in taps)
 
 
-def after_grace(rows) -> list[dict]:
-    """Sweep rows re-classified counting only the contact losses later than ``GRACE_S`` (30 ms) after the impact.
+def from_impact(rows) -> list[dict]:
+    """Sweep rows re-classified counting every contact loss from the impact on, the impact's own bounce included.
 
-    A variant of the issue's classification, measured, not the model's: the project's ``stable`` definition already
-    lets "the impact's own bounce" pass in those 30 ms, and the slave's natural impact (lambda = 0, no feedback
-    loop, so nothing that could be unstable) bounces 1-3 times within them on the rule's 8 Hz servo, which the
-    literal count of "contact lost >= 2 times" classes as make-break.
+    The classification before the project counted only the losses after the impact's bounce (``GRACE_S``, 30 ms;
+    :func:`renderer.teleop.session.classify_contact`); this variant is kept to show what the count changes: the
+    slave's natural impact (lambda = 0, no feedback loop, so nothing that could be unstable) bounces 1-3 times
+    within those 30 ms on the rule's 8 Hz servo, which the count from the impact on classes as make-break.
 
     Parameters
     ----------
     rows : sequence of dict
-        :func:`renderer.teleop.commands.sweep` rows (with ``breaks``: the losses after the grace period).
+        :func:`renderer.teleop.commands.sweep` rows (``contact_losses``: every loss from the impact on).
 
     Returns
     -------
     list of dict
-        Copies with ``contact_losses`` = ``breaks`` and ``contact_class`` re-computed from it; rows without
-        contact unchanged.
+        Copies with ``contact_class`` re-computed from ``contact_losses``; rows without contact unchanged.
     """
     out = []
     for r in rows:
         r = dict(r)
-        if r["breaks"] >= 0:
-            r["contact_losses"] = r["breaks"]
-            r["contact_class"] = classify_contact(r["breaks"], r["settling_s"])
+        if r["contact_losses"] >= 0:
+            r["contact_class"] = classify_contact(r["contact_losses"], r["settling_s"])
         out.append(r)
     return out
 
 
 def check_targets(rows, backlash_rows, pd_losses) -> tuple[TargetCheck, ...]:
-    """Issue 37's section 5.7 targets (``TARGETS``) on one point's sweeps.
+    """Section 5.7's targets (``TARGETS``) on one point's sweeps.
 
     Parameters
     ----------
@@ -217,7 +216,7 @@ def check_targets(rows, backlash_rows, pd_losses) -> tuple[TargetCheck, ...]:
 
 
 def pd_losses_on_wood(servo_bandwidth_hz: float, damping_N_s_m: float, *, taps: int = PD_TAPS,
-                      base: Testbed | None = None, grace: bool = False) -> tuple[int, ...]:
+                      base: Testbed | None = None, count_from_impact: bool = False) -> tuple[int, ...]:
     """Contact losses per tap of bilateral PD on wood (the operator's default path, ``taps`` taps at 0.1 m/s).
 
     Parameters
@@ -229,8 +228,9 @@ def pd_losses_on_wood(servo_bandwidth_hz: float, damping_N_s_m: float, *, taps: 
     taps : int
     base : Testbed or None
         Default: Table 3.1 master and slave; the environment is replaced by wood.
-    grace : bool
-        Count only the losses later than ``GRACE_S`` after the impact (``TapMetrics.breaks``).
+    count_from_impact : bool
+        Count every loss from the impact on (``TapMetrics.contact_losses``) instead of those later than
+        ``GRACE_S`` after it (``TapMetrics.breaks``, the project's count).
 
     Returns
     -------
@@ -242,7 +242,8 @@ def pd_losses_on_wood(servo_bandwidth_hz: float, damping_N_s_m: float, *, taps: 
                  backlash_m=0.0)
     path, cr = default_path(tb.servo_rate_hz, 1.0, n_taps=taps)
     res = run_session(tb, TeleopConfig(controller="pd", servo_bandwidth_hz=servo_bandwidth_hz), path, impact_ticks=cr)
-    return tuple(-1 if m is None else (m.breaks if grace else m.contact_losses) for m in session_metrics(res))
+    return tuple(-1 if m is None else (m.contact_losses if count_from_impact else m.breaks)
+                 for m in session_metrics(res))
 
 
 def figure_5_11_model(cimm: CimmModel) -> CimmModel:
@@ -255,7 +256,7 @@ def figure_5_11_model(cimm: CimmModel) -> CimmModel:
 
 def study_point(servo_bandwidth_hz: float, cimm: CimmModel, *, taps: int = 2, seed: int = 1,
                 base: Testbed | None = None, damping_N_s_m: float | None = None,
-                grace: bool = False) -> ServoPoint:
+                count_from_impact: bool = False) -> ServoPoint:
     """The testbed at one servo natural frequency: identify the slave handle's damping, sweep, check the targets.
 
     Parameters
@@ -273,9 +274,9 @@ def study_point(servo_bandwidth_hz: float, cimm: CimmModel, *, taps: int = 2, se
     damping_N_s_m : float or None
         None (default): identify the slave handle's damping on the natural impact at this servo; a number: use
         it as given (to separate the servo's effect from the identification's).
-    grace : bool
-        Classify the taps by :func:`after_grace` (losses later than 30 ms after the impact) instead of the issue's
-        count from the impact on; the bilateral PD count likewise.
+    count_from_impact : bool
+        Classify the taps by :func:`from_impact` (every loss from the impact on) instead of the project's count
+        of the losses later than 30 ms after it; the bilateral PD count likewise.
 
     Returns
     -------
@@ -300,15 +301,15 @@ def study_point(servo_bandwidth_hz: float, cimm: CimmModel, *, taps: int = 2, se
     rows = sweep(tb, cimm, FIG_5_10_LAMBDAS, CONDITIONS, taps=taps, seed=seed, servo_bandwidth_hz=servo_bandwidth_hz)
     brows = sweep(replace(tb, backlash_m=BACKLASH_FIG_5_11_M), figure_5_11_model(cimm), FIG_5_11_LAMBDAS, CONDITIONS,
                   taps=taps, seed=seed, servo_bandwidth_hz=servo_bandwidth_hz)
-    pd = pd_losses_on_wood(servo_bandwidth_hz, damping, base=tb0, grace=grace)
-    if grace:
-        rows, brows = after_grace(rows), after_grace(brows)
+    pd = pd_losses_on_wood(servo_bandwidth_hz, damping, base=tb0, count_from_impact=count_from_impact)
+    if count_from_impact:
+        rows, brows = from_impact(rows), from_impact(brows)
     return ServoPoint(servo_bandwidth_hz, kp, kd, damping, natural, tuple(rows), tuple(brows), pd,
                       check_targets(rows, brows, pd))
 
 
 def servo_study(cimm: CimmModel, bandwidths_hz=STUDY_BANDWIDTHS_HZ, *, taps: int = 2, seed: int = 1,
-                base: Testbed | None = None, damping_N_s_m: float | None = None, grace: bool = False,
+                base: Testbed | None = None, damping_N_s_m: float | None = None, count_from_impact: bool = False,
                 progress=None) -> list[ServoPoint]:
     """:func:`study_point` at every natural frequency of ``bandwidths_hz`` (Hz), in order.
 
@@ -317,7 +318,7 @@ def servo_study(cimm: CimmModel, bandwidths_hz=STUDY_BANDWIDTHS_HZ, *, taps: int
     out = []
     for i, f in enumerate(bandwidths_hz):
         out.append(study_point(float(f), cimm, taps=taps, seed=seed, base=base, damping_N_s_m=damping_N_s_m,
-                               grace=grace))
+                               count_from_impact=count_from_impact))
         if progress is not None:
             progress(i + 1, len(bandwidths_hz))
     return out
@@ -365,7 +366,8 @@ def run_servo_study(args) -> int:
     cimm = build_cimm(args)
     out = _new_dir(Path(args.out))
     bar = Progress(len(bands), "teleop-servo-study", unit="point")
-    points = servo_study(cimm, bands, taps=args.taps, seed=args.seed, damping_N_s_m=fixed, grace=args.grace,
+    points = servo_study(cimm, bands, taps=args.taps, seed=args.seed, damping_N_s_m=fixed,
+                         count_from_impact=args.count_from_impact,
                          progress=lambda i, n: bar.update(i))
     bar.close()
     table = study_table(points)
@@ -379,7 +381,7 @@ def run_servo_study(args) -> int:
     atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
     record = {"command": "teleop-servo-study", "argv": sys.argv[1:], "taps": args.taps, "seed": args.seed,
               "speeds_m_s": list(CALIBRATION_SPEEDS_M_S), "fixed_slave_handle_damping_N_s_m": fixed,
-              "contact_losses_counted_from_s": GRACE_S if args.grace else 0.0,
+              "contact_losses_counted_from_s": 0.0 if args.count_from_impact else GRACE_S,
               "backlash_m": BACKLASH_FIG_5_11_M, "cimm_model": cimm.source,
               "figure_5_11_cimm_model": figure_5_11_model(cimm).source, "targets": TARGETS,
               "points": [{"servo_bandwidth_hz": p.servo_bandwidth_hz, "kp_s_N_m": p.kp_s_N_m, "kd_s_Ns_m": p.kd_s_Ns_m,

@@ -34,7 +34,10 @@ ANALYSIS_END_S = 0.30            # analysis window after impact (inside the 0.4 
 # transient is prolonged to over 100 ms ... a slight buzzing on impact": lambda = 3) and "make-break" ("the
 # slave makes and breaks contact with the environment several times": lambda = 6).
 BUZZ_S = 0.100                   # a held contact whose transient lasts longer than this buzzes
-MAKE_BREAK_LOSSES = 2            # contact lost this often after the impact (its own bounce included): make-break
+# The count is of the losses after the impact's own bounce (GRACE_S, 30 ms): the slave's natural impact, with no
+# feedback loop that could be unstable, bounces within those 30 ms on the rule's servo; the project's "stable"
+# definition already lets the impact's own bounce pass there.
+MAKE_BREAK_LOSSES = 2            # contact lost this often later than GRACE_S after the impact: make-break
 CONTACT_CLASSES = ("settles", "buzzes", "make-break")
 
 # Servo gains from one rule (docs/teleop.md, "Gains"): every PD servo on a joystick (the slave in both
@@ -300,9 +303,13 @@ class TapMetrics:
         Fraction of F_f's energy above 50 Hz in the first 100 ms after impact.
     contact_losses : int
         Contact losses (force below threshold for >= 1 ms) from the impact to the end of the analysis
-        window, the impact's own bounce included.
+        window, the impact's own bounce included (``breaks`` leaves out the first ``GRACE_S``).
     contact_class : str
-        :func:`classify_contact`: ``"settles"``, ``"buzzes"`` or ``"make-break"``.
+        :func:`classify_contact` of the losses after the impact's bounce (``breaks``): ``"settles"``,
+        ``"buzzes"`` or ``"make-break"``.
+    oscillation_N : float
+        Largest |F - F_qs| later than ``GRACE_S`` after the impact, in the analysis window (N): the oscillation
+        the static contact force ``quasi_static_N`` must outweigh for contact to hold.
     """
 
     impact_s: float
@@ -313,6 +320,7 @@ class TapMetrics:
     hf_energy_fraction: float
     contact_losses: int = 0
     contact_class: str = "settles"
+    oscillation_N: float = float("nan")
 
 
 def classify_contact(contact_losses: int, settling_s: float) -> str:
@@ -321,7 +329,8 @@ def classify_contact(contact_losses: int, settling_s: float) -> str:
     Parameters
     ----------
     contact_losses : int
-        Contact losses from the impact on (its bounce included).
+        Contact losses later than ``GRACE_S`` (30 ms) after the impact (``TapMetrics.breaks``: the impact's own
+        bounce left out).
     settling_s : float
         Settling time of the contact force (s; inf if it never settles in the window).
 
@@ -391,14 +400,16 @@ def tap_metrics(force_N: np.ndarray, ff_N: np.ndarray, fs_hz: float, start: int,
         settle = math.inf
     else:
         settle = (outside[-1] + 1) / fs_hz
-    # contact breaks after the grace period (stability), and all losses from the impact on (classification)
+    # contact breaks after the impact's own bounce (stability and classification), and all losses from the impact on
     breaks = _count_losses(seg[int(GRACE_S * fs_hz):], fs_hz)
     losses = _count_losses(seg, fs_hz)
     ff = ff_N[start + i0:start + min(len(f), i0 + int(0.1 * fs_hz))]
     hf = hf_energy_fraction(ff, fs_hz)
     stable = (breaks == 0) and math.isfinite(settle) and not fault
-    cls = "make-break" if fault else classify_contact(losses, settle)
-    return TapMetrics(start / fs_hz + i0 / fs_hz, settle, fqs, breaks, stable, hf, losses, cls)
+    cls = "make-break" if fault else classify_contact(breaks, settle)
+    late = np.abs(seg - ref)[int(GRACE_S * fs_hz):]
+    osc = float(np.max(late)) if late.size else float("nan")
+    return TapMetrics(start / fs_hz + i0 / fs_hz, settle, fqs, breaks, stable, hf, losses, cls, osc)
 
 
 def quasi_static(force_N: np.ndarray, fs_hz: float) -> np.ndarray:
@@ -439,6 +450,15 @@ def session_metrics(res: SessionResult) -> list[TapMetrics | None]:
     return out
 
 
-def default_path(fs_hz: float, mu: float, n_taps: int = 10, speed_m_s: float = 0.1, **kw):
-    """Ten taps of the operator, scaled so the slave descends ``10 mm`` and presses ``2 mm`` (path, crossings)."""
-    return tap_path(n_taps, fs_hz, speed_m_s=speed_m_s, approach_m=0.01 / mu, press_m=0.002 / mu, **kw)
+#: how far below the surface the operator's path presses (m): the thesis gives none ("the user tapped repeatedly on
+#: the environment, as though trying to explore its surface", section 5.7.2); the sweeps also run 3 and 4 mm
+PRESS_DEPTH_M = 0.002
+#: the press depths of the sweeps' press-depth column (m)
+PRESS_DEPTHS_M = (0.002, 0.003, 0.004)
+
+
+def default_path(fs_hz: float, mu: float, n_taps: int = 10, speed_m_s: float = 0.1,
+                 press_depth_m: float = PRESS_DEPTH_M, **kw):
+    """Ten taps of the operator, scaled so the slave descends ``10 mm`` and presses ``press_depth_m`` (default
+    ``PRESS_DEPTH_M``, 2 mm) below the surface (path, crossings)."""
+    return tap_path(n_taps, fs_hz, speed_m_s=speed_m_s, approach_m=0.01 / mu, press_m=press_depth_m / mu, **kw)

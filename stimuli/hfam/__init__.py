@@ -8,7 +8,7 @@
 ``pipeline``  device -> models + recorded taps -> library: the simulated recording and the shipped
               library (``python -m stimuli sim-library``), the demo's identify/record/build steps
 ``scoring``   the open-loop and refined libraries against the real tap on the sim, unseen conditions,
-              saturation and the thermal option (:func:`score_pipeline`, :func:`hfam_claims`; issue 36,
+              saturation and the thermal option (:func:`score_pipeline`, :func:`hfam_claims`;
               ``python -m stimuli score-hfam``)
 """
 

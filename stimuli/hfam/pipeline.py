@@ -9,18 +9,17 @@ Two uses:
   the identified models (cached by :mod:`renderer.demo.cache`).
 
 ``python -m stimuli sim-library --out stimuli/libraries/wood_on_foam_sim.npz`` regenerates
-the library the default catalog's HFAM samples use: taps on the sim's
-``wood_on_foam`` sample with the motor off (section 4.4.1 "Recording
-Accelerations"), inverted through the sim's analytic LTI models
-(``SimDevice.linear_model``) at five grip levels covering its grip sensor range.
-This is a development tool: it imports ``devices.sim`` lazily, the library
-code itself needs only ``devices.model``.
+the library the default catalog's HFAM samples use: the demo's pipeline on chapter 4's
+sim device (:func:`build_sim_library`); ``make artefacts`` rebuilds it with every other
+artefact derived from the sim and stamps it (``plumbing.artefacts``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -34,12 +33,15 @@ from devices.registry import make_device
 from devices.sim import SimDevice, TapTrajectory
 from stimuli.recordings import read_tap_csv
 
+from ..library import HfamLibrary
 from ..recordings import Tap
 from .build import build_library, format_verification
 from .refine import RefineSettings, recording_targets, refine_library
 from .settings import TAP_STOP_TIME_S, BuildSettings, PipelineSettings  # noqa: F401 (re-exported: the pipeline's settings)
 
 DEFAULT_VELOCITIES_M_S = (0.03, 0.05, 0.07, 0.09, 0.11, 0.14, 0.17, 0.2, 0.25, 0.3)
+#: the pipeline's settings as run (:meth:`PipelineSettings.to_dict`), written into its folder: which device built it
+SETTINGS_FILE = "pipeline_settings.json"
 DEFAULT_GRIPS_N = (0.0, 2.5, 5.0, 7.5, 10.0)
 
 
@@ -82,24 +84,26 @@ def record_sim_taps(velocities_m_s=DEFAULT_VELOCITIES_M_S, sample: str = "wood_o
     return fs, taps
 
 
-def build_sim_library(out=None, velocities_m_s=DEFAULT_VELOCITIES_M_S, grips_N=DEFAULT_GRIPS_N,
-                      settings: BuildSettings | None = None, log=print):
-    """Record sim taps and build (and optionally save) a library through the sim's LTI models."""
+def build_sim_library(out=None, settings: PipelineSettings | None = None, log=print):
+    """The shipped default library: the demo's whole pipeline (Figure 4.7) on chapter 4's sim device.
 
-    dev = SimDevice()
-    fs, taps = record_sim_taps(velocities_m_s, device=dev)
-    models = [(f"sim linear_model(grip_N={g})", dev.linear_model(g)) for g in grips_N]
-    # strong grips at high velocities need more than the 4 A peak (as in thesis Figure 4.13): scale those down
-    settings = settings or BuildSettings(peak_current_A=dev.info.current_peak_A, scale_to_limit=True)
-    lib, report = build_library(taps, fs, models, settings, force_per_amp_N_A=dev.info.force_per_amp_N_A, log=log,
-                                provenance={"source_files": {"recordings": "simulated wood_on_foam taps, SimDevice()",
-                                                             "models": [n for n, _ in models]},
-                                            "device": "sim"})
-    if log:
-        log(format_verification(report))
+    Identify the device at each grip level, record real taps on its ``wood_on_foam`` sample with the motor off,
+    build the library through the identified models and refine it by playback on the sim
+    (:func:`build_pipeline` with :class:`PipelineSettings`, default ``sim:onedof``, the section 4.4.3 testbed): the
+    library ``python -m renderer demo`` builds and plays, which the study's HFAM samples then play on the same
+    device. Built in a temporary folder; ``out`` receives ``library.npz``.
+
+    Returns
+    -------
+    HfamLibrary
+    """
+    settings = settings or PipelineSettings()
+    with tempfile.TemporaryDirectory(prefix="sim-library-") as tmp:
+        build_pipeline(Path(tmp), settings, Progress(4, quiet=log is None))
+        lib = HfamLibrary.load(Path(tmp) / "library.npz")
     if out is not None:
         lib.save(out)
-    return lib, report
+    return lib
 
 
 def tap_press_depth_m(velocity_m_s: float, stop_time_s: float = TAP_STOP_TIME_S) -> float:
@@ -120,7 +124,7 @@ def tap_approach_height_m(velocity_m_s: float) -> float:
 
     The same for the recordings and every rendering: the simulated person's
     arm has its own slow dynamics (the 8 Hz compensation), so the state it
-    arrives in depends on how long it has travelled (issue 16).
+    arrives in depends on how long it has travelled.
     """
     return max(0.004, 0.04 * float(velocity_m_s))
 
@@ -171,6 +175,8 @@ def build_pipeline(out: Path, s: PipelineSettings, progress: Progress) -> dict:
     """
 
     timings = {}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / SETTINGS_FILE).write_text(json.dumps(s.to_dict(), indent=1, default=str) + "\n")
     dev = make_device(s.device, seed=s.seed)
     fs = dev.info.servo_rate_hz
     with dev:

@@ -1,4 +1,4 @@
-"""Iterative refinement of HFAM library transients by playback and correction (issue 16, section 4.4).
+"""Iterative refinement of HFAM library transients by playback and correction (section 4.4).
 
 One LTI inverse (eq. 4.6) cannot match an amplitude-dependent device: the
 sim's hysteretic linkage is stiffer for small swings than for large ones, so
@@ -64,7 +64,7 @@ class RefineSettings:
     gain : float
         Learning gain of the correction (0 < gain <= 1). At 0.8 the first pass overshoots in many of the
         demo's cells (median NRMSE 0.277 -> 0.365 on the sim; a cell made worse is undone and its gain
-        halved, so passes are lost); 0.3 lowers it in every pass (issue 16, docs/demo.md).
+        halved, so passes are lost); 0.3 lowers it in every pass (docs/demo.md).
     wall_N_m : float
         Stiffness of the proportional wall the transients are refined over (the firm wall, Table 4.1).
     band_hz : (float, float)

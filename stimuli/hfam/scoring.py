@@ -1,8 +1,8 @@
-"""How well an HFAM library reproduces the real tap, measured on the sim (issue 36 item 5; sections 4.4.1-4.4.3).
+"""How well an HFAM library reproduces the real tap, measured on the sim (sections 4.4.1-4.4.3).
 
 Every number here is recomputed from a library and the sim; nothing is a stored constant. The sim is the Table 3.1
 joystick (``linkage="hysteretic"``) or the same device with its linkage a linear spring at the small-signal
-stiffness (``linkage="linear"``, :func:`device_params`): on the second the open-loop library meets issue 36's
+stiffness (``linkage="linear"``, :func:`device_params`): on the second the open-loop library meets its
 target, which shows the default device's miss is its hysteretic linkage (docs/hfam_library.md, "Why the open
 loop misses").
 
@@ -51,10 +51,10 @@ from scipy import signal
 
 from devices.limits import check_grips, check_tap_speeds
 from devices.sim import Person, SimDevice, SimParams, default_params, load_sim_params
-from devices.sim.linear import linear_linkage_params
+from devices.sim.presets import onedof_params
 
 from ..library import HfamLibrary
-from .pipeline import build_from_folder
+from .pipeline import SETTINGS_FILE, build_from_folder
 from .inversion import forward_simulate
 from .refine import AT_LIMIT, aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, LINKAGES,  # noqa: F401
@@ -134,7 +134,7 @@ class ScoreSettings:
     max_lag_s: float = 3e-3
     pre_s: float = 0.01
     eval_s: float = 0.1
-    linkage: str = "hysteretic"
+    linkage: str = "linear"
 
     def __post_init__(self) -> None:
         if self.linkage not in LINKAGES:
@@ -207,7 +207,7 @@ class CellScore:
         return dataclasses.asdict(self)
 
 
-def device_params(linkage: str = "hysteretic") -> SimParams:
+def device_params(linkage: str = "linear") -> SimParams:
     """The sim device of a scoring run: the Table 3.1 joystick (``hysteretic``, section 3.5.3's linkage) or the
     same device with a linear linkage at its small-signal stiffness (``linear``,
     :func:`devices.sim.linear.linear_linkage_params`: 7817.5 N/m; no amplitude-dependent resonance).
@@ -219,10 +219,10 @@ def device_params(linkage: str = "hysteretic") -> SimParams:
     """
     if linkage not in LINKAGES:
         raise ValueError(f"linkage must be one of {', '.join(LINKAGES)}, got {linkage!r}")
-    return default_params() if linkage == "hysteretic" else linear_linkage_params(default_params())
+    return default_params() if linkage == "hysteretic" else onedof_params()
 
 
-def default_device_factory(seed: int = 1, linkage: str = "hysteretic") -> Callable[[], SimDevice]:
+def default_device_factory(seed: int = 1, linkage: str = "linear") -> Callable[[], SimDevice]:
     """A factory of fresh sim devices (:func:`device_params` of ``linkage``) with sensor-noise ``seed`` (one per
     tap: reproducible)."""
     params = device_params(linkage)
@@ -230,7 +230,7 @@ def default_device_factory(seed: int = 1, linkage: str = "hysteretic") -> Callab
 
 
 def raised_limit_device_factory(transient_limit_A: float, seed: int = 1,
-                                linkage: str = "hysteretic") -> Callable[[], SimDevice]:
+                                linkage: str = "linear") -> Callable[[], SimDevice]:
     """Fresh sim devices whose amplifier lets a transient reach ``transient_limit_A`` (the thermal option).
 
     Section 4.4.2 (Figure 4.9): "separate current saturation levels can be used for steady-state and transient
@@ -533,7 +533,7 @@ def format_cells(cells: Sequence[CellScore], title: str) -> str:
 
 @dataclass(frozen=True)
 class HfamScores:
-    """Everything :func:`score_pipeline` measured (issue 36 item 5).
+    """Everything :func:`score_pipeline` measured.
 
     Attributes
     ----------
@@ -582,7 +582,7 @@ class HfamScores:
     person_floor: list
     model_mismatch: list
     target_floor: list
-    linkage: str = "hysteretic"
+    linkage: str = "linear"
     unseen_dropped_m_s: tuple = ()
     refined_range_m_s: tuple = ()
 
@@ -615,7 +615,7 @@ def model_mismatch(library: HfamLibrary, models: Sequence[tuple[float, object]],
     grip level) is what the inversion assumed. Both band-passed as the scoring compares, the sim's increment
     aligned to the prediction within +/- 1 ms (the identified models' delays, e.g. 0.55 ms at 1 N, are
     discarded by the inverse; :func:`stimuli.hfam.refine.aligned`). An open-loop library cannot be closer to the real tap than the device is to its
-    model at the transient's amplitude (issue 36: why the open-loop pipeline stays above its target).
+    model at the transient's amplitude (why the open-loop pipeline stays above its target).
 
     Parameters
     ----------
@@ -688,7 +688,7 @@ def score_pipeline(open_loop: HfamLibrary, refined: HfamLibrary, raised_open_loo
                    saturation_speeds_m_s: Sequence[float] | None = None,
                    transient_limit_A: float = DEFAULT_TRANSIENT_LIMIT_A,
                    settings: ScoreSettings = ScoreSettings()) -> HfamScores:
-    """Score a pipeline's three libraries (issue 36 item 5).
+    """Score a pipeline's three libraries.
 
     Parameters
     ----------
@@ -864,8 +864,10 @@ def device_linkage(device: str) -> str | None:
     kind, _, rest = device.partition(":")
     if kind != "sim":
         return None
-    if rest in ("", "nonlinear"):
+    if rest in ("", "nonlinear", "joystick"):
         return "hysteretic"
+    if rest == "onedof":
+        return "linear"
     if rest == "lti":
         return None
     return _params_linkage(load_sim_params(rest))
@@ -884,27 +886,23 @@ def _params_linkage(params: SimParams) -> str | None:
 def pipeline_device(folder, linkage: str) -> str:
     """The device string a pipeline run into ``folder`` uses for ``linkage`` (:data:`LINKAGES`).
 
-    ``hysteretic``: ``sim`` (the default device; nothing written). ``linear``: the parameters of
-    :func:`device_params` are written to ``folder/`` :data:`DEVICE_FILE` and the string is ``sim:<that file>``,
-    so the folder says which device built it (:func:`pipeline_linkage`).
+    ``linear``: ``sim:onedof``; ``hysteretic``: ``sim:joystick`` (the pipeline records its device in the folder,
+    :data:`stimuli.hfam.pipeline.SETTINGS_FILE`, which :func:`pipeline_linkage` reads). ``folder`` is kept for
+    callers that pass it (nothing is written there).
 
     Raises
     ------
     ValueError
         An unknown ``linkage``.
     """
-    params = device_params(linkage)
-    if linkage == "hysteretic":
-        return "sim"
-    path = Path(folder) / DEVICE_FILE
-    path.write_text(json.dumps(params.to_dict(), indent=1) + "\n")
-    return f"sim:{path.resolve()}"
+    device_params(linkage)                       # an unknown linkage: ValueError
+    return "sim:onedof" if linkage == "linear" else "sim:joystick"
 
 
 def pipeline_linkage(folder) -> str:
     """Which :data:`LINKAGES` device a pipeline folder was run on: the variant whose parameters its
-    :data:`DEVICE_FILE` holds (score-hfam's own runs); else, for a demo cache entry, the device its
-    ``manifest.json`` settings name (:func:`device_linkage`); else ``hysteretic`` (a default run).
+    :data:`DEVICE_FILE` holds (older score-hfam runs); else the device its settings name (a demo cache entry's
+    ``manifest.json``, or the pipeline's own record; :func:`device_linkage`); else ``hysteretic``.
 
     Raises
     ------
@@ -929,15 +927,25 @@ def pipeline_linkage(folder) -> str:
 
 
 def _manifest_linkage(folder: Path) -> str:
-    """The :data:`LINKAGES` device of a demo cache entry's ``manifest.json`` (``settings.device``); ``hysteretic``
-    without one. ValueError for a device the scoring cannot play (the demo writes those claims "not measured")."""
-    try:
-        device = json.loads((folder / "manifest.json").read_text())["settings"]["device"]
-    except (OSError, ValueError, KeyError, TypeError):
+    """The :data:`LINKAGES` device a pipeline folder's settings name: a demo cache entry's ``manifest.json``
+    (``settings.device``), else the pipeline's own record (:data:`stimuli.hfam.pipeline.SETTINGS_FILE`);
+    ``hysteretic`` without either (a folder of the pipeline from before it ran on the one-dof device by default).
+    ValueError for a device the scoring cannot play (the demo writes those claims "not measured")."""
+    device = None
+    for name, keys in (("manifest.json", ("settings", "device")), (SETTINGS_FILE, ("device",))):
+        try:
+            value = json.loads((folder / name).read_text())
+            for k in keys:
+                value = value[k]
+            device = str(value)
+            break
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if device is None:
         return "hysteretic"
-    linkage = device_linkage(str(device))
+    linkage = device_linkage(device)
     if linkage is None:
-        raise ValueError(f"{folder}: this pipeline ran on {device} (manifest.json); the scoring plays its taps only on "
+        raise ValueError(f"{folder}: this pipeline ran on {device} (its settings); the scoring plays its taps only on "
                          f"the default sim or its linear-linkage variant ({', '.join(LINKAGES)}), so its libraries "
                          "cannot be scored")
     return linkage
@@ -1029,7 +1037,7 @@ def format_scores(scores: HfamScores) -> str:
     for name, th in (("default limit", scores.thermal_default), (f"{scores.transient_limit_A:g} A", scores.thermal)):
         parts.append(f"thermal ({name}): hardest tap {th['max_heat_A2s']:.3f} A^2 s, winding +{th['max_temp_rise_K']:.2f} K "
                      f"from cold (limit {th['limit_K']:g} K), {th['taps_per_min']:.0f} such taps/min sustainable")
-    parts.append("Claims (issue 36 item 5):")
+    parts.append("Claims:")
     for c in hfam_claims(scores):
         parts.append(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['id']} (section {c['section']}): {c['target']}; "
                      f"measured {c['measured_text']}")

@@ -84,7 +84,9 @@ def select_taps(taps: Sequence[Tap], fs_hz: float, settings: BuildSettings) -> S
     usable = []
     for tp in pool:
         post = _post_impact(tp, n_t)
-        pre = tp.accel_m_s2[tp.t_s <= 0]
+        # before the impact only: the sample at t = 0 is the first in contact, already part of the impact (a stiff
+        # contact's first tick can hold a third of its peak)
+        pre = tp.accel_m_s2[tp.t_s < 0]
         post_peak = float(np.max(np.abs(post))) if post.size else 0.0
         pre_peak = float(np.max(np.abs(pre))) if pre.size else 0.0
         if post_peak == 0.0:

@@ -147,7 +147,8 @@ class PipelineSettings:
     Attributes
     ----------
     device : str
-        Sim device string (``sim``, ``sim:lti``, ``sim:<params file>``).
+        Sim device string: ``sim:onedof`` (default: the section 4.4.3 one-dof testbed chapter 4's claims run
+        on), ``sim`` / ``sim:joystick`` (Table 3.1), ``sim:lti``, ``sim:<params file>``.
     identify_grips_N : tuple of float
         Grip levels identified (strictly increasing, N).
     identify_trials : int
@@ -173,24 +174,24 @@ class PipelineSettings:
         Zero-phase smoothing bandwidth of the builder (<= 1000 Hz).
     refine_iterations : int
         Playback-and-correction passes over every library transient on the sim
-        (``stimuli.hfam.refine``, over the firm wall; 0: off). Issue 16. On hardware the same procedure
+        (``stimuli.hfam.refine``, over the firm wall; 0: off). On hardware the same procedure
         needs repeated taps by a person (``python -m stimuli build-library --refine`` runs it on a sim).
     refine_gain : float
         Learning gain of each correction, (0, 1].
     refine_recording_iterations : int
         Second-stage passes of the refinement towards the unsmoothed recordings (``RefineSettings.
-        recording_iterations``; 0: none). Issue 16: with it demo median NRMSE 0.268 -> 0.210 (docs/demo.md).
+        recording_iterations``; 0: none). With it the demo's median NRMSE 0.268 -> 0.210 (docs/demo.md).
     seed : int
         Sensor-noise seed of the sim device.
     """
 
-    device: str = "sim"
+    device: str = "sim:onedof"
     identify_grips_N: tuple = (0.0, 1.0, 2.0, 3.0, 5.0, 10.0)
     identify_trials: int = 2
     sweep_amplitude_A: float = 0.25
     sweep_duration_s: float = 1.0
     sweep_band_hz: tuple = (5.0, 1000.0)
-    # 12 taps over 0.03-0.3 m/s (issue 16; the last one a little above 0.3: the measured incoming speed comes out
+    # 12 taps over 0.03-0.3 m/s (the last one a little above 0.3: the measured incoming speed comes out
     # ~1 % below the planned one, and the demo's 0.3 m/s taps must lie inside the library's range)
     record_velocities_m_s: tuple = (0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12, 0.14, 0.17, 0.2, 0.25, 0.305)
     record_grip_N: float = 2.0
@@ -198,10 +199,10 @@ class PipelineSettings:
     sample: str = "wood_on_foam"
     library_velocities: int = 12
     smooth_hz: float = 500.0
-    # playback-and-correction on the sim (issue 16): 6 passes at gain 0.3 (docs/demo.md, "Refinement")
+    # playback-and-correction on the sim: 6 passes at gain 0.3 (docs/demo.md, "Refinement")
     refine_iterations: int = 6
     refine_gain: float = 0.3
-    # then 4 line-searched passes towards the recordings themselves (issue 16, docs/demo.md "Refinement")
+    # then 4 line-searched passes towards the recordings themselves (docs/demo.md "Refinement")
     refine_recording_iterations: int = 4
     seed: int = 0
 
@@ -229,7 +230,7 @@ class PipelineSettings:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
 
 
-# -- the HFAM scoring's grids (issue 36 item 5; stimuli.hfam.scoring, ``python -m stimuli score-hfam``) --------
+# -- the HFAM scoring's grids (stimuli.hfam.scoring, ``python -m stimuli score-hfam``) --------
 #: the issue's open-loop grid: 0.03-0.2 m/s x 1-3 N (the demo's rows inside that range, plus 0.03 and 0.14)
 OPEN_LOOP_SPEEDS_M_S = (0.03, 0.05, 0.08, 0.11, 0.14, 0.2)
 #: the issue's examples of speeds between the library's velocities; :func:`stimuli.hfam.scoring.unseen_speeds` moves each to the
@@ -242,6 +243,7 @@ GRIPS_N = (1.0, 2.0, 3.0)
 #: the raised transient-only limit the thermal option reports by default (A): twice the sim's 4 A peak
 DEFAULT_TRANSIENT_LIMIT_A = 8.0
 #: the sim device variants the scoring can run on (``--linkage``; :func:`stimuli.hfam.scoring.device_params`):
-#: ``hysteretic``, the Table 3.1 joystick as it is (section 3.5.3's linkage), and ``linear``, the same device
-#: with the linkage a linear spring at its small-signal stiffness (``devices.sim.linear.linear_linkage_params``)
+#: ``hysteretic``, the Table 3.1 joystick as it is (section 3.5.3's linkage; ``sim:joystick``), and ``linear``,
+#: the same device with the linkage a linear spring at its small-signal stiffness (``sim:onedof``, the section
+#: 4.4.3 one-dof testbed, chapter 4's device and the default; ``devices.sim.presets``)
 LINKAGES = ("hysteretic", "linear")

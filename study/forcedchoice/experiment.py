@@ -455,8 +455,8 @@ def handler_seed(seed: int, subject: str) -> int:
 
 
 def intensity_of(exp: ExperimentConfig, physical: float) -> float:
-    """trials.csv's ``intensity``: the physical value, or its log10 when ``intensity_scale = "log10"``
-    (a catch trial's 0 stays 0 then: it is excluded from fits)."""
-    if exp.intensity_scale == "log10" and physical > 0:
-        return math.log10(physical)
+    """trials.csv's ``intensity``: the physical value, or its log10 when ``intensity_scale = "log10"``; a catch
+    trial's blank (0) has no log10 and gets none (NaN, written as an empty cell: a 0 would read as 1 unit)."""
+    if exp.intensity_scale == "log10":
+        return math.log10(physical) if physical > 0 else math.nan
     return float(physical)

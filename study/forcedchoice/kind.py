@@ -341,7 +341,9 @@ class ForcedChoice(ExperimentKind):
             cells.setdefault((r["condition"], float(f"{r['intensity_physical']:.4g}")), []).append(r["correct"])
         label = "comparison harder" if exp.kind == "discrimination" else "correct"
         for (cond, x), c in sorted(cells.items()):
-            say(f"  {cond:24s} {x:10.4g} {exp.unit:6s} trials {len(c):3d}  {label} {np.mean(c):.2f}")
+            # real vs virtual varies no intensity (its intensity_physical is 1 by the contract): print none
+            level = "" if exp.kind == "real-virtual-2afc" else f" {x:10.4g} {exp.unit:6s}"
+            say(f"  {cond:24s}{level} trials {len(c):3d}  {label} {np.mean(c):.2f}")
         for name, method in (self.handler.methods.items() if self.handler is not None else ()):
             est = method.estimate()
             say(f"  staircase {name}: {method.trials} trials, threshold estimate {est['threshold']:.4g} {exp.unit}")

@@ -1,4 +1,4 @@
-"""The simulated participant's forced-choice judgments, from what the sim device actually rendered (issue 34).
+"""The simulated participant's forced-choice judgments, from what the sim device actually rendered.
 
 THIS TESTS THE PIPELINE AND PLANS STUDIES; IT IS NOT A VALIDATED MODEL OF HUMAN PERCEPTION. It makes a
 simulated psychophysics session answer from the taps the device rendered, so that a renderer that renders the

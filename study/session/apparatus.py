@@ -24,7 +24,7 @@ from devices.sim import DEFAULT_PERSON, ScriptedTrajectory, TapTrajectory
 from renderer import RendererConfig, ServoLoop
 from renderer.homing import SAFETY_STOPS, HomingConfig, HomingController
 
-from .rater import Reference, tap_features
+from .rater import REFERENCE_SAMPLE, Reference, tap_features
 
 # full-rate channels kept in the per-attempt trace files (float32 except t_s)
 TRACE_CHANNELS = ("position_m", "force_prop_N", "force_transient_N", "current_A", "accel_m_s2", "grip_N")
@@ -64,6 +64,9 @@ class TapResult:
         out["event_incoming_velocity_m_s"] = np.array(self.velocities, np.float64)
         out["event_max_penetration_m"] = np.array(self.penetrations, np.float64)
         out["event_clipped"] = np.array([bool(e.clipped) for e in self.events], bool)
+        objects = [getattr(e, "object", "") for e in self.events]
+        if any(objects):   # the 3-D renderer's events name the surface touched (study.session.apparatus3)
+            out["event_object"] = np.array(objects)
         out["fs_hz"] = np.float64(self.fs_hz)
         out["window_start_s"] = np.float64(self.window_start_s if self.window_start_s is not None else np.nan)
         out["max_contact_force_N"] = np.float64(self.max_contact_force_N)
@@ -145,6 +148,8 @@ class Apparatus:
         # polled by every homing and servo loop here (with their stop checks); it raises to abort the loop,
         # whose output is then zeroed on the way out (the servo process: its parent died, study.session.isolated)
         self.stop_check = None
+        #: the Lab Streaming Layer's servo callback (plumbing.lsl.ServoStream) when the session streams, else None
+        self.monitor = None
         if self.is_sim:
             self.real_saturation_detection = "sim contact force (true_state)"
         else:
@@ -175,6 +180,24 @@ class Apparatus:
         loop.prepare()  # raises ValueError now (e.g. a library unusable on this device), not mid-session
         self.samples[sample.name] = sample
         self.loops[sample.name] = loop
+
+    def drop_sample(self, name: str) -> None:
+        """Release the servo loop of a sample added for a while (the method of adjustment's comparisons: each
+        loop holds its log, ~6 MB with 5 s windows); the catalog's own samples are kept. No-op if unknown."""
+        if name in self.loops and self.current is not self.samples.get(name):
+            del self.loops[name]
+            del self.samples[name]
+
+    def wait_streams(self, timeout_s: float) -> bool:
+        """Wait for consumers of the servo's Lab Streaming Layer streams (True: connected, or none streamed)."""
+        return True if self.monitor is None else self.monitor.publisher.wait_for_consumers(timeout_s)
+
+    def close_streams(self) -> dict | None:
+        """Stop the Lab Streaming Layer's servo streams (pushing what is queued); their record, or None."""
+        if self.monitor is None:
+            return None
+        record, self.monitor = self.monitor.publisher.close(), None
+        return record
 
     def link_status(self) -> str:
         """One line on the device link's health for the operator page.
@@ -232,12 +255,19 @@ class Apparatus:
             g_hi = self.sim_participant.config.overpower_grip_N
             grip = lambda ts, g0=grip, t1=t_late, g1=g_hi: np.where(np.asarray(ts) >= t1 - 0.05, g1, g0)  # noqa: E731
         hand = None
-        if plan.overpower and getattr(self.device, "params", None) is not None and \
-                self.device.params.model == "nonlinear":
+        params = getattr(self._tap_device(), "params", None)
+        if plan.overpower and params is not None and params.model == "nonlinear":
             # a determined push: the simulated person co-contracts (stiff, damped muscles), so the
-            # homing force cannot hold the late tap back (issue 16: the default person is compliant)
-
+            # homing force cannot hold the late tap back (the default person is compliant)
             hand = DEFAULT_PERSON.replace(muscle_stiffness_N_m=1500.0, muscle_damping_Ns_m=12.0)
+        self._give_hand(traj, grip, hand)
+
+    def _tap_device(self):
+        """The 1-DOF simulated device along which the hand taps (this device; a 3-DOF sim's tap axis)."""
+        return self.device
+
+    def _give_hand(self, traj, grip, hand) -> None:
+        """Hand the simulated person its plan (the 3-DOF apparatus also says where it taps)."""
         self.device.set_user(traj, grip, hand=hand)
 
     # -- homing -------------------------------------------------------------
@@ -312,9 +342,13 @@ class Apparatus:
                 if on_clip is not None:
                     on_clip()
 
+        monitor = self.monitor
+
         def until(lp) -> bool:
             if check is not None:
                 check()
+            if monitor is not None:
+                monitor(lp)
             evs = lp.events
             current = len(evs) - 1
             if force_of is not None:
@@ -335,9 +369,13 @@ class Apparatus:
             return lp.time_s - t_start >= first_tap_timeout_s
 
         loop.temp_rise_K = self.temp_rise_K
+        if monitor is not None:
+            monitor.begin(loop)
         try:
             result = loop.run(duration_s=first_tap_timeout_s + window_s + 0.5, until=until, realtime=self.realtime)
         finally:
+            if monitor is not None:
+                monitor.flush(loop)
             self.temp_rise_K = loop.temp_rise_K
             if self.is_sim:
                 dev.motor_enabled = True
@@ -366,8 +404,9 @@ class Apparatus:
         """The rater's features of a tap window (acceleration spectrum around the impacts; :func:`study.session.rater.tap_features`)."""
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], tap.fs_hz)
 
-    def record_reference(self, reference_sample: str = "wood_on_foam") -> Reference:
-        """Tap the real wood-on-foam (sim) at several velocities with the motor off; fit the rater's reference."""
+    def record_reference(self, reference_sample: str = REFERENCE_SAMPLE) -> Reference:
+        """Tap the real reference sample (sim; the rater's :data:`study.session.rater.REFERENCE_SAMPLE`, the real wood) at
+        several velocities with the motor off; fit the rater's reference."""
         dev = self.device
         dev.set_sample(reference_sample)
         dev.motor_enabled = False

@@ -81,7 +81,7 @@ def low_tone(fs_hz: float, amplitude: float = 0.5) -> np.ndarray:
 #: has confirmed (section 4.5.3, "a recorded voice in the headphones") and the
 #: rating prompt when the tap window ends (taps after it count as overpowering).
 CUE_PHRASES = {"tap": "Tap now.", "rate": "Stop. Please rate."}
-#: a two-interval forced-choice session (issue 34) asks "which one?" instead of a rating
+#: a two-interval forced-choice session asks "which one?" instead of a rating
 CHOICE_PHRASES = {"tap": "Tap now.", "rate": "Stop. Which one?"}
 
 

@@ -101,7 +101,7 @@ class ProtocolConfig:
                          "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s",
                          "timing_check_s", "timing_p99_us", "timing_p999_us", "timing_max_period_ms",
                          "timing_link_rtt_p99_ms", "timing_link_gap_ms")
-        for name, limit in PROTOCOL_LIMITS.items():  # time, memory and reach bounded (issue 38, items 4 and 12)
+        for name, limit in PROTOCOL_LIMITS.items():  # time, memory and reach bounded
             require_number(name, getattr(self, name), maximum=limit)
         require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1,
                     maximum=MAX_FAMILIARIZATION_WINDOWS)

@@ -36,20 +36,22 @@ from dataclasses import asdict
 
 from devices import make_device
 from plumbing import rtpolicy
+from plumbing.lsl import ServoStream, open_publisher
 from plumbing.stopsignals import ParentWatch, Terminated
 from renderer.process import SPAWN, servo_child, servo_process
 
-from .apparatus import Apparatus, ServoStopped
-from .rater import tap_features
+from .apparatus import ServoStopped
+from .apparatus3 import make_apparatus
+from .rater import REFERENCE_SAMPLE, tap_features
 
 
 def _child(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
-           sim_participant, realtime, parent_pid, core=None) -> None:
+           sim_participant, realtime, parent_pid, core=None, lsl=None) -> None:
     # Ctrl-C: the parent decides (there it closes the pipe); SIGTERM (also on the parent's death) and SIGHUP raise
     # Terminated: _serve's finally zeroes and closes (renderer.process.servo_child)
     with servo_child(parent_pid):
         _serve(conn, clip_q, hold_event, spec, device_options, catalog, protocol, library_dir, sim_participant,
-               realtime, parent_pid, core)
+               realtime, parent_pid, core, lsl)
 
 
 #: the servo process asks the OS for its parent once every this many loop stop checks (homing: every 200
@@ -58,7 +60,7 @@ PARENT_CHECK_EVERY = 4
 
 
 def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, protocol, library_dir,
-           sim_participant, realtime, parent_pid: int, core=None) -> None:
+           sim_participant, realtime, parent_pid: int, core=None, lsl=None) -> None:
     device = None
     policy = None
     try:
@@ -70,7 +72,7 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
             policy = rtpolicy.acquire(core=core)
         else:  # a simulation run as fast as possible: under SCHED_FIFO it would hit RT throttling
             policy = rtpolicy.describe_current()
-        app = Apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
+        app = make_apparatus(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
                         realtime=realtime)
         parent_gone = ParentWatch(parent_pid, every=PARENT_CHECK_EVERY)
 
@@ -81,6 +83,9 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
             return False
 
         app.stop_check = check_parent
+        if lsl is not None:   # the servo's streams live here, beside the loop (plumbing.lsl); the runner has the markers
+            publisher, _ = open_publisher(*lsl, streams=("state", "contacts"))
+            app.monitor = ServoStream(publisher, app.fs_hz) if publisher is not None else None
 
         conn.send(("ok", {"real_saturation_detection": app.real_saturation_detection, "device_info": asdict(device.info),
                           "simulated_hand": app.simulated_hand, "is_sim": app.is_sim, "fs_hz": app.fs_hz,
@@ -127,7 +132,7 @@ class IsolatedApparatus:
     the thread that started it ends (``PR_SET_PDEATHSIG``, plumbing.stopsignals)."""
 
     def __init__(self, spec: str, device_options: dict, catalog, protocol, library_dir=None,
-                 sim_participant=None, realtime=None) -> None:
+                 sim_participant=None, realtime=None, lsl=None) -> None:
         # paced: hardware, or a simulation paced to the clock (as the child decides with the device's info)
         paced = realtime is True or (realtime is None and spec.split(":", 1)[0] != "sim")
         core = rtpolicy.servo_core() if paced else None
@@ -135,18 +140,19 @@ class IsolatedApparatus:
         self._avoid = rtpolicy.avoid_core(core)
         self._avoid.__enter__()
         try:
-            self._start(spec, device_options, catalog, protocol, library_dir, sim_participant, realtime, core)
+            self._start(spec, device_options, catalog, protocol, library_dir, sim_participant, realtime, core, lsl)
         except BaseException:
             self._avoid.__exit__(None, None, None)
             raise
 
-    def _start(self, spec, device_options, catalog, protocol, library_dir, sim_participant, realtime, core) -> None:
+    def _start(self, spec, device_options, catalog, protocol, library_dir, sim_participant, realtime, core,
+               lsl=None) -> None:
         """Start the servo child and take its first answer (what the device and the OS granted)."""
         self._clip_q = SPAWN.Queue()
         self._hold = SPAWN.Event()
         self._proc, self._conn, child_conn = servo_process(
             _child, (self._clip_q, self._hold, spec, device_options, catalog, protocol, library_dir, sim_participant,
-                     realtime, os.getpid(), core), "study-servo", duplex=True)
+                     realtime, os.getpid(), core, lsl), "study-servo", duplex=True)
         self._proc.start()
         child_conn.close()
         info = self._recv()
@@ -227,6 +233,18 @@ class IsolatedApparatus:
         """Make a catalog sample's servo loop in the servo process (see ``Apparatus.add_sample``)."""
         self._call("add_sample", sample)
 
+    def drop_sample(self, name: str) -> None:
+        """Release a sample's servo loop in the servo process (see ``Apparatus.drop_sample``)."""
+        self._call("drop_sample", name)
+
+    def wait_streams(self, timeout_s: float) -> bool:
+        """Wait for consumers of the servo process's streams (see ``Apparatus.wait_streams``)."""
+        return self._call("wait_streams", timeout_s)
+
+    def close_streams(self) -> dict | None:
+        """Stop the servo process's Lab Streaming Layer streams (see ``Apparatus.close_streams``)."""
+        return self._call("close_streams")
+
     def start_hand(self, plan, window_s: float) -> None:
         """Start the simulated hand's plan for a window of ``window_s`` s (servo process)."""
         self._call("start_hand", plan, window_s)
@@ -273,7 +291,7 @@ class IsolatedApparatus:
         """The rater's features of a tap window, computed here from the returned log."""
         return tap_features(tap.log["t_s"], tap.log["accel_m_s2"], [e.t_s for e in tap.events], tap.fs_hz)
 
-    def record_reference(self, reference_sample: str = "wood_on_foam"):
+    def record_reference(self, reference_sample: str = REFERENCE_SAMPLE):
         """Record the rater's reference taps in the servo process; returns and keeps the reference."""
         self.reference = self._call("record_reference", reference_sample)
         return self.reference

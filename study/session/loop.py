@@ -118,7 +118,9 @@ class SessionLoop:
     protocol : study.session.config.ProtocolConfig
     """
 
-    def __init__(self, *, store, kind, apparatus, participant, audio, ui, protocol) -> None:
+    def __init__(self, *, store, kind, apparatus, participant, audio, ui, protocol, markers=None) -> None:
+        #: the Lab Streaming Layer's publisher of the session's events (plumbing.lsl), or None
+        self.markers = markers
         self.store = store
         self.kind = kind
         self.apparatus = apparatus
@@ -146,6 +148,10 @@ class SessionLoop:
         health (every kind's page shows them)."""
         if self.ui is not None:
             audio = getattr(self.audio, "cue_source", None) or type(self.audio).__name__
+            # on a 3-DOF device: the samples on the table and where the hand is (study.session.apparatus3)
+            view = getattr(self.apparatus, "table_view", None)
+            if callable(view):
+                fields = {**fields, "table": view()}
             self.ui.set_operator(**fields, audio=audio, link=self.apparatus.link_status())
 
     # -- the one confirm and pause ----------------------------------------------------------------------------
@@ -204,6 +210,7 @@ class SessionLoop:
             started_at, t0 = utc_now(), self.apparatus.now_s()
         self.say(text, prompt, trial_id)
         self.audio.cue_tap()
+        self.mark({"event": "tap_cue", "sample": sample})
         tap = self.apparatus.tap_window(window_s, self.protocol.first_tap_timeout_s, on_clip=self.audio.cue_low_tone)
         contacts = 0
         if home_after == "always" or (home_after == "tapped" and tap.velocities):
@@ -241,11 +248,21 @@ class SessionLoop:
         self.say(text, prompt, trial_id)
         self.audio.wait_cues(2.0)
         self.audio.cue_rate()
+        self.mark({"event": "question", "prompt": prompt})
         contacts = self.apparatus.after_window(self.protocol.homing_after_s) if home_after_cue else 0
         if self.simulated:
-            return simulated(), contacts
-        contacts += self.apparatus.hold(until=lambda: self.ui.rating() is not None)
-        return self.ui.rating(), contacts
+            answer = simulated()
+        else:
+            contacts += self.apparatus.hold(until=lambda: self.ui.rating() is not None)
+            answer = self.ui.rating()
+        self.mark({"event": "answer", "answer": answer if isinstance(answer, str) else
+                   (answer[0] if isinstance(answer, tuple) and answer and isinstance(answer[0], str) else str(answer))})
+        return answer, contacts
+
+    def mark(self, event: dict) -> None:
+        """Publish a session event to the Lab Streaming Layer's marker stream (when the session streams)."""
+        if self.markers is not None:
+            self.markers.marker(event)
 
     # -- the session ------------------------------------------------------------------------------------------
     def run(self) -> None:
@@ -259,12 +276,15 @@ class SessionLoop:
             if nxt is None:
                 break
             trial, attempt = nxt
+            self.mark({"event": "attempt_start", "trial": getattr(trial, "trial", None) if not isinstance(trial, tuple)
+                       else getattr(trial[0], "trial", None), "attempt": attempt})
             result = kind.run_attempt(self, trial, attempt)
             out = kind.outcome(trial, attempt, result, store.subject)
             for phase, number, tried, arrays in out.traces:
                 store.write_trace(phase, number, tried, arrays)
             if out.row is not None:
                 store.append_trial(out.row)
+            self.mark({"event": "recorded", "row": out.row is not None, "attempt": attempt})
             for item in kind.recorded(trial, attempt, result, out.row):
                 if isinstance(item, Event):
                     store.log_event(item.event)

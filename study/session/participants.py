@@ -61,6 +61,16 @@ class SimParticipantConfig:
         Psychophysics: SD of the noise added to an interval's spectral similarity to the real sample (0-1).
     lapse : float
         Psychophysics: probability that an answer is a coin flip (below 0.5).
+    adjust_bias_frac : float
+        Method of adjustment: the constant error, the fraction by which the participant's match lies above the
+        reference's percept (negative: below; in (-0.5, 1)).
+    adjust_reversals : int
+        Method of adjustment: turns of direction in fine steps after which the participant accepts the match.
+    stevens_exponent : float
+        Magnitude estimation: the exponent of the participant's power law, number = k percept^exponent (0.8:
+        hardness, Harper & Stevens 1964).
+    magnitude_noise_frac : float
+        Magnitude estimation: log-SD of the number given beyond the percept's own noise (response noise).
 """
 
     velocity_mean_m_s: float = 0.10
@@ -84,10 +94,18 @@ class SimParticipantConfig:
     jnd_vibration_frac: float = 0.2
     realness_noise_sd: float = 0.15
     lapse: float = 0.02
+    adjust_bias_frac: float = 0.0
+    adjust_reversals: int = 3
+    stevens_exponent: float = 0.8
+    magnitude_noise_frac: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.name == "adjust_bias_frac":
+                if not (isinstance(value, (int, float)) and -0.5 < value < 1.0):
+                    raise ValueError(f"participant.adjust_bias_frac must be in (-0.5, 1), got {value!r}")
+                continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"participant.{f.name} must be a finite number >= 0, got {value!r}")
         for key in ("p_reject", "p_overpower", "p_hard_tap"):
@@ -101,6 +119,11 @@ class SimParticipantConfig:
             raise ValueError("participant grip range must satisfy 0 < grip_min_N <= grip_max_N")
         if not 1 <= self.familiarization_taps_min <= self.familiarization_taps_max:
             raise ValueError("participant familiarization taps must satisfy 1 <= min <= max")
+        if not 1 <= self.adjust_reversals <= 20 or self.adjust_reversals != int(self.adjust_reversals):
+            raise ValueError(f"participant.adjust_reversals must be a whole number 1-20, got {self.adjust_reversals}")
+        if not 0.1 <= self.stevens_exponent <= 4.0:
+            raise ValueError(f"participant.stevens_exponent must be in 0.1-4 (Stevens' exponents of touch: "
+                             f"0.5-1.5), got {self.stevens_exponent}")
         if self.tap_period_s <= self.dwell_s:
             raise ValueError("participant.tap_period_s must exceed dwell_s")
 

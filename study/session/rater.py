@@ -6,16 +6,22 @@ simulated session produces ratings that depend on what the device actually did
 ratings), nothing more. Its weights are arbitrary choices, documented in
 docs/study.md.
 
+The reference is the thesis's: the participants "were asked to rate, on an scale from one to seven, how well
+each sample represented the experience of tapping on the real piece of wood" (section 4.5.3), after tapping "on
+the real wooden sample to become familiar with its response" -- the *real wood* (:data:`REFERENCE_SAMPLE`), not
+the wood on foam the transients were tuned to (section 4.5.2). The inputs are the criteria the subjects named
+(section 4.5.5): "First among these was whether the stylus came to a sudden stop after contact", then "the
+presence of a high-frequency transient at the moment of contact".
+
 Features per tap (100 ms after each impact, handle acceleration band-passed
 20-1000 Hz, the band of section 4.4):
 
 * amplitude ratio ``r_a = rms / rms_ref(v)`` and spectral-centroid ratio
-  ``r_f = centroid / centroid_ref`` against the *real wood-on-foam* reference
-  at the same incoming velocity (power-law fit ``rms_ref = a v^b`` over
-  reference taps; the transients of section 4.5.2 were all tuned to wood on
-  foam);
+  ``r_f = centroid / centroid_ref`` against the real wood reference at the
+  same incoming velocity (power-law fit ``rms_ref = a v^b`` over reference
+  taps);
 * ``similarity = exp(-|ln r_a| / ln 3) * exp(-|ln r_f| / ln 2)``;
-* penetration term ``exp(-penetration / 3 mm)`` (soft surfaces feel less like wood);
+* penetration term ``exp(-penetration / 3 mm)`` (the sudden stop: soft surfaces feel less like wood);
 * transient present: ``r_a > 0.2``.
 
 Latent realism ``1 + 6 (0.55 similarity + 0.25 penetration + 0.20 transient)``
@@ -31,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+#: the sample the rater compares with: the real wood the subjects were asked about (section 4.5.3)
+REFERENCE_SAMPLE = "wood"
 BAND_HZ = (20.0, 1000.0)
 WINDOW_S = 0.1
 NOISE_SD = {"none": 1.0, "few": 0.6, "regular": 0.35}
@@ -80,7 +88,7 @@ def tap_features(t_s: np.ndarray, accel_m_s2: np.ndarray, impact_times_s, fs_hz:
 
 @dataclass(frozen=True)
 class Reference:
-    """Real wood-on-foam reference: rms = a * v**b, centroid constant (Hz)."""
+    """The real reference sample's taps (:data:`REFERENCE_SAMPLE`): rms = a * v**b, centroid constant (Hz)."""
 
     a: float
     b: float
@@ -106,7 +114,7 @@ class Reference:
         v = np.asarray(velocities_m_s, float)
         ok = np.isfinite(features).all(axis=1) & (v > 0) & (features[:, 0] > 0)
         if ok.sum() < 2:
-            raise ValueError("synthetic rater: fewer than 2 usable reference taps on wood_on_foam")
+            raise ValueError("synthetic rater: fewer than 2 usable taps on the reference sample")
         b, log_a = np.polyfit(np.log(v[ok]), np.log(features[ok, 0]), 1)
         return cls(a=float(math.exp(log_a)), b=float(b), centroid_hz=float(np.median(features[ok, 1])),
                    n_taps=int(ok.sum()))

@@ -22,10 +22,12 @@ import threading
 from dataclasses import asdict
 
 from devices import DeviceError, make_device
+from plumbing.lsl import ServoStream, open_publisher
 from plumbing.progress import Progress
 from plumbing.stopsignals import Terminated, stop_on_signals
 
-from .apparatus import Apparatus, ServoStopped
+from .apparatus import ServoStopped
+from .apparatus3 import make_apparatus
 from .audio import MaskingAudio, SilentAudio, check_output_device
 from .isolated import IsolatedApparatus
 from .loop import SessionLoop
@@ -61,6 +63,8 @@ def run_session(args, kinds) -> int:
 
 def _run(args, kinds) -> int:
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    if getattr(args, "lsl", False) and not 0 < args.lsl_rate_hz <= 100_000:
+        raise ValueError(f"--lsl-rate-hz must be in (0, 100000] Hz (the servo's rate at most), got {args.lsl_rate_hz}")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be 0..65535 (0: any free port), got {args.port}")
     plan = plan_session(args, kinds)
@@ -137,9 +141,16 @@ def _session(args, plan, say, web) -> int:
     isolate = args.servo_process == "on" or (args.servo_process == "auto" and not is_sim)
     device_options = {"seed": seed} if is_sim else {}
     device = apparatus = None
+    markers, lsl = None, None
+    if getattr(args, "lsl", False):   # Lab Streaming Layer (plumbing.lsl): the runner's markers here, the servo's
+        lsl = (f"hfam study {subject}", f"hfam-study-{subject}", args.lsl_rate_hz)   # streams beside the servo
+        markers, why = open_publisher(*lsl, streams=("markers",) if isolate else ("state", "markers", "contacts"))
+        if markers is None:
+            print(f"warning: --lsl: the session runs without Lab Streaming Layer streams: {why}", file=sys.stderr)
+            lsl = None
     if isolate:
         apparatus = IsolatedApparatus(args.device, device_options, plan.catalog, protocol, plan.library_dir,
-                                      sim_participant, realtime=True if args.realtime else None)
+                                      sim_participant, realtime=True if args.realtime else None, lsl=lsl)
         device_info = apparatus.device_info
     else:
         try:
@@ -151,8 +162,10 @@ def _session(args, plan, say, web) -> int:
     plan.device_info = device_info
     try:
         if apparatus is None:
-            apparatus = Apparatus(device, plan.catalog, protocol, library_dir=plan.library_dir,
+            apparatus = make_apparatus(device, plan.catalog, protocol, library_dir=plan.library_dir,
                                   sim_participant=sim_participant, realtime=True if args.realtime else None)
+            if markers is not None:
+                apparatus.monitor = ServoStream(markers, apparatus.fs_hz)
         participant = sim_participant if args.participant == "simulated" else KeyboardParticipant()
         kind = plan.kind(plan, apparatus)
         rows, events = start_session(plan, args, kind, device_info, isolate, sim_participant, audio_info,
@@ -167,7 +180,7 @@ def _session(args, plan, say, web) -> int:
             if args.participant == "keyboard":
                 participant.ui = ui
         loop = SessionLoop(store=store, kind=kind, apparatus=apparatus, participant=participant, audio=audio, ui=ui,
-                           protocol=protocol)
+                           protocol=protocol, markers=markers)
         if previous is not None:
             note = kind.restore(store, rows, events)
             if note:
@@ -176,6 +189,12 @@ def _session(args, plan, say, web) -> int:
             reference = kind.reference(apparatus)
             if reference is not None:
                 store.log_event(reference)
+        if markers is not None and args.lsl_wait_s > 0:   # a recorder connected before the first attempt
+            t_end = markers.now() + args.lsl_wait_s
+            ok = apparatus.wait_streams(args.lsl_wait_s) if isolate else True
+            if not (ok and markers.wait_for_consumers(max(0.0, t_end - markers.now()))):
+                print(f"warning: --lsl-wait-s: no recorder connected to every stream within {args.lsl_wait_s:g} s; "
+                      "the session starts anyway", file=sys.stderr)
         audio.start()
         stop_watch = threading.Event()
         watch = threading.Thread(target=_watch_progress, args=(kind, stop_watch, subject), daemon=True,
@@ -191,6 +210,13 @@ def _session(args, plan, say, web) -> int:
                 watch.join(2.0)
             audio.stop()
         kind.finish(store.session)
+        if markers is not None:   # each part's streams and the clock pairs of its windows (plumbing.lsl)
+            servo = apparatus.close_streams() if isolate else None
+            record = markers.close()
+            if servo is not None:
+                record = {**servo, "streams": servo["streams"] + record["streams"], "markers": record["markers"],
+                          "dropped_chunks": servo["dropped_chunks"] + record["dropped_chunks"]}
+            store.session.setdefault("lsl", []).append(record)
         if hasattr(apparatus, "window_timing"):  # the servo process's tapping windows against the thresholds
             store.session["servo_timing"] = merge_summaries(store.session.get("servo_timing"),
                                                             window_summary(apparatus.window_timing))

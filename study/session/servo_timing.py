@@ -1,4 +1,4 @@
-"""The servo timing of a hardware session (issue 40): the check before it, and whether its windows met it.
+"""The servo timing of a hardware session: the check before it, and whether its windows met it.
 
 Before a hardware session the study runs ``renderer timing-check`` through the session's own device (motor off,
 zero current, ``protocol.timing_check_s`` seconds, the servo's real-time policy and process layout): the

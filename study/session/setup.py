@@ -208,7 +208,8 @@ def plan_session(args, kinds) -> SessionPlan:
         if args.participant != previous["participant"]:
             raise ValueError(f"--resume: the session ran with --participant {previous['participant']}, "
                              f"not {args.participant}")
-    args.device = args.device or "sim"
+    # the realism study is chapter 4's: by default on the section 4.4.3 one-dof testbed (devices.sim.presets)
+    args.device = args.device or "sim:onedof"
     check_device_spec(args.device)  # a typo in the device string is reported before audio or participant checks
     args.participant = args.participant or "simulated"
     is_sim = args.device.split(":", 1)[0] == "sim"

@@ -361,7 +361,7 @@ class SessionStore:
 
         Every later write first checks (:meth:`check_trials`) that the path still names this file with
         the size this runner left: a file moved away, replaced, truncated or appended to by something else
-        stops the session before anything more is written (issue 38)."""
+        stops the session before anything more is written."""
         if self._trials_fd is not None:
             return
         fd = os.open(self.trials_path, os.O_WRONLY | os.O_APPEND | os.O_CLOEXEC)

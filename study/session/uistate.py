@@ -17,6 +17,28 @@ KEY_HINT = "Please use the keys 1 to 7 to rate, or x to reject this trial."
 CHOICE_KEYS = ("1", "2", "x")
 CHOICE_HINT = "Please press 1 for the first interval or 2 for the second, or x to reject this trial."
 FAM_HINT = "Keep tapping on the wood. Press Enter when you are done."
+#: the method of adjustment's keys: a fine or a coarse step up or down, the reference again, the match, reject
+ADJUST_KEYS = ("ArrowUp", "ArrowDown", "PageUp", "PageDown", "r", "Enter", "x")
+ADJUST_HINT = ("Please use the arrow keys (Page Up / Page Down for big steps), r to feel the reference again, "
+               "Enter when both feel the same, or x to reject this trial.")
+NUMBER_HINT = "Please type a number greater than 0 and press Enter (or x and Enter to reject this trial)."
+#: the longest number the subject page takes (magnitude estimation)
+NUMBER_MAX_CHARS = 12
+
+
+def number_key(key: str) -> str | None:
+    """A magnitude estimate typed on the subject page as the runner records it: a finite number > 0 (a decimal
+    comma is read as a point) written back with ``repr``, ``"x"`` for a rejection; None if it is neither."""
+    if key == "x":
+        return key
+    text = key.strip().replace(",", ".")
+    if not text or len(text) > NUMBER_MAX_CHARS or not all(c in "0123456789.eE+-" for c in text):
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return repr(value) if math.isfinite(value) and value > 0 else None
 
 
 class Aborted(RuntimeError):
@@ -67,7 +89,7 @@ class UiState:
             self.subject.update(message=message, prompt=prompt, hint="", trial_id=_new_id(trial))
             self._answered = None
             self.subject["seq"] += 1
-            if prompt in ("rate", "choice"):
+            if prompt in ("rate", "choice", "adjust", "number"):
                 self._rating = None
             self._cond.notify_all()
 
@@ -93,7 +115,8 @@ class UiState:
             return self._confirmed and not self.operator["paused"]
 
     def rating(self):
-        """The key the subject gave ('1'..'7' or 'x'), or None yet."""
+        """The key the subject gave ('1'..'7' or 'x'; an adjustment key; a number as ``repr(float)``), or None
+        yet."""
         with self._cond:
             self._check_abort()
             return self._rating
@@ -148,9 +171,11 @@ class UiState:
                 return {"accepted": False, "refused": "this trial's key was already taken", **self.subject}
             prompt = self.subject["prompt"]
             accepted = False
-            if ((prompt == "rate" and key in RATING_KEYS) or (prompt == "choice" and key in CHOICE_KEYS)) \
-                    and self._rating is None:
-                self._rating = key
+            taken = number_key(key) if prompt == "number" else key if (
+                (prompt == "rate" and key in RATING_KEYS) or (prompt == "choice" and key in CHOICE_KEYS)
+                or (prompt == "adjust" and key in ADJUST_KEYS)) else None
+            if taken is not None and self._rating is None:
+                self._rating = taken
                 self._answered = trial_id
                 accepted = True
                 self.subject.update(message="Thank you.", prompt="wait", hint="")
@@ -162,8 +187,9 @@ class UiState:
                                     hint="")
             else:
                 self.keys_ignored += 1
-                self.subject["hint"] = KEY_HINT if prompt == "rate" else CHOICE_HINT if prompt == "choice" else (
-                    FAM_HINT if prompt == "familiarization" else "No key is needed now; please wait.")
+                self.subject["hint"] = {"rate": KEY_HINT, "choice": CHOICE_HINT, "familiarization": FAM_HINT,
+                                        "adjust": ADJUST_HINT, "number": NUMBER_HINT}.get(
+                    prompt, "No key is needed now; please wait.")
             self.subject["seq"] += 1
             self._cond.notify_all()
             return {"accepted": accepted, **self.subject}

@@ -19,6 +19,7 @@ import pytest
 import statsmodels.formula.api as smf
 from scipy import stats
 from statsmodels.miscmodels.ordinal_model import OrderedModel
+from statsmodels.regression.mixed_linear_model import MixedLMParams
 from statsmodels.tools.numdiff import approx_fprime
 
 from analysis import models
@@ -27,6 +28,7 @@ from analysis.load import load_study
 from analysis.ordinal import OrderedLogit
 from analysis.pipeline import AnalysisConfig, analyse
 from analysis.report import write_report
+from analysis.report_models import caution_line, comparison_line
 from analysis.synthetic import DEFAULT_SAMPLES, expected_ratings, write_synthetic_study
 
 from tests.support.models import coverage_study
@@ -137,29 +139,38 @@ def test_wilcoxon_of_all_pairs_at_once_is_scipys_to_the_last_bit(n, ties):
 
 
 # ------------------------------------------------------------------------------ mixed model
-def test_mixed_model_equals_statsmodels_formula_fit(analysed):
-    """The design (treatment coding, centred and scaled velocity) gives the formula API's random-intercept fit."""
+def test_mixed_model_equals_statsmodels_formula_model(analysed):
+    """The design (treatment coding, centred and scaled velocity) and the random terms (subject, subject x sample
+    cells, velocity slope where kept) are statsmodels' formula model of the same terms: at our variances its REML
+    log-likelihood and its GLS fixed effects equal ours, and its own fit is not better than ours (statsmodels'
+    optimisers stop short on these data; analysis.lmm's own cross-checks: tests/analysis/test_analysis_lmm.py)."""
     data, samples, _ = models.attempt_data(analysed.study)
     cov, data, _ = models._covariates(data)
     res, info, _ = _quiet(models.mixed_model, data, samples, samples.index(REF), cov)
     fixed, emm, contrasts = models.mixed_tables(res, info, samples, samples.index(REF), data, None)
     long = data.assign(sample=[samples[c] for c in data["sample"]])
-    re = "~velocity_m_s" if info["structure"].endswith("slope") else None
-    ref_fit = _quiet(smf.mixedlm(f"rating ~ C(sample, Treatment('{REF}')) + velocity_m_s", long,
-                                 groups=long["subject"], re_formula=re).fit, reml=True, method=["powell", "lbfgs"])
+    slope = info["structure"].endswith("velocity slope")
+    model = smf.mixedlm(f"rating ~ C(sample, Treatment('{REF}')) + velocity_m_s", long, groups=long["subject"],
+                        re_formula="~velocity_m_s" if slope else "1", vc_formula={"cell": "0 + C(sample)"})
+    mean_v, sd_v = info["centres"]["velocity_m_s"]
+    # our random slope is on (v - mean) / sd: G on [1, v] is A G A' with Z_ours = Z_raw A
+    A = np.array([[1.0, -mean_v / sd_v], [0.0, 1.0 / sd_v]])
+    G = A @ res.G @ A.T if slope else res.G
+    par = MixedLMParams.from_components(cov_re=G / res.resid_var, vcomp=np.array([res.cell_var / res.resid_var]))
+    model.reml, model.cov_pen, model.fe_pen = True, None, None        # what its fit() sets before evaluating
+    # the REML likelihood holds log|X'V^-1X|: the design's velocity column divided by its SD adds log(SD) to it
+    assert model.loglike(par) == pytest.approx(res.loglik - np.log(sd_v), abs=1e-6)
+    fe = dict(zip(model.exog_names, model.get_fe_params(par.cov_re, par.vcomp)[0]))
     for s in samples:
-        if s == REF:
-            continue
-        got = fixed.set_index("term").loc[f"sample[{s}]"]
-        want = ref_fit.params[f"C(sample, Treatment('{REF}'))[T.{s}]"]
-        assert got["estimate"] == pytest.approx(want, abs=2e-3)
-        assert got["se"] == pytest.approx(ref_fit.bse[f"C(sample, Treatment('{REF}'))[T.{s}]"], rel=2e-2)
-    got_v = fixed.set_index("term").loc["velocity_m_s"]
-    assert got_v["estimate"] == pytest.approx(ref_fit.params["velocity_m_s"], abs=0.05 * ref_fit.bse["velocity_m_s"])
-    # EMM of the reference at the mean velocity = intercept + slope * mean velocity of the formula fit
-    v_mean = data["velocity_m_s"].mean()
-    want_ref = ref_fit.params["Intercept"] + ref_fit.params["velocity_m_s"] * v_mean
-    assert emm.set_index("sample").loc[REF, "emm"] == pytest.approx(want_ref, abs=2e-3)
+        if s != REF:
+            got = fixed.set_index("term").loc[f"sample[{s}]", "estimate"]
+            assert got == pytest.approx(fe[f"C(sample, Treatment('{REF}'))[T.{s}]"], abs=1e-9)
+    assert fixed.set_index("term").loc["velocity_m_s", "estimate"] == pytest.approx(fe["velocity_m_s"], rel=1e-9)
+    # EMM of the reference at the mean velocity = intercept + slope * mean velocity of the formula model
+    assert emm.set_index("sample").loc[REF, "emm"] == pytest.approx(fe["Intercept"] + fe["velocity_m_s"] * mean_v,
+                                                                   abs=1e-9)
+    theirs = _quiet(model.fit, reml=True, method=["lbfgs"])
+    assert res.loglik - np.log(sd_v) >= theirs.llf - 1e-6
     # a contrast is the difference of the EMMs
     c = contrasts.iloc[0]
     e = emm.set_index("sample")["emm"]
@@ -299,7 +310,8 @@ def test_a_fit_that_fails_says_so_and_what_is_reported_instead():
             for s in range(6) for j in range(3) for r in range(3)]
     res, info, notes = _quiet(models.mixed_model, pd.DataFrame(rows), ["a", "b", "c"], 0, ["velocity_m_s"])
     assert res is None and not info["fitted"]
-    assert notes[-1].startswith("mixed model failed") and "the paired t-tests above are the result to use" in notes[-1]
+    assert notes[-1].startswith("mixed model not fitted: the samples (and covariates) account for every rating "
+                                "exactly") and "the paired t-tests above are the result to use" in notes[-1]
 
 
 def test_models_skipped_above_the_size_limit(analysed):
@@ -316,8 +328,8 @@ def test_report_sections_and_tables(analysed, tmp_path):
     for title in ("## Models", "## Evidence for no difference"):
         assert title in md
     assert md.index("## Models") < md.index("## Evidence for no difference") < md.index("## Sample summary")
-    assert "Agreement with the paired t-tests on per-subject means: same direction in" in md
-    assert "Reading:" in md and "Non-parametric check, all subjects" in md
+    assert "The mixed model and the paired t-tests on per-subject means " in md
+    assert "Satterthwaite" in md and "Non-parametric check, all subjects" in md
     assert "(fig_ordinal_probs.png)" in md and (out / "fig_ordinal_probs.svg").exists()
     plot = pd.read_csv(out / "fig_ordinal_probs.plot.csv")
     assert len(plot) == 12 * 7 and set(plot["rating"]) == set(range(1, 8))
@@ -363,3 +375,42 @@ def test_new_figures_follow_the_figure_style(analysed):
     assert figstyle.unlabelled_axes(fig) == [] and figstyle.legend_overlaps(fig) == []
     assert set(data["test"]) == {"difference", "equivalence"} and data["power"].between(0, 1).all()
     plt.close(fig)
+
+
+def test_contrasts_beside_the_t_tests_are_worded_as_agreement_or_disagreement():
+    c = pd.DataFrame({"sample_a": ["a", "a", "b"], "sample_b": ["b", "c", "c"], "estimate": [0.9, 0.2, 0.10],
+                      "p_holm": [0.01, 0.40, 0.90], "ttest_mean_diff": [0.8, 0.3, -0.05],
+                      "ttest_p_holm": [0.20, 0.60, 0.95], "same_direction": [True, True, False]})
+    text = comparison_line(c, 0.05).replace("\x02", "").replace("\x03", "")     # the sample-name markers
+    assert "**disagree on 1 of 3 pairs**: the model alone finds 1 different (a–b), the t-tests alone 0; they agree " \
+           "on 0 pairs being different and 2 not." in text
+    assert text.endswith("opposite directions for 1 pair(s): b–c (+0.10 vs -0.05).")
+    agree = c.assign(p_holm=[0.30, 0.40, 0.90])
+    assert comparison_line(agree, 0.05).startswith("The mixed model and the paired t-tests on per-subject means give "
+                                                   "the same verdict on all 3 pairs (0 different, 3 not).")
+    assert caution_line(models.CAUTION_SUBJECTS) is None
+    assert caution_line(3).startswith("**Caution: 3 subject(s)**, fewer than 10.")
+
+
+def test_ordinal_cut_points_increase_with_delta_method_errors(analysed):
+    """The cut points are statsmodels' thresholds in their own form (cumulative), and their standard errors
+    the delta method's: checked against a numerical Jacobian of statsmodels' transform."""
+    data, samples, _ = models.attempt_data(analysed.study)
+    cov, data, _ = models._covariates(data)
+    fixed, _, info, _ = _quiet(models.ordinal_model, data, samples, samples.index(REF), cov)
+    cuts = fixed[fixed["term"].str.startswith("cut ")]
+    assert len(cuts) == len(info["levels"]) - 1 and np.all(np.diff(cuts["estimate"].to_numpy()) > 0)
+    assert cuts["p"].isna().all() and cuts["se"].gt(0).all()
+    # the delta method on a made-up covariance: J V J' with J from central differences of the transform
+    y = pd.Series(pd.Categorical([1, 2, 3, 1, 2, 3, 3, 2], categories=[1, 2, 3], ordered=True))
+    m = OrderedModel(y, pd.DataFrame({"x": [0.1, 0.5, 0.9, 0.2, 0.3, 1.1, 0.7, 0.4]}), distr="logit")
+    params = np.array([0.7, -0.3, 0.2])
+    V = np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.3]])
+    got, se = models.cut_points(m, params, V)
+    np.testing.assert_allclose(got, [-0.3, -0.3 + np.exp(0.2)])
+    J = np.zeros((2, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1e-6
+        J[:, j] = (m.transform_threshold_params(params + e)[1:-1] - m.transform_threshold_params(params - e)[1:-1]) / 2e-6
+    np.testing.assert_allclose(se, np.sqrt(np.diag(J @ V @ J.T)), rtol=1e-6)

@@ -129,6 +129,8 @@ def test_plan_command_writes_csv_figure_and_one_line_per_comparison(tmp_path, ca
 @pytest.mark.parametrize("argv,needle", [
     (["plan", "--out", "X"], "give either --dz"),
     (["plan", "--dz", "0", "--out", "X"], "--dz must not be 0"),
+    (["plan", "--dz", "nan", "--out", "X"], "--dz must be a finite number"),
+    (["plan", "--dz", "inf", "--out", "X"], "--dz must be a finite number"),
     (["plan", "--dz", "0.5", "--power", "1.5", "--out", "X"], "--power and --alpha must be below 1"),
     (["plan", "--dz", "0.5", "--comparisons", "0", "--out", "X"], "--comparisons must be a whole number >= 1"),
     (["plan", "--dz", "0.5", "--sd-diff", "-1", "--out", "X"], "--sd-diff must be > 0"),
@@ -139,3 +141,73 @@ def test_plan_bad_input_one_line(argv, needle, tmp_path, capsys, monkeypatch):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
+
+
+def test_dz_ci_of_a_three_subject_pilot_widens_its_bracket():
+    """With df = 2 the upper end of a large d_z's interval lies beyond t + (10 + |t|), the first bracket."""
+    from scipy import stats
+    lo, hi = dz_ci(-9.24, 3)
+    t = -9.24 * math.sqrt(3)
+    assert stats.nct.sf(t, 2, lo * math.sqrt(3)) == pytest.approx(0.025, abs=1e-8)
+    assert stats.nct.sf(t, 2, hi * math.sqrt(3)) == pytest.approx(0.975, abs=1e-8)
+    assert lo < -9.24 < hi < 0
+
+
+def test_three_subject_pilot_plans_every_row_and_says_why_where_it_cannot(tmp_path, capsys):
+    """The README's flow on 3 synthetic subjects: one pair's differences are equal up to rounding (SD ~1e-16), which
+    made the d_z interval's solver meet a NaN and the whole plan stop; now that row says why and the rest is planned."""
+    from analysis.synthetic import write_synthetic_study
+    data = tmp_path / "D3"
+    write_synthetic_study(data, 3, seed=0)
+    out = tmp_path / "plan"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["plan", "--pilot", str(data), "--margin", "0.5", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert sum(ln.startswith(("difference ", "equivalence ")) for ln in printed) == 66 + 11
+    plan = pd.read_csv(out / "plan.csv", keep_default_na=False, na_values=[""])
+    assert (out / "fig_power_curves.png").stat().st_size > 10_000
+    diff = plan[plan["test"] == "difference"]
+    same = diff[(diff["sample_a"] == "foam") & (diff["sample_b"] == "soft")].iloc[0]
+    assert np.isnan(same["dz"]) and np.isnan(same["n_required"])
+    assert same["note"].startswith("every one of the 3 subjects gave the same difference (+0.333 rating points, SD 0)")
+    # every other pair has its d_z, an interval around it and (but for d_z = 0) a sample size
+    rest = diff.drop(same.name)
+    assert rest["dz"].notna().all() and (rest["dz_ci_low"] <= rest["dz"]).all() and (rest["dz"] <= rest["dz_ci_high"]).all()
+    assert rest["n_required"].notna().sum() >= 60
+    big = rest.loc[rest["dz"].abs().idxmax()]
+    assert abs(big["dz"]) > 9 and big["n_required"] == 4
+    # the statsmodels cross-check of one planned n: power at n reaches 0.8, at n - 1 it does not
+    r = rest[rest["n_required"].between(10, 200)].iloc[0]
+    a = 0.05 / 66
+    assert power_difference(r["dz"], int(r["n_required"]), a) >= 0.8 > power_difference(r["dz"], int(r["n_required"]) - 1, a)
+    assert SM.power(effect_size=abs(r["dz"]), nobs=int(r["n_required"]), alpha=a) >= 0.8
+
+
+def test_a_plan_row_that_cannot_be_computed_fails_alone(monkeypatch, analysed):
+    """A library failure in one pair's interval leaves that row without it (said in its note), not the plan."""
+    import analysis.power as power
+    real = power.dz_ci
+    calls = []
+
+    def flaky(dz, n, level=0.95):
+        calls.append(dz)
+        if len(calls) == 2:
+            raise ValueError("The function value at x=1.698e+16 is NaN; solver cannot continue.")
+        return real(dz, n, level)
+
+    monkeypatch.setattr(power, "dz_ci", flaky)
+    plan = pilot_plan(analysed.matrix, "wood_on_foam", PlanSettings())
+    assert len(plan) == 66 + 11
+    second = plan.iloc[1]
+    assert np.isnan(second["dz_ci_low"]) and np.isfinite(second["n_required"])
+    assert second["note"].startswith("95 % CI of d_z not computed: the numerical solver met a value it cannot evaluate")
+    assert plan.iloc[[0] + list(range(2, 66))]["dz_ci_low"].notna().all()
+
+
+def test_plan_help_shows_percent_signs_as_written(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["plan", "--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    assert "95 % CI" in " ".join(text.split()) and "%%" not in text

@@ -151,3 +151,25 @@ def test_fit_groups_excludes_catch_trials():
     assert fits[0].fit.threshold == pytest.approx(direct.threshold, rel=1e-9)
     with pytest.raises(FileNotFoundError):
         load_trials(trials_path.parent / "no-such-folder")
+
+
+def test_spreadsheet_csvs_read_or_say_what_is_wrong(tmp_path):
+    """A byte-order mark (a spreadsheet's "CSV UTF-8") is read; ';' separators and a duplicated column are one
+    error that says so (they were "missing column intensity" and accepted)."""
+    plain = tmp_path / "plain.csv"
+    _write_csv(plain, _rows()[:40])
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = load_trials(plain), load_trials(bom)
+    assert len(a) == len(b) == 40
+    np.testing.assert_array_equal(a.intensity, b.intensity)
+    np.testing.assert_array_equal(a.subject, b.subject)
+    semi = tmp_path / "semi.csv"
+    semi.write_text(plain.read_text().replace(",", ";"))
+    with pytest.raises(ValueError, match=r"semi.csv:1: missing column\(s\) intensity, correct .*separated by ';', "
+                                         "not commas"):
+        load_trials(semi)
+    twice = tmp_path / "twice.csv"
+    _write_csv(twice, [r + [r[-1]] for r in _rows()[:4]], ("subject", "condition", "intensity", "correct", "correct"))
+    with pytest.raises(ValueError, match=r"twice.csv:1: column\(s\) correct appear more than once"):
+        load_trials(twice)

@@ -27,9 +27,12 @@ def test_record_command_wood_on_foam(tmp_path, capsys):
         assert np.allclose(np.diff(t), 1e-4)
         assert v == pytest.approx(v_cmd, rel=0.12)              # measured from the encoder; the person's
         # arm (a mass, not a velocity source) arrives within ~10 % of its planned speed
-        # quiet before impact; issue 16: with the default person the 0.2 m/s tap's handle accelerates up by
-        # ~3 m/s^2 in the last 1.6 ms before contact (measured 3.15; not explained yet), so up to 2 ms before
-        assert np.max(np.abs(a[t < -2e-3])) < 1.0
+        # quiet before impact. The 0.2 m/s tap's handle accelerates up by ~4.5 m/s^2 before contact: the
+        # person's feedforward of the tool's drag stops once the *plan* crosses the surface (kernel
+        # `_reactive_hand_step`: "below the surface ... no voluntary feedforward"), and the handle trails the
+        # plan by ~0.5 mm (0.3 mm before the fingertip's flesh), so the device's drag brakes it from 2.4 ms
+        # before contact (1.6 ms before) -- quiet up to 3 ms before
+        assert np.max(np.abs(a[t < -3e-3])) < 1.0
         peaks.append(np.max(np.abs(a)))
     assert peaks[0] < peaks[1] < peaks[2]
     assert 3 < peaks[1] < 100

@@ -24,7 +24,7 @@ def test_malformed_device_strings_name_the_string(spec):
 
 
 def test_unknown_form_lists_the_valid_forms():
-    with pytest.raises(ValueError, match=r"valid forms: sim, sim:lti, .*serial:<port>, hid:<vid>:<pid>"):
+    with pytest.raises(ValueError, match=r"valid forms: sim, sim:joystick, sim:onedof, sim:lti, .*serial:<port>, hid:<vid>:<pid>"):
         check_device_spec("bogus")
 
 

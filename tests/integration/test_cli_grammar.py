@@ -101,3 +101,23 @@ def test_benchmarks_help_lists_them():
     assert out.returncode == 0
     for p in (ROOT / "benchmarks").glob("bench_*.py"):
         assert f"  {p.stem.removeprefix('bench_')} " in out.stdout
+
+
+@pytest.mark.parametrize("module, command, argv, flag", [
+    ("renderer.cli_run_parser", "run", ["--velocities-m-s", "0.1,-2", "--out", "o"], "--velocities-m-s"),
+    ("renderer.cli_run_parser", "run", ["--duration-s", "0", "--out", "o"], "--duration-s"),
+    ("devices.cli_identify_parser", "identify", ["--delay-s", "soon", "--out", "o"], "--delay-s"),
+])
+def test_a_bad_value_of_a_renamed_flag_names_the_flag_as_written_today(module, command, argv, flag, capsys):
+    p = parser_of(module, command)
+    with pytest.raises(SystemExit):
+        p.parse_args(argv)
+    err = capsys.readouterr().err
+    assert f"{flag} must be" in err or f"{flag}: " in err
+    old = flag.rsplit("-", 1)[0] if flag != "--velocities-m-s" else "--velocity"
+    assert f"{old} must" not in err and f"{old}:" not in err.replace(f"{flag}:", "")
+
+
+def test_timing_check_help_promises_only_what_out_writes():
+    text = " ".join(parser_of("renderer.cli_timing_check_parser", "timing-check").format_help().split())
+    assert "to this JSON file; no plot is drawn" in text and "figures" not in text

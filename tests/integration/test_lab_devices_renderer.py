@@ -26,7 +26,7 @@ def _run(spec, out, tmp_path, capsys, duration_s="2.6", extra=()):
 def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch, request):
     if spec.startswith("touch"):
         monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", str(request.getfixturevalue("fake_hd")))
-    spec = spec + "?loss_timeout_s=0.02"   # loaded machine: a reply later than 20 ms counts as lost
+    spec = spec + "?loss_timeout_s=0.1"   # a loaded machine stalls the emulators for tens of ms
     out = tmp_path / "run"
     code, stdout = _run(spec, out, tmp_path, capsys)
     assert code == 0, stdout
@@ -69,7 +69,7 @@ def test_a_3d_scene_opens_the_device_with_its_three_axes(tmp_path, capsys):
                    'center_m = [0.0, 0.0, -0.01], half_extents_m = [0.03, 0.03, 0.01], name = "block", '
                    'stiffness_N_m = 680.0 },\n]\n')
     out = tmp_path / "run"
-    code = renderer_main(["run", "--in-process", "--device", "falcon:emulator?loss_timeout_s=0.02", "--duration-s",
+    code = renderer_main(["run", "--in-process", "--device", "falcon:emulator?loss_timeout_s=0.1", "--duration-s",
                           "2.3", "--config", str(cfg), "--no-figure", "--out", str(out)])
     stdout = capsys.readouterr().out
     assert code == 0, stdout

@@ -41,7 +41,9 @@ DISCRIMINATION = ('\n[experiment]\nkind = "discrimination"\nsample = "firm"\nref
                   "[experiment.staircases.S]\nstart = 1000.0\nstep_down = [0.1]\nn_down = 1\nmax_trials = 1\n")
 #: the emulated hands tap along the vertical axis at these speeds (m/s; devices/firmware/endpoint.py's TapPlan;
 #: the fake Touch library's hand: 0.1 m/s)
-TAP_SPEEDS = (0.02, 0.3)
+# the emulated hand taps at 0.05-0.2 m/s; a loaded machine that stalls the emulator's thread mid-approach makes
+# the estimate jump (0.36 m/s seen at a load of 8 on 2 cores): the bound checks the taps were found, not the clock
+TAP_SPEEDS = (0.02, 0.5)
 
 
 class _Announce(io.TextIOBase):
@@ -81,7 +83,9 @@ def _play(announce: _Announce, stop: threading.Event, seen: dict) -> None:
             sub = json.load(urllib.request.urlopen(base + "/api/subject", timeout=2))
             if sub.get("prompt") in ("rate", "choice"):
                 post("/api/key", {"key": "5" if sub["prompt"] == "rate" else "1", "trial_id": sub["trial_id"]})
-                seen[sub["prompt"]] += 1
+                # a prompt still shown when polled again is the same trial (its second answer is refused)
+                seen.setdefault("trials", set()).add((sub["prompt"], sub["trial_id"]))
+                seen[sub["prompt"]] = sum(1 for p, _ in seen["trials"] if p == sub["prompt"])
         except (OSError, http.client.HTTPException):
             pass
         stop.wait(0.03)
@@ -91,7 +95,7 @@ def _play(announce: _Announce, stop: threading.Event, seen: dict) -> None:
 def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys):
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL + (DISCRIMINATION if kind == "psychophysics" else ""))
-    spec = spec + "?loss_timeout_s=0.02"
+    spec = spec + "?loss_timeout_s=0.1"
     argv = ["run", "--device", spec, "--participant", "keyboard", "--subject", "L1", "--age", "30", "--gender",
             "female", "--handedness", "right", "--experience", "few", "--audio", "off", "--accept-timing", "--port",
             "0", "--token", "tok", "--protocol", str(proto), "--seed", "1", "--out", str(tmp_path / "data"),
@@ -126,7 +130,8 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
         assert testing[-1]["valid"] == "true" and testing[-1]["rating"] == "5" and seen["rate"] >= 1
     else:
         (row,) = rows
-        assert seen["choice"] == 1 and row["response"] == "1" and float(row["intensity_physical"]) == 1000.0
+        # one trial, answered once per attempt (an attempt whose taps a stalled machine lost is presented again)
+        assert seen["choice"] >= 1 and row["response"] == "1" and float(row["intensity_physical"]) == 1000.0
         assert row["correct"] == str(int(row["target_interval"] == "1"))
         assert len((folder / "staircase_state.jsonl").read_text().splitlines()) == 1
     # the tapping windows found the emulated hand's taps, at its speeds
@@ -151,7 +156,7 @@ def test_the_study_apparatus_homes_and_finds_the_taps_on_the_emulated_device(spe
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL)
     protocol = load_protocol(proto)
-    with make_device(spec + "?loss_timeout_s=0.02") as dev:
+    with make_device(spec + "?loss_timeout_s=0.1") as dev:
         assert dev.info.name.endswith("(vertical axis)") and not dev.info.simulated
         app = Apparatus(dev, [catalog["pulse_firm"]], protocol)
         assert app.real_saturation_detection == "none (no force sensor)" and app.link_status().startswith("ok")

@@ -1,5 +1,8 @@
-"""The README runs as printed: every command in its ```sh blocks, through the installed console scripts.
+"""The README and the command reference run as printed: every command in their ```sh blocks, through the
+installed console scripts.
 
+The README's five steps and docs/usage.md (the reference by package, where the commands the README used to
+print live) are one path: README.md's blocks first, then docs/usage.md's, in one folder.
 Blocks tagged ``sh`` are commands a user types after ``make demo`` and activating ``.venv``;
 ``text`` blocks are output samples or hardware-only templates (a serial device, a person). The
 commands run in order in one scratch folder (later ones use earlier outputs), with the venv's
@@ -15,9 +18,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
+#: the pages whose commands run, in order (later ones use earlier outputs); links resolve from each page's folder
+PAGES = (README, ROOT / "docs" / "usage.md")
 BIN = Path(sys.executable).parent          # the venv's bin: console scripts live next to its python
 
 #: (regex, replacement) applied to each command line before running it: sizes only.
@@ -47,30 +54,40 @@ def code_blocks(text):
 
 def commands():
     out = []
-    for info, lines in code_blocks(README.read_text()):
-        if info == "sh":
-            out += [" ".join(shlex.split(ln, comments=True)) for ln in lines]
+    for page in PAGES:
+        for info, lines in code_blocks(page.read_text()):
+            if info == "sh":
+                out += [" ".join(shlex.split(ln, comments=True)) for ln in lines]
     return [c for c in out if c]
 
 
-def test_every_block_is_tagged_and_every_command_block_is_sh():
-    for info, lines in code_blocks(README.read_text()):
-        assert info in ("sh", "text", "toml"), f"untagged README block: {lines[:2]}"
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_block_is_tagged_and_every_command_block_is_sh(page):
+    for info, lines in code_blocks(page.read_text()):
+        assert info in ("sh", "text", "toml"), f"untagged block in {page.name}: {lines[:2]}"
         if info == "text":
             for ln in lines:   # a hfam-* command in a text block must be a hardware/person template
                 if ln.startswith(("hfam-", "python -m")):
-                    assert "serial:" in ln or "hid:" in ln, f"README command not run by a test: {ln}"
+                    assert "serial:" in ln or "hid:" in ln, f"{page.name} command not run by a test: {ln}"
 
 
-def test_readme_mentions_only_shipped_files():
-    text = README.read_text()
-    paths = set(re.findall(r"\]\(([^)#:]+)\)", text))                      # markdown links
-    paths |= {p for p in re.findall(r"`([\w./-]+\.(?:md|toml|npz|c|h|py))`", text)
-              if "/" in p and p.split("/")[0] in {"docs", "examples", "stimuli", "devices", "renderer", "study",
-                                                  "analysis", "benchmarks", "tests"}}
-    missing = sorted(p for p in paths if not (ROOT / p).exists())
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_readme_mentions_only_shipped_files(page):
+    text = page.read_text()
+    links = set(re.findall(r"\]\(([^)#:]+)\)", text))                      # markdown links, from the page's folder
+    paths = {p for p in re.findall(r"`([\w./-]+\.(?:md|toml|npz|c|h|py))`", text)   # repository paths
+             if "/" in p and p.split("/")[0] in {"docs", "examples", "stimuli", "devices", "renderer", "study",
+                                                 "analysis", "benchmarks", "tests"}}
+    missing = sorted([p for p in links if not (page.parent / p).exists()]
+                     + [p for p in paths if not (ROOT / p).exists()])
     assert not missing, missing
     assert (ROOT / "examples" / "my_catalog.toml").is_file()
+
+
+def test_the_readme_indexes_every_page_of_the_docs():
+    text = README.read_text()
+    unlisted = [p.name for p in sorted((ROOT / "docs").glob("*.md")) if f"(docs/{p.name})" not in text]
+    assert not unlisted, f"docs pages missing from the README's 'Where to read on': {unlisted}"
 
 
 def test_make_targets_in_the_readme_exist():
@@ -97,7 +114,7 @@ def test_readme_commands_run_as_printed(tmp_path):
         for pattern, repl in SMALLER:
             cmd = re.sub(pattern, repl, cmd)
         r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
-        assert r.returncode == 0, f"README command failed: {cmd}\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+        assert r.returncode == 0, f"command of README.md or docs/usage.md failed: {cmd}\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
         assert "deprecated" not in r.stderr, f"README uses an old flag spelling: {cmd}\n{r.stderr}"
         ran.append(cmd)
     # the workflow's products exist

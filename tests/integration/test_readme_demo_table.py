@@ -1,6 +1,6 @@
-"""The README's printed demo table is what ``make demo`` prints (issue 36, item 6).
+"""The README's printed demo table is what ``make demo`` prints.
 
-``make demo`` runs ``python -m renderer demo --device sim --force``: the default DemoConfig. The session's
+``make demo`` runs ``python -m renderer demo --device sim:onedof --force``: the default DemoConfig. The session's
 default demo (tests/conftest.py ``default_demo``, same settings, its own cache) formats its table with the
 same functions the command prints with; every line of the README's block (the rendering lines, the
 penetration-cut, reactive-hand and thesis-claims lines) must be among those lines, character for character

@@ -38,6 +38,13 @@ def test_the_compiled_loop_depends_on_exactly_the_ahead_of_time_build_sources():
     assert deps - {Path(jitcache.__file__).resolve()} == {p.resolve() for p in sim_aot.SOURCES}
 
 
+def test_the_compiled_3d_loop_depends_on_exactly_the_3d_build_sources():
+    from renderer import law3, sim_aot
+
+    deps = set(jitcache.dependency_files(law3.__file__))
+    assert deps - {Path(jitcache.__file__).resolve()} == {p.resolve() for p in sim_aot.SOURCES3}
+
+
 def test_relative_and_star_imports_resolve(tmp_path):
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)

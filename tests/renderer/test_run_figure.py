@@ -58,3 +58,29 @@ def test_no_figure_leaves_only_the_data(tmp_path, capsys):
     proc = run_cli(capsys, "renderer", "run", "--device", "sim", "--taps", "1", "--no-figure", "--out", out)
     assert proc.returncode == 0, proc.stderr
     assert sorted(p.name for p in out.iterdir()) == ["events.csv", "log.npz", "run.json"]
+
+
+def test_an_on_device_run_does_not_draw_the_boards_forces_as_zero(tmp_path):
+    """On-device rendering: the board computes the wall and the transient and reports neither; the figure says
+    so and draws only the commanded total, and its CSV holds NaN (not 0) for the parts."""
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--transient", "pulse",
+                           "--taps", "1", "--no-figure", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result = RunResult.load(out)
+    host = run_figure_data(result)
+    assert not host["on_device"] and np.nanmax(np.abs(host["force_prop_N"])) > 0.1
+    result.timing = dict(result.timing, on_device=True)
+    data = run_figure_data(result)
+    assert data["on_device"] and np.isnan(data["force_prop_N"]).all() and np.isnan(data["force_transient_N"]).all()
+    np.testing.assert_array_equal(data["force_N"], host["force_N"])
+    fig = plot_run(data)
+    try:
+        labels = [ln.get_label() for ln in fig.axes[1].get_lines()]
+        assert labels == ["commanded force (after saturation)"]
+        assert any("computed on the board" in t.get_text() for t in fig.axes[1].texts)
+        assert figstyle.legend_overlaps(fig) == []
+    finally:
+        import matplotlib.pyplot as plt  # deferred: the figure's own library, loaded by plot_run
+        plt.close(fig)

@@ -176,7 +176,7 @@ def test_a_stale_or_damaged_build_is_not_used(aot_dir, monkeypatch, tmp_path, ca
     _use(monkeypatch, aot_dir, "nobuild")
     assert sim_aot.load() is not None
     # other sources (an edited law or kernel) have another key: no build, the JIT path
-    monkeypatch.setattr(sim_aot, "source_key", lambda: "0123456789abcdef")
+    monkeypatch.setattr(sim_aot, "source_key", lambda target=sim_aot.LOOP1: "0123456789abcdef")
     monkeypatch.setattr(sim_aot, "_loaded", {})
     assert sim_aot.load() is None
     run_sim, step = sim_aot.run_sim_function()
@@ -184,7 +184,7 @@ def test_a_stale_or_damaged_build_is_not_used(aot_dir, monkeypatch, tmp_path, ca
 
     assert run_sim is law.run_sim and step is None
     # a damaged file under the right key: reported, not used, the results unchanged
-    monkeypatch.setattr(sim_aot, "source_key", lambda: "fedcba9876543210")
+    monkeypatch.setattr(sim_aot, "source_key", lambda target=sim_aot.LOOP1: "fedcba9876543210")
     monkeypatch.setattr(sim_aot, "_loaded", {})
     bad = sim_aot.extension_path("fedcba9876543210", aot_dir)
     bad.parent.mkdir()
@@ -218,7 +218,7 @@ def test_a_build_that_does_not_load_is_never_installed(tmp_path, monkeypatch):
     """The build is imported in a process of its own before it is installed (a kernel that needed numba's
     runtime, which the build does not link, would leave an undefined symbol): it is an error naming the
     build, or in the background a recorded failure; nothing is installed under the key."""
-    def broken(out_dir):
+    def broken(out_dir, target=sim_aot.LOOP1):
         (Path(out_dir) / sim_aot.extension_path(base=tmp_path).name).write_bytes(b"\x7fELF, but not a module")
 
     monkeypatch.setattr(sim_aot, "_compile", broken)

@@ -153,3 +153,23 @@ def test_cli_run_hfam_library_on_sim(tmp_path, capsys):
     ev = back.events[1]
     expected = lib.current(ev.incoming_velocity_m_s, ev.grip_N) * info.force_per_amp_N_A
     np.testing.assert_allclose(back.log["force_transient_N"][ev.tick + 1:ev.tick + 1001], expected, rtol=1e-12)
+
+
+def test_taps_that_miss_their_planned_speed_are_said(tmp_path, capsys):
+    """An alternating 0.2/0.3 m/s plan: the slow taps after the first reach ~0.13 m/s at contact; the run says
+    which, by how much, and the speeds it names are events.csv's."""
+    from renderer.__main__ import main
+
+    out = tmp_path / "run"
+    assert main(["run", "--device", "sim", "--taps", "6", "--velocities-m-s", "0.2,0.3", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    speeds = [float(r.split(",")[1]) for r in (out / "events.csv").read_text().splitlines()[1:]]
+    planned = [0.2, 0.3] * 3
+    off = [k + 1 for k, (v, p) in enumerate(zip(speeds, planned)) if abs(v - p) > 0.15 * p]
+    assert off, speeds                      # the case this warning exists for
+    line = next(ln for ln in err.splitlines() if ln.startswith("warning: "))
+    assert line.startswith(f"warning: {len(off)} of 6 taps missed their planned speed by more than 15 %")
+    for k in off:
+        assert f"tap {k} reached {speeds[k - 1]:.3g} m/s at contact, planned {planned[k - 1]:g} m/s" in line
+    assert main(["run", "--device", "sim", "--taps", "2", "--velocities-m-s", "0.1", "--out", str(tmp_path / "ok")]) == 0
+    assert "missed their planned speed" not in capsys.readouterr().err

@@ -39,7 +39,9 @@ def test_shipped_hfam_library_fits_the_sim_device():
     lib.check_device(dev.info, dev.info.servo_rate_hz)  # rate, force constant, peak current, grip range
     assert lib.currents_A.shape[0] >= 6 and lib.grips_N[0] == 0.0 and lib.grips_N[-1] == 10.0
     w = lib.waveform(0.1, 2.0, dev.info.servo_rate_hz)
-    assert w.shape == (1000,) and np.all(np.isfinite(w)) and np.max(np.abs(w)) > 0.5
+    # the demo pipeline's library (`make artefacts`): its recordings hold 94.9 ms after the impact (a 100 ms
+    # capture from 5 ms before it), so are its transients (the earlier sim-library command recorded 100 ms after)
+    assert w.shape == (949,) and np.all(np.isfinite(w)) and np.max(np.abs(w)) > 0.5
 
 
 def write(tmp_path, text, name="cat.toml"):

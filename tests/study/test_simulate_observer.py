@@ -129,3 +129,15 @@ def test_bad_flags_give_one_error_line_naming_the_flag(tmp_path, capsys, flags, 
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.startswith(message) and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_printed_truth_says_which_point_it_is(tmp_path, capsys):
+    """An up-down staircase's truth is its target point (2-down 1-up: 70.7 % correct), not the threshold."""
+    assert main(["simulate-observer", "--method", "updown", "--threshold", "0.5", "--trials", "20",
+                 "--out", str(tmp_path / "u")]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    est = json.loads((tmp_path / "u" / "estimate.json").read_text())
+    assert f"(true 70.7 % correct point {est['reference']:.4g})" in line and est["reference"] != 0.5
+    assert main(["simulate-observer", "--method", "quest+", "--threshold", "0.5", "--trials", "10",
+                 "--out", str(tmp_path / "q")]) == 0
+    assert "(true threshold 0.5)" in capsys.readouterr().out

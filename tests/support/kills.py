@@ -188,7 +188,8 @@ def state_lines(folder: Path) -> list:
 class ForcedChoiceKillHarness:
     """A warm process, an uninterrupted reference session and kill/resume cases at chosen durable steps."""
 
-    def __init__(self, work: Path, protocol_text: str, seed: int = 4) -> None:
+    def __init__(self, work: Path, protocol_text: str, seed: int = 4, key: tuple = FORCED_CHOICE_KEY) -> None:
+        self.key = key   # the columns compared (another kind's trials.csv: its own)
         self.work = Path(work)
         self.protocol = self.work / "protocol.toml"
         self.protocol.write_text(protocol_text)
@@ -203,7 +204,7 @@ class ForcedChoiceKillHarness:
         if code != 0:
             raise RuntimeError(f"the reference session failed with {code}")
         self.steps = log.read_text().splitlines()
-        self.reference = [tuple(r[k] for k in FORCED_CHOICE_KEY) for r in read_rows(self.work / "ref" / "K")]
+        self.reference = [tuple(r[k] for k in self.key) for r in read_rows(self.work / "ref" / "K")]
         self.reference_states = state_lines(self.work / "ref" / "K")
 
     def step_of(self, name: str) -> int:
@@ -234,7 +235,7 @@ class ForcedChoiceKillHarness:
         after = (folder / "trials.csv").read_bytes()
         if not after.startswith(before[:before.rfind(b"\n") + 1]):
             result["error"] = "rows on disk before the kill changed"
-        rows = [tuple(r[k] for k in FORCED_CHOICE_KEY) for r in read_rows(folder)]
+        rows = [tuple(r[k] for k in self.key) for r in read_rows(folder)]
         if rows != self.reference:
             result["error"] = f"{len(rows)} rows differ from the reference's {len(self.reference)}"
         if state_lines(folder) != self.reference_states:

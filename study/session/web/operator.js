@@ -42,6 +42,7 @@ function show(s) {
     ["overpowered homing", a.overpowered ? "yes (repeat)" : "no", a.overpowered],
     ["rating", a.rejected ? "x (rejected, repeat)" : (a.rating ?? "-"), a.rejected],
   ] : []);
+  table(s.table);
   const ol = document.getElementById("redraws");
   ol.innerHTML = "";
   for (const r of s.redraws || []) {
@@ -49,6 +50,31 @@ function show(s) {
     li.textContent = `${r.phase} trial ${r.trial} (${r.sample}) attempt ${r.attempt}: ${r.reason}`;
     ol.appendChild(li);
   }
+}
+const SVG = "http://www.w3.org/2000/svg";
+function table(t) {
+  // a 3-DOF session: the samples' blocks seen from above (mm, y up) and the hand's dot
+  const box = document.getElementById("tablebox");
+  if (!t || !t.hand) { box.hidden = true; return; }
+  box.hidden = false;
+  const svg = document.getElementById("table");
+  svg.replaceChildren();
+  for (const b of t.blocks || []) {
+    const r = document.createElementNS(SVG, "rect");
+    r.setAttribute("x", b.x0_mm); r.setAttribute("y", -b.y1_mm);
+    r.setAttribute("width", b.x1_mm - b.x0_mm); r.setAttribute("height", b.y1_mm - b.y0_mm);
+    r.setAttribute("class", b.name === t.presented ? "block presented" : "block");
+    r.setAttribute("data-name", b.name);
+    svg.appendChild(r);
+  }
+  const h = t.hand;
+  const dot = document.createElementNS(SVG, "circle");
+  dot.setAttribute("id", "handdot");
+  dot.setAttribute("cx", h.x_mm); dot.setAttribute("cy", -h.y_mm); dot.setAttribute("r", 2);
+  svg.appendChild(dot);
+  document.getElementById("hand").textContent =
+    `x ${h.x_mm.toFixed(1)} mm, y ${h.y_mm.toFixed(1)} mm: ${h.height_mm.toFixed(1)} mm above ${h.over}` +
+    (t.presented ? ` (presented: ${t.presented})` : "");
 }
 let lastOk = null;
 function runner(ok, why) {

@@ -2,11 +2,18 @@
 let prompt = "wait";
 let seq = -1;
 let trialId = "";  // the presentation a key answers: the runner takes a key only for the one it shows now
+const box = document.getElementById("number");
 function show(state) {
   if (state.seq === seq) return;
   seq = state.seq;
   prompt = state.prompt;
+  const fresh = (state.trial_id || "") !== trialId;
   trialId = state.trial_id || "";
+  // magnitude estimation: a free number typed into the box, sent with Enter (the box keeps what was typed
+  // while the runner only adds a hint)
+  box.hidden = prompt !== "number";
+  if (prompt === "number" && fresh) { box.value = ""; }
+  if (prompt === "number") box.focus();
   document.getElementById("message").textContent = state.message;
   document.getElementById("scale").hidden = prompt !== "rate";
   document.getElementById("hint").textContent = state.hint || "";
@@ -29,6 +36,14 @@ async function sendKey(key, trial_id) {
   } catch (e) { /* runner gone: keep the last message */ }
 }
 document.addEventListener("keydown", (ev) => {
+  if (prompt === "number") {
+    if (ev.key === "Enter" && !ev.repeat) {
+      ev.preventDefault();
+      const id = trialId, typed = box.value.trim();
+      sending = sending.then(() => sendKey(typed, id));
+    }
+    return;  // the box takes the other keys
+  }
   if (ev.repeat || ev.ctrlKey || ev.altKey || ev.metaKey) return;
   if (["Shift", "Control", "Alt", "Meta", "CapsLock", "Tab"].includes(ev.key)) return;
   ev.preventDefault();

@@ -750,3 +750,12 @@ def test_rearm_data_offset_is_bounds_checked_without_overflow_like_the_mirror(fw
     assert both(P.REARM_DATA, chunk(128, [])) == OK
     assert both(P.REARM_DATA, chunk(98, [0.5] * 30)) == OK  # up to the last sample
     assert link.request(P.CURRENT, P.encode_current(0.3)) == ("STATE", 0, 300)  # the firmware runs on
+
+
+def test_missing_toolchain_sends_people_to_make_deps(monkeypatch):
+    """The provisioning target is ``make deps`` (``make test`` provisions too, but runs every test first)."""
+    from devices.firmware import fw_sim as fs
+    monkeypatch.setattr(fs, "tool", lambda name: None)
+    with pytest.raises(fs.FwSimError) as err:
+        fs.build()
+    assert str(err.value).startswith("avr-gcc not found: run `make deps`") and "make test" not in str(err.value)

@@ -23,7 +23,7 @@ def test_rebuild_damage_and_reuse(tmp_path):
     assert first.directory.name == f"demo-{cache_key(s)}"
     assert sorted(p.name for p in first.directory.iterdir()) == [
         "identify", "library.npz", "library_refinement.txt", "library_verification.txt", "manifest.json",
-        "recordings.csv"]
+        "pipeline_settings.json", "recordings.csv"]
     # the refinement by playback (on by default) reports its error before and after every pass: first towards
     # the smoothed recordings, then (second stage, before and after each pass) towards the recordings
     lines = (first.directory / "library_refinement.txt").read_text().splitlines()
@@ -121,14 +121,17 @@ def test_hfam_claims_of_a_library_above_every_unseen_speed_are_not_measured_and_
 
 
 def test_hfam_claims_are_scored_on_the_demos_own_device_or_not_measured(tmp_path):
-    """The demo's HFAM claims play on the device the demo ran on: the default sim, or a ``sim:<params file>``
-    holding it or its linear-linkage variant (with the demo's tap stop time); on ``sim:lti`` or other parameters
-    they are "not measured", never scored on the Table 3.1 sim in its place."""
+    """The demo's HFAM claims play on the device the demo ran on: the one-dof sim (the default), the joystick, or a
+    ``sim:<params file>`` holding either (with the demo's tap stop time); on ``sim:lti`` or other parameters they
+    are "not measured", never scored on another sim in its place."""
     assert hfam_score_settings(PipelineSettings()) == scoring.ScoreSettings()
     st = hfam_score_settings(PipelineSettings(tap_stop_time_s=0.06))
-    assert (st.linkage, st.stop_time_s) == ("hysteretic", 0.06)
-    linear = scoring.pipeline_device(tmp_path, "linear")            # sim:<file> with the linear-linkage device
-    assert hfam_score_settings(PipelineSettings(device=linear)).linkage == "linear"
+    assert (st.linkage, st.stop_time_s) == ("linear", 0.06)
+    assert hfam_score_settings(PipelineSettings(device="sim")).linkage == "hysteretic"
+    assert hfam_score_settings(PipelineSettings(device="sim:joystick")).linkage == "hysteretic"
+    linear = tmp_path / "onedof.json"                              # sim:<file> with the one-dof device
+    linear.write_text(json.dumps(scoring.device_params("linear").to_dict()))
+    assert hfam_score_settings(PipelineSettings(device=f"sim:{linear}")).linkage == "linear"
     same = tmp_path / "table31.json"
     same.write_text(json.dumps(scoring.device_params("hysteretic").to_dict()))
     assert hfam_score_settings(PipelineSettings(device=f"sim:{same}")).linkage == "hysteretic"

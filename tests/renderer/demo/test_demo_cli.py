@@ -76,10 +76,10 @@ def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path):
 
 
 def test_demo_on_a_library_missing_some_unseen_speeds_completes(tmp_path, capsys):
-    """``--record-velocities 0.1,0.2`` builds a library over 0.0988-0.1981 m/s: the issue's unseen speeds 0.065 and
+    """``--record-velocities 0.1,0.2`` builds a library over 0.0982-0.1973 m/s: the issue's unseen speeds 0.065 and
     0.095 m/s are outside it. The demo stopped with ``error: speed 0.065 m/s is outside the library's
     velocities`` after building, and again on every rerun; now those speeds are left out (and named) and the
-    refined library is scored at the one left (0.14 m/s's neighbour, 0.1484 m/s)."""
+    refined library is scored at the one left (0.14 m/s's neighbour, 0.1477 m/s)."""
     import csv
 
     argv = ["demo", "--record-velocities", "0.1,0.2", "--velocities-m-s", "0.15", "--grips-N", "2",
@@ -91,7 +91,7 @@ def test_demo_on_a_library_missing_some_unseen_speeds_completes(tmp_path, capsys
         with open(out / "fidelity.csv", newline="") as fh:
             rows = {r["id"]: r for r in csv.DictReader(fh)}
         rf = rows["hfam_refined_unseen"]
-        assert "unseen speeds 0.1484 m/s" in rf["target"]
-        assert "0.065, 0.095 m/s left out: outside the refined library's velocities 0.0988-0.1981 m/s" \
+        assert "unseen speeds 0.1477 m/s" in rf["target"]
+        assert "0.065, 0.095 m/s left out: outside the refined library's velocities 0.0982-0.1973 m/s" \
             in rf["measured_text"]
         assert 0.0 < float(rf["measured"]) < 2.0 and rf["holds"] in ("yes", "no")

@@ -48,7 +48,8 @@ def test_person_taps_each_rendering_over_the_emulated_serial_port(tmp_path, caps
     by = {}
     for r in rows:
         by.setdefault(r["rendering"], []).append(r)
-    assert set(by) == {"real_wood_on_foam", "firm", "pulse_firm"}
+    # the demo's printed lines say why a rendering has no taps (each session's stop reason and timing)
+    assert set(by) == {"real_wood_on_foam", "firm", "pulse_firm"}, stdout
     assert all(len(v) >= 2 for v in by.values())
     real_peak = max(float(r["peak_accel_m_s2"]) for r in by["real_wood_on_foam"])
     firm_peak = max(float(r["peak_accel_m_s2"]) for r in by["firm"])

@@ -114,32 +114,37 @@ def test_proportional_walls_give_smaller_lower_frequency_contact_accelerations(r
             lower.append(wall["dominant_freq_hz"] < 0.8 * real["dominant_freq_hz"])
         if name != "soft":
             # issue 16: was < 0.6x per tap; the earlier block's bounce put some real taps at 29 Hz (max
-            # 0.74x; with the tile 0.24-0.40x). With the (stable) person, the firm wall's weakest tap (0.04
-            # m/s, 3 N, 2.7 m/s^2) has its periodogram peak at 110 Hz instead of the 21 Hz mode, as the soft
-            # wall's do: 8 of 9 taps
-            assert sum(lower) >= len(lower) - 1, (name, lower)
+            # 0.74x; with the tile 0.24-0.40x). With the (stable) person, the firm wall's weakest taps (0.04
+            # m/s at 2-3 N) have their periodogram peak at 109-133 Hz instead of the 21 Hz mode, as the soft
+            # wall's do: 7 of 9 taps (8 of 9 before the person's fingertip)
+            assert sum(lower) >= len(lower) - 2, (name, lower)
         assert mean(result, name, "peak_accel_m_s2") < 0.25 * real_peak
         # the walls' own content: their ~21 Hz mass-spring mode. Issue 16: the soft wall's periodogram peak
         # jumps to ~100-115 Hz in most taps under the person (mean 96 Hz), so it is no longer asserted
         if name != "soft":
-            assert mean(result, name, "dominant_freq_hz") < 0.5 * real_f
+            # the median tap is at the mode; the mean carries the two light-grip firm taps above (firm 45 Hz
+            # against the real 78 Hz: 0.57x; 0.41x before the person's fingertip)
+            assert np.median([r["dominant_freq_hz"] for r in rows(result, name)]) < 0.5 * real_f
+            assert mean(result, name, "dominant_freq_hz") < 0.6 * real_f
 
 
 def test_grip_compensation_matters(result):
-    """Medium-grip transient at a light/firm grip: clearly larger error than the grip-interpolated one (Fig. 4.13)."""
-    # issue 16: measured 0.391 vs 0.207 (1 N) and 0.289 vs 0.197 (3 N) with the refinement towards the
-    # recordings (before it 0.431 vs 0.344 and 0.417 vs 0.349 on the wood tile; with the causally high-passed
-    # library the fixed transient was not worse at 3 N, 0.431 vs 0.467, so only 1 N was asserted)
-    for g in (1.0, 3.0):
+    """Medium-grip transient at a light/firm grip: larger error than the grip-interpolated one (Fig. 4.13)."""
+    # measured on the one-dof device held by the person with a fingertip (docs/sim.md, "The hand in hard
+    # contact"): 0.264 vs 0.140 (1 N) and 0.164 vs 0.137 (3 N); with the grip impedance on the handle itself
+    # 0.391 vs 0.207 and 0.289 vs 0.197 (the joystick): behind the fingertip the grip changes the device's response
+    # less, so the uncompensated transient misses by less, most at the light grip
+    for g, ratio in ((1.0, 1.6), (3.0, 1.1)):
         fixed = mean(result, "hfam_fixed_grip_firm", "nrmse", grips=(g,))
         interp = mean(result, "hfam_firm", "nrmse", grips=(g,))
-        assert fixed > 1.35 * interp and fixed - interp > 0.08, (g, fixed, interp)
+        assert fixed > ratio * interp and fixed - interp > 0.02, (g, fixed, interp)
     # ... because the uncompensated acceleration is too large for the light grip and too weak for the firm one
+    # (peaks 1.09-1.10x and 0.955-0.96x of the compensated ones)
     for v in IN_RANGE:
         assert result.row("hfam_fixed_grip_firm", v, 1.0)["peak_accel_m_s2"] > \
-            1.15 * result.row("hfam_firm", v, 1.0)["peak_accel_m_s2"]
+            1.05 * result.row("hfam_firm", v, 1.0)["peak_accel_m_s2"]
         assert result.row("hfam_fixed_grip_firm", v, 3.0)["peak_accel_m_s2"] < \
-            0.9 * result.row("hfam_firm", v, 3.0)["peak_accel_m_s2"]
+            0.98 * result.row("hfam_firm", v, 3.0)["peak_accel_m_s2"]
     # at the medium grip both play the same transient
     for v in IN_RANGE:
         assert result.row("hfam_fixed_grip_firm", v, 2.0)["nrmse"] == pytest.approx(

@@ -71,7 +71,7 @@ def _losses(rows, cond, lam):
 # ------------------------------------------------------------------ the contact classification (item 2)
 def test_classification_is_figure_5_10_in_words():
     """settles: held, decays (lambda = 1, "about 50 ms"); buzzes: held, "prolonged to over 100 ms"; make-break:
-    contact lost twice or more ("makes and breaks contact ... several times"); the impact's one bounce is allowed."""
+    contact lost twice or more after the impact's own 30 ms ("makes and breaks contact ... several times")."""
     assert classify_contact(0, 0.050) == "settles"
     assert classify_contact(1, 0.099) == "settles"
     assert classify_contact(1, 0.101) == "buzzes"
@@ -104,8 +104,8 @@ def test_tap_metrics_classifies_known_traces(kind):
         assert 0.010 < m.settling_s < 0.030 and m.contact_losses == 0
     if kind == "buzzes":      # a 60 ms time constant: ~125 ms
         assert 0.100 < m.settling_s < 0.160 and m.contact_losses == 0
-    if kind == "make-break":
-        assert m.contact_losses == 3
+    if kind == "make-break":     # three losses, two of them after the impact's first 30 ms: still make-break
+        assert m.contact_losses == 3 and m.breaks == 2
 
 
 # ------------------------------------------------------------------ the section 5.7 testbed (item 1)
@@ -175,34 +175,37 @@ def test_foam_quasi_static_force_is_the_samples_stiffness():
 
 # ------------------------------------------------------------------ Figure 5.10 / 5.11 / section 5.8 (measured)
 def test_figure_5_10_ordering_losses_grow_with_lambda_and_cimm_holds_better(sweep_rows):
-    """What the model reproduces of Figure 5.10: without cancellation contact losses grow with lambda; with
-    cancellation there are fewer at every lambda, and lambda = 15 with cancellation loses contact less often than
-    lambda = 3 without (docs/teleop.md, "Measured")."""
+    """What the model reproduces of Figure 5.10: without cancellation contact losses grow with lambda (the impact's
+    2 up to lambda = 3, 56-67 from 6); with cancellation no more at any lambda, far fewer from 6 on, and lambda = 15
+    with cancellation loses contact about as often as lambda = 3 without (docs/teleop.md, "Measured")."""
     for lam in LAMBDAS:
         print(lam, "pf", _losses(sweep_rows, "pf", lam), "pf+cimm", _losses(sweep_rows, "pf+cimm", lam))
     assert _losses(sweep_rows, "pf", 1.0) < _losses(sweep_rows, "pf", 6.0)
     for lam in LAMBDAS:
-        assert _losses(sweep_rows, "pf+cimm", lam) < _losses(sweep_rows, "pf", lam), lam
-    assert _losses(sweep_rows, "pf+cimm", 15.0) < _losses(sweep_rows, "pf", 3.0)
+        assert _losses(sweep_rows, "pf+cimm", lam) <= _losses(sweep_rows, "pf", lam), lam
+        if lam >= 6.0:
+            assert _losses(sweep_rows, "pf+cimm", lam) < 0.2 * _losses(sweep_rows, "pf", lam), lam
+    assert _losses(sweep_rows, "pf+cimm", 15.0) <= _losses(sweep_rows, "pf", 3.0)
     assert all(r["contact_class"] == "make-break" for r in _rows(sweep_rows, "pf", 6.0))
 
 
 def test_slave_handle_damping_is_its_calibration_on_the_natural_impact():
     """The default damping of the slave's unheld handle is what ``calibrate_slave_handle_damping`` finds: the value
-    at which a tap with no force feedback (lambda = 0, 0.08 and 0.12 m/s, four noise seeds each) settles in 50 ms
-    on the mean ("the slave's natural impact", Figure 5.10: "decay in about 50 ms"). Measured 1.79 N s/m (mean
-    settling 51.9 ms there, stepping to 46.5 ms at 1.80) against 202 ms with Table 3.1's b_l = 0; stored 1.8."""
-    cal = calibrate_slave_handle_damping()
+    at which a tap with no force feedback (lambda = 0, 0.08 and 0.12 m/s, four noise seeds each) settles in 40 ms
+    on the mean ("the slave's natural impact", below Figure 5.10's lambda = 1 "about 50 ms" as Figure 5.11 has it).
+    Measured 3.16 N s/m (mean settling 39.8 ms; the mean is flat within 39-41 ms from 2.8 to 4 N s/m) against 202 ms
+    with Table 3.1's b_l = 0; stored 3.2. ``xtol`` 0.05 N s/m: finer than the plateau resolves."""
+    cal = calibrate_slave_handle_damping(xtol=0.05)
     print(f"calibrated {cal.damping_N_s_m:.3f} N s/m: mean settling {cal.settling_s * 1e3:.1f} ms "
           f"(0 N s/m: {cal.settling_at_zero_s * 1e3:.1f} ms); evaluations "
           f"{[(round(b, 3), round(t * 1e3, 1)) for b, t in cal.evaluations]}")
     assert abs(SLAVE_HANDLE_DAMPING_N_S_M - cal.damping_N_s_m) <= 0.10 * cal.damping_N_s_m
     assert options.SLAVE_HANDLE_DAMPING_N_S_M == SLAVE_HANDLE_DAMPING_N_S_M      # the parsers' default
     assert Testbed(default_params(), default_params()).slave_handle_damping_N_s_m == SLAVE_HANDLE_DAMPING_N_S_M
-    assert abs(cal.settling_s - 0.050) <= 0.005           # the root sits on a ~5 ms step of the mean
+    assert abs(cal.settling_s - 0.040) <= 0.003           # the root sits on a plateau of the mean
     assert cal.settling_at_zero_s > 2 * BUZZ_S            # Table 3.1 as identified: 202 ms
     with pytest.raises(ValueError, match="do not bracket"):
-        calibrate_slave_handle_damping(bracket=(2.5, 4.0))
+        calibrate_slave_handle_damping(bracket=(4.0, 6.0))      # 39 ms and less: the 40 ms lies below 4 N s/m
 
 
 def test_table_3_1_as_identified_the_unheld_handle_rings():
@@ -210,7 +213,7 @@ def test_table_3_1_as_identified_the_unheld_handle_rings():
     100 ms: its unheld handle oscillates on the linkage between the large-deflection (sqrt(k_l / m_h) / 2 pi =
     85 Hz) and the small-deflection slope (section 3.5.3: k_l + gamma_l (f_lp - f_ln) = 11 700 N/m, 146 Hz;
     measured 115 Hz), and the drum under it passes that to the sensor. With the calibrated default the same tap
-    settles in 54 ms."""
+    settles in 24 ms (the slowest of the sweep's taps, 0.12 m/s, in 47 ms)."""
     P = default_params()
     path, cr = default_path(FS, 1.0, n_taps=1)
     table31 = Testbed(P, P, environment=ENVIRONMENTS["hard"], slave_handle_damping_N_s_m=0.0)
@@ -227,56 +230,54 @@ def test_table_3_1_as_identified_the_unheld_handle_rings():
     print(f"lambda 0, b_l 0: settling {m.settling_s * 1e3:.0f} ms, ringing at {f_peak:.0f} Hz; "
           f"calibrated {SLAVE_HANDLE_DAMPING_N_S_M} N s/m: {md.settling_s * 1e3:.0f} ms")
     assert m.settling_s > BUZZ_S and 85.0 <= f_peak <= 146.0
-    assert 0.040 <= md.settling_s <= 0.060
+    assert md.settling_s <= 0.050
 
 
 def test_figure_5_10_targets_with_the_calibrated_slave(sweep_rows, natural_impacts):
-    """Issue 37's Figure 5.10 / section 5.8 targets with the calibrated slave (docs/teleop.md, targets table).
+    """Figure 5.10 / section 5.8 with the calibrated slave (natural impact 40 ms), the contact losses counted after
+    the impact's own 30 ms (docs/teleop.md, targets table).
 
-    Met: pf at lambda = 1 settles in 40-60 ms (measured 45 and 54 ms); pf at lambda = 6 makes and breaks contact
-    (60+ losses per tap); with cancellation lambda = 15 settles within 1.3x its lambda = 1 time (measured 63 against
-    50 ms, 1.27x). Not met, for a measured reason: every tap loses contact at least twice and so is make-break by
-    the issue's definition -- and so is the slave's natural impact (lambda = 0: 1 and 3 losses), the impact's own
-    bounces against the 8 Hz servo's 0.16 N hold on the 2 mm press, which no lambda adds to below 3; pf at
-    lambda = 3 does not buzz (its transient settles in ~50 ms; contact goes from a few bounces at 4 to 60 losses at
-    6 with no buzzing regime between); with cancellation lambda = 10 settles in 60-63 ms (target 60)."""
+    Met: pf at lambda = 6 makes and breaks contact (50+ losses per tap); cancellation holds contact at every lambda
+    to 10. Not met, measured: pf at lambda = 1 settles, but in 28 and 43 ms (target 40-60: the slower tap meets it,
+    the 0.08 m/s one settles before the band); at lambda = 3 it settles in 23-51 ms, no buzz (its static contact
+    force, ~0.1 N on the rule's 8 Hz servo and 2 mm press, is never outweighed long by the oscillation:
+    ``test_servo_study``); cancellation at lambda = 15 loses contact after the impact (3 times at 0.12 m/s), and
+    its lambda = 15 transient is 1.68x its lambda = 1 one."""
     for lam in LAMBDAS:
         for c in ("pf", "pf+cimm"):
-            print(lam, c, [(r["contact_losses"], round(r["settling_s"] * 1e3, 1), r["contact_class"])
+            print(lam, c, [(r["contact_losses"], r["breaks"], round(r["settling_s"] * 1e3, 1), r["contact_class"])
                            for r in sorted(_rows(sweep_rows, c, lam), key=lambda r: r["speed_m_s"])])
-    nat = [r["contact_losses"] for r in natural_impacts]
     print("natural impact (lambda 0):",
           [(r["contact_losses"], round(r["settling_s"] * 1e3, 1)) for r in natural_impacts])
+    # the natural impact: it bounces within its first 30 ms, then holds contact
+    assert all(r["contact_losses"] >= 1 and r["breaks"] == 0 for r in natural_impacts)
     # met
-    assert all(0.040 <= r["settling_s"] <= 0.060 for r in _rows(sweep_rows, "pf", 1.0))
-    assert all(r["contact_class"] == "make-break" and r["contact_losses"] >= 20 for r in _rows(sweep_rows, "pf", 6.0))
+    assert all(r["contact_class"] == "make-break" and r["breaks"] >= 20 for r in _rows(sweep_rows, "pf", 6.0))
+    assert largest_stable(sweep_rows, "pf+cimm") == 10.0
+    # not met: lambda = 1 settles, one tap below 40 ms; lambda = 3 settles (no buzz); lambda 15 loses contact
+    pf1 = sorted(_rows(sweep_rows, "pf", 1.0), key=lambda r: r["speed_m_s"])
+    assert all(r["contact_class"] == "settles" for r in pf1) and pf1[0]["settling_s"] < 0.040 <= pf1[1]["settling_s"]
+    assert all(r["contact_class"] == "settles" and r["settling_s"] < BUZZ_S for r in _rows(sweep_rows, "pf", 3.0))
     s1 = np.mean([r["settling_s"] for r in _rows(sweep_rows, "pf+cimm", 1.0)])
     s15 = np.mean([r["settling_s"] for r in _rows(sweep_rows, "pf+cimm", 15.0)])
-    assert s15 <= 1.3 * s1
-    # not met: the natural impact already loses contact; at lambda 1 and 3 no more than 2 losses beyond it
-    assert max(nat) >= 2 and all(r["contact_class"] == "make-break" for r in _rows(sweep_rows, "pf", 1.0))
-    assert max(r["contact_losses"] for r in _rows(sweep_rows, "pf", 3.0)) <= max(nat) + 2
-    assert all(r["settling_s"] < BUZZ_S for r in _rows(sweep_rows, "pf", 3.0))      # no buzz: a short transient
+    assert s15 > 1.3 * s1
     cimm10 = [r["settling_s"] for r in _rows(sweep_rows, "pf+cimm", 10.0)]
-    assert max(cimm10) > 0.060 and max(cimm10) <= 0.070                            # 60-63 ms, target 60
-    assert largest_lambda(sweep_rows, "pf", ("settles",)) == 0.0
+    assert 0.050 <= np.mean(cimm10) <= 0.060                                       # 55 and 61 ms: met on the mean
+    assert largest_lambda(sweep_rows, "pf", ("settles",)) == 3.0
 
 
-def test_figure_5_11_backlash_holds_to_a_few_bounces(sweep_backlash):
-    """With backlash (Figure 5.11's condition) the taps keep to the impact's bounces -- pf up to lambda = 3, pf+cimm
-    to 10 -- and pf then makes and breaks contact 25+ times per tap by lambda = 6 (thesis: limits about 2.5 without
-    and 4.5 with cancellation). By the issue's classification every tap, at every lambda, is make-break (two
-    losses or more), so the largest stable lambda is 0 for both (docs/teleop.md): not met, for the same reason as
-    without backlash."""
+def test_figure_5_11_backlash_limits(sweep_backlash):
+    """With backlash (Figure 5.11's condition) pf holds contact up to lambda = 2 (one 0.12 m/s tap makes and breaks
+    at 3; 25+ losses from 4): the thesis's "about 2.5" (2-3.5). Cancellation with the identified (accurate) model
+    holds contact to 10, above the thesis's 4.5 (4-6): Figure 5.11's own cancellation used "a simpler,
+    less-accurate model" (``test_servo_study``)."""
     for lam in LAMBDAS_BACKLASH:
         print(lam, "pf", [r["contact_losses"] for r in _rows(sweep_backlash, "pf", lam)],
               "pf+cimm", [r["contact_losses"] for r in _rows(sweep_backlash, "pf+cimm", lam)])
     for lam in LAMBDAS_BACKLASH:
-        assert max(r["contact_losses"] for r in _rows(sweep_backlash, "pf+cimm", lam)) <= 3, lam
-        if lam <= 3.0:
-            assert max(r["contact_losses"] for r in _rows(sweep_backlash, "pf", lam)) <= 5, lam
-    assert min(r["contact_losses"] for r in _rows(sweep_backlash, "pf", 6.0)) >= 20
-    assert largest_stable(sweep_backlash, "pf") == largest_stable(sweep_backlash, "pf+cimm") == 0.0
+        assert max(r["breaks"] for r in _rows(sweep_backlash, "pf+cimm", lam)) == 0, lam
+    assert min(r["breaks"] for r in _rows(sweep_backlash, "pf", 6.0)) >= 20
+    assert largest_stable(sweep_backlash, "pf") == 2.0 and largest_stable(sweep_backlash, "pf+cimm") == 10.0
 
 
 def test_force_filter_removes_high_frequency_cimm_keeps_it(sweep_rows):
@@ -377,8 +378,11 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
     assert (out / "figure_5_11.png").exists() and "pf+cimm" in (out / "table.md").read_text()
     assert "largest lambda that settles | largest lambda that holds contact" in (out / "table.md").read_text()
     trials = (out / "trials.csv").read_text().splitlines()
-    assert "contact_class" in trials[0].split(",") and len(trials) == 5
-    assert all(line.split(",")[4] in ("settles", "buzzes", "make-break") for line in trials[1:])
+    head = trials[0].split(",")
+    assert "contact_class" in head and "press_depth_mm" in head and len(trials) == 5
+    k = head.index("contact_class")
+    assert all(line.split(",")[k] in ("settles", "buzzes", "make-break") for line in trials[1:])
+    assert all(float(line.split(",")[head.index("press_depth_mm")]) == 2.0 for line in trials[1:])
     err = capsys.readouterr().err          # not a terminal: plain progress lines, no bar redrawn with \r
     assert "\r" not in err and "teleop-sweep: 4 of 4 taps done" in err
     assert main(["teleop-sweep", "--lambda", "5:1", "--out", str(tmp_path / "x")]) == 2
@@ -387,19 +391,19 @@ def test_sweep_command_and_bad_lambda(tmp_path, capsys):
 
 
 def test_cimm_robust_to_30_percent_model_errors(testbed, cimm_model, sweep_rows):
-    """+/-30 % in the model's user stiffness or hand mass changes what cancellation does by little: contact
-    losses per tap over lambda 1-15 within 15 % of the nominal model's, all under half of those without
-    cancellation (measured with the calibrated slave: 1.6-1.8 against 1.8 nominal, one tap per lambda at
-    0.1 m/s; pf 36.8; every variant settles up to lambda = 3)."""
+    """+/-30 % in the model's user stiffness or hand mass changes what cancellation does by little: every variant
+    holds contact at least as far as the nominal model (lambda 10; the variants 15) and loses contact after the
+    impact's bounce less than once per tap over lambda 1-15 (measured 0-0.2 against the nominal's 0.8, one tap per
+    lambda at 0.1 m/s), against 32 per tap without cancellation."""
     from renderer.teleop.commands import robustness
     table = robustness(testbed, cimm_model, LAMBDAS, taps=1, seed=4)
-    pf = float(np.mean([r["contact_losses"] for r in sweep_rows if r["condition"] == "pf"]))
-    print("robustness:", table, "pf losses per tap:", pf)
+    pf = float(np.mean([r["breaks"] for r in sweep_rows if r["condition"] == "pf"]))
+    print("robustness:", table, "pf losses per tap after the impact's 30 ms:", pf)
     assert len(table) == 5
-    nominal = table["nominal"]["mean_contact_losses"]
+    nominal = table["nominal"]
     for name, v in table.items():
-        assert abs(v["mean_contact_losses"] - nominal) <= 0.15 * nominal, name
-        assert v["mean_contact_losses"] < 0.5 * pf, name
+        assert v["largest_stable_lambda"] >= min(10.0, nominal["largest_stable_lambda"]), name
+        assert v["mean_contact_losses"] < 1.0 and v["mean_contact_losses"] < 0.05 * pf, name
 
 
 def test_cli_choice_lists_match_the_testbed_and_the_controllers():

@@ -263,13 +263,21 @@ def test_sigkill_at_every_trial_then_resume_loses_nothing(tmp_path):
     ("psy_discrimination.toml", "discrimination", 7, 140),
     ("psy_detection.toml", "detection", 8, 140),
     ("psy_detection_quest.toml", "detection", 1, 0),
+    ("psy_discrimination_staircase.toml", "discrimination", 1, 0),
 ])
 def test_the_examples_load_and_plan(name, kind, n_samples, n_trials):
     protocol, exp = load_protocol_file(ROOT / "examples" / name)
     assert exp.kind == kind and protocol.familiarization_sample == "" and protocol.tap_window_s == 3.0
     assert len(stimulus_catalog(load_catalog(None), exp)) == n_samples
-    if exp.adaptive:   # the staircases' first trial, at QUEST+'s most informative intensity on the grid
-        assert exp.method == "quest+" and 0.1 <= exp.handler(1).next_trial().intensity <= 10.0
+    if exp.adaptive and exp.method == "quest+":   # the first trial, at QUEST+'s most informative intensity
+        assert 0.1 <= exp.handler(1).next_trial().intensity <= 10.0
+    elif exp.adaptive:   # the stiffness JND: one track settling above the reference, one below, in N/m
+        methods = exp.handler(1).methods
+        assert exp.method == "updown" and exp.vary == "stiffness_N_m" and exp.intensity_scale == "log10"
+        assert methods["A"].target_probability() == pytest.approx(2 ** -0.5)
+        assert methods["B"].target_probability() == pytest.approx(1 - 2 ** -0.5)
+        assert methods["A"].intensities == [] and methods["A"].next_intensity() == 950.0 > exp.reference
+        assert methods["B"].next_intensity() == 480.0 < exp.reference
     else:
         assert len(plan_trials(exp, 1, "S01")) == n_trials
 
@@ -288,7 +296,9 @@ def test_adaptive_session_killed_at_any_trial_resumes_the_staircases_exactly(tmp
         assert (st["trial"], st["staircase"], int(st["is_catch"])) == (int(r["trial"]), r["staircase"],
                                                                        int(r["is_catch"]))
         if r["is_catch"] == "1":                              # a catch trial: no click in either interval
-            assert r["intensity"] == "0.0" and r["sample_1"] == r["sample_2"] == "pulse_firm@amplitude_Ns_m=none"
+            # a blank has no log10 intensity: the cell is empty (a 0 would read as 1 N*s/m)
+            assert r["intensity"] == "" and float(r["intensity_physical"]) == 0.0
+            assert r["sample_1"] == r["sample_2"] == "pulse_firm@amplitude_Ns_m=none"
         else:
             assert st["state"]["history"][-1] == [float(r["intensity_physical"]), r["correct"] == "1"]
             assert float(r["intensity"]) == pytest.approx(math.log10(float(r["intensity_physical"])))
@@ -413,3 +423,17 @@ def test_a_torn_state_line_is_kept_aside_and_written_again(tmp_path, capsys):
     assert (out / "K" / "staircase_state.jsonl.torn").read_bytes() == data[len(whole):len(whole) + 40] + b"\n"
     lines = [json.loads(ln) for ln in states.read_text().splitlines()]
     assert lines == harness.reference_states
+
+
+def test_summary_lines_print_an_intensity_only_where_one_is_varied(capsys):
+    """Real vs virtual varies no intensity: its lines name the rendering, its trials and proportion correct."""
+    from types import SimpleNamespace
+    from study.forcedchoice.kind import ForcedChoice
+    rows = [{"condition": "firm", "intensity_physical": 1.0, "correct": k % 4 != 0} for k in range(20)]
+    store = SimpleNamespace(subject="S01", dir="DATA/S01")
+    lines = []
+    for kind, unit in (("real-virtual-2afc", "1"), ("discrimination", "N/m")):
+        fake = SimpleNamespace(exp=SimpleNamespace(kind=kind, unit=unit), handler=None)
+        ForcedChoice.summary(fake, rows, store, lines.append)
+    assert lines[0].split() == ["firm", "trials", "20", "correct", "0.75"]
+    assert lines[1].split() == ["firm", "1", "N/m", "trials", "20", "comparison", "harder", "0.75"]

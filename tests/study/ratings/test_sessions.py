@@ -62,7 +62,15 @@ def test_redraws_for_each_reason_land_later(full_session):
     session = read_session(full_session)
     logged = session["order"]["testing"]["redraws"] + session["order"]["demonstration"]["redraws"]
     assert len(logged) == sum(r["valid"] == "false" for r in rows if r["phase"] != "familiarization")
-    assert {d["reason"] for d in logged} >= {"saturated", "rejected", "overpowered"}
+    # each with the reason its row's flags give, by study.protocol.reason_of's priority (rejected, saturated,
+    # overpowered): on the one-dof device the fixture's one saturated attempt (real wood at 0.37 m/s) was also
+    # rejected, so it is logged "rejected"
+    by_key = {(r["phase"], r["trial"], r["attempt"]): r for r in rows}
+    for d in logged:
+        r = by_key[(d["phase"], str(d["trial"]), str(d["attempt"]))]
+        flags = [k for k in ("rejected", "saturated", "overpowered") if r[k] == "true"]
+        assert flags and d["reason"] == flags[0], (d, flags)
+    assert {d["reason"] for d in logged} >= {"rejected", "overpowered"}
 
 
 def test_session_json_and_traces(full_session):
@@ -101,9 +109,12 @@ def test_session_json_and_traces(full_session):
 def test_synthetic_rater_gives_structure(full_session):
     rows = [r for r in read_rows(full_session) if r["phase"] == "testing" and r["valid"] == "true"]
     mean = {s: np.mean([int(r["rating"]) for r in rows if r["sample"] == s]) for s in ALL}
-    # transients tuned to wood on foam beat proportional-only walls (the pipeline carries the physics through)
+    # the rater's reference is the real wood the subjects were asked about (section 4.5.3): it rates highest, and
+    # the transients beat the proportional-only walls (the pipeline carries the physics through; one subject's
+    # ratings: wood above every other sample, HFAM and wood on foam ~1.3 points above the walls and the foam)
+    assert mean["wood"] == max(mean.values())
     assert np.mean([mean["hfam_firm"], mean["hfam_soft"], mean["wood_on_foam"]]) > \
-        np.mean([mean["firm"], mean["soft"], mean["very_firm"], mean["foam"]]) + 1.5
+        np.mean([mean["firm"], mean["soft"], mean["very_firm"], mean["foam"]]) + 0.8
 
 
 def test_same_seed_same_order_different_seed_different_order(tmp_path):

@@ -20,7 +20,9 @@ def apparatus():
 
 def test_low_tone_once_per_saturating_tap(apparatus):
     tones = []
-    for sample, velocities, expect_sat in (("wood", (0.08, 0.1, 0.09), False), ("wood", (0.08, 0.3, 0.09, 0.3), True)):
+    # the wood's restitution-based damping (devices/sim/samples.py) puts its peak contact force at 0.3 m/s at 8.9-9.5 N,
+    # at the amplifier's 9.4 N; at 0.4 m/s 14 N: every such tap saturates
+    for sample, velocities, expect_sat in (("wood", (0.08, 0.1, 0.09), False), ("wood", (0.08, 0.4, 0.09, 0.4), True)):
         tones.clear()
         apparatus.set_sample(sample)
         apparatus.home(0.3)
@@ -30,7 +32,7 @@ def test_low_tone_once_per_saturating_tap(apparatus):
         assert len(tap.velocities) == len(velocities)
         limit = apparatus.force_limit_N
         assert (tap.max_contact_force_N > limit) is expect_sat
-        # the 0.3 m/s taps exceed the amplifier's force on wood, each gets its tone
+        # the 0.4 m/s taps exceed the amplifier's force on wood, each gets its tone
         assert len(tones) == (2 if expect_sat else 0)
 
 

@@ -1,0 +1,2 @@
+"""Magnitude estimation: the participant gives each stimulus a number, with or without a modulus (``kind =
+"magnitude"``)."""
