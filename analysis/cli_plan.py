@@ -10,7 +10,7 @@ import math
 import warnings
 from pathlib import Path
 
-from plumbing.fileio import check_output_dir
+from plumbing.outdir import output_folder
 
 from analysis.cli_plan_parser import DEFAULT_EQUIVALENCE, DEFAULT_PAIRS
 from analysis.config import check_data_folder
@@ -18,6 +18,11 @@ from analysis.load import AnalysisWarning, load_study
 from analysis.plan_report import write_plan
 from analysis.power import PlanSettings, assumed_plan, pilot_plan, plan_line
 from analysis.stats import rating_matrix
+
+#: what the command writes into --out (a folder of these alone, without the output marker, was written by an
+#: older version and is replaced by --force)
+PLAN_FILES = ("plan.csv", "fig_power_curves.*")
+
 
 def _given(value, default):
     """``value`` unless the flag was not given (None): 0 stays 0, so that the settings refuse it."""
@@ -30,16 +35,30 @@ def run(args: argparse.Namespace) -> int:
     if (args.dz is None) == (args.pilot is None):
         raise ValueError("give either --dz (an assumed effect) or --pilot DATA (a pilot study folder), not both "
                          "and not neither")
-    out = check_output_dir(args.out, args.force)
-    if args.pilot is not None:
-        check_data_folder(args.pilot)
     if args.dz is not None and not math.isfinite(args.dz):
         raise ValueError(f"--dz must be a finite number (an effect size d_z), got {args.dz}")
     if args.dz is not None and args.dz == 0:
         raise ValueError("--dz must not be 0: there is no effect to detect")
     if not math.isfinite(args.sd_diff):
         raise ValueError(f"--sd-diff must be a finite number of rating points, got {args.sd_diff}")
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted plan
+    # leaves the earlier one as it was; an --out that is, holds or lies in the pilot's data is refused
+    folder = output_folder(args.out, args.force, inputs=[(args.pilot, "the pilot's data folder")],
+                           command="analysis plan", own=PLAN_FILES).open()
+    with folder:
+        if args.pilot is not None:
+            check_data_folder(args.pilot)
+        plan, written, notes = _plan(args, folder.path)
+    for r in plan.itertuples():
+        print(plan_line(r))
+    for n in notes:
+        print(f"warning: {n}")
+    print(f"wrote {', '.join(p.name for p in written)} into {folder.out}")
+    return 0
 
+
+def _plan(args: argparse.Namespace, out: Path):
+    """The plan (from the pilot or the assumed effect) and the files written into ``out``."""
     if args.pilot is not None:
 
         with warnings.catch_warnings(record=True) as caught:
@@ -69,10 +88,4 @@ def run(args: argparse.Namespace) -> int:
         plan = assumed_plan(args.dz, args.sd_diff, settings)
 
     notes: list[str] = []
-    written = write_plan(plan, out, notes)
-    for r in plan.itertuples():
-        print(plan_line(r))
-    for n in notes:
-        print(f"warning: {n}")
-    print(f"wrote {', '.join(p.name for p in written)} into {out}")
-    return 0
+    return plan, write_plan(plan, out, notes), notes

@@ -11,7 +11,9 @@ import math
 import sys
 from pathlib import Path
 
-from plumbing.fileio import atomic_write_text, check_output_dir
+from plumbing.fileio import atomic_write_text
+from plumbing.outdir import output_folder
+from plumbing.textsafe import csv_text
 
 from analysis.psychometric_figures import axis_words, fig_curves, fig_proportions, fig_tracks
 from analysis.psychophysics import (ALL, POOLED, FitOptions, check_poolable, compare_conditions, dprime_table,
@@ -20,6 +22,15 @@ from analysis.psychophysics import (ALL, POOLED, FitOptions, check_poolable, com
 
 #: the lower-asymptote flag's words -> the model (psychophysics.fitting.LOWER_ASYMPTOTES)
 LOWER = {"free": "free", "lapse": "equal", "zero": "fixed"}
+
+
+
+#: what the command writes into --out (a folder of these alone, without the output marker, was written by an
+#: older version and is replaced by --force)
+PSYCHOMETRIC_FILES = ("fit.json", "fits.csv", "proportions.csv", "dprime.csv", "fig_*")
+#: the most distinct intensities of one fit (each is a level of the likelihood; a CSV with 10^6 of them is not
+#: a psychometric experiment but a typo or a continuous covariate, and its fit would not fit in memory)
+MAX_FIT_LEVELS = 10_000
 
 
 def _alternatives(args, experiment: dict) -> int:
@@ -55,10 +66,26 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--ci must be in [0.5, 1), got {args.ci}")
     if args.reference is not None and not (math.isfinite(args.reference) and args.reference > 0):
         raise ValueError(f"--reference must be a finite number > 0, got {args.reference}")
-    out = check_output_dir(args.out, force=args.force)
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted or
+    # failed fit leaves the earlier results as they were; an --out that is, holds or lies in DATA is refused
+    folder = output_folder(args.out, args.force, inputs=[(args.data, "the data")], command="analysis psychometric",
+                           own=PSYCHOMETRIC_FILES).open()
+    with folder:
+        said = _fit(args, folder.path, folder.out)
+    print(said)
+    return 0
+
+
+def _fit(args: argparse.Namespace, out: Path, final: Path) -> str:
+    """Fit DATA and write the results into ``out`` (swapped in later as ``final``); returns the last line to
+    print (the console lines of each fit are printed as they are made)."""
     trials = load_trials(args.data)
+    levels = len(set(trials.intensity.tolist()))
+    if levels > MAX_FIT_LEVELS:
+        raise ValueError(f"{args.data}: {levels} distinct intensities; a fit takes at most {MAX_FIT_LEVELS} "
+                         "(group the intensities into levels first)")
     if trials.experiment.get("kind") == "real-virtual-2afc":
-        return _real_virtual(args, trials, out)
+        return _real_virtual(args, trials, out, final)
     groups = measurements(trials)
     if not args.separately:
         check_poolable(trials)
@@ -97,8 +124,7 @@ def run(args: argparse.Namespace) -> int:
             if any(r["trials"].staircase) or r["experiment"].get("method", "constant") != "constant":
                 fig_tracks(r["trials"], out / f"fig_staircases{suffix}", words)
         _say(args, r, out)
-    print(f"{sum(len(r['fits']) for r in results)} fit(s) in {out / 'fits.csv'}")
-    return 0
+    return f"{sum(len(r['fits']) for r in results)} fit(s) in {final / 'fits.csv'}"
 
 
 def _fit_measurement(args, trials, group) -> dict:
@@ -226,7 +252,7 @@ def _say(args, r, out: Path) -> None:
             print(f"warning: {head}{who}: {flag.name}: {flag.message}", file=sys.stderr)
 
 
-def _real_virtual(args, trials, out: Path) -> int:
+def _real_virtual(args, trials, out: Path, final: Path) -> str:
     """Real-vs-virtual 2AFC: proportion correct per rendering with its exact interval and a test against 0.5."""
     props = proportions_correct(trials, 0.5, args.ci)
     out.mkdir(parents=True, exist_ok=True)
@@ -246,8 +272,7 @@ def _real_virtual(args, trials, out: Path) -> int:
         if p.subject == "(pooled)":
             print(f"{p.condition}: {p.n_correct}/{p.n_trials} correct = {p.proportion:.2f} "
                   f"[{p.ci_low:.2f}, {p.ci_high:.2f}], p = {p.p_vs_chance:.3g} against chance")
-    print(f"{len(props)} proportion(s) in {out / 'proportions.csv'}")
-    return 0
+    return f"{len(props)} proportion(s) in {final / 'proportions.csv'}"
 
 
 def _cell(v) -> str:
@@ -255,5 +280,5 @@ def _cell(v) -> str:
         return ""
     if isinstance(v, float):
         return "" if not math.isfinite(v) else repr(v)
-    text = str(v)
+    text = csv_text(str(v))   # a name from the data is never a spreadsheet formula (plumbing.textsafe)
     return '"' + text.replace('"', '""') + '"' if any(c in text for c in ',"\n') else text

@@ -19,17 +19,21 @@ from plumbing.outdir import output_folder
 
 from analysis.config import AnalysisConfig, check_data_folder
 
+#: what a report folder holds (a folder of these alone, without the output marker, is an older version's
+#: report, which --force replaces)
+REPORT_FILES = ("report.md", "report.html", "*.csv", "fig_*")
+
 
 def run(args: argparse.Namespace) -> int:
     """The ``report`` command: analyse the study folder and write tables, figures and report.md/.html; returns the exit code."""
     cfg = AnalysisConfig(reference=args.reference, margin=args.margin, group=args.group, alpha=args.alpha,
                          models=not args.no_models)
     out = Path(args.out)
-    if out.resolve() == Path(args.data).resolve():
-        raise ValueError(f"--out {out} must not be the data folder {args.data}")
     # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted or
-    # failed report leaves the earlier one as it was; an earlier report without --force is refused first
-    folder = output_folder(out, args.force).open()
+    # failed report leaves the earlier one as it was; an earlier report without --force is refused first, and
+    # an --out that is, holds or lies inside the data (or any study's data) whatever --force
+    folder = output_folder(out, args.force, inputs=[(args.data, "the data folder")], command="analysis report",
+                           own=REPORT_FILES).open()
     with folder:
         check_data_folder(args.data)    # before the drawing process starts: a wrong path is reported at once
         written = _report(args, cfg, folder.path, out)

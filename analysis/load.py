@@ -29,6 +29,7 @@ from analysis.config import check_data_folder
 from plumbing.studyfiles import (BOOL_COLUMNS, EXPERIENCE, EXPERIENCE_ALIASES, FLOAT_COLUMNS, INT_COLUMNS, KINDS,
                                  LIST_COLUMNS, PHASES, RATING_CORE_COLUMNS, RATING_MAX, RATING_MIN, read_file_text,
                                  read_session_json)
+from plumbing.textsafe import QUOTE, read_cell
 
 # the rating study's columns as every trials.csv holds them (ends_familiarization, the study's own bookkeeping,
 # is not read), their types and ranges: plumbing.studyfiles, the definition the study writes with
@@ -205,6 +206,14 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
     """
     text = read_file_text(path, "utf-8-sig")  # -sig: tolerate a spreadsheet BOM
     reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        return _trials_columns(path, text, reader)
+    except csv.Error as exc:   # e.g. a field over the csv module's limit (a 50 MB line): one error line
+        raise ValueError(f"{path}:{reader.line_num}: not CSV ({exc})") from None
+
+
+def _trials_columns(path: Path, text: str, reader) -> tuple[list[tuple], list[int], bool]:
+    """The body of :func:`_read_trials_columns` (``reader``: the csv reader of ``text``)."""
     header = next(reader, None)
     if header is None:
         raise ValueError(f"{path}:1: empty file, expected a header with columns {', '.join(TRIAL_COLUMNS)}")
@@ -237,7 +246,7 @@ def _read_trials_columns(path: Path) -> tuple[list[tuple], list[int], bool]:
     if n_lines == len(rows) + 1 and all(len(r) == width for r in rows):
         lines = list(range(2, len(rows) + 2))     # one row per line, no blank lines
     else:                                         # blank lines, quoted newlines or a bad row: count exactly
-        reader = csv.reader(io.StringIO(text, newline=""))
+        reader = csv.reader(io.StringIO(text, newline=""))   # (the text read once already: no csv.Error now)
         next(reader)
         all_rows = [(row, reader.line_num) for row in reader]
         rows, lines = [], []
@@ -396,6 +405,11 @@ def names_categorical(values) -> pd.Categorical:
     """
     cat = values.array if isinstance(values, pd.Series) else values
     cat = cat if isinstance(cat, pd.Categorical) else pd.Categorical(cat)
+    if any(str(c).startswith(QUOTE) for c in cat.categories):
+        # a name the study wrote with a quote before it, so that a spreadsheet never runs it as a formula
+        # (plumbing.textsafe): read back as named
+        names = np.array([read_cell(str(c)) for c in cat.categories] + [None], dtype=object)
+        cat = pd.Categorical(names[np.where(cat.codes >= 0, cat.codes, len(names) - 1)])
     return pd.Categorical(cat, categories=pd.Index(sorted(cat.categories), dtype=STR_DTYPE))
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.stats import binomtest
 
 from plumbing.studyfiles import FIT_COLUMNS, FIT_OPTIONAL_COLUMNS, SESSION_JSON, read_session_json
+from plumbing.textsafe import read_cell
 from psychophysics.bayes import fit_bayes
 from psychophysics.fitting import Fit, fit, fit_multiple, compare_models
 from psychophysics.psychometric import base_quantile, from_axis
@@ -102,6 +103,8 @@ def _read_csv(path: Path, subject_default: str) -> dict:
             raise ValueError(f"{path}: empty file (expected a header with columns intensity, correct)") from None
         except UnicodeDecodeError as exc:
             raise ValueError(f"{path}: not UTF-8 text ({exc.reason})") from None
+        except csv.Error as exc:   # e.g. a 50 MB first line: one error line, not a traceback
+            raise ValueError(f"{path}:1: not CSV ({exc})") from None
         header = [h.strip() for h in header]
         twice = sorted({h for h in header if header.count(h) > 1 and h})
         if twice:
@@ -137,9 +140,10 @@ def _read_csv(path: Path, subject_default: str) -> dict:
                 cols["intensity"].append(x)
                 cols["correct"].append(_zero_one(row[where["correct"]], path, line, "correct"))
                 cols["is_catch"].append(catch)
-                cols["subject"].append(row[where["subject"]] if "subject" in where else subject_default)
-                cols["condition"].append(row[where["condition"]] if "condition" in where else "")
-                cols["staircase"].append(row[where["staircase"]] if "staircase" in where else "")
+                # names as written, without the quote that kept a formula-like name from running in a spreadsheet
+                cols["subject"].append(read_cell(row[where["subject"]]) if "subject" in where else subject_default)
+                cols["condition"].append(read_cell(row[where["condition"]]) if "condition" in where else "")
+                cols["staircase"].append(read_cell(row[where["staircase"]]) if "staircase" in where else "")
                 if "trial" in where:
                     try:
                         cols["trial"].append(int(row[where["trial"]]))

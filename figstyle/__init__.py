@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 import re
+import tempfile
 from functools import lru_cache
 from pathlib import Path
 
@@ -27,6 +28,9 @@ import matplotlib
 import matplotlib.pyplot as plt
 from matplotlib.legend import Legend
 from matplotlib.transforms import Bbox
+
+from plumbing.fileio import current_umask
+from plumbing.textsafe import csv_cell, csv_header, safe_frame
 
 HERE = Path(__file__).resolve().parent
 STYLE_PATH = HERE / "project.mplstyle"
@@ -107,9 +111,10 @@ def style(size: str = "paper"):
 
 
 def _write_csv(path: Path, data) -> None:
-    """Write ``data`` (DataFrame, dict of equal-length columns, or (header, rows)) as CSV."""
+    """Write ``data`` (DataFrame, dict of equal-length columns, or (header, rows)) as CSV; text cells (sample
+    names, conditions) are written so a spreadsheet never runs them (:mod:`plumbing.textsafe`)."""
     if hasattr(data, "to_csv"):
-        data.to_csv(path, index=False, float_format="%.9g")
+        safe_frame(data).to_csv(path, index=False, float_format="%.9g")
         return
     if isinstance(data, dict):
         header = list(data)
@@ -120,9 +125,9 @@ def _write_csv(path: Path, data) -> None:
         header, rows = data
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
-        w.writerow(header)
+        w.writerow(csv_header(header))
         for r in rows:
-            w.writerow([repr(float(v)) if isinstance(v, float) else v for v in r])
+            w.writerow([repr(float(v)) if isinstance(v, float) else csv_cell(v) for v in r])
 
 
 #: suffix of a figure's data file: ``<stem>.plot.csv``, never ``<stem>.csv`` (a figure named after a
@@ -171,9 +176,10 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True, force: bool 
     Every file it would write is checked first (:func:`check_outputs`): if one exists and ``force``
     is false nothing is written and ``ValueError`` names the existing files.
 
-    Files are written under temporary names and renamed, so a crash never leaves half a figure;
-    PNG and SVG carry no date, so the same figure gives the same bytes (a committed gallery
-    only changes when a figure does).
+    Files are written under unique temporary names beside their targets (``.<name>.<random>.tmp``,
+    created exclusively: two runs never share one) and renamed, so a crash never leaves half a figure;
+    a failed write removes its temporary file. PNG and SVG carry no date, so the same figure gives the
+    same bytes (a committed gallery only changes when a figure does).
 
     Parameters
     ----------
@@ -203,19 +209,34 @@ def save(fig, path, data=None, formats=FORMATS, close: bool = True, force: bool 
     with plt.style.context(str(STYLE_PATH)):     # the save options (dpi, tight box, SVG text) apply here
         for fmt in formats:
             target = stem.with_name(stem.name + "." + fmt)
-            tmp = target.with_name(target.name + ".tmp." + fmt)
-            fig.savefig(tmp, format=fmt, metadata=meta.get(fmt))
-            tmp.replace(target)
+            with _temporary(target) as tmp:
+                fig.savefig(tmp, format=fmt, metadata=meta.get(fmt))
             out[fmt] = target
     if data is not None:
         target = targets[-1]
-        tmp = target.with_name(target.name + ".tmp")
-        _write_csv(tmp, data)
-        tmp.replace(target)
+        with _temporary(target) as tmp:
+            _write_csv(tmp, data)
         out["csv"] = target
     if close:
         plt.close(fig)
     return out
+
+
+@contextlib.contextmanager
+def _temporary(target: Path):
+    """A unique temporary file beside ``target`` (``.<name>.<random>.tmp``, made exclusively), renamed over
+    ``target`` when the block ends, removed when it fails: two writers of one figure never collide and a
+    failure leaves nothing behind."""
+    fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~current_umask())   # an ordinary file's mode, not mkstemp's 0600
+        tmp.replace(target)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 CONTAINERS = ("Figure", "SubFigure", "Axes", "XAxis", "YAxis", "Tick", "XTick", "YTick")

@@ -11,7 +11,9 @@ the command runs. So ``python -m renderer run --help`` does not pay for numba, s
 Errors the user can fix (:class:`ValueError`, :class:`FileNotFoundError`,
 :class:`plumbing.errors.UserError`, which ``devices.DeviceError`` derives from) print one ``error: ...`` line and exit 2;
 a reader that goes away (``| head``) exits 1 without a traceback; Ctrl-C that a command does not handle
-itself prints ``interrupted`` and exits 130 (no traceback); a full disk (ENOSPC, EDQUOT, EFBIG) prints one
+itself prints ``interrupted`` and exits 130 (no traceback); SIGTERM or SIGHUP that reach the dispatcher as
+:class:`plumbing.stopsignals.Terminated` (inside a command's output folder, which the stop leaves as it was)
+print ``stopped by SIGTERM`` and exit 143 (129); a full disk (ENOSPC, EDQUOT, EFBIG) prints one
 ``error:`` line and exits 2.
 
 A command whose parser sets ``fast_exit=True`` (``set_defaults``) declares that it has closed every
@@ -39,6 +41,7 @@ import warnings
 from typing import NamedTuple, Sequence
 
 from .errors import UserError
+from .stopsignals import Terminated
 
 
 #: the write errors of a full disk (ENOSPC), an exhausted quota (EDQUOT) and a file-size limit (EFBIG,
@@ -181,6 +184,10 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
     except KeyboardInterrupt:  # Ctrl-C in a command that does not say more itself: one line, the shell's 130
         print("\ninterrupted", file=sys.stderr)
         return 130
+    except Terminated as exc:  # SIGTERM/SIGHUP inside a command's stop_on_signals block (its output staged):
+        # one line, the status of a death by that signal (143, 129); the command's clean-up has run
+        print(f"{exc}", file=sys.stderr)
+        return exc.code
 
 
 def console_prog(prog: str) -> str:

@@ -10,6 +10,8 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+from .studyfiles import study_data_at
+
 
 def user_cache_dir() -> Path:
     """The project's per-user cache: ``$XDG_CACHE_HOME/hfam-haptics`` or ``~/.cache/hfam-haptics``."""
@@ -173,6 +175,8 @@ def read_json_file(path, what: str):
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    except RecursionError:   # nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{path}: not valid JSON here (nested too deeply)") from None
 
 
 def refuse_overwrite(path, force: bool, flag: str = "--force") -> Path:
@@ -215,12 +219,73 @@ def _parent_not_a_folder(p: Path, what: str) -> None:
             raise ValueError(f"cannot write {what} {p}: {parent} is a file, not a folder")
 
 
+def refuse_study_data(path, what: str = "--out") -> Path:
+    """Refuse an output that is, or lies inside, a study's data: a subject folder, a file of one, a study folder
+    (a folder of subject folders), or a folder below one (:func:`plumbing.studyfiles.study_data_at`). Whatever
+    ``--force`` says: only ``study run`` writes there.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        ``"--out P is (inside) the subject folder D/S01 ...; choose an --out outside the study's data"``.
+    """
+    p = Path(path)
+    found = study_data_at(p)
+    if found is not None:
+        folder, kind = found
+        how = "is" if folder == Path(os.path.abspath(p)).resolve() else "lies inside"
+        held = " (it holds subject folders)" if kind == "study folder" else ""
+        raise ValueError(f"{what} {p} {how} the {kind} {folder}{held}: a study's data is written by 'study run' "
+                         f"only, and no other command writes there, not even with --force; choose a {what} "
+                         "outside it")
+    return p
+
+
+def refuse_inputs(path, inputs, what: str = "--out") -> Path:
+    """Refuse an output that is, contains or lies inside one of the command's ``inputs`` (files or folders it
+    reads): replacing it, or writing into it, would destroy or change what is being read.
+
+    Parameters
+    ----------
+    path : str or Path
+        The output file or folder.
+    inputs : iterable of (str or Path, str)
+        Each input with the words that name it in the message (``(args.data, "the data folder")``).
+
+    Raises
+    ------
+    ValueError
+        Naming the output, the input and how they overlap.
+    """
+    p = Path(path)
+    mine = Path(os.path.abspath(p)).resolve()
+    for given, name in inputs:
+        if given is None:
+            continue
+        other = Path(os.path.abspath(given)).resolve()
+        if mine == other:
+            how = "is"
+        elif other.is_relative_to(mine):
+            how = "contains"
+        elif mine.is_relative_to(other):
+            how = "lies inside"
+        else:
+            continue
+        raise ValueError(f"{what} {p} {how} {name} {given}, which this command reads; an output never replaces or "
+                         f"writes into its input, not even with --force: choose a {what} outside it")
+    return p
+
+
 def check_output_file(path, force: bool, flag: str = "--force", what: str = "--out") -> Path:
     """Check a file a command will write, before it measures or computes anything.
 
     Refused (``ValueError`` naming the path): an existing folder (also with ``force``: a file
-    cannot replace it), a path below an existing file, and an existing file unless ``force``
-    (:func:`refuse_overwrite`).
+    cannot replace it), a path below an existing file, a file of a study's data (:func:`refuse_study_data`,
+    also with ``force``), and an existing file unless ``force`` (:func:`refuse_overwrite`).
 
     Parameters
     ----------
@@ -240,14 +305,16 @@ def check_output_file(path, force: bool, flag: str = "--force", what: str = "--o
     if p.is_dir():
         raise ValueError(f"{what} {p} is a folder; give the name of a file to write")
     _parent_not_a_folder(p, what)
+    refuse_study_data(p, what)
     return refuse_overwrite(p, force, flag)
 
 
 def check_output_dir(path, force: bool | None = None, flag: str = "--force", what: str = "--out") -> Path:
     """Check a folder a command will write into, before it measures or computes anything.
 
-    Refused (``ValueError`` naming the path): an existing file, a path below an existing file and,
-    when ``force`` is given (not None) and false, a folder that is not empty (:func:`refuse_overwrite`).
+    Refused (``ValueError`` naming the path): an existing file, a path below an existing file, a study's data
+    folder, a subject folder or a folder inside one (:func:`refuse_study_data`, whatever ``force``) and, when
+    ``force`` is given (not None) and false, a folder that is not empty (:func:`refuse_overwrite`).
 
     Returns
     -------
@@ -257,6 +324,7 @@ def check_output_dir(path, force: bool | None = None, flag: str = "--force", wha
     if p.exists() and not p.is_dir():
         raise ValueError(f"{what} {p} is a file, not a folder")
     _parent_not_a_folder(p, what)
+    refuse_study_data(p, what)
     if force is not None:
         refuse_overwrite(p, force, flag)
     return p

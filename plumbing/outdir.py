@@ -2,22 +2,28 @@
 
 ``with output_folder(out, force) as w:`` ... write into ``w.path`` ... :
 
-1. ``out`` is checked (a file, or a path below one: refused whatever ``force``).
+1. ``out`` is checked, refused whatever ``force``: a file, or a path below one; a study's data (a study
+   folder, a subject folder, or inside one: :func:`plumbing.fileio.refuse_study_data`); one of the
+   command's ``inputs``, or a folder that contains one or lies inside one (:func:`plumbing.fileio.refuse_inputs`).
 2. An OS lock is taken: ``fcntl.flock`` on ``<parent>/.<name>.lock`` (:class:`FileLock`, the lock the
    study's subject folders use too), held until the block ends and dropped by the kernel when the
    process dies however it dies. A second writer of the same ``out`` is refused at once, naming the
-   holder's pid and host.
-3. Earlier results are refused without ``force``, naming them (all of ``out``, or the entries that match
+   holder's pid (the kernel's, :func:`lock_holder_pid`) and host.
+3. A whole folder (no ``products``) is replaced only when this program wrote it: it holds :data:`MARKER`
+   (written into every such folder, naming the command; another command's is not replaced), or, written
+   by a version before the marker, holds nothing but the command's own files (``own``). A folder holding
+   anything else, or a subject folder at any depth, is refused with or without ``force``.
+4. Earlier results are refused without ``force``, naming them (all of ``out``, or the entries that match
    the command's ``products`` when it names them).
-4. Debris of an earlier writer of ``out`` that was killed (SIGKILL, power cut) is removed: its
+5. Debris of an earlier writer of ``out`` that was killed (SIGKILL, power cut) is removed: its
    staging folders ``<parent>/.<name>.staging-*`` (and the older ``.<name>.identify-*``). Only the lock
    holder writes them, and it holds the lock now, so none of them belongs to a live run.
-5. ``w.path`` is a new staging folder ``<parent>/.<name>.staging-XXXXXXXX`` on the same file system.
-6. When the block ends without an exception the staging folder replaces ``out`` in one step (Linux
+6. ``w.path`` is a new staging folder ``<parent>/.<name>.staging-XXXXXXXX`` on the same file system.
+7. When the block ends without an exception the staging folder replaces ``out`` in one step (Linux
    ``renameat2(RENAME_EXCHANGE)``; elsewhere two renames): a reader sees the earlier folder or the new
    one, never a mixture. Files of ``out`` that are not the command's (``products``, when given) are
    carried over (hard links) before the swap. The earlier folder is then deleted.
-7. On any exception (an error, Ctrl-C, SIGTERM/SIGHUP, which the block turns into
+8. On any exception (an error, Ctrl-C, SIGTERM/SIGHUP, which the block turns into
    :class:`plumbing.stopsignals.Terminated`) the staging folder is deleted and ``out`` is untouched;
    :meth:`OutputFolder.set_aside` instead keeps it beside ``out`` (``<out>.failed``, ``<out>.interrupted``)
    where its contents are worth keeping (a failed identification's finished stages, a partial run).
@@ -31,6 +37,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
+import datetime as _dt
 import errno
 import fcntl
 import fnmatch
@@ -43,8 +50,9 @@ import tempfile
 from pathlib import Path
 
 from .errors import UserError
-from .fileio import check_output_dir, check_output_file, current_umask, fsync_dir
+from .fileio import check_output_dir, check_output_file, current_umask, fsync_dir, refuse_inputs
 from .stopsignals import signals_blocked, stop_on_signals
+from .studyfiles import study_data_within
 
 #: output folders opened and not yet committed, discarded or set aside: a stop signal that lands between
 #: ``open()`` and the caller's ``with`` (or any exit that skips ``__exit__``) must not leave a staging folder
@@ -61,9 +69,39 @@ atexit.register(_discard_open)
 
 #: the prefixes of the staging folders of ``out``: this module's, and ``devices identify``'s before it
 STAGING_TAGS = ("staging", "identify")
+#: the file in a folder this module wrote whole (no ``products``): which command wrote it and when. ``force``
+#: replaces a folder only when it holds this file, or (written before the file existed) only the command's
+#: own files (``own``); docs/architecture.md, "Output folders"
+MARKER = ".hfam-output.json"
 
 class OutputBusy(UserError):
     """Another process is writing the same output (its pid and host are in the message)."""
+
+
+def lock_holder_pid(path) -> int | None:
+    """The pid of the process holding an ``flock`` on the file ``path``, from the kernel's table of locks
+    (Linux ``/proc/locks``: ``N: FLOCK ADVISORY WRITE <pid> <major>:<minor>:<inode> ...``), or None when no
+    lock on it is listed (or the table cannot be read). The pid written in a lock file can be stale or
+    forged; this one is the kernel's.
+    """
+    try:
+        st = os.stat(path)
+        with open("/proc/locks", encoding="ascii", errors="replace") as fh:
+            table = fh.read()
+    except OSError:
+        return None
+    key = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for line in table.splitlines():
+        parts = line.split()
+        if len(parts) < 6 or parts[1] == "->" or parts[1] != "FLOCK":   # "->": a process waiting, not holding
+            continue
+        if parts[5] == key:
+            try:
+                pid = int(parts[4])
+            except ValueError:
+                return None
+            return pid if pid > 0 else None
+    return None
 
 
 class FileLock:
@@ -88,12 +126,22 @@ class FileLock:
 
     @staticmethod
     def holder(path) -> str:
-        """``"pid N on host H"`` as written by the holder (or a placeholder when it is not written yet)."""
+        """``"pid N on host H"``: the process that holds the lock on ``path`` now, as the kernel says
+        (:func:`lock_holder_pid`, ``/proc/locks``), with the host the holder wrote; where the kernel does not
+        say (not Linux, a network file system), the pid and host written in the file."""
+        written = None
         try:
             info = json.loads(Path(path).read_text(encoding="utf-8"))
-            return f"pid {int(info['pid'])} on host {info['host']}"
+            written = (int(info["pid"]), str(info["host"]))
         except (OSError, ValueError, KeyError, TypeError):
-            return "a process that has not written its pid yet"
+            pass
+        pid = lock_holder_pid(path)
+        if pid is not None:
+            host = written[1] if written is not None and written[0] == pid else socket.gethostname()
+            return f"pid {pid} on host {host}"
+        if written is not None:
+            return f"pid {written[0]} on host {written[1]} (as written in the lock file)"
+        return "a process that has not written its pid yet"
 
     @staticmethod
     def busy(path) -> bool:
@@ -147,6 +195,16 @@ class FileLock:
         self.fd = None
 
 
+def read_marker(folder) -> dict | None:
+    """The :data:`MARKER` record of ``folder`` (which command wrote it), or None when it has none (or an
+    unreadable one, which does not vouch for the folder)."""
+    try:
+        record = json.loads((Path(folder) / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
 def _exchange(a: Path, b: Path) -> bool:
     """Swap the names of ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
     if not sys.platform.startswith("linux"):
@@ -195,13 +253,17 @@ class OutputFolder:
     """
 
     def __init__(self, out, force: bool, products=None, flag: str = "--force", what: str = "--out",
-                 in_place: bool = False, results: str = "earlier results") -> None:
+                 in_place: bool = False, results: str = "earlier results", inputs=(), command: str | None = None,
+                 own=None) -> None:
         self.out = Path(out)
         self.results = results
         self.in_place = bool(in_place)
         self.force = bool(force)
         self.products = tuple(products) if products is not None else None
         self.flag, self.what = flag, what
+        self.inputs = tuple(inputs)
+        self.command = command
+        self.own = own if own is None or callable(own) else tuple(own)
         self.path: Path | None = None
         self.replacing = False
         self.done = False
@@ -226,6 +288,8 @@ class OutputFolder:
                 raise OutputBusy(f"{out} is being written by another run: {FileLock.holder(parent / f'.{out.name}.lock')}"
                                  f" (lock {parent / f'.{out.name}.lock'}); wait for it or choose another {self.what}")
             earlier = self.earlier_results()
+            if earlier and not self.in_place and self.products is None:
+                self._check_replaceable(out, earlier)
             if earlier and not self.force and not self.in_place:
                 shown = ", ".join(earlier[:4]) + (f", ... ({len(earlier)} entries)" if len(earlier) > 4 else "")
                 raise ValueError(f"{self.what} {out} already holds {self.results} ({shown}); not overwriting "
@@ -240,22 +304,56 @@ class OutputFolder:
                 self.path = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=parent))
                 _OPEN.add(self)  # discarded at exit if the caller never reaches its ``with`` (a signal between)
                 os.chmod(self.path, 0o777 & ~current_umask())
+            if self.products is None and not isinstance(self, OutputFile):
+                self._write_marker()   # the folder is this command's: its --force may replace it
         except BaseException:
             self.discard()   # a stop signal delivered as the staging folder was made: it goes too
             raise
         return self
 
     def _check(self) -> Path:
-        """``out``, refused (ValueError) if it is a file or below one."""
-        return check_output_dir(self.out, what=self.what)
+        """``out``, refused (ValueError) if it is a file or below one, is or lies inside a study's data
+        (:func:`plumbing.fileio.refuse_study_data`), or is, contains or lies inside one of ``inputs``."""
+        out = check_output_dir(self.out, what=self.what)
+        refuse_inputs(out, self.inputs, self.what)
+        return out
+
+    def _check_replaceable(self, out: Path, earlier: list) -> None:
+        """Refuse (ValueError) to replace a folder this program did not write, whatever ``force``: one
+        without :data:`MARKER` unless it holds only the command's own files (``own``: a folder an older
+        version wrote); one another command wrote; one that holds a study's subject folder."""
+        written_by = read_marker(out)
+        if written_by is None:
+            foreign = [e for e in earlier if self.own is None or not any(
+                fnmatch.fnmatch(e.rstrip("/"), pat) for pat in self.own)]
+            if foreign:
+                shown = ", ".join(foreign[:4]) + (f", ... ({len(foreign)} entries)" if len(foreign) > 4 else "")
+                raise ValueError(f"{self.what} {out} holds files this program did not write ({shown}) and no "
+                                 f"{MARKER} of an earlier run; not replacing it, with or without {self.flag}: "
+                                 f"choose another {self.what} (or move those files away yourself)")
+        elif self.command is not None and written_by.get("command") not in (None, self.command):
+            raise ValueError(f"{self.what} {out} holds the results of '{written_by.get('command')}', not of "
+                             f"'{self.command}'; not replacing them, with or without {self.flag}: choose another "
+                             f"{self.what}")
+        inner = study_data_within(out)
+        if inner is not None:
+            raise ValueError(f"{self.what} {out} contains the subject folder {inner} of a study; not replacing it, "
+                             f"with or without {self.flag}: choose another {self.what}")
+
+    def _write_marker(self) -> None:
+        """:data:`MARKER` in the staging folder: the folder is this command's, replaceable by its ``force``."""
+        record = {"command": self.command, "written_at": _dt.datetime.now(_dt.timezone.utc).isoformat(
+            timespec="seconds").replace("+00:00", "Z"), "note": "written by this program; its --force may replace "
+                  "this folder whole"}
+        (self.path / MARKER).write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
 
     def earlier_results(self) -> list[str]:
         """The entries of ``out`` that a new run replaces: all of them, or those matching ``products``
         (folders end in ``/``)."""
         if not self.out.is_dir():
             return []
-        return sorted(p.name + ("/" if p.is_dir() else "") for p in self.out.iterdir()
-                      if self.products is None or any(fnmatch.fnmatch(p.name, pat) for pat in self.products))
+        return sorted(p.name + ("/" if p.is_dir() else "") for p in self.out.iterdir() if p.name != MARKER and (
+                      self.products is None or any(fnmatch.fnmatch(p.name, pat) for pat in self.products)))
 
     # -- ending -----------------------------------------------------------------------------------------
     def commit(self) -> Path:
@@ -355,12 +453,20 @@ class OutputFile(OutputFolder):
     over ``out`` when the block ends without an exception (``os.replace``: atomic for a file)."""
 
     def _check(self) -> Path:
-        """``out``, refused (ValueError) if it is a folder or below a file, or exists and not ``force``."""
+        """``out``, refused (ValueError) if it is a folder, below a file, a file of a study's data or one of
+        ``inputs``, or exists and not ``force``, or exists and is not the command's own (``own``)."""
         out = check_output_file(self.out, True, what=self.what)
+        refuse_inputs(out, self.inputs, self.what)
         if out.exists() and not self.force:
             raise ValueError(f"{self.what} {out} exists; not overwriting it: choose another {self.what} or pass "
                              f"{self.flag} to replace it")
+        if out.exists() and self.own is not None and not self.own(out):
+            raise ValueError(f"{self.what} {out} exists and is not {self.results} (what this command writes); not "
+                             f"replacing it, with or without {self.flag}: choose another {self.what}")
         return out
+
+    def _check_replaceable(self, out: Path, earlier: list) -> None:
+        """Nothing more: a file's checks are in :meth:`_check` (``own``)."""
 
     def open(self) -> "OutputFile":
         """As :meth:`OutputFolder.open`; ``path`` is then the file to write."""
@@ -397,23 +503,35 @@ class OutputFile(OutputFolder):
         raise NotImplementedError("an output file is written whole or not at all")
 
 
-def output_file(out, force: bool, flag: str = "--force", what: str = "--out") -> OutputFile:
+def output_file(out, force: bool, flag: str = "--force", what: str = "--out", inputs=(), own=None,
+                results: str = "a result") -> OutputFile:
     """One output file, written beside and renamed into place, one writer at a time (module doc).
 
     ``with output_file(path, force) as w:`` write ``w.path`` (a file of the same name in a staging folder
-    beside ``out``). Refused (ValueError): ``out`` is a folder, is below a file, or exists and not ``force``;
-    :class:`OutputBusy` while another process writes it. An error, Ctrl-C or SIGTERM/SIGHUP leaves the
-    earlier file as it was and nothing beside it.
+    beside ``out``). Refused (ValueError): ``out`` is a folder, is below a file, is a file of a study's data,
+    is one of ``inputs``, exists and not ``force``, or exists and ``own(out)`` is false (not a file this
+    command writes: ``force`` replaces only those); :class:`OutputBusy` while another process writes it. An
+    error, Ctrl-C or SIGTERM/SIGHUP leaves the earlier file as it was and nothing beside it.
+
+    Parameters
+    ----------
+    inputs : iterable of (path, str)
+        The files or folders the command reads, with their names for the message.
+    own : callable or None
+        ``own(path) -> bool``: whether an existing ``out`` is the command's kind of file (None: any file).
+    results : str
+        What the command's file is, for the message ("a timing-check record").
 
     Returns
     -------
     OutputFile
     """
-    return OutputFile(out, force, flag=flag, what=what)
+    return OutputFile(out, force, flag=flag, what=what, inputs=inputs, own=own, results=results)
 
 
 def output_folder(out, force: bool, products=None, flag: str = "--force", what: str = "--out",
-                  in_place: bool = False, results: str = "earlier results") -> OutputFolder:
+                  in_place: bool = False, results: str = "earlier results", inputs=(), command: str | None = None,
+                  own=None) -> OutputFolder:
     """The output folder ``out`` of a command, written beside and swapped in whole (module doc).
 
     Parameters
@@ -432,6 +550,15 @@ def output_folder(out, force: bool, products=None, flag: str = "--force", what: 
         nothing is refused or swapped.
     results : str
         What the earlier results are, in the refusal ("a demo's results").
+    inputs : iterable of (path, str)
+        The files and folders the command reads, with the words that name them ("the data folder"): ``out``
+        may not be, contain or lie inside any of them (:func:`plumbing.fileio.refuse_inputs`).
+    command : str or None
+        The command (``"analysis report"``), recorded in the folder's :data:`MARKER`; ``force`` does not
+        replace a folder another command wrote.
+    own : sequence of str or None
+        Glob patterns of every file the command writes into a whole folder (no ``products``): a folder
+        without :data:`MARKER` (an older version's) is replaced only when it holds nothing else.
 
     Returns
     -------
@@ -442,12 +569,14 @@ def output_folder(out, force: bool, products=None, flag: str = "--force", what: 
     Raises
     ------
     ValueError
-        ``out`` is a file, is below one, or holds earlier results and not ``force``.
+        ``out`` is a file, is below one, is or lies inside a study's data, is, contains or lies inside one
+        of ``inputs``, holds earlier results and not ``force``, or (a whole folder) holds what this command
+        did not write (module doc): refused with or without ``force``.
     OutputBusy
         Another process writes ``out`` now.
     """
     return OutputFolder(out, force, products=products, flag=flag, what=what, in_place=in_place,
-                        results=results)
+                        results=results, inputs=inputs, command=command, own=own)
 
 
 def reclaim_staging(out) -> list[Path]:

@@ -27,8 +27,12 @@ import datetime as _dt
 import io
 import json
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
+
+from .textsafe import csv_text, read_cell
 
 SESSION_JSON = "session.json"
 TRIALS_CSV = "trials.csv"
@@ -76,6 +80,81 @@ FORCED_CHOICE_FLOAT_COLUMNS = ("intensity", "intensity_physical", "incoming_velo
 #: the columns a psychometric fit reads (``analysis psychometric``; a CSV from any software needs the first two)
 FIT_COLUMNS = ("intensity", "correct")
 FIT_OPTIONAL_COLUMNS = ("subject", "condition", "staircase", "trial", "is_catch")
+#: the columns that hold names from users (subject ids, catalog samples, conditions, staircase labels): written
+#: through :func:`plumbing.textsafe.csv_text` (never a spreadsheet formula) and read back with ``read_cell``
+NAME_TEXT_COLUMNS = ("subject", "sample", "condition", "staircase", "sample_1", "sample_2")
+
+
+# -- where study data lives ---------------------------------------------------------------------------------
+
+#: the subject lock's file name (``DATA/<subject>/.lock``)
+LOCK_NAME = ".lock"
+#: children of a folder looked at to tell whether it is a study folder (a folder of subject folders); a folder
+#: with more entries is judged by its first ones (a study folder's first entries are its subjects)
+STUDY_SCAN_LIMIT = 5000
+
+
+def is_subject_folder(path) -> bool:
+    """True when ``path`` is a subject's folder of a study (``session.json`` with ``trials.csv`` or
+    ``schedule.jsonl`` beside it, or a subject lock with ``trials.csv``): data no other command may write into."""
+    p = Path(path)
+    try:
+        if (p / SESSION_JSON).is_file():
+            return (p / TRIALS_CSV).exists() or (p / SCHEDULE_JSONL).exists()
+        return (p / LOCK_NAME).is_file() and (p / TRIALS_CSV).is_file()
+    except OSError:
+        return False
+
+
+def is_study_folder(path, limit: int = STUDY_SCAN_LIMIT) -> bool:
+    """True when ``path`` holds a subject folder (:func:`is_subject_folder`) among its first ``limit`` entries:
+    a study's data folder (``study run --out DATA``)."""
+    try:
+        with os.scandir(path) as entries:
+            for n, entry in enumerate(entries):
+                if n >= limit:
+                    return False
+                if not entry.name.startswith(".") and entry.is_dir(follow_symlinks=False) \
+                        and is_subject_folder(entry.path):
+                    return True
+    except OSError:
+        return False
+    return False
+
+
+def study_data_at(path) -> tuple[Path, str] | None:
+    """The study data ``path`` is or lies inside: ``(folder, "subject folder" | "study folder")``, or None.
+
+    ``path`` itself, or any folder above it, being a subject folder or a study folder counts: an output written
+    there would sit among, or replace, a study's records.
+    """
+    p = Path(os.path.abspath(path))
+    try:
+        p = p.resolve()
+    except (OSError, RuntimeError):
+        pass
+    for k, folder in enumerate([p, *p.parents]):
+        if k == 0 and not folder.is_dir():
+            continue
+        if is_subject_folder(folder):
+            return folder, "subject folder"
+        if is_study_folder(folder):
+            return folder, "study folder"
+    return None
+
+
+def study_data_within(path, limit: int = 200_000) -> Path | None:
+    """The first subject folder at or below the folder ``path`` (None if there is none among its first
+    ``limit`` folders; a folder with more is reported as itself, since it cannot be vouched for)."""
+    root = Path(path)
+    seen = 0
+    for folder, dirs, _files in os.walk(root):
+        seen += 1
+        if is_subject_folder(folder):
+            return Path(folder)
+        if seen >= limit:
+            return root
+    return None
 
 
 # -- reading session.json ------------------------------------------------------------------------------------
@@ -128,6 +207,8 @@ def read_session_json(path) -> dict:
         raise ValueError(f"{path}: empty file; {SESSION_JSON} is damaged")
     try:
         raw = json.loads(text)
+    except RecursionError:   # nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{path}: not valid JSON here (nested too deeply); {SESSION_JSON} is damaged") from None
     except json.JSONDecodeError as exc:
         if exc.pos >= len(text.rstrip()):
             raise ValueError(f"{path}:{exc.lineno}: truncated JSON ({exc.msg}, column {exc.colno}); "
@@ -163,6 +244,8 @@ def format_rating_row(row: dict) -> dict:
             out[key] = "" if value is None else str(int(value))
         elif key == "ends_familiarization":
             out[key] = _fmt_bool(bool(row.get(key, False)))
+        elif key in NAME_TEXT_COLUMNS:
+            out[key] = csv_text(str(value))
         else:
             out[key] = str(value)
     return out
@@ -216,6 +299,15 @@ def _check_rating_values(raw: dict, row: dict) -> None:
         raise ValueError(f"started_at={raw['started_at']!r} is not an ISO 8601 time") from None
 
 
+def _names_read(raw: dict) -> dict:
+    """``raw`` with its name columns as they were named (the quote :func:`csv_text` may have put first, dropped)."""
+    row = dict(raw)
+    for key in NAME_TEXT_COLUMNS:
+        if isinstance(row.get(key), str):
+            row[key] = read_cell(row[key])
+    return row
+
+
 def _check_field_count(raw: dict, where: str) -> None:
     if None in raw:  # csv.DictReader puts the fields beyond the header under the key None
         raise ValueError(f"{where}: {len(raw) - 1 + len(raw[None])} fields, the header has {len(raw) - 1}")
@@ -228,7 +320,7 @@ def parse_rating_row(raw: dict, where: str) -> dict:
     """Inverse of :func:`format_rating_row`, checking every field (count, type, range, consistency: what the
     runner can write); errors name ``where`` (file and line)."""
     _check_field_count(raw, where)
-    row = dict(raw)
+    row = _names_read(raw)
     row.setdefault("ends_familiarization", None)  # an older file: the transition is in schedule.jsonl
     try:
         if row["ends_familiarization"] is not None:
@@ -277,33 +369,89 @@ def format_forced_choice_row(row: dict) -> dict:
             out[key] = "" if value is None or (isinstance(value, float) and math.isnan(value)) else repr(float(value))
         elif key in FORCED_CHOICE_INT_COLUMNS:
             out[key] = str(int(value))
+        elif key in NAME_TEXT_COLUMNS:
+            out[key] = csv_text(str(value))
         else:
             out[key] = str(value)
     return out
 
 
+#: what a forced-choice row's answer may be: the interval chosen (an answer "x" rejects the trial: no row)
+RESPONSES = ("1", "2")
+
+
+def _finite(raw: dict, key: str, low: float | None = 0.0, empty_ok: bool = False) -> float:
+    """A float column's value: finite (and >= ``low``), or NaN for an empty cell when ``empty_ok``."""
+    text = raw[key]
+    if text == "" and empty_ok:
+        return math.nan
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{key}={text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{key}={text!r} must be a finite number")
+    if low is not None and value < low:
+        raise ValueError(f"{key}={text!r} must be >= {low:g}")
+    return value
+
+
 def parse_forced_choice_row(raw: dict, where: str) -> dict:
-    """Inverse of :func:`format_forced_choice_row`; a bad value raises ValueError naming ``where``."""
+    """Inverse of :func:`format_forced_choice_row`, checking every field as the rating study's rows are checked:
+    the count, each type and range, finite numbers, and the row's own consistency (``correct`` is whether
+    ``response`` names ``target_interval``; both intervals tapped). What only the session's plan can tell
+    (intensities, samples, attempts against schedule.jsonl) the experiment kind checks on ``--resume``.
+
+    Raises
+    ------
+    ValueError
+        ``"<where>: bad value (<what>)"``.
+    """
     _check_field_count(raw, where)
-    row = dict(raw)
+    row = _names_read(raw)
     try:
         for key in FORCED_CHOICE_INT_COLUMNS:
-            row[key] = int(raw[key])
-        for key in FORCED_CHOICE_FLOAT_COLUMNS:
-            row[key] = float(raw[key]) if raw[key] != "" else math.nan
+            text = raw[key]
+            if not text.strip().lstrip("+-").isdigit():
+                raise ValueError(f"{key}={text!r} is not a whole number")
+            row[key] = int(text)
+        for key, low in (("trial", 1), ("attempt", 1), ("n_taps_1", 1), ("n_taps_2", 1)):
+            if row[key] < low:
+                raise ValueError(f"{key}={raw[key]!r} must be >= {low}")
         if row["correct"] not in (0, 1) or row["is_catch"] not in (0, 1) or row["target_interval"] not in (1, 2):
             raise ValueError("correct/is_catch must be 0|1 and target_interval 1|2")
+        if raw["response"] not in RESPONSES:
+            raise ValueError(f"response={raw['response']!r} is not one of {'|'.join(RESPONSES)}")
+        if row["correct"] != int(raw["response"] == str(row["target_interval"])):
+            raise ValueError(f"correct={raw['correct']!r} contradicts response={raw['response']!r} with "
+                             f"target_interval={raw['target_interval']!r}")
+        for key in ("subject", "condition", "sample_1", "sample_2"):
+            if not row[key]:
+                raise ValueError(f"{key} is empty")
+        row["intensity"] = _finite(raw, "intensity", low=None)
+        row["intensity_physical"] = _finite(raw, "intensity_physical")
+        for key in ("incoming_velocity_mean_1_m_s", "incoming_velocity_mean_2_m_s", "penetration_mean_1_m",
+                    "penetration_mean_2_m"):   # empty: not measured
+            row[key] = _finite(raw, key, empty_ok=True)
+        row["duration_s"] = _finite(raw, "duration_s")
+        for key in ("sim_percept_1", "sim_percept_2"):   # empty for a person
+            row[key] = _finite(raw, key, low=None, empty_ok=True)
+        try:
+            _dt.datetime.fromisoformat(raw["started_at"].replace("Z", "+00:00"))
+        except (TypeError, ValueError):
+            raise ValueError(f"started_at={raw['started_at']!r} is not an ISO 8601 time") from None
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{where}: bad value ({exc})") from None
     return row
 
 
 def _forced_choice_sequence(row: dict, where: str, state: dict) -> None:
-    """Trials are consecutive, one row each (an invalid attempt is in schedule.jsonl, not here)."""
-    expected = state.get("trials", 0) + 1
-    if row["trial"] != expected:
-        raise ValueError(f"{where}: trial {row['trial']}, expected {expected} (trials are consecutive)")
-    state["trials"] = expected
+    """Trials in order, one row each (an invalid attempt is in schedule.jsonl, not here; a trial recorded there
+    as not renderable has no row, so numbers may skip it: the experiment kind checks the gaps)."""
+    last = state.get("trials", 0)
+    if row["trial"] <= last:
+        raise ValueError(f"{where}: trial {row['trial']} after trial {last} (trials are in order, one row each)")
+    state["trials"] = row["trial"]
 
 
 @dataclass(frozen=True)

@@ -190,6 +190,9 @@ def load_dataclass_file(path, cls, what: str, overrides: dict | None = None, whe
             data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
         except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{p}: cannot parse ({exc})") from None
+        except RecursionError:   # e.g. a JSON array nested 10^5 deep: one line, not a traceback
+            raise ValueError(f"{p}: cannot parse (nested too deeply: tables and lists go at most a few hundred "
+                             "levels deep)") from None
         if not isinstance(data, dict):
             raise ValueError(f"{p}: a {what} file must hold a table/object of settings, got {type(data).__name__}")
     return dataclass_from_layers(cls, data, overrides, what, str(path) if path is not None else where, where)

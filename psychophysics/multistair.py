@@ -87,6 +87,8 @@ class Interleaved:
         self._pending: Trial | None = None
         #: every trial so far: ``[label, intensity, is_catch, correct]``
         self.history: list[list] = []
+        #: the staircases stopped by :meth:`drop` (their intensity could not be presented)
+        self.stopped: set = set()
 
     @classmethod
     def from_table(cls, table: dict, prefix: str = "") -> "Interleaved":
@@ -108,8 +110,25 @@ class Interleaved:
 
     @property
     def finished(self) -> bool:
-        """True when every staircase has finished."""
-        return all(m.finished for m in self.methods.values())
+        """True when every staircase has finished (or was stopped by :meth:`drop`)."""
+        return all(m.finished or label in self.stopped for label, m in self.methods.items())
+
+    def drop(self, trial: Trial) -> None:
+        """Give up the pending ``trial`` without a response: its intensity cannot be presented (a stimulus the
+        device cannot render). A staircase trial's staircase stops there (it would ask for the same intensity
+        again); a dropped catch trial stops nothing. Nothing enters :attr:`history`: a replay drops the same
+        trial at the same point (the random draws are the same).
+
+        Raises
+        ------
+        ValueError
+            ``trial`` is not the pending trial.
+        """
+        if self._pending is None or tuple(trial) != tuple(self._pending):
+            raise ValueError(f"trial {tuple(trial)!r} is not the pending trial {self._pending!r}")
+        self._pending = None
+        if not trial.is_catch:
+            self.stopped.add(trial.label)
 
     def next_trial(self) -> Trial:
         """The next trial (the same one until :meth:`update` is called with it).
@@ -125,11 +144,11 @@ class Interleaved:
             raise ValueError("all staircases have finished; no next trial")
         while True:
             if not self._round:
-                self._round = [lb for lb, m in self.methods.items() if not m.finished]
+                self._round = [lb for lb, m in self.methods.items() if not m.finished and lb not in self.stopped]
                 if self.order == "random":
                     self._round = [self._round[i] for i in self._rng.permutation(len(self._round))]
             label = self._round[0]
-            if not self.methods[label].finished:
+            if not self.methods[label].finished and label not in self.stopped:
                 break
             self._round.pop(0)
         number = len(self.history) + 1

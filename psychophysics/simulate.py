@@ -47,6 +47,11 @@ DEFAULT_SLOPE = 3.5
 DEFAULT_LAPSE = 0.02
 DEFAULT_ALTERNATIVES = 2
 DEFAULT_TRIALS = 80
+#: the most trials of one run, runs, and trials in all (runs x trials): time and memory stay bounded (every run's
+#: estimate after every 10 trials is kept for precision.csv); a planning question needs far fewer
+MAX_TRIALS = 10_000
+MAX_REPEAT = 10_000
+MAX_TOTAL_TRIALS = 2_000_000
 RANGE_FACTOR = 10.0
 LEVELS = 41
 STAIR_STEPS_LOG10 = [0.4, 0.2, 0.1]
@@ -102,9 +107,12 @@ class SimulationSettings:
             raise ValueError(f"--method must be one of {', '.join(METHODS)}, got {self.method!r}")
         require_int("--alternatives", self.alternatives, minimum=2)
         check_observer(self.threshold, self.slope, self.lapse, 1.0 / self.alternatives, "weibull", FLAGS)
-        require_int("--trials", self.trials, minimum=1)
+        require_int("--trials", self.trials, minimum=1, maximum=MAX_TRIALS)
         require_int("--seed", self.seed, minimum=0)
-        require_int("--repeat", self.repeat, minimum=1)
+        require_int("--repeat", self.repeat, minimum=1, maximum=MAX_REPEAT)
+        if self.trials * self.repeat > MAX_TOTAL_TRIALS:
+            raise ValueError(f"--trials x --repeat must be at most {MAX_TOTAL_TRIALS} trials in all, got "
+                             f"{self.trials} x {self.repeat} = {self.trials * self.repeat}")
         require_number("--intensity-min", self.intensity_min, minimum=0.0, strict=True, optional=True)
         require_number("--intensity-max", self.intensity_max, minimum=0.0, strict=True, optional=True)
         if not self.range[1] > self.range[0]:

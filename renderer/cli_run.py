@@ -31,6 +31,10 @@ from .config import RendererConfig, check_run_size, load_config
 from .loop import ServoLoop
 from plumbing.rtpolicy import warn_once
 
+#: what a run folder holds (a folder of these alone, without the output marker, is an older version's run,
+#: which --force replaces)
+RUN_FILES = ("events.csv", "log.npz", "run.json", "run.png", "run.svg", "run.plot.csv")
+
 
 def make_transient(kind: str, library: str | None = None, gain: float | None = None):
     """Build a stimuli transient (Table 4.1 defaults) or None; imported lazily.
@@ -157,7 +161,7 @@ def _run(args) -> int:
     check_run_size(args.taps, args.duration)   # time and memory bounded: refused before anything is written
     # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): a failed or
     # interrupted run leaves an earlier one as it was
-    folder = output_folder(args.out, args.force).open()
+    folder = output_folder(args.out, args.force, command="renderer run", own=RUN_FILES).open()
     with folder:
         return _run_into(args, folder)
 

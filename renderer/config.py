@@ -287,6 +287,8 @@ def load_config(path: str | pathlib.Path, **overrides) -> RendererConfig:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML: {exc}") from None
+    except RecursionError:   # nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{path}: nested too deeply (tables and lists go at most a few hundred levels deep)") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: a renderer config must be a table/object of settings, got "
                          f"{type(data).__name__} {data!r:.60}")
@@ -307,6 +309,8 @@ def load_scene(path: str | pathlib.Path) -> Scene:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML: {exc}") from None
+    except RecursionError:   # nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{path}: nested too deeply (tables and lists go at most a few hundred levels deep)") from None
     if isinstance(data, dict) and "scene" in data:
         return config_from_dict(data, where=str(path), base_dir=str(path.parent)).effective_scene
     return parse_scene(data, where=str(path), base_dir=str(path.parent))

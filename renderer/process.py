@@ -38,7 +38,8 @@ from typing import Callable
 
 from devices.base import DeviceError
 from devices.registry import make_device
-from plumbing.stopsignals import ParentWatch, Terminated, die_with_parent, holding, stop_on_signals
+from plumbing.stopsignals import (STOP_SIGNALS, ParentWatch, Terminated, die_with_parent, holding, signals_blocked,
+                                  stop_on_signals)
 
 from plumbing import rtpolicy
 from .config import RendererConfig
@@ -77,6 +78,8 @@ def servo_child(parent_pid: int):
     :class:`plumbing.stopsignals.ParentWatch`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     with stop_on_signals(own_process=True):
+        if hasattr(signal, "pthread_sigmask"):   # started with them blocked (run_in_process): take them now
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, (signal.SIGINT, *STOP_SIGNALS))
         die_with_parent(parent_pid)
         yield
 
@@ -212,7 +215,10 @@ def _run_child(device, cfg, transient, duration_s, max_ticks, realtime, device_o
     terminated = None
     with stop_on_signals():
         try:
-            proc.start()
+            # started whole: a stop signal during the start, which writes the child its pickled work, cut that
+            # short and the child printed an EOFError traceback; held back, it is raised once the child has it
+            with signals_blocked():
+                proc.start()
             child_conn.close()
             t_end = None if timeout_s is None else time.monotonic() + timeout_s
             while message is None:

@@ -11,6 +11,7 @@ browser or a compiler would give). The verdict is :func:`renderer.timing_verdict
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -22,6 +23,48 @@ from .timing_verdict import DEFAULT_THRESHOLDS, TimingThresholds, period_figures
 
 #: a check's device when none is named: the loop alone on this machine
 QUIET_DEVICE = "quiet"
+#: the bounds of a check (its log is preallocated: ~112 bytes a tick, kept in the servo process and sent back
+#: whole): the highest servo rate (Hz, ten times the thesis's 10 kHz), the longest check (s), and the most ticks
+#: of one check (rate x duration: 5 min at 10 kHz, about 340 MB of log), the most busy-loop processes
+MAX_RATE_HZ = 100_000.0
+MAX_DURATION_S = 3600.0
+MAX_TICKS = 3_000_000
+MAX_LOAD_CORES = 64
+#: a busy-loop load process: killed by the kernel (SIGKILL) when the thread that started it dies, however it
+#: dies (``prctl(PR_SET_PDEATHSIG)``, as :func:`plumbing.pools.worker_dies_with_parent`), and gone at once if
+#: that happened before it asked; then it ignores Ctrl-C (the check stops it) and spins
+LOAD_CODE = ("import ctypes, os, signal, sys\n"
+             "ctypes.CDLL(None).prctl(1, int(signal.SIGKILL), 0, 0, 0)\n"
+             "if os.getppid() != int(sys.argv[1]):\n"
+             "    sys.exit(0)\n"
+             "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+             "while True:\n"
+             "    pass\n")
+
+
+def check_size(duration_s: float, rate_hz: float, load_cores: int, flags=("--duration-s", "--rate-hz",
+                                                                          "--load-cores")) -> None:
+    """Refuse a check whose time or memory would be unbounded (``--rate-hz 1e9`` once had the kernel's OOM
+    killer take the process), naming the flag and the bound.
+
+    Raises
+    ------
+    ValueError
+        A value outside :data:`MAX_RATE_HZ`, :data:`MAX_DURATION_S`, :data:`MAX_LOAD_CORES`, or more than
+        :data:`MAX_TICKS` ticks in all.
+    """
+    duration_flag, rate_flag, load_flag = flags
+    if not 0 < rate_hz <= MAX_RATE_HZ:
+        raise ValueError(f"{rate_flag} must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz:g}")
+    if not 0 < duration_s <= MAX_DURATION_S:
+        raise ValueError(f"{duration_flag} must be > 0 and at most {MAX_DURATION_S:g} s, got {duration_s:g}")
+    if not 0 <= load_cores <= MAX_LOAD_CORES:
+        raise ValueError(f"{load_flag} must be 0..{MAX_LOAD_CORES}, got {load_cores}")
+    ticks = (duration_s + 1.0) * rate_hz
+    if ticks > MAX_TICKS:
+        raise ValueError(f"{duration_flag} x {rate_flag} must be at most {MAX_TICKS} ticks (the check's log is kept "
+                         f"whole: {MAX_TICKS / 10000.0 / 60.0:g} min at 10 kHz), got {duration_s:g} s at "
+                         f"{rate_hz:g} Hz; run a shorter check, or several")
 
 
 class QuietDevice(Device):
@@ -74,8 +117,9 @@ class _QuietFactory:
 
 
 def start_load(n: int) -> list:
-    """Start ``n`` busy-looping Python processes at normal priority (unpinned); returns their Popen handles."""
-    return [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL,
+    """Start ``n`` busy-looping Python processes at normal priority (unpinned), which die with this one
+    (:data:`LOAD_CODE`); returns their Popen handles. Call it from the thread that outlives them (the main one)."""
+    return [subprocess.Popen([sys.executable, "-c", LOAD_CODE, str(os.getpid())], stdin=subprocess.DEVNULL,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for _ in range(int(n))]
 
 
@@ -118,9 +162,7 @@ def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: in
         granted, plumbing.rtpolicy), ``figures`` (:func:`renderer.timing_verdict.period_figures`),
         ``link`` (a hardware link's statistics, or None), ``verdict``.
     """
-    if not (duration_s > 0 and rate_hz > 0) or load_cores < 0:
-        raise ValueError(f"timing check: need duration_s > 0, rate_hz > 0 and load_cores >= 0, got "
-                         f"{duration_s!r}, {rate_hz!r}, {load_cores!r}")
+    check_size(duration_s, rate_hz, load_cores, ("duration_s", "rate_hz", "load_cores"))
     quiet = device == QUIET_DEVICE
     extra = {} if watchdog_s is None else {"watchdog_overrun_s": float(watchdog_s)}
     cfg = RendererConfig(motor_enabled=False, stiffness_N_m=0.0, rate_hz=float(rate_hz) if quiet else None,
@@ -131,6 +173,8 @@ def run_check(duration_s: float = 30.0, rate_hz: float = 10000.0, load_cores: in
                                 realtime=True, realtime_policy=realtime_policy)
     finally:
         stop_load(loads)
+    if result.stop_reason == "interrupted":   # Ctrl-C: no verdict (an interrupted check is neither pass nor fail)
+        raise KeyboardInterrupt
     rate = float(result.timing["rate_hz"])
     figures = period_figures(result.log["wall_ns"], rate)
     link = result.timing.get("link")

@@ -190,6 +190,8 @@ def load_catalog(path=None, library_dir=None) -> list[CatalogSample]:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML ({exc})") from None
+    except RecursionError:   # nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{path}: invalid TOML (nested too deeply)") from None
     unknown = sorted(set(data) - TOP_KEYS)
     if unknown:
         raise ValueError(f"{path}: unknown top-level key(s) {unknown} (allowed: {sorted(TOP_KEYS)})")

@@ -18,12 +18,15 @@ import io
 import json
 from pathlib import Path
 
-from plumbing.fileio import atomic_write_text, check_output_dir, clear_products
+from plumbing.fileio import atomic_write_text
+from plumbing.outdir import output_folder
+from plumbing.textsafe import csv_dict, csv_header
 from psychophysics.simulate import SimulationSettings, estimate_record, simulate
 
 from .observer_figures import plot_precision, plot_track
 
-#: what the command writes (replaced with --force)
+#: what the command writes (a folder of these alone, without the output marker, was written by an older version
+#: and is replaced by --force)
 PRODUCTS = ("estimate.json", "trials.csv", "runs.csv", "precision.csv", "precision.png", "precision.svg",
             "precision.plot.csv", "staircase.png", "staircase.svg", "staircase.plot.csv")
 
@@ -35,11 +38,14 @@ def run(args: argparse.Namespace) -> int:
                                   lapse=args.lapse, alternatives=args.alternatives, trials=args.trials,
                                   seed=args.seed, repeat=args.repeat, intensity_min=args.intensity_min,
                                   intensity_max=args.intensity_max)
-    out = check_output_dir(args.out, args.force)
-    if args.force and out.is_dir():  # an earlier run's precision files must not sit beside a new single run
-        clear_products(out, PRODUCTS)
-    result = simulate(settings)
-    write_results(result, out)
+    # written beside --out and swapped in whole, one writer at a time (plumbing.outdir): an interrupted run
+    # leaves the earlier results as they were, and an earlier run's precision files never sit beside a new
+    # single run's; a study's data is refused as --out whatever --force
+    folder = output_folder(args.out, args.force, command="study simulate-observer", own=PRODUCTS).open()
+    with folder:
+        result = simulate(settings)
+        write_results(result, folder.path)
+    out = folder.out
     est = result["first"]["estimate"]
     method = result["first"]["method"]
     # an up-down staircase converges on the intensity of its target probability (70.7 % for 2-down 1-up),
@@ -58,10 +64,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _csv(rows: list[dict]) -> str:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
-    w.writeheader()
-    for row in rows:
-        w.writerow({k: repr(v) if isinstance(v, float) else v for k, v in row.items()})
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(csv_header(rows[0]))
+    for row in rows:   # text never a spreadsheet formula (plumbing.textsafe)
+        w.writerow(csv_dict({k: repr(v) if isinstance(v, float) else v for k, v in row.items()}).values())
     return buf.getvalue()
 
 

@@ -156,7 +156,7 @@ def build_or_load(settings: PipelineSettings, cache_base: Path | None = None, re
             progress.say(f"cache entry {entry} unusable ({exc}); rebuilding", indent=False)
     # built beside the entry and swapped in whole, one builder at a time (plumbing.outdir): a killed build
     # leaves no half entry, and its debris is removed by the next build
-    with output_folder(entry, True, what="demo cache entry") as folder:
+    with output_folder(entry, True, what="demo cache entry", command="demo cache", own=("*",)) as folder:
         tmp = folder.path
         timings = build_pipeline(tmp, settings, progress)
         manifest = {"key": key, "settings": settings.to_dict(), "timings_s": timings,

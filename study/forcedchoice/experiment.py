@@ -25,6 +25,8 @@ import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+from devices.base import DeviceInfo
+from devices.limits import IMPLAUSIBLE_STIFFNESS_FACTOR, one_count_stiffness_N_m
 from plumbing.validation import require_int
 from psychophysics.multistair import Interleaved
 from psychophysics.names import METHOD_NAMES
@@ -39,6 +41,20 @@ METHODS = ("constant", *ADAPTIVE_METHODS)
 VARIED = {"discrimination": ("stiffness_N_m", "amplitude_Ns_m", "gain"),
           "detection": ("amplitude_Ns_m", "gain")}
 UNITS = {"stiffness_N_m": "N/m", "amplitude_Ns_m": "N*s/m", "gain": "1", "rendering": "1"}
+#: the sizes an [experiment] table may ask for, so that a session's plan, memory and time stay bounded (a typo
+#: such as ``trials_per_level = 1e9`` or a QUEST+ grid of 10^6 intensities is refused, naming the key and the
+#: bound): levels (or renderings), trials per level, trials planned in all, staircases, a staircase's
+#: ``max_trials``, the points of one QUEST+/Psi grid and the cells of its likelihood table (intensities x
+#: thresholds x slopes x lapses)
+MAX_LEVELS = 100
+MAX_TRIALS_PER_LEVEL = 1000
+MAX_PLANNED_TRIALS = 10_000
+MAX_STAIRCASES = 20
+MAX_STAIRCASE_TRIALS = 2000
+MAX_GRID_POINTS = 1000
+MAX_GRID_CELLS = 4_000_000
+#: the grids of a QUEST+/Psi table (:mod:`psychophysics.quest`)
+GRID_KEYS = ("intensities", "thresholds", "slopes", "lapses")
 QUESTIONS = {"real-virtual-2afc": "Which tap was on the real sample?",
              "discrimination": "Which surface was harder?",
              "detection": "Which tap had the click?"}
@@ -108,18 +124,27 @@ class ExperimentConfig:
     catch_intensity: float | None = None
 
     def __post_init__(self) -> None:
+        for key in ("renderings", "levels"):   # bounded before anything is made of them
+            value = getattr(self, key)
+            if isinstance(value, (list, tuple)) and len(value) > MAX_LEVELS:
+                raise ValueError(f"{key} lists {len(value)} values; at most {MAX_LEVELS}")
         object.__setattr__(self, "renderings", _str_tuple("renderings", self.renderings))
         object.__setattr__(self, "levels", _float_tuple("levels", self.levels))
         if self.kind not in KINDS:
             raise ValueError(f"kind must be one of {list(KINDS)}, got {self.kind!r}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {list(METHODS)}, got {self.method!r}")
-        require_int("trials_per_level", self.trials_per_level, minimum=1)
+        require_int("trials_per_level", self.trials_per_level, minimum=1, maximum=MAX_TRIALS_PER_LEVEL)
+        cells = len(self.renderings) if self.kind == "real-virtual-2afc" else len(self.levels)
+        if cells * self.trials_per_level > MAX_PLANNED_TRIALS:
+            raise ValueError(f"trials_per_level = {self.trials_per_level} x {cells} levels plans "
+                             f"{cells * self.trials_per_level} trials; at most {MAX_PLANNED_TRIALS} in one session")
         require_int("alternatives", self.alternatives, minimum=2, maximum=2)
         if self.intensity_scale not in ("linear", "log10"):
             raise ValueError(f"intensity_scale must be \"linear\" or \"log10\", got {self.intensity_scale!r}")
         if not isinstance(self.staircases, dict):
             raise ValueError(f"staircases must be a table of labelled staircase tables, got {self.staircases!r}")
+        _check_staircase_sizes(self.staircases)
         if self.kind == "real-virtual-2afc":
             self._check_real_virtual()
         else:
@@ -234,6 +259,39 @@ class ExperimentConfig:
         return d
 
 
+def _grid_size(value) -> int | None:
+    """The number of points of a grid as written (a list, or ``{"min", "max", "n"}``), None if not a grid."""
+    if isinstance(value, (list, tuple)):
+        return len(value)
+    if isinstance(value, dict) and isinstance(value.get("n"), int) and not isinstance(value.get("n"), bool):
+        return value["n"]
+    return None
+
+
+def _check_staircase_sizes(staircases: dict) -> None:
+    """Refuse staircases whose memory or time would be unbounded, naming the key and the bound (before any
+    staircase is built: a QUEST+ grid of 10^6 intensities would be allocated by its constructor)."""
+    if len(staircases) > MAX_STAIRCASES:
+        raise ValueError(f"staircases lists {len(staircases)} staircases; at most {MAX_STAIRCASES}")
+    for label, table in staircases.items():
+        if not isinstance(table, dict):
+            continue   # refused with its own message when the staircases are built
+        cap = table.get("max_trials")
+        if isinstance(cap, int) and not isinstance(cap, bool) and cap > MAX_STAIRCASE_TRIALS:
+            raise ValueError(f"staircases.{label}.max_trials = {cap}; at most {MAX_STAIRCASE_TRIALS}")
+        cells = 1
+        for key in GRID_KEYS:
+            n = _grid_size(table.get(key))
+            if n is None:
+                continue
+            if n > MAX_GRID_POINTS:
+                raise ValueError(f"staircases.{label}.{key} has {n} points; at most {MAX_GRID_POINTS}")
+            cells *= max(n, 1)
+        if cells > MAX_GRID_CELLS:
+            raise ValueError(f"staircases.{label}: its grids ({' x '.join(k for k in GRID_KEYS if k in table)}) "
+                             f"make {cells} cells; at most {MAX_GRID_CELLS}")
+
+
 def _str_tuple(key: str, value) -> tuple:
     if isinstance(value, str) or not isinstance(value, (list, tuple)) or \
             not all(isinstance(v, str) and v for v in value):
@@ -343,6 +401,102 @@ def stimulus_catalog(catalog, exp: ExperimentConfig) -> list:
     if exp.kind == "detection":
         out.append(derive_sample(base, exp, None))
     return out
+
+
+#: the slowest tap a person makes on the stand (m/s; the thesis's taps are 0.05-0.3 m/s, section 4.5): a
+#: velocity-scaled transient that asks more force than the amplifier gives even at this speed saturates every tap
+SLOWEST_TAP_M_S = 0.05
+
+
+def device_info(info) -> DeviceInfo:
+    """A :class:`devices.base.DeviceInfo` from the session's record of it (``asdict`` of one), or itself."""
+    if isinstance(info, DeviceInfo):
+        return info
+    names = {f.name for f in fields(DeviceInfo)}
+    return DeviceInfo(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in dict(info).items() if k in names})
+
+
+def unrenderable(sample, info) -> str | None:
+    """Why the device cannot render ``sample`` (a catalog sample, possibly derived), or None when it can.
+
+    Two bounds, the same the servo loop applies (:func:`devices.limits.check_stiffness`) or would meet on every
+    tap: a wall stiffer than :data:`devices.limits.IMPLAUSIBLE_STIFFNESS_FACTOR` times the stiffness at which one
+    encoder count commands the continuous force; a pulse or decaying sinusoid (eqs. 4.7, 4.8) whose force at
+    the slowest tap (:data:`SLOWEST_TAP_M_S`), ``gain * A * v``, is beyond the amplifier's (its current limit
+    times the force per amp): every tap would saturate and every attempt be invalid.
+
+    Parameters
+    ----------
+    sample : stimuli.CatalogSample
+    info : devices.base.DeviceInfo or dict
+    """
+    info = device_info(info)
+    if sample.kind != "virtual":
+        return None
+    k_max = IMPLAUSIBLE_STIFFNESS_FACTOR * one_count_stiffness_N_m(info)
+    if sample.stiffness_N_m > k_max:
+        return (f"stiffness {sample.stiffness_N_m:g} N/m is beyond what {info.name} can render (at most "
+                f"{k_max:.4g} N/m: {IMPLAUSIBLE_STIFFNESS_FACTOR:g} times the stiffness at which one encoder count "
+                "commands its continuous force)")
+    if sample.transient in ("pulse", "sinusoid"):
+        amplitude = sample.params.get("amplitude_Ns_m")
+        gain = sample.params.get("gain", 1.0)
+        if isinstance(amplitude, (int, float)) and isinstance(gain, (int, float)):
+            force = float(gain) * float(amplitude) * SLOWEST_TAP_M_S
+            limit = info.current_amplifier_A * info.force_per_amp_N_A
+            if force > limit:
+                return (f"a {sample.transient} of amplitude {gain * amplitude:g} N*s/m asks {force:.3g} N even at "
+                        f"a slow tap ({SLOWEST_TAP_M_S:g} m/s), beyond the {limit:.3g} N of {info.name}'s amplifier "
+                        f"({info.current_amplifier_A:g} A): every tap would saturate")
+    return None
+
+
+def levels_asked(exp: ExperimentConfig, catalog, base=None, handler=None) -> list:
+    """What a session can present, as ``(key, value, sample)``: a constant-stimuli plan's renderings, levels
+    and reference (``catalog``: the session's derived samples), or what an adaptive method's staircases can
+    ask for (each first intensity, ``max_intensity``, the top of a QUEST+/Psi grid; the catch trials' intensity
+    and the reference), derived from ``base``."""
+    if handler is None:
+        if exp.kind == "real-virtual-2afc":
+            return [("renderings", s.name, s) for s in catalog if s.kind == "virtual"]
+        by_name = {s.name: s for s in catalog}
+        values = [("levels", x) for x in exp.levels] + ([("reference", exp.reference)]
+                                                         if exp.kind == "discrimination" else [])
+        return [(key, x, by_name[level_name(exp.sample, exp.vary, x)]) for key, x in values]
+    asks = []
+    for label, m in handler.methods.items():
+        asks.append((f"staircases.{label} (its first intensity)", m.next_intensity()))
+        if getattr(m, "max_intensity", None) is not None:
+            asks.append((f"staircases.{label}.max_intensity", m.max_intensity))
+        grid = getattr(m, "x", None)
+        if grid is not None and len(grid):
+            asks.append((f"staircases.{label}.intensities (the top of the grid)", float(max(grid))))
+    if exp.catch_rate and exp.catch_intensity:
+        asks.append(("catch_intensity", exp.catch_intensity))
+    if exp.kind == "discrimination":
+        asks.append(("reference", exp.reference))
+    return [(key, float(x), derive_sample(base, exp, float(x))) for key, x in asks]
+
+
+def check_levels(asks: list, info) -> None:
+    """Refuse, before anything is written, a level the device cannot render (:func:`unrenderable`).
+
+    Parameters
+    ----------
+    asks : list of (str, object, CatalogSample)
+        :func:`levels_asked`.
+    info : devices.base.DeviceInfo or dict
+
+    Raises
+    ------
+    ValueError
+        ``"[experiment] <key> = <value>: <why>; ..."``.
+    """
+    for key, value, sample in asks:
+        why = unrenderable(sample, info)
+        if why:
+            shown = f"{value:g}" if isinstance(value, float) else repr(value)
+            raise ValueError(f"[experiment] {key} = {shown}: {why}; choose levels the device can render")
 
 
 def base_sample(catalog, exp: ExperimentConfig):

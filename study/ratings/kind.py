@@ -109,7 +109,8 @@ class Ratings(ExperimentKind):
     def __init__(self, plan, apparatus) -> None:
         super().__init__(plan, apparatus)
         self.schedule = Schedule([s.name for s in plan.catalog], self.protocol.repetitions, plan.seed,
-                                 self.protocol.familiarization_sample or None, plan.subject)
+                                 self.protocol.familiarization_sample or None, plan.subject,
+                                 self.max_attempts)
         self.subject = plan.subject
         self.fam_taps = 0
         self.attempts_run = 0
@@ -135,6 +136,14 @@ class Ratings(ExperimentKind):
         if not rows:
             return None
         self.schedule.replay(rows, fam_ended)
+        # a trial the replay closes as not renderable whose event a kill lost (between the last attempt's row and
+        # the event): logged now, as it would have been
+        logged = {(e.get("phase"), e.get("trial")) for e in events if e.get("event") == "not_renderable"}
+        for sched in self.schedule.phases.values():
+            for record in sched.abandoned:
+                if (record["phase"], record["trial"]) not in logged:
+                    store.log_event({"event": "not_renderable",
+                                     **{k: v for k, v in record.items() if k != "not_renderable"}})
         for row in rows:
             if row["phase"] == "familiarization":
                 self.fam_taps += row["n_taps"]
@@ -223,7 +232,10 @@ class Ratings(ExperimentKind):
         events = []
         if fam and self.schedule.phase != "familiarization":
             events.append(Event({"event": "familiarization_ended", "windows": trial.trial, "taps": self.fam_taps}))
-        if redraw is not None:
+        if redraw is not None and redraw.get("not_renderable"):   # max_attempts reached: the session goes on
+            events.append(Event({"event": "not_renderable", **{k: v for k, v in redraw.items()
+                                                                 if k != "not_renderable"}}))
+        elif redraw is not None:
             events.append(Event({"event": "redraw", **redraw}))
         if not fam and not result.no_tap:
             self.last_rating = "x" if result.rejected else result.rating
@@ -235,7 +247,8 @@ class Ratings(ExperimentKind):
         for name, sched in self.schedule.phases.items():
             total = len(sched.slots)
             attempts = len(sched.run_order)
-            out[name] = {"total": total, "attempts": attempts, "valid": attempts - len(sched.redraws)}
+            out[name] = {"total": total, "attempts": attempts,
+                         "valid": attempts - len(sched.redraws) - len(sched.abandoned)}
         return out
 
     def _status(self) -> dict:
@@ -243,7 +256,7 @@ class Ratings(ExperimentKind):
         the audio and the link)."""
         phases = list(self.schedule.phases.values())
         total = sum(len(s.slots) for s in phases)
-        valid = sum(len(s.run_order) - len(s.redraws) for s in phases)
+        valid = sum(len(s.run_order) - len(s.redraws) - len(s.abandoned) for s in phases)
         remaining = max(0, total - valid)
         done = self.attempts_run - self._attempts_at_start
         per_attempt = (time.monotonic() - self._t_start) / done if done else None
@@ -296,3 +309,7 @@ class Ratings(ExperimentKind):
         for phase, d in by_phase.items():
             print(f"  {phase:15s} attempts {d['attempts']:3d}  valid {d['valid']:3d}  saturated {d['saturated']:2d}  "
                   f"rejected {d['rejected']:2d}  overpowered {d['overpowered']:2d}")
+        for sched in self.schedule.phases.values():
+            for a in sched.abandoned:
+                print(f"  {a['phase']} trial {a['trial']} ({a['sample']}) not renderable: {a['attempts']} attempts, "
+                      f"none valid (max_attempts = {sched.max_attempts})")

@@ -75,6 +75,9 @@ class PhaseSchedule:
         Session seed.
     subject : str
         Subject id (mixed into the seed).
+    max_attempts : int or None
+        Attempts of one trial: the last one invalid closes the trial as not renderable (recorded in
+        :attr:`abandoned`, not drawn again) instead of redrawing it; None: no cap.
     """
 
     phase: str
@@ -82,12 +85,14 @@ class PhaseSchedule:
     repetitions: int
     seed: int
     subject: str = ""
+    max_attempts: int | None = None
     planned: list = field(default_factory=list)      # initial order of trial numbers
     pool: list = field(default_factory=list)         # remaining trial numbers, in draw order
     slots: dict = field(default_factory=dict)
     draws: int = 0
     redraws: list = field(default_factory=list)      # dicts: trial, attempt, sample, reason, reinserted_at
     run_order: list = field(default_factory=list)    # (trial, attempt) as actually run
+    abandoned: list = field(default_factory=list)    # dicts: trial, attempts, sample, reason (not renderable)
     current: int | None = None
 
     def __post_init__(self) -> None:
@@ -129,6 +134,14 @@ class PhaseSchedule:
         self.current = None
         if valid:
             return None
+        if self.max_attempts is not None and slot.attempts >= self.max_attempts:
+            # never valid in max_attempts attempts (a sample the device saturates on every tap): the trial is
+            # closed as not renderable and the session goes on
+            record = {"phase": self.phase, "trial": slot.trial.trial, "attempts": slot.attempts,
+                      "sample": slot.trial.sample, "reason": reason, "not_renderable": True,
+                      "attempts_run": len(self.run_order)}
+            self.abandoned.append(record)
+            return record
         self.draws += 1
         # drawn again "later at random": uniformly among the remaining pool positions
         position = int(phase_rng(self.seed, self.phase, self.draws, self.subject).integers(0, len(self.pool) + 1))
@@ -140,11 +153,15 @@ class PhaseSchedule:
         return record
 
     def summary(self) -> dict:
-        """The phase's plan and what ran: planned samples, run order (trial, attempt, sample), redraws."""
-        return {"planned": [self.slots[n].trial.sample for n in self.planned],
-                "planned_trials": list(self.planned),
-                "run": [{"trial": t, "attempt": a, "sample": self.slots[t].trial.sample} for t, a in self.run_order],
-                "redraws": list(self.redraws)}
+        """The phase's plan and what ran: planned samples, run order (trial, attempt, sample), redraws, and the
+        trials not renderable (when any)."""
+        out = {"planned": [self.slots[n].trial.sample for n in self.planned],
+               "planned_trials": list(self.planned),
+               "run": [{"trial": t, "attempt": a, "sample": self.slots[t].trial.sample} for t, a in self.run_order],
+               "redraws": list(self.redraws)}
+        if self.abandoned:
+            out["not_renderable"] = list(self.abandoned)
+        return out
 
 
 class Schedule:
@@ -155,7 +172,7 @@ class Schedule:
     """
 
     def __init__(self, samples, repetitions: int, seed: int, familiarization_sample: str | None,
-                 subject: str = "") -> None:
+                 subject: str = "", max_attempts: int | None = None) -> None:
         self.samples = tuple(samples)
         if not self.samples:
             raise ValueError("the catalog has no samples")
@@ -166,8 +183,8 @@ class Schedule:
         self.familiarization_windows = 0
         self.familiarization_done = familiarization_sample is None
         self.phases = {
-            "demonstration": PhaseSchedule("demonstration", self.samples, 1, self.seed, subject),
-            "testing": PhaseSchedule("testing", self.samples, int(repetitions), self.seed, subject),
+            "demonstration": PhaseSchedule("demonstration", self.samples, 1, self.seed, subject, max_attempts),
+            "testing": PhaseSchedule("testing", self.samples, int(repetitions), self.seed, subject, max_attempts),
         }
 
     @property

@@ -27,9 +27,11 @@ from .store import check_subject_id
 #: The thesis's values (section 4.5.3) are far inside them: 3 repetitions, 5 s windows, 1 cm.
 MAX_REPETITIONS = 100
 MAX_FAMILIARIZATION_WINDOWS = 1000
+#: the most attempts of one trial (``max_attempts``): beyond it a trial is recorded as not renderable
+MAX_ATTEMPTS_LIMIT = 100
 PROTOCOL_LIMITS = {"tap_window_s": 60.0, "familiarization_window_s": 60.0, "first_tap_timeout_s": 600.0,
                    "homing_after_s": 60.0, "homing_before_max_s": 60.0, "home_height_m": 0.1,
-                   "audio_fs_hz": 192000.0, "servo_watchdog_s": 1.0}
+                   "audio_fs_hz": 192000.0, "servo_watchdog_s": 1.0, "timing_check_s": 300.0}
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,12 @@ class ProtocolConfig:
         Length of one recorded familiarization window.
     familiarization_max_windows : int
         Safety cap on familiarization windows.
+    max_attempts : int
+        Attempts of one trial (1-100, default 10): a trial whose every attempt was invalid (saturated,
+        overpowered, no tap, rejected) that many times is recorded as not renderable (``not_renderable`` in
+        schedule.jsonl, no row) and the session goes on; a stimulus the device cannot render (a level far above
+        the amplifier's limit) so never loops for ever (docs/study.md, "Attempts and trials that cannot be
+        rendered").
     masking_level_dbfs : float
         White-noise RMS level re digital full scale.
     cue_level_db : float
@@ -84,6 +92,7 @@ class ProtocolConfig:
     familiarization_sample: str = "wood"
     familiarization_window_s: float = 5.0
     familiarization_max_windows: int = 60
+    max_attempts: int = 10
     masking_level_dbfs: float = -20.0
     cue_level_db: float = 0.0
     audio_fs_hz: float = 44100.0
@@ -105,6 +114,7 @@ class ProtocolConfig:
             require_number(name, getattr(self, name), maximum=limit)
         require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1,
                     maximum=MAX_FAMILIARIZATION_WINDOWS)
+        require_int("max_attempts", self.max_attempts, minimum=1, maximum=MAX_ATTEMPTS_LIMIT)
         if not (isinstance(self.masking_level_dbfs, (int, float)) and not isinstance(self.masking_level_dbfs, bool)
                 and math.isfinite(self.masking_level_dbfs) and -100.0 <= self.masking_level_dbfs <= -3.0):
             raise ValueError(f"masking_level_dbfs must be between -100 and -3 dBFS, got {self.masking_level_dbfs!r}")
@@ -151,6 +161,9 @@ def read_protocol_file(path) -> tuple[dict, object]:
         data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{p}: cannot parse ({exc})") from None
+    except RecursionError:   # e.g. a JSON array nested 10^5 deep: one line, not a traceback
+        raise ValueError(f"{p}: cannot parse (nested too deeply: tables and lists go at most a few hundred "
+                         "levels deep)") from None
     if not isinstance(data, dict):
         raise ValueError(f"{p}: a protocol file must hold a table/object of settings, got {type(data).__name__}")
     table = data.pop("experiment", None)

@@ -91,6 +91,13 @@ class ExperimentKind(ABC):
         self.session_plan = plan
         self.apparatus = apparatus
         self.protocol = plan.protocol
+        #: attempts of one trial before it is recorded as not renderable (the protocol's ``max_attempts``); None
+        #: for a session begun by a version without the cap (its session.json's protocol has no such key), so
+        #: that its resumption replays its rows as they were run
+        self.max_attempts = getattr(plan.protocol, "max_attempts", None)
+        previous = getattr(plan, "previous", None)
+        if previous is not None and "max_attempts" not in (previous.get("protocol") or {}):
+            self.max_attempts = None
         #: catalog name -> "real" | "virtual" of every sample the session presents (a kind adds the ones it derives)
         self.sample_kinds = {s.name: s.kind for s in plan.catalog}
         #: what the operator puts on the stand (the loop asks it; a resumed session restores it)
@@ -108,10 +115,18 @@ class ExperimentKind(ABC):
         """Continue after the ``rows`` on disk (``--resume``; ``events``: schedule.jsonl's); a line the kill
         lost is written again through ``store``. Returns the note printed, or None.
 
+        Called before anything of the resumption is written (session.json's ``resumed_at``, the ``resume``
+        event): check here everything a row and the kind's own files must agree on, so that a refused session
+        is left exactly as it was. ``rows`` were parsed by :attr:`rows` (``RowFormat.parse``: each value's type,
+        range and the row's own consistency); what only the kind knows is its to check: each row against the
+        plan or the adaptive method's replay (intensities, samples, the target), the attempt numbers against
+        the logged invalid attempts, the kind's entries in ``store.session``, and its JSON-lines files
+        (``store.read_json_lines``: a torn last line is kept aside; a duplicated or foreign line refused).
+
         Raises
         ------
         ValueError
-            A row this session would not have recorded (another seed, an edited file).
+            A row this session would not have recorded (another seed, an edited file), naming file and line.
         """
 
     @abstractmethod

@@ -181,10 +181,6 @@ def _session(args, plan, say, web) -> int:
                 participant.ui = ui
         loop = SessionLoop(store=store, kind=kind, apparatus=apparatus, participant=participant, audio=audio, ui=ui,
                            protocol=protocol, markers=markers)
-        if previous is not None:
-            note = kind.restore(store, rows, events)
-            if note:
-                say(note)
         if sim_participant is not None:
             reference = kind.reference(apparatus)
             if reference is not None:

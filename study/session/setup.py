@@ -312,6 +312,9 @@ def start_session(plan: SessionPlan, args, experiment, device_info: dict, servo_
         naming the line.
     events : list of dict
         schedule.jsonl's events before this resumption (empty for a new session).
+
+    A resumed session's kind has restored itself (:meth:`study.session.kind.ExperimentKind.restore`: its checks
+    of the rows and files, and what a kill lost written again) before anything of the resumption is written.
     """
     store, previous, subject, info = plan.store, plan.previous, plan.subject, plan.info
     protocol, seed, catalog = plan.protocol, plan.seed, plan.catalog
@@ -339,8 +342,13 @@ def start_session(plan: SessionPlan, args, experiment, device_info: dict, servo_
         return [], []
     store.session = previous
     rows = store.read_trials()        # every row checked: a damaged file is refused, naming the line
-    store.hold_trials()
     events = store.read_events()      # a torn last line is kept aside before anything is appended
+    store.hold_trials()               # held once mended: a change from now on stops the session
+    # the kind checks the rows and its files against the session (and writes what a kill lost) before the
+    # resumption is recorded: a refused file leaves session.json and schedule.jsonl as they were
+    note = experiment.restore(store, rows, events)
+    if note and not getattr(args, "quiet", False):
+        print(note, flush=True)
     store.session.setdefault("resumed_at", []).append(utc_now())
     # parallel to resumed_at: the audio (cue source) of each resumed part, which may differ from the first
     store.session.setdefault("audio_resumed", []).append(audio_info)

@@ -24,8 +24,14 @@ Start-up is atomic: the folder is built as ``DATA/.<subject>.starting-*``
 subject folder (the debris is ignored and cleaned by the next start).
 
 One writer per subject: ``DATA/<subject>/.lock`` is held with an exclusive
-``fcntl.flock`` for the whole run (it dies with the process); it holds the pid
-and host of the holder, which a second runner names in its error.
+``fcntl.flock`` for the whole run (it dies with the process) and removed when the
+run ends; a second runner names the holder's pid (the kernel's, from its table of
+locks) and host in its error.
+
+Every file a session appends to (trials.csv, schedule.jsonl, staircase_state.jsonl)
+is held open from the start (or its first line) to the end and checked before every
+write: one moved, replaced, truncated or appended to by something else stops the
+session before anything more is written.
 """
 
 from __future__ import annotations
@@ -50,6 +56,8 @@ from plumbing.studyfiles import (RATING, RATING_CORE_COLUMNS, SCHEDULE_JSONL, SE
                                  DamagedRow, RowFormat, parse_trials, read_session_json, trace_name)
 
 LOCK_NAME = ".lock"
+#: where the traces of an attempt that was run again after a kill are kept (``traces/interrupted/``)
+INTERRUPTED_DIR = "interrupted"
 
 
 class SubjectBusy(ValueError):
@@ -93,7 +101,9 @@ def release_all_locks() -> None:
 
 class SubjectLock(FileLock):
     """Exclusive per-subject OS lock: ``fcntl.flock`` on ``<folder>/.lock``, released when the process dies
-    (:class:`plumbing.outdir.FileLock`, the lock of every output folder; this one stays in the folder).
+    (:class:`plumbing.outdir.FileLock`, the lock of every output folder). The file is removed when the lock is
+    released (a session's end, clean or not, but not a kill): no stale pid is left in the folder, and a runner
+    that opened the file just before its removal locks a new one (:meth:`FileLock.try_acquire`).
 
     Parameters
     ----------
@@ -102,7 +112,7 @@ class SubjectLock(FileLock):
     """
 
     def __init__(self, folder: Path) -> None:
-        super().__init__(Path(folder) / LOCK_NAME)
+        super().__init__(Path(folder) / LOCK_NAME, unlink=True)
 
     def acquire(self, subject: str) -> None:
         """Take the lock or raise :class:`SubjectBusy` naming the holder; then write our pid and host."""
@@ -224,7 +234,7 @@ def _whole_json_line(head: bytes, last: bytes, where: str) -> bool:
     """Whether ``last`` (a JSON-lines file's last line without its newline) is a whole JSON object."""
     try:
         return isinstance(json.loads(last), dict)
-    except ValueError:
+    except (ValueError, RecursionError):
         return False
 
 
@@ -235,6 +245,48 @@ _ATOMIC_PRODUCTS = (".json", ".jsonl", ".csv", ".npz")
 def _is_session_temp(name: str) -> bool:
     target = atomic_temp_target(name)
     return target is not None and target.endswith(_ATOMIC_PRODUCTS)
+
+
+class _Held:
+    """A subject file held open for appending: its path, descriptor, (device, inode) and the size this runner
+    left it at."""
+
+    __slots__ = ("path", "fd", "ident", "size")
+
+    def __init__(self, path: Path, fd: int, ident: tuple, size: int) -> None:
+        self.path, self.fd, self.ident, self.size = path, fd, ident, size
+
+    def check(self, rows_note: str | None) -> None:
+        """Raise :class:`DataFileChanged` unless the path still names this file, with the size this runner left."""
+        held = os.fstat(self.fd)
+        try:
+            now = os.stat(self.path)
+        except FileNotFoundError:
+            now = None
+        if now is None or (now.st_dev, now.st_ino) != self.ident:
+            where = _fd_path(self.fd)
+            what = "was moved away or deleted" if now is None else "was replaced by another file"
+            raise DataFileChanged(
+                f"{self.path} {what} while the session ran"
+                + (f" (the runner's file is now {where})" if where else "")
+                + f"; the session stopped and wrote nothing more"
+                + (f" ({rows_note})" if rows_note else "")
+                + f". Put the runner's file back as {self.path} and continue with --resume")
+        if held.st_size != self.size:
+            change = "truncated" if held.st_size < self.size else "appended to by another program"
+            raise DataFileChanged(
+                f"{self.path} was {change} while the session ran ({held.st_size} bytes, the runner "
+                f"wrote {self.size}); the session stopped and wrote nothing more. Check the file "
+                "(docs/study.md, \"A damaged trials.csv\") and continue with --resume")
+
+    def append(self, data: bytes) -> None:
+        """Append ``data`` through the descriptor, fsync it, and account for its size."""
+        view = memoryview(data)
+        while view:
+            n = os.write(self.fd, view)
+            view = view[n:]
+        os.fsync(self.fd)
+        self.size += len(data)
 
 
 class SessionStore:
@@ -265,9 +317,9 @@ class SessionStore:
         self.session: dict | None = None
         self.lock: SubjectLock | None = None
         self.legacy_columns = False
-        self._trials_fd: int | None = None   # trials.csv, held open from the session's start to its end
-        self._trials_id: tuple | None = None  # its (device, inode)
-        self._trials_size = 0                 # its size as this runner left it
+        #: the files held open from the session's start to its end (trials.csv, schedule.jsonl, and
+        #: staircase_state.jsonl once written): name -> :class:`_Held`
+        self._held: dict = {}
 
     # -- checks before anything starts -----------------------------------
     def check(self) -> None:
@@ -355,63 +407,54 @@ class SessionStore:
             self.lock.release()
             self.lock = None
 
-    # -- the data file, held --------------------------------------------------
+    # -- the data files, held ---------------------------------------------------
     def hold_trials(self) -> None:
-        """Open trials.csv once for the whole session (appending) and remember which file it is and its size.
+        """Open trials.csv and schedule.jsonl once for the whole session (appending) and remember which files
+        they are and their sizes (a JSON-lines file written later, staircase_state.jsonl, is held from its
+        first line on: :meth:`append_json_line`).
 
-        Every later write first checks (:meth:`check_trials`) that the path still names this file with
-        the size this runner left: a file moved away, replaced, truncated or appended to by something else
-        stops the session before anything more is written."""
-        if self._trials_fd is not None:
-            return
-        fd = os.open(self.trials_path, os.O_WRONLY | os.O_APPEND | os.O_CLOEXEC)
-        st = os.fstat(fd)
-        self._trials_fd, self._trials_id, self._trials_size = fd, (st.st_dev, st.st_ino), st.st_size
-        _HELD_STORES.add(self)
+        Every later write first checks (:meth:`check_trials`) that each path still names its file with the
+        size this runner left: a file moved away, replaced, truncated or appended to by something else stops
+        the session before anything more is written."""
+        self._hold(TRIALS_CSV)
+        if (self.dir / SCHEDULE_JSONL).exists():
+            self._hold(SCHEDULE_JSONL)
+
+    def hold_file(self, name: str) -> None:
+        """Hold the subject's file ``name`` (a JSON-lines file a kind reads on ``--resume``, once its torn last
+        line was mended) like trials.csv, when it exists: a change from now on stops the session."""
+        if (self.dir / name).exists():
+            self._hold(name)
+
+    def _hold(self, name: str, create: bool = False) -> "_Held":
+        held = self._held.get(name)
+        if held is None:
+            flags = os.O_WRONLY | os.O_APPEND | os.O_CLOEXEC | (os.O_CREAT if create else 0)
+            fd = os.open(self.dir / name, flags, 0o666)
+            st = os.fstat(fd)
+            held = self._held[name] = _Held(self.dir / name, fd, (st.st_dev, st.st_ino), st.st_size)
+            _HELD_STORES.add(self)
+        return held
 
     def close_trials(self) -> None:
-        """Close the held trials.csv (harmless when not held)."""
-        if self._trials_fd is not None:
-            os.close(self._trials_fd)
-            self._trials_fd = None
+        """Close the held files (harmless when none is held)."""
+        for held in self._held.values():
+            os.close(held.fd)
+        self._held = {}
         _HELD_STORES.discard(self)
 
     def check_trials(self) -> None:
-        """Raise :class:`DataFileChanged` unless trials.csv is still the file this runner holds, unchanged."""
-        fd = self._trials_fd
-        if fd is None:
-            return
-        held = os.fstat(fd)
-        try:
-            now = os.stat(self.trials_path)
-        except FileNotFoundError:
-            now = None
-        if now is None or (now.st_dev, now.st_ino) != self._trials_id:
-            where = _fd_path(fd)
-            what = ("was moved away or deleted" if now is None else "was replaced by another file")
-            raise DataFileChanged(
-                f"{self.trials_path} {what} while the session ran"
-                + (f" (the runner's file is now {where})" if where else "")
-                + f"; the session stopped and wrote nothing more ({self._rows_note()}). Put the runner's file "
-                f"back as {self.trials_path} and continue with --resume")
-        if held.st_size != self._trials_size:
-            change = "truncated" if held.st_size < self._trials_size else "appended to by another program"
-            raise DataFileChanged(
-                f"{self.trials_path} was {change} while the session ran ({held.st_size} bytes, the runner "
-                f"wrote {self._trials_size}); the session stopped and wrote nothing more. Check the file "
-                "(docs/study.md, \"A damaged trials.csv\") and continue with --resume")
+        """Raise :class:`DataFileChanged` unless every held file is still the file this runner holds, unchanged."""
+        for held in self._held.values():
+            held.check(self._rows_note() if held.path == self.trials_path else None)
 
     def _rows_note(self) -> str:
-        return f"{self._trials_size} bytes of rows were written to it"
+        held = self._held.get(TRIALS_CSV)
+        return f"{held.size if held else 0} bytes of rows were written to it"
 
-    def _append_held(self, data: bytes) -> None:
-        """Append ``data`` through the held descriptor, fsync it, and account for its size."""
-        view = memoryview(data)
-        while view:
-            n = os.write(self._trials_fd, view)
-            view = view[n:]
-        os.fsync(self._trials_fd)
-        self._trials_size += len(data)
+    def _append_held(self, data: bytes, name: str = TRIALS_CSV) -> None:
+        """Append ``data`` through the held file ``name``, fsync it, and account for its size."""
+        self._held[name].append(data)
 
     # -- session.json ----------------------------------------------------
     def load_session(self) -> dict:
@@ -490,18 +533,23 @@ class SessionStore:
 
     def append_trial_text(self, text: str) -> None:
         """Append formatted CSV line(s) through the held trials.csv and fsync them; :class:`DataFileChanged`
-        first if the file changed under the runner (every kind of session writes its rows through this)."""
+        first if a held file changed under the runner (every kind of session writes its rows through this)."""
         self.hold_trials()
         self.check_trials()
         self._append_held(text.encode("utf-8"))
 
     # -- the JSON-lines files: schedule.jsonl, staircase_state.jsonl ------------------------------------------
     def append_json_line(self, name: str, line: dict, label: str) -> None:
-        """Append ``line`` as one JSON line to the subject's file ``name`` and fsync it (on disk when this
-        returns); :class:`DataFileChanged` first if trials.csv changed under the runner. ``label`` names the
-        durable step (:func:`crash_point`)."""
+        """Append ``line`` as one JSON line to the subject's file ``name`` through its held descriptor and fsync
+        it (on disk when this returns); :class:`DataFileChanged` first if a held file changed under the runner.
+        ``label`` names the durable step (:func:`crash_point`)."""
+        held = self._hold(name, create=True) if self._held else None
         self.check_trials()
-        _append_durably(self.dir / name, (json.dumps(line) + "\n").encode("utf-8"))
+        data = (json.dumps(line) + "\n").encode("utf-8")
+        if held is None:   # not a session's store (a caller that holds nothing): a plain durable append
+            _append_durably(self.dir / name, data)
+        else:
+            held.append(data)
         crash_point(label)
 
     def read_json_lines(self, name: str, then: str = "removed it and kept it in") -> list[dict]:
@@ -525,6 +573,9 @@ class SessionStore:
                 obj = json.loads(line)
             except ValueError as exc:
                 raise ValueError(f"{path} line {number}: not a JSON object ({exc}); the file is damaged") from None
+            except RecursionError:
+                raise ValueError(f"{path} line {number}: not a JSON object (nested too deeply); the file is "
+                                 "damaged") from None
             if not isinstance(obj, dict):
                 raise ValueError(f"{path} line {number}: not a JSON object; the file is damaged")
             out.append(obj)
@@ -539,14 +590,33 @@ class SessionStore:
         return self.read_json_lines(SCHEDULE_JSONL)
 
     # -- traces ----------------------------------------------------------
+    def _keep_aside(self, path: Path) -> Path:
+        """Move the trace ``path`` of an earlier, unrecorded attempt into ``traces/interrupted/``; returns where."""
+        aside = self.traces_dir / INTERRUPTED_DIR
+        aside.mkdir(exist_ok=True)
+        target, n = aside / path.name, 1
+        while target.exists():
+            n += 1
+            target = aside / f"{path.stem}.{n}{path.suffix}"
+        os.rename(path, target)
+        fsync_dir(aside)
+        fsync_dir(self.traces_dir)
+        return target
+
     def trace_path(self, phase: str, trial: int, attempt: int) -> Path:
         """Path of the trace file of one attempt (``<phase>_t<trial>_a<attempt>.npz``)."""
         return self.traces_dir / trace_name(phase, trial, attempt)
 
     def write_trace(self, phase: str, trial: int, attempt: int, arrays: dict) -> Path:
-        """Write one attempt's arrays (``np.savez``) atomically; returns the path."""
+        """Write one attempt's arrays (``np.savez``) atomically; returns the path.
+
+        A trace already there belongs to an attempt run before a kill that has no row and no event (cut short,
+        or its event line torn): it is moved to ``traces/interrupted/`` first (``<name>``, then ``<name>.2.npz``,
+        ...), never overwritten."""
         self.check_trials()  # a session whose trials.csv is gone writes no trace either
         path = self.trace_path(phase, trial, attempt)
+        if path.exists():
+            self._keep_aside(path)
         buf = io.BytesIO()
         np.savez(buf, **arrays)
         atomic_write_bytes(path, buf.getvalue())

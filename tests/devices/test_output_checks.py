@@ -65,3 +65,29 @@ def test_linearity_out_that_is_a_file_is_refused_before_measuring(tmp_path, _dev
     _one_error_line(res, "--out afile is a file, not a folder")
     assert "[1/7]" not in res.stdout                            # before the first condition
     assert sha256(tmp_path / "afile") == before
+
+
+def test_linearity_report_is_staged_and_keeps_the_users_files(tmp_path, capsys):
+    """Its report is written beside --out and swapped in (an earlier one refused without --force, replaced with
+    it; the folder's other files kept); a study's subject folder is refused whatever --force."""
+    from devices.__main__ import main
+    out = tmp_path / "L"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's\n")
+    (out / "linearity.json").write_text("{}\n")                 # an earlier report
+    args = ["linearity", "--device", "sim", "--trials", "2", "--out", str(out)]
+    assert main(args) == 2
+    assert f"--out {out} already holds a linearity report (linearity.json)" in capsys.readouterr().err
+    assert main(args + ["--force"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["linearity.json", "linearity.plot.csv", "linearity.png",
+                                                     "linearity.svg", "linearity.txt", "notes.txt"]
+    assert (out / "notes.txt").read_text() == "the user's\n" and "conclusion" in (out / "linearity.json").read_text()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]   # no staging folder, no lock
+    subject = tmp_path / "DATA" / "S01"
+    subject.mkdir(parents=True)
+    (subject / "session.json").write_text("{}")
+    (subject / "trials.csv").write_text("subject\n")
+    capsys.readouterr()
+    assert main(["linearity", "--device", "sim", "--trials", "2", "--out", str(subject), "--force"]) == 2
+    assert "is the subject folder" in capsys.readouterr().err
+    assert sorted(p.name for p in subject.iterdir()) == ["session.json", "trials.csv"]

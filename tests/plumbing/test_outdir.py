@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from plumbing.outdir import FileLock, OutputBusy, output_folder
+from plumbing.outdir import MARKER, FileLock, OutputBusy, output_folder
 from tests.support.files import tree_hashes
 from tests.support.procs import kill
 
@@ -26,12 +26,18 @@ WRITER = textwrap.dedent("""
 
 
 def _earlier(tmp_path: Path) -> Path:
+    """An earlier run's folder, written by the helper (so it holds the marker that lets --force replace it)."""
     out = tmp_path / "R"
-    out.mkdir()
-    (out / "report.md").write_text("S1's report")
-    (out / "tables").mkdir()
-    (out / "tables" / "a.csv").write_text("1,2\n")
+    with output_folder(out, False) as w:
+        (w.path / "report.md").write_text("S1's report")
+        (w.path / "tables").mkdir()
+        (w.path / "tables" / "a.csv").write_text("1,2\n")
     return out
+
+
+def _files(out: Path) -> list[str]:
+    """The files of ``out`` but the helper's marker."""
+    return sorted(name for name in tree_hashes(out) if name != MARKER)
 
 
 def _debris(tmp_path: Path) -> list[str]:
@@ -52,7 +58,7 @@ def test_new_folder_appears_whole_and_leaves_nothing_beside(tmp_path):
         assert w.path.parent == tmp_path and w.path != out and not out.exists()
         (w.path / "a.txt").write_text("a")
         assert FileLock.busy(tmp_path / ".R.lock")
-    assert tree_hashes(out).keys() == {"a.txt"}
+    assert _files(out) == ["a.txt"] and (out / MARKER).is_file()
     assert _debris(tmp_path) == []                           # no staging folder, no lock file
 
 
@@ -69,7 +75,7 @@ def test_force_replaces_the_whole_folder(tmp_path):
     with output_folder(out, True) as w:
         assert w.replacing
         (w.path / "report.md").write_text("S2's report")
-    assert tree_hashes(out).keys() == {"report.md"}          # no S1 table beside S2's report
+    assert _files(out) == ["report.md"]                      # no S1 table beside S2's report
     assert (out / "report.md").read_text() == "S2's report" and _debris(tmp_path) == []
 
 
@@ -80,7 +86,7 @@ def test_products_replace_only_the_commands_files(tmp_path):
         output_folder(out, False, products=("report.*",)).open()
     with output_folder(out, True, products=("report.*", "tables")) as w:
         (w.path / "report.md").write_text("new")
-    assert sorted(tree_hashes(out)) == ["notes.txt", "report.md"]
+    assert _files(out) == ["notes.txt", "report.md"]
     assert (out / "notes.txt").read_text() == "the user's" and _debris(tmp_path) == []
 
 
@@ -117,7 +123,7 @@ def test_a_second_writer_is_refused_naming_the_first(tmp_path):
         assert proc.wait() == 0, proc.stderr.read()
     finally:
         kill(proc.pid)
-    assert sorted(tree_hashes(out)) == ["late.txt", "new.txt"] and _debris(tmp_path) == []
+    assert _files(out) == ["late.txt", "new.txt"] and _debris(tmp_path) == []
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129), (signal.SIGINT, -2)])
@@ -144,7 +150,7 @@ def test_a_killed_writers_debris_is_reclaimed_by_the_next(tmp_path):
     with output_folder(out, True) as w:
         assert w.reclaimed == [staging]
         (w.path / "report.md").write_text("next")
-    assert tree_hashes(out).keys() == {"report.md"} and _debris(tmp_path) == []
+    assert _files(out) == ["report.md"] and _debris(tmp_path) == []
 
 
 def test_the_lock_file_survives_no_race_with_its_removal(tmp_path):

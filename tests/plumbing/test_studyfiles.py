@@ -1,5 +1,6 @@
 """plumbing.studyfiles: the study's files defined once (rows written and read back, the readers' errors)."""
 
+import csv
 import math
 
 import pytest
@@ -51,7 +52,7 @@ def test_older_rating_files_without_the_familiarization_flag_are_read():
 @pytest.mark.parametrize("tail, says", [
     ("S01,2," + "x" * 200_000 + "\n", "line 3: not CSV (field larger than field limit (131072))"),
     ("S01,3,1" + ",0" * (len(FORCED_CHOICE_COLUMNS) - 3) + "\n", "line 3: bad value"),
-    (FORCED_CHOICE.line({**FC_ROW, "trial": 3}), "line 3: trial 3, expected 2 (trials are consecutive)"),
+    (FORCED_CHOICE.line({**FC_ROW, "trial": 1}), "line 3: trial 1 after trial 1 (trials are in order, one row each)"),
     (FORCED_CHOICE.line({**FC_ROW, "trial": 2, "subject": "S02"}), "line 3: subject='S02', but the session is 'S01'"),
 ])
 def test_a_damaged_row_is_one_error_naming_the_line(tail, says):
@@ -93,3 +94,17 @@ def test_a_missing_or_folder_session_json(tmp_path):
 def _write(path, text):
     path.write_text(text)
     return path
+
+
+@pytest.mark.parametrize("fmt, row, names", [
+    (RATING, RATING_ROW, {"sample": "=HYPERLINK(\"http://e.example\")"}),
+    (FORCED_CHOICE, FC_ROW, {"condition": "+cond", "staircase": "@A", "sample_1": "-x", "sample_2": "'quoted"}),
+])
+def test_names_a_spreadsheet_would_run_are_quoted_and_read_back(fmt, row, names):
+    """A name beginning with = + - @ (or a quote) is written with a quote first, and read back as named."""
+    row = {**row, **names}
+    line = fmt.line(row)
+    cells = next(csv.reader([line]))
+    assert all(cells[fmt.columns.index(k)] == "'" + v for k, v in names.items())
+    rows, _ = parse_trials(fmt, (fmt.header_line() + line).encode(), "t.csv", "S01")
+    assert all(rows[0][k] == v for k, v in names.items())

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from plumbing.outdir import MARKER
+
 from renderer.__main__ import main
 from tests.support.files import tree_hashes
 
@@ -59,7 +61,7 @@ def test_a_second_run_into_the_same_out_is_refused_while_the_first_writes(tmp_pa
     assert first.returncode == 143, err
     # the stopped run had no earlier results to keep: its partial run is --out, whole, and nothing is beside it
     assert sorted(p.name for p in tmp_path.iterdir()) == ["X"]
-    assert sorted(tree_hashes(out)) == ["events.csv", "log.npz", "run.json"]
+    assert sorted(tree_hashes(out)) == [MARKER, "events.csv", "log.npz", "run.json"]   # the helper's marker too
 
 
 def test_a_stopped_forced_run_keeps_the_earlier_run_exactly(tmp_path):
@@ -98,7 +100,7 @@ def test_a_partial_run_over_an_earlier_one_is_set_aside(tmp_path, capsys):
     assert capsys.readouterr().err == (f"stopped by SIGTERM: partial run saved to {tmp_path / 'X.interrupted'} "
                                        f"({out} keeps the earlier run)\n")
     kept = tree_hashes(tmp_path / "X.interrupted")
-    assert tree_hashes(out) == before and sorted(kept) == ["events.csv", "log.npz", "run.json"]
+    assert tree_hashes(out) == before and sorted(kept) == [MARKER, "events.csv", "log.npz", "run.json"]
     assert kept["events.csv"] == tree_hashes(other)["events.csv"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["X", "X.interrupted", "Y"]
 

@@ -5,6 +5,7 @@ import csv
 import numpy as np
 
 import figstyle
+from plumbing.outdir import MARKER
 from renderer.loop import RunResult
 from renderer.run_figure import envelope, plot_run, run_figure_data
 from tests.support.cli import run_cli
@@ -57,7 +58,7 @@ def test_no_figure_leaves_only_the_data(tmp_path, capsys):
     out = tmp_path / "run"
     proc = run_cli(capsys, "renderer", "run", "--device", "sim", "--taps", "1", "--no-figure", "--out", out)
     assert proc.returncode == 0, proc.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["events.csv", "log.npz", "run.json"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "events.csv", "log.npz", "run.json"]
 
 
 def test_an_on_device_run_does_not_draw_the_boards_forces_as_zero(tmp_path):

@@ -188,17 +188,19 @@ def state_lines(folder: Path) -> list:
 class ForcedChoiceKillHarness:
     """A warm process, an uninterrupted reference session and kill/resume cases at chosen durable steps."""
 
-    def __init__(self, work: Path, protocol_text: str, seed: int = 4, key: tuple = FORCED_CHOICE_KEY) -> None:
+    def __init__(self, work: Path, protocol_text: str, seed: int = 4, key: tuple = FORCED_CHOICE_KEY,
+                 extra: tuple = ()) -> None:
         self.key = key   # the columns compared (another kind's trials.csv: its own)
         self.work = Path(work)
         self.protocol = self.work / "protocol.toml"
         self.protocol.write_text(protocol_text)
         self.seed = seed
+        self.extra = tuple(str(x) for x in extra)   # more ``study run`` arguments of a new session
         log = self.work / "steps.log"
         store._CRASH_COUNT = 0
         os.environ["STUDY_CRASH_LOG"] = str(log)
         try:
-            code = study_main(session_args(self.protocol, self.work / "ref", "K", seed))
+            code = study_main(session_args(self.protocol, self.work / "ref", "K", seed, False, *self.extra))
         finally:
             os.environ.pop("STUDY_CRASH_LOG", None)
         if code != 0:
@@ -215,7 +217,8 @@ class ForcedChoiceKillHarness:
         """Kill a fresh session at durable step ``step``, resume it, compare with the reference."""
         out = self.work / f"case{index:03d}"
         folder = out / "K"
-        killed = forked(session_args(self.protocol, out, "K", self.seed), {"STUDY_CRASH_AT": str(step)})
+        killed = forked(session_args(self.protocol, out, "K", self.seed, False, *self.extra),
+                        {"STUDY_CRASH_AT": str(step)})
         result = {"step": step, "where": self.steps[step - 1].split(" ", 1)[1], "killed": killed}
         if killed != -signal.SIGKILL:
             result["error"] = f"the session was not killed (exit {killed})"
@@ -223,7 +226,7 @@ class ForcedChoiceKillHarness:
         before = (folder / "trials.csv").read_bytes() if folder.exists() else b""
         result["rows_before"] = max(0, before.count(b"\n") - 1)
         if not folder.exists():
-            resumed = forked(session_args(self.protocol, out, "K", self.seed), {})
+            resumed = forked(session_args(self.protocol, out, "K", self.seed, False, *self.extra), {})
         elif json.loads((folder / "session.json").read_text())["finished_at"]:
             resumed = 0
         else:
