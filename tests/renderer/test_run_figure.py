@@ -61,13 +61,13 @@ def test_no_figure_leaves_only_the_data(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == [MARKER, "events.csv", "log.npz", "run.json"]
 
 
-def test_an_on_device_run_does_not_draw_the_boards_forces_as_zero(tmp_path):
+def test_an_on_device_run_does_not_draw_the_boards_forces_as_zero(tmp_path, capsys):
     """On-device rendering: the board computes the wall and the transient and reports neither; the figure says
-    so and draws only the commanded total, and its CSV holds NaN (not 0) for the parts."""
+    so and draws only the commanded total, and its CSV holds NaN (not 0) for the parts. The run that makes the
+    log is a set-up, in the test's process (tests/support/cli.py)."""
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--transient", "pulse",
-                           "--taps", "1", "--no-figure", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
+    proc = run_cli(capsys, "renderer", "run", "--device", "sim", "--transient", "pulse", "--taps", "1", "--no-figure",
+                   "--out", out)
     assert proc.returncode == 0, proc.stderr
     result = RunResult.load(out)
     host = run_figure_data(result)
