@@ -37,6 +37,8 @@ $(STAMP): pyproject.toml
 
 $(COMPILED): $(STAMP)
 	$(PY) -m compileall -q -j 0 -x '$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") > /dev/null
+	@# the tests too: each xdist worker imports all of them, and so do the processes they start
+	$(PY) -m compileall -q -j 0 tests > /dev/null
 	touch $(COMPILED)
 
 venv: $(STAMP)
@@ -46,8 +48,11 @@ demo: $(STAMP)
 	@# itself refuses an --out that holds earlier results unless --force
 	$(PY) -m renderer demo --device sim:onedof --force
 
+# on TEST_WORKERS cores (pytest-xdist): modules are the units of work, costly ones first, the numba cache
+# filled once while the workers start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
+TEST_WORKERS ?= 2
 test: $(STAMP) $(COMPILED) deps
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 # once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
 deps: $(STAMP)

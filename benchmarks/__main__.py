@@ -15,13 +15,29 @@ def _summary(path: pathlib.Path) -> str:
     return doc.strip().splitlines()[0] if doc.strip() else ""
 
 
+def here_file(name: str) -> pathlib.Path:
+    return pathlib.Path(__file__).parent / f"{name}.py"
+
+
+def _by_default(path: pathlib.Path) -> bool:
+    """False for a benchmark whose module sets ``RUN_BY_DEFAULT = False`` (read without importing it)."""
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "RUN_BY_DEFAULT" for t in node.targets):
+            return bool(ast.literal_eval(node.value))
+    return True
+
+
 def main(argv=None) -> int:
     names = sorted(p.stem for p in pathlib.Path(__file__).parent.glob("bench_*.py"))
     args = list(sys.argv[1:] if argv is None else argv)
+    # options after a single benchmark's name are its own (``python -m benchmarks suite --runs 3``)
+    options = args[1:] if len(args) > 1 and args[1].startswith("-") else []
+    args = args[:1] if options else args
     if {"-h", "--help"} & set(args):
         here = pathlib.Path(__file__).parent
-        print("usage: python -m benchmarks [NAME ...]\n\nRun the benchmarks (all, or the NAMEs given, with or without "
-              "the bench_ prefix) and print their figures.\n\nbenchmarks:")
+        print("usage: python -m benchmarks [NAME ...] | NAME --OPTION ...\n\nRun the benchmarks (all but the suite's "
+              "own, or the NAMEs given, with or without the bench_ prefix) and print their figures; options after "
+              "one NAME are that benchmark's (python -m benchmarks suite --help).\n\nbenchmarks:")
         for name in names:
             print(f"  {name.removeprefix('bench_'):<14} {_summary(here / (name + '.py'))}")
         print("\nexample: python -m benchmarks identify sim")
@@ -30,11 +46,16 @@ def main(argv=None) -> int:
     if unknown:
         print(f"error: unknown benchmark(s) {unknown}; python -m benchmarks --help lists them", file=sys.stderr)
         return 2
+    if options:
+        name = args[0] if args[0] in names else f"bench_{args[0]}"
+        return importlib.import_module(f"benchmarks.{name}").main(options)
     wanted = set(args)
     failed = 0
     for name in names:
         if wanted and name not in wanted and name.removeprefix("bench_") not in wanted:
             continue
+        if not wanted and not _by_default(here_file(name)):
+            continue                     # e.g. the whole test suite: asked for by name only
         print(f"== {name}", flush=True)
         try:
             importlib.import_module(f"benchmarks.{name}").main()

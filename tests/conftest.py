@@ -15,33 +15,82 @@ os.environ.setdefault("HFAM_SIM_AOT", "off")
 # in the children on exec, so they meet Ctrl-C as a user's terminal would deliver it.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+# Likewise SIGHUP under ``nohup``: ignored, it would stay ignored in every command a test starts, and the
+# commands rightly keep an ignored SIGHUP (plumbing.stopsignals), so the SIGHUP tests would see nothing happen.
+# This process keeps ignoring it (a handler that does nothing); its children start with the default.
+if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+    signal.signal(signal.SIGHUP, lambda signum, frame: None)
 
 
-import pytest  # noqa: E402 (after the settings above, which must come first)
+import importlib.util  # noqa: E402 (after the settings above, which must come first)
+
+import pytest  # noqa: E402
+
+from tests.support import cpuprofile, parallel  # noqa: E402
+from tests.support.demo import default_pipeline_cache  # noqa: E402
+from tests.support.shared import shared_folder, shared_value  # noqa: E402
+
+_warmup: list = []
+
+
+@pytest.hookimpl(trylast=True)  # after the tmp_path plugin has set up the base folder
+def pytest_configure(config):
+    cpuprofile.register(config)
+    if parallel.controller_or_alone(config):
+        # before any xdist worker exists: the workers wait for it (tests/support/parallel.py)
+        _warmup.extend(parallel.start_jit_warmup(config))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    parallel.add_folder_groups(items)       # before xdist reads the groups (its hook runs after this one)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session):
+    if not session.config.pluginmanager.has_plugin("dsession"):   # not the xdist controller, which runs no test
+        parallel.wait_for_jit_warmup(session.config)
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    line = parallel.report_jit_warmup(_warmup, config) if _warmup else None
+    if line:
+        terminalreporter.write_line(line, yellow=True)
+
+
+if importlib.util.find_spec("xdist") is not None:
+    def pytest_xdist_make_scheduler(config, log):
+        return parallel.make_scheduler(config, log)
 
 
 @pytest.fixture(scope="session")
 def default_demo(tmp_path_factory):
-    """The sim demo with its default settings (``make demo``'s taps, no figures), run once per session.
+    """The sim demo with its default settings (``make demo``'s taps, no figures), run once per test run.
 
-    Shared by the fidelity tests (tests/renderer/demo/test_demo_fidelity.py) and the README's printed table
-    (tests/integration/test_readme_demo_table.py). Its own cache folder: built once (~15-40 s), then the taps.
+    Shared by the fidelity tests (tests/renderer/demo/test_demo_fidelity.py, test_grip_sweep.py) and the
+    README's printed table (tests/integration/test_readme_demo_table.py), on whichever xdist worker they run
+    (tests/support/shared.py). The pipeline (~15 s) comes from the run's shared cache of the default pipeline
+    (tests/support/demo.py), then the taps.
     """
     from renderer.demo import config as demo_config, sim_demo
     from stimuli.hfam.pipeline import Progress
 
-    out = tmp_path_factory.mktemp("default_demo")
-    cfg = demo_config.DemoConfig()
-    res = sim_demo.run_sim_demo(cfg, out, tmp_path_factory.mktemp("default_demo_cache"), figures=False,
-                                progress=Progress(5, quiet=True))
-    res.cfg, res.out = cfg, out
-    return res
+    cache = default_pipeline_cache(tmp_path_factory)
+
+    def run(folder):
+        cfg = demo_config.DemoConfig()
+        res = sim_demo.run_sim_demo(cfg, folder / "out", cache, figures=False, progress=Progress(5, quiet=True))
+        res.cfg, res.out = cfg, folder / "out"
+        return res
+
+    return shared_value(tmp_path_factory, "default_demo", run)
 
 
 @pytest.fixture(scope="session")
 def fake_hd(tmp_path_factory):
     """libfakehd.so, a fake OpenHaptics HD library (tests/devices/hardware/contract/fake_hd/fake_hd.c), compiled
-    once: the Touch adapter's tests and its ``renderer run`` load it through ``$HFAM_OPENHAPTICS_LIB``."""
+    once per test run for every worker (tests/support/shared.py): the Touch adapter's tests and its
+    ``renderer run`` load it through ``$HFAM_OPENHAPTICS_LIB``."""
     import subprocess
     from pathlib import Path
 
@@ -51,8 +100,10 @@ def fake_hd(tmp_path_factory):
 
     need("cc")
     src = Path(__file__).resolve().parent / "devices" / "hardware" / "contract" / "fake_hd" / "fake_hd.c"
-    out = tmp_path_factory.mktemp("fakehd") / "libfakehd.so"
-    r = subprocess.run(["cc", "-shared", "-fPIC", "-O2", "-o", str(out), str(src), "-lpthread", "-lm"],
-                       capture_output=True, text=True, timeout=60, env=sysdeps.tool_env())
-    assert r.returncode == 0, r.stderr
-    return out
+
+    def build(folder):
+        r = subprocess.run(["cc", "-shared", "-fPIC", "-O2", "-o", str(folder / "libfakehd.so"), str(src),
+                            "-lpthread", "-lm"], capture_output=True, text=True, timeout=60, env=sysdeps.tool_env())
+        assert r.returncode == 0, r.stderr
+
+    return shared_folder(tmp_path_factory, "fakehd", build) / "libfakehd.so"

@@ -671,12 +671,21 @@ static void host_push(const uint8_t *b, unsigned n) {
     }
 }
 
+/* bytes waiting in simavr's UART input queue (its fifo's cursors, as uart_fifo_get_read_size counts them) */
+static unsigned uart_queued(void) {
+    if (!uart0) return 0;
+    return ((unsigned)uart0->input.write + uart_fifo_fifo_size - uart0->input.read) & (uart_fifo_fifo_size - 1);
+}
+
 static void feed_uart(void) {
     while (!uart_xoff && hq_tail != hq_head) {
         avr_raise_irq(uart_in, host_q[hq_tail]);
         hq_tail = (hq_tail + 1) % QN;
         bytes_to_mcu++;
-        last_host_rx_cycle = avr->cycle;
+        /* when the byte reaches the MCU's receiver: simavr queues up to 64 input bytes at once and hands
+         * them on one per byte time, so a burst of host frames (a host that was descheduled for a while)
+         * arrives over up to ~0.6 ms after it was queued here, as on a real 1 Mbaud line */
+        last_host_rx_cycle = avr->cycle + uart_queued() * uart_byte_cycles();
     }
 }
 

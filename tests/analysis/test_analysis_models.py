@@ -26,7 +26,7 @@ from analysis import models
 from analysis.bayes import bf10_paired, evidence_words, log_bf10_paired
 from analysis.load import load_study
 from analysis.ordinal import OrderedLogit
-from analysis.pipeline import analyse
+from analysis.pipeline import AnalysisConfig, analyse
 from analysis.report import write_report
 from analysis.report_models import caution_line, comparison_line
 from analysis.synthetic import DEFAULT_SAMPLES, expected_ratings, write_synthetic_study
@@ -119,6 +119,25 @@ def test_wilcoxon_columns_equal_scipy_per_pair(analysed):
                                rtol=1e-12)
 
 
+@pytest.mark.parametrize("n,ties", [(12, True), (9, True), (12, False), (14, True)])
+def test_wilcoxon_of_all_pairs_at_once_is_scipys_to_the_last_bit(n, ties):
+    """Small studies with tied or zero differences take scipy's permutation test (run here vectorised): the
+    statistic and p of every column equal ``stats.wilcoxon`` on the same matrix exactly, zeros and ties
+    included; without ties (exact distribution) and above 13 subjects (normal approximation) scipy runs."""
+    from analysis.stats import _wilcoxon
+    rng = np.random.default_rng(n)
+    d = rng.normal(0.0, 1.0, (n, 3))
+    if ties:
+        d = np.round(d * 2) / 2
+        d[0, 0] = 0.0
+    d = np.column_stack([d, np.zeros(n)])            # all zero: no test
+    w, p = _wilcoxon(d)
+    want = _quiet(stats.wilcoxon, d[:, :3], axis=0, zero_method="wilcox")
+    assert np.array_equal(w[:3], want.statistic) and np.array_equal(p[:3], want.pvalue)
+    assert np.isnan(w[3]) and np.isnan(p[3])
+    assert np.all((p[:3] > 0) & (p[:3] <= 1))
+
+
 # ------------------------------------------------------------------------------ mixed model
 def test_mixed_model_equals_statsmodels_formula_model(analysed):
     """The design (treatment coding, centred and scaled velocity) and the random terms (subject, subject x sample
@@ -173,7 +192,8 @@ def test_mixed_model_recovers_the_generators_effects(tmp_path):
 def test_expected_ratings_match_a_large_generated_study(tmp_path):
     """The generator's exact expectation (rounding, clipping) against 400 generated subjects' means."""
     write_synthetic_study(tmp_path, 400, seed=5, p_invalid=0.0)
-    res = _quiet(analyse, tmp_path, None)
+    # the summary does not depend on the models (fitting them to 400 subjects took ~6 s): not fitted
+    res = _quiet(analyse, tmp_path, AnalysisConfig(models=False))
     want = expected_ratings(400)
     got = res.summary.set_index("sample")["mean_rating"]
     for s in want:

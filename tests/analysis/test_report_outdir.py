@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,6 +27,16 @@ def studies(tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope="module")
+def earlier_report(studies, tmp_path_factory):
+    """S1's report, made once in this process by the command's own ``main``; each test copies it."""
+    from analysis.__main__ import main
+
+    out = tmp_path_factory.mktemp("earlier") / "R"
+    assert main(["report", str(studies / "S1"), "--out", str(out)]) == 0
+    return out
+
+
 def _report(data: Path, out: Path, *extra) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "analysis", "report", str(data), "--out", str(out), *extra],
                             cwd=out.parent, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
@@ -41,10 +52,10 @@ def _writing(parent: Path, name: str) -> bool:
     (signal.SIGTERM, 143, None),
     (signal.SIGINT, 130, "interrupted"),
 ])
-def test_a_stopped_forced_report_leaves_the_earlier_one_exactly(studies, tmp_path, sig, code, last_line):
+def test_a_stopped_forced_report_leaves_the_earlier_one_exactly(earlier_report, tmp_path, studies, sig, code,
+                                                               last_line):
     out = tmp_path / "R"
-    first = _report(studies / "S1", out)
-    assert first.wait() == 0, first.communicate()
+    shutil.copytree(earlier_report, out)          # S1's report (the process stopped is the forced second one)
     before = tree_hashes(out)
     second = _report(studies / "S2", out, "--force")
     try:

@@ -18,13 +18,16 @@ from devices.limits import (
     one_count_stiffness_N_m,
 )
 from devices.registry import make_device
+from tests.support.cli import run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _cli(*args, cwd):
+    # the JIT loop, like every test (tests/conftest.py): no background build into the user's cache
     return subprocess.run([sys.executable, *args], cwd=cwd, capture_output=True, text=True,
-                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg"}, timeout=900)
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg",
+                               "HFAM_SIM_AOT": "off"}, timeout=900)
 
 
 def test_grips_outside_the_sensor_range_are_refused():
@@ -69,8 +72,9 @@ def test_stiffness_against_one_encoder_count():
     (["-m", "devices", "record", "--device", "sim", "--velocities-m-s", "3", "--out", "t.csv"],
      "error: --velocities-m-s 3 m/s: not a tap speed"),
 ])
-def test_commands_refuse_implausible_inputs_with_one_line(tmp_path, args, message):
-    res = _cli(*args, cwd=tmp_path)
+def test_commands_refuse_implausible_inputs_with_one_line(tmp_path, capsys, args, message):
+    assert args[0] == "-m"
+    res = run_cli(capsys, *args[1:], cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr and message in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []        # nothing written

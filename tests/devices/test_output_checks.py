@@ -4,22 +4,20 @@ byte for byte as they were."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.support.cli import run_cli
 from tests.support.files import sha256
 from tests.support.stimuli import minimum_phase_model
 
-ROOT = Path(__file__).resolve().parents[2]
 
-
-def _devices(tmp: Path, *args):
-    return subprocess.run([sys.executable, "-m", "devices", *[str(a) for a in args]], cwd=tmp,
-                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=300)
+@pytest.fixture
+def _devices(capsys):
+    def run(tmp: Path, *args):
+        return run_cli(capsys, "devices", *args, cwd=tmp)
+    return run
 
 
 def _one_error_line(res, *words):
@@ -31,7 +29,7 @@ def _one_error_line(res, *words):
     return err
 
 
-def test_validate_plot_refuses_an_existing_file_before_measuring(tmp_path):
+def test_validate_plot_refuses_an_existing_file_before_measuring(tmp_path, _devices):
     model = minimum_phase_model(grip_N=2.0).save(tmp_path / "accel_g2N.json")
     fig = tmp_path / "myfig.png"
     fig.write_text("my figure\n")
@@ -49,7 +47,7 @@ def test_validate_plot_refuses_an_existing_file_before_measuring(tmp_path):
     ("adir", ["--out adir is a folder"]),                     # an existing (empty) folder
     ("afile/rec.csv", ["afile/rec.csv", "afile is a file, not a folder"]),
 ])
-def test_record_checks_out_before_tapping(tmp_path, out, words):
+def test_record_checks_out_before_tapping(tmp_path, _devices, out, words):
     (tmp_path / "adir").mkdir()
     (tmp_path / "afile").write_text("my file\n")
     before = sha256(tmp_path / "afile")
@@ -60,7 +58,7 @@ def test_record_checks_out_before_tapping(tmp_path, out, words):
     assert sha256(tmp_path / "afile") == before and not any((tmp_path / "adir").iterdir())
 
 
-def test_linearity_out_that_is_a_file_is_refused_before_measuring(tmp_path):
+def test_linearity_out_that_is_a_file_is_refused_before_measuring(tmp_path, _devices):
     (tmp_path / "afile").write_text("my file\n")
     before = sha256(tmp_path / "afile")
     res = _devices(tmp_path, "linearity", "--device", "sim", "--trials", "2", "--out", "afile")

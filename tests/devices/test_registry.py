@@ -1,12 +1,10 @@
 """Device strings are checked before anything is set up; identify's default grips span the device's range."""
 
-import subprocess
-import sys
-
 import pytest
 
 from devices import check_device_spec, make_device
 from devices.cli_identify import default_grip_levels
+from tests.support.cli import run_cli
 
 
 @pytest.mark.parametrize("spec, kind", [("sim", "sim"), ("sim:lti", "sim"), ("serial:/dev/ttyACM0", "serial"),
@@ -38,11 +36,10 @@ def test_default_identify_grips_span_the_sim_grip_range():
     assert default_grip_levels((0.0, 2.5)) == (0.0, 1.0, 1.25, 2.0, 2.5)
 
 
-def test_study_reports_a_bad_device_string_first(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "study", "run", "--device", "bogus", "--participant", "keyboard",
-                           "--subject", "X1", "--age", "20", "--gender", "female", "--handedness", "right",
-                           "--experience", "few", "--out", str(tmp_path / "data")],
-                          capture_output=True, text=True, timeout=120)
+def test_study_reports_a_bad_device_string_first(tmp_path, capsys):
+    proc = run_cli(capsys, "study", "run", "--device", "bogus", "--participant", "keyboard",
+                   "--subject", "X1", "--age", "20", "--gender", "female", "--handedness", "right",
+                   "--experience", "few", "--out", tmp_path / "data")
     assert proc.returncode == 2
     assert "unknown device string 'bogus'" in proc.stderr
     assert "Traceback" not in proc.stderr

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from analysis.synthetic import write_synthetic_study
+from tests.support.cli import run_cli
 from tests.support.files import tree_hashes
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -46,10 +47,11 @@ def test_renderer_run_on_a_full_disk(tmp_path):
     _no_debris(tmp_path, [])                                   # no X, no staging, no log.tmp.npz, no lock
 
 
-def test_forced_analysis_report_on_a_full_disk_keeps_the_earlier_report(tmp_path):
+def test_forced_analysis_report_on_a_full_disk_keeps_the_earlier_report(tmp_path, capsys):
     write_synthetic_study(tmp_path / "S1", 4, seed=3)
     write_synthetic_study(tmp_path / "S2", 6, seed=7)
-    ok = _run(["analysis", "report", "S1", "--out", "R", "--no-figures"], tmp_path, resource.RLIM_INFINITY)
+    # the earlier report (no limit): made in this process; the forced one on the "full disk" is a process
+    ok = run_cli(capsys, "analysis", "report", "S1", "--out", "R", "--no-figures", cwd=tmp_path)
     assert ok.returncode == 0, ok.stderr
     before = tree_hashes(tmp_path / "R")
     res = _run(["analysis", "report", "S2", "--out", "R", "--force", "--no-figures"], tmp_path, 1000)

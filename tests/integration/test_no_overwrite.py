@@ -1,18 +1,9 @@
 """No command silently overwrites earlier results: an existing output is refused, naming it and --force."""
 
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
 
 from plumbing.fileio import clear_products, refuse_overwrite
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def cli(*args):
-    return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+from tests.support.cli import run_cli
 
 
 def test_refuse_overwrite_names_the_path_and_the_flag(tmp_path):
@@ -40,7 +31,10 @@ def test_clear_products_removes_only_the_commands_files(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
 
 
-def test_commands_refuse_existing_outputs(tmp_path):
+def test_commands_refuse_existing_outputs(tmp_path, capsys):
+    def cli(*args):
+        return run_cli(capsys, *args)
+
     rec = tmp_path / "REC.csv"
     r = cli("devices", "record", "--device", "sim", "--sample", "wood", "--velocities", "0.1", "--out", str(rec))
     assert r.returncode == 0, r.stderr

@@ -2,10 +2,9 @@
 --cache-dir`` on a file): each was a NotADirectoryError/FileExistsError traceback; now one ``error:`` line naming
 the path, exit 2, before anything runs, and the user's file untouched."""
 
-import subprocess
-import sys
-
 import pytest
+
+from tests.support.cli import run_cli
 
 
 @pytest.mark.parametrize("cmd,message", [
@@ -15,9 +14,9 @@ import pytest
     (["renderer", "teleop", "--out", "afile/s1"], "error: cannot write --out afile/s1: afile is a file, not a folder"),
     (["renderer", "demo", "--cache-dir", "afile", "--out", "demo"], "error: --cache-dir afile is a file, not a folder"),
 ])
-def test_an_output_folder_that_is_a_file_is_one_error_line(tmp_path, cmd, message):
+def test_an_output_folder_that_is_a_file_is_one_error_line(tmp_path, capsys, cmd, message):
     (tmp_path / "afile").write_text("my file\n")
-    res = subprocess.run([sys.executable, "-m", *cmd], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    res = run_cli(capsys, *cmd, cwd=tmp_path)
     assert res.returncode == 2, (res.stdout, res.stderr)
     assert res.stderr.strip() == message, res.stderr
     assert (tmp_path / "afile").read_text() == "my file\n"

@@ -535,10 +535,18 @@ def test_request_stop_from_another_thread():
 
     dev = MassDevice()
     loop = ServoLoop(dev, RendererConfig())
-    timer = threading.Timer(0.1, loop.request_stop)
-    timer.start()
+
+    def stop_once_running():
+        # the request comes once the loop has run 600 ticks (it counts what it sends: dev.applied), not after
+        # a wall-clock delay the loop's start-up may outlast on a loaded machine
+        while len(dev.applied) < 600:
+            time.sleep(0.001)
+        loop.request_stop()
+
+    stopper = threading.Thread(target=stop_once_running, daemon=True)
+    stopper.start()
     res = loop.run(duration_s=5.0, realtime=True)
-    timer.join()
+    stopper.join(timeout=5.0)
     assert res.stop_reason == "stopped"
     assert 500 < res.timing["ticks"] < 40000
     assert dev.applied[-1] == 0.0

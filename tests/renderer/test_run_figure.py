@@ -1,9 +1,6 @@
 """Issue 39 part 3: ``renderer run`` draws its run (position, forces, acceleration, events, the wall) beside its data."""
 
 import csv
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -11,8 +8,7 @@ import figstyle
 from plumbing.outdir import MARKER
 from renderer.loop import RunResult
 from renderer.run_figure import envelope, plot_run, run_figure_data
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.support.cli import run_cli
 
 
 def test_envelope_keeps_every_peak_and_the_time_order():
@@ -28,10 +24,9 @@ def test_envelope_keeps_every_peak_and_the_time_order():
     assert np.array_equal(short_y, y[:500])
 
 
-def test_run_command_draws_the_run_in_the_project_style(tmp_path):
+def test_run_command_draws_the_run_in_the_project_style(tmp_path, capsys):
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--transient", "pulse",
-                           "--taps", "2", "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_cli(capsys, "renderer", "run", "--device", "sim", "--transient", "pulse", "--taps", "2", "--out", out)
     assert proc.returncode == 0, proc.stderr
     assert "run.png" in proc.stdout and (out / "run.png").stat().st_size > 10_000 and (out / "run.svg").exists()
     result = RunResult.load(out)
@@ -59,21 +54,20 @@ def test_run_command_draws_the_run_in_the_project_style(tmp_path):
         plt.close(fig)
 
 
-def test_no_figure_leaves_only_the_data(tmp_path):
+def test_no_figure_leaves_only_the_data(tmp_path, capsys):
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--taps", "1", "--no-figure",
-                           "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_cli(capsys, "renderer", "run", "--device", "sim", "--taps", "1", "--no-figure", "--out", out)
     assert proc.returncode == 0, proc.stderr
     assert sorted(p.name for p in out.iterdir()) == [MARKER, "events.csv", "log.npz", "run.json"]
 
 
-def test_an_on_device_run_does_not_draw_the_boards_forces_as_zero(tmp_path):
+def test_an_on_device_run_does_not_draw_the_boards_forces_as_zero(tmp_path, capsys):
     """On-device rendering: the board computes the wall and the transient and reports neither; the figure says
-    so and draws only the commanded total, and its CSV holds NaN (not 0) for the parts."""
+    so and draws only the commanded total, and its CSV holds NaN (not 0) for the parts. The run that makes the
+    log is a set-up, in the test's process (tests/support/cli.py)."""
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "renderer", "run", "--device", "sim", "--transient", "pulse",
-                           "--taps", "1", "--no-figure", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
+    proc = run_cli(capsys, "renderer", "run", "--device", "sim", "--transient", "pulse", "--taps", "1", "--no-figure",
+                   "--out", out)
     assert proc.returncode == 0, proc.stderr
     result = RunResult.load(out)
     host = run_figure_data(result)

@@ -13,6 +13,7 @@ from devices.recording import record_taps, write_tap_recording
 from devices.sim import SimDevice
 from stimuli import HfamLibrary
 from stimuli.__main__ import main
+from tests.support.cli import run_cli
 from tests.support.files import sha256
 from tests.support.stimuli import (
     minimum_phase_model,
@@ -171,7 +172,7 @@ def test_build_library_refine_reports_error_per_iteration(tmp_path, capsys):
     ("no_kind", ": key 'kind' must be \"model_set\""),
     ("csv_nonutf8", ":3: tap recording is not UTF-8 text (invalid start byte at byte "),
 ])
-def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path, inputs, case, match):
+def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path, inputs, capsys, case, match):
     """Audit modelset_entry_number_build.txt, csv_nonutf8.txt: a number as a model file name was a raw TypeError
     (build-library had its own index parser); it now uses devices.identify.modelset's checks, the same message
     ``devices validate`` gives. A non-UTF-8 recording names the file and line. Exit 2, one ``error:`` line."""
@@ -192,51 +193,47 @@ def test_build_library_refuses_bad_model_set_or_recording_like_validate(tmp_path
         rec.write_bytes(b"\n".join(raw))
     (mset / "model_set.json").write_text(json.dumps(index))
     bad = rec if case == "csv_nonutf8" else mset / "model_set.json"
-    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
-                          str(mset), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
-                         capture_output=True, text=True, timeout=120)
+    res = run_cli(capsys, "stimuli", "build-library", "--recordings", str(rec), "--model",
+                  str(mset), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35")
     assert res.returncode == 2, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
     assert len(errors) == 1 and errors[0].startswith(f"error: {bad}{match}"), res.stderr
     assert not (tmp_path / "x.npz").exists()
     if case == "entry_number":   # the same words as `python -m devices validate ms4`
-        val = subprocess.run([sys.executable, "-m", "devices", "validate", str(mset)], capture_output=True,
-                             text=True, timeout=120)
+        val = run_cli(capsys, "devices", "validate", str(mset))
         assert val.returncode == 2 and errors[0] in val.stderr.splitlines(), val.stderr
 
 
 @pytest.mark.parametrize("key", ["gain", "delay_s", "poles_rad_s"])
-def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, key):
+def test_build_library_refuses_a_400_digit_integer_in_a_model(tmp_path, inputs, capsys, key):
     """Audit model_bigint_gain.txt: a 400-digit integer gain raised OverflowError out of the model check; now
     exit 2 with one ``error:`` line naming the model file and key."""
     rec, m1, _ = inputs
     data = json.loads(m1.read_text())
     data[key] = [[-(10 ** 400), 0]] + data[key] if key == "poles_rad_s" else 10 ** 400
     m1.write_text(json.dumps(data))
-    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
-                          str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
-                         capture_output=True, text=True, timeout=120)
+    res = run_cli(capsys, "stimuli", "build-library", "--recordings", str(rec), "--model",
+                  str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35")
     assert res.returncode == 2, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
     assert len(errors) == 1 and re.match(re.escape(f"error: {m1}: key ") + f"'?{key}'?", errors[0]), res.stderr
     assert "finite" in errors[0] and not (tmp_path / "x.npz").exists()
 
 
-def test_build_library_names_a_model_file_that_is_not_utf8(tmp_path, inputs):
+def test_build_library_names_a_model_file_that_is_not_utf8(tmp_path, inputs, capsys):
     """Audit model_nonutf8.txt: a model file that is not UTF-8 gave the codec's message without the file; now
     one ``error:`` line naming the file and line (plumbing.fileio.read_json_file, every JSON model/index reader)."""
     rec, m1, _ = inputs
     m1.write_bytes(m1.read_bytes().replace(b"{", b"{\n\"note\": \"\xff\",", 1))
-    res = subprocess.run([sys.executable, "-m", "stimuli", "build-library", "--recordings", str(rec), "--model",
-                          str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35"],
-                         capture_output=True, text=True, timeout=120)
+    res = run_cli(capsys, "stimuli", "build-library", "--recordings", str(rec), "--model",
+                  str(m1), "--out", str(tmp_path / "x.npz"), "--device", "none", "--force-per-amp-N-A", "2.35")
     assert res.returncode == 2, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:") or "Traceback" in ln]
     assert errors == [f"error: {m1}:2: model file is not UTF-8 text (invalid start byte at byte {m1.read_bytes().index(0xff)})"], \
         res.stderr
     assert not (tmp_path / "x.npz").exists()
 
-def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, inputs):
+def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, inputs, capsys):
     """Auditor: ``stimuli show wood.npz`` wrote wood.png/.svg and replaced the recording wood.csv with the plot's
     data. The plot's data is ``<stem>.plot.csv``; a second show refuses, naming every existing file, unless --force."""
     rec, m1, _ = inputs
@@ -248,8 +245,7 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
     before = sha256(wood)
 
     def show(*extra):
-        return subprocess.run([sys.executable, "-m", "stimuli", "show", "wood.npz", *extra], cwd=tmp_path,
-                              capture_output=True, text=True, timeout=300)
+        return run_cli(capsys, "stimuli", "show", "wood.npz", *extra, cwd=tmp_path)
 
     res = show()
     assert res.returncode == 0, res.stderr
@@ -284,12 +280,14 @@ def test_show_keeps_the_tap_recording_the_library_is_named_after(tmp_path, input
     assert res.returncode == 0 and f"wrote {Path('figs/lib.png')}" in res.stdout, (res.stdout, res.stderr)
 
 
-def _stimuli(tmp_path, *args):
-    return subprocess.run([sys.executable, "-m", "stimuli", *[str(a) for a in args]], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=300)
+@pytest.fixture
+def _stimuli(capsys):
+    def run(tmp_path, *args):
+        return run_cli(capsys, "stimuli", *args, cwd=tmp_path)
+    return run
 
 
-def test_sim_library_refuses_an_existing_out_unless_forced(tmp_path):
+def test_sim_library_refuses_an_existing_out_unless_forced(tmp_path, _stimuli):
     """Auditor (simlib_overwrite): ``sim-library --out my_results.npz`` replaced the user's file."""
     mine = tmp_path / "my_results.npz"
     mine.write_text("my precious library\n")
@@ -308,7 +306,7 @@ def test_sim_library_refuses_an_existing_out_unless_forced(tmp_path):
     assert mine.read_text() == "my precious library\n"
 
 
-def test_build_library_out_below_a_file_is_refused_before_building(tmp_path, inputs):
+def test_build_library_out_below_a_file_is_refused_before_building(tmp_path, inputs, _stimuli):
     """Auditor (build_out_parent_file): the whole build ran, then a traceback at mkdir."""
     rec, m1, _ = inputs
     (tmp_path / "afile").write_text("my file\n")

@@ -9,6 +9,7 @@ import pytest
 
 from devices.base import DeviceInfo
 from stimuli import HfamLibrary
+from tests.support.cli import run_cli
 
 INFO = DeviceInfo("t", 2000, 15.0, 0.15, 0.0235, 1.26, 4.0, 4.0, 10000.0, grip_range_N=(0.0, 10.0))
 
@@ -201,10 +202,8 @@ def _rewrite(src, dst, **changes):
     ("meta_ver_str", r"metadata_json format_version must be an integer, got 'x'"),
     ("corrupt_mid", r"member 'currents_A' of the HFAM library is corrupt \(Bad CRC-32"),
 ])
-def test_show_refuses_damaged_library_members_naming_file_and_key(tmp_path, case, match):
+def test_show_refuses_damaged_library_members_naming_file_and_key(tmp_path, capsys, case, match):
     """Audit lib_*.txt: each damaged member was a raw traceback or a message without file/key; now one error line."""
-    import subprocess
-    import sys
     good = make_lib().save(tmp_path / "good.npz")
     bad = tmp_path / f"{case}.npz"
     if case == "fs_vec":
@@ -225,8 +224,7 @@ def test_show_refuses_damaged_library_members_naming_file_and_key(tmp_path, case
         at = raw.index(b"currents_A.npy") + 400
         raw[at] ^= 0xFF
         bad.write_bytes(bytes(raw))
-    res = subprocess.run([sys.executable, "-m", "stimuli", "show", str(bad), "--out", str(tmp_path / "s.png")],
-                         capture_output=True, text=True, timeout=120)
+    res = run_cli(capsys, "stimuli", "show", str(bad), "--out", str(tmp_path / "s.png"))
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr
     lines = res.stderr.strip().splitlines()

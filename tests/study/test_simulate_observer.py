@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +14,7 @@ import figstyle
 from study.__main__ import main
 from psychophysics.methods import method_from_state
 from psychophysics.observer import ObserverParams
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.support.cli import run_cli
 
 
 @pytest.fixture
@@ -124,12 +121,12 @@ def test_same_seed_same_bytes_and_force_replaces_products(tmp_path, capsys):
     (["--intensity-min", "5", "--intensity-max", "4"], "error: --intensity-max must be > --intensity-min"),
     (["--trials", "0"], "error: --trials must be an integer 1..10000, got 0"),
 ])
-def test_bad_flags_give_one_error_line_naming_the_flag(tmp_path, flags, message):
+def test_bad_flags_give_one_error_line_naming_the_flag(tmp_path, capsys, flags, message):
+    """In the test's process (tests/support/cli.py): a raw exception would escape ``main`` here."""
     base = ["--method", "quest+", "--threshold", "1", "--out", str(tmp_path / "x")]
     args = base + flags if "--threshold" not in flags else ["--method", "quest+", "--out", str(tmp_path / "x")] + flags
-    proc = subprocess.run([sys.executable, "-m", "study", "simulate-observer", *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode == 2
+    proc = run_cli(capsys, "study", "simulate-observer", *args)
+    assert proc.returncode == 2, proc.stderr
     assert proc.stderr.startswith(message) and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert not (tmp_path / "x").exists()
 

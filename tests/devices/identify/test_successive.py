@@ -45,10 +45,30 @@ def _errors(true, found) -> dict:
 
 
 @pytest.fixture(scope="module")
-def default_run(tmp_path_factory):
+def drawn():
+    """What each stage figure looked like as ``figstyle.save`` wrote it (filled by ``default_run``)."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory, drawn):
+    """The isolation of the default joystick, saved with its stage figures (drawn once for the module: the
+    figure test inspects them as they were saved, through a spy on ``figstyle.save``)."""
+    import figstyle
+
     out = tmp_path_factory.mktemp("successive_default")
     result = identify_successive("sim", seed=3, log=lambda m: None)
-    path = save_result(result, out)
+    save = figstyle.save
+
+    def spy(fig, path, data=None, **kw):
+        drawn.append((Path(path).name, figstyle.text_problems(fig), figstyle.legend_overlaps(fig),
+                      figstyle.unlabelled_axes(fig), [t.get_text() for t in fig.axes[0].texts],
+                      fig.axes[0].get_xlabel()))
+        return save(fig, path, data, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(figstyle, "save", spy)
+        path = save_result(result, out)
     return result, path
 
 
@@ -301,30 +321,20 @@ def test_comprehensive_grips_in_parallel_processes(tmp_path):
     assert any(m.startswith("grip 3 N accel: order") for m in logs)
 
 
-def test_stage_figures_in_the_project_style_with_readable_labels(default_run, tmp_path, monkeypatch):
+def test_stage_figures_in_the_project_style_with_readable_labels(default_run, drawn):
     """Every stage figure through figstyle (PNG + SVG), no text overlapping another or cut off, no legend over
     the data, units on every numeric axis; stage 1's histogram is of the periods' deviation (a simulated clock:
-    one bar at 0 with its spread said), not of floating-point noise around 100 us."""
-    import figstyle
-    from devices.identify.successive.figures import stage_figures
-
-    result, _ = default_run
-    seen = []
-    save = figstyle.save
-
-    def spy(fig, path, data=None, **kw):
-        seen.append((Path(path).name, figstyle.text_problems(fig), figstyle.legend_overlaps(fig),
-                     figstyle.unlabelled_axes(fig), [t.get_text() for t in fig.axes[0].texts],
-                     fig.axes[0].get_xlabel()))
-        return save(fig, path, data, **kw)
-
-    monkeypatch.setattr(figstyle, "save", spy)
-    paths = stage_figures(result, tmp_path)
+    one bar at 0 with its spread said), not of floating-point noise around 100 us. The figures are those
+    ``save_result`` drew for the module's isolation (``default_run``), looked at as they were saved."""
+    _, path = default_run
+    folder = path.parent
+    seen = [d for d in drawn if d[0].startswith("stage_")]
+    paths = sorted(folder.glob("stage_*.png"))
     assert len(paths) == len(seen) == 8
     bad = [(name, texts, legends, units) for name, texts, legends, units, _, _ in seen if texts or legends or units]
     assert bad == [], "\n".join(map(str, bad))
     for name, *_ in seen:
-        assert (tmp_path / name).with_suffix(".svg").stat().st_size > 1000
+        assert (folder / name).with_suffix(".svg").stat().st_size > 1000
     name, _, _, _, notes, xlabel = seen[0]
     assert name == "stage_1_timing.png" and xlabel.startswith("servo period \u2212 median 100.000 us")
     assert notes and notes[0].startswith("all ") and "periods equal" in notes[0]

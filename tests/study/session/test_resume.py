@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.cli import run_cli
 from tests.support.study import quick_args, read_rows, read_session, run_study
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -122,9 +123,11 @@ def interrupted_session(tmp_path_factory):
     (("set", "catalog", [5]), "catalog must be a list of sample objects"),
     (("set", "protocol", {"tap_window_s": -1}), "protocol: tap_window_s must be a positive finite number"),
 ])
-def test_resume_of_a_damaged_session_json_names_the_file_and_key(tmp_path, interrupted_session, edit, match):
+def test_resume_of_a_damaged_session_json_names_the_file_and_key(tmp_path, capsys, interrupted_session, edit,
+                                                                 match):
     """Audit resume_session_*.txt, resume_protocol_where.txt: a missing or mistyped key was a raw KeyError or
-    TypeError (or blamed the command line); now one error line naming session.json and the key, exit 2."""
+    TypeError (or blamed the command line); now one error line naming session.json and the key, exit 2. The
+    command runs in the test's process (tests/support/cli.py): a raw exception would escape ``main`` here."""
     import json
     import shutil
 
@@ -138,8 +141,7 @@ def test_resume_of_a_damaged_session_json_names_the_file_and_key(tmp_path, inter
         session[edit[1]] = edit[2]
     path.write_text(json.dumps(session))
     before = path.read_bytes()
-    res = subprocess.run([sys.executable, "-m", "study", "run", "--subject", "R01", "--out", str(data), "--resume",
-                          "--quiet"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    res = run_cli(capsys, "study", "run", "--subject", "R01", "--out", data, "--resume", "--quiet")
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr
     assert res.stderr.startswith(f"error: {path}: ") and match in res.stderr, res.stderr

@@ -1,0 +1,142 @@
+"""The test suite itself: ``make test`` on a fresh clone, its wall time, its CPU time and its slowest tests.
+
+``python -m benchmarks suite`` clones this repository's committed ``HEAD`` into a temporary folder and runs
+``make test`` there as a new user would on a fresh machine: the venv is created, the system parts are
+provisioned into ``.deps``, nothing is cached (a new ``XDG_CACHE_HOME``; numba's cache starts empty with the
+clone). It prints the wall time, the CPU time of everything ``make`` ran (user + system, child processes
+included: what the suite costs a shared machine whatever its load), the load average before and after, and
+from the suite's per-test CPU log (``HFAM_TEST_CPU_LOG``, tests/support/cpuprofile.py) the ten slowest tests
+by wall and by CPU and the CPU by test folder. Not run by ``make bench`` (a whole suite, ~5 min); options:
+
+* ``--runs N``: N runs in a row (the target is three green runs), each on its own fresh clone; medians.
+* ``--pytest-only``: skip the clone and ``make``: run ``make test``'s pytest command in this tree.
+* ``--workers N``: ``TEST_WORKERS`` (default: the Makefile's).
+* ``--log FILE``: keep the per-test CPU log (JSON lines) of the last run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: skipped by ``python -m benchmarks`` without names (``make bench``): ask for it by name
+RUN_BY_DEFAULT = False
+
+
+def _cpu_children() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _loadavg() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def per_test(log: Path) -> dict[str, dict[str, float]]:
+    """``{nodeid: {"wall_s", "cpu_s"}}`` summed over a test's phases from a CPU log."""
+    tests: dict[str, dict[str, float]] = defaultdict(lambda: {"wall_s": 0.0, "cpu_s": 0.0})
+    if not log.exists():
+        return {}
+    for line in log.read_text().splitlines():
+        row = json.loads(line)
+        if "wall_s" not in row:
+            continue                     # a failure's line
+        t = tests[row["nodeid"]]
+        t["wall_s"] += row["wall_s"]
+        t["cpu_s"] += row["self_s"] + row["children_s"]
+    return dict(tests)
+
+
+def folder_of(nodeid: str) -> str:
+    parts = nodeid.split("::")[0].split("/")
+    return "/".join(parts[:-1]) if len(parts) > 2 else parts[0]
+
+
+def summary(tests: dict[str, dict[str, float]], top: int = 10) -> list[str]:
+    """Lines: the ``top`` slowest tests by wall and by CPU, and the CPU of each test folder."""
+    lines = [f"{len(tests)} tests; CPU in the tests {sum(t['cpu_s'] for t in tests.values()):.0f} s "
+             "(the rest: venv, provisioning, pytest's start-up and collection, xdist)"]
+    for key, name in (("wall_s", "wall"), ("cpu_s", "CPU")):
+        lines.append(f"the {top} slowest tests by {name} (s wall, s CPU):")
+        for nodeid, t in sorted(tests.items(), key=lambda kv: -kv[1][key])[:top]:
+            lines.append(f"  {t['wall_s']:6.1f} {t['cpu_s']:6.1f}  {nodeid}")
+    folders: dict[str, float] = defaultdict(float)
+    for nodeid, t in tests.items():
+        folders[folder_of(nodeid)] += t["cpu_s"]
+    lines.append("CPU by folder (s):")
+    lines += [f"  {cpu:6.1f}  {folder}" for folder, cpu in sorted(folders.items(), key=lambda kv: -kv[1])]
+    return lines
+
+
+def run_once(pytest_only: bool, workers: str | None, log: Path) -> dict:
+    """One ``make test`` (or its pytest command): wall, CPU, load, exit code and the last lines printed."""
+    log.unlink(missing_ok=True)
+    env = dict(os.environ, HFAM_TEST_CPU_LOG=str(log))
+    env.pop("PYTEST_XDIST_WORKER", None)
+    scratch = Path(tempfile.mkdtemp(prefix="hfam-suite-"))
+    try:
+        if pytest_only:
+            tree = ROOT
+            make = ["make", "test"]
+        else:
+            tree = scratch / "clone"
+            subprocess.run(["git", "clone", "-q", str(ROOT), str(tree)], check=True)
+            env["XDG_CACHE_HOME"] = str(scratch / "cache")           # a fresh machine's empty user cache
+            make = ["make", "test"]
+        if workers is not None:
+            make.append(f"TEST_WORKERS={workers}")
+        if pytest_only:   # make test without its prerequisites: this tree's venv is made already
+            make = ["make", "-o", ".venv/.installed", "-o", ".venv/.compiled", "-o", "deps", *make[1:]]
+        load_before = _loadavg()
+        cpu0, t0 = _cpu_children(), time.perf_counter()
+        proc = subprocess.run(make, cwd=tree, env=env, capture_output=True, text=True)
+        wall, cpu = time.perf_counter() - t0, _cpu_children() - cpu0
+        tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
+        return {"wall_s": wall, "cpu_s": cpu, "load_before": load_before, "load_after": _loadavg(),
+                "returncode": proc.returncode, "tail": tail}
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks suite", description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=1)
+    p.add_argument("--pytest-only", action="store_true")
+    p.add_argument("--workers", default=None)
+    p.add_argument("--log", type=Path, default=None)
+    args = p.parse_args([] if argv is None else argv)
+    log = args.log or Path(tempfile.gettempdir()) / f"hfam-suite-cpu-{os.getpid()}.jsonl"
+    results = []
+    for i in range(args.runs):
+        r = run_once(args.pytest_only, args.workers, log)
+        results.append(r)
+        state = "green" if r["returncode"] == 0 else f"FAILED (exit {r['returncode']})"
+        print(f"run {i + 1}: {state}; wall {r['wall_s']:.0f} s, CPU {r['cpu_s']:.0f} s (user + system, children "
+              f"included); load average {r['load_before']} before, {r['load_after']} after", flush=True)
+        for line in r["tail"]:
+            print(f"   | {line}")
+    if len(results) > 1:
+        print(f"median of {len(results)}: wall {statistics.median(r['wall_s'] for r in results):.0f} s, "
+              f"CPU {statistics.median(r['cpu_s'] for r in results):.0f} s; "
+              f"{sum(r['returncode'] == 0 for r in results)} of {len(results)} green")
+    for line in summary(per_test(log)):
+        print(line)
+    if args.log is None:
+        log.unlink(missing_ok=True)
+    return 0 if all(r["returncode"] == 0 for r in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

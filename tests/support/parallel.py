@@ -1,0 +1,179 @@
+"""How ``make test`` runs on two cores (pytest-xdist ``-n 2``; ``--dist loadgroup`` is in pyproject.toml).
+
+Wired by ``tests/conftest.py``:
+
+* **Work units are modules**, not single tests (:class:`ModuleScheduling`): a module's tests run on one worker,
+  so a module-scoped fixture (a successive isolation, a report, a firmware build) is made once, and tests that
+  share files in a module never meet themselves on the other core. A test marked ``xdist_group(name)`` -- or
+  every test under a folder of :data:`FOLDER_GROUPS` -- joins the unit ``name`` instead: for session-scoped
+  fixtures shared by several modules (made once per unit) and for tests that must not run beside each other.
+* **Costly units first**: the work queue is ordered by :data:`COST_HINTS` (the units whose wall time is a large
+  part of a worker's share: run last, one of them would leave the other core idle), then by the number of
+  tests (xdist's own order).
+* **The numba cache is filled once** (:func:`start_jit_warmup`, :mod:`tests.support.jitwarm`) while the
+  workers import and collect; each worker waits for it before its first test (:func:`wait_for_jit_warmup`).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: folder (relative to the repository, with a trailing slash) -> xdist group of every test below it: a
+#: session-scoped fixture that folder's modules share (made once per group)
+FOLDER_GROUPS = {
+    "tests/renderer/teleop/": "teleop-cimm-model",    # conftest.py: cimm_file, one successive isolation
+}
+
+#: work units (module path or group name) that take long enough to schedule first, costliest first
+#: (measured wall time on 2 cores, ``python -m benchmarks suite``); the others follow in xdist's order
+COST_HINTS = (
+    "tests/integration/test_readme.py",
+    "teleop-cimm-model",
+    "tests/stimuli/hfam/test_scoring.py",
+    "tests/devices/identify/test_successive.py",
+    "tests/integration/test_serial_study.py",
+)
+
+WARMUP_LOCK = "jitwarm.lock"
+
+
+def controller_or_alone(config) -> bool:
+    """True in the process that starts the xdist workers, and in a run without xdist; False in a worker."""
+    return not hasattr(config, "workerinput")
+
+
+def run_base(config) -> Path:
+    """The run's base temporary folder (each xdist worker's basetemp is a folder inside it)."""
+    base = config._tmp_path_factory.getbasetemp()
+    return base.parent if not controller_or_alone(config) else base
+
+
+def add_folder_groups(items) -> None:
+    """Mark every test under a folder of :data:`FOLDER_GROUPS` with its ``xdist_group``."""
+    import pytest
+
+    for item in items:
+        path = Path(str(item.path)).resolve()
+        rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else ""
+        for folder, group in FOLDER_GROUPS.items():
+            if rel.startswith(folder) and item.get_closest_marker("xdist_group") is None:
+                item.add_marker(pytest.mark.xdist_group(group))
+
+
+def start_jit_warmup(config) -> list[subprocess.Popen]:
+    """Start the two :mod:`tests.support.jitwarm` processes, holding the run's warm-up lock until both end.
+
+    The lock is taken here, before any worker exists, on a file opened here and inherited by both processes
+    (an ``flock`` belongs to the open file, not to a process): no worker can take its shared lock first.
+    ``HFAM_TEST_JIT_WARMUP=0`` turns it off (each kernel is then compiled by its first caller).
+    """
+    if os.environ.get("HFAM_TEST_JIT_WARMUP", "1") == "0" or config.option.collectonly or _cache_filled():
+        return []
+    base = run_base(config)
+    fd = os.open(base / WARMUP_LOCK, os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        procs = []
+        for part in (0, 1):
+            log = open(base / f"jitwarm-{part}.log", "w")
+            procs.append(subprocess.Popen([sys.executable, "-m", "tests.support.jitwarm", "--part", str(part)],
+                                          cwd=ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                                          pass_fds=(fd,)))
+            log.close()
+    finally:
+        os.close(fd)                 # the children hold the lock now (released when the last one ends)
+    return procs
+
+
+def _cache_filled() -> bool:
+    """Whether numba's cache holds an entry for every kernel of :mod:`tests.support.jitwarm` (an index file
+    newer than the kernel's source; a kernel whose imports were edited since is recompiled by its first caller,
+    as it would be anyway). Then there is nothing to warm: a developer's second run starts at once."""
+    import importlib.util
+
+    from tests.support.jitwarm import KERNELS
+
+    for module, function, _ in (k for part in KERNELS for k in part):
+        source = Path(importlib.util.find_spec(module).origin)
+        index = list((source.parent / "__pycache__").glob(f"{source.stem}.{function}-*.nbi"))
+        if not index or max(p.stat().st_mtime for p in index) < source.stat().st_mtime:
+            return False
+    return True
+
+
+def wait_for_jit_warmup(config) -> None:
+    """Block until the run's warm-up processes have ended (at once if there were none)."""
+    lock = run_base(config) / WARMUP_LOCK
+    if not lock.exists():
+        return
+    with open(lock) as fh:
+        fcntl.flock(fh, fcntl.LOCK_SH)
+
+
+def report_jit_warmup(procs, config) -> str | None:
+    """A line naming the log of a warm-up process that failed (the tests compile for themselves then)."""
+    for part, proc in enumerate(procs):
+        if proc.wait() != 0:
+            return (f"numba warm-up part {part} failed (exit {proc.returncode}); the tests compiled their kernels "
+                    f"themselves: {run_base(config) / f'jitwarm-{part}.log'}")
+    return None
+
+
+def cost_order(units: dict) -> list[str]:
+    """The work units (name -> tests), :data:`COST_HINTS` first, then the ones with more tests first."""
+    rank = {scope: i for i, scope in enumerate(COST_HINTS)}
+    return sorted(units, key=lambda scope: (rank.get(scope, len(rank)), -len(units[scope])))
+
+
+def make_scheduler(config, log):
+    """The :class:`ModuleScheduling` of ``--dist loadgroup`` (None for xdist's other modes)."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleScheduling(LoadScopeScheduling):
+        """xdist's ``loadscope`` with modules as units, ``xdist_group`` names as larger units and
+        :data:`COST_HINTS` first."""
+
+        def _split_scope(self, nodeid: str) -> str:
+            if nodeid.rfind("@") > nodeid.rfind("]"):      # loadgroup's suffix: ``<nodeid>@<group>``
+                return nodeid.rsplit("@", 1)[-1]
+            return nodeid.split("::", 1)[0]
+
+        def schedule(self) -> None:
+            # xdist's LoadScopeScheduling.schedule with the units ordered by cost_order (xdist orders them by
+            # their number of tests); the nodes' collections keep their own order (tests are sent by index)
+            assert self.collection_is_completed
+            if self.collection is not None:
+                for node in self.nodes:
+                    self._reschedule(node)
+                return
+            if not self._check_nodes_have_same_collection():
+                self.log("**Different tests collected, aborting run**")
+                return
+            self.collection = list(next(iter(self.registered_collections.values())))
+            if not self.collection:
+                return
+            units: dict[str, dict[str, bool]] = {}
+            for nodeid in self.collection:
+                units.setdefault(self._split_scope(nodeid), {})[nodeid] = False
+            for scope in cost_order(units):
+                self.workqueue[scope] = units[scope]
+            for _ in range(len(self.nodes) - len(self.workqueue)):
+                unused, _assigned = self.assigned_work.popitem()
+                unused.shutdown()
+            for node in self.nodes:
+                self._assign_work_unit(node)
+            for node in self.nodes:
+                self._reschedule(node)
+            if not self.workqueue:
+                for node in self.nodes:
+                    node.shutdown()
+
+    return ModuleScheduling(config, log)
