@@ -5,6 +5,7 @@ import math
 
 import pytest
 
+from plumbing.outdir import MARKER
 from renderer.demo import fidelity, sim_demo
 from renderer.demo.cache import (HFAM_CLAIMS_FILE, PIPELINE_FIGURES, build_or_load, cache_key, entry_hfam_claims,
                                  figure_folder, hfam_score_settings, restore_figures)
@@ -22,7 +23,7 @@ def test_rebuild_damage_and_reuse(tmp_path):
     assert not first.from_cache
     assert first.directory.name == f"demo-{cache_key(s)}"
     assert sorted(p.name for p in first.directory.iterdir()) == [
-        "identify", "library.npz", "library_refinement.txt", "library_verification.txt", "manifest.json",
+        MARKER, "identify", "library.npz", "library_refinement.txt", "library_verification.txt", "manifest.json",
         "pipeline_settings.json", "recordings.csv"]
     # the refinement by playback (on by default) reports its error before and after every pass: first towards
     # the smoothed recordings, then (second stage, before and after each pass) towards the recordings
@@ -117,7 +118,7 @@ def test_hfam_claims_of_a_library_above_every_unseen_speed_are_not_measured_and_
     assert [r["measured"] for r in again][0::2] == [rows[0]["measured"], rows[2]["measured"]]
     kept = json.loads(path.read_text())
     assert [r["id"] for r in kept] == list(claims) and path.stat().st_ino != inode
-    assert sorted(p.name for p in pipe.directory.iterdir() if p.name.startswith(".")) == []
+    assert [p.name for p in pipe.directory.iterdir() if p.name.startswith(".") and p.name != MARKER] == []
 
 
 def test_hfam_claims_are_scored_on_the_demos_own_device_or_not_measured(tmp_path):
