@@ -25,9 +25,9 @@ from ..base import Device, DeviceInfo, DeviceState
 from . import layout as K
 from . import lateral as L
 from .device import SimDevice
+from .hand import ReactiveHand, TapTrajectory
 from .linkage import LINKAGES
 from .params import SimParams
-from .hand import ReactiveHand, TapTrajectory
 from .person import DEFAULT_PERSON, Person
 
 #: the simulated 3-DOF device's workspace (m, device frame): a 10 cm cube, a Falcon's and an Inverse3's order
@@ -188,7 +188,7 @@ class Sim3Device(Device):
         24 mN); a linkage's inertia and friction along the tap (serial arm sideways: +28 g, +49 mN) would
         take it past the threshold at the end of the approach, and the person would "feel" the surface and
         hold 5 mm above it. So the threshold is raised by what the device adds to that drag: its friction
-        along the tap plus its inertia times the plan's largest acceleration. The contact force that
+        along the tap plus its inertia times the tap plan's ramp acceleration. The contact force that
         triggers the reflex beyond the tool's expected drag stays the person's; with nothing added
         (a Cartesian endpoint) the person is passed on unchanged (the 1-DOF numbers, bit for bit).
         """
@@ -198,7 +198,7 @@ class Sim3Device(Device):
         person = DEFAULT_PERSON if hand is None else hand
         if not isinstance(person, (Person, ReactiveHand)):
             return hand     # "prescribed": no reflex
-        extra_N = cu + mu * _plan_peak_accel_m_s2(trajectory, self.info.servo_rate_hz)
+        extra_N = cu + mu * _plan_peak_accel_m_s2(trajectory)
         return dataclasses.replace(person, reflex_force_N=person.reflex_force_N + extra_N)
 
     def set_sample(self, name: str) -> None:
@@ -303,17 +303,14 @@ class Sim3Device(Device):
         return (*self.tap.fused_arrays(), self.lat, self.lp, self.frame, self._i_grav_u)
 
 
-def _plan_peak_accel_m_s2(trajectory, fs_hz: float) -> float:
-    """The largest acceleration (m/s^2) of a person's plan, as the kernel's feedforward sees it.
+def _plan_peak_accel_m_s2(trajectory) -> float:
+    """The largest acceleration (m/s^2) of a person's tapping plan before contact.
 
     A :class:`TapTrajectory`: each tap's approach ramp, ``v / ramp`` (its deceleration below the surface,
-    ``v^2 / press_depth``, comes after contact); a plan that only samples whole: its second differences
-    on the servo grid; a held position (a number, None): 0.
+    ``v^2 / press_depth``, comes after contact). Any other plan (a held position, a script): 0, the reflex
+    discounts the added friction only -- a script's second differences jump at its corners, where the grip
+    carries no sustained load, and would blunt the reflex for nothing.
     """
     if isinstance(trajectory, TapTrajectory):
         return max(v / min(trajectory.ramp_s, trajectory.approach_height_m / v) for v in trajectory.velocities_m_s)
-    if callable(getattr(trajectory, "sample", None)):
-        x = np.asarray(trajectory.sample(fs_hz), dtype=float)
-        if x.size >= 3:
-            return float(np.max(np.abs(np.diff(x, 2)))) * fs_hz * fs_hz
     return 0.0
