@@ -16,6 +16,7 @@ of the tapped surface), ``v``, ``w`` completing a right-handed frame. The endpoi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -24,8 +25,10 @@ from ..base import Device, DeviceInfo, DeviceState
 from . import layout as K
 from . import lateral as L
 from .device import SimDevice
+from .hand import ReactiveHand, TapTrajectory
 from .linkage import LINKAGES
 from .params import SimParams
+from .person import DEFAULT_PERSON, Person
 
 #: the simulated 3-DOF device's workspace (m, device frame): a 10 cm cube, a Falcon's and an Inverse3's order
 WORKSPACE_HALF_M = 0.05
@@ -132,6 +135,8 @@ class Sim3Device(Device):
 
         mu = float(np.asarray(u) @ m_extra @ np.asarray(u))
         cu = fric(u)
+        # what the device adds along the tap to the 1-DOF tool: the person's reflex discounts it (set_user)
+        self._added_mass_u_kg, self._added_friction_u_N = mu, cu
         if mu or cu:     # untouched when nothing is added: the 1-DOF device's numbers exactly
             p[K.P_MH] += mu
             p[K.P_CD] += cu
@@ -168,8 +173,33 @@ class Sim3Device(Device):
         still on the tap line.
         """
         self.set_frame(target_m, direction)
-        self.tap.set_user(trajectory, grip_N=grip_N, hand=hand)
+        self.tap.set_user(trajectory, grip_N=grip_N, hand=self._hand_along_tap(hand, trajectory))
         self._refresh()
+
+    def _hand_along_tap(self, hand, trajectory):
+        """The person as the tap axis gets it: its contact reflex discounts the drag the device adds along
+        the tap.
+
+        The person's internal model knows the tool it holds (``SimDevice.set_user``: the feedforward's
+        ``m_tool`` and Coulomb drag include the inertia and friction projected on the tap axis here), and
+        its reflex is armed only once the plan stops accelerating; but the grip (Table 3.1's 40 N/m,
+        23 N s/m, behind the fingertip's 5 g) still carries the tool's own drag then, ``(m_tool + m_f) a +
+        c_tool``. ``reflex_force_N`` (0.3 N) clears that with ~0.13 N to spare on the 1-DOF tool (32 g,
+        24 mN); a linkage's inertia and friction along the tap (serial arm sideways: +28 g, +49 mN) would
+        take it past the threshold at the end of the approach, and the person would "feel" the surface and
+        hold 5 mm above it. So the threshold is raised by what the device adds to that drag: its friction
+        along the tap plus its inertia times the tap plan's ramp acceleration. The contact force that
+        triggers the reflex beyond the tool's expected drag stays the person's; with nothing added
+        (a Cartesian endpoint) the person is passed on unchanged (the 1-DOF numbers, bit for bit).
+        """
+        mu, cu = self._added_mass_u_kg, self._added_friction_u_N
+        if not (mu or cu):
+            return hand
+        person = DEFAULT_PERSON if hand is None else hand
+        if not isinstance(person, (Person, ReactiveHand)):
+            return hand     # "prescribed": no reflex
+        extra_N = cu + mu * _plan_peak_accel_m_s2(trajectory)
+        return dataclasses.replace(person, reflex_force_N=person.reflex_force_N + extra_N)
 
     def set_sample(self, name: str) -> None:
         """A real sample (``devices.sim.samples``) at the target, its surface normal to the tap axis."""
@@ -271,3 +301,16 @@ class Sim3Device(Device):
         """The arrays the compiled 3-D loop advances: the tap axis's (``SimDevice.fused_arrays``), the
         lateral state and parameters, the frame, and the gravity current along u."""
         return (*self.tap.fused_arrays(), self.lat, self.lp, self.frame, self._i_grav_u)
+
+
+def _plan_peak_accel_m_s2(trajectory) -> float:
+    """The largest acceleration (m/s^2) of a person's tapping plan before contact.
+
+    A :class:`TapTrajectory`: each tap's approach ramp, ``v / ramp`` (its deceleration below the surface,
+    ``v^2 / press_depth``, comes after contact). Any other plan (a held position, a script): 0, the reflex
+    discounts the added friction only -- a script's second differences jump at its corners, where the grip
+    carries no sustained load, and would blunt the reflex for nothing.
+    """
+    if isinstance(trajectory, TapTrajectory):
+        return max(v / min(trajectory.ramp_s, trajectory.approach_height_m / v) for v in trajectory.velocities_m_s)
+    return 0.0

@@ -151,20 +151,46 @@ def test_a_linkage_makes_the_endpoint_impedance_direction_dependent():
     tap axis carries the linkage's inertia along it (u^T J^-T M_q J^-1 u) and its friction, and the taps differ."""
     from devices.sim.layout import P_MH
     from devices.sim.linkage import LINKAGES
-    depth, mass = {}, {}
+    depth, mass, speed = {}, {}, {}
     for linkage in (None, "delta", "serial"):
         for label, direction, normal in (("down", (0, 0, -1), (0, 0, 1)), ("side", (1, 0, 0), (-1, 0, 0))):
             scene = Scene((Plane((0, 0, 0), normal),))
             res, loop = _tap_events(scene, direction, (0.0, 0.0, 0.0), transient=stimuli.NoTransient(), taps=1,
                                     linkage=linkage)
+            assert len(res.events) == 1, (linkage, label)
             depth[(linkage, label)] = res.events[0].max_penetration_m
             mass[(linkage, label)] = loop.device.tap._p[P_MH]
+            speed[(linkage, label)] = res.events[0].incoming_velocity_m_s
+    # every tap arrives near the planned 0.08 m/s (the linkage's friction and inertia slow it a little)
+    assert all(0.07 < v < 0.085 for v in speed.values()), speed
     assert depth[(None, "down")] == depth[(None, "side")]
     for linkage in ("delta", "serial"):
         m_x = LINKAGES[linkage].endpoint_inertia((0.0, 0.0, 0.0))
         assert mass[(linkage, "down")] == pytest.approx(0.014 + m_x[2, 2], rel=1e-12)
         assert mass[(linkage, "side")] == pytest.approx(0.014 + m_x[0, 0], rel=1e-12)
         assert abs(depth[(linkage, "down")] / depth[(linkage, "side")] - 1.0) > 0.015
+
+
+def test_the_persons_reflex_discounts_the_drag_a_linkage_adds_along_the_tap():
+    """The person's contact reflex (0.3 N) is raised along a linkage's tap axis by the friction it adds plus its
+    inertia times the plan's ramp acceleration (0.08 m/s over 20 ms: 4 m/s^2), so the grip's load of the tool's
+    own drag at the end of the approach is not taken for the surface; a Cartesian endpoint keeps the person."""
+    from devices.sim.layout import P_HAND_FTHR
+    from devices.sim.linkage import LINKAGES
+    for linkage, direction in ((None, (1.0, 0.0, 0.0)), ("delta", (0.0, 0.0, -1.0)), ("serial", (1.0, 0.0, 0.0))):
+        dev = Sim3Device(seed=1, linkage=linkage)
+        dev.set_user(TapTrajectory([0.08, 0.12], n_taps=1), grip_N=2.0, direction=direction)
+        if linkage is None:
+            assert dev.tap._p[P_HAND_FTHR] == 0.3
+            continue
+        u = -np.asarray(direction)
+        link = LINKAGES[linkage]
+        extra = link.friction_along((0, 0, 0), u) + float(u @ link.endpoint_inertia((0, 0, 0)) @ u) * 0.08 / 0.02
+        assert dev.tap._p[P_HAND_FTHR] == pytest.approx(0.3 + extra, rel=1e-12)
+        assert extra > 0.07
+    dev = Sim3Device(seed=1, linkage="serial")
+    dev.set_user(TapTrajectory(0.08), grip_N=2.0, direction=(1.0, 0.0, 0.0), hand="prescribed")
+    assert dev.tap.hand == "prescribed"
 
 
 BAD = {
