@@ -114,6 +114,11 @@ class DeviceInfo:
         of its servo ticks per host command (INFO flags bit 1, bits 8-15; ``fw-sim``'s lockstep pace):
         a streaming host runs at ``servo_rate_hz / lockstep_ticks`` paced on the device's clock, not the
         wall clock (docs/protocol.md, "Lockstep").
+    emulated : bool
+        The device on the link is an emulator, not hardware (INFO flags bit 2: the project's firmware emulator,
+        ``python -m devices emulator``): it has a link and the board's protocol, so the hardware path runs
+        (``simulated`` stays False), but no motor, no sensor and no person. Recorded with the device in
+        ``run.json`` and ``session.json`` so that an emulator's data are never taken for a person's.
     """
 
     name: str
@@ -134,6 +139,7 @@ class DeviceInfo:
     capabilities: tuple[str, ...] = ("streaming",)
     simulated: bool = False
     lockstep_ticks: int = 0
+    emulated: bool = False
     axes: int = 1
     workspace_min_m: tuple[float, float, float] | None = None
     workspace_max_m: tuple[float, float, float] | None = None

@@ -189,7 +189,8 @@ class Emulator:
             thermal_resistance_K_W=sim_info.thermal_resistance_K_W,
             thermal_time_constant_s=sim_info.thermal_time_constant_s,
             winding_max_temp_rise_K=sim_info.winding_max_temp_rise_K, accel_range_m_s2=sim_info.accel_range_m_s2,
-            grip_range_N=sim_info.grip_range_N, capabilities=P.capability_names(caps), simulated=False)
+            grip_range_N=sim_info.grip_range_N, capabilities=P.capability_names(caps), simulated=False,
+            emulated=True)   # the hardware path runs (a link), but no hardware is there: INFO says so
         major = self.faults.protocol_major if self.faults.protocol_major is not None else P.PROTOCOL_VERSION[0]
         minor = self.faults.protocol_minor if self.faults.protocol_minor is not None else P.PROTOCOL_VERSION[1]
         if self.faults.info_servo_rate_hz:  # a broken INFO: the rate the device claims, not the one it runs

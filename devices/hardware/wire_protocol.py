@@ -469,14 +469,17 @@ def _short_str(text: str, limit: int, what: str) -> bytes:
 
 
 #: INFO flags: bit 0 simulated; bit 1 lockstep (the device's clock is simulated and advances only with the
-#: host's frames: bits 8-15 give the servo ticks per host period, docs/protocol.md "Lockstep")
+#: host's frames: bits 8-15 give the servo ticks per host period, docs/protocol.md "Lockstep"); bit 2 emulated
+#: (an emulator of the board on the link, not hardware: the firmware never sets it)
 INFO_FLAG_SIMULATED = 1
 INFO_FLAG_LOCKSTEP = 2
+INFO_FLAG_EMULATED = 4
 
 
 def info_flags(info: DeviceInfo) -> int:
-    """INFO's flags field for ``info``: simulated (bit 0), lockstep (bit 1) with its ticks per period (bits 8-15)."""
-    flags = INFO_FLAG_SIMULATED if info.simulated else 0
+    """INFO's flags field for ``info``: simulated (bit 0), lockstep (bit 1) with its ticks per period (bits 8-15),
+    emulated (bit 2)."""
+    flags = (INFO_FLAG_SIMULATED if info.simulated else 0) | (INFO_FLAG_EMULATED if info.emulated else 0)
     if info.lockstep_ticks:
         flags |= INFO_FLAG_LOCKSTEP | (info.lockstep_ticks << 8)
     return flags
@@ -535,6 +538,7 @@ def decode_info(payload: bytes) -> WireInfo:
             winding_max_temp_rise_K=trise, accel_range_m_s2=arange, grip_range_N=(gmin, gmax),
             capabilities=capability_names(caps), simulated=bool(flags & INFO_FLAG_SIMULATED),
             lockstep_ticks=(flags >> 8) if flags & INFO_FLAG_LOCKSTEP else 0,
+            emulated=bool(flags & INFO_FLAG_EMULATED),
         )
     except ValueError as exc:
         raise ProtocolError(f"INFO describes an impossible device: {exc}") from None

@@ -29,6 +29,7 @@ from devices.sim import teleop_kernel as K
 from devices.sim.params import default_params
 from devices.sim.teleop import CimmModel, Testbed, get_environment
 from plumbing.fileio import atomic_write_text, check_output_dir
+from plumbing.outdir import output_folder
 from plumbing.progress import Progress
 from plumbing.stopsignals import stop_on_signals
 
@@ -62,14 +63,16 @@ def software_versions() -> dict:
             "scipy": scipy.__version__}
 
 
-def _new_dir(path: Path) -> Path:
-    """Create an output folder; refuse to touch an existing non-empty one."""
-    path = Path(path)
+def staged_folder(out, command: str):
+    """The output folder ``out`` of a teleoperation command, opened for writing beside it and swapped in whole
+    when the ``with`` block ends without an exception (:func:`plumbing.outdir.output_folder`): a run that is
+    stopped (Ctrl-C, SIGTERM) or fails leaves no half-written folder. An existing non-empty ``out`` is refused
+    (these commands have no ``--force``)."""
+    path = Path(out)
     check_output_dir(path)  # a file, or a folder below a file: refused before anything runs
     if path.exists() and any(path.iterdir()):
         raise ValueError(f"output folder {path} exists and is not empty (choose another --out)")
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    return output_folder(path, False, command=command).open()
 
 
 def build_testbed(args) -> Testbed:
@@ -147,63 +150,65 @@ def run_teleop(args) -> int:
         return run_teleop_master(args)
     tb = build_testbed(args)
     cfg = resolve_gains(_teleop_config(args), tb)   # run.json records the derived gains
-    out = _new_dir(Path(args.out))
-    hfam = None
-    if args.controller == "pd+hfam":
-        hfam = build_hfam(args, tb, out)
-    cimm = build_cimm(args) if args.controller == "pf+cimm" else None
-    check = None
-    if cimm is not None:
-        check = underestimation_check(cimm, tb.master)
-        print(f"CIMM model: {cimm.source}")
-        print(check["warning"] or f"CIMM model underestimates induced motion below 8 Hz "
-              f"(max ratio {check['max_ratio']:.2f}): no positive feedback (eq. 5.14)")
-    path, crossings = default_path(tb.servo_rate_hz, args.mu, n_taps=args.taps, speed_m_s=args.speed)
-    t0 = time.perf_counter()
-    stroke = None
-    if args.environment == "texture":
-        stroke = np.cumsum(np.where(path < 0.5e-3 / args.mu, 0.02, 0.0)) / tb.servo_rate_hz  # 20 mm/s in contact
-    res = run_session(tb, cfg, path, cimm=cimm, hfam=hfam, impact_ticks=crossings, stroke_m=stroke)
-    wall = time.perf_counter() - t0
-    metrics = session_metrics(res)
-    _write_traces(out, res)
-    taps = [None if m is None else {"impact_s": m.impact_s, "settling_s": m.settling_s if math.isfinite(m.settling_s)
-                                    else None, "quasi_static_N": m.quasi_static_N, "contact_breaks": m.breaks,
-                                    "contact_losses": m.contact_losses, "contact_class": m.contact_class,
-                                    "stable": m.stable, "F_f_energy_above_50Hz": m.hf_energy_fraction}
-            for m in metrics]
-    unstable = sum(1 for m in metrics if m is not None and not m.stable)
-    run = {"command": "teleop", "argv": sys.argv[1:], "controller": cfg.__dict__,
-           "testbed": {"environment": tb.environment.__dict__, "operator": tb.operator.__dict__,
-                       "sensors": tb.sensors.__dict__, "servo_rate_hz": tb.servo_rate_hz,
-                       "substep_s": tb.substep_s, "master": tb.master.name, "slave": tb.slave.name,
-                       "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
-           "cimm_model": _cimm_record(cimm, check),
-           "versions": software_versions(), "duration_s": len(path) / tb.servo_rate_hz,
-           "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
-           "unstable_taps": unstable, "taps": taps}
-    if cfg.controller.startswith("pd"):
-        match = accel_match(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
-        run["accel_match_22_1000Hz"] = match
-        # eq. 4.4: the master's high-passed acceleration against the smoothed, high-passed tip acceleration it
-        # must replicate, and what the smoothing itself takes out
-        run["accel_match_eq_4_4"] = accel_match_target(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
-        if hfam is not None:
-            run["hfam"] = {"check": hfam.check, "max_current_A": hfam.max_current_A, "gain": hfam.gain}
-        print(f"master handle vs slave tip (22-1000 Hz, delay {match['delay_s'] * 1e3:.1f} ms removed): "
-              f"correlation {match['correlation']:.2f}, NRMSE {match['nrmse']:.2f}, RMS ratio {match['rms_ratio']:.2f}")
+    folder = staged_folder(args.out, "renderer teleop")
+    with folder:
+        out = folder.path
+        hfam = None
+        if args.controller == "pd+hfam":
+            hfam = build_hfam(args, tb, out)
+        cimm = build_cimm(args) if args.controller == "pf+cimm" else None
+        check = None
+        if cimm is not None:
+            check = underestimation_check(cimm, tb.master)
+            print(f"CIMM model: {cimm.source}")
+            print(check["warning"] or f"CIMM model underestimates induced motion below 8 Hz "
+                  f"(max ratio {check['max_ratio']:.2f}): no positive feedback (eq. 5.14)")
+        path, crossings = default_path(tb.servo_rate_hz, args.mu, n_taps=args.taps, speed_m_s=args.speed)
+        t0 = time.perf_counter()
+        stroke = None
+        if args.environment == "texture":
+            stroke = np.cumsum(np.where(path < 0.5e-3 / args.mu, 0.02, 0.0)) / tb.servo_rate_hz  # 20 mm/s in contact
+        res = run_session(tb, cfg, path, cimm=cimm, hfam=hfam, impact_ticks=crossings, stroke_m=stroke)
+        wall = time.perf_counter() - t0
+        metrics = session_metrics(res)
+        _write_traces(out, res)
+        taps = [None if m is None else {"impact_s": m.impact_s, "settling_s": m.settling_s if math.isfinite(m.settling_s)
+                                        else None, "quasi_static_N": m.quasi_static_N, "contact_breaks": m.breaks,
+                                        "contact_losses": m.contact_losses, "contact_class": m.contact_class,
+                                        "stable": m.stable, "F_f_energy_above_50Hz": m.hf_energy_fraction}
+                for m in metrics]
+        unstable = sum(1 for m in metrics if m is not None and not m.stable)
+        run = {"command": "teleop", "argv": sys.argv[1:], "controller": cfg.__dict__,
+               "testbed": {"environment": tb.environment.__dict__, "operator": tb.operator.__dict__,
+                           "sensors": tb.sensors.__dict__, "servo_rate_hz": tb.servo_rate_hz,
+                           "substep_s": tb.substep_s, "master": tb.master.name, "slave": tb.slave.name,
+                           "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
+               "cimm_model": _cimm_record(cimm, check),
+               "versions": software_versions(), "duration_s": len(path) / tb.servo_rate_hz,
+               "wall_s": wall, "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick,
+               "unstable_taps": unstable, "taps": taps}
+        if cfg.controller.startswith("pd"):
+            match = accel_match(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
+            run["accel_match_22_1000Hz"] = match
+            # eq. 4.4: the master's high-passed acceleration against the smoothed, high-passed tip acceleration it
+            # must replicate, and what the smoothing itself takes out
+            run["accel_match_eq_4_4"] = accel_match_target(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz)
+            if hfam is not None:
+                run["hfam"] = {"check": hfam.check, "max_current_A": hfam.max_current_A, "gain": hfam.gain}
+            print(f"master handle vs slave tip (22-1000 Hz, delay {match['delay_s'] * 1e3:.1f} ms removed): "
+                  f"correlation {match['correlation']:.2f}, NRMSE {match['nrmse']:.2f}, RMS ratio {match['rms_ratio']:.2f}")
+            if not args.no_figures:
+                figure_45(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz, match["delay_samples"],
+                          out / "figure_4_5.png", f"{cfg.controller}, {args.environment}")
+        atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
         if not args.no_figures:
-            figure_45(res.col(K.O_AS), res.col(K.O_AM), tb.servo_rate_hz, match["delay_samples"],
-                      out / "figure_4_5.png", f"{cfg.controller}, {args.environment}")
-    atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
-    if not args.no_figures:
-        figure_510(res, out / "figure_5_10.png", f"{cfg.controller}, lambda = {cfg.lam:g}, mu = {cfg.mu:g}")
-    settle = [t["settling_s"] for t in taps if t and t["settling_s"] is not None]
-    print(f"{args.taps} taps, {len(path) / tb.servo_rate_hz:.1f} s simulated in {wall:.2f} s; unstable taps: "
-          f"{unstable}; median settling {np.median(settle) * 1e3 if settle else float('nan'):.0f} ms; "
-          f"master clip ticks {res.counts['master_clip_ticks']}; fault {res.fault}")
-    print(f"wrote {out}")
-    return 0
+            figure_510(res, out / "figure_5_10.png", f"{cfg.controller}, lambda = {cfg.lam:g}, mu = {cfg.mu:g}")
+        settle = [t["settling_s"] for t in taps if t and t["settling_s"] is not None]
+        print(f"{args.taps} taps, {len(path) / tb.servo_rate_hz:.1f} s simulated in {wall:.2f} s; unstable taps: "
+              f"{unstable}; median settling {np.median(settle) * 1e3 if settle else float('nan'):.0f} ms; "
+              f"master clip ticks {res.counts['master_clip_ticks']}; fault {res.fault}")
+        print(f"wrote {folder.out}")
+        return 0
 
 
 def run_teleop_master(args) -> int:
@@ -238,47 +243,49 @@ def run_teleop_master(args) -> int:
     if not (math.isfinite(args.backlash_mm) and 0.0 <= args.backlash_mm < 5.0):
         raise ValueError(f"--backlash-mm must be in [0, 5), got {args.backlash_mm!r}")
     cimm = build_cimm(args) if args.controller == "pf+cimm" else None
-    out = _new_dir(Path(args.out))
-    dev = make_device(args.master)
-    with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
-        P = default_params()
-        # the simulated slave takes --backlash-mm as in the all-sim session (the real master's own play is its own)
-        tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz,
-                     slave_handle_damping_N_s_m=args.slave_handle_damping, backlash_m=args.backlash_mm * 1e-3)
-        cfg = resolve_gains(cfg, tb)
-        check = None
-        if cimm is not None:
-            # the check needs the true master; here only the simulated Table 3.1 one is at hand, so it is
-            # reported as a reference, not as a verdict on this device
-            check = underestimation_check(cimm, tb.master)
-            check["reference"] = "the simulated Table 3.1 master, not the device on the link"
-            print(f"CIMM model: {cimm.source}; its underestimation check (eq. 5.14) can only be made against "
-                  f"the simulated master: {check['warning'] or 'it underestimates that one below 8 Hz'}")
-        print(f"master {dev.info.name} at {tb.servo_rate_hz:g} Hz; slave and {args.environment} simulated; "
-              f"{args.duration_s:g} s ...", flush=True)
-        res, timing = run_serial_session(dev, tb, cfg, args.duration_s, cimm=cimm)
-    _write_traces(out, res)
-    run = {"command": "teleop", "argv": sys.argv[1:], "master": args.master, "controller": cfg.__dict__,
-           "testbed": {"environment": tb.environment.__dict__, "sensors": tb.sensors.__dict__,
-                       "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name, "backlash_m": tb.backlash_m,
-                       "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
-           "cimm_model": _cimm_record(cimm, check),
-           "versions": software_versions(), "duration_s": args.duration_s, "link": timing,
-           "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick}
-    atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
-    if not args.no_figures:
-        figure_510(res, out / "figure_5_10.png", f"{cfg.controller} with master {args.master}, "
-                   f"lambda = {cfg.lam:g}, mu = {cfg.mu:g}")
-    p99 = timing["round_trip_p99_ms"]
-    print(f"{timing['ticks']} ticks at {timing['rate_hz']:.0f} Hz achieved; round trip p50/p99 "
-          f"{timing['round_trip_p50_ms'] or float('nan'):.2f}/{p99 if p99 is not None else float('nan'):.2f} ms; "
-          f"late ticks {timing['late_ticks']}; peak slave force {float(np.max(res.col(K.O_FE), initial=0.0)):.2f} N; "
-          f"fault {res.fault}")
-    if timing["link_lost_tick"] is not None:
-        print(f"error: the master link was lost at tick {timing['link_lost_tick']}: master output zero, slave "
-              f"held; data so far in {out}", file=sys.stderr)
-    print(f"wrote {out}")
-    return 1 if (timing["link_lost_tick"] is not None or res.fault) else 0
+    folder = staged_folder(args.out, "renderer teleop")
+    with folder:
+        out = folder.path
+        dev = make_device(args.master)
+        with stop_on_signals(), dev:  # a stop signal raises in the session: closing the master zeroes it
+            P = default_params()
+            # the simulated slave takes --backlash-mm as in the all-sim session (the real master's own play is its own)
+            tb = Testbed(P, P, environment=get_environment(args.environment), servo_rate_hz=dev.info.servo_rate_hz,
+                         slave_handle_damping_N_s_m=args.slave_handle_damping, backlash_m=args.backlash_mm * 1e-3)
+            cfg = resolve_gains(cfg, tb)
+            check = None
+            if cimm is not None:
+                # the check needs the true master; here only the simulated Table 3.1 one is at hand, so it is
+                # reported as a reference, not as a verdict on this device
+                check = underestimation_check(cimm, tb.master)
+                check["reference"] = "the simulated Table 3.1 master, not the device on the link"
+                print(f"CIMM model: {cimm.source}; its underestimation check (eq. 5.14) can only be made against "
+                      f"the simulated master: {check['warning'] or 'it underestimates that one below 8 Hz'}")
+            print(f"master {dev.info.name} at {tb.servo_rate_hz:g} Hz; slave and {args.environment} simulated; "
+                  f"{args.duration_s:g} s ...", flush=True)
+            res, timing = run_serial_session(dev, tb, cfg, args.duration_s, cimm=cimm)
+        _write_traces(out, res)
+        run = {"command": "teleop", "argv": sys.argv[1:], "master": args.master, "controller": cfg.__dict__,
+               "testbed": {"environment": tb.environment.__dict__, "sensors": tb.sensors.__dict__,
+                           "servo_rate_hz": tb.servo_rate_hz, "slave": tb.slave.name, "backlash_m": tb.backlash_m,
+                           "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m},
+               "cimm_model": _cimm_record(cimm, check),
+               "versions": software_versions(), "duration_s": args.duration_s, "link": timing,
+               "clip_counts": res.counts, "fault": res.fault, "fault_tick": res.fault_tick}
+        atomic_write_text(out / "run.json", json.dumps(run, indent=1, default=str))
+        if not args.no_figures:
+            figure_510(res, out / "figure_5_10.png", f"{cfg.controller} with master {args.master}, "
+                       f"lambda = {cfg.lam:g}, mu = {cfg.mu:g}")
+        p99 = timing["round_trip_p99_ms"]
+        print(f"{timing['ticks']} ticks at {timing['rate_hz']:.0f} Hz achieved; round trip p50/p99 "
+              f"{timing['round_trip_p50_ms'] or float('nan'):.2f}/{p99 if p99 is not None else float('nan'):.2f} ms; "
+              f"late ticks {timing['late_ticks']}; peak slave force {float(np.max(res.col(K.O_FE), initial=0.0)):.2f} N; "
+              f"fault {res.fault}")
+        if timing["link_lost_tick"] is not None:
+            print(f"error: the master link was lost at tick {timing['link_lost_tick']}: master output zero, slave "
+                  f"held; data so far in {folder.out}", file=sys.stderr)
+        print(f"wrote {folder.out}")
+        return 1 if (timing["link_lost_tick"] is not None or res.fault) else 0
 
 
 def figure_510(res, path: Path, title: str) -> None:
@@ -488,47 +495,49 @@ def run_sweep(args) -> int:
     if check["warning"]:
         print(check["warning"])
     lam_speed = feedback_limit_speed(tb) if args.lambda_by_speed else None
-    out = _new_dir(Path(args.out))
-    # a bar on a terminal, plain lines in a log (a tqdm bar wrote \r-separated redraws into a file)
-    bar = Progress(len(conds) * len(lambdas) * args.taps * len(depths), "teleop-sweep", unit="tap")
-    rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
-                 progress=lambda i, n: bar.update(i), servo_bandwidth_hz=args.servo_bandwidth_hz,
-                 press_depths_m=depths, lambda_speed_m_s=lam_speed)
-    bar.close()
-    lines = ["condition,lambda,speed_m_s,press_depth_mm,settling_s,contact_class,breaks,contact_losses,stable,"
-             "quasi_static_N,oscillation_N,hf_energy_fraction"]
-    for r in sorted(rows, key=lambda r: (r["condition"], r["press_depth_mm"], r["lambda"], r["speed_m_s"])):
-        lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['press_depth_mm']:g},"
-                     f"{r['settling_s']:.4f},{r['contact_class']},{r['breaks']},{r['contact_losses']},"
-                     f"{int(r['stable'])},{r['quasi_static_N']:.3f},{r['oscillation_N']:.3f},"
-                     f"{r['hf_energy_fraction']:.3f}")
-    atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
-    table, summary = sweep_table(rows, conds, depths)
-    atomic_write_text(out / "table.md", "\n".join(table) + "\n")
-    atomic_write_text(out / "run.json", json.dumps({
-        "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
-        "taps": args.taps, "seed": args.seed, "mu": args.mu, "environment": args.environment,
-        "press_depths_mm": [d * 1e3 for d in depths], "lambda_times_speed_m_s": lam_speed,
-        "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m,
-        "servo_bandwidth_hz": args.servo_bandwidth_hz,
-        "cimm_model": {"source": cimm.source, "underestimation_check": check}, "summary": summary,
-        "versions": software_versions()}, indent=1, default=str))
-    figure_511(rows, conds, out / "figure_5_11.png")
-    if lam_speed is not None:
-        print(f"Figure 5.11's protocol: lambda x incoming speed = {lam_speed:.3f} m/s (the feedback at its "
-              f"{TeleopConfig().ff_max_N:.2f} N limit)")
-    print("\n".join(table))
-    if args.robustness:
-        rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed,
-                         servo_bandwidth_hz=args.servo_bandwidth_hz)
-        lines = ["| CIMM model | largest lambda that settles | largest lambda that holds contact | "
-                 "contact losses per tap after the impact's 30 ms (mean over the grid) |", "|---|---|---|---|"]
-        lines += [f"| {k} | {v['largest_settling_lambda']:g} | {v['largest_stable_lambda']:g} | "
-                  f"{v['mean_contact_losses']:.1f} |" for k, v in rob.items()]
-        atomic_write_text(out / "robustness.md", "\n".join(lines) + "\n")
-        print("\n".join(lines))
-    print(f"wrote {out}")
-    return 0
+    folder = staged_folder(args.out, "renderer teleop-sweep")
+    with folder:
+        out = folder.path
+        # a bar on a terminal, plain lines in a log (a tqdm bar wrote \r-separated redraws into a file)
+        bar = Progress(len(conds) * len(lambdas) * args.taps * len(depths), "teleop-sweep", unit="tap")
+        rows = sweep(tb, cimm, lambdas, conds, taps=args.taps, mu=args.mu, seed=args.seed,
+                     progress=lambda i, n: bar.update(i), servo_bandwidth_hz=args.servo_bandwidth_hz,
+                     press_depths_m=depths, lambda_speed_m_s=lam_speed)
+        bar.close()
+        lines = ["condition,lambda,speed_m_s,press_depth_mm,settling_s,contact_class,breaks,contact_losses,stable,"
+                 "quasi_static_N,oscillation_N,hf_energy_fraction"]
+        for r in sorted(rows, key=lambda r: (r["condition"], r["press_depth_mm"], r["lambda"], r["speed_m_s"])):
+            lines.append(f"{r['condition']},{r['lambda']:g},{r['speed_m_s']:.3f},{r['press_depth_mm']:g},"
+                         f"{r['settling_s']:.4f},{r['contact_class']},{r['breaks']},{r['contact_losses']},"
+                         f"{int(r['stable'])},{r['quasi_static_N']:.3f},{r['oscillation_N']:.3f},"
+                         f"{r['hf_energy_fraction']:.3f}")
+        atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
+        table, summary = sweep_table(rows, conds, depths)
+        atomic_write_text(out / "table.md", "\n".join(table) + "\n")
+        atomic_write_text(out / "run.json", json.dumps({
+            "command": "teleop-sweep", "argv": sys.argv[1:], "lambdas": lambdas, "conditions": conds,
+            "taps": args.taps, "seed": args.seed, "mu": args.mu, "environment": args.environment,
+            "press_depths_mm": [d * 1e3 for d in depths], "lambda_times_speed_m_s": lam_speed,
+            "backlash_m": tb.backlash_m, "slave_handle_damping_N_s_m": tb.slave_handle_damping_N_s_m,
+            "servo_bandwidth_hz": args.servo_bandwidth_hz,
+            "cimm_model": {"source": cimm.source, "underestimation_check": check}, "summary": summary,
+            "versions": software_versions()}, indent=1, default=str))
+        figure_511(rows, conds, out / "figure_5_11.png")
+        if lam_speed is not None:
+            print(f"Figure 5.11's protocol: lambda x incoming speed = {lam_speed:.3f} m/s (the feedback at its "
+                  f"{TeleopConfig().ff_max_N:.2f} N limit)")
+        print("\n".join(table))
+        if args.robustness:
+            rob = robustness(tb, cimm, lambdas, taps=args.taps, mu=args.mu, seed=args.seed,
+                             servo_bandwidth_hz=args.servo_bandwidth_hz)
+            lines = ["| CIMM model | largest lambda that settles | largest lambda that holds contact | "
+                     "contact losses per tap after the impact's 30 ms (mean over the grid) |", "|---|---|---|---|"]
+            lines += [f"| {k} | {v['largest_settling_lambda']:g} | {v['largest_stable_lambda']:g} | "
+                      f"{v['mean_contact_losses']:.1f} |" for k, v in rob.items()]
+            atomic_write_text(out / "robustness.md", "\n".join(lines) + "\n")
+            print("\n".join(lines))
+        print(f"wrote {folder.out}")
+        return 0
 
 
 def _contact_class(r: dict) -> str:

@@ -36,7 +36,7 @@ from plumbing.fileio import atomic_write_text
 from plumbing.progress import Progress
 
 from .calibration import CALIBRATION_SPEEDS_M_S, calibrate_slave_handle_damping, natural_impact_settling_s
-from .commands import build_cimm, largest_stable, software_versions, sweep, _new_dir
+from .commands import build_cimm, largest_stable, software_versions, sweep, staged_folder
 from .models import simpler_params
 from .session import (GRACE_S, TeleopConfig, classify_contact, default_path, joystick_mass_kg, run_session,
                       servo_gains, session_metrics)
@@ -364,34 +364,36 @@ def run_servo_study(args) -> int:
     if fixed is not None and not (math.isfinite(fixed) and fixed >= 0):
         raise ValueError(f"--fixed-slave-handle-damping-N-s-m must be a number >= 0, got {fixed!r}")
     cimm = build_cimm(args)
-    out = _new_dir(Path(args.out))
-    bar = Progress(len(bands), "teleop-servo-study", unit="point")
-    points = servo_study(cimm, bands, taps=args.taps, seed=args.seed, damping_N_s_m=fixed,
-                         count_from_impact=args.count_from_impact,
-                         progress=lambda i, n: bar.update(i))
-    bar.close()
-    table = study_table(points)
-    atomic_write_text(out / "table.md", table)
-    lines = ["servo_bandwidth_hz,backlash,condition,lambda,speed_m_s,settling_s,contact_class,contact_losses"]
-    for p in points:
-        for backlash, rows in ((0, p.rows), (1, p.backlash_rows)):
-            for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
-                lines.append(f"{p.servo_bandwidth_hz:g},{backlash},{r['condition']},{r['lambda']:g},"
-                             f"{r['speed_m_s']:.3f},{r['settling_s']:.4f},{r['contact_class']},{r['contact_losses']}")
-    atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
-    record = {"command": "teleop-servo-study", "argv": sys.argv[1:], "taps": args.taps, "seed": args.seed,
-              "speeds_m_s": list(CALIBRATION_SPEEDS_M_S), "fixed_slave_handle_damping_N_s_m": fixed,
-              "contact_losses_counted_from_s": 0.0 if args.count_from_impact else GRACE_S,
-              "backlash_m": BACKLASH_FIG_5_11_M, "cimm_model": cimm.source,
-              "figure_5_11_cimm_model": figure_5_11_model(cimm).source, "targets": TARGETS,
-              "points": [{"servo_bandwidth_hz": p.servo_bandwidth_hz, "kp_s_N_m": p.kp_s_N_m, "kd_s_Ns_m": p.kd_s_Ns_m,
-                          "slave_handle_damping_N_s_m": p.damping_N_s_m, "natural_settling_s": p.natural_settling_s,
-                          "pd_losses_on_wood": list(p.pd_losses), "targets_met": p.met,
-                          "checks": [asdict(c) for c in p.checks]} for p in points],
-              "versions": software_versions()}
-    atomic_write_text(out / "study.json", json.dumps(record, indent=1, default=str))
-    print(table, end="")
-    best = max(p.met for p in points) if points else 0
-    print(f"most targets met at one servo bandwidth: {best} of {len(TARGETS)}")
-    print(f"wrote {out}")
-    return 0
+    folder = staged_folder(args.out, "renderer teleop-servo-study")
+    with folder:
+        out = folder.path
+        bar = Progress(len(bands), "teleop-servo-study", unit="point")
+        points = servo_study(cimm, bands, taps=args.taps, seed=args.seed, damping_N_s_m=fixed,
+                             count_from_impact=args.count_from_impact,
+                             progress=lambda i, n: bar.update(i))
+        bar.close()
+        table = study_table(points)
+        atomic_write_text(out / "table.md", table)
+        lines = ["servo_bandwidth_hz,backlash,condition,lambda,speed_m_s,settling_s,contact_class,contact_losses"]
+        for p in points:
+            for backlash, rows in ((0, p.rows), (1, p.backlash_rows)):
+                for r in sorted(rows, key=lambda r: (r["condition"], r["lambda"], r["speed_m_s"])):
+                    lines.append(f"{p.servo_bandwidth_hz:g},{backlash},{r['condition']},{r['lambda']:g},"
+                                 f"{r['speed_m_s']:.3f},{r['settling_s']:.4f},{r['contact_class']},{r['contact_losses']}")
+        atomic_write_text(out / "trials.csv", "\n".join(lines) + "\n")
+        record = {"command": "teleop-servo-study", "argv": sys.argv[1:], "taps": args.taps, "seed": args.seed,
+                  "speeds_m_s": list(CALIBRATION_SPEEDS_M_S), "fixed_slave_handle_damping_N_s_m": fixed,
+                  "contact_losses_counted_from_s": 0.0 if args.count_from_impact else GRACE_S,
+                  "backlash_m": BACKLASH_FIG_5_11_M, "cimm_model": cimm.source,
+                  "figure_5_11_cimm_model": figure_5_11_model(cimm).source, "targets": TARGETS,
+                  "points": [{"servo_bandwidth_hz": p.servo_bandwidth_hz, "kp_s_N_m": p.kp_s_N_m, "kd_s_Ns_m": p.kd_s_Ns_m,
+                              "slave_handle_damping_N_s_m": p.damping_N_s_m, "natural_settling_s": p.natural_settling_s,
+                              "pd_losses_on_wood": list(p.pd_losses), "targets_met": p.met,
+                              "checks": [asdict(c) for c in p.checks]} for p in points],
+                  "versions": software_versions()}
+        atomic_write_text(out / "study.json", json.dumps(record, indent=1, default=str))
+        print(table, end="")
+        best = max(p.met for p in points) if points else 0
+        print(f"most targets met at one servo bandwidth: {best} of {len(TARGETS)}")
+        print(f"wrote {folder.out}")
+        return 0

@@ -69,6 +69,8 @@ def test_the_emulator_reports_native_usb_and_gets_telemetry_every_tick():
     try:
         with make_device(f"serial:{port}?mode=on-device") as dev:
             assert "native_usb" in dev.info.capabilities and dev.telemetry_decimation_option is None
+            # an emulator, not hardware: the hardware path (not simulated), recorded as emulated
+            assert dev.info.emulated and not dev.info.simulated and dev.info.name.startswith("hfam-emulator(")
             res = ServoLoop(dev, RendererConfig()).run(duration_s=0.05)
             assert dev.telemetry_decimation == 1
         assert res.timing["log_rate_hz"] == res.timing["rate_hz"] == 10000.0

@@ -34,6 +34,7 @@ def test_handshake_info_and_streaming_against_the_real_firmware():
         w = dev.wire_info
         assert w.info.name == "hapkit-paddle" and w.serial_number == "HK0001" and w.info.servo_rate_hz == 4000.0
         assert w.protocol_version == (1, 1) and w.firmware_version == (1, 0, 0) and w.watchdog_ms == 100
+        assert not w.info.emulated   # the real firmware never says it is an emulator (INFO flags bit 2)
         assert "on_device" in w.info.capabilities and "table_transient" not in w.info.capabilities
         res = dev.info.position_resolution_m
         s = dev.read()

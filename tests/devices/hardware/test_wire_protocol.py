@@ -121,6 +121,18 @@ def test_info_round_trip_carries_every_deviceinfo_field():
     assert back.device_id == "paddle/SN42" and back.max_table_samples == 200
 
 
+def test_info_says_whether_the_device_is_an_emulator():
+    """INFO flags bit 2: an emulator of the board (a link, no hardware) says so; the firmware never sets it, and
+    the bit is independent of ``simulated`` (which would take the hardware path away)."""
+    from dataclasses import replace
+    w = _wire_info()
+    assert P.info_flags(w.info) == 0 and not P.decode_info(P.encode_info(w)).info.emulated
+    emu = _wire_info(info=replace(w.info, emulated=True))
+    assert P.info_flags(emu.info) == P.INFO_FLAG_EMULATED == 4
+    back = P.decode_info(P.encode_info(emu)).info
+    assert back.emulated and not back.simulated and back == emu.info
+
+
 def test_info_decode_errors_name_the_problem():
     raw = P.encode_info(_wire_info())
     with pytest.raises(P.ProtocolError, match="too short"):

@@ -440,3 +440,24 @@ def test_cimm_model_linear_linkage_is_the_identified_model_made_linear(monkeypat
     # everything but the linkage is the identified model's
     for k in ("m_m_kg", "m_d_kg", "m_h_kg", "k_c_N_m", "c_m_N", "c_d_N"):
         assert p.mechanics[k] == full.mechanics[k], k
+
+
+def test_a_teleop_run_that_fails_while_writing_leaves_no_half_written_folder(tmp_path, capsys, monkeypatch):
+    """The run's folder is written beside --out and swapped in whole: a full disk while the figure is drawn
+    (after the traces were written) leaves no --out and no staging folder, and says which output failed."""
+    import errno
+
+    import renderer.teleop.commands as commands
+
+    def full_disk(res, path, title):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(commands, "figure_510", full_disk)
+    out = tmp_path / "run"
+    assert main(["teleop", "--controller", "pf", "--taps", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and str(out) in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []   # no run folder, no staging folder, no lock
+    monkeypatch.undo()
+    assert main(["teleop", "--controller", "pf", "--taps", "1", "--out", str(out)]) == 0
+    assert {"traces.csv", "run.json", "figure_5_10.png"} <= {p.name for p in out.iterdir()}
