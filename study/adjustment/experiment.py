@@ -21,11 +21,11 @@ comparison's stiffness alone). Trials run in blocks of one condition, the blocks
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import asdict, dataclass
 
 from plumbing.validation import require_int, require_number
 
+from ..session.config import experiment_config
 from ..session.rng import session_rng
 
 KIND = "adjustment"
@@ -152,20 +152,7 @@ class AdjustmentConfig:
 def config_from_dict(data, where: str) -> AdjustmentConfig:
     """An :class:`AdjustmentConfig` from a table; unknown keys and bad values name ``where`` and the key; a
     relative ``design`` is taken from the protocol file's folder."""
-    if not isinstance(data, dict):
-        raise ValueError(f"{where}: [experiment] must be a table of settings, got {type(data).__name__}")
-    known = {f.name for f in fields(AdjustmentConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{where}: unknown [experiment] key(s) {unknown}; valid keys: {sorted(known)}")
-    data = dict(data)
-    design = data.get("design")
-    if isinstance(design, str) and design and not Path(design).is_absolute() and Path(where).is_file():
-        data["design"] = str((Path(where).parent / design).resolve())
-    try:
-        return AdjustmentConfig(**data)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: [experiment] {exc}") from None
+    return experiment_config(AdjustmentConfig, data, where)
 
 
 @dataclass(frozen=True)

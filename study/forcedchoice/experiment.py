@@ -31,7 +31,7 @@ from plumbing.validation import require_int
 from psychophysics.multistair import Interleaved
 from psychophysics.names import METHOD_NAMES
 
-from ..session.config import ProtocolConfig, protocol_from, read_protocol_file
+from ..session.config import ProtocolConfig, experiment_config, protocol_from, read_protocol_file
 from ..session.rng import seed_sequence, session_rng
 
 KINDS = ("real-virtual-2afc", "discrimination", "detection")
@@ -308,16 +308,7 @@ def _float_tuple(key: str, value) -> tuple:
 
 def experiment_from_dict(data: dict, where: str) -> ExperimentConfig:
     """Build an :class:`ExperimentConfig` from a table; unknown keys and bad values name ``where`` and the key."""
-    if not isinstance(data, dict):
-        raise ValueError(f"{where}: [experiment] must be a table of settings, got {type(data).__name__}")
-    known = {f.name for f in fields(ExperimentConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{where}: unknown [experiment] key(s) {unknown}; valid keys: {sorted(known)}")
-    try:
-        return ExperimentConfig(**data)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: [experiment] {exc}") from None
+    return experiment_config(ExperimentConfig, data, where)
 
 
 def load_protocol_file(path, where: str = "command line", **overrides):

@@ -13,11 +13,11 @@ seeded random order within the condition's block; the blocks run in the particip
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import asdict, dataclass
 
 from plumbing.validation import require_int, require_number
 
+from ..session.config import experiment_config
 from ..session.rng import session_rng
 
 KIND = "magnitude"
@@ -107,20 +107,7 @@ class MagnitudeConfig:
 
 def config_from_dict(data, where: str) -> MagnitudeConfig:
     """A :class:`MagnitudeConfig` from a table; unknown keys and bad values name ``where`` and the key."""
-    if not isinstance(data, dict):
-        raise ValueError(f"{where}: [experiment] must be a table of settings, got {type(data).__name__}")
-    known = {f.name for f in fields(MagnitudeConfig)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{where}: unknown [experiment] key(s) {unknown}; valid keys: {sorted(known)}")
-    data = dict(data)
-    design = data.get("design")
-    if isinstance(design, str) and design and not Path(design).is_absolute() and Path(where).is_file():
-        data["design"] = str((Path(where).parent / design).resolve())
-    try:
-        return MagnitudeConfig(**data)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: [experiment] {exc}") from None
+    return experiment_config(MagnitudeConfig, data, where)
 
 
 @dataclass(frozen=True)

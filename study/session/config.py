@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from plumbing.fileio import read_text_utf8
@@ -198,3 +198,25 @@ class SubjectInfo:
         if self.experience not in EXPERIENCE:
             raise ValueError(f"experience must be one of {list(EXPERIENCE)} (never / a few times / regularly), "
                              f"got {self.experience!r}")
+
+
+def experiment_config(cls, data, where: str):
+    """An experiment kind's ``[experiment]`` settings: the frozen dataclass ``cls`` built from the table ``data``.
+
+    Unknown keys and bad values are one error naming ``where`` and the key; a relative ``design`` path (a
+    counterbalanced design file) is taken from the protocol file's folder, as the file that names it.
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: [experiment] must be a table of settings, got {type(data).__name__}")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"{where}: unknown [experiment] key(s) {unknown}; valid keys: {sorted(known)}")
+    data = dict(data)
+    design = data.get("design")
+    if isinstance(design, str) and design and not Path(design).is_absolute() and Path(where).is_file():
+        data["design"] = str((Path(where).parent / design).resolve())
+    try:
+        return cls(**data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: [experiment] {exc}") from None
