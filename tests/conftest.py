@@ -107,3 +107,15 @@ def fake_hd(tmp_path_factory):
         assert r.returncode == 0, r.stderr
 
     return shared_folder(tmp_path_factory, "fakehd", build) / "libfakehd.so"
+
+
+@pytest.fixture(autouse=True)
+def _lsl_outlets_end_with_their_test():
+    """A test's retired Lab Streaming Layer outlets (plumbing.lsl keeps them until the process ends, so that
+    liblsl sends their last samples) are dropped after it: in this long-lived process, a later test's inlets
+    otherwise stopped receiving a servo process's streams."""
+    yield
+    import sys  # noqa: PLC0415 (the module is read only if a test loaded it)
+    lsl = sys.modules.get("plumbing.lsl")
+    if lsl is not None:
+        lsl._RETIRED.clear()

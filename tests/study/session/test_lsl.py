@@ -31,7 +31,7 @@ def loopback(tmp_path_factory):
     return loopback_config(tmp_path_factory.mktemp("lsl"))
 
 
-@pytest.mark.parametrize("servo_process", ["off", "on"])
+@pytest.mark.parametrize("servo_process", ["on", "off"])   # the servo process first: see tests/conftest.py
 def test_streams_carry_state_events_and_contacts_in_order(tmp_path, loopback, servo_process):
     subject = f"L{servo_process}"
     ids = [f"hfam-study-{subject}-{k}" for k in ("state", "markers", "contacts")]
