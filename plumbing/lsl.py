@@ -23,6 +23,10 @@ a full queue drops the chunk and counts it) and a thread pushes the queue into t
 (``benchmarks/bench_lsl.py`` measures the callback). Without pylsl (or its liblsl), :func:`open_publisher`
 returns None and the reason, and the session runs without streams (one warning line).
 
+A process keeps its closed outlets for :data:`LINGER_S` before it ends (:func:`linger`, also at exit): liblsl
+sends from its own threads, and a process that ends at once loses what they had not sent yet (measured: a
+session's last contacts and state samples, with two sessions' servo processes on two busy cores).
+
 Loopback without multicast (tests, one computer): an ``lsl_api.cfg`` with ``KnownPeers = {127.0.0.1}`` and
 ``ResolveScope = machine`` under ``[multicast]``, named by the environment variable ``LSLAPICFG`` (liblsl's
 configuration file).
@@ -30,6 +34,7 @@ configuration file).
 
 from __future__ import annotations
 
+import atexit
 import json
 import queue
 import threading
@@ -50,6 +55,10 @@ STATE_CHANNELS = (("position_m", "position", "m"), ("velocity_m_s", "velocity", 
                   ("accel_m_s2", "acceleration", "m/s^2"), ("grip_N", "grip", "N"))
 #: closed publishers' outlets, kept until the process ends (:meth:`LslPublisher.close`)
 _RETIRED: list = []
+#: how long (s) a process keeps its outlets after the last close before it may end (:func:`linger`)
+LINGER_S = 1.0
+#: ``time.monotonic()`` of the last :meth:`LslPublisher.close` in this process, or None
+_closed_at: list = [None]
 #: the servo log's columns the state stream reads (its device time first)
 LOG_COLUMNS = ("t_s", "position_m", "velocity_m_s", "force_prop_N", "force_transient_N", "current_A", "accel_m_s2",
                "grip_N")
@@ -202,6 +211,9 @@ class LslPublisher:
             pass
         self._thread.join(timeout_s)
         _RETIRED.append(self.outlets)
+        if _closed_at[0] is None:
+            atexit.register(linger)    # a process started by multiprocessing skips atexit: it calls linger itself
+        _closed_at[0] = time.monotonic()
         return self.record()
 
     def record(self) -> dict:
@@ -212,6 +224,18 @@ class LslPublisher:
                 "clock_offsets": self.clock_offsets, "clock_offsets_meaning": "[device time s, LSL time s]",
                 "samples": self.samples, "markers": self.pushed["markers"], "contacts": self.pushed["contacts"],
                 "dropped_chunks": self.dropped}
+
+
+def linger() -> float:
+    """Wait until :data:`LINGER_S` after this process's last :meth:`LslPublisher.close`, so that liblsl's threads
+    send what the closed outlets still hold before the process ends; returns the time waited (s), 0 when no
+    publisher closed or the time has passed."""
+    if _closed_at[0] is None:
+        return 0.0
+    wait_s = _closed_at[0] + LINGER_S - time.monotonic()
+    if wait_s > 0:
+        time.sleep(wait_s)
+    return max(0.0, wait_s)
 
 
 def open_publisher(name: str, source_id: str, rate_hz: float,

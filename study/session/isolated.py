@@ -36,7 +36,7 @@ from dataclasses import asdict
 
 from devices import make_device
 from plumbing import rtpolicy
-from plumbing.lsl import ServoStream, open_publisher
+from plumbing.lsl import ServoStream, linger, open_publisher
 from plumbing.stopsignals import ParentWatch, Terminated
 from renderer.process import SPAWN, servo_child, servo_process
 
@@ -123,6 +123,7 @@ def _serve(conn, clip_q, hold_event, spec: str, device_options: dict, catalog, p
         if device is not None:
             device.close()
         conn.close()
+        linger()   # the streams' last samples leave before the process ends (plumbing.lsl; zero output is above)
 
 
 class IsolatedApparatus:

@@ -8,6 +8,7 @@ import argparse
 import ast
 import csv
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -21,16 +22,17 @@ from tests.support.lsl import Recorder, loopback_config
 
 def test_a_run_streams_its_log_contacts_and_markers(tmp_path):
     loopback_config(tmp_path)
-    ids = [f"hfam-renderer-RUN-{k}" for k in ("state", "markers", "contacts")]
+    name = f"RUN{os.getpid()}"   # the streams' source id; LSL streams are seen machine-wide: another suite's are not ours
+    ids = [f"hfam-renderer-{name}-{k}" for k in ("state", "markers", "contacts")]
     rec = Recorder(ids)
     rec.start()
     # the outlets exist only while the run does: a 3 s wall-clock run gives the recorder time to connect
     assert main(["run", "--device", "sim", "--transient", "pulse", "--taps", "4", "--realtime", "--no-figure",
-                 "--out", str(tmp_path / "RUN"), "--lsl", "--lsl-rate-hz", "500"]) == 0
+                 "--out", str(tmp_path / name), "--lsl", "--lsl-rate-hz", "500"]) == 0
     rec.stop()
     assert rec.error is None, rec.error
-    run = json.loads((tmp_path / "RUN" / "run.json").read_text())
-    log = np.load(tmp_path / "RUN" / "log.npz")
+    run = json.loads((tmp_path / name / "run.json").read_text())
+    log = np.load(tmp_path / name / "log.npz")
     state, ts = rec.stream(ids[0])
     state = np.asarray(state)
     assert run["lsl"]["samples"] == run["ticks"] // 20 + (run["ticks"] % 20 > 0) and run["lsl"]["dropped_chunks"] == 0
@@ -42,7 +44,7 @@ def test_a_run_streams_its_log_contacts_and_markers(tmp_path):
     markers = [json.loads(v[0])["event"] for v in rec.stream(ids[1])[0]]
     assert markers[-1] == "run_end"
     contacts = [json.loads(v[0]) for v in rec.stream(ids[2])[0]]
-    with open(tmp_path / "RUN" / "events.csv", newline="") as fh:
+    with open(tmp_path / name / "events.csv", newline="") as fh:
         events = [float(r["incoming_velocity_m_s"]) for r in csv.DictReader(fh)]
     assert len(events) == 4 and contacts and [c["incoming_velocity_m_s"] for c in contacts] == events[-len(contacts):]
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pylsl
+from pylsl.util import LostError
 
 CONFIG = """[ports]
 IPv6 = disable
@@ -50,15 +51,20 @@ class Recorder(threading.Thread):
                 if sid not in found:
                     self.error = f"stream {sid} not found"
                     return
-                inlet = pylsl.StreamInlet(found[sid], max_buflen=360)
+                # no recovery: a stream ends with its process (a recovering inlet would wait for it to come back)
+                inlet = pylsl.StreamInlet(found[sid], max_buflen=360, recover=False)
                 inlet.open_stream(self.timeout_s)
                 self.offsets[sid] = inlet.time_correction(self.timeout_s)   # while the outlet is there
                 inlets[sid] = inlet
             self.connected.set()
             while True:
                 stopping = self._halt.is_set()
-                for sid, inlet in inlets.items():
-                    values, stamps = inlet.pull_chunk(timeout=0.05, max_samples=100_000)
+                for sid, inlet in list(inlets.items()):
+                    try:
+                        values, stamps = inlet.pull_chunk(timeout=0.05, max_samples=100_000)
+                    except LostError:    # its process ended: everything it sent has been pulled
+                        del inlets[sid]
+                        continue
                     self.data[sid][0].extend(values)
                     self.data[sid][1].extend(stamps)
                 if stopping:

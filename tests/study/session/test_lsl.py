@@ -5,6 +5,7 @@ matching the trace files through the recorded clock offsets; and one warning lin
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -33,7 +34,7 @@ def loopback(tmp_path_factory):
 
 @pytest.mark.parametrize("servo_process", ["on", "off"])   # the servo process first: see tests/conftest.py
 def test_streams_carry_state_events_and_contacts_in_order(tmp_path, loopback, servo_process):
-    subject = f"L{servo_process}"
+    subject = f"L{servo_process}{os.getpid()}"   # LSL streams are seen machine-wide: another suite's are not ours
     ids = [f"hfam-study-{subject}-{k}" for k in ("state", "markers", "contacts")]
     rec = Recorder(ids)
     rec.start()
