@@ -245,8 +245,8 @@ class HomingController:
                         message = (f"homing generated {observer.energy_J * 1e3:.3g} mJ net over the last "
                                    f"~{cfg.instability_window_s:g} s (limit {observer.limit_J * 1e3:.3g} mJ) at "
                                    f"kp_N_m={kp:g}, kd_N_s_m={kd:g}: the homing PD oscillates on this device; "
-                                   "output zeroed. Lower homing kp_N_m or kd_N_s_m (docs/study.md, 'Homing "
-                                   "controller')")
+                                   "output zeroed. Lower homing kp_N_m or kd_N_s_m (a study protocol's "
+                                   "homing_kp_N_m, homing_kd_N_s_m; docs/study.md, 'Homing controller')")
                         break
                     if armed:
                         if x < surface:

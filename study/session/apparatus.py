@@ -133,7 +133,8 @@ class Apparatus:
         self.fs_hz = float(self.info.servo_rate_hz)
         self.force_limit_N = self.info.force_per_amp_N_A * self.info.current_amplifier_A
         # homing runs under the same host watchdog as the tapping windows (servo_watchdog_s), not a stricter one
-        self.homing = HomingController(device, HomingConfig(home_height_m=protocol.home_height_m),
+        self.homing = HomingController(device, HomingConfig(
+            home_height_m=protocol.home_height_m, kp_N_m=protocol.homing_kp_N_m, kd_N_s_m=protocol.homing_kd_N_s_m),
                                        safety_config=RendererConfig(watchdog_overrun_s=protocol.servo_watchdog_s))
         # the log ring keeps the last window + 1 s: enough for 50 ms before the first impact, and a 16 s
         # ring (timeout + window) per attempt would only cost allocation time

@@ -144,7 +144,8 @@ class Apparatus3(Apparatus):
         super().__init__(device, catalog, protocol, library_dir=library_dir, sim_participant=sim_participant,
                          realtime=realtime)
         # homing along the tap axis, above the presented block (the 1-DOF homing law, TapAxis)
-        self.homing = HomingController(TapAxis(device), HomingConfig(home_height_m=protocol.home_height_m),
+        self.homing = HomingController(TapAxis(device), HomingConfig(
+            home_height_m=protocol.home_height_m, kp_N_m=protocol.homing_kp_N_m, kd_N_s_m=protocol.homing_kd_N_s_m),
                                        safety_config=RendererConfig(watchdog_overrun_s=protocol.servo_watchdog_s))
         self._aim(next(iter(self.blocks), None))
 

@@ -53,6 +53,10 @@ class ProtocolConfig:
         (keyboard sessions keep homing until the rating arrives, and count those taps too).
     homing_before_max_s : float
         Longest pre-trial homing while waiting for the stylus to settle.
+    homing_kp_N_m, homing_kd_N_s_m : float
+        The homing PD's gains (``renderer.homing.HomingConfig``: 300 N/m, 3 N s/m). Lower them on a device
+        whose homing stops as ``unstable`` (a light handle, or a host whose servo is late under load;
+        docs/study.md, "Homing controller").
     familiarization_sample : str
         Catalog name of the real sample for familiarization ("" skips the phase).
     familiarization_window_s : float
@@ -89,6 +93,8 @@ class ProtocolConfig:
     home_height_m: float = 0.01
     homing_after_s: float = 1.0
     homing_before_max_s: float = 0.5
+    homing_kp_N_m: float = 300.0
+    homing_kd_N_s_m: float = 3.0
     familiarization_sample: str = "wood"
     familiarization_window_s: float = 5.0
     familiarization_max_windows: int = 60
@@ -107,9 +113,10 @@ class ProtocolConfig:
     def __post_init__(self) -> None:
         require_int("repetitions", self.repetitions, minimum=1, maximum=MAX_REPETITIONS)
         require_positive(self, "tap_window_s", "first_tap_timeout_s", "home_height_m", "homing_after_s",
-                         "homing_before_max_s", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s",
+                         "homing_before_max_s", "homing_kp_N_m", "familiarization_window_s", "audio_fs_hz", "servo_watchdog_s",
                          "timing_check_s", "timing_p99_us", "timing_p999_us", "timing_max_period_ms",
                          "timing_link_rtt_p99_ms", "timing_link_gap_ms")
+        require_number("homing_kd_N_s_m", self.homing_kd_N_s_m, minimum=0.0)
         for name, limit in PROTOCOL_LIMITS.items():  # time, memory and reach bounded
             require_number(name, getattr(self, name), maximum=limit)
         require_int("familiarization_max_windows", self.familiarization_max_windows, minimum=1,

@@ -91,8 +91,14 @@ def _play(announce: _Announce, stop: threading.Event, seen: dict) -> None:
         stop.wait(0.03)
 
 
-@pytest.mark.parametrize("spec, kind", [("inverse3:emulator", "rating"), ("falcon:emulator", "psychophysics")])
-def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys):
+DEVICES = ("inverse3:emulator", "falcon:emulator", "woodenhaptics:emulator", "dhd:emulator", "touch:Default Device")
+
+
+@pytest.mark.parametrize("kind", ["rating", "psychophysics"])
+@pytest.mark.parametrize("spec", DEVICES)
+def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys, request):
+    if spec.startswith("touch"):
+        monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", str(request.getfixturevalue("fake_hd")))
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL + (DISCRIMINATION if kind == "psychophysics" else ""))
     spec = spec + "?loss_timeout_s=0.1"

@@ -64,3 +64,16 @@ def test_tap_features_of_a_known_transient():
     assert 170 < f[0, 1] < 260                         # centroid near the 200 Hz ring
     ref = Reference.fit([0.05, 0.1, 0.2], np.array([[3.0, 150], [6.0, 150], [12.0, 150]]))
     assert abs(ref.b - 1.0) < 1e-9 and abs(ref.rms(0.1) - 6.0) < 1e-9
+
+
+def test_the_protocol_sets_the_homing_gains_and_refuses_a_negative_damping():
+    """The homing PD's gains are the protocol's (the message of an unstable homing names them)."""
+    catalog = load_catalog()
+    app = Apparatus(SimDevice(seed=0), catalog, ProtocolConfig(homing_kp_N_m=120.0, homing_kd_N_s_m=0.5))
+    assert (app.homing.config.kp_N_m, app.homing.config.kd_N_s_m) == (120.0, 0.5)
+    default = Apparatus(SimDevice(seed=0), catalog, ProtocolConfig())
+    assert (default.homing.config.kp_N_m, default.homing.config.kd_N_s_m) == (300.0, 3.0)
+    with pytest.raises(ValueError, match="homing_kd_N_s_m"):
+        ProtocolConfig(homing_kd_N_s_m=-1.0)
+    with pytest.raises(ValueError, match="homing_kp_N_m"):
+        ProtocolConfig(homing_kp_N_m=0.0)
