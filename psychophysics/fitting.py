@@ -558,6 +558,8 @@ class Fit:
     ``*_ci`` of the other quantities are the bootstrap's percentile intervals and ``*_ci_bca`` its BCa
     intervals (NaN without a bootstrap); ``pse_ci`` is ``threshold_ci`` for a yes/no task; ``jnd_ci`` and
     ``weber_ci`` of an n-AFC task with a reference follow from ``threshold_ci`` (exact).
+    ``threshold_ci_cutoff`` is the likelihood-ratio cut-off that interval used (:func:`profile_bounds`:
+    3.841 at 95 %, or 2.706 where the lapse rate is not identified).
     """
 
     function: str
@@ -598,6 +600,7 @@ class Fit:
     jnd_ci_bca: tuple = (math.nan, math.nan)
     weber_ci_bca: tuple = (math.nan, math.nan)
     deviance_p_chi2_withheld: str = ""
+    threshold_ci_cutoff: float = math.nan
     flags: tuple = ()
     lapse_max: float = LAPSE_MAX
     guess_max: float = GUESS_MAX
@@ -703,7 +706,8 @@ class Fit:
         out = {}
         for name in ("function", "alternatives", "lower_asymptote", "guess", "equal_asymptote", "threshold",
                      "slope", "lapse", "lapse_fitted", "pse", "jnd", "weber", "reference", "slope_at_threshold",
-                     "deviance", "deviance_p_chi2", "deviance_p_chi2_withheld", "deviance_p_bootstrap", "loglik",
+                     "deviance", "deviance_p_chi2", "deviance_p_chi2_withheld", "deviance_p_bootstrap",
+                     "threshold_ci_cutoff", "loglik",
                      "n_trials", "n_levels", "bootstrap", "ci_level"):
             v = getattr(self, name)
             out[name] = None if isinstance(v, float) and not math.isfinite(v) else v
@@ -982,7 +986,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
                     "the chi-square approximation does not hold (see the bootstrap p-value)")
     else:
         p_chi2 = stats.chi2.sf(dev, dof)
-    profile = profile_bounds(model, k, n, theta, ll, 0, ci_level)
+    profile, cutoff = profile_bounds(model, k, n, theta, ll, 0, ci_level, with_cutoff=True)
     thr_ci = from_axis(profile, function)
     names = ("threshold", "slope", "lapse", "guess", "jnd", "weber", "slope_at_threshold")
     pct = [{name: (math.nan, math.nan) for name in names} for _ in range(B)]
@@ -1035,7 +1039,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
                        deviance_p_chi2=float(p_chi2[b]), deviance_p_chi2_withheld=withheld,
                        deviance_p_bootstrap=float(p_boot[b]),
                        loglik=float(ll[b]), n_trials=int(n.sum()), n_levels=L, bootstrap=int(bootstrap),
-                       ci_level=ci_level, threshold_ci=tci,
+                       ci_level=ci_level, threshold_ci=tci, threshold_ci_cutoff=float(cutoff[b]),
                        threshold_ci_bootstrap=pct[b]["threshold"], threshold_ci_bca=bca[b]["threshold"],
                        slope_ci=pct[b]["slope"], slope_ci_bca=bca[b]["slope"],
                        lapse_ci=(float(lapse), float(lapse)) if lapse is not None and bootstrap else pct[b]["lapse"],
