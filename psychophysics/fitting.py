@@ -368,14 +368,64 @@ def _info_se(model: Model, k, n, theta, col: int) -> np.ndarray:
     return out
 
 
-def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: float = 0.95) -> np.ndarray:
+def lapse_unidentified(model: Model, theta_low, theta_high, col: int = 0) -> np.ndarray:
+    """True where a lapse rate that acts on the location ``col`` sits at its upper bound (``lapse_max``) at one
+    end of a threshold's profile interval and at 0 at the other.
+
+    The profile then trades the threshold against an upper asymptote the data do not show (levels below the
+    threshold): every lapse rate the model allows fits about as well, so the data pin down only a range of
+    thresholds (a partially identified parameter), whose length comes from the assumed bound.
+
+    Parameters
+    ----------
+    model : Model
+    theta_low, theta_high : ndarray, shape (B, P)
+        Profile parameters at the low and the high end of the interval.
+    col : int
+        The location's column.
+
+    Returns
+    -------
+    ndarray of bool, shape (B,)
+    """
+    out = np.zeros(len(theta_low), dtype=bool)
+    if model.il is None:
+        return out
+    for j in np.unique(model.il[model.ia == col]):
+        lo, hi = model.lo[j], model.hi[j]
+        at_lo = [t[:, j] <= lo + 1e-6 for t in (theta_low, theta_high)]
+        at_hi = [t[:, j] >= hi - 1e-6 for t in (theta_low, theta_high)]
+        out |= (at_hi[0] & at_lo[1]) | (at_lo[0] & at_hi[1])
+    return out
+
+
+def profile_cutoff(ci_level: float = 0.95, one_sided: bool = False) -> float:
+    """The likelihood-ratio cut-off 2 (lnL_max - lnL_profile) of a profile interval.
+
+    ``chi2_1(ci_level)`` (Wilks; 3.841 at 0.95), or ``chi2_1(2 ci_level - 1) = z_{ci_level}^2`` (2.706 at
+    0.95) for an interval of a partially identified parameter, each of whose ends needs only one-sided
+    coverage (Imbens & Manski 2004, Econometrica 72:1845, the limit of their c_n for an identified set long
+    against the sampling error).
+    """
+    return float(stats.chi2.ppf(2.0 * ci_level - 1.0 if one_sided else ci_level, 1))
+
+
+def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: float = 0.95,
+                   bound_aware: bool = True, with_cutoff: bool = False):
     """Ends of the profile-likelihood (Wilks) interval of parameter ``col``, found by root finding.
 
     The interval holds the values v whose profile log-likelihood (every other parameter refitted with
-    ``col`` held at v) is within ``chi2_1(ci_level) / 2`` of the maximum. Each end is bracketed by steps
-    growing from the Wald standard error, then found by regula falsi with the Illinois modification
-    (converged to 1e-9 of the stimulus span). An end not bracketed within :data:`PROFILE_LIMIT` stimulus
-    spans of the estimate is open: -inf or +inf.
+    ``col`` held at v) is within ``c / 2`` of the maximum, ``c = chi2_1(ci_level)`` (3.841 at 0.95). Each
+    end is bracketed by steps growing from the Wald standard error, then found by regula falsi with the
+    Illinois modification (converged to 1e-9 of the stimulus span). An end not bracketed within
+    :data:`PROFILE_LIMIT` stimulus spans of the estimate is open: -inf or +inf.
+
+    Bound-aware (default): where a fitted lapse rate runs from its upper bound at one end of that interval to
+    0 at the other (:func:`lapse_unidentified`: levels that never reach the upper asymptote), the threshold
+    is only partially identified and the interval is found again with the one-sided cut-off
+    ``chi2_1(2 ci_level - 1)`` (2.706 at 0.95; :func:`profile_cutoff`, Imbens & Manski 2004). With Wilks'
+    3.841 such intervals cover a true threshold 97-99 % of the time instead of 95 %
+    (docs/psychophysics.md, "On- and off-slope designs").
 
     Parameters
     ----------
@@ -388,16 +438,36 @@ def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: fl
     col : int
         The parameter's column.
     ci_level : float
+    bound_aware : bool
+        Use the one-sided cut-off where the lapse rate is not identified (False: Wilks' everywhere).
+    with_cutoff : bool
+        Also return the cut-off used for each data set.
 
     Returns
     -------
     ndarray, shape (B, 2)
         Low and high ends on the parameter's own scale (the fitting axis for a location).
+    cutoff : ndarray, shape (B,)
+        Only with ``with_cutoff``: the cut-off ``c`` each interval used.
     """
     k = np.atleast_2d(np.asarray(k, float))
     n = np.broadcast_to(np.asarray(n, float), k.shape)
     B = k.shape[0]
-    crit = stats.chi2.ppf(ci_level, 1) / 2.0
+    cutoff = np.full(B, profile_cutoff(ci_level))
+    out, th_ends = _profile_ends(model, k, n, theta, loglik, col, cutoff / 2.0)
+    if bound_aware:
+        redo = np.flatnonzero(lapse_unidentified(model, th_ends[0], th_ends[1], col))
+        if len(redo):
+            cutoff[redo] = profile_cutoff(ci_level, one_sided=True)
+            out[redo], _ = _profile_ends(model, k[redo], n[redo], theta[redo], loglik[redo], col,
+                                         cutoff[redo] / 2.0)
+    return (out, cutoff) if with_cutoff else out
+
+
+def _profile_ends(model: Model, k, n, theta, loglik, col, crit):
+    """Root finding of :func:`profile_bounds` for a log-likelihood drop ``crit`` (B,): the ends (B, 2) and
+    the profile's parameters at each (low, high: (B, P) each; at the search limit for an open end)."""
+    B = k.shape[0]
     span = float(np.ptp(model.u)) or 1.0
     limit = PROFILE_LIMIT * span
     tol = 1e-9 * span
@@ -405,14 +475,15 @@ def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: fl
     se = _info_se(model, k, n, theta, col)
     step0 = np.where(np.isfinite(se) & (se > 0), np.clip(1.5 * se, 1e-3 * span, span), 0.1 * span)
     out = np.empty((B, 2))
+    th_ends = []
 
     def drop(rows, values, warm):
         th, lp = solve(model, k[rows], n[rows], warm, hold=(col, values))
-        return th, loglik[rows] - lp - crit
+        return th, loglik[rows] - lp - crit[rows]
 
     for side, sign in enumerate((-1.0, 1.0)):
         # bracket: (x_in, d_in < 0) towards the estimate, (x_out, d_out > 0) beyond the end
-        x_in, d_in, th_in = est.copy(), np.full(B, -crit), theta.copy()
+        x_in, d_in, th_in = est.copy(), -crit.copy(), theta.copy()
         step = step0.copy()
         x_out = est + sign * step
         th_out, d_out = drop(np.arange(B), x_out, theta)
@@ -456,7 +527,8 @@ def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: fl
         left = np.flatnonzero(active)
         root[left] = 0.5 * (x_neg[left] + x_pos[left])
         out[:, side] = root
-    return out
+        th_ends.append(np.where(open_end[:, None], th_out, th_neg))
+    return out, th_ends
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -486,6 +558,8 @@ class Fit:
     ``*_ci`` of the other quantities are the bootstrap's percentile intervals and ``*_ci_bca`` its BCa
     intervals (NaN without a bootstrap); ``pse_ci`` is ``threshold_ci`` for a yes/no task; ``jnd_ci`` and
     ``weber_ci`` of an n-AFC task with a reference follow from ``threshold_ci`` (exact).
+    ``threshold_ci_cutoff`` is the likelihood-ratio cut-off that interval used (:func:`profile_bounds`:
+    3.841 at 95 %, or 2.706 where the lapse rate is not identified).
     """
 
     function: str
@@ -526,6 +600,7 @@ class Fit:
     jnd_ci_bca: tuple = (math.nan, math.nan)
     weber_ci_bca: tuple = (math.nan, math.nan)
     deviance_p_chi2_withheld: str = ""
+    threshold_ci_cutoff: float = math.nan
     flags: tuple = ()
     lapse_max: float = LAPSE_MAX
     guess_max: float = GUESS_MAX
@@ -631,7 +706,8 @@ class Fit:
         out = {}
         for name in ("function", "alternatives", "lower_asymptote", "guess", "equal_asymptote", "threshold",
                      "slope", "lapse", "lapse_fitted", "pse", "jnd", "weber", "reference", "slope_at_threshold",
-                     "deviance", "deviance_p_chi2", "deviance_p_chi2_withheld", "deviance_p_bootstrap", "loglik",
+                     "deviance", "deviance_p_chi2", "deviance_p_chi2_withheld", "deviance_p_bootstrap",
+                     "threshold_ci_cutoff", "loglik",
                      "n_trials", "n_levels", "bootstrap", "ci_level"):
             v = getattr(self, name)
             out[name] = None if isinstance(v, float) and not math.isfinite(v) else v
@@ -910,7 +986,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
                     "the chi-square approximation does not hold (see the bootstrap p-value)")
     else:
         p_chi2 = stats.chi2.sf(dev, dof)
-    profile = profile_bounds(model, k, n, theta, ll, 0, ci_level)
+    profile, cutoff = profile_bounds(model, k, n, theta, ll, 0, ci_level, with_cutoff=True)
     thr_ci = from_axis(profile, function)
     names = ("threshold", "slope", "lapse", "guess", "jnd", "weber", "slope_at_threshold")
     pct = [{name: (math.nan, math.nan) for name in names} for _ in range(B)]
@@ -963,7 +1039,7 @@ def fit_counts(levels, n, k, alternatives: int = 2, function: str = "logistic", 
                        deviance_p_chi2=float(p_chi2[b]), deviance_p_chi2_withheld=withheld,
                        deviance_p_bootstrap=float(p_boot[b]),
                        loglik=float(ll[b]), n_trials=int(n.sum()), n_levels=L, bootstrap=int(bootstrap),
-                       ci_level=ci_level, threshold_ci=tci,
+                       ci_level=ci_level, threshold_ci=tci, threshold_ci_cutoff=float(cutoff[b]),
                        threshold_ci_bootstrap=pct[b]["threshold"], threshold_ci_bca=bca[b]["threshold"],
                        slope_ci=pct[b]["slope"], slope_ci_bca=bca[b]["slope"],
                        lapse_ci=(float(lapse), float(lapse)) if lapse is not None and bootstrap else pct[b]["lapse"],

@@ -10,7 +10,7 @@ import pytest
 from scipy import optimize, stats
 
 from psychophysics import fitting as pm
-from psychophysics.psychometric import psi
+from psychophysics.psychometric import base_quantile, psi
 
 LEVELS = np.linspace(1.0, 4.0, 7)
 
@@ -53,6 +53,7 @@ def test_profile_bounds_are_exact(guess, function, seed):
     thr, lo, hi = _independent_profile(LEVELS, n, k, guess, function)
     assert f.threshold == pytest.approx(thr, abs=1e-5)
     assert f.threshold_ci == pytest.approx((lo, hi), abs=3e-5)
+    assert f.threshold_ci_cutoff == pytest.approx(3.8415, abs=1e-4)      # the lapse is identified: Wilks'
     model = pm.build_model(LEVELS, function, "fixed", guess, None)
     for end in f.threshold_ci:
         start = np.array([[end, math.log(f.slope), f.lapse]])
@@ -88,6 +89,65 @@ def test_coverage_of_the_printed_interval_on_hidden_observers():
     lo = stats.binom.ppf(0.001, len(hits), 0.93) / len(hits)
     hi = stats.binom.ppf(0.999, len(hits), 0.97) / len(hits)
     assert lo <= hits.mean() <= hi, (hits.mean(), lo, hi)
+
+
+def _low_side(n_obs, seed, function="normal"):
+    """2AFC observers whose levels (1-4, 7 x 50) sit low on their function: F = 0.05-0.15 at the lowest level,
+    0.40-0.60 at the highest (the generator of benchmarks/bench_fit_coverage.py's "low side"), lapse 0-0.04."""
+    rng = np.random.default_rng(seed)
+    z_lo = base_quantile(rng.uniform(0.05, 0.15, n_obs), function)
+    z_hi = base_quantile(rng.uniform(0.40, 0.60, n_obs), function)
+    beta = (z_hi - z_lo) / 3.0
+    thr = 1.0 - z_lo / beta
+    lapse = rng.uniform(0.0, 0.04, n_obs)
+    k = rng.binomial(50, psi(LEVELS[None, :], thr[:, None], beta[:, None], 0.5, lapse[:, None], function))
+    return thr, k.astype(float)
+
+
+def test_an_unidentified_lapse_rate_gives_the_one_sided_cutoff():
+    """Levels below the threshold (2AFC, 27-40 of 50 correct): Wilks' interval runs the fitted lapse rate from its
+    bound 0.1 at the low end to 0 at the high end, so the threshold is only partially identified; the printed
+    interval then uses chi2_1(0.90) = 2.706 (Imbens & Manski 2004), the log-likelihood dropping by exactly half of
+    it at each end, and lies inside Wilks' 3.841 interval."""
+    n = np.full(7, 50.0)
+    k = np.array([27, 23, 33, 26, 35, 36, 34.0])
+    f = pm.fit_counts(LEVELS, n, k, 2, "normal", bootstrap=0)[0]
+    assert f.lapse == pytest.approx(pm.LAPSE_MAX, abs=1e-9)
+    assert f.threshold_ci_cutoff == pytest.approx(stats.chi2.ppf(0.90, 1), abs=1e-9) == pytest.approx(2.7055, abs=1e-4)
+    assert f.as_dict()["threshold_ci_cutoff"] == f.threshold_ci_cutoff
+    model = pm.build_model(LEVELS, "normal", "fixed", 0.5, None)
+    theta = np.array([[f.threshold, math.log(f.slope), f.lapse]])
+    for end in f.threshold_ci:
+        lp = max(pm.solve(model, k[None], n, np.array([[end, math.log(f.slope), lam]]), hold=(0, [end]))[1][0]
+                 for lam in (0.0, 0.05, 0.1))
+        assert f.loglik - lp == pytest.approx(2.7055 / 2, abs=1e-4)
+    wilks, cut = pm.profile_bounds(model, k[None], n, theta, np.array([f.loglik]), bound_aware=False,
+                                   with_cutoff=True)
+    assert cut[0] == pytest.approx(3.8415, abs=1e-4)
+    lo, hi = f.threshold_ci
+    assert wilks[0, 0] < lo - 0.05 and hi + 0.05 < wilks[0, 1]
+    ends = [pm.solve(model, k[None], n, np.array([[e, math.log(f.slope), 0.05]]), hold=(0, [e]))[0]
+            for e in wilks[0]]
+    assert ends[0][0, 2] == pytest.approx(pm.LAPSE_MAX) and ends[1][0, 2] == pytest.approx(0.0, abs=1e-9)
+    assert pm.lapse_unidentified(model, ends[0], ends[1])[0]
+
+
+def test_coverage_where_the_levels_sit_below_the_threshold():
+    """200 low-side 2AFC observers (normal): Wilks' cut-off covered 0.97-0.98 of such observers on 1000 (the
+    benchmark); with the one-sided cut-off where the lapse rate is not identified the rate must lie within the
+    binomial range of a true 93-97 % (0.1 % tails), and below Wilks' own on the same data."""
+    thr, k = _low_side(200, seed=31)
+    n = np.full(7, 50.0)
+    fits = pm.fit_counts(LEVELS, n, k, 2, "normal", bootstrap=0)
+    ci = np.array([f.threshold_ci for f in fits])
+    covered = (ci[:, 0] <= thr) & (thr <= ci[:, 1])
+    one_sided = np.array([f.threshold_ci_cutoff for f in fits]) < 3.0
+    assert one_sided.mean() > 0.5                     # most such fits
+    lo = stats.binom.ppf(0.001, len(thr), 0.93) / len(thr)
+    hi = stats.binom.ppf(0.999, len(thr), 0.97) / len(thr)
+    assert lo <= covered.mean() <= hi, (covered.mean(), lo, hi)
+    wilks = pm.profile_interval(LEVELS, n, k, 2, "normal")    # bound-aware too: same intervals
+    assert np.allclose(wilks, ci, equal_nan=True)
 
 
 def test_a_free_lower_asymptote_removes_the_bias_of_false_alarms():
