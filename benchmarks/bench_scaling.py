@@ -80,11 +80,13 @@ def trials_needed(sd_log: float, tolerance: float = TOLERANCE_PSE, within: float
     return n
 
 
-def magnitude_residual_sd(weber: float, exponent: float, response_sd: float) -> float:
+def magnitude_residual_sd(weber: float, exponent: float, response_sd: float, modulus: bool = False) -> float:
     """Log-SD of a participant's numbers about its power law: the percept's Weber noise, log-SD
     ``ln(1 + W) / (z75 sqrt 2)`` (a 2-interval JND W), times the exponent, and the response noise, in
-    quadrature."""
-    return math.hypot(exponent * math.log1p(weber) / Z75_SQRT2, response_sd)
+    quadrature; with a ``modulus`` the standard's remembered percept (as noisy as any percept, times the
+    exponent) sets each run of trials' scale, once more in quadrature."""
+    percept = exponent * math.log1p(weber) / Z75_SQRT2
+    return math.sqrt(percept ** 2 * (2 if modulus else 1) + response_sd ** 2)
 
 
 def exponent_fraction_within(residual_sd: float, levels, repetitions: int,
@@ -241,12 +243,17 @@ def main(argv=None) -> int:
                     help="adjustment trials per participant (default: trials_needed at the participant's W)")
     ap.add_argument("--repetitions", type=int, default=None,
                     help="magnitude repetitions of each level (default: repetitions_needed)")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="a new folder to keep the sessions in (ADJ, MAG; default: a temporary one)")
     a = ap.parse_args([] if argv is None else argv)
     design = participant_design()
     design["adjust_trials"] = a.adjust_trials or design["adjust_trials"]
     design["repetitions"] = a.repetitions or design["repetitions"]
+    if a.keep is not None and a.keep.exists():
+        ap.error(f"--keep {a.keep} exists: give a new folder")
     with tempfile.TemporaryDirectory() as tmp:
-        work = Path(tmp)
+        work = Path(tmp) if a.keep is None else a.keep
+        work.mkdir(parents=True, exist_ok=True)
         times = run_sessions(work, a.participants, design, a.workers)
         adj = adjustment.analyse(work / "ADJ")
         mag = magnitude.analyse(work / "MAG")
