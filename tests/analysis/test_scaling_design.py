@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy import stats
+from statsmodels.stats.weightstats import DescrStatsW
 
 from analysis import adjustment, magnitude
 from benchmarks.bench_scaling import (LEVELS, exponent_fraction_within, fraction_within, magnitude_residual_sd,
@@ -45,6 +46,9 @@ def test_the_adjustment_trial_count_puts_95_percent_of_participants_within_5_per
         # the analysis' PSE and interval are these (checked on the first 150 participants)
         s = adjustment.per_subject(rows.iloc[:150 * trials])
         assert np.allclose(s["pse"], np.exp(mean[:150])) and np.allclose(s["pse_low"], np.exp(mean - half)[:150])
+        for i in range(5):                                    # statsmodels' t interval of the log settings
+            lo, hi = DescrStatsW(ln[i]).tconfint_mean(0.05)
+            assert (s["pse_low"].iloc[i], s["pse_high"].iloc[i]) == pytest.approx((math.exp(lo), math.exp(hi)))
         within = float((np.abs(np.expm1(mean - math.log(770.0))) < 0.05).mean())
         # the formula against simulated participants (binomial SE of the fraction: 0.3 % at 44 trials, 0.8 % at 8)
         assert within == pytest.approx(fraction_within(W, trials), abs=0.02), (trials, within)
