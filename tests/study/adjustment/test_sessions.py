@@ -43,7 +43,7 @@ def run(tmp, subject, protocol, *extra, seed=2):
 
 def test_the_shipped_example_loads_and_plans():
     """examples/adjustment.toml: the protocol's keys, the kind's settings, the references derived from the
-    default catalog at 400, 700 and 1000 N/m, and 18 trials (6 per reference: 3 above, 3 below)."""
+    default catalog at 400, 700 and 1000 N/m, and 132 trials (44 per reference: 22 above, 22 below)."""
     path = ROOT / "examples" / "adjustment.toml"
     data, table = read_protocol_file(path)
     assert protocol_from(data, path).tap_window_s == 3.0
@@ -53,9 +53,9 @@ def test_the_shipped_example_loads_and_plans():
     assert sorted(s.stiffness_N_m for s in refs) == [400.0, 700.0, 1000.0]
     _, order = block_order(exp.conditions, exp.order, exp.design, "S01", 1, str(path))
     plan = plan_trials(exp, order, 1, "S01")
-    assert len(plan) == 18 and sorted(order) == sorted(exp.conditions)
+    assert len(plan) == 132 and sorted(order) == sorted(exp.conditions)
     for cond in exp.conditions:
-        assert sorted(t.side for t in plan if t.condition == cond) == ["above"] * 3 + ["below"] * 3
+        assert sorted(t.side for t in plan if t.condition == cond) == ["above"] * 22 + ["below"] * 22
 
 
 def test_the_plan_starts_half_above_half_below_seeded_per_subject():

@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_the_shipped_example_loads_and_plans():
-    """examples/magnitude.toml: two samples at six stiffnesses, 4 repetitions (48 trials), the standard
+    """examples/magnitude.toml: two samples at six stiffnesses, 19 repetitions (228 trials), the standard
     (630 N/m, "10") first in each block and every 6 trials; every stimulus derived from the default catalog."""
     path = ROOT / "examples" / "magnitude.toml"
     data, table = read_protocol_file(path)
@@ -54,9 +54,9 @@ def test_the_shipped_example_loads_and_plans():
     assert len(stimuli) == 2 * 6 and {s.stiffness_N_m for s in stimuli} == set(exp.levels)   # the modulus is a level
     _, order = block_order(exp.conditions, exp.order, exp.design, "S01", 1, str(path))
     plan = plan_trials(exp, order, 1, "S01")
-    assert len(plan) == 48 and sorted(order) == ["firm", "pulse_firm"]
+    assert len(plan) == 228 and sorted(order) == ["firm", "pulse_firm"]
     for block in (1, 2):
-        assert [t.modulus_shown for t in plan if t.block == block] == [1, 0, 0, 0, 0, 0] * 4
+        assert [t.modulus_shown for t in plan if t.block == block] == [1, 0, 0, 0, 0, 0] * 19
 
 
 def test_the_plan_shows_the_standard_first_in_each_block_and_every_k_trials():
