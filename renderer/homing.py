@@ -169,6 +169,11 @@ class HomingController:
         self.force_limit_N = self.max_current_A * abs(self.force_per_amp_N_A)
         self.energy_limit_J = energy_limit(self.config.kp_N_m, self.force_limit_N,
                                            float(self.config.instability_energy_frac))
+        # a device on the wall clock (hardware that is not lockstep) is paced here every tick, as the servo loop
+        # paces it: a driver whose read() returns the newest sample without waiting for the next one (a vendor
+        # library's servo thread, the Touch) would otherwise run a burst of ticks, then hold one force through
+        # the pause at the next check, and the PD oscillates (measured: homing stopped as unstable in 0.2 s)
+        self.pace_ticks = not (info.simulated or getattr(info, "lockstep_ticks", 0))
 
     def run(self, duration_s: float, until_settled: bool = False, min_duration_s: float = 0.0,
             until=None, check_every: int = 200, realtime: bool = False, zero_at_end: bool = True) -> HomingResult:
@@ -220,6 +225,7 @@ class HomingController:
         tick = 0
         wall0 = time.perf_counter()
         check_dt = check_every * self.dt_s
+        dt_s, pace_ticks = self.dt_s, self.pace_ticks
         x = x_prev
         # the renderer's safety path (renderer.safety): sensor plausibility, current limit, winding heat,
         # watchdog, and zero output when anything raises
@@ -276,6 +282,10 @@ class HomingController:
                     # (4) command
                     dev.command(i)
                     state = dev.read()
+                    if pace_ticks:   # to this tick's deadline (a blocking read has mostly waited already)
+                        ahead = tick * dt_s - (time.perf_counter() - wall0)
+                        if ahead > 0:
+                            time.sleep(ahead)
                     if safety.watchdog():  # hardware: a stalled loop must not leave a current on
                         reason = "watchdog"
                         break

@@ -2,15 +2,14 @@
 (docs/bringup.md).
 
 Whole sessions run in this process through ``study run`` (``--servo-process off``): a rating session and a
-forced-choice session on the Inverse3 (the serial path: a pseudo-terminal), the Falcon (the USB path) and the
-Force Dimension library's emulator, and a forced-choice session on the WoodenHaptics (HID; see SESSIONS). Hardware
+forced-choice session on each device: the Inverse3 (the serial path: a pseudo-terminal), the Falcon (USB), the
+WoodenHaptics (HID), the Force Dimension library's emulator and the fake OpenHaptics library (the Touch). Hardware
 sessions need a person (``--participant keyboard``): a thread plays operator and subject through the study's
 HTTP API (confirm each placement; a rating key, or interval 1 of a forced choice) while the emulated hand taps.
 
-Every device shares that path above the device interface (``renderer run`` covers their servo loop,
-tests/integration/test_lab_devices_renderer.py); what the study adds per device is checked on each directly: the
-pre-session timing check through the device string (its link figures), the apparatus on the vertical view, its
-homing, and one tapping window of a catalog sample finding the emulated hand's taps.
+``renderer run`` covers their servo loop (tests/integration/test_lab_devices_renderer.py); the apparatus is
+also checked on each directly: the vertical view, its homing, and one tapping window of a catalog sample
+finding the emulated hand's taps.
 """
 
 import csv
@@ -92,20 +91,18 @@ def _play(announce: _Announce, stop: threading.Event, seen: dict) -> None:
         stop.wait(0.03)
 
 
-# whole sessions: a rating and a forced choice on every emulator whose hand a homing can hold off. The
-# WoodenHaptics' homing (its current limit) yields to the emulated hand, which taps on through the homing after
-# each window where a person would wait to rate, so its rating attempts are all "overpowered" (as they should
-# be). On the fake Touch library (a 50 g point mass held by a 400 N/m hand) a session's homing stops as
-# "unstable" within 0.2 s (5-9 mJ against its 2.2 mJ limit, also at kp 100 N/m, kd 1 N s/m), while the same
-# homing outside a session holds (below); the cause is not found yet. Those two are checked below at the
-# apparatus level.
-SESSIONS = [("inverse3:emulator", "rating"), ("falcon:emulator", "rating"), ("dhd:emulator", "rating"),
-            ("inverse3:emulator", "psychophysics"), ("falcon:emulator", "psychophysics"),
-            ("dhd:emulator", "psychophysics"), ("woodenhaptics:emulator", "psychophysics")]
+# whole sessions: a rating and a forced choice on every emulator. (A homing that paced itself only at its
+# checks ran bursts of ticks on the drivers whose read() does not wait for the next sample, the Touch's and the
+# WoodenHaptics': the PD held one force through each pause, stopped as unstable on the Touch and let the emulated
+# hand overpower it on the WoodenHaptics; renderer.homing now paces every tick on hardware.)
+DEVICES = ("inverse3:emulator", "falcon:emulator", "woodenhaptics:emulator", "dhd:emulator", "touch:Default Device")
+SESSIONS = [(spec, kind) for kind in ("rating", "psychophysics") for spec in DEVICES]
 
 
 @pytest.mark.parametrize("spec, kind", SESSIONS)
-def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys):
+def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys, request):
+    if spec.startswith("touch"):
+        monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", str(request.getfixturevalue("fake_hd")))
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL + (DISCRIMINATION if kind == "psychophysics" else ""))
     spec = spec + "?loss_timeout_s=0.1"

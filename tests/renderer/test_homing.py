@@ -1,7 +1,10 @@
 """Homing controller (renderer.homing) on the real sim device."""
 
+import dataclasses
 import math
+import time
 
+import numpy as np
 import pytest
 
 from devices.sim import SimDevice, TapTrajectory
@@ -175,3 +178,39 @@ def test_homing_stability_checks_validate_and_can_be_turned_off():
     dev = _released_hand(0.03)
     res = HomingController(dev, HomingConfig(kp_N_m=3e5, instability_energy_frac=math.inf)).run(0.5)
     assert res.stop_reason == "duration" and res.energy_limit_J == math.inf and res.peak_energy_J > 0.003
+
+
+class _WallClockDevice(CurrentSpy):
+    """A simulated device presented as hardware on the wall clock whose read() returns at once (as the Touch's
+    driver takes its servo thread's newest sample): the command times are the host loop's ticks."""
+
+    def __init__(self, dev):
+        super().__init__(dev)
+        self.info = dataclasses.replace(dev.info, simulated=False)
+        self.times = []
+
+    def command(self, i):
+        self.times.append(time.perf_counter())
+        super().command(i)
+
+
+def test_homing_paces_every_tick_on_a_device_that_does_not_wait():
+    """On hardware, homing runs at the servo rate tick by tick, never a burst of ticks and a pause (the PD would
+    hold one force through the pause): no tick before its deadline, so 0.3 s of homing takes at least 0.3 s."""
+    dev = SimDevice(seed=1).open()
+    dev.set_sample("placeholder")
+    dev.set_user(0.03, grip_N=2.0)
+    dev.set_user(None, grip_N=0.5)
+    unpaced = HomingController(dev, HomingConfig(home_height_m=0.01))
+    unpaced.run(0.01)   # the simulation compiled first: a first tick that compiles would trip the host watchdog
+    wall = _WallClockDevice(dev)
+    ctl = HomingController(wall, HomingConfig(home_height_m=0.01))
+    assert ctl.pace_ticks and not unpaced.pace_ticks
+    t0 = time.perf_counter()
+    ctl.run(0.3, check_every=100, realtime=True)
+    t = np.asarray(wall.times)
+    dt_s = 1.0 / dev.info.servo_rate_hz
+    assert len(t) >= round(0.3 / dt_s)
+    # tick k (from 1) is commanded after the deadline of tick k-1: sleep never returns early
+    assert np.all(t[1:] - t0 >= np.arange(1, len(t)) * dt_s - 1e-6)
+    assert time.perf_counter() - t0 >= 0.3 - dt_s
