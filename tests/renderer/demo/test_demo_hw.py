@@ -15,11 +15,11 @@ from renderer.demo import hw_demo as demo_hw
 
 
 def args_for(port, out, **kw):
-    ns = argparse.Namespace(device=f"serial:{port}", out=out, taps=2, library=None, scope="text",
-                            renderings=("firm", "pulse_firm"), timeout=30.0,
-                            # a loaded CI machine can stall a process for >20 ms; widen the host loop's
-                            # watchdog so the test checks the demo, not the scheduler
-                            watchdog_overrun_s=1.0)
+    # a loaded CI machine can stall a process for >20 ms (112 ms seen with three suites on 2 cores): the host
+    # loop's watchdog and the link's loss timeout (5 ms by default: a stall ends the run as "disconnected") are
+    # widened so the test checks the demo, not the scheduler
+    ns = argparse.Namespace(device=f"serial:{port}{'&' if '?' in port else '?'}loss_timeout_s=0.5", out=out, taps=2, library=None,
+                            scope="text", renderings=("firm", "pulse_firm"), timeout=30.0, watchdog_overrun_s=1.0)
     for k, v in kw.items():
         setattr(ns, k, v)
     return ns
