@@ -19,7 +19,8 @@ anything on the lab network):
 
 * every request must arrive within ``REQUEST_DEADLINE_S`` (request line,
   headers and body together; a slow sender gets 408 and the connection is
-  closed), at most ``MAX_CONNECTIONS`` connections are served at once (more
+  closed; a kept-alive connection on which no byte came in that time is
+  closed without an answer), at most ``MAX_CONNECTIONS`` connections are served at once (more
   get 503), bodies are at most ``MAX_BODY_BYTES`` (a larger declared length
   gets 413, a negative or non-numeric one 400, both without reading);
 * malformed JSON, a body that is not an object, wrong types and missing
@@ -98,7 +99,10 @@ class _DeadlineReader(io.RawIOBase):
         if remaining <= 0:
             raise TimeoutError("request deadline passed")
         self.handler.connection.settimeout(remaining)
-        return self.handler.connection.recv_into(buf)
+        n = self.handler.connection.recv_into(buf)
+        if n:
+            self.handler.idle = False
+        return n
 
 
 def _host_ok(host_header: str | None, server) -> bool:
@@ -127,6 +131,7 @@ class _Handler(BaseHTTPRequestHandler):
     def setup(self) -> None:
         super().setup()
         self.deadline = time.monotonic() + REQUEST_DEADLINE_S
+        self.idle = True
         self.rfile = io.BufferedReader(_DeadlineReader(self), 8192)
 
     def log_message(self, fmt, *args) -> None:  # keep the console for the operator; never log the token
@@ -134,6 +139,7 @@ class _Handler(BaseHTTPRequestHandler):
 
     def handle_one_request(self) -> None:
         self.deadline = time.monotonic() + REQUEST_DEADLINE_S
+        self.idle = True  # no byte of this request yet: a kept-alive connection waiting for the browser
         try:
             super().handle_one_request()
         except (ConnectionError, OSError):
@@ -141,8 +147,14 @@ class _Handler(BaseHTTPRequestHandler):
 
     def log_error(self, fmt, *args) -> None:
         # the stdlib catches a TimeoutError while reading a request and reports it only here: answer 408
+        # -- unless not one byte of it came: that is an idle kept-alive connection, closed without an answer. A
+        # 408 there could meet a request the browser sent on it at that moment (a subject's key), which then
+        # fails; a connection closed without an answer makes the browser send that request again on a new one.
         if fmt.startswith("Request timed out"):
-            self._late()
+            if self.idle:
+                self.close_connection = True
+            else:
+                self._late()
 
     def _late(self) -> None:
         self.close_connection = True

@@ -28,12 +28,18 @@ async function poll() {
 // Keys go to the runner one at a time, in the order pressed: concurrent requests may arrive out of
 // order, and the first rating key pressed (not the first to arrive) must be the one recorded.
 let sending = Promise.resolve();
+// A key whose request failed on the way (a connection closed under it, a server briefly full) is sent again,
+// a few times: the runner takes a key once per presentation, so a repeat of one that did arrive is refused.
 async function sendKey(key, trial_id) {
-  try {
-    const r = await fetch("/api/key", {method: "POST", headers: {"Content-Type": "application/json"},
-                                        body: JSON.stringify({key, trial_id})});
-    if (r.ok) show(await r.json());
-  } catch (e) { /* runner gone: keep the last message */ }
+  for (let attempt = 0; attempt < 4; attempt++) {
+    try {
+      const r = await fetch("/api/key", {method: "POST", headers: {"Content-Type": "application/json"},
+                                          body: JSON.stringify({key, trial_id})});
+      if (r.ok) show(await r.json());
+      if (r.status !== 408 && r.status !== 503) return;
+    } catch (e) { /* the connection failed: try again */ }
+    await new Promise((done) => setTimeout(done, 100 * (attempt + 1)));
+  }
 }
 document.addEventListener("keydown", (ev) => {
   if (prompt === "number") {

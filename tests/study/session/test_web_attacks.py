@@ -171,6 +171,16 @@ def test_slowloris_gets_408_within_2_s_and_the_cap_holds(session):
     assert snapshot(folder) == before
 
 
+def test_an_idle_kept_alive_connection_is_closed_without_an_answer(session):
+    """No 408 on a connection that sent nothing: it could meet the browser's next request (a key) on its way."""
+    port, folder, proc = session
+    before = snapshot(folder)
+    status, body, seconds = request(port, b"")   # connect, send nothing, read until the server closes
+    assert status is None and body == b"" and REQUEST_DEADLINE_S - 0.1 < seconds < REQUEST_DEADLINE_S + 1.5, \
+        (status, body, seconds)
+    assert honest(port)[0] == 200 and snapshot(folder) == before
+
+
 def test_headers_on_every_answer(session):
     port, _, _ = session
     for path in (b"/", b"/operator?token=s3cret-token", b"/api/subject", b"/static/operator.js", b"/nothing"):
