@@ -226,6 +226,13 @@ class DeviceInfo:
                            senses_grip=self.grip_range_N[1] > self.grip_range_N[0])
 
     @property
+    def on_device_clock(self) -> bool:
+        """True when the device's own clock paces the servo loop (a simulation, or a lockstep device whose clock
+        waits for the host): the host neither paces it on the wall clock nor watches it with a wall-clock
+        watchdog. False for hardware on the wall clock, which the host paces every tick."""
+        return self.simulated or bool(self.lockstep_ticks)
+
+    @property
     def lockstep_rate_hz(self) -> float | None:
         """The streaming rate of a lockstep device (``servo_rate_hz / lockstep_ticks``), None on the wall clock."""
         return self.servo_rate_hz / self.lockstep_ticks if self.lockstep_ticks else None

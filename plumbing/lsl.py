@@ -58,7 +58,7 @@ _RETIRED: list = []
 #: how long (s) a process keeps its outlets after the last close before it may end (:func:`linger`)
 LINGER_S = 1.0
 #: ``time.monotonic()`` of the last :meth:`LslPublisher.close` in this process, or None
-_closed_at: list = [None]
+_closed_at: float | None = None   # time.monotonic() of this process's last close
 #: the servo log's columns the state stream reads (its device time first)
 LOG_COLUMNS = ("t_s", "position_m", "velocity_m_s", "force_prop_N", "force_transient_N", "current_A", "accel_m_s2",
                "grip_N")
@@ -210,10 +210,11 @@ class LslPublisher:
         except queue.Full:
             pass
         self._thread.join(timeout_s)
+        global _closed_at
         _RETIRED.append(self.outlets)
-        if _closed_at[0] is None:
+        if _closed_at is None:
             atexit.register(linger)    # a process started by multiprocessing skips atexit: it calls linger itself
-        _closed_at[0] = time.monotonic()
+        _closed_at = time.monotonic()
         return self.record()
 
     def record(self) -> dict:
@@ -230,9 +231,9 @@ def linger() -> float:
     """Wait until :data:`LINGER_S` after this process's last :meth:`LslPublisher.close`, so that liblsl's threads
     send what the closed outlets still hold before the process ends; returns the time waited (s), 0 when no
     publisher closed or the time has passed."""
-    if _closed_at[0] is None:
+    if _closed_at is None:
         return 0.0
-    wait_s = _closed_at[0] + LINGER_S - time.monotonic()
+    wait_s = _closed_at + LINGER_S - time.monotonic()
     if wait_s > 0:
         time.sleep(wait_s)
     return max(0.0, wait_s)

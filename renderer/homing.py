@@ -173,7 +173,7 @@ class HomingController:
         # paces it: a driver whose read() returns the newest sample without waiting for the next one (a vendor
         # library's servo thread, the Touch) would otherwise run a burst of ticks, then hold one force through
         # the pause at the next check, and the PD oscillates (measured: homing stopped as unstable in 0.2 s)
-        self.pace_ticks = not (info.simulated or getattr(info, "lockstep_ticks", 0))
+        self.pace_ticks = not info.on_device_clock
 
     def run(self, duration_s: float, until_settled: bool = False, min_duration_s: float = 0.0,
             until=None, check_every: int = 200, realtime: bool = False, zero_at_end: bool = True) -> HomingResult:

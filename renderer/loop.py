@@ -733,7 +733,7 @@ class ServoLoop:
         # a simulated device, and a lockstep one (its clock waits for the host: docs/protocol.md "Lockstep"), take
         # no wall-clock pacing: no overrun counting, no host watchdog on the wall clock (a stalled simulation
         # endangers nothing: the watchdog guards real motors; a dead lockstep link is the driver's to detect)
-        on_device_clock = info.simulated or bool(info.lockstep_ticks)
+        on_device_clock = info.on_device_clock
         paced = realtime or not on_device_clock
         tol = cfg.overrun_tolerance_s if cfg.overrun_tolerance_s is not None else 0.5 / fs
         over_ns = period_ns + int(tol * 1e9)

@@ -96,7 +96,7 @@ def safety_bounds(info, fs_hz: float, cfg: RendererConfig | None = None,
         t_attenuate_K=cfg.thermal_attenuate_frac * tmax, t_end_K=cfg.thermal_end_frac * tmax,
         # a stalled simulation endangers nothing: the watchdog guards real motors only (a lockstep device's clock
         # is simulated too and waits for the host: docs/protocol.md "Lockstep")
-        watchdog_period_ns=None if info.simulated or info.lockstep_ticks else period_ns + int(cfg.watchdog_overrun_s * 1e9))
+        watchdog_period_ns=None if info.on_device_clock else period_ns + int(cfg.watchdog_overrun_s * 1e9))
 
 
 class SafetyPath:
