@@ -13,8 +13,10 @@ from scipy import stats
 from statsmodels.stats.weightstats import DescrStatsW
 
 from analysis import adjustment, magnitude
-from benchmarks.bench_scaling import (LEVELS, exponent_fraction_within, fraction_within, magnitude_residual_sd,
-                                      repetitions_needed, trials_needed)
+from analysis.scaling_design import (Z75_SQRT2, exponent_fraction_within, fraction_within, magnitude_residual_sd,
+                                     repetitions_needed, trials_needed)
+from benchmarks.bench_scaling import LEVELS
+from study.forcedchoice import perception
 from study.forcedchoice.perception import stiffness_weber_fraction
 from study.session.participants import SimParticipantConfig
 
@@ -29,6 +31,10 @@ def settings(rng, participants: int, n: int, sd_log: float, truth: float = 770.0
                          "matched": 1, "final_value": np.exp(ln.ravel()), "reference_value": 700.0,
                          "start_side": np.tile(["above", "below"] * (n // 2) + ["above"] * (n % 2), participants),
                          "position": 1, "sequence": 0})
+
+
+def test_the_percept_noise_constant_is_the_simulated_participants():
+    assert Z75_SQRT2 == pytest.approx(perception.Z75_SQRT2, rel=1e-12)
 
 
 def test_the_adjustment_trial_count_puts_95_percent_of_participants_within_5_percent():
