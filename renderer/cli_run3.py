@@ -80,7 +80,7 @@ def run_into(args, folder, cfg, transient) -> int:
     print(f"saved {args.out}/events.csv, run.json, log.npz" + (", run.png, run.svg, run.plot.csv" if args.figure else ""))
     if simulated and result.timing.get("compiled_sim") and not result.timing.get("aot"):
         if sim_aot.schedule_build(sim_aot.LOOP3):
-            print("compiling the simulated 3-D loop ahead of time in the background (once, ~15 s): later simulated "
+            print("compiling the simulated 3-D loop ahead of time in the background (once, ~20 s): later simulated "
                   "3-D runs start without numba (docs/renderer.md, 'Compiled ahead of time')", file=sys.stderr)
     return 0 if result.stop_reason in ("duration", "until", "stopped") else 1
 

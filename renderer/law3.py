@@ -52,7 +52,12 @@ from .passivity import wall_energy
 from .scene3 import O_K
 
 _wall_energy = njit(cache=True, _nrt=False, inline="always")(wall_energy)
-_lateral_step = njit(cache=True, _nrt=False)(LAT.lateral_step)
+# run_sim3's per-tick callees inlined into it (numba's IR inliner: the same operations in the same order, so
+# the same results, bit for bit): as calls, each tick pushed ~100 arguments on the stack (a numba array is 7-9
+# of them) into law3_tick and the physics step, ~15 % of the 3-D simulated loop's time. The proxy stays a call:
+# inlined as well, it doubled the ahead-of-time build's time and saved nothing measurable.
+_physics_tick = njit(_nrt=False, inline="always")(SK.tick.py_func)
+_lateral_step = njit(_nrt=False, inline="always")(LAT.lateral_step)
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -68,10 +73,9 @@ def _ring(w, base, nring, wv, pi, po, x, s0i, s1i):
     return s0, s1
 
 
-@njit(cache=True, _nrt=False)
-def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
+def _law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
     """One tick of the 3-D law (module doc); returns the force (fx, fy, fz) to command (N, device frame)."""
-    code = CODE_OK
+    code = int(CODE_OK)    # int(): not a literal's type, which numba's inliner would freeze (run_sim3)
     flags = 0
     if status & STATUS_DISCONNECTED:
         w[W_CODE] = CODE_DISCONNECTED
@@ -147,7 +151,7 @@ def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
         w[W_LSX], w[W_LSY], w[W_LSZ] = ps[PX.PS_SX], ps[PX.PS_SY], ps[PX.PS_SZ]
         if armed:
             w[W_ARMED] = 0.0
-            code = CODE_IMPACT
+            code = int(CODE_IMPACT)
             if w[W_EV_ON] != 0.0:
                 code |= CODE_CLOSED
                 w[W_CLOSED_PEN], w[W_CLOSED_ACC], w[W_CLOSED_CLIP] = w[W_EV_PEN], w[W_EV_ACC], w[W_EV_CLIP]
@@ -193,7 +197,7 @@ def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
         return 0.0, 0.0, 0.0
     # saturation on the force vector's magnitude: the wall to the continuous force, the transient and the sum
     # to the peak force
-    clip = 0
+    clip = int(0)
     f_wall = math.sqrt(fx * fx + fy * fy + fz * fz)
     fc = c[C_FC]
     if f_wall > fc:
@@ -201,7 +205,7 @@ def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
         fx *= s
         fy *= s
         fz *= s
-        clip = 1
+        clip = int(1)
     fpk = c[C_FPK]
     f_t_req = f_t
     if f_t > fpk:
@@ -286,6 +290,12 @@ def law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
     return ox, oy, oz
 
 
+#: one tick of the law, called per tick by the paced loop (renderer.loop3) and the benchmarks
+law3_tick = njit(cache=True, _nrt=False)(_law3_tick)
+#: the same tick inlined into run_sim3
+_law3_tick_inline = njit(_nrt=False, inline="always")(_law3_tick)
+
+
 @njit(cache=True, _nrt=False, nogil=True)
 def run_sim3(c, w, obj, tri, node, stack, log, dev, sp, ss, srs, traj, grip, lat, lp, frame, igrav, n_max):
     """Up to ``n_max`` ticks of :func:`law3_tick` on the 3-DOF simulated device in one call.
@@ -306,8 +316,8 @@ def run_sim3(c, w, obj, tri, node, stack, log, dev, sp, ss, srs, traj, grip, lat
         x = frame[0] + frame[3] * qu + frame[6] * qv + frame[9] * qw
         y = frame[1] + frame[4] * qu + frame[7] * qv + frame[10] * qw
         z = frame[2] + frame[5] * qu + frame[8] * qv + frame[11] * qw
-        fx, fy, fz = law3_tick(c, w, obj, tri, node, stack, log, dev[D_T], x, y, z, dev[D_ACC], dev[D_GRIP],
-                               int(dev[D_STATUS]))
+        fx, fy, fz = _law3_tick_inline(c, w, obj, tri, node, stack, log, dev[D_T], x, y, z, dev[D_ACC],
+                                       dev[D_GRIP], int(dev[D_STATUS]))
         code = w[W_CODE]
         if code >= CODE_SENSOR:
             return j
@@ -337,7 +347,7 @@ def run_sim3(c, w, obj, tri, node, stack, log, dev, sp, ss, srs, traj, grip, lat
         applied = dev[D_HELD]
         dev[D_HELD] = i
         dev[D_TICK] = tick
-        p, a, gq, hot = SK.tick(ss, sp, srs, traj, grip, kk, applied)
+        p, a, gq, hot = _physics_tick(ss, sp, srs, traj, grip, kk, applied)
         _lateral_step(lat, lp, fv, fw, g)
         dev[D_T] = tick * dev[D_PERIOD]
         dev[D_POS] = p

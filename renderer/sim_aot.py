@@ -22,7 +22,7 @@ law, proxy or kernel is never run from a stale build: it falls back to the JIT p
 Where and when (docs/renderer.md, "Compiled ahead of time"):
 
 * ``$HFAM_SIM_AOT_DIR`` or ``$XDG_CACHE_HOME/hfam-haptics/sim-loop`` (``~/.cache/...``);
-* built by ``python -m renderer compile-sim`` (both; ~5 s and ~10 s; ``make bench`` does it), or in the
+* built by ``python -m renderer compile-sim`` (both; ~5 s and ~15 s; ``make bench`` does it), or in the
   background after the first ``renderer run`` on a simulated device that found none (a detached ``python -m
   renderer.sim_aot``, one at a time per build; runs until it is done use the JIT path);
 * ``HFAM_SIM_AOT=auto`` (default: use, build in the background if missing), ``nobuild`` (use if
