@@ -66,8 +66,10 @@ class UiState:
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
+        # ``instance`` names this state's lifetime (a resumed session is a new one, its seq from 0 again): the subject
+        # page takes a state only if it is newer than the one it shows (a higher seq, or another instance)
         self.subject = {"message": "Please wait.", "prompt": "wait", "hint": "", "seq": 0,
-                        "trial_id": _new_id(None)}
+                        "trial_id": _new_id(None), "instance": secrets.token_hex(8)}
         self.operator = {"phase": "", "trial": None, "attempt": None, "place": "", "awaiting_confirm": False,
                          "progress": {}, "last_attempt": None, "paused": False, "aborted": False,
                          "message": "", "redraws": [], "seq": 0}

@@ -1,10 +1,16 @@
 "use strict";
 let prompt = "wait";
 let seq = -1;
+let instance = "";  // the runner's state lifetime (a resumed session starts its seq again)
 let trialId = "";  // the presentation a key answers: the runner takes a key only for the one it shows now
 const box = document.getElementById("number");
 function show(state) {
-  if (state.seq === seq) return;
+  // Answers can arrive out of order (a key's answer written late by a busy server after a newer poll's): an
+  // older state must never replace a newer one, or the page would show an answered trial and send the next
+  // key with that trial's id, which the runner refuses.
+  const inst = state.instance || "";
+  if (inst === instance && state.seq <= seq) return;
+  instance = inst;
   seq = state.seq;
   prompt = state.prompt;
   const fresh = (state.trial_id || "") !== trialId;

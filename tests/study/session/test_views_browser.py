@@ -108,6 +108,30 @@ def test_subject_keys_in_chromium(browser, served):
     page.close()
 
 
+def test_an_answer_older_than_the_state_shown_never_replaces_it(browser, served):
+    """A busy server can write a key's answer after a newer poll's: the page must not go back to the answered
+    trial (it would send the next key with that trial's id, which the runner refuses: the key was lost)."""
+    ui, web = served
+    page = browser.new_page(bypass_csp=True)
+    page.goto(web.subject_url)
+    ui.set_subject("first", "rate", "testing:1:1")
+    page.wait_for_function("document.getElementById('message').textContent === 'first'")
+    old = ui.snapshot("subject")
+    ui.set_subject("second", "rate", "testing:2:1")
+    page.wait_for_function("document.getElementById('message').textContent === 'second'")
+    page.evaluate("state => show(state)", old)            # the late answer arrives
+    assert page.text_content("#message") == "second"
+    page.keyboard.press("4")
+    page.wait_for_function("document.getElementById('message').textContent === 'Thank you.'")
+    assert ui.rating() == "4" and ui.keys_refused == 0
+    # a resumed session's runner is a new state lifetime whose seq starts again: its states are taken
+    fresh = UiState().snapshot("subject")
+    assert fresh["seq"] < old["seq"] and fresh["instance"] != old["instance"]
+    page.evaluate("state => show(state)", fresh)
+    assert page.text_content("#message") == "Please wait."
+    page.close()
+
+
 def test_operator_page_in_chromium(browser, served):
     ui, web = served
     page = browser.new_page(bypass_csp=True)  # eval for wait_for_function; CSP: test_web_attacks
