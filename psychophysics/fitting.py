@@ -26,7 +26,8 @@ Fitting: binomial maximum likelihood over ``(a, ln beta[, lambda][, gamma])``, F
 Levenberg-Marquardt damping and an active set for parameters at their bounds, vectorised over data sets
 (a parametric bootstrap, Wichmann & Hill 2001b, refits 1,000 resamples at once) and over conditions that
 share parameters (:func:`fit_multiple`, Palamedes' ``PAL_PFML_FitMultiple``). The threshold's interval is
-the profile likelihood's (Wilks), its ends found by root finding on the profile; the bootstrap gives
+the profile likelihood's (Wilks), its ends found by root finding on the profile (where the lapse rate is
+not identified, with a one-sided or a bootstrap-calibrated cut-off: :func:`profile_bounds`); the bootstrap gives
 percentile and BCa intervals (Efron 1987) of every derived quantity. Goodness of fit is the deviance, with
 its p-value from the bootstrap's deviances and the chi-square approximation (withheld where a level holds
 fewer than :data:`CHI2_MIN_TRIALS` trials). :func:`compare_models` is a likelihood-ratio test between two
@@ -656,7 +657,8 @@ class Fit:
     intervals (NaN without a bootstrap); ``pse_ci`` is ``threshold_ci`` for a yes/no task; ``jnd_ci`` and
     ``weber_ci`` of an n-AFC task with a reference follow from ``threshold_ci`` (exact).
     ``threshold_ci_cutoff`` is the likelihood-ratio cut-off that interval used (:func:`profile_bounds`:
-    3.841 at 95 %, or 2.706 where the lapse rate is not identified).
+    3.841 at 95 %, or where the lapse rate is not identified 2.706, or for a yes/no fit with a free lower
+    asymptote a cut-off calibrated by a parametric bootstrap, :func:`calibrated_cutoff`).
     """
 
     function: str
