@@ -26,7 +26,8 @@ Fitting: binomial maximum likelihood over ``(a, ln beta[, lambda][, gamma])``, F
 Levenberg-Marquardt damping and an active set for parameters at their bounds, vectorised over data sets
 (a parametric bootstrap, Wichmann & Hill 2001b, refits 1,000 resamples at once) and over conditions that
 share parameters (:func:`fit_multiple`, Palamedes' ``PAL_PFML_FitMultiple``). The threshold's interval is
-the profile likelihood's (Wilks), its ends found by root finding on the profile; the bootstrap gives
+the profile likelihood's (Wilks), its ends found by root finding on the profile (where the lapse rate is
+not identified, with a one-sided or a bootstrap-calibrated cut-off: :func:`profile_bounds`); the bootstrap gives
 percentile and BCa intervals (Efron 1987) of every derived quantity. Goodness of fit is the deviance, with
 its p-value from the bootstrap's deviances and the chi-square approximation (withheld where a level holds
 fewer than :data:`CHI2_MIN_TRIALS` trials). :func:`compare_models` is a likelihood-ratio test between two
@@ -42,6 +43,7 @@ task and ``threshold - reference`` for an n-AFC task whose stimulus is the compa
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
 
@@ -73,6 +75,10 @@ SLOPE_RANGE = (0.1, 0.9)
 MIN_LEVELS_ON_SLOPE = 2
 #: bootstrap data sets refitted in one vectorised call (bounds the memory of many observers x resamples)
 CHUNK = 20_000
+#: simulated data sets that calibrate the cut-off of a yes/no threshold whose lapse rate is not identified
+#: (:func:`calibrated_cutoff`), and the lapse rates along the allowed range they are drawn from
+CALIBRATION_DRAWS = 500
+CALIBRATION_WORLDS = 10
 
 # ---------------------------------------------------------------------------------------------------------------
 # the model: which parameter column gives each level its location, slope, lapse and guess rate
@@ -257,8 +263,9 @@ def solve(model: Model, k, n, start, hold=None, max_iter: int = 200):
     k : array_like, shape (B, L)
     n : array_like, shape (L,) or (B, L)
     start : array_like, shape (B, P)
-    hold : (int, array_like of shape (B,)), optional
-        Hold parameter column ``hold[0]`` at these values (a profile likelihood).
+    hold : (int or sequence of int, array_like of shape (B,)), optional
+        Hold parameter column ``hold[0]`` (or each of several columns) at these values (a profile
+        likelihood).
     max_iter : int
 
     Returns
@@ -274,8 +281,10 @@ def solve(model: Model, k, n, start, hold=None, max_iter: int = 200):
     lo = np.tile(model.lo, (B, 1))
     hi = np.tile(model.hi, (B, 1))
     if hold is not None:
-        col, values = hold
-        lo[:, col] = hi[:, col] = theta[:, col] = np.broadcast_to(np.asarray(values, float), (B,))
+        cols, values = hold
+        values = np.broadcast_to(np.asarray(values, float), (B,))
+        for col in np.atleast_1d(cols):
+            lo[:, col] = hi[:, col] = theta[:, col] = values
 
     def project(t, rows=slice(None)):
         return np.clip(t, lo[rows], hi[rows])
@@ -410,8 +419,90 @@ def profile_cutoff(ci_level: float = 0.95, one_sided: bool = False) -> float:
     return float(stats.chi2.ppf(2.0 * ci_level - 1.0 if one_sided else ci_level, 1))
 
 
+def _data_seed(model: Model, k, n, tag: int) -> int:
+    """A seed drawn from the data themselves (levels, trials, answers) and ``tag``: the same data give the same
+    simulated draws, so a fit is reproducible."""
+    h = hashlib.sha256()
+    for arr in (model.u, n, k):
+        h.update(np.ascontiguousarray(arr, dtype=float).tobytes())
+    h.update(f"{model.function} {model.offset!r} {tag}".encode())
+    return int.from_bytes(h.digest()[:8], "little")
+
+
+def calibrated_cutoff(model: Model, k, n, theta_hat, col: int = 0, ci_level: float = 0.95,
+                      draws: int = CALIBRATION_DRAWS, worlds: int = CALIBRATION_WORLDS) -> np.ndarray:
+    """Likelihood-ratio cut-off of a threshold whose lapse rate the data do not identify, calibrated by a
+    parametric bootstrap averaged over the lapse rates the model allows.
+
+    Where the profile runs the lapse rate from one bound to the other (:func:`lapse_unidentified`), the data
+    fit a ridge of observers equally well: every lapse rate in ``[0, lapse_max]`` with its own threshold.
+    For each data set, ``worlds`` lapse rates are taken evenly over that range (the midpoints of equal
+    bins) and the other parameters refitted with the lapse held there (a world on the ridge);
+    ``draws / worlds`` data sets are simulated from each world and fitted twice, freely (from the world and
+    from ``theta_hat``, the better kept) and with the location ``col`` held at the world's own value. The
+    cut-off is the ``ci_level`` quantile of their likelihood-ratio statistics
+    ``W = 2 (lnL_max - lnL_profile)`` pooled over the worlds (the bootstrap calibration of a likelihood-
+    ratio interval, Efron & Tibshirani 1993 ch. 16, Hall 1992), at most Wilks' ``chi2_1(ci_level)``.
+    The interval then covers ``ci_level`` of observers on average over the allowed lapse rates (a flat
+    prior on the unidentified parameter: Moon & Schorfheide 2012, Econometrica 80:755), where the
+    one-sided cut-off (:func:`profile_cutoff`, Imbens & Manski 2004) covers at least ``ci_level`` at every
+    lapse rate, and so more than that inside the range. The draws are seeded from the data
+    (:func:`_data_seed`): the same data give the same cut-off.
+
+    Parameters
+    ----------
+    model : Model
+    k : array_like, shape (B, L)
+    n : array_like, shape (L,) or (B, L)
+    theta_hat : ndarray, shape (B, P)
+        The data's maximum-likelihood parameters.
+    col : int
+        The location's column.
+    ci_level : float
+    draws : int
+        Simulated data sets per cut-off (rounded up to a multiple of ``worlds``).
+    worlds : int
+        Lapse rates held along the range.
+
+    Returns
+    -------
+    ndarray, shape (B,)
+    """
+    k = np.atleast_2d(np.asarray(k, float))
+    n = np.broadcast_to(np.asarray(n, float), k.shape)
+    B, L = k.shape
+    cap = profile_cutoff(ci_level)
+    lapse_cols = np.unique(model.il[model.ia == col]) if model.il is not None else np.array([], int)
+    if B == 0 or len(lapse_cols) == 0:
+        return np.full(B, cap)
+    per = max(1, math.ceil(draws / worlds))
+    R = per * worlds
+    top = float(model.hi[lapse_cols].min())
+    kb = np.empty((B, worlds, per, L))
+    world = np.empty((B, worlds, model.n_params))
+    rngs = [np.random.default_rng(_data_seed(model, k[b], n[b], col)) for b in range(B)]
+    for i, lam in enumerate((np.arange(worlds) + 0.5) / worlds * top):
+        start = theta_hat.copy()
+        start[:, lapse_cols] = lam
+        world[:, i], _ = solve(model, k, n, start, hold=(lapse_cols, np.full(B, lam)))
+    p0 = np.clip(model.predict(world.reshape(B * worlds, -1), False)[0], 0.0, 1.0).reshape(B, worlds, L)
+    for b in range(B):
+        kb[b] = rngs[b].binomial(n[b].astype(np.int64), p0[b][:, None, :], size=(worlds, per, L))
+    kb = kb.reshape(B * R, L)
+    nb = np.repeat(n, R, axis=0)
+    s0 = np.repeat(world.reshape(B * worlds, -1), per, axis=0)
+    sh = np.repeat(theta_hat, R, axis=0)
+    w = np.empty(B * R)
+    for c in range(0, B * R, CHUNK):
+        sl = slice(c, c + CHUNK)
+        ll_full = np.maximum(solve(model, kb[sl], nb[sl], s0[sl])[1], solve(model, kb[sl], nb[sl], sh[sl])[1])
+        _, ll_prof = solve(model, kb[sl], nb[sl], s0[sl], hold=(col, s0[sl, col]))
+        w[sl] = np.maximum(2.0 * (ll_full - ll_prof), 0.0)
+    return np.minimum(np.quantile(w.reshape(B, R), ci_level, axis=1), cap)
+
+
 def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: float = 0.95,
-                   bound_aware: bool = True, with_cutoff: bool = False):
+                   bound_aware: bool = True, with_cutoff: bool = False, calibrate: int = CALIBRATION_DRAWS):
     """Ends of the profile-likelihood (Wilks) interval of parameter ``col``, found by root finding.
 
     The interval holds the values v whose profile log-likelihood (every other parameter refitted with
@@ -425,7 +516,10 @@ def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: fl
     is only partially identified and the interval is found again with the one-sided cut-off
     ``chi2_1(2 ci_level - 1)`` (2.706 at 0.95; :func:`profile_cutoff`, Imbens & Manski 2004). With Wilks'
     3.841 such intervals cover a true threshold 97-99 % of the time instead of 95 %
-    (docs/psychophysics.md, "On- and off-slope designs").
+    (docs/psychophysics.md, "On- and off-slope designs"). Where the model also fits a lower asymptote
+    (a yes/no task's false-alarm rate), that one-sided cut-off still covers 97 %, and the cut-off is
+    calibrated instead by a parametric bootstrap over the lapse rates the model allows
+    (:func:`calibrated_cutoff`, seeded from the data; ``calibrate`` draws, 0 for the one-sided cut-off).
 
     Parameters
     ----------
@@ -442,6 +536,8 @@ def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: fl
         Use the one-sided cut-off where the lapse rate is not identified (False: Wilks' everywhere).
     with_cutoff : bool
         Also return the cut-off used for each data set.
+    calibrate : int
+        Simulated data sets of :func:`calibrated_cutoff` (0: the one-sided cut-off there too).
 
     Returns
     -------
@@ -459,6 +555,8 @@ def profile_bounds(model: Model, k, n, theta, loglik, col: int = 0, ci_level: fl
         redo = np.flatnonzero(lapse_unidentified(model, th_ends[0], th_ends[1], col))
         if len(redo):
             cutoff[redo] = profile_cutoff(ci_level, one_sided=True)
+            if calibrate and model.ig is not None:
+                cutoff[redo] = calibrated_cutoff(model, k[redo], n[redo], theta[redo], col, ci_level, calibrate)
             out[redo], _ = _profile_ends(model, k[redo], n[redo], theta[redo], loglik[redo], col,
                                          cutoff[redo] / 2.0)
     return (out, cutoff) if with_cutoff else out
@@ -559,7 +657,8 @@ class Fit:
     intervals (NaN without a bootstrap); ``pse_ci`` is ``threshold_ci`` for a yes/no task; ``jnd_ci`` and
     ``weber_ci`` of an n-AFC task with a reference follow from ``threshold_ci`` (exact).
     ``threshold_ci_cutoff`` is the likelihood-ratio cut-off that interval used (:func:`profile_bounds`:
-    3.841 at 95 %, or 2.706 where the lapse rate is not identified).
+    3.841 at 95 %, or where the lapse rate is not identified 2.706, or for a yes/no fit with a free lower
+    asymptote a cut-off calibrated by a parametric bootstrap, :func:`calibrated_cutoff`).
     """
 
     function: str
