@@ -53,6 +53,16 @@ STOP_GRACE_S = 5.0
 SPAWN = mp.get_context("spawn")
 
 
+def shared_sync(make):
+    """``make()`` (a :data:`SPAWN` Event, Queue, Lock...) with Ctrl-C and the stop signals held back.
+
+    multiprocessing registers each semaphore with its resource tracker, then gives it its finalizer: a
+    signal between the two ended the program with a "leaked semaphore objects" warning after its own last
+    line. Every servo process's shared objects are made here."""
+    with signals_blocked():
+        return make()
+
+
 def servo_process(target, args: tuple, name: str, duplex: bool = False):
     """A servo child process, not yet started, and both ends of its pipe: ``target(child_conn, *args)``.
 
@@ -206,7 +216,7 @@ def run_in_process(device: str | Callable, cfg: RendererConfig | None = None, tr
 def _run_child(device, cfg, transient, duration_s, max_ticks, realtime, device_options, stop_event, timeout_s,
                nice, rt_request):
     """The body of :func:`run_in_process`: start the child, wait for its result, end it."""
-    stop = stop_event if stop_event is not None else SPAWN.Event()
+    stop = stop_event if stop_event is not None else shared_sync(SPAWN.Event)
     proc, parent_conn, child_conn = servo_process(_child, (device, device_options, cfg or RendererConfig(), transient,
                                                            duration_s, max_ticks, realtime, stop, nice, os.getpid(),
                                                            rt_request), "renderer-servo")

@@ -31,7 +31,7 @@ from stimuli import HfamLibrary
 
 from ..config import RendererConfig
 from ..loop import ServoLoop
-from ..process import SPAWN, end_child, servo_child, servo_process
+from ..process import SPAWN, end_child, servo_child, servo_process, shared_sync
 from . import figures as figs
 from . import metrics as dm
 from . import runs
@@ -184,7 +184,7 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
     ring = SPAWN.RawArray("d", 3 * RING)
     ring_n = SPAWN.RawValue("q", 0)
     events = SPAWN.RawArray("d", 1 + 2 * MAX_EVENTS)
-    stop = SPAWN.Event()
+    stop = shared_sync(SPAWN.Event)
     cfg = cfg.replace(until_every=1)
     proc, parent, child = servo_process(_child, (spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop,
                                                  os.getpid()), "demo-servo")

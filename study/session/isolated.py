@@ -38,7 +38,7 @@ from devices import make_device
 from plumbing import rtpolicy
 from plumbing.lsl import ServoStream, linger, open_publisher
 from plumbing.stopsignals import ParentWatch, Terminated
-from renderer.process import SPAWN, servo_child, servo_process
+from renderer.process import SPAWN, servo_child, servo_process, shared_sync
 
 from .apparatus import ServoStopped
 from .apparatus3 import make_apparatus
@@ -149,8 +149,8 @@ class IsolatedApparatus:
     def _start(self, spec, device_options, catalog, protocol, library_dir, sim_participant, realtime, core,
                lsl=None) -> None:
         """Start the servo child and take its first answer (what the device and the OS granted)."""
-        self._clip_q = SPAWN.Queue()
-        self._hold = SPAWN.Event()
+        self._clip_q = shared_sync(SPAWN.Queue)
+        self._hold = shared_sync(SPAWN.Event)
         self._proc, self._conn, child_conn = servo_process(
             _child, (self._clip_q, self._hold, spec, device_options, catalog, protocol, library_dir, sim_participant,
                      realtime, os.getpid(), core, lsl), "study-servo", duplex=True)
