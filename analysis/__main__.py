@@ -7,23 +7,21 @@ from plumbing.dispatch import main as dispatch
 
 #: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
 #: whose parser names the body that runs (plumbing.dispatch.Body).
-#: One BLAS thread: the analysis' matrix products are small (vectors of attempts, 12 x 12 covariances); a second
+#: One BLAS thread (every command's default, plumbing.dispatch): the analysis' matrix products are small (vectors of attempts, 12 x 12 covariances); a second
 #: BLAS thread waiting for a busy core cost up to a scheduler slice (~8 ms) per call, 0.6 s per report on a loaded
 #: two-core machine
 COMMANDS = (
-    Command("report", "analysis.cli_report_parser", "analyse a study folder: tables, figures, report.md/.html", blas_threads=1),
+    Command("report", "analysis.cli_report_parser", "analyse a study folder: tables, figures, report.md/.html"),
     Command("plan", "analysis.cli_plan_parser",
-            "number of subjects for the next study (difference and equivalence tests)", blas_threads=1),
+            "number of subjects for the next study (difference and equivalence tests)"),
     Command("psychometric", "analysis.cli_psychometric_parser",
-            "psychometric fits (threshold, slope, lapse, PSE, JND) of forced-choice data", blas_threads=1),
+            "psychometric fits (threshold, slope, lapse, PSE, JND) of forced-choice data"),
     Command("adjustment", "analysis.cli_adjustment_parser",
-            "method of adjustment: PSE, spread (JND estimate) and constant error", blas_threads=1),
-    Command("magnitude", "analysis.cli_magnitude_parser", "magnitude estimation: Stevens' power law per subject and pooled",
-            blas_threads=1),
+            "method of adjustment: PSE, spread (JND estimate) and constant error"),
+    Command("magnitude", "analysis.cli_magnitude_parser", "magnitude estimation: Stevens' power law per subject and pooled"),
     Command("export-bids", "analysis.cli_export_bids_parser",
-            "write the study as a BIDS dataset (beh events, motion traces, participants)", blas_threads=1),
-    Command("synthetic", "analysis.cli_synthetic_parser", "write a synthetic study folder in the study's data format",
-            blas_threads=1),
+            "write the study as a BIDS dataset (beh events, motion traces, participants)"),
+    Command("synthetic", "analysis.cli_synthetic_parser", "write a synthetic study folder in the study's data format"),
 )
 
 

@@ -8,9 +8,10 @@ from plumbing.dispatch import main as dispatch
 #: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
 #: whose parser names the body that runs (plumbing.dispatch.Body)
 COMMANDS = (
-    # the servo loop makes no BLAS call: no BLAS worker threads spinning on the other core (plumbing.dispatch)
+    # one BLAS thread, as every command (plumbing.dispatch): the servo loop makes no BLAS call, and BLAS worker
+    # threads would spin on the other core
     Command("run", "renderer.cli_run_parser", "render a virtual wall under a simulated or real user tapping",
-            preload=("renderer.loop", "devices.registry"), blas_threads=1),
+            preload=("renderer.loop", "devices.registry")),
     Command("demo", "renderer.demo.cli_demo_parser",
             "virtual-wall demo: proportional walls vs pulse, sinusoid, HFAM and a real sample"),
     Command("teleop", "renderer.teleop.cli_teleop", "run a simulated teleoperation session (thesis ch. 5)"),
@@ -19,7 +20,7 @@ COMMANDS = (
     Command("teleop-servo-study", "renderer.teleop.cli_teleop",
             "section 5.7's targets at each servo bandwidth, slave handle re-identified at each"),
     Command("timing-check", "renderer.cli_timing_check_parser",
-            "check this machine's servo timing (cyclictest-like)", blas_threads=1),
+            "check this machine's servo timing (cyclictest-like)"),
     Command("compile-sim", "renderer.cli_compile_sim_parser", "compile the simulated closed loop ahead of time (fast sim runs)"),
 )
 

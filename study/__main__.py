@@ -8,12 +8,11 @@ from plumbing.dispatch import main as dispatch
 #: the commands, listed without importing them; each names its parser module (``register(subparsers)``, light),
 #: whose parser names the body that runs (plumbing.dispatch.Body)
 COMMANDS = (
-    # one BLAS thread: the session runs a servo loop, and a QUEST+ update's matrix-vector product split over
+    # one BLAS thread, as every command (plumbing.dispatch): the session runs a servo loop, and a QUEST+ update's matrix-vector product split over
     # threads waits for them on a loaded machine (benchmarks/bench_adaptive.py)
-    Command("run", "study.cli_run_parser", "run a blind realism or psychophysics session (sim rehearsal or real subjects)",
-            blas_threads=1),
+    Command("run", "study.cli_run_parser", "run a blind realism or psychophysics session (sim rehearsal or real subjects)"),
     Command("simulate-observer", "study.cli_simulate_observer_parser",
-            "run an adaptive method against a simulated observer", blas_threads=1),
+            "run an adaptive method against a simulated observer"),
     Command("design", "study.cli_design_parser",
             "counterbalanced condition orders for the participant list (Williams or Latin square)"),
 )

@@ -9,8 +9,14 @@ commands run in order in one scratch folder (later ones use earlier outputs), wi
 ``bin`` first on ``PATH`` as activation puts it. To keep the suite lean, SMALLER shrinks a few
 sizes (fewer grip levels and shorter sweeps for ``identify``, fewer samples in ``study run``);
 every other flag, file name and command is exactly the README's.
+
+The first command of each family (``hfam-devices``, ``hfam-renderer``, ...) runs as a real process through its
+console script, as typed; the family's later commands run the same ``main`` in this process
+(``tests/support/cli.py``: the same parser, body and error handling, without a child's 1-3 s of imports), with
+the shell's glob expansion done here.
 """
 
+import glob
 import os
 import re
 import shlex
@@ -19,6 +25,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from tests.support.cli import run_cli
 
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -98,10 +106,24 @@ def test_make_targets_in_the_readme_exist():
             assert r.returncode == 0, r.stderr
 
 
-def test_readme_commands_run_as_printed(tmp_path):
+#: a line with any of these runs through the shell (redirections, pipes, variables)
+SHELL_ONLY = set("|&;<>$`(){}")
+
+
+def in_process_args(cmd: str, cwd: Path) -> list[str]:
+    """``cmd``'s arguments after the console script's name, globs expanded as bash does (sorted; a pattern
+    that matches nothing stays as typed)."""
+    out = []
+    for word in shlex.split(cmd)[1:]:
+        hits = sorted(glob.glob(word, root_dir=cwd)) if any(c in word for c in "*?[") else []
+        out += hits or [word]
+    return out
+
+
+def test_readme_commands_run_as_printed(tmp_path, capsys):
     env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", MPLBACKEND="Agg")
     (tmp_path / "examples").symlink_to(ROOT / "examples")
-    ran = []
+    ran, families = [], set()
     for line in commands():
         if line.startswith("make "):
             continue                              # test_make_targets_in_the_readme_exist; make test runs this
@@ -113,7 +135,13 @@ def test_readme_commands_run_as_printed(tmp_path):
         cmd = line
         for pattern, repl in SMALLER:
             cmd = re.sub(pattern, repl, cmd)
-        r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+        script = cmd.split()[0]
+        if script.startswith("hfam-") and script in families and not SHELL_ONLY & set(cmd):
+            r = run_cli(capsys, script.removeprefix("hfam-"), *in_process_args(cmd, tmp_path), cwd=tmp_path)
+        else:
+            families.add(script)
+            r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True,
+                               timeout=600)
         assert r.returncode == 0, f"command of README.md or docs/usage.md failed: {cmd}\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
         assert "deprecated" not in r.stderr, f"README uses an old flag spelling: {cmd}\n{r.stderr}"
         ran.append(cmd)
@@ -122,3 +150,4 @@ def test_readme_commands_run_as_printed(tmp_path):
               "REPORT/report.html", "hfam_model.json", "wood_on_foam.npz"):
         assert (tmp_path / f).exists(), f
     assert sum(c.startswith("hfam-") for c in ran) >= 14
+    assert {"hfam-devices", "hfam-renderer", "hfam-stimuli", "hfam-study", "hfam-analysis"} <= families
