@@ -1,5 +1,6 @@
 """Settings every test shares."""
 
+import gc
 import os
 import signal
 
@@ -127,3 +128,12 @@ def _lsl_outlets_end_with_their_test():
     lsl = sys.modules.get("plumbing.lsl")
     if lsl is not None:
         lsl._RETIRED.clear()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_finish(session):
+    # every test module is imported now, and with them numpy, scipy, pandas and matplotlib: keep their ~10^6
+    # long-lived objects out of the cyclic collector's full passes, which would walk them again and again
+    # (as the commands do, plumbing.dispatch)
+    gc.collect()
+    gc.freeze()
