@@ -15,8 +15,8 @@ import math
 import numpy as np
 from scipy import stats
 
-#: the percept's log-SD per unit of ln(1 + W) for a 2-interval JND W: z(0.75) sqrt(2)
-Z75_SQRT2 = float(stats.norm.ppf(0.75) * math.sqrt(2.0))
+from psychophysics.sdt import Z75_SQRT2  # the percept's log-SD per unit of ln(1 + W) for a 2-interval JND W
+
 TOLERANCE_PSE, TOLERANCE_EXPONENT, WITHIN = 0.05, 0.05, 0.95
 
 

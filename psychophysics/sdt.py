@@ -16,6 +16,9 @@ from scipy import special
 
 #: rate corrections
 CORRECTIONS = ("loglinear", "none")
+#: z(0.75) * sqrt(2), the d' of 75 % correct in a two-interval forced choice (Pc = Phi(d' / sqrt 2), Macmillan &
+#: Creelman 2005, ch. 7): two percepts of log-SD sigma are told apart 75 % of the time at a log-ratio of this * sigma
+Z75_SQRT2 = float(special.ndtri(0.75)) * 2.0 ** 0.5
 
 
 def dprime(hits, n_signal, false_alarms, n_noise, correction: str = "loglinear") -> dict:

@@ -35,6 +35,8 @@ Two estimators use the same fit:
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
+from types import MappingProxyType
 
 import numpy as np
 
@@ -119,16 +121,17 @@ def endpoint_derivative_weights(window: int, dt_s: float) -> list[float]:
 
 
 @functools.lru_cache(maxsize=8)
-def _weight_tables(w_min: int, w_max: int, dt_s: float) -> tuple[dict, dict]:
-    """:func:`endpoint_derivative_weights` for every window ``w_min..w_max`` (as lists and as read-only
-    arrays), computed once per process and shared: the 3-D loop builds an estimator per axis (243 windows,
-    ~5 ms of a run's start computed three times over)."""
-    weights = {w: endpoint_derivative_weights(w, dt_s) for w in range(w_min, w_max + 1)}
+def _weight_tables(w_min: int, w_max: int, dt_s: float) -> tuple[Mapping, Mapping]:
+    """:func:`endpoint_derivative_weights` for every window ``w_min..w_max`` (as tuples and as read-only
+    arrays, in read-only mappings), computed once per process and shared: the 3-D loop builds an estimator
+    per axis (243 windows, ~5 ms of a run's start computed three times over). Nothing in them can be changed,
+    so no estimator can change another's weights."""
+    weights = {w: tuple(endpoint_derivative_weights(w, dt_s)) for w in range(w_min, w_max + 1)}
     arrays = {}
     for w, v in weights.items():
         arrays[w] = np.array(v)
         arrays[w].flags.writeable = False
-    return weights, arrays
+    return MappingProxyType(weights), MappingProxyType(arrays)
 
 
 class ImpactVelocityEstimator:

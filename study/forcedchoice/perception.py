@@ -40,10 +40,10 @@ import math
 
 import numpy as np
 
+from psychophysics.sdt import Z75_SQRT2
+
 from ..session.rater import Reference, realism_score, tap_features
 
-#: z(0.75) * sqrt(2): a 2-interval comparison of two percepts with log-SD sigma is 75 % correct at this * sigma
-Z75_SQRT2 = 0.6744897501960817 * math.sqrt(2.0)
 #: a tap's deepest penetration must exceed this to give a stiffness (encoder noise, grazing contacts)
 MIN_PENETRATION_M = 2e-4
 

@@ -34,7 +34,9 @@ def settings(rng, participants: int, n: int, sd_log: float, truth: float = 770.0
 
 
 def test_the_percept_noise_constant_is_the_simulated_participants():
-    assert Z75_SQRT2 == pytest.approx(perception.Z75_SQRT2, rel=1e-12)
+    # one definition (psychophysics.sdt), the d' of 75 % correct in 2AFC: Phi(d' / sqrt 2) = 0.75
+    assert Z75_SQRT2 is perception.Z75_SQRT2
+    assert stats.norm.cdf(Z75_SQRT2 / math.sqrt(2.0)) == pytest.approx(0.75, abs=1e-15)
 
 
 def test_the_adjustment_trial_count_puts_95_percent_of_participants_within_5_percent():

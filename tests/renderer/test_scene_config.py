@@ -192,6 +192,16 @@ def test_velocity_fits_are_exact_on_polynomials():
     assert est.at(99, 0.3) == pytest.approx(-0.3 + 20.0 * t[-1], rel=1e-8)
     assert est(array.array("d", quad[-100:]), 99) == pytest.approx(-0.3 + 20.0 * t[-1], rel=1e-8)
     assert est.window_for(0.05) == est.w_max == 100 and est.window_for(0.4) == 20 and est.window_for(5.0) == 20
+    # the weight tables are shared by every estimator of the process (the 3-D loop has one per axis): none can
+    # change them for the others
+    other = ImpactVelocityEstimator(dt, 7.85e-6)
+    assert other.weights is est.weights and other.weight_arrays is est.weight_arrays
+    with pytest.raises(TypeError):
+        est.weights[30] = [0.0] * 30
+    with pytest.raises(TypeError):
+        est.weights[30][0] = 0.0
+    with pytest.raises(ValueError):
+        est.weight_arrays[30][0] = 0.0
 
 
 @pytest.mark.parametrize("name,content,match", [
