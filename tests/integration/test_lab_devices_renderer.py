@@ -23,13 +23,29 @@ def _run(spec, out, tmp_path, capsys, duration_s="2.6", extra=()):
     return code, capsys.readouterr().out
 
 
+#: a tick period or link gap this long (us) means the machine stalled the run's process
+STALL_US = 20_000.0
+
+
+def _stalled(out) -> bool:
+    run = json.loads((out / "run.json").read_text())
+    gap_s = (run.get("link") or {}).get("longest_gap_s") or 0.0
+    return float(run.get("period_max_us") or 0.0) > STALL_US or gap_s * 1e6 > STALL_US
+
+
 @pytest.mark.parametrize("spec", DEVICES)
 def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch, request):
     if spec.startswith("touch"):
         monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", str(request.getfixturevalue("fake_hd")))
     spec = spec + "?loss_timeout_s=0.1"   # a loaded machine stalls the emulators for tens of ms
-    out = tmp_path / "run"
-    code, stdout = _run(spec, out, tmp_path, capsys)
+    for attempt in range(3):
+        out = tmp_path / f"run{attempt}"
+        code, stdout = _run(spec, out, tmp_path, capsys)
+        if code == 0 or "stop: unstable" not in stdout or not _stalled(out):
+            break
+        # the machine stalled this process for tens of ms while the device held the last force and the emulated
+        # hand pressed on (a 41 ms period and a 105 ms link gap with two suites on 2 cores): the passivity
+        # observer rightly stopped the wall, which its own tests check; the run again
     assert code == 0, stdout
     run = json.loads((out / "run.json").read_text())
     assert run["rate_hz"] == 1000.0 and run["stop_reason"] == "duration"

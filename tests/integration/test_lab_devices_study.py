@@ -22,6 +22,7 @@ import threading
 import time
 import urllib.request
 
+import numpy as np
 import pytest
 
 from devices.registry import make_device
@@ -99,16 +100,16 @@ DEVICES = ("inverse3:emulator", "falcon:emulator", "woodenhaptics:emulator", "dh
 SESSIONS = [(spec, kind) for kind in ("rating", "psychophysics") for spec in DEVICES]
 
 
-@pytest.mark.parametrize("spec, kind", SESSIONS)
-def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys, request):
-    if spec.startswith("touch"):
-        monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", str(request.getfixturevalue("fake_hd")))
-    proto = tmp_path / "protocol.toml"
-    proto.write_text(PROTOCOL + (DISCRIMINATION if kind == "psychophysics" else ""))
-    spec = spec + "?loss_timeout_s=0.1"
+#: a tick period this long means the machine stalled the session's process while the device held the last force
+#: (the emulated hand moved on meanwhile): a tap's speed estimate then says more about the scheduler than the link
+STALL_US = 20_000.0
+
+
+def _session(spec, kind, out, proto, monkeypatch, capsys):
+    """One in-process session played by :func:`_play`: its exit code, stderr, folder and what the player did."""
     argv = ["run", "--device", spec, "--participant", "keyboard", "--subject", "L1", "--age", "30", "--gender",
             "female", "--handedness", "right", "--experience", "few", "--audio", "off", "--accept-timing", "--port",
-            "0", "--token", "tok", "--protocol", str(proto), "--seed", "1", "--out", str(tmp_path / "data"),
+            "0", "--token", "tok", "--protocol", str(proto), "--seed", "1", "--out", str(out),
             "--quiet", "--servo-process", "off"]
     if kind == "rating":
         argv += ["--samples", "pulse_firm", "--repetitions", "1"]
@@ -124,16 +125,48 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
         stop.set()
         announce.seen.set()
         player.join(5)
-    err = capsys.readouterr().err
-    assert code == 0, err
-    folder = tmp_path / "data" / "L1"
+        monkeypatch.undo()
+    return code, capsys.readouterr().err, out / "L1", seen
+
+
+def _speeds(rows, kind):
+    cols = ("incoming_velocities_m_s",) if kind == "rating" else ("incoming_velocity_mean_1_m_s",
+                                                                    "incoming_velocity_mean_2_m_s")
+    return [float(x) for r in rows for c in cols if r[c] for x in r[c].split(";")]
+
+
+def _stalled(folder) -> bool:
+    """A tapping window of the session ran a tick period longer than :data:`STALL_US`."""
+    for f in sorted((folder / "traces").glob("*.npz")):
+        with np.load(f) as z:
+            if "timing_period_max_us" in z and float(z["timing_period_max_us"]) > STALL_US:
+                return True
+    return False
+
+
+@pytest.mark.parametrize("spec, kind", SESSIONS)
+def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys, request):
+    lib = str(request.getfixturevalue("fake_hd")) if spec.startswith("touch") else None
+    proto = tmp_path / "protocol.toml"
+    proto.write_text(PROTOCOL + (DISCRIMINATION if kind == "psychophysics" else ""))
+    spec = spec + "?loss_timeout_s=0.1"
+    for run in range(3):
+        if lib:
+            monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", lib)
+        code, err, folder, seen = _session(spec, kind, tmp_path / f"data{run}", proto, monkeypatch, capsys)
+        assert code == 0, err
+        with open(folder / "trials.csv") as fh:
+            rows = list(csv.DictReader(fh))
+        v = _speeds(rows, kind)
+        if (v and all(TAP_SPEEDS[0] < x < TAP_SPEEDS[1] for x in v)) or not _stalled(folder):
+            break
+        # the machine stalled a tapping window (a tap read as 0.0 m/s was seen with two suites on 2 cores): the
+        # session again, as the tap's speed then measures the scheduler
     session = json.loads((folder / "session.json").read_text())
     assert session["finished_at"] and session["device"]["spec"] == spec
     assert session["device"]["info"]["name"].endswith("(vertical axis)")
     # the pre-session timing check ran through the device and recorded its link
     assert session["timing_check"]["link"]["rtt_samples"] > 50
-    with open(folder / "trials.csv") as fh:
-        rows = list(csv.DictReader(fh))
     assert rows and seen["confirms"] >= 2
     if kind == "rating":
         testing = [r for r in rows if r["phase"] == "testing"]
@@ -145,10 +178,7 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
         assert row["correct"] == str(int(row["target_interval"] == "1"))
         assert len((folder / "staircase_state.jsonl").read_text().splitlines()) == 1
     # the tapping windows found the emulated hand's taps, at its speeds
-    cols = ("incoming_velocities_m_s",) if kind == "rating" else ("incoming_velocity_mean_1_m_s",
-                                                                    "incoming_velocity_mean_2_m_s")
-    v = [float(x) for r in rows for c in cols if r[c] for x in r[c].split(";")]
-    assert v and all(TAP_SPEEDS[0] < x < TAP_SPEEDS[1] for x in v), v
+    assert v and all(TAP_SPEEDS[0] < x < TAP_SPEEDS[1] for x in v), (v, run)
 
 
 @pytest.fixture(scope="module")
