@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+from plumbing.dispatch import Command
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -103,6 +106,15 @@ def test_blas_threads_keep_the_blas_from_starting_worker_threads(tmp_path):
     # a user's own setting is kept
     var, tasks = _blas(tmp_path, 1, OPENBLAS_NUM_THREADS="2")
     assert (var, tasks) == ("2", 2)
+
+
+def test_every_command_has_one_blas_thread_unless_it_says_otherwise():
+    """No command here gains from a second BLAS thread (module doc): one is the default, and every package's
+    commands keep it."""
+    assert Command("x", "m", "h").blas_threads == 1
+    for package in ("devices", "renderer", "stimuli", "study", "analysis"):
+        for c in importlib.import_module(f"{package}.__main__").COMMANDS:
+            assert c.blas_threads == 1, (package, c.name)
 
 
 # a command split in two: the parser module (imported for --help) names its body, a module that fails to
