@@ -31,6 +31,7 @@ from study.__main__ import main as study_main
 from study.session.apparatus import Apparatus
 from study.session.config import load_protocol
 from study.session.servo_timing import pre_session_check
+from tests.support.stalls import STALL_US, fake_hd_stalled, fake_hd_stats
 
 PROTOCOL = ('familiarization_sample = ""\ntap_window_s = 0.3\nfirst_tap_timeout_s = 3.0\nhoming_after_s = 0.1\n'
             "homing_before_max_s = 0.1\nservo_watchdog_s = 0.5\n"
@@ -100,11 +101,6 @@ DEVICES = ("inverse3:emulator", "falcon:emulator", "woodenhaptics:emulator", "dh
 SESSIONS = [(spec, kind) for kind in ("rating", "psychophysics") for spec in DEVICES]
 
 
-#: a tick period this long means the machine stalled the session's process while the device held the last force
-#: (the emulated hand moved on meanwhile): a tap's speed estimate then says more about the scheduler than the link
-STALL_US = 20_000.0
-
-
 def _session(spec, kind, out, proto, monkeypatch, capsys):
     """One in-process session played by :func:`_play`: its exit code, stderr, folder and what the player did."""
     argv = ["run", "--device", spec, "--participant", "keyboard", "--subject", "L1", "--age", "30", "--gender",
@@ -153,12 +149,16 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
     for run in range(3):
         if lib:
             monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", lib)
+            fake_hd_stats(lib, reset=True)
         code, err, folder, seen = _session(spec, kind, tmp_path / f"data{run}", proto, monkeypatch, capsys)
+        stalled = _stalled(folder) or fake_hd_stalled(lib)
+        if code != 0 and stalled and "device not responding" in err and run < 2:
+            continue   # the fake Touch library's scheduler thread stalled past the loss timeout (see the renderer's test)
         assert code == 0, err
         with open(folder / "trials.csv") as fh:
             rows = list(csv.DictReader(fh))
         v = _speeds(rows, kind)
-        if (v and all(TAP_SPEEDS[0] < x < TAP_SPEEDS[1] for x in v)) or not _stalled(folder):
+        if (v and all(TAP_SPEEDS[0] < x < TAP_SPEEDS[1] for x in v)) or not stalled:
             break
         # the machine stalled a tapping window (a tap read as 0.0 m/s was seen with two suites on 2 cores): the
         # session again, as the tap's speed then measures the scheduler

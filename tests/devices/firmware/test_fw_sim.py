@@ -219,7 +219,10 @@ def test_sampled_transient_uploaded_through_the_driver_renders_like_the_mirror(k
         dev._tx = lambda t, p=b"": (tx.append((t, bytes(p))), real_tx(t, p))[1]
         dev.configure_rendering(WALL, LIMITS, transient)
         data = [p for t, p in tx if t == P.REARM_DATA]
-        assert len(data) == 6 and max(len(p) for p in data) + 7 == 107  # 24-sample frames: 107 bytes each
+        # a frame whose ACK came after timeout_s is sent again, the same bytes (7 frames seen when a loaded
+        # machine slowed simavr): six distinct frames, in order
+        frames = list(dict.fromkeys(data))
+        assert len(frames) == 6 and max(len(p) for p in frames) + 7 == 107  # 24-sample frames: 107 bytes each
         assert [t for t, _ in tx].count(P.REARM_COMMIT) == 1
         fw, events = _rendered_like_the_mirror(dev, samples)
         stats = dev.link_stats()
