@@ -98,8 +98,10 @@ def test_resync_after_garbage_and_corrupted_frames(emulator):
 def test_dropped_and_duplicated_frames_are_counted(emulator):
     port, handle = emulator
     # 5 % random drops: above the default 5 % stop rate. A loaded machine (two CI runs on 2 cores) can delay a
-    # reply past the default 5 ms: it would count as lost and then arrive stale, which is not what this checks
-    with SerialDevice(port, max_loss_rate=0.3, loss_timeout_s=0.05) as dev:
+    # reply past the default 5 ms: it would count as lost and then arrive stale, which is not what this checks;
+    # it can also stall the emulator for half a second (10 losses in a row stopped the link): the stop rules have
+    # their own tests, this one counts drops and duplicates
+    with SerialDevice(port, max_loss_rate=0.3, loss_timeout_s=0.05, max_consecutive_losses=1000) as dev:
         for _ in range(1000):
             dev.read()
             dev.command(0.0)
