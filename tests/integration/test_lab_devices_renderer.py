@@ -8,7 +8,7 @@ import json
 import pytest
 
 from renderer.__main__ import main as renderer_main
-from tests.support.stalls import STALL_US, fake_hd_stalled, fake_hd_stats
+from tests.support.stalls import fake_hd_stats, run_stalled
 
 DEVICES = ["inverse3:emulator", "falcon:emulator", "woodenhaptics:emulator", "dhd:emulator", "touch:Default Device"]
 
@@ -22,17 +22,6 @@ def _run(spec, out, tmp_path, capsys, duration_s="2.6", extra=()):
     code = renderer_main(["run", "--in-process", "--device", spec, "--duration-s", duration_s, "--transient",
                           "pulse", "--config", str(cfg), "--no-figure", "--out", str(out), *extra])
     return code, capsys.readouterr().out
-
-
-def _stalled(out, lib=None) -> bool:
-    """The run's process (or, on the Touch, the fake HD library's 1 kHz scheduler thread) went longer than
-    :data:`STALL_US` without running."""
-    if not (out / "run.json").is_file():
-        return fake_hd_stalled(lib)
-    run = json.loads((out / "run.json").read_text())
-    gap_s = (run.get("link") or {}).get("longest_gap_s") or 0.0
-    return (float(run.get("period_max_us") or 0.0) > STALL_US or gap_s * 1e6 > STALL_US
-            or fake_hd_stalled(lib))
 
 
 def _taps_as_planned(code, out) -> bool:
@@ -57,7 +46,7 @@ def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch
         if lib is not None:
             fake_hd_stats(lib, reset=True)
         code, stdout = _run(spec, out, tmp_path, capsys)
-        if _taps_as_planned(code, out) or not _stalled(out, lib):
+        if _taps_as_planned(code, out) or not run_stalled(out, lib):
             break
         # the machine stalled this process for tens of ms while the device held the last force and the emulated
         # hand pressed on (a 41 ms period and a 105 ms link gap with two suites on 2 cores): the passivity

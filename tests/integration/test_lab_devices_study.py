@@ -22,7 +22,6 @@ import threading
 import time
 import urllib.request
 
-import numpy as np
 import pytest
 
 from devices.registry import make_device
@@ -31,7 +30,7 @@ from study.__main__ import main as study_main
 from study.session.apparatus import Apparatus
 from study.session.config import load_protocol
 from study.session.servo_timing import pre_session_check
-from tests.support.stalls import STALL_US, fake_hd_stalled, fake_hd_stats
+from tests.support.stalls import fake_hd_stats, session_stalled
 
 PROTOCOL = ('familiarization_sample = ""\ntap_window_s = 0.3\nfirst_tap_timeout_s = 3.0\nhoming_after_s = 0.1\n'
             "homing_before_max_s = 0.1\nservo_watchdog_s = 0.5\n"
@@ -131,15 +130,6 @@ def _speeds(rows, kind):
     return [float(x) for r in rows for c in cols if r[c] for x in r[c].split(";")]
 
 
-def _stalled(folder) -> bool:
-    """A tapping window of the session ran a tick period longer than :data:`STALL_US`."""
-    for f in sorted((folder / "traces").glob("*.npz")):
-        with np.load(f) as z:
-            if "timing_period_max_us" in z and float(z["timing_period_max_us"]) > STALL_US:
-                return True
-    return False
-
-
 @pytest.mark.parametrize("spec, kind", SESSIONS)
 def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_path, monkeypatch, capsys, request):
     lib = str(request.getfixturevalue("fake_hd")) if spec.startswith("touch") else None
@@ -151,7 +141,7 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
             monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", lib)
             fake_hd_stats(lib, reset=True)
         code, err, folder, seen = _session(spec, kind, tmp_path / f"data{run}", proto, monkeypatch, capsys)
-        stalled = _stalled(folder) or fake_hd_stalled(lib)
+        stalled = session_stalled(folder, lib)
         if code != 0 and stalled and "device not responding" in err and run < 2:
             continue   # the fake Touch library's scheduler thread stalled past the loss timeout (see the renderer's test)
         assert code == 0, err

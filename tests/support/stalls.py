@@ -10,6 +10,10 @@ run without one must pass.
 from __future__ import annotations
 
 import ctypes
+import json
+from pathlib import Path
+
+import numpy as np
 
 #: a tick period, link gap or device-thread period longer than this (us) is a stall of the machine
 STALL_US = 20_000.0
@@ -30,3 +34,24 @@ def fake_hd_stats(lib: str, reset: bool = False) -> list[float]:
 def fake_hd_stalled(lib: str | None) -> bool:
     """The fake HD library's scheduler thread went longer than :data:`STALL_US` between two ticks."""
     return lib is not None and fake_hd_stats(lib)[1] * 1e-3 > STALL_US
+
+
+def run_stalled(out: Path, lib: str | None = None) -> bool:
+    """A ``renderer run`` folder's records show a stall: a tick period or link gap longer than :data:`STALL_US`
+    (``run.json``), or, on the Touch, the fake HD library's scheduler thread (:func:`fake_hd_stalled`)."""
+    if not (out / "run.json").is_file():
+        return fake_hd_stalled(lib)
+    run = json.loads((out / "run.json").read_text())
+    gap_s = (run.get("link") or {}).get("longest_gap_s") or 0.0
+    return (float(run.get("period_max_us") or 0.0) > STALL_US or gap_s * 1e6 > STALL_US
+            or fake_hd_stalled(lib))
+
+
+def session_stalled(folder: Path, lib: str | None = None) -> bool:
+    """A study session folder's tapping windows show a stall: a trace whose longest tick period exceeds
+    :data:`STALL_US`, or, on the Touch, the fake HD library's scheduler thread (:func:`fake_hd_stalled`)."""
+    for f in sorted((folder / "traces").glob("*.npz")):
+        with np.load(f) as z:
+            if "timing_period_max_us" in z and float(z["timing_period_max_us"]) > STALL_US:
+                return True
+    return fake_hd_stalled(lib)
