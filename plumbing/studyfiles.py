@@ -28,6 +28,7 @@ import io
 import json
 import math
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -94,16 +95,30 @@ LOCK_NAME = ".lock"
 STUDY_SCAN_LIMIT = 5000
 
 
+def _is_file(path: str) -> bool:
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
+def _exists(path: str) -> bool:
+    try:
+        os.stat(path)
+    except (OSError, ValueError):
+        return False
+    return True
+
+
 def is_subject_folder(path) -> bool:
     """True when ``path`` is a subject's folder of a study (``session.json`` with ``trials.csv`` or
     ``schedule.jsonl`` beside it, or a subject lock with ``trials.csv``): data no other command may write into."""
-    p = Path(path)
-    try:
-        if (p / SESSION_JSON).is_file():
-            return (p / TRIALS_CSV).exists() or (p / SCHEDULE_JSONL).exists()
-        return (p / LOCK_NAME).is_file() and (p / TRIALS_CSV).is_file()
-    except OSError:
-        return False
+    # plain os.stat on strings: every output folder's check asks this of each folder beside its parents
+    # (hundreds in a home or a temporary folder), where pathlib's objects cost ten times the system calls
+    p = os.fspath(path)
+    if _is_file(os.path.join(p, SESSION_JSON)):
+        return _exists(os.path.join(p, TRIALS_CSV)) or _exists(os.path.join(p, SCHEDULE_JSONL))
+    return _is_file(os.path.join(p, LOCK_NAME)) and _is_file(os.path.join(p, TRIALS_CSV))
 
 
 def is_study_folder(path, limit: int = STUDY_SCAN_LIMIT) -> bool:
@@ -114,8 +129,11 @@ def is_study_folder(path, limit: int = STUDY_SCAN_LIMIT) -> bool:
             for n, entry in enumerate(entries):
                 if n >= limit:
                     return False
-                if not entry.name.startswith(".") and entry.is_dir(follow_symlinks=False) \
-                        and is_subject_folder(entry.path):
+                try:
+                    is_dir = entry.is_dir(follow_symlinks=False)
+                except OSError:
+                    continue
+                if is_dir and not entry.name.startswith(".") and is_subject_folder(entry.path):
                     return True
     except OSError:
         return False

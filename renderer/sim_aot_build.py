@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import shutil
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -48,6 +50,19 @@ def compile_extension(out_dir: Path, module: str, exports) -> None:
         Per exported function: its name in the extension, the JIT function (``module:function``) and its
         numba signature (:attr:`renderer.sim_aot.Target.exports`).
     """
+    # numba.pycc's scratch folders (its object files, and the compiler check's temp.c and temp.cxx, which it
+    # never removes) go into a folder of the build's own, removed here, not into the user's temporary folder
+    scratch = tempfile.mkdtemp(prefix=".scratch", dir=out_dir)
+    saved_tempdir = tempfile.tempdir
+    tempfile.tempdir = scratch
+    try:
+        _compile_into(out_dir, module, exports)
+    finally:
+        tempfile.tempdir = saved_tempdir
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _compile_into(out_dir: Path, module: str, exports) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba.pycc's pending deprecation, also when it is used
         cc = CC(module)

@@ -247,8 +247,12 @@ class ThreeAxisDevice(Device):
             self.stats["max_consecutive_losses"] = max(self.stats["max_consecutive_losses"], self._consecutive)
             st.extra["held"] = True
             if self._consecutive >= self.max_consecutive_losses:
-                self._fail(f"{self._consecutive} replies lost in a row (no answer within "
-                           f"{self.loss_timeout_s * 1000:.0f} ms each); device not responding")
+                # the silence as measured: a driver that reads a servo thread's newest state (the Touch) counts
+                # a loss per host tick once the thread has been silent for the timeout, not one per timeout
+                since = self._last_reply if self._last_reply is not None else self._t0
+                self._fail(f"{self._consecutive} replies lost in a row, no reply for {(now - since) * 1000:.0f} ms "
+                           f"(a reply later than {self.loss_timeout_s * 1000:.0f} ms counts as lost); "
+                           "device not responding")
             elif not self._have_state:
                 self._fail(f"no answer within {self.loss_timeout_s * 1000:.0f} ms to the first force command")
 

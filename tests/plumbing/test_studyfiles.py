@@ -6,7 +6,8 @@ import math
 import pytest
 
 from plumbing.studyfiles import (FORCED_CHOICE, FORCED_CHOICE_COLUMNS, RATING, RATING_COLUMNS, RATING_CORE_COLUMNS,
-                                 DamagedRow, parse_trials, read_session_json)
+                                 DamagedRow, is_study_folder, is_subject_folder, parse_trials, read_session_json,
+                                 study_data_at)
 
 RATING_ROW = {"subject": "S01", "phase": "testing", "trial": 1, "attempt": 1, "sample": "firm", "kind": "virtual",
               "rating": 6, "rejected": False, "saturated": False, "overpowered": False, "valid": True, "n_taps": 2,
@@ -108,3 +109,54 @@ def test_names_a_spreadsheet_would_run_are_quoted_and_read_back(fmt, row, names)
     assert all(cells[fmt.columns.index(k)] == "'" + v for k, v in names.items())
     rows, _ = parse_trials(fmt, (fmt.header_line() + line).encode(), "t.csv", "S01")
     assert all(rows[0][k] == v for k, v in names.items())
+
+
+# -- where study data lives -------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("files, subject", [
+    (("session.json", "trials.csv"), True),
+    (("session.json", "schedule.jsonl"), True),
+    ((".lock", "trials.csv"), True),
+    (("session.json",), False),            # a folder that merely holds a session.json
+    (("trials.csv",), False),
+    ((".lock",), False),
+    ((), False),
+])
+def test_a_subject_folder_is_told_by_its_files(tmp_path, files, subject):
+    # one level down: tmp_path's parent holds every test's folder, and must not become a study folder
+    folder = tmp_path / "study" / "S01"
+    folder.mkdir(parents=True)
+    for name in files:
+        (folder / name).write_text("x", encoding="utf-8")
+    assert is_subject_folder(folder) is subject
+    assert is_subject_folder(str(folder)) is subject
+    assert is_study_folder(folder.parent) is subject
+
+
+def test_a_folder_named_like_the_files_is_not_a_subject(tmp_path):
+    folder = tmp_path / "S01"
+    (folder / "session.json").mkdir(parents=True)
+    (folder / "trials.csv").write_text("x", encoding="utf-8")
+    assert not is_subject_folder(folder)
+    (folder / ".lock").mkdir()
+    assert not is_subject_folder(folder)
+
+
+def test_a_study_folder_is_found_among_many_folders_and_up_the_tree(tmp_path):
+    study = tmp_path / "study"
+    for k in range(300):                     # many other folders beside the one subject
+        (study / f"other{k:03d}").mkdir(parents=True)
+    (study / ".hidden").mkdir()
+    (study / ".hidden" / "session.json").write_text("{}", encoding="utf-8")
+    (study / ".hidden" / "trials.csv").write_text("", encoding="utf-8")
+    assert not is_study_folder(study)       # hidden folders are not subjects
+    subject = study / "S07"
+    subject.mkdir()
+    (subject / "session.json").write_text("{}", encoding="utf-8")
+    (subject / "trials.csv").write_text("", encoding="utf-8")
+    assert is_study_folder(study)
+    assert not is_study_folder(study, limit=0)
+    assert not is_study_folder(tmp_path / "missing")
+    assert study_data_at(study / "S07" / "figures") == (subject, "subject folder")
+    assert study_data_at(study / "new-run") == (study, "study folder")
+    assert study_data_at(tmp_path / "elsewhere" / "run") is None

@@ -33,7 +33,8 @@ def aot_dir(tmp_path_factory):
     starts the detached background builder; the next run uses the build."""
     base = tmp_path_factory.mktemp("sim-loop")
     runs = tmp_path_factory.mktemp("runs")
-    env = {**os.environ, "HFAM_SIM_AOT_DIR": str(base), "HFAM_SIM_AOT": "auto"}
+    scratch = tmp_path_factory.mktemp("tmpdir")      # the processes' temporary folder: the build leaves nothing
+    env = {**os.environ, "HFAM_SIM_AOT_DIR": str(base), "HFAM_SIM_AOT": "auto", "TMPDIR": str(scratch)}
     first = _cli_run(env, runs / "first")
     assert first.returncode == 0, first.stderr
     assert "compiling the simulated loop ahead of time in the background" in first.stderr
@@ -48,6 +49,10 @@ def aot_dir(tmp_path_factory):
     assert any(ext.glob("_hfam_sim_loop*")), "the background build did not finish in 240 s"
     assert not (base / f"{key}.lock").exists()          # the builder released its lock
     assert json.loads((ext / "manifest.json").read_text())["key"] == key
+    # nothing left in the temporary folder (numba.pycc's compiler check leaves a temp.c and a temp.cxx
+    # folder in it unless the build redirects it), and only the build in the build folder
+    assert sorted(p.name for p in scratch.iterdir()) == []
+    assert sorted(p.name for p in ext.iterdir()) == sorted(["manifest.json", *(p.name for p in ext.glob("_hfam_sim_loop*"))])
     # the next run uses it and starts no builder; its log is the first run's, bit for bit
     second = _cli_run(env, runs / "second")
     assert second.returncode == 0 and "compiling" not in second.stderr, second.stderr
