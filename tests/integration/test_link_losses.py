@@ -8,6 +8,7 @@ import time
 
 from devices.firmware.emulator import start_emulator
 from renderer.__main__ import main as renderer_main
+from tests.support.stalls import run_stalled
 
 
 def _run(spec, out, tmp_path, capsys, duration_s, overrun_s="0.2"):
@@ -21,17 +22,24 @@ def _run(spec, out, tmp_path, capsys, duration_s, overrun_s="0.2"):
 
 
 def test_one_drop_in_200_and_one_corruption_in_500_complete_10_s_at_1_khz(tmp_path, capsys):
-    port, handle = start_emulator("streaming", "drop_every=200,corrupt_every=500", process=False,
-                                  taps_m_s=(0.05, 0.1, 0.2))
-    try:
-        # loaded machine: a reply later than 20 ms (default 5 ms) counts as lost, like the widened watchdog
-        code, stdout = _run(f"serial:{port}?loss_timeout_s=0.02", tmp_path / "run", tmp_path, capsys, 10,
-                            overrun_s="0.5")  # 10 s on a shared machine: stalls of ~0.3 s were seen
-        emu = dict(handle.emulator.stats)
-    finally:
-        handle.stop()
+    for attempt in range(3):
+        out = tmp_path / f"run{attempt}"
+        port, handle = start_emulator("streaming", "drop_every=200,corrupt_every=500", process=False,
+                                      taps_m_s=(0.05, 0.1, 0.2))
+        try:
+            # loaded machine: a reply later than 20 ms (default 5 ms) counts as lost, like the widened watchdog
+            code, stdout = _run(f"serial:{port}?loss_timeout_s=0.02", out, tmp_path, capsys, 10,
+                                overrun_s="0.5")  # 10 s on a shared machine: stalls of ~0.3 s were seen
+            emu = dict(handle.emulator.stats)
+        finally:
+            handle.stop()
+        if code == 0 or not run_stalled(out):
+            break
+        # the machine stalled this process (the emulator runs in it) past the loss timeout, and the frames
+        # late after it made 10 losses in a row (a 41 ms gap with two suites on 2 cores): the stop rule acted as
+        # its own tests say. The run again: a run without a stall must pass
     assert code == 0, stdout
-    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    run = json.loads((out / "run.json").read_text())
     assert run["stop_reason"] == "duration" and run["rate_hz"] == 1000.0 and run["ticks"] == 10000
     link = run["link"]
     # the script: every 200th frame dropped, every 500th corrupted (of ~10000 the device sent)

@@ -504,7 +504,9 @@ def test_a_repeated_render_start_does_not_restart_the_wall_mid_run():
     def stop_check(self, until):
         calls[0] += 1
         if calls[0] % 30 == 0:   # every 480 frames of device time: a retried RENDER_START arrives
-            self.device._request(P.RENDER_START)
+            # up to 4 tries of 2 s: the simulated board answered none of 4 tries of 200 ms once, with two suites
+            # on 2 cores (a board that stops answering has its own test, test_fw_sim_lockstep.py)
+            self.device._request(P.RENDER_START, timeout_s=2.0)
         return orig(self, until)
 
     L.ServoLoop._stop_check = stop_check
