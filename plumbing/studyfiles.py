@@ -114,7 +114,7 @@ def is_subject_folder(path) -> bool:
     """True when ``path`` is a subject's folder of a study (``session.json`` with ``trials.csv`` or
     ``schedule.jsonl`` beside it, or a subject lock with ``trials.csv``): data no other command may write into."""
     # plain os.stat on strings: every output folder's check asks this of each folder beside its parents
-    # (hundreds in a home or a temporary folder), where pathlib's objects cost ten times the system calls
+    # (hundreds in a home or a temporary folder), where pathlib's objects cost more than the system calls
     p = os.fspath(path)
     if _is_file(os.path.join(p, SESSION_JSON)):
         return _exists(os.path.join(p, TRIALS_CSV)) or _exists(os.path.join(p, SCHEDULE_JSONL))

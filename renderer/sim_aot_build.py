@@ -49,6 +49,12 @@ def compile_extension(out_dir: Path, module: str, exports) -> None:
     exports : sequence of (str, str, str)
         Per exported function: its name in the extension, the JIT function (``module:function``) and its
         numba signature (:attr:`renderer.sim_aot.Target.exports`).
+
+    Notes
+    -----
+    For the build, Python's temporary folder (``tempfile.tempdir``) is a folder inside ``out_dir``: a build
+    runs in a process of its own (``renderer compile-sim``, the background builder), where nothing else makes
+    temporary files meanwhile.
     """
     # numba.pycc's scratch folders (its object files, and the compiler check's temp.c and temp.cxx, which it
     # never removes) go into a folder of the build's own, removed here, not into the user's temporary folder
