@@ -47,14 +47,16 @@ def test_streaming_over_the_pty_is_transparent_to_the_physics(emulator):
     ref.set_user(TapTrajectory([0.05, 0.1, 0.2], n_taps=3), grip_N=2.0, hand="prescribed")  # as the harness
     # the zero command Device.open sends is answered with this state, then applied
     res = ref.info.position_resolution_m
-    # strict: every reply, for exact physics. A loaded machine's stall must not count a late reply as lost, nor
-    # trip the emulator's 100 ms watchdog (which zeroes the current the sim beside it keeps): both are tested apart
-    with SerialDevice(port, max_consecutive_losses=0, loss_timeout_s=0.5) as dev:
+    # strict: every reply, for exact physics. A loaded machine's stall must not count a late reply as lost (the
+    # reply then read is the next one, a tick ahead of the sim beside it: a 47 um gap was seen with 0.5 s here and
+    # two suites on 2 cores), nor trip the emulator's 100 ms watchdog (which zeroes the current the sim beside it
+    # keeps): both are tested apart
+    with SerialDevice(port, max_consecutive_losses=0, loss_timeout_s=0.95) as dev:   # (the driver allows < 1 s)
         n_contact = 0
         for k in range(2000):  # within the hand's 3-tap trajectory (the emulator restarts it when done)
             s = dev.read()
             r = ref.read()
-            assert s.position_m == pytest.approx(r.position_m, abs=res / 2 + 1e-12)
+            assert s.position_m == pytest.approx(r.position_m, abs=res / 2 + 1e-12), (k, dev.link_stats())
             assert s.accel_m_s2 == pytest.approx(r.accel_m_s2, abs=0.0075 + 1e-9)
             assert s.grip_N == pytest.approx(r.grip_N, abs=0.005 + 1e-9)
             assert s.t_s == pytest.approx(r.t_s, abs=1e-6)
