@@ -34,6 +34,11 @@ def _taps_as_planned(code, out) -> bool:
                                     and 0.0003 < float(e["max_penetration_m"]) < 0.01 for e in events)
 
 
+def _losses(out) -> int:
+    """The run's lost replies (``run.json``'s link counters)."""
+    return int(json.loads((out / "run.json").read_text())["link"]["losses"])
+
+
 @pytest.mark.parametrize("spec", DEVICES)
 def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch, request):
     lib = None
@@ -46,11 +51,12 @@ def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch
         if lib is not None:
             fake_hd_stats(lib, reset=True)
         code, stdout = _run(spec, out, tmp_path, capsys)
-        if _taps_as_planned(code, out) or not run_stalled(out, lib):
+        if (_taps_as_planned(code, out) and _losses(out) <= 10) or not run_stalled(out, lib):
             break
         # the machine stalled this process for tens of ms while the device held the last force and the emulated
         # hand pressed on (a 41 ms period and a 105 ms link gap with two suites on 2 cores): the passivity
-        # observer rightly stopped the wall, which its own tests check, or a tap's speed read 4.4 m/s; or it
+        # observer rightly stopped the wall, which its own tests check, a tap's speed read 4.4 m/s, or late replies
+        # counted 13 lost; or it
         # stalled the fake Touch library's scheduler thread past the 100 ms loss timeout, and the driver rightly
         # declared the device gone. The run again: a run without a stall must pass
     assert code == 0, stdout

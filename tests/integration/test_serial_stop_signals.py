@@ -45,7 +45,10 @@ def test_sigterm_to_renderer_run_zeroes_the_serial_device(in_process, tmp_path):
     cfg = tmp_path / "cfg.toml"
     cfg.write_text("watchdog_overrun_s = 0.2\n")  # a loaded machine's stalls are not what is tested here
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "renderer", "run", "--device", f"serial:{port}?loss_timeout_s=0.02",
+    # a reply later than 0.2 s is lost: the emulator (in this process) once answered nothing for about 0.2 s on a
+    # loaded machine, 10 replies in a row later than 0.02 s, and the link's stop rule (tested apart) ended the run
+    # before the signal was sent
+    cmd = [sys.executable, "-m", "renderer", "run", "--device", f"serial:{port}?loss_timeout_s=0.2",
            "--config", str(cfg), "--out", str(out)] + (["--in-process"] if in_process else [])
     log = tmp_path / "output.txt"
     with open(log, "w") as fh:  # a file, not a pipe: an orphaned servo child would hold a pipe open
