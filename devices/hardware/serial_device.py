@@ -266,6 +266,9 @@ class ProtocolDevice(Device):
         self._disconnect_reported = False
         self.last_error = ""
         self._last_tx = 0.0
+        # the device's clock (s) at the newest telemetry and at the last frame sent: keepalives follow it too
+        self._dev_t_s = 0.0
+        self._last_tx_dev_t_s = 0.0
         self._t_wraps = 0
         self._t_last_us = None
         self._transient = None
@@ -479,6 +482,7 @@ class ProtocolDevice(Device):
         except TransportClosed as exc:
             raise self._fail(f"disconnected ({exc}); output zeroed by the device watchdog") from None
         self._last_tx = time.monotonic()
+        self._last_tx_dev_t_s = self._dev_t_s
         self.stats["frames_tx"] += 1
         return seq
 
@@ -727,6 +731,7 @@ class ProtocolDevice(Device):
                 continue
             self._poll(min(left, 0.005))
         state = self._apply(P.decode_state(states.popleft()))
+        self._dev_t_s = state.t_s
         now = time.monotonic()
         self._keepalive(now)
         if self._rearm:
@@ -744,8 +749,11 @@ class ProtocolDevice(Device):
         return len(self._states) > n
 
     def _keepalive(self, now: float) -> None:
-        wd = self.wire_info.watchdog_ms if self.watchdog_ms is None else self.watchdog_ms
-        if now - self._last_tx > wd * 0.25e-3:
+        # every quarter of the watchdog period, by the host's clock or by the device's (from its telemetry),
+        # whichever runs faster: a simulated board can run faster than the wall clock (fw-sim's fast pace), and a
+        # keepalive paced by the host alone then let its watchdog trip between two (zero current for 8-100 ms)
+        wd_s = (self.wire_info.watchdog_ms if self.watchdog_ms is None else self.watchdog_ms) * 1e-3
+        if now - self._last_tx > 0.25 * wd_s or self._dev_t_s - self._last_tx_dev_t_s > 0.25 * wd_s:
             self._tx(P.KEEPALIVE)
 
     def _unwrap_us(self, t_us: int) -> float:
