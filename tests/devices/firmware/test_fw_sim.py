@@ -366,7 +366,9 @@ def test_link_faults_are_counted_and_survived(faults):
 def test_disconnect_clear_error_zero_current_no_hang():
     port, handle = fw_sim.start_fw_sim(taps_m_s=(), faults="disconnect_after_s=0.3")
     try:
-        dev = SerialDevice(port).open()
+        # a reply later than 0.5 s is lost: at the 5 ms default a loaded machine once lost 10 replies in a row
+        # before the link went, and the loss rule (tested apart) ended the link first
+        dev = SerialDevice(port, loss_timeout_s=0.5).open()
         # the link goes at 0.3 s of MCU time, however slowly the simulator runs on a loaded machine: wait for
         # the read that reports it (the loop's 600 s is a hang guard, not a budget)
         t0 = time.monotonic()
