@@ -9,8 +9,10 @@ and devices holds no plumbing (the foundation's modules live in plumbing/ only).
 
 import ast
 import io
+import os
 import re
 import tokenize
+from functools import lru_cache
 from pathlib import Path
 
 import pytest
@@ -31,6 +33,19 @@ ALLOWED = {
 #: figstyle is the one figure style, a leaf that imports no package of the project
 PROJECT = set(PACKAGES) | {"figstyle", "benchmarks", "tests"}
 APPLICATIONS = ("renderer.demo", "renderer.teleop")  # the renderer core (renderer/*.py) must not import these
+
+
+@lru_cache(maxsize=None)
+def _parsed_at(path: str, mtime_ns: int, size: int) -> tuple[str, ast.Module]:
+    src = Path(path).read_text(encoding="utf-8")
+    return src, ast.parse(src)
+
+
+def parsed(path: Path) -> tuple[str, ast.Module]:
+    """``path``'s source and syntax tree, parsed once per version of the file (the checks below only read the
+    trees; each used to parse all 600 files again, a second per check)."""
+    st = os.stat(path)
+    return _parsed_at(os.fspath(path), st.st_mtime_ns, st.st_size)
 
 
 def _module_name(path: Path) -> str:
@@ -61,7 +76,7 @@ def imports_of(path: Path) -> list[tuple[str, int, bool]]:
                 out.extend((f"{mod}.{a.name}", child.lineno, in_function) for a in child.names)
             visit(child, inner)
 
-    visit(ast.parse(path.read_text(encoding="utf-8")), False)
+    visit(parsed(path)[1], False)
     return out
 
 
@@ -182,7 +197,7 @@ def test_no_import_cycles(level):
 
 def _unmarked_function_imports(path: Path, root: Path = ROOT) -> list[str]:
     """Imports inside functions of ``path`` without a ``# deferred: <why>`` comment on their first or last line."""
-    src = path.read_text(encoding="utf-8")
+    src, tree = parsed(path)
     lines = src.splitlines()
     out = []
 
@@ -194,7 +209,7 @@ def _unmarked_function_imports(path: Path, root: Path = ROOT) -> list[str]:
                     out.append(f"{path.relative_to(root)}:{child.lineno}: {lines[child.lineno - 1].strip()}")
             visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
 
-    visit(ast.parse(src), False)
+    visit(tree, False)
     return out
 
 
@@ -217,7 +232,7 @@ MEASURED = re.compile(r"\d+(\.\d+)?\s*(ms|s)\b")
 
 def deferred_imports(path: Path, root: Path = ROOT) -> list[tuple[str, str]]:
     """(``file:line``, its ``# deferred:`` comment) of every import inside a function of ``path``."""
-    src = path.read_text(encoding="utf-8")
+    src, tree = parsed(path)
     lines = src.splitlines()
     out = []
 
@@ -229,7 +244,7 @@ def deferred_imports(path: Path, root: Path = ROOT) -> list[tuple[str, str]]:
                 out.append((f"{path.relative_to(root)}:{child.lineno}", why))
             visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
 
-    visit(ast.parse(src), False)
+    visit(tree, False)
     return out
 
 
@@ -272,7 +287,7 @@ STORE = "study/session/store.py"
 
 def _calls(path: Path):
     """(line, callee name, the call node) of every call in ``path``: ``f(...)`` -> ``f``, ``x.f(...)`` -> ``f``."""
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(parsed(path)[1]):
         if isinstance(node, ast.Call):
             func = node.func
             name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
@@ -330,8 +345,8 @@ def _user_doc_files():
 
 def _string_constants(path: Path):
     """(line, text) of every string constant (docstrings included) and every comment of a module."""
-    src = path.read_text(encoding="utf-8")
-    for node in ast.walk(ast.parse(src)):
+    src, tree = parsed(path)
+    for node in ast.walk(tree):
         if isinstance(node, ast.Constant) and isinstance(node.value, str):
             yield node.lineno, node.value
     for tok in tokenize.generate_tokens(io.StringIO(src).readline):   # comments only: a '#' inside a string is not one

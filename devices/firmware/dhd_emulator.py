@@ -80,8 +80,8 @@ class DhdEmulator:
         lib.dhdGetButtonMask.side_effect = f(lambda ID: 0)
         lib.dhdClose.side_effect = f(lambda ID: 0)
         lib.dhdErrorGetLastStr.side_effect = lambda: self.error
-        self._wd = threading.Thread(target=self._watchdog, name="dhd-watchdog", daemon=True)
-        self._wd.start()
+        # the watchdog's thread starts when the driver sets a watchdog (a device that never opens runs none)
+        self._wd = None
 
     def _fn(self, body):
         def call(*args):
@@ -100,6 +100,9 @@ class DhdEmulator:
 
     def _set_watchdog(self, units, ID):
         self.watchdog_s = units * 125e-6
+        if self.watchdog_s and self._wd is None and not self._stop.is_set():
+            self._wd = threading.Thread(target=self._watchdog, name="dhd-watchdog", daemon=True)
+            self._wd.start()
         return 0
 
     def _enable_force(self, flag, ID):

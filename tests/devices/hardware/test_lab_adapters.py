@@ -7,6 +7,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -256,9 +257,21 @@ def test_woodenhaptics_absent_and_not_a_woodenhaptics():
         WoodenHapticsDevice(handle=WoodenHapticsHandle(watchdog=False, bad_size_every=1)).open()
 
 
+def _dhd_watchdogs() -> int:
+    return sum(t.name == "dhd-watchdog" and t.is_alive() for t in threading.enumerate())
+
+
 def test_dhd_held_by_another_program():
+    before = _dhd_watchdogs()
     with pytest.raises(DeviceError, match="cannot open the device .*busy"):
         make_device("dhd:emulator?fault_open_fails=1").open()
+    make_device("dhd:emulator")                      # made, never opened
+    # the emulated SDK's watchdog runs only once the driver sets it: these two leave no thread behind (one
+    # polling every 2 ms for the rest of the process took the interpreter lock from whatever ran beside it)
+    assert _dhd_watchdogs() == before
+    with make_device("dhd:emulator") as dev:
+        dev.read()
+        assert _dhd_watchdogs() == before + 1
 
 
 @pytest.mark.parametrize("env, words", [

@@ -47,11 +47,12 @@ def test_streaming_over_the_pty_is_transparent_to_the_physics(emulator):
     ref.set_user(TapTrajectory([0.05, 0.1, 0.2], n_taps=3), grip_N=2.0, hand="prescribed")  # as the harness
     # the zero command Device.open sends is answered with this state, then applied
     res = ref.info.position_resolution_m
-    # strict: every reply, for exact physics. A loaded machine's stall must not count a late reply as lost (the
-    # reply then read is the next one, a tick ahead of the sim beside it: a 47 um gap was seen with 0.5 s here and
-    # two suites on 2 cores), nor trip the emulator's 100 ms watchdog (which zeroes the current the sim beside it
-    # keeps): both are tested apart
-    with SerialDevice(port, max_consecutive_losses=0, loss_timeout_s=0.95) as dev:   # (the driver allows < 1 s)
+    # strict: every reply, for exact physics. A loaded machine's stall must not make the driver give up on a reply:
+    # the strict read resends the command after ``timeout_s`` (20 ms by default), and the emulator, paced by the
+    # host, runs one more physics tick for it: a tick ahead of the sim beside it (seen as an acceleration 4 counts
+    # off at a tap's start, the position still equal, with two suites on 2 cores). Nor may a stall trip the
+    # emulator's watchdog (which zeroes the current the sim beside it keeps). Both are tested apart.
+    with SerialDevice(port, max_consecutive_losses=0, timeout_s=0.95, loss_timeout_s=0.95) as dev:
         n_contact = 0
         for k in range(2000):  # within the hand's 3-tap trajectory (the emulator restarts it when done)
             s = dev.read()

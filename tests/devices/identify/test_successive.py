@@ -18,6 +18,7 @@ from devices.identify.successive.bench import Bench
 from devices.identify.successive.experiment import Experiment, chirp
 from devices.identify.validate_td import accel_etfe, etfe_agreement, time_domain_validation
 from devices.sim import SimDevice, default_params, load_sim_params
+from tests.support.isolation import default_isolation
 
 # Table 3.1 (handle space) and the user section; b_m = b_l = 0 in the table (checked absolutely)
 TABLE = {"mechanics": ("m_m_kg", "c_m_N", "k_c_N_m", "b_c_Ns_m", "m_d_kg", "b_d_Ns_m", "c_d_N", "k_lp_N_m",
@@ -57,7 +58,7 @@ def default_run(tmp_path_factory, drawn):
     import figstyle
 
     out = tmp_path_factory.mktemp("successive_default")
-    result = identify_successive("sim", seed=3, log=lambda m: None)
+    result = default_isolation(tmp_path_factory)      # seed 0, shared with the teleoperation tests' model
     save = figstyle.save
 
     def spy(fig, path, data=None, **kw):

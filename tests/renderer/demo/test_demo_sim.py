@@ -1,13 +1,15 @@
 """What the virtual-wall demo must show (issue 9), checked on the sim device with real numbers.
 
-One pipeline (identification, recordings, library) and one set of taps is built per module in a
-temporary cache and shared by all tests; velocities 0.04, 0.11 and 0.115 m/s (the thesis's range) and
+One set of taps is made per module and shared by all tests. Its pipeline (identification, recordings, library)
+is the default one, built once per test run (tests/support/demo.py) and copied into this module's own cache
+(tests/renderer/demo/test_demo_cache.py builds one in a fresh cache); velocities 0.04, 0.11 and 0.115 m/s (the thesis's range) and
 0.2 and 0.3 m/s (issue 16) are inside the library's velocity range (0.029-0.302 m/s), 0.02 m/s is below it.
 """
 
 import csv
 import json
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from renderer.demo import report, sim_demo
 from renderer.demo import runs
 from renderer.demo.cache import build_or_load, cache_key
 from stimuli.hfam.pipeline import PipelineSettings, Progress
+from tests.support.demo import default_pipeline_entry
 
 IN_RANGE = (0.04, 0.11, 0.115)
 HIGH = (0.2, 0.3)
@@ -30,6 +33,9 @@ def result(tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
     cfg = demo_config.DemoConfig(velocities_m_s=(BELOW,) + IN_RANGE + HIGH, grips_N=GRIPS,
                                  grid_velocities_m_s=(0.04, 0.11, 0.3))
+    assert cfg.pipeline == PipelineSettings()         # the shared entry is this demo's pipeline
+    entry = default_pipeline_entry(tmp_path_factory)
+    shutil.copytree(entry, cache / entry.name)
     res = sim_demo.run_sim_demo(cfg, out, cache, figures=False, progress=Progress(5, quiet=True))
     res.cfg, res.out, res.cache = cfg, out, cache
     return res

@@ -20,16 +20,15 @@ from stimuli.__main__ import main
 from stimuli.hfam import scoring as S
 from stimuli.hfam.pipeline import PipelineSettings, Progress, build_pipeline
 from stimuli.library import HfamLibrary
+from tests.support.demo import default_pipeline_entry
 
 CLAIM_KEYS = ["id", "section", "thesis", "target", "measured", "measured_text", "holds"]
 
 
 @pytest.fixture(scope="module")
 def pipe(tmp_path_factory):
-    """The demo's pipeline (default PipelineSettings) run once into a temporary folder."""
-    out = tmp_path_factory.mktemp("hfam_pipeline")
-    build_pipeline(out, PipelineSettings(), Progress(3, quiet=True))
-    return out
+    """The demo's pipeline (default PipelineSettings), built once per test run (tests/support/demo.py); read only."""
+    return default_pipeline_entry(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
