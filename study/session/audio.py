@@ -25,7 +25,6 @@ import wave
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import resample_poly
 
 from plumbing import sysdeps
 
@@ -192,6 +191,9 @@ def speak(text: str, fs_hz: float, voice: str = "en", speed_wpm: int = 150, exe:
         raise SpeechUnavailable(f"espeak-ng produced silence for {text!r} (voice {voice!r})")
     loud = np.flatnonzero(np.abs(y) >= 0.01 * peak)
     y = y[loud[0]:loud[-1] + 1] / peak
+    # only spoken cues need it: a session without them starts without scipy.signal
+    from scipy.signal import resample_poly  # deferred: 1.0 s of CPU to import
+
     fs_out = int(round(fs_hz))
     g = math.gcd(fs_out, int(rate))
     y = resample_poly(y, fs_out // g, int(rate) // g)
