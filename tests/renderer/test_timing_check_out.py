@@ -20,6 +20,8 @@ import pytest
 from renderer.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[2]
+#: the start of plumbing.rtpolicy.warning_line's line
+RT_WARNING = "warning: the servo runs without full real-time treatment ("
 
 
 def _start(tmp_path: Path, *flags) -> subprocess.Popen:
@@ -85,7 +87,10 @@ def test_a_stopped_check_leaves_the_earlier_record_and_says_one_line(tmp_path, s
     finally:
         proc.kill()
     assert proc.returncode == code, stderr
-    assert "Traceback" not in stderr and stderr.strip().splitlines() == [line], stderr
+    # one line says how it stopped; a user without real-time privileges also gets the servo's warning about
+    # them, when the servo process got that far before the signal (under load it does)
+    said = [ln for ln in stderr.splitlines() if ln and not ln.startswith(RT_WARNING)]
+    assert "Traceback" not in stderr and said == [line], stderr
     assert "verdict" not in stdout                              # an interrupted check has no verdict
     assert out.read_bytes() == before                           # the earlier record, byte for byte
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tc.json"]   # no staging folder, no lock
