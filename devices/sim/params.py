@@ -168,6 +168,11 @@ class SimParams:
                 data[key] = value
         return params_from_dict(data, source=f"{self.source} (modified)")
 
+    def __reduce__(self):
+        # pickled as its file form and validated again when loaded (a read-only section cannot be pickled
+        # itself): a parameter set crosses to another process as the same parameters
+        return params_from_dict, (self.to_dict(), self.source)
+
     def to_dict(self) -> dict:
         """Plain nested dict (the file format)."""
         out: dict = {"model": self.model, "name": self.name}

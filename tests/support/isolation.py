@@ -8,19 +8,7 @@ its stage figures) and the teleoperation tests' CIMM model (tests/renderer/teleo
 
 from __future__ import annotations
 
-import copyreg
-from types import MappingProxyType
-
 from tests.support.shared import shared_value
-
-# the result's SimParams keeps each section as a read-only mapping, which pickle cannot take by itself: a copy
-# of it pickles as the same read-only view of a plain dict (its values are plain numbers)
-def read_only(values: dict) -> MappingProxyType:
-    """``values`` as a read-only mapping (how a pickled one comes back)."""
-    return MappingProxyType(values)
-
-
-copyreg.pickle(MappingProxyType, lambda view: (read_only, (dict(view),)))
 
 
 def default_isolation(tmp_path_factory):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -598,3 +599,14 @@ def test_a_400_digit_integer_in_a_param_file_is_one_cli_error(tmp_path, section,
     assert len(lines) == 1 and lines[0].startswith(f"error: {path}: key '{section}.{key}' must be finite, got an "
                                                    "integer too large for a float"), res.stderr
     assert not (tmp_path / "p_rec.csv").exists()
+
+
+def test_parameters_pickle_as_the_same_parameters():
+    """A parameter set crosses to another process (pickle) whole: every section equal, still read-only, and a
+    modified set stays modified."""
+    for p in (default_params(), default_params().replace(mechanics={"c_m_N": 0.0}, name="changed")):
+        q = pickle.loads(pickle.dumps(p))
+        assert q == p and q.to_dict() == p.to_dict() and q.source == p.source
+        with pytest.raises(TypeError):
+            q.device["servo_rate_hz"] = 1.0
+    assert pickle.loads(pickle.dumps(p)).mechanics["c_m_N"] == 0.0 != default_params().mechanics["c_m_N"]
