@@ -599,9 +599,10 @@ class Emulator:
         """Run the ticks that are due; return how long select may sleep."""
         if self.pace == "realtime":
             due = int((now - self.t_render0) * self.fs) - (self.ticks - self.tick_base)
-            if due > int(0.05 * self.fs):  # fell >50 ms behind (machine busy): skip, as an overrun counter would
-                self.tick_base += due - int(0.05 * self.fs)
-                due = int(0.05 * self.fs)
+            cap = int(0.05 * self.fs)
+            if due > cap:  # fell >50 ms behind (machine busy): skip the rest, as an overrun counter would
+                self.tick_base -= due - cap   # the skipped ticks count as done: the device never runs ahead
+                due = cap
             for _ in range(min(due, 200)):
                 self._tick()
             return 0.0 if due > 200 else 0.5 / self.fs

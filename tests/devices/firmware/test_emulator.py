@@ -77,3 +77,26 @@ def test_the_emulator_reports_native_usb_and_gets_telemetry_every_tick():
         assert np.all(np.round(np.diff(res.log["t_s"]) * 1e6) == 100.0)
     finally:
         handle.stop()
+
+
+def test_a_busy_emulator_skips_the_ticks_it_missed_and_never_runs_ahead_of_the_clock():
+    # the emulator is descheduled for 300 ms while rendering on board: it runs at most 50 ms of the
+    # missed ticks (as a firmware's overrun counter would) and then keeps to the wall clock; it must
+    # never run more ticks than the time elapsed (a sign slip once ran 2.3 s of device time in 1.7 s)
+    from devices.firmware.emulator import Emulator
+    emu = Emulator(make_device("sim"), mode="on-device", pace="realtime")   # no pty: frames go nowhere
+    emu._start_render()
+    fs, t0 = emu.fs, emu.t_render0
+    cap = int(0.05 * fs)
+
+    def run_until_idle(now):
+        before = emu.ticks
+        for _ in range(1000):   # bounded: an emulator that keeps finding ticks due fails, not hangs
+            if emu._run_due_ticks(now) != 0.0:
+                break
+        return emu.ticks - before
+
+    assert run_until_idle(t0 + 0.3) == cap
+    # 10 ms later: 10 ms of ticks are due, not the skipped backlog
+    assert abs(run_until_idle(t0 + 0.31) - int(0.01 * fs)) <= 1
+    assert emu.ticks <= 0.31 * fs
