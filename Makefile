@@ -48,9 +48,10 @@ demo: $(STAMP)
 	@# itself refuses an --out that holds earlier results unless --force
 	$(PY) -m renderer demo --device sim:onedof --force
 
-# on TEST_WORKERS cores (pytest-xdist): modules are the units of work, costly ones first, the numba cache
-# filled once while the workers start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
-TEST_WORKERS ?= 2
+# on TEST_WORKERS processes (pytest-xdist; auto: two per core, as memory allows): modules are the units of
+# work, costly ones first, the numba cache filled once while the workers start (tests/support/parallel.py);
+# TEST_WORKERS=0 runs in one process
+TEST_WORKERS ?= auto
 test: $(STAMP) $(COMPILED) deps
 	$(PY) -m pytest -q -n $(TEST_WORKERS)
 

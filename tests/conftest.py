@@ -71,6 +71,9 @@ if importlib.util.find_spec("xdist") is not None:
     def pytest_xdist_make_scheduler(config, log):
         return parallel.make_scheduler(config, log)
 
+    def pytest_xdist_auto_num_workers(config):
+        return parallel.auto_workers()
+
 
 @pytest.fixture(scope="session")
 def default_demo(tmp_path_factory):

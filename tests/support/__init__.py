@@ -1,10 +1,10 @@
-"""Helpers the tests share. ``make test`` runs the suite on two cores (pytest-xdist); for a new test:
+"""Helpers the tests share. ``make test`` runs the suite on every core, two workers per core (pytest-xdist); for a new test:
 
 * a command whose process is not what the test is about (a refusal, an error line, a set-up run): call it in
   the test's process with :func:`tests.support.cli.run_cli` (the package's ``main``: 1-3 s of imports less);
   signals, exits, the environment and what a process imports stay tests of a real process;
 * a costly product several modules read (a demo, a pipeline, an identification): build it once per run for
-  both workers with :func:`tests.support.shared.shared_folder` / ``shared_value`` (a file lock in the run's
+  every worker with :func:`tests.support.shared.shared_folder` / ``shared_value`` (a file lock in the run's
   base temporary folder); within one module a module-scoped fixture is enough (a module runs on one worker);
 * a session-scoped fixture that must exist once for several modules: their tests in one ``xdist_group``
   (``tests/support/parallel.py``, ``FOLDER_GROUPS`` for a whole folder);

@@ -1,7 +1,7 @@
 """Costly test products made once per test run and shared by every pytest-xdist worker.
 
-A session-scoped fixture runs once per *process*: with ``make test``'s two workers (``pytest -n 2``) a costly
-set-up (a simulated demo, a successive isolation, a synthetic study) would be made twice, once on each core.
+A session-scoped fixture runs once per *process*: with ``make test``'s workers (``pytest -n auto``) a costly
+set-up (a simulated demo, a successive isolation, a synthetic study) would be made once in each worker.
 Here it is made once per run, by whichever worker asks first, under an exclusive ``fcntl`` lock on a file in
 the run's base temporary folder (``<basetemp>`` without xdist, its parent -- the folder holding ``popen-gw0``,
 ``popen-gw1`` -- with it); the other worker waits on the lock and then reads the product. Every run has a new
