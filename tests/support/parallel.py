@@ -2,10 +2,10 @@
 
 Wired by ``tests/conftest.py``:
 
-* **Two workers per core** (:func:`auto_workers`, capped by memory): about a quarter of the suite's wall time is
-  tests waiting on real time (sessions paced by the clock, emulators, a browser), which leaves a core idle under
-  one worker per core. On this project's 2-core machines with one core kept busy, a fresh clone's ``make test``
-  took 506 s with 4 workers, 564 s with 3 and 542 s with 6 (681 s with 2).
+* **Up to two workers per core** (:func:`auto_workers`, fewer on a machine already loaded, capped by memory): about
+  a quarter of the suite's wall time is tests waiting on real time (sessions paced by the clock, emulators, a
+  browser), which leaves a core idle under one worker per core. On this project's 2-core machines with one core
+  kept busy, a fresh clone's ``make test`` took 506 s with 4 workers, 564 s with 3 and 542 s with 6 (681 s with 2).
 
 * **Work units are modules**, not single tests (:class:`ModuleScheduling`): a module's tests run on one worker,
   so a module-scoped fixture (a successive isolation, a report, a firmware build) is made once, and tests that
@@ -51,16 +51,23 @@ WARMUP_LOCK = "jitwarm.lock"
 WORKER_MEMORY_BYTES = 1 << 30
 
 
-def auto_workers(cores: int | None = None, available_bytes: int | None = None) -> int:
-    """xdist's ``-n auto``: two workers per core this process may run on, at most one per
-    :data:`WORKER_MEMORY_BYTES` of available memory, at least 1. ``HFAM_TEST_WORKERS_PER_CORE`` changes the 2."""
+def auto_workers(cores: int | None = None, available_bytes: int | None = None, load: float | None = None) -> int:
+    """xdist's ``-n auto``: two workers per core this process may run on, less one per unit of the machine's
+    1-minute load average (a machine already busy gets no more processes than it has cores: with two suites on
+    2 cores, 4 workers each took 866 s and failed real-time tests, against 641 s with 2), at least one per core,
+    and at most one per :data:`WORKER_MEMORY_BYTES` of available memory. ``HFAM_TEST_WORKERS_PER_CORE`` changes
+    the 2."""
     if cores is None:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if available_bytes is None:
         available_bytes = _available_memory()
+    if load is None:
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
     per_core = float(os.environ.get("HFAM_TEST_WORKERS_PER_CORE", "2"))
+    most = int(round(per_core * cores))
+    wanted = max(min(cores, most), int(round(most - load)))
     by_memory = available_bytes // WORKER_MEMORY_BYTES if available_bytes else 1 << 16
-    return max(1, min(int(round(per_core * cores)), int(by_memory)))
+    return max(1, min(wanted, int(by_memory)))
 
 
 def _available_memory() -> int | None:

@@ -121,7 +121,9 @@ def test_dropped_and_duplicated_frames_are_counted(emulator):
 def test_watchdog_trips_when_the_host_stops_commanding(emulator):
     port, handle = emulator
     emu = handle.emulator
-    with SerialDevice(port) as dev:
+    # a reply later than 0.95 s is lost (not 20 ms): the emulator runs in this process, and a stall past 20 ms made
+    # the driver resend the 1.0 A command, whose second reply (sent after the trip) then answered the 0.5 A one
+    with SerialDevice(port, timeout_s=0.95) as dev:
         dev.read()
         dev.command(1.0)
         assert dev.read().extra["current_A"] == pytest.approx(1.0)
