@@ -2,7 +2,7 @@
 
 Wired by ``tests/conftest.py``:
 
-* **Up to two workers per core** (:func:`auto_workers`, fewer on a machine already loaded, capped by memory): about
+* **Up to two workers per core** (:func:`auto_workers`, one per core on a machine already busy, capped by memory): about
   a quarter of the suite's wall time is tests waiting on real time (sessions paced by the clock, emulators, a
   browser), which leaves a core idle under one worker per core. On this project's 2-core machines with one core
   kept busy, a fresh clone's ``make test`` took 506 s with 4 workers, 564 s with 3 and 542 s with 6 (681 s with 2).
@@ -25,6 +25,7 @@ import fcntl
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -51,23 +52,38 @@ WARMUP_LOCK = "jitwarm.lock"
 WORKER_MEMORY_BYTES = 1 << 30
 
 
-def auto_workers(cores: int | None = None, available_bytes: int | None = None, load: float | None = None) -> int:
-    """xdist's ``-n auto``: two workers per core this process may run on, less one per unit of the machine's
-    1-minute load average (a machine already busy gets no more processes than it has cores: with two suites on
-    2 cores, 4 workers each took 866 s and failed real-time tests, against 641 s with 2), at least one per core,
-    and at most one per :data:`WORKER_MEMORY_BYTES` of available memory. ``HFAM_TEST_WORKERS_PER_CORE`` changes
-    the 2."""
+def auto_workers(cores: int | None = None, available_bytes: int | None = None, others: int | None = None) -> int:
+    """xdist's ``-n auto``: two workers per core this process may run on, but one per core where as many other
+    processes as cores are already running (with two suites at once on 2 cores, 4 workers each took 866 s and
+    failed real-time tests, against 641 s with 2), and at most one per :data:`WORKER_MEMORY_BYTES` of available
+    memory; at least 1. ``others``: processes running besides this one (:func:`running_others`).
+    ``HFAM_TEST_WORKERS_PER_CORE`` changes the 2."""
     if cores is None:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if available_bytes is None:
         available_bytes = _available_memory()
-    if load is None:
-        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    if others is None:
+        others = running_others()
     per_core = float(os.environ.get("HFAM_TEST_WORKERS_PER_CORE", "2"))
-    most = int(round(per_core * cores))
-    wanted = max(min(cores, most), int(round(most - load)))
+    wanted = int(round(per_core * cores)) if others < cores else cores
     by_memory = available_bytes // WORKER_MEMORY_BYTES if available_bytes else 1 << 16
     return max(1, min(wanted, int(by_memory)))
+
+
+def running_others(samples: int = 9, interval_s: float = 0.05) -> int:
+    """The median number of processes running besides this one, from /proc/loadavg's runnable count sampled
+    ``samples`` times ``interval_s`` apart (not the load average, which still counts this run's own set-up);
+    0 where there is no /proc/loadavg."""
+    counts = []
+    for k in range(samples):
+        try:
+            with open("/proc/loadavg") as fh:
+                counts.append(int(fh.read().split()[3].split("/")[0]) - 1)
+        except (OSError, IndexError, ValueError):
+            return 0
+        if k + 1 < samples:
+            time.sleep(interval_s)
+    return sorted(counts)[len(counts) // 2]
 
 
 def _available_memory() -> int | None:
