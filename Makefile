@@ -51,9 +51,9 @@ demo: $(STAMP)
 	@# itself refuses an --out that holds earlier results unless --force
 	$(PY) -m renderer demo --device sim:onedof --force
 
-# on TEST_WORKERS processes (pytest-xdist; auto: up to two per core, as the running processes and memory allow): modules are the units of
-# work, costly ones first, the numba cache filled once while the workers start (tests/support/parallel.py);
-# TEST_WORKERS=0 runs in one process
+# on TEST_WORKERS processes (pytest-xdist; auto: up to two per core, as the running processes and memory
+# allow): modules are the units of work, costly ones first, the numba cache filled once while the workers
+# start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
 TEST_WORKERS ?= auto
 test: $(STAMP) $(COMPILED) deps
 	$(PY) -m pytest -q -n $(TEST_WORKERS)
