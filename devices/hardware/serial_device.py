@@ -288,6 +288,8 @@ class ProtocolDevice(Device):
                       "malformed_frames": 0}
         self._newer_minor = False  # the device speaks a newer minor version: fixed payloads may grow
         self._clock_repeats = 0
+        self._unreported = 0  # one-time status reports (a watchdog trip) carried by a stale reply, not yet returned
+        self._raw_status = 0  # the last reply's status as the device sent it (a trip is counted on its first flag)
         if not (isinstance(loss_timeout_s, (int, float)) and 0 < loss_timeout_s < 1):
             raise ValueError(f"loss_timeout_s must be within (0, 1) s, got {loss_timeout_s!r}")
         if not (0 < float(max_loss_rate) <= 1) or int(loss_window) < 1 or int(max_consecutive_losses) < 0:
@@ -357,6 +359,8 @@ class ProtocolDevice(Device):
         self._t_last_us = None
         self._newer_minor = False
         self._clock_repeats = 0
+        self._unreported = 0
+        self._raw_status = 0
 
     def _open(self) -> None:
         self._reset_link()
@@ -641,7 +645,7 @@ class ProtocolDevice(Device):
                     self._state.extra["held"] = False
                     return self._apply(raw)
                 self.stats["stale_states"] += 1
-                self._apply_status_only(raw)
+                self._apply_stale(raw)
             left = deadline - time.monotonic()
             if left <= 0 and not self._final_poll():
                 for frame in self._parser.skip_partial():
@@ -688,7 +692,7 @@ class ProtocolDevice(Device):
                     self._cmd_pending = False
                     return self._apply(raw)
                 self.stats["stale_states"] += 1
-                self._apply_status_only(raw)
+                self._apply_stale(raw)
             left = deadline - time.monotonic()
             if left <= 0 and not self._final_poll():
                 self.stats["timeouts"] += 1
@@ -798,14 +802,26 @@ class ProtocolDevice(Device):
         return st
 
     def _apply_status_only(self, raw: P.RawState) -> None:
-        if raw.status & Status.WATCHDOG_TRIPPED and not self._state.status & Status.WATCHDOG_TRIPPED:
+        if raw.status & Status.WATCHDOG_TRIPPED and not self._raw_status & Status.WATCHDOG_TRIPPED:
             self.stats["watchdog_trips"] += 1
-        self._state.status = raw.status
+        self._raw_status = raw.status
+        self._state.status = raw.status | self._unreported
+        self._unreported = 0
+
+    def _apply_stale(self, raw: P.RawState) -> None:
+        """A reply to an earlier command (a resend's first answer, come late): its status counts, and its one-time
+        watchdog-trip report is kept for the state :meth:`read` returns next. The device flags a trip in one reply
+        only, and after a resend that reply may be the one the driver does not return."""
+        keep = self._unreported | (raw.status & Status.WATCHDOG_TRIPPED)
+        self._apply_status_only(raw)
+        self._unreported = keep
 
     def clear_faults(self) -> None:
         """Clear the latched FAULT (a non-finite command keeps the output at zero until this)."""
         self._request(P.CLEAR_FAULTS)
         self._state.status &= ~int(Status.WATCHDOG_TRIPPED | Status.FAULT)
+        self._raw_status &= ~int(Status.WATCHDOG_TRIPPED | Status.FAULT)
+        self._unreported = 0
 
     def ping(self, payload: bytes = b"") -> float:
         """Round trip of a PING in seconds (no actuation, no physics step)."""

@@ -155,6 +155,34 @@ def test_watchdog_trips_when_the_host_stops_commanding(emulator):
         assert not s.status & Status.FAULT and s.extra["current_A"] == pytest.approx(0.5)
 
 
+@pytest.mark.parametrize("emulator", [{"watchdog_ms": 30}], indirect=True)
+def test_a_trip_reported_in_a_reply_the_driver_skips_is_still_returned(emulator):
+    """The device flags a watchdog trip in one reply only. After a resend (here: two commands before a read, as a
+    reply timeout makes them), that reply answers the earlier command and is skipped as stale: its trip report
+    must still reach the state ``read()`` returns, and be counted once."""
+    port, handle = emulator
+    emu = handle.emulator
+    with SerialDevice(port, timeout_s=0.95, loss_timeout_s=0.95) as dev:
+        dev.read()
+        dev.command(1.0)
+        dev.read()
+        t0 = time.monotonic()
+        while emu.stats["watchdog_trips"] == 0 and time.monotonic() - t0 < 60.0:
+            time.sleep(0.005)
+        assert emu.stats["watchdog_trips"] == 1
+        stale = dev.link_stats()["stale_states"]
+        dev.command(0.5)   # answered with the trip report ...
+        dev.command(0.5)   # ... and again, without it: this is the reply read() returns
+        s = dev.read()
+        stats = dev.link_stats()
+        # stale: the state the emulator sent when it tripped (zeroing the output) and the first reply
+        assert stats["stale_states"] == stale + 2 and stats["watchdog_trips"] == 1
+        assert s.status & Status.WATCHDOG_TRIPPED and s.extra["current_A"] == pytest.approx(0.5)
+        dev.command(0.5)
+        s = dev.read()
+        assert not s.status & Status.WATCHDOG_TRIPPED and dev.link_stats()["watchdog_trips"] == 1
+
+
 @pytest.mark.parametrize("emulator", [{"faults": "disconnect_after_s=0.4"}], indirect=True)
 def test_disconnect_gives_a_clear_error_and_zero_output_without_hanging(emulator):
     port, handle = emulator
