@@ -18,6 +18,8 @@ the output, and, uncaught, the process exits with the conventional status 128 + 
   go on) reaches ``sys.unraisablehook``, which the block takes over while it is installed: it records
   the stop (quietly) and :func:`stop_if_signalled`, called where a long-running caller can stop (a
   servo loop after its JIT compile, between its compiled chunks), raises it there.
+* A raise that Python wraps in another exception (in a ``__set_name__`` while a class is made, as numba's
+  import does) is still a stop: :func:`stop_in` finds it, and the block ends with it.
 * :class:`holding` defers the raise over a short critical section (the zeroing itself, building a
   partial result): a signal that arrives inside it is raised when the section ends.
 * :func:`die_with_parent` stops a servo child process the same way when its parent dies (Linux:
@@ -68,6 +70,24 @@ class Terminated(SystemExit):
 
     def __str__(self) -> str:
         return f"stopped by {signal_name(self.signum)}"
+
+
+def stop_in(exc: BaseException | None) -> Terminated | None:
+    """The :class:`Terminated` that ``exc`` is, or that it was raised from (its ``__cause__``, followed); else None.
+
+    Python wraps an exception raised in some places where a stop signal can land: in a descriptor's
+    ``__set_name__`` while a class is made (numba's import makes many), it becomes ``RuntimeError: Error calling
+    __set_name__``, raised from it. Such a stop is still a stop: the callers that tell a stop from a failure
+    (a servo loop's stop reason, the block's exit status) ask here. An error raised while a stop was being
+    handled (a stop only in its ``__context__``) stays an error.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, Terminated):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__
+    return None
 
 
 #: the block whose handlers are installed now (at most one per process)
@@ -144,6 +164,10 @@ class stop_on_signals:
         self.installed = False
         _active = None
         self._raise_pending(exc_type)   # also one swallowed and not raised since: the block ends with it
+        if exc is not None and not isinstance(exc, Terminated):
+            stop = stop_in(exc)
+            if stop is not None:   # this block's stop, wrapped by Python on its way out (stop_in): raised as itself
+                raise stop from None
         return False
 
     def _swallowed(self, unraisable) -> None:

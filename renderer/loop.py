@@ -48,7 +48,7 @@ from devices.base import Status
 from plumbing import provenance
 from devices.limits import check_stiffness
 from plumbing.npzfile import save_npz
-from plumbing.stopsignals import Terminated, holding, stop_if_signalled, stop_on_signals
+from plumbing.stopsignals import Terminated, holding, stop_if_signalled, stop_in, stop_on_signals
 
 from . import law_layout as LAW
 from plumbing import rtpolicy
@@ -535,6 +535,7 @@ class ServoLoop:
             else:
                 self._loop(limit, until, bool(realtime), compiled)
         except BaseException as exc:
+            exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
             self._stats["stop_reason"] = ("interrupted" if isinstance(exc, (KeyboardInterrupt, Terminated))
                                           else "exception")
             self._stats["error"] = f"{type(exc).__name__}: {exc}"

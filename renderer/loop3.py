@@ -25,7 +25,7 @@ import numpy as np
 
 import stimuli
 from plumbing import rtpolicy
-from plumbing.stopsignals import holding, stop_if_signalled, stop_on_signals
+from plumbing.stopsignals import holding, stop_if_signalled, stop_in, stop_on_signals
 
 from . import law3_layout as L3
 from . import proxy_layout as PX
@@ -336,6 +336,7 @@ class ServoLoop3:
                 st["stop_reason"] = (self._run_compiled(limit, until) if compiled
                                      else self._run_ticks(limit, until, realtime))
         except BaseException as exc:
+            exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
             st["stop_reason"] = "interrupted" if isinstance(exc, (KeyboardInterrupt, SystemExit)) else "exception"
             st["error"] = f"{type(exc).__name__}: {exc}"
             failure = exc

@@ -39,7 +39,7 @@ from typing import Callable
 from devices.base import DeviceError
 from devices.registry import make_device
 from plumbing.stopsignals import (STOP_SIGNALS, ParentWatch, Terminated, die_with_parent, holding, signals_blocked,
-                                  stop_on_signals)
+                                  stop_in, stop_on_signals)
 
 from plumbing import rtpolicy
 from .config import RendererConfig
@@ -118,6 +118,7 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
                                   until=lambda lp: parent_gone() or stop_event.is_set())
         conn.send(("ok", result, "", ""))
     except BaseException as exc:  # report everything, including partial results
+        exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
         if isinstance(exc, Terminated):
             terminated = exc
         partial = loop.result if loop is not None else None

@@ -26,7 +26,7 @@ import numpy as np
 
 from devices.registry import make_device
 from plumbing.outdir import output_folder
-from plumbing.stopsignals import ParentWatch, Terminated, stop_on_signals
+from plumbing.stopsignals import ParentWatch, Terminated, stop_in, stop_on_signals
 from stimuli import HfamLibrary
 
 from ..config import RendererConfig
@@ -78,6 +78,7 @@ def _child(conn, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, 
                 result = loop.run(duration_s=timeout_s, until=until, realtime=None)
         conn.send(("ok", result, ""))
     except BaseException as exc:
+        exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
         if isinstance(exc, Terminated):
             terminated = exc
         try:

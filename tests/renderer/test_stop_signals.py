@@ -189,6 +189,39 @@ def test_a_sigterm_inside_numbas_compile_stops_the_run(tmp_path):
     assert (tmp_path / "X" / "events.csv").read_text().count("\n") == 1     # the header: no tap was rendered
 
 
+# the child: a class made as the run's first command is sent (where the sim's kernel, and numba with it, is
+# imported: numba's import makes many) gets a descriptor whose __set_name__ sends SIGTERM, so the signal lands where
+# Python wraps the raise ("RuntimeError: Error calling __set_name__"), every time, not by timing
+IN_CLASS = textwrap.dedent("""
+    import os, runpy, signal, sys
+    import devices.sim.device as D
+    kernel_tick = D._kernel_tick
+    class Stop:
+        def __set_name__(self, owner, name):
+            print("SIGTERM inside a class being made", file=sys.stderr, flush=True)
+            os.kill(os.getpid(), signal.SIGTERM)
+    def tick():
+        type("Made", (), {"attr": Stop()})
+        return kernel_tick()
+    D._kernel_tick = tick
+    sys.argv = ["renderer", *sys.argv[1:]]
+    runpy.run_module("renderer", run_name="__main__", alter_sys=True)
+""")
+
+
+def test_a_sigterm_that_python_wraps_in_another_error_still_stops_the_run(tmp_path):
+    """A SIGTERM inside a ``__set_name__`` (numba's import, seen on a loaded machine) reached the run as a
+    RuntimeError: exit 1 with a traceback, ``stop_reason`` "exception". It is a stop like any other: exit status
+    143, one line, the (empty) partial run saved as interrupted."""
+    env = {**ENV, "HFAM_SIM_AOT": "off"}
+    p = subprocess.run([sys.executable, "-c", IN_CLASS, "run", "--device", "sim", "--taps", "3", "--out",
+                        str(tmp_path / "X")], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
+    assert p.returncode == 143, p.stderr
+    assert p.stderr == f"SIGTERM inside a class being made\nstopped by SIGTERM: partial run saved to {tmp_path / 'X'}\n"
+    run = json.loads((tmp_path / "X" / "run.json").read_text())
+    assert (run["stop_reason"], run["ticks"], run["error"]) == ("interrupted", 0, "Terminated: stopped by SIGTERM")
+
+
 def test_handlers_only_in_the_main_thread_and_restored():
     from plumbing.stopsignals import stop_on_signals
 
