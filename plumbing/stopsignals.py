@@ -164,10 +164,9 @@ class stop_on_signals:
         self.installed = False
         _active = None
         self._raise_pending(exc_type)   # also one swallowed and not raised since: the block ends with it
-        if exc is not None and not isinstance(exc, Terminated):
-            stop = stop_in(exc)
-            if stop is not None:   # this block's stop, wrapped by Python on its way out (stop_in): raised as itself
-                raise stop from None
+        stop = stop_in(exc)
+        if stop is not None and stop is not exc:   # a stop Python wrapped on its way out (stop_in): raised as itself
+            raise stop from None
         return False
 
     def _swallowed(self, unraisable) -> None:

@@ -5,6 +5,7 @@ with its data kept (docs/bringup.md)."""
 import csv
 import json
 
+import numpy as np
 import pytest
 
 from renderer.__main__ import main as renderer_main
@@ -37,8 +38,6 @@ def _taps_as_planned(code, out) -> bool:
 def _trace_before(out, t_event_s: float, span_s: float = 0.03) -> str:
     """The log's last ``span_s`` before ``t_event_s``: tick time, wall-clock period, position and velocity, for a
     failure's message (a tap read far off its speed: what the loop saw)."""
-    import numpy as np  # noqa: PLC0415 (only a failure reads it)
-
     with np.load(out / "log.npz") as z:
         t, wall, x, v = z["t_s"], z["wall_ns"], z["position_m"], z["velocity_m_s"]
     i = np.flatnonzero((t >= t_event_s - span_s) & (t <= t_event_s + 0.002))
@@ -90,7 +89,7 @@ def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch
     if not spec.startswith("touch"):
         assert v[0] < 0.07 and v[-1] > 0.14
     assert all(0.0003 < float(e["max_penetration_m"]) < 0.01 for e in events)
-    log = __import__("numpy").load(out / "log.npz")
+    log = np.load(out / "log.npz")
     assert abs(log["current_A"]).max() <= run["device"]["current_amplifier_A"] + 1e-9   # N here: 1 N per A
     assert run["compute_p50_us"] > 0 and run["period_p50_us"] > 0   # the per-tick host cost, as the serial board's
     assert "link:" in stdout and "round trip" in stdout
@@ -129,6 +128,6 @@ def test_a_3d_scene_opens_the_device_with_its_three_axes(tmp_path, capsys):
     for e in whole:
         assert float(e["normal_z"]) == pytest.approx(1.0, abs=1e-6)
         assert 0.02 < float(e["incoming_velocity_m_s"]) < 0.3 and 0.0003 < float(e["max_penetration_m"]) < 0.01
-    log = __import__("numpy").load(out / "log.npz")
+    log = np.load(out / "log.npz")
     # the motors pushed the handle back out along z; x and y carry the proxy's (frictionless) lateral force only
     assert log["force_z_N"].max() > 0.5 and abs(log["sensor_flags"]).max() == 0   # no accelerometer is no fault

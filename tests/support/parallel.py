@@ -52,6 +52,11 @@ WARMUP_LOCK = "jitwarm.lock"
 WORKER_MEMORY_BYTES = 1 << 30
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def auto_workers(cores: int | None = None, available_bytes: int | None = None, others: int | None = None) -> int:
     """xdist's ``-n auto``: two workers per core this process may run on, but one per core where as many other
     processes as cores are already running (with two suites at once on 2 cores, 4 workers each took 866 s and
@@ -59,7 +64,7 @@ def auto_workers(cores: int | None = None, available_bytes: int | None = None, o
     memory; at least 1. ``others``: processes running besides this one (:func:`running_others`).
     ``HFAM_TEST_WORKERS_PER_CORE`` changes the 2."""
     if cores is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        cores = usable_cores()
     if available_bytes is None:
         available_bytes = _available_memory()
     if others is None:

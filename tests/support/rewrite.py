@@ -18,6 +18,8 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from tests.support.parallel import usable_cores
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -54,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pytest's rewritten test modules not cached ({exc}): each test worker rewrites them")
         return 0
     files = [p for r in roots for p in rewritten_files(r)]
-    with ProcessPoolExecutor(max_workers=min(len(os.sched_getaffinity(0)), 8) or 1) as pool:
+    with ProcessPoolExecutor(max_workers=min(usable_cores(), 8)) as pool:
         written = sum(pool.map(write_rewritten, files, chunksize=8))
     print(f"pytest's rewritten test modules: {written} written, {len(files) - written} up to date")
     return 0

@@ -316,9 +316,9 @@ def test_no_encoder_count_lost_up_to_the_rated_speed(report):
 def test_firmware_watchdog_zeroes_the_motor_in_mcu_time():
     port, handle = fw_sim.start_fw_sim(taps_m_s=())
     try:
-        # strict: simulated MCU pace; a reply later than 0.95 s is lost (not 20 ms): a stall past 20 ms made the
-        # driver resend the 0.5 A command, and the reply to the resend (without the trip report, given once)
-        # answered it, seen with 4 workers on 2 cores
+        # strict: simulated MCU pace; a reply later than 0.95 s is lost (not 20 ms), so a stalled host does not
+        # resend: this test is about the MCU's watchdog, not about the driver's resends (a trip report in a reply
+        # to a resent command is tested in tests/devices/hardware/test_serial.py)
         with SerialDevice(port, watchdog_ms=30, max_consecutive_losses=0, timeout_s=0.95) as dev:
             dev.read()
             # counted before any current flows: the stats file is rewritten every 50 ms of wall time, so a
