@@ -12,6 +12,8 @@ by wall and by CPU and the CPU by test folder. Not run by ``make bench`` (a whol
 * ``--pytest-only``: skip the clone and ``make``: run ``make test``'s pytest command in this tree.
 * ``--workers N``: ``TEST_WORKERS`` (default: the Makefile's).
 * ``--log FILE``: keep the per-test CPU log (JSON lines) of the last run.
+
+A failed run prints pytest's failure report (each failed test's traceback and message) under its line.
 """
 
 from __future__ import annotations
@@ -103,7 +105,10 @@ def run_once(pytest_only: bool, workers: str | None, log: Path) -> dict:
         cpu0, t0 = _cpu_children(), time.perf_counter()
         proc = subprocess.run(make, cwd=tree, env=env, capture_output=True, text=True)
         wall, cpu = time.perf_counter() - t0, _cpu_children() - cpu0
-        tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
+        lines = (proc.stdout + proc.stderr).strip().splitlines()
+        # a failed run keeps pytest's report of what failed and why (from its FAILURES section), not only its totals
+        start = next((i for i, ln in enumerate(lines) if "= FAILURES =" in ln), len(lines) - 3)
+        tail = lines[start:] if proc.returncode else lines[-3:]
         return {"wall_s": wall, "cpu_s": cpu, "load_before": load_before, "load_after": _loadavg(),
                 "returncode": proc.returncode, "tail": tail}
     finally:

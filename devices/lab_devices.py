@@ -97,6 +97,9 @@ def make_lab_device(kind: str, rest: str, options: dict, spec: str) -> Device:
         raise ValueError(f"device string {spec!r}: unknown emulator fault(s) {', '.join(bad)}; valid: "
                          f"{', '.join('fault_' + f for f in _FAULTS[kind])}")
     dev = _make_driver(kind, rest, options, faults, emulated)
+    # the emulators advance their handle one servo period per transaction (deterministic: their clock waits for the
+    # host), so a state's time is its reply's count, not its wall-clock time (renderer.ring goes by it)
+    dev.lockstep = emulated
     if axes == 3:
         if view:
             raise ValueError(f"device string {spec!r}: {', '.join(view)} belong to the vertical view (axes=1)")

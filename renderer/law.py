@@ -37,6 +37,7 @@ from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plum
 from devices.sim import kernel as SK
 
 from .passivity import wall_energy
+from .ring import grid_steps
 from .scene import SHAPE_CODES, box_1d, plane_1d, sphere_1d, wall_1d
 
 # the arrays' layout (numba-free, shared with renderer.loop and renderer.sim_aot)
@@ -50,8 +51,33 @@ _sphere_1d = njit(cache=True, _nrt=False, inline="always")(sphere_1d)
 _box_1d = njit(cache=True, _nrt=False, inline="always")(box_1d)
 # the energy the wall stores (its passivity observer), compiled from renderer.passivity's own function
 _wall_energy = njit(cache=True, _nrt=False, inline="always")(wall_energy)
+# the position ring's time grid (renderer.ring)
+_grid_steps = njit(cache=True, _nrt=False, inline="always")(grid_steps)
 _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "sphere", "box"))
 
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _ring_push(c, w, nring, pos):
+    """Append ``pos`` (m) to the double-written position ring and update the sliding least-squares sums."""
+    wv = c[C_WV]
+    po = int(w[W_PO])
+    pi = int(w[W_PI])
+    old = w[W_RING + po]
+    po += 1
+    if po == nring:
+        po = 0
+    w[W_RING + pi] = pos
+    w[W_RING + pi + nring] = pos
+    w[W_PNEW] = pi
+    pi += 1
+    if pi == nring:
+        pi = 0
+    w[W_PO] = po
+    w[W_PI] = pi
+    s0 = w[W_S0]
+    w[W_S1] = w[W_S1] + (wv - 1.0) * pos - s0 + old
+    w[W_S0] = s0 + pos - old
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -110,7 +136,8 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     log : float64 array (N_LOG, capacity)
         Log ring, one row per channel; column ``w[W_LI]`` is written.
     t, pos, acc, grip : float
-        The device's sample: time (s), position (m, + up), acceleration (m/s^2), grip (N).
+        The device's sample: time (s, the sample's own: the velocity ring goes by it, ``renderer.ring``),
+        position (m, + up), acceleration (m/s^2), grip (N).
     status : int
         The sample's status bits (``devices.base.Status``).
 
@@ -149,29 +176,21 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
             return 0.0
     else:
         w[W_NBAD] = 0.0
-    # (2) sliding least-squares velocity, O(1) (renderer.velocity.ls_constants)
+    # (2) sliding least-squares velocity, O(1) (renderer.velocity.ls_constants), over a ring of one position per
+    # servo period of the sample's own clock (renderer.ring): a sample read again adds nothing, samples the host
+    # missed are filled in
     nring = int(c[C_NRING])
-    wv = c[C_WV]
-    po = int(w[W_PO])
-    pi = int(w[W_PI])
-    old = w[W_RING + po]
-    po += 1
-    if po == nring:
-        po = 0
-    w[W_RING + pi] = pos
-    w[W_RING + pi + nring] = pos
-    w[W_PNEW] = pi
-    pi += 1
-    if pi == nring:
-        pi = 0
-    w[W_PO] = po
-    w[W_PI] = pi
-    s0 = w[W_S0]
-    s1 = w[W_S1] + (wv - 1.0) * pos - s0 + old
-    s0 += pos - old
-    w[W_S0] = s0
-    w[W_S1] = s1
-    vel = (s1 - c[C_C_SHIFT] * s0) * c[C_C_SCALE]
+    steps = _grid_steps(c[C_FS], w[W_TRING], t, nring)
+    if steps == 0:
+        vel = w[W_VEL]
+    else:
+        w[W_TRING] = t if steps < 0 else w[W_TRING] + steps / c[C_FS]
+        if steps > 1:
+            last = w[W_RING + int(w[W_PNEW])]
+            for j in range(1, steps):
+                _ring_push(c, w, nring, last + (pos - last) * (j / steps))
+        _ring_push(c, w, nring, pos)
+        vel = (w[W_S1] - c[C_C_SHIFT] * w[W_S0]) * c[C_C_SCALE]
     # transient playback: the sample for this tick was fixed before this tick's event check
     tj = w[W_TJ]
     tlen = w[W_TLEN]

@@ -76,13 +76,15 @@ FIRST_HIT_SIGNATURE = (f"Tuple((float64, int64, float64, float64, float64, float
 _RENDERER = Path(__file__).resolve().parent
 _SIM = Path(devices.sim.layout.__file__).resolve().parent
 #: every file whose source is compiled into the 1-DOF extension (run_sim and all it calls)
-SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "passivity.py", _RENDERER / "scene.py",
+SOURCES = (_RENDERER / "law.py", _RENDERER / "law_layout.py", _RENDERER / "passivity.py", _RENDERER / "ring.py",
+           _RENDERER / "scene.py",
            _SIM / "kernel.py", _SIM / "layout.py")
 #: every file whose source is compiled into the 3-D extension, or that the files compiled in import (the
 #: scene's modules: their constants; tests/plumbing/test_jitcache.py checks the list against the imports)
 SOURCES3 = (_RENDERER / "law3.py", _RENDERER / "law3_layout.py", _RENDERER / "proxy.py",
             _RENDERER / "proxy_layout.py", _RENDERER / "scene3.py", _RENDERER / "scene.py", _RENDERER / "meshfile.py",
-            _RENDERER / "passivity.py", _SIM / "kernel.py", _SIM / "layout.py", _SIM / "lateral.py")
+            _RENDERER / "passivity.py", _RENDERER / "ring.py", _SIM / "kernel.py", _SIM / "layout.py",
+            _SIM / "lateral.py")
 MODES = ("auto", "nobuild", "off")
 
 

@@ -10,7 +10,8 @@ its frame conversion (``_to_native_force``, ``_from_native``). This class adds, 
   every one of these devices does: the Inverse3's force request is answered by its state, the Falcon's
   packet by its packet, the WoodenHaptics' report by the next report; the vendor libraries' calls return
   at once); ``read()`` returns that state without waiting (the first ``read()`` after opening makes a
-  zero-force transaction). The reply's wall-clock time is the sample's ``t_s`` (the devices send no clock).
+  zero-force transaction). The reply's wall-clock time is the sample's ``t_s`` (the devices send no clock;
+  a driver that knows its device's own sample clock gives that instead: :meth:`ThreeAxisDevice._sample_time`).
 * **losses**: a reply not back within ``loss_timeout_s`` is a lost frame: the last state is held
   (``extra["held"]``), counted; ``max_consecutive_losses`` in a row, or the link failing, ends the link
   with ``Status.DISCONNECTED`` and an error text in ``extra["error"]`` (the first ``read()`` reports it, as
@@ -107,6 +108,10 @@ class ThreeAxisDevice(Device):
         self._last_cmd = time.monotonic()
         self._tripped = False
         self._trip_report = False
+        #: the device advances one servo period per transaction, its clock waiting for the host (the built-in
+        #: emulators, ``devices.lab_devices``): a state's time is then that count of periods (:meth:`_sample_time`)
+        self.lockstep = False
+        self._replies = 0
         self._consecutive = 0
         self._wd_thread: threading.Thread | None = None
         self._wd_stop = threading.Event()
@@ -213,6 +218,15 @@ class ThreeAxisDevice(Device):
     def _link_usable(self) -> bool:
         return True
 
+    def _sample_time(self, now: float) -> float:
+        """The time (s) of the state a transaction just took, from ``time.monotonic()`` at its reply: that
+        reply's time since opening; on a :attr:`lockstep` device, the replies so far times its servo period. A
+        driver whose device keeps its own sample clock returns that clock's time, so a sample the host reads
+        twice carries the same time (the servo laws' velocity rings go by it: ``renderer.ring``)."""
+        if self.lockstep:
+            return self._replies / self.info.servo_rate_hz
+        return now - self._t0
+
     def _motors_off(self) -> bool:
         """Switch every motor off (no current at all), as a transaction; default: a zero-force transaction.
         A driver whose zero force still drives its motors (gravity compensation) overrides it."""
@@ -238,7 +252,8 @@ class ThreeAxisDevice(Device):
                     self._longest_gap_s = now - self._last_reply
                 self._last_reply = now
                 self._consecutive = 0
-                st.t_s = now - self._t0
+                self._replies += 1
+                st.t_s = self._sample_time(now)
                 st.extra["held"] = False
                 self._have_state = True
                 return

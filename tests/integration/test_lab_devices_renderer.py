@@ -67,9 +67,9 @@ def test_renderer_run_on_the_emulated_device(spec, tmp_path, capsys, monkeypatch
             break
         # the machine stalled this process for tens of ms while the device held the last force and the emulated
         # hand pressed on (a 41 ms period and a 105 ms link gap with two suites on 2 cores): the passivity
-        # observer rightly stopped the wall, which its own tests check, a tap's speed read 4.4 m/s, or late replies
-        # counted 13 lost; or it stalled the fake Touch library's scheduler thread past the 100 ms loss timeout, and
-        # the driver rightly declared the device gone. Then run again: a run without a stall must pass
+        # observer rightly stopped the wall, which its own tests check, or late replies counted 13 lost; or it
+        # stalled the fake Touch library's scheduler thread past the 100 ms loss timeout, and the driver rightly
+        # declared the device gone. Then run again: a run without a stall must pass
     assert code == 0, stdout
     run = json.loads((out / "run.json").read_text())
     assert run["rate_hz"] == 1000.0 and run["stop_reason"] == "duration"

@@ -30,7 +30,7 @@ from study.__main__ import main as study_main
 from study.session.apparatus import Apparatus
 from study.session.config import load_protocol
 from study.session.servo_timing import pre_session_check
-from tests.support.stalls import fake_hd_stats, session_stalled, tap_across_stall
+from tests.support.stalls import fake_hd_stats, session_stalled
 
 PROTOCOL = ('familiarization_sample = ""\ntap_window_s = 0.3\nfirst_tap_timeout_s = 3.0\nhoming_after_s = 0.1\n'
             "homing_before_max_s = 0.1\nservo_watchdog_s = 0.5\n"
@@ -150,8 +150,8 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
         v = _speeds(rows, kind)
         if (v and all(TAP_SPEEDS[0] < x < TAP_SPEEDS[1] for x in v)) or not stalled:
             break
-        # the machine stalled a tapping window (a tap read as 0.0 m/s was seen with two suites on 2 cores): the
-        # session again, as the tap's speed then measures the scheduler
+        # the machine stalled a tapping window for over 20 ms (the emulator's own thread, or the loop so long that
+        # the device held its force while the emulated hand pressed on): the session again
     session = json.loads((folder / "session.json").read_text())
     assert session["finished_at"] and session["device"]["spec"] == spec
     assert session["device"]["info"]["name"].endswith("(vertical axis)")
@@ -186,21 +186,17 @@ def test_the_study_apparatus_homes_and_finds_the_taps_on_the_emulated_device(spe
     proto = tmp_path / "protocol.toml"
     proto.write_text(PROTOCOL)
     protocol = load_protocol(proto)
-    for attempt in range(3):
-        with make_device(spec + "?loss_timeout_s=0.1") as dev:
-            assert dev.info.name.endswith("(vertical axis)") and not dev.info.simulated
-            app = Apparatus(dev, [catalog["pulse_firm"]], protocol)
-            assert app.real_saturation_detection == "none (no force sensor)" and app.link_status().startswith("ok")
-            app.set_sample("pulse_firm")
-            app.home(0.3)
-            tap = app.tap_window(protocol.tap_window_s, protocol.first_tap_timeout_s)
-            contacts = app.after_window(0.1)
-        speeds_ok = all(TAP_SPEEDS[0] < e.incoming_velocity_m_s < TAP_SPEEDS[1] for e in tap.events)
-        if speeds_ok or not tap_across_stall(tap.log["t_s"], [e.t_s for e in tap.events], tap.fs_hz):
-            break
-        # a tick late by 3 periods or more just before a tap (a loaded machine): the loop's catch-up read the
-        # device's newest sample several times and the tap's speed fit read it (0.0 m/s seen); run again, as the
-        # renderer's run on these devices does (tests/integration/test_lab_devices_renderer.py)
-    assert tap.events and speeds_ok, (attempt, [(e.t_s, e.incoming_velocity_m_s) for e in tap.events])
+    with make_device(spec + "?loss_timeout_s=0.1") as dev:
+        assert dev.info.name.endswith("(vertical axis)") and not dev.info.simulated
+        app = Apparatus(dev, [catalog["pulse_firm"]], protocol)
+        assert app.real_saturation_detection == "none (no force sensor)" and app.link_status().startswith("ok")
+        app.set_sample("pulse_firm")
+        app.home(0.3)
+        tap = app.tap_window(protocol.tap_window_s, protocol.first_tap_timeout_s)
+        contacts = app.after_window(0.1)
+    # (a tick late just before a tap, and the ticks that catch up after it, read the tap at the hand's speed: the
+    # law's velocity ring goes by the sample's own time, renderer.ring)
+    speeds_ok = all(TAP_SPEEDS[0] < e.incoming_velocity_m_s < TAP_SPEEDS[1] for e in tap.events)
+    assert tap.events and speeds_ok, [(e.t_s, e.incoming_velocity_m_s) for e in tap.events]
     assert tap.log["t_s"][-1] - tap.window_start_s >= protocol.tap_window_s - 0.01
     assert 0 < max(e.max_penetration_m for e in tap.events) < 0.01 and contacts >= 0

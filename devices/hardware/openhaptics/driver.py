@@ -8,7 +8,9 @@ callback is compiled by numba (:mod:`devices.hardware.openhaptics.servo`) and ru
 host's latest force (its magnitude limited, a NaN one zeroed) and zeroes it when the host has not
 commanded for 20 ticks (its own watchdog, in the servo thread). The host's transaction writes the force
 and takes the newest state the callback wrote (the device's clock paces the device; a host at the same
-rate sees the occasional repeated sample); no new tick for ``loss_timeout_s`` is a lost reply.
+rate sees the occasional repeated sample); no new tick for ``loss_timeout_s`` is a lost reply. A state's
+``t_s`` is the servo thread's tick count over its rate, the time the device sampled it: a state read twice
+has the same time, and the servo laws' velocity fits skip it (``renderer.ring``).
 
 Frame: HD's x (right), y (up), z (towards the user), millimetres, become the device frame's y, z, x in
 metres (``x = z_hd, y = x_hd, z = y_hd``: a cyclic permutation, right-handed), origin at the centre of the
@@ -134,6 +136,10 @@ class TouchDevice(ThreeAxisDevice):
 
     def _link_usable(self) -> bool:
         return self._handle is not None
+
+    def _sample_time(self, now: float) -> float:
+        """The newest state's time on the device's own clock: its servo tick count over the servo rate (s)."""
+        return self._last_tick / SERVO_RATE_HZ
 
     def read(self):
         """As the base class's, with the callback's own watchdog reported (it zeroes the force in the servo thread)."""
