@@ -292,7 +292,10 @@ class DeviceState:
     Attributes
     ----------
     t_s : float
-        Device time of the sample (s).
+        Device time of the sample (s): when it was sampled, on the device's own clock where the driver knows it
+        (a state read twice carries the same time), else the reply's wall-clock time. The servo laws place
+        positions by it (``renderer.ring``); with a driver whose time never advances they fall back to one
+        position per tick after ``max_catchup_s`` (their velocity reads 0 until then).
     position_m : float
         Endpoint z (m, up; the 1-DOF device's handle position).
     accel_m_s2 : float

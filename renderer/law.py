@@ -180,14 +180,21 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     # servo period of the sample's own clock (renderer.ring): a sample read again adds nothing, samples the host
     # missed are filled in
     nring = int(c[C_NRING])
-    steps = _grid_steps(c[C_FS], w[W_TRING], t, nring)
+    steps = _grid_steps(c[C_FS], w[W_TRING], t)
+    if steps == 0:
+        w[W_SAME] += 1.0
+        if w[W_SAME] > c[C_SAME_MAX]:   # the sample's clock stands still (longer than any catch-up): a tick is a sample
+            steps = -1
+    else:
+        w[W_SAME] = 0.0
     if steps == 0:
         vel = w[W_VEL]
     else:
         w[W_TRING] = t if steps < 0 else w[W_TRING] + steps / c[C_FS]
         if steps > 1:
+            # the missed samples on the straight line from the newest slot to this sample: the ring's last ones
             last = w[W_RING + int(w[W_PNEW])]
-            for j in range(1, steps):
+            for j in range(max(1, steps - nring + 1), steps):
                 _ring_push(c, w, nring, last + (pos - last) * (j / steps))
         _ring_push(c, w, nring, pos)
         vel = (w[W_S1] - c[C_C_SHIFT] * w[W_S0]) * c[C_C_SCALE]

@@ -40,13 +40,13 @@ from . import proxy as PX
 from .law3_layout import (  # noqa: F401 -- re-exported: law3.C_*, law3.W_*, law3.LOG_COLUMNS, ...
     CODE_CLOSED, CODE_DISCONNECTED, CODE_IMPACT, CODE_OK, CODE_SENSOR, CODE_UNSTABLE, C_ALPHA, C_AMAX, C_AMIN,
     C_CAP, C_C_SCALE, C_C_SHIFT, C_DEV_FPK, C_FC, C_FPK, C_GMAX, C_GMIN, C_HEAT, C_HOLD_B, C_HOLD_K, C_HOLD_N,
-    C_FS, C_HOLD_ON, C_INV_KF, C_INV_SPAN, C_MARGIN, C_MAX_BAD, C_MOTOR, C_NRING, C_PLIM, C_PO_DECAY, C_PO_LIMIT,
+    C_FS, C_HOLD_ON, C_INV_KF, C_SAME_MAX, C_INV_SPAN, C_MARGIN, C_MAX_BAD, C_MOTOR, C_NRING, C_PLIM, C_PO_DECAY, C_PO_LIMIT,
     C_TBUF, C_T_ATT, C_T_END, C_WV, LOG_COLUMNS, N_C, N_LOG, STATUS_DISCONNECTED, STATUS_SENSOR_INVALID, W_ARMED,
     W_BAD_TOTAL, W_CLOSED_ACC, W_CLOSED_CLIP, W_CLOSED_PEN, W_CODE, W_ENX, W_ENY, W_ENZ, W_EV_ACC, W_EV_CLIP,
     W_EV_OBJ, W_EV_ON, W_EV_PEN, W_FLAGS, W_GRIP, W_GTH, W_HX, W_HY, W_LAST_ACC, W_LAST_GRIP, W_LI, W_LNX, W_LNY,
     W_LNZ, W_LSX, W_LSY, W_LSZ, W_LX, W_LY, W_LZ, W_N, W_NBAD, W_OUT_N, W_PI, W_PNEW, W_PO, W_PO_E, W_PO_F,
     W_PO_U, W_PO_X, W_PO_Y, W_PO_Z, W_PS, W_RING, W_S0X, W_S0Y, W_S0Z, W_S1X, W_S1Y, W_S1Z, W_T, W_TEMP, W_TJ,
-    W_TLEN, W_TRING, W_VX, W_VY, W_VZ,
+    W_SAME, W_TLEN, W_TRING, W_VX, W_VY, W_VZ,
 )
 from .passivity import wall_energy
 from .ring import grid_steps
@@ -137,16 +137,23 @@ def _law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
     # velocity: sliding least squares per axis, and the rings of the impact fit, one position per servo period of
     # the sample's own clock (renderer.ring): a sample read again adds nothing, samples the host missed are filled in
     nring = int(c[C_NRING])
-    steps = _grid_steps(c[C_FS], w[W_TRING], t, nring)
+    steps = _grid_steps(c[C_FS], w[W_TRING], t)
+    if steps == 0:
+        w[W_SAME] += 1.0
+        if w[W_SAME] > c[C_SAME_MAX]:   # the sample's clock stands still (longer than any catch-up): a tick is a sample
+            steps = -1
+    else:
+        w[W_SAME] = 0.0
     if steps == 0:
         vx, vy, vz = w[W_VX], w[W_VY], w[W_VZ]
     else:
         w[W_TRING] = t if steps < 0 else w[W_TRING] + steps / c[C_FS]
         if steps > 1:
+            # the missed samples on the straight line from the newest slot to this sample: the rings' last ones
             # (not k, j: below they are the contact's stiffness, a float, and an object index; numba types a name once)
             i_new = int(w[W_PNEW])
             lx, ly, lz = w[W_RING + i_new], w[W_RING + 2 * nring + i_new], w[W_RING + 4 * nring + i_new]
-            for i_fill in range(1, steps):
+            for i_fill in range(max(1, steps - nring + 1), steps):
                 frac = i_fill / steps
                 _push3(c, w, nring, lx + (x - lx) * frac, ly + (y - ly) * frac, lz + (z - lz) * frac)
         vx, vy, vz = _push3(c, w, nring, x, y, z)

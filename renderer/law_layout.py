@@ -29,15 +29,15 @@ from devices.sim.layout import (  # noqa: F401 -- re-exported for renderer.law
 # ---- constants
 (C_K, C_DAMP, C_MARGIN, C_HOLD_N, C_KF, C_INV_KF, C_MOTOR, C_TGAIN, C_IC, C_IPK, C_IAMP, C_HEAT, C_ALPHA,
  C_T_ATT, C_T_END, C_INV_SPAN, C_PLIM, C_ALIM, C_GMIN, C_GMAX, C_MAX_BAD, C_WV, C_NRING, C_C_SHIFT,
- C_C_SCALE, C_CAP, C_NOBJ, C_TBUF, C_PO_DECAY, C_PO_LIMIT, C_PO_FC, C_FS) = range(32)
-C_OBJ = 32
+ C_C_SCALE, C_CAP, C_NOBJ, C_TBUF, C_PO_DECAY, C_PO_LIMIT, C_PO_FC, C_FS, C_SAME_MAX) = range(33)
+C_OBJ = 40
 OBJ_STRIDE = 8
 
 # ---- state
 (W_TEMP, W_GTH, W_ARMED, W_OUT_N, W_TJ, W_TLEN, W_EV_ON, W_EV_PEN, W_EV_ACC, W_EV_CLIP, W_LAST_POS,
  W_LAST_ACC, W_LAST_GRIP, W_NBAD, W_BAD_TOTAL, W_S0, W_S1, W_PI, W_PO, W_PNEW, W_N, W_LI, W_CODE, W_VEL,
  W_D, W_NZ, W_FLAGS, W_CLOSED_PEN, W_CLOSED_ACC, W_CLOSED_CLIP, W_T, W_GRIP, W_PO_E, W_PO_F, W_PO_X, W_PO_U,
- W_TRING) = range(37)
+ W_TRING, W_SAME) = range(38)
 W_RING = 40
 
 # tick outcome bits: an impact fired, an open event closed, or a stop (sensors, disconnect, an active wall)

@@ -33,6 +33,7 @@ from . import sim_aot
 from .config import RendererConfig
 from .loop import EVENT_COLUMNS, ContactEvent, RunResult, prefaulted_zeros, transient_name
 from .passivity import passivity_constants
+from .ring import same_sample_limit
 from .safety import safety_bounds
 from .scene import Wall
 from .scene3 import O_K, STACK_DEPTH, pack_scene
@@ -234,6 +235,7 @@ class ServoLoop3:
         c[L3.C_AMIN], c[L3.C_AMAX] = -b.accel_limit_m_s2, b.accel_limit_m_s2
         c[L3.C_GMIN], c[L3.C_GMAX] = b.grip_min_N, b.grip_max_N
         c[L3.C_WV], c[L3.C_NRING], c[L3.C_FS] = self.w_vel, self.nring, fs
+        c[L3.C_SAME_MAX] = same_sample_limit(cfg, fs, self.nring)
         c[L3.C_C_SHIFT], c[L3.C_C_SCALE] = ls_constants(self.w_vel, self.dt_s)
         c[L3.C_TBUF] = self.tbuf_at
         k_max = float(np.max(self.packed.obj[:, O_K]))
@@ -277,7 +279,7 @@ class ServoLoop3:
         w[L3.W_S0Y], w[L3.W_S1Y] = wv * y, y * wv * (wv - 1) / 2.0
         w[L3.W_S0Z], w[L3.W_S1Z] = wv * z, z * wv * (wv - 1) / 2.0
         w[L3.W_PI], w[L3.W_PO] = 0, (0 - wv) % nr
-        w[L3.W_TRING] = math.nan      # the position rings' time grid starts at the first tick's sample
+        w[L3.W_TRING] = s.t_s         # the primed rings' newest slot is this sample, at its time
         w[L3.W_LX], w[L3.W_LY], w[L3.W_LZ] = x, y, z
         w[L3.W_LAST_GRIP] = s.grip_N if c[L3.C_GMIN] <= s.grip_N <= c[L3.C_GMAX] else 0.0
         w[L3.W_PO_X], w[L3.W_PO_Y], w[L3.W_PO_Z] = x, y, z

@@ -12,8 +12,10 @@ whose samples arrive once per tick (the simulations, the 1-DOF board's frames) n
 
 from __future__ import annotations
 
+import math
 
-def grid_steps(fs_hz: float, t_prev_s: float, t_s: float, nring: int) -> int:
+
+def grid_steps(fs_hz: float, t_prev_s: float, t_s: float) -> int:
     """Servo periods from the ring's newest slot to a sample.
 
     Parameters
@@ -24,15 +26,14 @@ def grid_steps(fs_hz: float, t_prev_s: float, t_s: float, nring: int) -> int:
         Time of the ring's newest slot (s); NaN before the first sample.
     t_s : float
         The sample's own time (s).
-    nring : int
-        The ring's length: at most this many slots are filled at once.
 
     Returns
     -------
     int
         0 for the sample read again (within half a period of the newest slot), 1 for the next, ``k`` > 1 when
-        ``k - 1`` samples were missed (at most ``nring``), -1 to restart the grid at ``t_s`` (the first sample,
-        a clock that went back by more than half a period, or a time that is NaN).
+        ``k - 1`` samples were missed (the laws fill the ring's last slots of that gap by a straight line; at
+        most 10**9), -1 to restart the grid at ``t_s`` (the first sample, a clock that went back by more than
+        half a period, or a time that is NaN).
     """
     dn = (t_s - t_prev_s) * fs_hz
     if dn != dn or dn < -0.5:
@@ -41,6 +42,16 @@ def grid_steps(fs_hz: float, t_prev_s: float, t_s: float, nring: int) -> int:
         return 0
     if dn < 1.5:
         return 1
-    if dn > nring:
-        return nring
+    if dn > 1e9:
+        return 1_000_000_000
     return int(dn + 0.5)
+
+
+def same_sample_limit(cfg, fs_hz: float, nring: int) -> int:
+    """Ticks in a row that may read one sample before the laws take each tick as a new sample again.
+
+    Longer than any catch-up after a late tick (``cfg.max_catchup_s``) and than the ring: a sample clock that
+    stands still longer is not a device handing over its newest sample but a driver that gives no time (or a
+    link holding its last sample), and the laws then fit one position per tick, as without a clock.
+    """
+    return int(math.ceil(float(cfg.max_catchup_s) * fs_hz)) + int(nring)

@@ -13,12 +13,12 @@ import math
 
 import numpy as np
 import pytest
-from numba import njit
 
 import stimuli
 from devices.base import Status
 from devices.sim import ScriptedTrajectory, SimDevice, TapTrajectory
 from devices.sim import kernel as SK
+from plumbing.jitcache import njit  # stamped with the law's sources: an edited layout recompiles the wrappers below
 from renderer import RendererConfig, ServoLoop
 from renderer import law as LAW
 from renderer.scene import SHAPE_CODES, Box, Plane, Scene, Sphere, Wall
