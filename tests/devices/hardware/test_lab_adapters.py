@@ -69,6 +69,14 @@ class Rig:
     def magnitude(self):
         return math.sqrt(sum(v * v for v in self.force()))
 
+    def device_ticks(self) -> float:
+        """The Touch's servo-thread ticks so far (the fake library's count); 0 on the other devices."""
+        if self.kind != "touch":
+            return 0.0
+        out = (ctypes.c_double * 10)()
+        self._lib.fakehd_stats(out)
+        return out[0]
+
     def close(self):
         self.dev.close()
 
@@ -110,13 +118,15 @@ def test_the_host_watchdog_zeroes_the_device_when_the_host_stops(rig):
     dev = rig.dev
     _hold(rig, (0.0, 0.0, 0.5))
     assert rig.magnitude() > 0.01
-    t_last = time.monotonic()
+    t_last, ticks_last = time.monotonic(), rig.device_ticks()
     deadline = t_last + 2.0
     while rig.magnitude() > 1e-3 and time.monotonic() < deadline:
         time.sleep(0.001)
-    delay = time.monotonic() - t_last
+    delay, ticks = time.monotonic() - t_last, rig.device_ticks() - ticks_last
     assert rig.magnitude() <= 1e-3, f"still {rig.force()} N after {delay:.3f} s without a command"
-    assert delay >= 0.015  # not before its 20 ms period (minus the poll's quarter period)
+    # not before its 20 ms period (minus the poll's quarter period); the Touch's own watchdog counts 20 ticks of
+    # its servo thread instead, which run back to back when a loaded machine held the thread (10.9 ms seen)
+    assert delay >= 0.015 or (rig.kind == "touch" and ticks >= 15), (delay, ticks)
     # the device's own watchdog (dhd, Touch: also 20 ms) may have zeroed it first; the host's reports it
     deadline = time.monotonic() + 1.0
     while not dev.read().status & Status.WATCHDOG_TRIPPED and time.monotonic() < deadline:
