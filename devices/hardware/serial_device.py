@@ -207,6 +207,13 @@ class ProtocolDevice(Device):
     max_loss_rate, loss_window : float, int
         Also stop when more than ``max_loss_rate`` of the last ``loss_window`` frames were lost
         (default 5 % of 1000: a link that bad is not rendering the sample any more).
+    rearm_interval_s : float
+        On-device rendering of a sampled transient (one the firmware cannot compute itself): while the
+        handle approaches the wall, the host re-uploads the transient for the approach velocity and grip
+        at most this often, by the host's clock or by the device's (from its telemetry), whichever runs
+        faster: a simulated board may run faster than the wall clock, and re-arms paced by the host alone
+        then came too seldom in device time (the transient a contact played was armed at 8 % of the contact's
+        speed). One upload is in flight at a time. Default 20 ms.
     lockstep_timeout_s : float
         Used only when the device's INFO says lockstep (``fw-sim``: its clock advances only with the host's
         frames, docs/protocol.md "Lockstep"): a reply is waited for this long in wall-clock time before the
@@ -276,6 +283,7 @@ class ProtocolDevice(Device):
         self._rearm = False
         self._rearm_truncation_warned = False
         self._last_rearm = 0.0
+        self._last_rearm_dev_t_s = 0.0  # device clock of the last re-arm (see rearm_interval_s)
         self._upload_q: collections.deque = collections.deque()  # re-arm frames not yet sent (one in flight)
         self._upload_key = None  # (type, seq) of the re-arm frame in flight
         self._upload_sent = 0.0
@@ -968,6 +976,7 @@ class ProtocolDevice(Device):
             self._upload_table(transient)
         else:
             self._rearm = True
+            self._last_rearm, self._last_rearm_dev_t_s = time.monotonic(), self._dev_t_s  # this upload is a re-arm
             self._upload_rearm(transient, 0.1, 2.0, wait=True)
         self._transient = transient
         self._transient_name = getattr(transient, "name", "none") if transient is not None else "none"
@@ -1050,11 +1059,16 @@ class ProtocolDevice(Device):
             self.stats["timeouts"] += 1
             self._upload_q.clear()
             self._upload_key = None
-        if now - self._last_rearm < self.rearm_interval_s or st.t_s <= t_old:
+        if st.t_s <= t_old:
+            return
+        # due by the host's clock or by the device's, whichever runs faster
+        if (now - self._last_rearm < self.rearm_interval_s
+                and st.t_s - self._last_rearm_dev_t_s < self.rearm_interval_s):
             return
         v = (st.position_m - x_old) / (st.t_s - t_old)
         if v < -0.005 and st.position_m > self._wall_height_m:
             self._last_rearm = now
+            self._last_rearm_dev_t_s = st.t_s
             self._upload_rearm(self._transient, -v, st.grip_N, wait=False)
 
     def _on_event(self, payload: bytes) -> None:

@@ -3,13 +3,14 @@
 import math
 import select
 import time
+import types
 
 import numpy as np
 import pytest
 
 from devices import DeviceError, Status
 from devices.firmware.emulator import start_emulator
-from devices.hardware import wire_protocol as P
+from devices.hardware import serial_device, wire_protocol as P
 from devices.hardware.serial_device import SerialDevice
 from renderer.config import RendererConfig
 from renderer.loop import ServoLoop
@@ -135,6 +136,42 @@ def test_host_rearmed_sampled_transient(on_device):
         j = _contact_rows(rows, ev)
         trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
         # re-armed from the velocity seen up to 20 ms before contact: close to, not exactly, v_in
+        assert trans == pytest.approx(10.0 * ev["incoming_velocity_m_s"] / fpa, rel=0.35)
+
+
+def test_rearms_follow_the_device_clock_when_it_runs_faster_than_the_hosts(on_device, monkeypatch):
+    """A simulated board runs faster than the wall clock: re-arms still come every 20 ms of its time.
+
+    The host's clock is slowed 20 times (the board, paced by the host's reads, runs 2-3 times faster than
+    real time here, so 40-60 times faster than that clock): re-arms paced by the host's clock alone came
+    once or twice a run, and a contact played the transient of a velocity read long before it.
+    """
+    dev, handle = on_device
+    start = time.monotonic()
+    slow = types.SimpleNamespace(monotonic=lambda: start + (time.monotonic() - start) / 20.0,
+                                 perf_counter=time.perf_counter)
+    monkeypatch.setattr(serial_device, "time", slow)
+
+    class Custom:
+        name = "custom"
+
+        def waveform(self, v, grip, fs):
+            return np.full(50, 10.0 * abs(v))
+
+        def max_samples(self, fs):
+            return 50
+
+        def check_device(self, info, fs):
+            pass
+
+    dev.configure_rendering(WALL, LIMITS, Custom())
+    rows, events = _run(dev, 16000)
+    assert len(events) >= 2 and dev.link_stats()["naks"] == 0
+    assert dev.link_stats()["rearms"] >= 5   # the approaches alone last more than 100 ms of device time
+    fpa = dev.info.force_per_amp_N_A
+    for ev in events[1:]:
+        j = _contact_rows(rows, ev)
+        trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
         assert trans == pytest.approx(10.0 * ev["incoming_velocity_m_s"] / fpa, rel=0.35)
 
 
