@@ -37,7 +37,7 @@ from plumbing.jitcache import njit  # numba.njit; its cache and _nrt=False: plum
 from devices.sim import kernel as SK
 
 from .passivity import wall_energy
-from .ring import grid_steps
+from .ring import advance
 from .scene import SHAPE_CODES, box_1d, plane_1d, sphere_1d, wall_1d
 
 # the arrays' layout (numba-free, shared with renderer.loop and renderer.sim_aot)
@@ -52,7 +52,7 @@ _box_1d = njit(cache=True, _nrt=False, inline="always")(box_1d)
 # the energy the wall stores (its passivity observer), compiled from renderer.passivity's own function
 _wall_energy = njit(cache=True, _nrt=False, inline="always")(wall_energy)
 # the position ring's time grid (renderer.ring)
-_grid_steps = njit(cache=True, _nrt=False, inline="always")(grid_steps)
+_ring_advance = njit(cache=True, _nrt=False, inline="always")(advance)
 _WALL, _PLANE, _SPHERE, _BOX = (SHAPE_CODES[k] for k in ("wall", "plane", "sphere", "box"))
 
 
@@ -180,17 +180,10 @@ def law_tick(c, w, log, t, pos, acc, grip, status):
     # servo period of the sample's own clock (renderer.ring): a sample read again adds nothing, samples the host
     # missed are filled in
     nring = int(c[C_NRING])
-    steps = _grid_steps(c[C_FS], w[W_TRING], t)
-    if steps == 0:
-        w[W_SAME] += 1.0
-        if w[W_SAME] > c[C_SAME_MAX]:   # the sample's clock stands still (longer than any catch-up): a tick is a sample
-            steps = -1
-    else:
-        w[W_SAME] = 0.0
+    steps = _ring_advance(w, W_TRING, W_SAME, c[C_FS], c[C_SAME_MAX], t)
     if steps == 0:
         vel = w[W_VEL]
     else:
-        w[W_TRING] = t if steps < 0 else w[W_TRING] + steps / c[C_FS]
         if steps > 1:
             # the missed samples on the straight line from the newest slot to this sample: the ring's last ones
             last = w[W_RING + int(w[W_PNEW])]

@@ -49,12 +49,12 @@ from .law3_layout import (  # noqa: F401 -- re-exported: law3.C_*, law3.W_*, law
     W_SAME, W_TLEN, W_TRING, W_VX, W_VY, W_VZ,
 )
 from .passivity import wall_energy
-from .ring import grid_steps
+from .ring import advance
 from .scene3 import O_K
 
 _wall_energy = njit(cache=True, _nrt=False, inline="always")(wall_energy)
 # the position rings' time grid (renderer.ring)
-_grid_steps = njit(cache=True, _nrt=False, inline="always")(grid_steps)
+_ring_advance = njit(cache=True, _nrt=False, inline="always")(advance)
 # run_sim3's per-tick callees inlined into it (numba's IR inliner: the same operations in the same order, so
 # the same results, bit for bit): as calls, each tick pushed ~100 arguments on the stack (a numba array is 7-9
 # of them) into law3_tick and the physics step, ~15 % of the 3-D simulated loop's time. The proxy stays a call:
@@ -137,17 +137,10 @@ def _law3_tick(c, w, obj, tri, node, stack, log, t, x, y, z, acc, grip, status):
     # velocity: sliding least squares per axis, and the rings of the impact fit, one position per servo period of
     # the sample's own clock (renderer.ring): a sample read again adds nothing, samples the host missed are filled in
     nring = int(c[C_NRING])
-    steps = _grid_steps(c[C_FS], w[W_TRING], t)
-    if steps == 0:
-        w[W_SAME] += 1.0
-        if w[W_SAME] > c[C_SAME_MAX]:   # the sample's clock stands still (longer than any catch-up): a tick is a sample
-            steps = -1
-    else:
-        w[W_SAME] = 0.0
+    steps = _ring_advance(w, W_TRING, W_SAME, c[C_FS], c[C_SAME_MAX], t)
     if steps == 0:
         vx, vy, vz = w[W_VX], w[W_VY], w[W_VZ]
     else:
-        w[W_TRING] = t if steps < 0 else w[W_TRING] + steps / c[C_FS]
         if steps > 1:
             # the missed samples on the straight line from the newest slot to this sample: the rings' last ones
             # (not k, j: below they are the contact's stiffness, a float, and an object index; numba types a name once)

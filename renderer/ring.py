@@ -15,36 +15,59 @@ from __future__ import annotations
 import math
 
 
-def grid_steps(fs_hz: float, t_prev_s: float, t_s: float) -> int:
-    """Servo periods from the ring's newest slot to a sample.
+def advance(w, i_tring: int, i_same: int, fs_hz: float, same_max: float, t_s: float) -> int:
+    """Place a sample on the ring's time grid; return the servo periods it is on from the ring's newest slot.
+
+    The laws call this once per tick, then push positions by the result (numba-inlined into them).
 
     Parameters
     ----------
+    w : array of float
+        The law's state: ``w[i_tring]`` is the time of the ring's newest slot (s; NaN before the first sample),
+        ``w[i_same]`` how many ticks in a row read the same sample. Both are updated.
+    i_tring, i_same : int
+        Their indices in ``w``.
     fs_hz : float
         The servo rate: the ring's spacing is ``1 / fs_hz``.
-    t_prev_s : float
-        Time of the ring's newest slot (s); NaN before the first sample.
+    same_max : float
+        Ticks in a row that may read one sample (:func:`same_sample_limit`); beyond, each tick is a new sample.
     t_s : float
         The sample's own time (s).
 
     Returns
     -------
     int
-        0 for the sample read again (within half a period of the newest slot), 1 for the next, ``k`` > 1 when
-        ``k - 1`` samples were missed (the laws fill the ring's last slots of that gap by a straight line; at
-        most 10**9), -1 to restart the grid at ``t_s`` (the first sample, a clock that went back by more than
-        half a period, or a time that is NaN).
+        0 for the sample read again (within half a period of the newest slot): push nothing; 1 for the next: push
+        it; ``k`` > 1 when ``k - 1`` samples were missed: fill the ring's last slots of that gap by a straight line,
+        then push it (at most 10**9); -1 to restart the grid at ``t_s`` (the first sample, a clock that went back
+        by more than half a period, a time that is NaN, or a clock standing still beyond ``same_max``): push it.
     """
-    dn = (t_s - t_prev_s) * fs_hz
+    dn = (t_s - w[i_tring]) * fs_hz
     if dn != dn or dn < -0.5:
-        return -1
-    if dn < 0.5:
-        return 0
-    if dn < 1.5:
-        return 1
-    if dn > 1e9:
-        return 1_000_000_000
-    return int(dn + 0.5)
+        steps = -1
+    elif dn < 0.5:
+        steps = 0
+    elif dn < 1.5:
+        steps = 1
+    elif dn > 1e9:
+        steps = 1_000_000_000
+    else:
+        steps = int(dn + 0.5)
+    if steps == 0:
+        w[i_same] += 1.0
+        if w[i_same] > same_max:   # the sample's clock stands still (longer than any catch-up): a tick is a sample
+            steps = -1
+    else:
+        w[i_same] = 0.0
+    if steps != 0:
+        w[i_tring] = t_s if steps < 0 else w[i_tring] + steps / fs_hz
+    return steps
+
+
+def grid_steps(fs_hz: float, t_prev_s: float, t_s: float) -> int:
+    """Servo periods from a ring's newest slot at ``t_prev_s`` to a sample at ``t_s`` (:func:`advance`'s grid
+    alone, without its count of samples read again)."""
+    return advance([t_prev_s, 0.0], 0, 1, fs_hz, math.inf, t_s)
 
 
 def same_sample_limit(cfg, fs_hz: float, nring: int) -> int:
