@@ -113,22 +113,23 @@ def test_hfam_table_interpolated_on_board_like_the_library(on_device):
         assert np.allclose(got, np.clip(want, -4.0 - wall, 4.0 - wall), atol=2e-3)
 
 
-def test_host_rearmed_sampled_transient(on_device):
-    dev, handle = on_device
+class _VelocityScaled:
+    """Any Transient the firmware cannot compute itself: the host keeps re-arming it from the approach velocity."""
+    name = "custom"
 
-    class Custom:  # any Transient: the host keeps re-arming it from the approach velocity
-        name = "custom"
+    def waveform(self, v, grip, fs):
+        return np.full(50, 10.0 * abs(v))
 
-        def waveform(self, v, grip, fs):
-            return np.full(50, 10.0 * abs(v))
+    def max_samples(self, fs):
+        return 50
 
-        def max_samples(self, fs):
-            return 50
+    def check_device(self, info, fs):
+        pass
 
-        def check_device(self, info, fs):
-            pass
 
-    dev.configure_rendering(WALL, LIMITS, Custom())
+def _contacts_play_the_rearmed_transient(dev):
+    """Render :class:`_VelocityScaled` on the board; every contact after the first plays it at its own speed."""
+    dev.configure_rendering(WALL, LIMITS, _VelocityScaled())
     rows, events = _run(dev, 16000)
     assert len(events) >= 2 and dev.link_stats()["naks"] == 0
     fpa = dev.info.force_per_amp_N_A
@@ -137,6 +138,11 @@ def test_host_rearmed_sampled_transient(on_device):
         trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
         # re-armed from the velocity seen up to 20 ms before contact: close to, not exactly, v_in
         assert trans == pytest.approx(10.0 * ev["incoming_velocity_m_s"] / fpa, rel=0.35)
+
+
+def test_host_rearmed_sampled_transient(on_device):
+    dev, handle = on_device
+    _contacts_play_the_rearmed_transient(dev)
 
 
 def test_rearms_follow_the_device_clock_when_it_runs_faster_than_the_hosts(on_device, monkeypatch):
@@ -151,28 +157,8 @@ def test_rearms_follow_the_device_clock_when_it_runs_faster_than_the_hosts(on_de
     slow = types.SimpleNamespace(monotonic=lambda: start + (time.monotonic() - start) / 20.0,
                                  perf_counter=time.perf_counter)
     monkeypatch.setattr(serial_device, "time", slow)
-
-    class Custom:
-        name = "custom"
-
-        def waveform(self, v, grip, fs):
-            return np.full(50, 10.0 * abs(v))
-
-        def max_samples(self, fs):
-            return 50
-
-        def check_device(self, info, fs):
-            pass
-
-    dev.configure_rendering(WALL, LIMITS, Custom())
-    rows, events = _run(dev, 16000)
-    assert len(events) >= 2 and dev.link_stats()["naks"] == 0
+    _contacts_play_the_rearmed_transient(dev)
     assert dev.link_stats()["rearms"] >= 5   # the approaches alone last more than 100 ms of device time
-    fpa = dev.info.force_per_amp_N_A
-    for ev in events[1:]:
-        j = _contact_rows(rows, ev)
-        trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
-        assert trans == pytest.approx(10.0 * ev["incoming_velocity_m_s"] / fpa, rel=0.35)
 
 
 def test_saturation_limits_and_clipping_reported(on_device):
