@@ -183,3 +183,33 @@ def test_the_projects_warnings_are_warning_lines_and_other_libraries_keep_their_
     assert "warning: stiffness_N_m=1e+06 N/m is beyond one count per limit" in lines
     assert not any("loop.py" in ln for ln in lines)
     assert any(ln.startswith("/usr/lib/python3/numpy/core.py:7: RuntimeWarning: divide by zero") for ln in lines)
+
+
+def test_a_handled_ctrl_c_exits_130_even_when_it_left_an_exec_of_source_text(tmp_path):
+    """CPython ends a ``python -m`` process by SIGINT when a KeyboardInterrupt left an ``exec()`` of source text,
+    even a caught one (scipy's imports run one: a report stopped there died by SIGINT after printing
+    ``interrupted``). A command that handled it exits with its own code; an uncaught one still dies by SIGINT."""
+    (tmp_path / "ctrlc").mkdir()
+    (tmp_path / "ctrlc" / "__main__.py").write_text(textwrap.dedent('''
+        import sys
+        from plumbing.dispatch import run_as_script
+
+        def main():
+            try:
+                exec("raise KeyboardInterrupt")   # what scipy's array_api_compat does on import: exec("from numpy import *")
+            except KeyboardInterrupt:
+                if sys.argv[1:] == ["uncaught"]:
+                    raise
+                print("interrupted", file=sys.stderr)
+                return 130
+            return 0
+
+        run_as_script(main)
+    '''))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT)]))
+    handled = subprocess.run([sys.executable, "-m", "ctrlc"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                             timeout=60)
+    assert handled.returncode == 130 and handled.stderr == "interrupted\n", (handled.returncode, handled.stderr)
+    uncaught = subprocess.run([sys.executable, "-m", "ctrlc", "uncaught"], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=60)
+    assert uncaught.returncode == -2, (uncaught.returncode, uncaught.stderr)
