@@ -161,6 +161,8 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
             if c.name == getattr(args, "command", None):
                 for name in c.preload:
                     importlib.import_module(name)
+    except KeyboardInterrupt:  # Ctrl-C while the command's modules load: nothing ran yet, the same one line
+        return _interrupted()
     finally:
         if collecting:
             if _as_script:  # a process of its own (in a caller's process, its objects are left alone)
@@ -184,12 +186,17 @@ def main(prog: str, description: str, commands: Sequence[Command], argv: Sequenc
               "were left as they were", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C in a command that does not say more itself: one line, the shell's 130
-        print("\ninterrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
     except Terminated as exc:  # SIGTERM/SIGHUP inside a command's stop_on_signals block (its output staged):
         # one line, the status of a death by that signal (143, 129); the command's clean-up has run
         print(f"{exc}", file=sys.stderr)
         return exc.code
+
+
+def _interrupted() -> int:
+    """Say that Ctrl-C stopped the command (one line, no traceback) and return the shell's status for it, 130."""
+    print("\ninterrupted", file=sys.stderr)
+    return 130
 
 
 def console_prog(prog: str) -> str:

@@ -185,31 +185,48 @@ def test_the_projects_warnings_are_warning_lines_and_other_libraries_keep_their_
     assert any(ln.startswith("/usr/lib/python3/numpy/core.py:7: RuntimeWarning: divide by zero") for ln in lines)
 
 
-def test_a_handled_ctrl_c_exits_130_even_when_it_left_an_exec_of_source_text(tmp_path):
-    """CPython ends a ``python -m`` process by SIGINT when a KeyboardInterrupt left an ``exec()`` of source text,
-    even a caught one (scipy's imports run one: a report stopped there died by SIGINT after printing
-    ``interrupted``). A command that handled it exits with its own code; an uncaught one still dies by SIGINT."""
-    (tmp_path / "ctrlc").mkdir()
-    (tmp_path / "ctrlc" / "__main__.py").write_text(textwrap.dedent('''
-        import sys
-        from plumbing.dispatch import run_as_script
 
-        def main():
-            try:
-                exec("raise KeyboardInterrupt")   # what scipy's array_api_compat does on import: exec("from numpy import *")
-            except KeyboardInterrupt:
-                if sys.argv[1:] == ["uncaught"]:
-                    raise
-                print("interrupted", file=sys.stderr)
-                return 130
-            return 0
+# Ctrl-C inside an exec() of source text, as scipy's imports run one (array_api_compat: exec("from numpy import *"))
+CTRLC_PARSER = '''
+from plumbing.dispatch import Body
 
-        run_as_script(main)
-    '''))
+def register(sub):
+    sub.add_parser("at-import").set_defaults(func=Body("ctrlc.body_at_import", "run"))
+    sub.add_parser("at-run").set_defaults(func=Body("ctrlc.body", "run"))
+'''
+CTRLC_BODY = '''
+def run(args):
+    exec("raise KeyboardInterrupt")
+'''
+CTRLC_MAIN = '''
+import sys
+from plumbing.dispatch import Command, main, run_as_script
+
+def uncaught():
+    exec("raise KeyboardInterrupt")
+
+run_as_script(uncaught if sys.argv[1:] == ["uncaught"] else lambda: main("ctrlc", "ctrlc", (
+    Command("at-import", "ctrlc.parser", "Ctrl-C while the body loads"), Command("at-run", "ctrlc.parser", "Ctrl-C in the body"))))
+'''
+
+
+def test_ctrl_c_exits_130_with_one_line_also_in_the_imports_and_inside_an_exec_of_source_text(tmp_path):
+    """Ctrl-C while a command's body loads or runs: ``interrupted`` and status 130, no traceback. CPython ends a
+    ``python -m`` process by SIGINT when a KeyboardInterrupt left an ``exec()`` of source text, even a caught one
+    (a report stopped in scipy's imports printed ``interrupted`` and died by SIGINT, status -2); an uncaught
+    Ctrl-C still ends the process by SIGINT, as a shell expects."""
+    pkg = tmp_path / "ctrlc"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "parser.py").write_text(CTRLC_PARSER)
+    (pkg / "body.py").write_text(CTRLC_BODY)
+    (pkg / "body_at_import.py").write_text('exec("raise KeyboardInterrupt")\n' + CTRLC_BODY)
+    (pkg / "__main__.py").write_text(CTRLC_MAIN)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT)]))
-    handled = subprocess.run([sys.executable, "-m", "ctrlc"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                             timeout=60)
-    assert handled.returncode == 130 and handled.stderr == "interrupted\n", (handled.returncode, handled.stderr)
-    uncaught = subprocess.run([sys.executable, "-m", "ctrlc", "uncaught"], cwd=tmp_path, env=env,
-                              capture_output=True, text=True, timeout=60)
-    assert uncaught.returncode == -2, (uncaught.returncode, uncaught.stderr)
+    for command in ("at-import", "at-run"):
+        proc = subprocess.run([sys.executable, "-m", "ctrlc", command], cwd=tmp_path, env=env, capture_output=True,
+                              text=True, timeout=60)
+        assert (proc.returncode, proc.stderr) == (130, "\ninterrupted\n"), (command, proc.returncode, proc.stderr)
+    proc = subprocess.run([sys.executable, "-m", "ctrlc", "uncaught"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == -2 and "KeyboardInterrupt" in proc.stderr, (proc.returncode, proc.stderr)
