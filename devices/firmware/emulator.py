@@ -13,8 +13,11 @@ restarted whenever it ends), so a host sees contacts without setting a user.
 
 Pacing in on-device mode: ``realtime`` runs the firmware ticks against the
 wall clock (a real microcontroller); ``host`` runs them as fast as the host
-drains the telemetry (at most ``HOST_PACE_BACKLOG`` unread bytes in the tty),
-which makes tests fast while keeping every tick and frame.
+drains the telemetry (at most ``HOST_PACE_BACKLOG`` unread bytes in the tty,
+about 2 ms of 10 kHz telemetry), which makes tests fast while keeping every tick
+and frame. Either way the firmware reads the host's frames at least once per
+millisecond of its own time, so a round trip (a frame out, its ACK back) costs
+a few milliseconds of device time, as on a native-USB board.
 """
 
 from __future__ import annotations
@@ -40,7 +43,10 @@ from ..sim import SimDevice, TapTrajectory
 from .logic import FirmwareRenderer
 
 FIRMWARE_VERSION = (1, 0, 0)
-HOST_PACE_BACKLOG = 2048
+# ~2 ms of telemetry: a host round trip costs as much device time as a USB link's buffering, not more (a 2 kB
+# backlog made each ACK wait ~9 ms of device time behind queued STATEs: a re-armed transient then lagged the
+# approach velocity by up to 90 ms)
+HOST_PACE_BACKLOG = 512
 MAX_TABLE_SAMPLES = 200_000  # emulated board: 800 kB of float samples (a Teensy 4.1-class board has 1 MB RAM)
 
 
@@ -171,6 +177,7 @@ class Emulator:
         self.t0_us = int(t0_us)
         sim_info: DeviceInfo = physics.info
         self.fs = sim_info.servo_rate_hz
+        self._ticks_per_ms = max(1, int(self.fs * 1e-3))  # ticks between two reads of the host's frames
         self.res = sim_info.position_resolution_m
         sensors = getattr(getattr(physics, "params", None), "sensors", {}) or {}
         self.accel_scale = float(sensors.get("accel_resolution_m_s2", 0.015))
@@ -603,11 +610,13 @@ class Emulator:
             if due > cap:  # fell >50 ms behind (machine busy): skip the rest, as an overrun counter would
                 self.tick_base -= due - cap   # the skipped ticks count as done: the device never runs ahead
                 due = cap
-            for _ in range(min(due, 200)):
+            burst = self._ticks_per_ms
+            for _ in range(min(due, burst)):
                 self._tick()
-            return 0.0 if due > 200 else 0.5 / self.fs
-        # host pacing: keep at most HOST_PACE_BACKLOG unread bytes in the tty
-        for _ in range(50):
+            return 0.0 if due > burst else 0.5 / self.fs
+        # host pacing: keep at most HOST_PACE_BACKLOG unread bytes in the tty; back to select (the host's
+        # frames) after a millisecond of ticks at most
+        for _ in range(self._ticks_per_ms):
             if self._unread() > HOST_PACE_BACKLOG:
                 return 0.0002
             self._tick()
