@@ -290,4 +290,7 @@ def format_table(result) -> str:
                      f"errors, {link.get('malformed_frames', 0)} malformed, {link['losses']} lost (longest run {link['max_consecutive_losses']}), longest gap "
                      f"{ms(link['longest_gap_s'])} ms, round trip median/p99/max {ms(link['rtt_median_s'])}/"
                      f"{ms(link['rtt_p99_s'])}/{ms(link['rtt_max_s'])} ms")
+        if link.get("rearms"):   # a sampled transient rendered on the board: how old its velocity was when armed
+            lines.append(f"re-armed transient: {link['rearms']} uploads, velocity age at commit median/max "
+                         f"{ms(link.get('rearm_age_median_s'))}/{ms(link.get('rearm_age_max_s'))} ms")
     return "\n".join(lines)

@@ -287,6 +287,8 @@ class ProtocolDevice(Device):
         self._upload_q: collections.deque = collections.deque()  # re-arm frames not yet sent (one in flight)
         self._upload_key = None  # (type, seq) of the re-arm frame in flight
         self._upload_sent = 0.0
+        self._upload_vel_t_s = 0.0  # device clock of the velocity the re-arm in flight carries
+        self._rearm_ages: collections.deque = collections.deque(maxlen=4096)  # see link_stats: rearm_age_*
         self._vel_ring = [(0.0, 0.0)] * 10
         self._vel_i = 0
         self._wall_height_m = 0.0
@@ -537,6 +539,7 @@ class ProtocolDevice(Device):
                 if tuple(frame.payload) == self._upload_key:
                     if self._upload_key[0] == P.REARM_COMMIT:
                         self.stats["rearms"] += 1
+                        self._rearm_ages.append(self._dev_t_s - self._upload_vel_t_s)
                     self._upload_next()
                 else:
                     self._replies[tuple(frame.payload)] = (True, "")
@@ -845,9 +848,10 @@ class ProtocolDevice(Device):
         return time.perf_counter() - t0
 
     def restart_link_timing(self) -> None:
-        """Start the round-trip and longest-gap figures afresh (the counters stay): a servo loop calls it after
-        its priming cycle, so its run's figures cover its ticks, not its one-time start-up (e.g. a JIT)."""
+        """Start the round-trip, longest-gap and re-arm age figures afresh (the counters stay): a servo loop calls
+        it after its priming cycle, so its run's figures cover its ticks, not its one-time start-up (e.g. a JIT)."""
         self._rtt_n = 0
+        self._rearm_ages.clear()
         self._last_rx_state = None
         self._longest_gap_s = 0.0
 
@@ -862,11 +866,18 @@ class ProtocolDevice(Device):
             ``retransmits``, ``naks``, ``garbage_bytes``, ``stale_states``, ``watchdog_trips``,
             ``longest_gap_s`` (longest time between two answered commands' states) and the command->state
             round trip ``rtt_median_s``/``rtt_p99_s``/``rtt_max_s`` (over the last 65536 replies); ``rearms``:
-            sampled transients re-armed while rendering, every frame acknowledged up to the commit.
+            sampled transients re-armed while rendering, every frame acknowledged up to the commit, and
+            ``rearm_age_median_s``/``rearm_age_max_s`` (over the last 4096; None before one): how old, by the
+            device's clock (its latest state read), the velocity a re-arm carried was when its commit was
+            acknowledged. A contact plays the last committed re-arm, so its velocity is up to
+            ``rearm_interval_s`` plus this old.
         """
         out = dict(self.stats)
         n = min(self._rtt_n, RTT_RING)
         rtt = sorted(self._rtt_ring[:n]) if n else []
+        ages = sorted(self._rearm_ages)
+        out.update(rearm_age_median_s=ages[len(ages) // 2] if ages else None,
+                   rearm_age_max_s=ages[-1] if ages else None)
         out.update(longest_gap_s=self._longest_gap_s, rtt_samples=n,
                    rtt_median_s=rtt[n // 2] if n else None,
                    rtt_p99_s=rtt[min(n - 1, int(0.99 * n))] if n else None,
@@ -1069,6 +1080,7 @@ class ProtocolDevice(Device):
         if v < -0.005 and st.position_m > self._wall_height_m:
             self._last_rearm = now
             self._last_rearm_dev_t_s = st.t_s
+            self._upload_vel_t_s = st.t_s
             self._upload_rearm(self._transient, -v, st.grip_N, wait=False)
 
     def _on_event(self, payload: bytes) -> None:
