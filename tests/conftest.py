@@ -75,6 +75,33 @@ if importlib.util.find_spec("xdist") is not None:
         return parallel.auto_workers()
 
 
+#: Ctrl-C and the stop signals: their handling, as every test must leave it
+_STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _signal_state():
+    """(handler of each stop signal, the stop signals blocked in this thread)."""
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, ()) if hasattr(signal, "pthread_sigmask") else ()
+    return {s: signal.getsignal(s) for s in _STOP_SIGNALS}, sorted(set(blocked) & set(_STOP_SIGNALS))
+
+
+@pytest.fixture(autouse=True)
+def _signals_left_as_found():
+    """Each test leaves Ctrl-C, SIGTERM and SIGHUP as it found them. A handler, an ignore or a block left behind
+    passes on to every command the worker starts later (an ignored or blocked signal survives exec): such a
+    command then never hears the SIGTERM a later test sends it. Restored, and the test that left it fails."""
+    before = _signal_state()
+    yield
+    after = _signal_state()
+    if after != before:
+        handlers, blocked = before
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        if hasattr(signal, "pthread_sigmask"):
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, set(_STOP_SIGNALS) - set(blocked))
+        pytest.fail(f"the test changed the stop signals' handling and left it so: before {before}, after {after}")
+
+
 @pytest.fixture(scope="session")
 def default_demo(tmp_path_factory):
     """The sim demo with its default settings (``make demo``'s taps, no figures), run once per test run.
