@@ -287,7 +287,6 @@ class ProtocolDevice(Device):
         self._upload_q: collections.deque = collections.deque()  # re-arm frames not yet sent (one in flight)
         self._upload_key = None  # (type, seq) of the re-arm frame in flight
         self._upload_sent = 0.0
-        self._upload_vel_t_s = 0.0  # device clock of the velocity the re-arm in flight carries
         self._rearm_ages: collections.deque = collections.deque(maxlen=4096)  # see link_stats: rearm_age_*
         self._vel_ring = [(0.0, 0.0)] * 10
         self._vel_i = 0
@@ -539,7 +538,8 @@ class ProtocolDevice(Device):
                 if tuple(frame.payload) == self._upload_key:
                     if self._upload_key[0] == P.REARM_COMMIT:
                         self.stats["rearms"] += 1
-                        self._rearm_ages.append(self._dev_t_s - self._upload_vel_t_s)
+                        # one upload in flight at a time: the last re-arm's clock is the velocity it carries
+                        self._rearm_ages.append(self._dev_t_s - self._last_rearm_dev_t_s)
                     self._upload_next()
                 else:
                     self._replies[tuple(frame.payload)] = (True, "")
@@ -1080,7 +1080,6 @@ class ProtocolDevice(Device):
         if v < -0.005 and st.position_m > self._wall_height_m:
             self._last_rearm = now
             self._last_rearm_dev_t_s = st.t_s
-            self._upload_vel_t_s = st.t_s
             self._upload_rearm(self._transient, -v, st.grip_N, wait=False)
 
     def _on_event(self, payload: bytes) -> None:
