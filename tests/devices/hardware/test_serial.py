@@ -80,7 +80,16 @@ def test_nan_and_oversize_commands_never_reach_the_wire(emulator):
         dev.command(1e6)
         assert dev.read().extra["current_A"] == pytest.approx(dev.info.current_amplifier_A)
         assert dev.rejected_commands == 1
-    assert handle.emulator.applied_A == 0.0  # close() zeroed the output
+    sent = dev.link_stats()["frames_tx"]
+    emu = handle.emulator
+    # close() sent the zero and waited for its reply; a reply that a loaded machine delays past the driver's
+    # timeout is given up on, and the emulator's thread reads the frame later: wait until it has read every frame
+    # the driver sent (not for its watchdog, which would zero the output too, and is ruled out below)
+    deadline = time.monotonic() + 10.0
+    while emu.stats["frames_in"] < sent and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert emu.stats["frames_in"] == sent, (emu.stats, sent)
+    assert emu.applied_A == 0.0 and emu.stats["watchdog_trips"] == 0  # close() zeroed the output
 
 
 @pytest.mark.parametrize("emulator", [{"faults": "garbage=0.2,corrupt=0.1"}], indirect=True)
