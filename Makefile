@@ -19,8 +19,10 @@ THEIRTESTS := /site-packages/.*/tests/
 
 .PHONY: demo test bench venv deps system-deps clean gallery artefacts
 
+PYTHON_OK = @test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
+
 $(STAMP): pyproject.toml
-	@test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
+	$(PYTHON_OK)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@# pip >= 22 does all we need (PEP 660 editable installs): skip the self-upgrade (a download and a reinstall) when it is that new
 	$(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 0))" \
@@ -55,12 +57,17 @@ demo: $(STAMP)
 # allow): modules are the units of work, costly ones first, the numba cache filled once while the workers
 # start (tests/support/parallel.py); TEST_WORKERS=0 runs in one process
 TEST_WORKERS ?= auto
-test: $(STAMP) $(COMPILED) deps
+test:
+	@# the venv and the system parts are independent (the provisioning needs only the standard library): on a
+	@# fresh clone they are made side by side, the parts' download and unpacking beside pip's install
+	@$(MAKE) --no-print-directory -j 3 --output-sync=target $(COMPILED) deps
 	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
-# once (stamp .deps/stamp.json); afterwards a check of a few milliseconds
-deps: $(STAMP)
-	@$(PY) -m plumbing.provision
+# once (stamp .deps/stamp.json); afterwards a check of a few milliseconds. Run by the Python that makes the
+# venv (it needs only the standard library), so it does not wait for the venv
+deps:
+	$(PYTHON_OK)
+	@$(PYTHON) -m plumbing.provision
 
 bench: $(STAMP) $(COMPILED)
 	$(PY) -m benchmarks
