@@ -53,7 +53,7 @@ from plumbing import provenance
 
 from ..library import HfamLibrary
 from ..recordings import Tap
-from .inversion import band_sos, check_model, forward_simulate, highpass_target, invert, nrmse_corr
+from .inversion import band_sos, check_model, forward_simulate, highpass_target, invert, nrmse_corr, sosfiltfilt
 from .selection import Selection, select_taps
 from .settings import BuildSettings
 
@@ -179,11 +179,11 @@ def build_library(
     limit = settings.peak_current_A
     for i, tp in enumerate(selection.selected):
         target = np.interp(t_grid, tp.t_s, tp.accel_m_s2, left=0.0, right=0.0)
-        target_s = signal.sosfiltfilt(smooth, target) * settings.gain
+        target_s = sosfiltfilt(smooth, target) * settings.gain
         desired[i] = target_s[source]
         # the desired acceleration: the recording without what the high-pass removes, with no phase turn
         target_hp = highpass_target(target_s, fs_hz, settings.highpass_hz, zero_phase=True)
-        d_band = signal.sosfiltfilt(verify, target_hp)[source]
+        d_band = sosfiltfilt(verify, target_hp)[source]
         for j, (name, model) in enumerate(models):
             cur, phase = _current(target_s, target_hp, d_band, model, fs_hz, settings, source, window, taper, verify)
             peak = float(np.max(np.abs(cur)))
@@ -202,7 +202,7 @@ def build_library(
             u = np.zeros(n_pad)
             u[window] = cur
             y = forward_simulate(model, u, fs_hz)
-            y_band = signal.sosfiltfilt(verify, y)[window]
+            y_band = sosfiltfilt(verify, y)[window]
             err, cc = nrmse_corr(y_band, d_band)
             verification.append({"v_in_m_s": tp.v_in_m_s, "grip_N": grips[j], "tap": tp.tap,
                                  "peak_A": float(np.max(np.abs(cur))), "nrmse": err, "corr": cc,
@@ -261,7 +261,7 @@ def _current(target_s, target_hp, d_band, model, fs_hz: float, settings: BuildSe
     for phase in (("causal", "zero") if settings.highpass_phase == "best" else (settings.highpass_phase,)):
         u = invert(target_s, model, fs_hz, settings, zero_phase_highpass=phase == "zero")[0] * mask
         for _ in range(settings.window_iterations):
-            err = signal.sosfiltfilt(verify, target_hp - forward_simulate(model, u, fs_hz))
+            err = sosfiltfilt(verify, target_hp - forward_simulate(model, u, fs_hz))
             u = u + invert(err, model, fs_hz, settings, zero_phase_highpass=False)[0] * mask
         out[phase] = u[source]
     if len(out) == 1:
@@ -271,7 +271,7 @@ def _current(target_s, target_hp, d_band, model, fs_hz: float, settings: BuildSe
     for phase, cur in out.items():
         u = np.zeros(target_s.size)
         u[window] = cur
-        y_band = signal.sosfiltfilt(verify, forward_simulate(model, u, fs_hz))[window]
+        y_band = sosfiltfilt(verify, forward_simulate(model, u, fs_hz))[window]
         err[phase] = nrmse_corr(y_band, d_band)[0]
     phase = min(err, key=err.get)
     return out[phase], phase
