@@ -54,7 +54,7 @@ from devices.sim import Person, SimDevice, SimParams, default_params, load_sim_p
 from devices.sim.presets import onedof_params
 
 from ..library import HfamLibrary
-from .pipeline import SETTINGS_FILE, build_from_folder
+from .pipeline import SETTINGS_FILE, build_from_folder_limits
 from .inversion import forward_simulate, sosfiltfilt
 from .refine import AT_LIMIT, aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, LINKAGES,  # noqa: F401
@@ -991,10 +991,10 @@ def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSet
     refined = HfamLibrary.load(folder / "library.npz")
     # the settings the pipeline built with (its metadata), so the rebuild is the library it refined
     bs = _build_settings(refined)
-    open_loop = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, info.current_peak_A,
-                                  info.force_per_amp_N_A, bs)[0]
-    raised, _, models, _, _ = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, transient_limit_A,
-                                                info.force_per_amp_N_A, bs)
+    # one build at both limits: a cell's current before it is scaled to the limit is the same in both
+    builds, models, _ = build_from_folder_limits(folder, pipeline_settings, info.servo_rate_hz,
+                                                 [info.current_peak_A, transient_limit_A], info.force_per_amp_N_A, bs)
+    open_loop, raised = builds[0][0], builds[1][0]
     grips = [float(m.grip_N) for _, m in models]
     return open_loop, refined, raised, list(zip(grips, [m for _, m in models]))
 
