@@ -13,6 +13,7 @@ from plumbing.validation import require_number
 from .hfam import scoring
 from .hfam.pipeline import Progress, build_pipeline
 from .hfam.settings import PipelineSettings
+from .library import HfamLibrary
 
 #: what the command writes into --out (other files there are the user's)
 PRODUCTS = ("scores.csv", "claims.json", "scores.txt", "pipeline")
@@ -67,6 +68,11 @@ def run(args) -> int:
     """Run the pipeline (or read ``--pipeline``), score it, print and write the tables; returns the exit code."""
     _check(args)
     linkage = _linkage(args)
+    if args.pipeline is not None:
+        # the folder's refined library is at hand: unseen speeds or grips it was refined on are refused before the
+        # open-loop libraries are rebuilt (score_pipeline checks them as it scores, for a pipeline run here)
+        scoring.generalisation_conditions(HfamLibrary.load(args.pipeline / "library.npz"),
+                                          args.unseen_speeds_m_s or (), args.unseen_grips_N)
     folder = output_folder(args.out, args.force, products=PRODUCTS, results="earlier scores").open()
     with folder:
         pipe = args.pipeline

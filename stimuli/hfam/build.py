@@ -38,6 +38,8 @@ Details and the reasons for each choice: docs/hfam_library.md.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import datetime as _dt
 import hashlib
 import math
@@ -53,7 +55,7 @@ from plumbing import provenance
 
 from ..library import HfamLibrary
 from ..recordings import Tap
-from .inversion import band_sos, check_model, forward_simulate, highpass_target, invert, nrmse_corr
+from .inversion import band_sos, check_model, forward_simulate, highpass_target, invert, nrmse_corr, sosfiltfilt
 from .selection import Selection, select_taps
 from .settings import BuildSettings
 
@@ -112,6 +114,33 @@ def build_library(
         Bad models (named), no usable taps, sample rate problems, or a
         transient above ``settings.peak_current_A`` (naming velocity and
         grip) when ``scale_to_limit`` is False.
+    """
+    return build_library_limits(taps, fs_hz, models, settings, [settings.peak_current_A],
+                                force_per_amp_N_A=force_per_amp_N_A, log=log, provenance=provenance)[0]
+
+
+def build_library_limits(
+    taps: Sequence[Tap],
+    fs_hz: float,
+    models: Sequence[tuple[str, object]],
+    settings: BuildSettings,
+    peak_currents_A: Sequence[float | None],
+    *,
+    force_per_amp_N_A: float,
+    log: Callable[[str], None] | None = None,
+    provenance: dict | None = None,
+) -> list[tuple[HfamLibrary, BuildReport]]:
+    """:func:`build_library` for each of several peak current limits (``settings.peak_current_A`` replaced by each).
+
+    A transient's current before it is scaled to the limit does not depend on the limit: each cell is inverted
+    once and scaled for each library (a scoring run builds the open-loop library at the device's peak current and
+    again at a raised transient limit). Each library and report is the one :func:`build_library` returns with
+    ``dataclasses.replace(settings, peak_current_A=limit)``, to the bit.
+
+    Returns
+    -------
+    list of (HfamLibrary, BuildReport)
+        One per limit, in order.
     """
     t_start = time.perf_counter()
     say = log or (lambda msg: None)
@@ -172,68 +201,78 @@ def build_library(
         model_notes.append(note)
         say("  " + note)
 
-    currents = np.zeros((len(velocities), len(models), n_t))
+    limits = list(peak_currents_A)
+    each = [settings if lim == settings.peak_current_A else dataclasses.replace(settings, peak_current_A=lim)
+            for lim in limits]
+    currents = [np.zeros((len(velocities), len(models), n_t)) for _ in limits]
     desired = np.zeros((len(velocities), n_t))
-    verification = []
-    scaled = []
-    limit = settings.peak_current_A
+    verification = [[] for _ in limits]
+    scaled = [[] for _ in limits]
     for i, tp in enumerate(selection.selected):
         target = np.interp(t_grid, tp.t_s, tp.accel_m_s2, left=0.0, right=0.0)
-        target_s = signal.sosfiltfilt(smooth, target) * settings.gain
+        target_s = sosfiltfilt(smooth, target) * settings.gain
         desired[i] = target_s[source]
         # the desired acceleration: the recording without what the high-pass removes, with no phase turn
         target_hp = highpass_target(target_s, fs_hz, settings.highpass_hz, zero_phase=True)
-        d_band = signal.sosfiltfilt(verify, target_hp)[source]
+        d_band = sosfiltfilt(verify, target_hp)[source]
         for j, (name, model) in enumerate(models):
-            cur, phase = _current(target_s, target_hp, d_band, model, fs_hz, settings, source, window, taper, verify)
-            peak = float(np.max(np.abs(cur)))
-            factor = 1.0
-            if limit is not None and peak > limit:
-                where = f"velocity {tp.v_in_m_s:.4g} m/s, grip {grips[j]:g} N (model {name})"
-                if not settings.scale_to_limit:
-                    raise ValueError(f"transient at {where} needs {peak:.3f} A, above the device peak limit "
-                                     f"{limit:g} A; lower --gain, or use --scale-to-limit")
-                factor = limit / peak
-                cur = cur * factor
-                msg = f"scaled transient at {where} by {factor:.3f} (peak {peak:.3f} A -> {limit:g} A)"
-                scaled.append(msg)
-                say("  " + msg)
-            currents[i, j] = cur
-            u = np.zeros(n_pad)
-            u[window] = cur
-            y = forward_simulate(model, u, fs_hz)
-            y_band = signal.sosfiltfilt(verify, y)[window]
-            err, cc = nrmse_corr(y_band, d_band)
-            verification.append({"v_in_m_s": tp.v_in_m_s, "grip_N": grips[j], "tap": tp.tap,
-                                 "peak_A": float(np.max(np.abs(cur))), "nrmse": err, "corr": cc,
-                                 "scale": factor, "highpass": phase})
+            cur0, phase, y_band0 = _current(target_s, target_hp, d_band, model, fs_hz, settings, source, window,
+                                            taper, verify)
+            peak = float(np.max(np.abs(cur0)))
+            for k, limit in enumerate(limits):
+                cur, factor, y_band = cur0, 1.0, y_band0
+                if limit is not None and peak > limit:
+                    where = f"velocity {tp.v_in_m_s:.4g} m/s, grip {grips[j]:g} N (model {name})"
+                    if not settings.scale_to_limit:
+                        raise ValueError(f"transient at {where} needs {peak:.3f} A, above the device peak limit "
+                                         f"{limit:g} A; lower --gain, or use --scale-to-limit")
+                    factor = limit / peak
+                    cur, y_band = cur0 * factor, None
+                    msg = f"scaled transient at {where} by {factor:.3f} (peak {peak:.3f} A -> {limit:g} A)"
+                    scaled[k].append(msg)
+                    say("  " + msg)
+                currents[k][i, j] = cur
+                if y_band is None:            # not the current _current ran through the model: run this one
+                    u = np.zeros(n_pad)
+                    u[window] = cur
+                    y = forward_simulate(model, u, fs_hz)
+                    y_band = sosfiltfilt(verify, y)[window]
+                err, cc = nrmse_corr(y_band, d_band)
+                verification[k].append({"v_in_m_s": tp.v_in_m_s, "grip_N": grips[j], "tap": tp.tap,
+                                        "peak_A": float(np.max(np.abs(cur))), "nrmse": err, "corr": cc,
+                                        "scale": factor, "highpass": phase})
         say(f"  built velocity {i + 1}/{len(velocities)}: {tp.v_in_m_s:.4g} m/s x {len(models)} grip level(s)")
 
     elapsed = time.perf_counter() - t_start
-    report = BuildReport(selection, verification, scaled, model_notes, elapsed)
-    metadata = {
-        "software_version": _software_version(),
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "settings": _settings_dict(settings),
-        "models": [_model_dict(name, model) for name, model in models],
-        "selection": {
-            "selected": [{"tap": tp.tap, "v_in_m_s": tp.v_in_m_s} for tp in selection.selected],
-            "dropped": [{"tap": tp.tap, "v_in_m_s": tp.v_in_m_s, "reason": why} for tp, why in selection.dropped],
-        },
-        "model_notes": model_notes,
-        "scaled": scaled,
-        "verification": verification,
-    }
-    metadata.update(provenance or {})
-    library = HfamLibrary(velocities, grips, currents, fs_hz, force_per_amp_N_A,
-                          max_extrapolation=settings.max_extrapolation, metadata=metadata,
-                          desired_accel_m_s2=desired, source="built library")
-    return library, report
+    out = []
+    for k, st in enumerate(each):
+        report = BuildReport(selection, verification[k], scaled[k], model_notes, elapsed)
+        metadata = {
+            "software_version": _software_version(),
+            "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "settings": _settings_dict(st),
+            "models": [_model_dict(name, model) for name, model in models],
+            "selection": {
+                "selected": [{"tap": tp.tap, "v_in_m_s": tp.v_in_m_s} for tp in selection.selected],
+                "dropped": [{"tap": tp.tap, "v_in_m_s": tp.v_in_m_s, "reason": why} for tp, why in selection.dropped],
+            },
+            "model_notes": list(model_notes),
+            "scaled": scaled[k],
+            "verification": verification[k],
+        }
+        metadata.update(copy.deepcopy(provenance or {}))
+        library = HfamLibrary(velocities, grips, currents[k], fs_hz, force_per_amp_N_A,
+                              max_extrapolation=st.max_extrapolation, metadata=metadata,
+                              desired_accel_m_s2=desired.copy(), source="built library")
+        out.append((library, report))
+    return out
 
 
 def _current(target_s, target_hp, d_band, model, fs_hz: float, settings: BuildSettings, source: slice,
-             window: slice, taper: np.ndarray, verify) -> tuple[np.ndarray, str]:
-    """One cell's current (A, samples t = (k+1)/fs after impact) and the high-pass phase it started from.
+             window: slice, taper: np.ndarray, verify) -> tuple[np.ndarray, str, np.ndarray | None]:
+    """One cell's current (A, samples t = (k+1)/fs after impact), the high-pass phase it started from and, with
+    ``best``, its response through ``model`` over ``window`` band-passed by ``verify`` (what the verification
+    computes for an unscaled current; None otherwise).
 
     The inverse (eq. 4.6) with the second-order high-pass near 10 Hz of
     section 4.4.1, ``causal`` (Tustin Butterworth) or ``zero`` (its magnitude
@@ -261,20 +300,20 @@ def _current(target_s, target_hp, d_band, model, fs_hz: float, settings: BuildSe
     for phase in (("causal", "zero") if settings.highpass_phase == "best" else (settings.highpass_phase,)):
         u = invert(target_s, model, fs_hz, settings, zero_phase_highpass=phase == "zero")[0] * mask
         for _ in range(settings.window_iterations):
-            err = signal.sosfiltfilt(verify, target_hp - forward_simulate(model, u, fs_hz))
+            err = sosfiltfilt(verify, target_hp - forward_simulate(model, u, fs_hz))
             u = u + invert(err, model, fs_hz, settings, zero_phase_highpass=False)[0] * mask
         out[phase] = u[source]
     if len(out) == 1:
         (phase, cur), = out.items()
-        return cur, phase
-    err = {}
+        return cur, phase, None
+    err, bands = {}, {}
     for phase, cur in out.items():
         u = np.zeros(target_s.size)
         u[window] = cur
-        y_band = signal.sosfiltfilt(verify, forward_simulate(model, u, fs_hz))[window]
-        err[phase] = nrmse_corr(y_band, d_band)[0]
+        bands[phase] = sosfiltfilt(verify, forward_simulate(model, u, fs_hz))[window]
+        err[phase] = nrmse_corr(bands[phase], d_band)[0]
     phase = min(err, key=err.get)
-    return out[phase], phase
+    return out[phase], phase, bands[phase]
 
 
 def format_verification(report: BuildReport, band_hz=(20.0, 1000.0)) -> str:

@@ -8,6 +8,7 @@ two-sided inverse), then high-passed; :func:`forward_simulate` and
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -100,10 +101,34 @@ def forward_simulate(model, current_A: np.ndarray, fs_hz: float) -> np.ndarray:
     -------
     ndarray, shape (n,), in m/s^2.
     """
-    zd, pd, kd = _discrete(model.zeros_rad_s, model.poles_rad_s, float(model.gain), fs_hz)
-    if pd.size == 0:
+    sos, kd = _forward_sos(*_zpk_key(model), float(fs_hz))
+    if sos is None:
         return kd * np.asarray(current_A, float)
-    return signal.sosfilt(signal.zpk2sos(zd, pd, kd), current_A)
+    return signal.sosfilt(sos.copy(), current_A)     # a writable copy: sosfilt's compiled loop wants one
+
+
+def _zpk_key(model) -> tuple[bytes, bytes, float]:
+    """A model's zeros, poles (complex, as bytes) and gain: what its filters depend on, as a cache key."""
+    return (np.asarray(model.zeros_rad_s, complex).tobytes(), np.asarray(model.poles_rad_s, complex).tobytes(),
+            float(model.gain))
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False      # shared by every call that hits the cache
+    return a
+
+
+# The builder and the refinement run the same few models (one per grip level) through forward_simulate and
+# invert hundreds of times per library; the filter design (zpk2sos) and the model's frequency response cost more
+# than the filtering itself. Both are pure functions of the model and the sizes: kept, so every call computes
+# what it computed before, from the same numbers.
+@functools.lru_cache(maxsize=64)
+def _forward_sos(zeros: bytes, poles: bytes, gain: float, fs_hz: float):
+    """The Tustin model's second-order sections (None if it has no poles) and its discrete gain."""
+    zd, pd, kd = _discrete(np.frombuffer(zeros, complex), np.frombuffer(poles, complex), gain, fs_hz)
+    if pd.size == 0:
+        return None, kd
+    return _read_only(signal.zpk2sos(zd, pd, kd)), kd
 
 
 def _zpk_response(zeros, poles, gain, s: np.ndarray) -> np.ndarray:
@@ -147,26 +172,37 @@ def invert(accel_m_s2: np.ndarray, model, fs_hz: float, settings: BuildSettings,
     current_A : ndarray, same shape as accel_m_s2
     n_added_zeros : int
     """
-    z0 = np.asarray(model.zeros_rad_s, complex)
-    p0 = np.asarray(model.poles_rad_s, complex)
-    zp, _, kp, n_added = make_proper(z0, p0, float(model.gain), settings.added_zero_hz, settings.added_zero_zeta)
     n = accel_m_s2.size
-    nfft = sp_fft.next_fast_len(2 * n, real=True)
-    f = sp_fft.rfftfreq(nfft, 1.0 / fs_hz)
-    below_nyquist, s = _tustin_s(f, fs_hz)
-    h = _zpk_response(zp, p0, kp, s)  # the proper model
-    added = _zpk_response(zp[z0.size:], [], kp / float(model.gain), s)  # Z(s), unit DC gain
-    highpass = _highpass(s, fs_hz, settings.highpass_hz)
-    if zero_phase_highpass:
-        highpass = np.abs(highpass)  # offline, like the smoothing: no phase turn inside the band
-    mag2 = (h * np.conj(h)).real
-    if settings.zero_phase_added_zeros:
-        highpass = highpass * (added / np.maximum(np.abs(added), 1e-300))
-    weight = highpass * np.conj(h) / (mag2 + 1e-12 * float(mag2.max()))
+    nfft, below_nyquist, weight, n_added = _inverse_weight(
+        *_zpk_key(model), float(fs_hz), n, float(settings.added_zero_hz), float(settings.added_zero_zeta),
+        float(settings.highpass_hz), bool(settings.zero_phase_added_zeros), bool(zero_phase_highpass))
     spectrum = sp_fft.rfft(accel_m_s2, nfft)
     spectrum[below_nyquist] *= weight
     spectrum[~below_nyquist] = 0.0
     return sp_fft.irfft(spectrum, nfft)[:n], n_added
+
+
+@functools.lru_cache(maxsize=64)
+def _inverse_weight(zeros: bytes, poles: bytes, gain: float, fs_hz: float, n: int, added_zero_hz: float,
+                    added_zero_zeta: float, highpass_hz: float, zero_phase_added_zeros: bool,
+                    zero_phase_highpass: bool):
+    """What :func:`invert` multiplies the spectrum by: the DFT length, which bins lie below Nyquist, the
+    weight there (high-pass over the proper model, Tikhonov-regularised) and the number of added zeros."""
+    z0, p0 = np.frombuffer(zeros, complex), np.frombuffer(poles, complex)
+    zp, _, kp, n_added = make_proper(z0, p0, gain, added_zero_hz, added_zero_zeta)
+    nfft = sp_fft.next_fast_len(2 * n, real=True)
+    f = sp_fft.rfftfreq(nfft, 1.0 / fs_hz)
+    below_nyquist, s = _tustin_s(f, fs_hz)
+    h = _zpk_response(zp, p0, kp, s)  # the proper model
+    added = _zpk_response(zp[z0.size:], [], kp / gain, s)  # Z(s), unit DC gain
+    highpass = _highpass(s, fs_hz, highpass_hz)
+    if zero_phase_highpass:
+        highpass = np.abs(highpass)  # offline, like the smoothing: no phase turn inside the band
+    mag2 = (h * np.conj(h)).real
+    if zero_phase_added_zeros:
+        highpass = highpass * (added / np.maximum(np.abs(added), 1e-300))
+    weight = highpass * np.conj(h) / (mag2 + 1e-12 * float(mag2.max()))
+    return nfft, _read_only(below_nyquist), _read_only(weight), n_added
 
 
 def highpass_target(accel_m_s2: np.ndarray, fs_hz: float, highpass_hz: float, zero_phase: bool = False) -> np.ndarray:
@@ -208,6 +244,38 @@ def nrmse_corr(y: np.ndarray, d: np.ndarray) -> tuple[float, float]:
     if np.std(y) == 0 or np.std(d) == 0:
         return err, 0.0
     return err, float(np.corrcoef(y, d)[0, 1])
+
+
+def sosfiltfilt(sos: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``scipy.signal.sosfiltfilt(sos, x)`` (odd padding of scipy's default length) with the filter's initial state
+    worked out once per filter.
+
+    scipy solves for the steady-state initial conditions (``sosfilt_zi``) on every call, which costs more than
+    the filtering of a tap-long signal; the builder and the refinement run the same two or three filters over
+    thousands of signals. The steps are scipy's, on the same numbers, so the result is the same to the bit. Anything
+    but a 1-D float64 signal and float64 sections (or a signal too short for the padding: scipy's error) goes to
+    scipy itself.
+    """
+    x = np.asarray(x)
+    sos = np.asarray(sos)
+    if x.ndim != 1 or x.dtype != np.float64 or sos.ndim != 2 or sos.dtype != np.float64:
+        return signal.sosfiltfilt(sos, x)
+    zi, edge = _filtfilt_state(sos.tobytes(), sos.shape[0])
+    if x.shape[0] <= edge:
+        return signal.sosfiltfilt(sos, x)
+    # scipy's odd extension (scipy.signal._arraytools.odd_ext), then forwards and backwards from steady state
+    ext = np.concatenate((2 * x[0:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
+    y = signal.sosfilt(sos, ext, zi=zi * ext[0:1])[0]
+    y = signal.sosfilt(sos, y[::-1], zi=zi * y[-1:])[0]
+    return y[::-1][edge:-edge]
+
+
+@functools.lru_cache(maxsize=64)
+def _filtfilt_state(sos: bytes, n_sections: int) -> tuple[np.ndarray, int]:
+    """For :func:`sosfiltfilt`: the sections' steady-state initial conditions and scipy's padding length."""
+    s = np.frombuffer(sos, np.float64).reshape(n_sections, 6)
+    ntaps = 2 * n_sections + 1 - min(int(np.sum(s[:, 2] == 0)), int(np.sum(s[:, 5] == 0)))
+    return _read_only(signal.sosfilt_zi(s)), 3 * ntaps
 
 
 def band_sos(fs_hz: float, band_hz: tuple[float, float], order: int = 4):

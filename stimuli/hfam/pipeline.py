@@ -35,7 +35,7 @@ from stimuli.recordings import read_tap_csv
 
 from ..library import HfamLibrary
 from ..recordings import Tap
-from .build import build_library, format_verification
+from .build import build_library_limits, format_verification
 from .refine import RefineSettings, recording_targets, refine_library
 from .settings import TAP_STOP_TIME_S, BuildSettings, PipelineSettings  # noqa: F401 (re-exported: the pipeline's settings)
 
@@ -274,18 +274,37 @@ def build_from_folder(out: Path, s: PipelineSettings, fs_hz: float, peak_current
     settings : BuildSettings
         What was used.
     """
+    ((lib, rep, bs),), models, rec_taps = build_from_folder_limits(out, s, fs_hz, [peak_current_A], force_per_amp_N_A,
+                                                                settings)
+    return lib, rep, models, rec_taps, bs
+
+
+def build_from_folder_limits(out: Path, s: PipelineSettings, fs_hz: float, peak_currents_A, force_per_amp_N_A: float,
+                             settings: BuildSettings | None = None):
+    """:func:`build_from_folder` at each of several current limits, reading the folder and inverting each cell once
+    (:func:`stimuli.hfam.build.build_library_limits`): each library is the one :func:`build_from_folder` builds at
+    that limit.
+
+    Returns
+    -------
+    builds : list of (HfamLibrary, BuildReport, BuildSettings)
+        One per limit, in order.
+    models : list of (name, ZpkModel)
+    taps : list of Tap
+    """
     mset = load_model_set(out / "identify")
     models = [(f"identify/accel_g{g:g}N.json", m) for g, m in zip(mset.grip_N, mset.models["accel_m_s2"])]
     fs_rec, rec_taps = read_tap_csv(out / "recordings.csv")
     # the reader estimates fs from t_s steps (9999.99999...); the library must carry the servo rate exactly
     fs_rec = fs_hz if abs(fs_rec - fs_hz) < 1e-6 * fs_hz else fs_rec
     bs = settings or BuildSettings(n_velocities=min(s.library_velocities, len(rec_taps)), smooth_hz=s.smooth_hz)
-    bs = dataclasses.replace(bs, peak_current_A=float(peak_current_A), scale_to_limit=True)
-    lib, rep = build_library(rec_taps, fs_rec, models, bs, force_per_amp_N_A=force_per_amp_N_A,
-                             log=None, provenance={"source_files": {"recordings": "recordings.csv",
-                                                                    "models": [n for n, _ in models]},
-                                                   "device": s.device, "built_by": "python -m renderer demo"})
-    return lib, rep, models, rec_taps, bs
+    each = [dataclasses.replace(bs, peak_current_A=float(limit), scale_to_limit=True) for limit in peak_currents_A]
+    built = build_library_limits(rec_taps, fs_rec, models, each[0], [b.peak_current_A for b in each],
+                                 force_per_amp_N_A=force_per_amp_N_A, log=None,
+                                 provenance={"source_files": {"recordings": "recordings.csv",
+                                                              "models": [n for n, _ in models]},
+                                             "device": s.device, "built_by": "python -m renderer demo"})
+    return [(lib, rep, b) for (lib, rep), b in zip(built, each)], models, rec_taps
 
 
 def identify_grips(dev, s: PipelineSettings, out: Path, say) -> str:

@@ -49,7 +49,7 @@ from devices.sim import TapTrajectory
 
 from ..library import HfamLibrary
 from ._fasttap import tap_on_wall
-from .inversion import band_sos, forward_simulate, invert, nrmse_corr
+from .inversion import band_sos, forward_simulate, invert, nrmse_corr, sosfiltfilt
 from .settings import MAX_SMOOTH_HZ, BuildSettings
 
 
@@ -414,7 +414,7 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
                 continue
             v_plan[(i, j)] *= v_lib / v_in          # next time arrive at the cell's velocity
             d = library.desired_accel_m_s2[i]
-            yb, db = signal.sosfiltfilt(sos, y), signal.sosfiltfilt(sos, d)
+            yb, db = sosfiltfilt(sos, y), sosfiltfilt(sos, d)
             yb = aligned(yb, db, max_lag)
             err, corr = nrmse_corr(yb, db)
             rows.append((v_lib, g, err, corr))
@@ -434,7 +434,7 @@ def refine_library(library: HfamLibrary, models: Sequence[tuple[str, object]], d
             du, _ = invert(padded, model, fs, build_settings)
             # the correction smoothed like the target: the inverse's gain above the band (e.g. a 5 N model's
             # zero near 1.46 kHz) would otherwise build up currents the 20-1000 Hz error never sees
-            du = signal.sosfiltfilt(smooth, du)
+            du = sosfiltfilt(smooth, du)
             cur[i, j] = np.clip(cur[i, j] + cell_gain[(i, j)] * du[pre:pre + n_t], -peak, peak)
         if it == settings.iterations:
             # the library keeps each cell's best transient; report those
@@ -532,7 +532,7 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
     pre, post = int(round(build_settings.pre_pad_s * fs)), int(round(build_settings.post_pad_s * fs))
     max_lag = int(round(settings.max_lag_s * fs))
     smooth = [signal.butter(build_settings.smooth_order, h, fs=fs, output="sos") for h in settings.candidate_smooth_hz]
-    targets = [signal.sosfiltfilt(sos, d) for d in recs]
+    targets = [sosfiltfilt(sos, d) for d in recs]
 
     def measure(c: tuple, u: np.ndarray) -> tuple[float, float, np.ndarray]:
         i, j = c
@@ -541,7 +541,7 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
         if not np.all(np.isfinite(y)) or not math.isfinite(v_in) or v_in <= 0:
             return math.inf, math.nan, np.zeros(n_t)
         v_plan[c] *= float(library.velocities_m_s[i]) / v_in
-        yb = aligned(signal.sosfiltfilt(sos, y), targets[i], max_lag)
+        yb = aligned(sosfiltfilt(sos, y), targets[i], max_lag)
         err, corr = nrmse_corr(yb, targets[i])
         return err, corr, targets[i] - yb
 
@@ -581,7 +581,7 @@ def _second_stage(library: HfamLibrary, cur: np.ndarray, recs: np.ndarray, open_
             du_raw, _ = invert(np.concatenate([np.zeros(pre), e0, np.zeros(post)]), model, fs, build_settings)
             trials = []
             for sm in smooth:
-                du = signal.sosfiltfilt(sm, du_raw)[pre:pre + n_t]
+                du = sosfiltfilt(sm, du_raw)[pre:pre + n_t]
                 u = np.clip(cur[c] + gain * du, -peak, peak)
                 trials.append((*measure(c, u), u, du))
             err, corr, e, u, du = min(trials, key=lambda t: t[0])

@@ -54,8 +54,8 @@ from devices.sim import Person, SimDevice, SimParams, default_params, load_sim_p
 from devices.sim.presets import onedof_params
 
 from ..library import HfamLibrary
-from .pipeline import SETTINGS_FILE, build_from_folder
-from .inversion import forward_simulate
+from .pipeline import SETTINGS_FILE, build_from_folder_limits
+from .inversion import forward_simulate, sosfiltfilt
 from .refine import AT_LIMIT, aligned, play_tap
 from .settings import (DEFAULT_TRANSIENT_LIMIT_A, GRIPS_N, ISSUE_UNSEEN_SPEEDS_M_S, LINKAGES,  # noqa: F401
                        OPEN_LOOP_SPEEDS_M_S, TAP_STOP_TIME_S, UNSEEN_GRIPS_N, BuildSettings, PipelineSettings)
@@ -299,7 +299,7 @@ def compare(x_win: np.ndarray, ref_win: np.ndarray, fs_hz: float, s: ScoreSettin
     after impact (the demo's ``renderer.demo.metrics.compare``).
     """
     sos = signal.butter(2, list(s.band_hz), btype="bandpass", fs=fs_hz, output="sos")
-    xb, rb = signal.sosfiltfilt(sos, x_win), signal.sosfiltfilt(sos, ref_win)
+    xb, rb = sosfiltfilt(sos, x_win), sosfiltfilt(sos, ref_win)
     n_pre, n_eval = int(round(s.pre_s * fs_hz)), int(round(s.eval_s * fs_hz))
     lo, hi = int(round(s.min_lag_s * fs_hz)), int(round(s.max_lag_s * fs_hz))
     xb = np.concatenate([xb, np.zeros(hi)])
@@ -645,8 +645,8 @@ def model_mismatch(library: HfamLibrary, models: Sequence[tuple[float, object]],
             model = models[int(np.argmin(np.abs(levels - g)))][1]
             # transient sample k is commanded on tick k + 1 after the crossing; accel[j] follows command j
             predicted = np.concatenate([[0.0], forward_simulate(model, u, fs)[:-1]])
-            p_b = signal.sosfiltfilt(sos, predicted)
-            y = aligned(signal.sosfiltfilt(sos, tap.accel_m_s2 - plain.accel_m_s2), p_b, int(round(1e-3 * fs)))
+            p_b = sosfiltfilt(sos, predicted)
+            y = aligned(sosfiltfilt(sos, tap.accel_m_s2 - plain.accel_m_s2), p_b, int(round(1e-3 * fs)))
             rows.append({"velocity_m_s": float(v), "grip_N": float(g), "peak_A": float(np.max(np.abs(u))),
                          "nrmse": float(np.sqrt(np.mean((y - p_b) ** 2) / np.mean(p_b ** 2)))})
     return rows
@@ -991,10 +991,10 @@ def pipeline_libraries(folder, pipeline_settings: PipelineSettings = PipelineSet
     refined = HfamLibrary.load(folder / "library.npz")
     # the settings the pipeline built with (its metadata), so the rebuild is the library it refined
     bs = _build_settings(refined)
-    open_loop = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, info.current_peak_A,
-                                  info.force_per_amp_N_A, bs)[0]
-    raised, _, models, _, _ = build_from_folder(folder, pipeline_settings, info.servo_rate_hz, transient_limit_A,
-                                                info.force_per_amp_N_A, bs)
+    # one build at both limits: a cell's current before it is scaled to the limit is the same in both
+    builds, models, _ = build_from_folder_limits(folder, pipeline_settings, info.servo_rate_hz,
+                                                 [info.current_peak_A, transient_limit_A], info.force_per_amp_N_A, bs)
+    open_loop, raised = builds[0][0], builds[1][0]
     grips = [float(m.grip_N) for _, m in models]
     return open_loop, refined, raised, list(zip(grips, [m for _, m in models]))
 

@@ -239,3 +239,32 @@ def test_low_band_content_keeps_its_phase(model_factory):
     assert {r["highpass"] for r in new.verification} <= {"causal", "zero"}
     with pytest.raises(ValueError, match="highpass_phase"):
         BuildSettings(highpass_phase="linear")
+
+
+def test_filters_kept_per_model_give_scipys_numbers_to_the_bit():
+    """The builder's filters computed once per model or filter (stimuli.hfam.inversion: the Tustin sections of
+    forward_simulate, invert's weight, sosfiltfilt's initial state) give exactly what scipy computes afresh."""
+    from stimuli.hfam.inversion import forward_simulate, sosfiltfilt
+
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal(3001) * 50.0
+    x[:1200] = 0.0
+    designs = (band_sos(FS_HZ, (20.0, 1000.0)),                     # the verification band
+               signal.butter(2, [20.0, 1000.0], btype="bandpass", fs=FS_HZ, output="sos"),   # the scoring's
+               signal.butter(3, 300.0, fs=FS_HZ, output="sos"))        # odd order: a section with zeros at 0
+    for sos in designs:
+        for _ in range(2):                                   # the second call reads the kept state
+            assert np.array_equal(sosfiltfilt(sos, x), signal.sosfiltfilt(sos, x))
+            assert np.array_equal(sosfiltfilt(sos, x[:40]), signal.sosfiltfilt(sos, x[:40]))
+    with pytest.raises(ValueError, match="greater than padlen"):
+        sosfiltfilt(band_sos(FS_HZ, (20.0, 1000.0)), x[:20])
+    settings = BuildSettings()
+    for model in (minimum_phase_model(), rhp_zero_model()):
+        zd, pd, kd = signal.bilinear_zpk(np.asarray(model.zeros_rad_s, complex), np.asarray(model.poles_rad_s, complex),
+                                         float(model.gain), FS_HZ)
+        want = signal.sosfilt(signal.zpk2sos(np.asarray(zd, complex), np.asarray(pd, complex), float(np.real(kd))), x)
+        for _ in range(2):
+            assert np.array_equal(forward_simulate(model, x, FS_HZ), want)
+        first = invert(x, model, FS_HZ, settings, zero_phase_highpass=True)[0]
+        assert np.array_equal(invert(x, model, FS_HZ, settings, zero_phase_highpass=True)[0], first)
+        assert not np.array_equal(invert(x, model, FS_HZ, settings)[0], first)   # the causal high-pass: its own weight
