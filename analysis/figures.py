@@ -60,9 +60,9 @@ def stars(p: np.ndarray, alpha: float = 0.05) -> np.ndarray:
 def _fix_layout(fig) -> None:
     """Compute ``fig``'s constrained layout now and keep it (the layout engine is set to none).
 
-    :func:`figstyle.save` draws a figure twice per format (a measuring pass for the layout and the
-    tight box, then the rendering), and an active layout engine redoes the whole layout, measuring
-    every tick label again, in each measuring pass: once is enough for a figure that is not resized.
+    An active layout engine redoes the whole layout, measuring every tick label again, in every draw
+    of :func:`figstyle.save`; once is enough for a figure that is not resized, and a figure without an
+    active engine is measured once and drawn once per format (no draw only to lay it out).
     Called inside :func:`figstyle.style`, so the layout sees the fonts the figure is saved with.
     """
     fig.get_layout_engine().execute(fig)
@@ -392,28 +392,39 @@ def build_ordinal_probs(probabilities: pd.DataFrame):
     ratings = [int(c) for c in wide.columns]
     expected = (wide * np.array(ratings)[None, :]).sum(axis=1)
     order = expected.sort_values(ascending=False, kind="stable").index.tolist()
+    p_model = wide.loc[order].to_numpy(dtype=float)          # (sample in plotted order, rating)
+    # the observed share of each (sample, rating): its first row, as a lookup instead of a filter per segment
+    observed: dict = {}
+    for key, p_obs in zip(zip(probabilities["sample"], probabilities["rating"]), probabilities["p_observed"]):
+        observed.setdefault(key, p_obs)
     rows = []
+    for y, sample in enumerate(order):
+        left = 0.0
+        for c, r in enumerate(ratings):
+            p = float(p_model[y, c])
+            p_obs = observed.get((sample, r))
+            rows.append({"sample": sample, "y": y, "rating": r, "p_model": p,
+                         "p_observed": float(p_obs) if p_obs is not None else np.nan,
+                         "left": left, "expected_rating": float(expected[sample])})
+            left += p
     with figstyle.style() as plt:
         cmap = plt.get_cmap("cividis")
         fig, ax = plt.subplots(figsize=figstyle.figsize("page", height_in=0.25 * len(order) + 1.4),
                                layout="constrained")
-        for y, sample in enumerate(order):
-            left = 0.0
-            for c, r in enumerate(ratings):
-                p = float(wide.loc[sample, r])
-                ax.barh(y, p, left=left, color=cmap(c / max(len(ratings) - 1, 1)), edgecolor="white",
-                        linewidth=0.4, label=str(r) if y == 0 else None)
-                obs = probabilities[(probabilities["sample"] == sample) & (probabilities["rating"] == r)]
-                rows.append({"sample": sample, "y": y, "rating": r, "p_model": p,
-                             "p_observed": float(obs["p_observed"].iloc[0]) if len(obs) else np.nan,
-                             "left": left, "expected_rating": float(expected[sample])})
-                left += p
+        # every segment in one call, sample by sample as they are drawn (one call per segment cost as much as
+        # the figure's layout); the legend shows the first sample's segment of each rating
+        colors = [cmap(c / max(len(ratings) - 1, 1)) for c in range(len(ratings))]
+        bars = ax.barh([row["y"] for row in rows], [row["p_model"] for row in rows],
+                       left=[row["left"] for row in rows], color=colors * len(order), edgecolor="white",
+                       linewidth=0.4)
+        handles = list(bars.patches[:len(ratings)]) if order else []
         ax.set_yticks(range(len(order)), [_label(s) for s in order])
         ax.invert_yaxis()
         ax.set_xlim(0, 1)
         ax.set_xlabel("probability of each rating (1), at the mean incoming velocity")
         ax.set_title("Ordinal (proportional-odds) model: P(rating) per sample", loc="left")
-        ax.legend(title="rating", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        ax.legend(handles, [str(r) for r in ratings[:len(handles)]], title="rating", loc="upper left",
+                  bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         ax.grid(False)
         _fix_layout(fig)
     return fig, pd.DataFrame(rows)

@@ -65,3 +65,32 @@ def test_one_measurement_for_both_formats(tmp_path, monkeypatch):
     figstyle.save(_figure(), tmp_path / "once")
     assert calls == ["RendererAgg"]
     assert (tmp_path / "once.png").stat().st_size > 20_000 and (tmp_path / "once.svg").stat().st_size > 20_000
+
+
+def test_a_kept_layout_saves_as_savefig_does(tmp_path):
+    """A figure whose constrained layout was computed once and kept (analysis.figures): figstyle.save leaves out
+    savefig's draws before measuring and before the SVG, and writes the bytes savefig writes with them."""
+    fig = _figure()
+    fig.set_layout_engine("constrained")
+    fig.get_layout_engine().execute(fig)
+    fig.set_layout_engine("none")
+    out = figstyle.save(fig, tmp_path / "saved", close=False)
+    with plt.style.context(str(figstyle.STYLE_PATH)):
+        calls = []
+        measure = fig.get_tightbbox
+
+        def kept(*args, **kwargs):
+            got = measure(*args, **kwargs)
+            calls.append(got)
+            return got
+
+        fig.get_tightbbox = kept
+        fig.savefig(tmp_path / "alone.png", metadata=PNG_META)
+        del fig.get_tightbbox
+        # the SVG with the PNG's box, drawn by savefig with its draw before the rendering
+        fig.savefig(tmp_path / "alone.svg", metadata=SVG_META,
+                    bbox_inches=calls[0].padded(matplotlib.rcParams["savefig.pad_inches"]))
+    plt.close(fig)
+    assert out["png"].read_bytes() == (tmp_path / "alone.png").read_bytes()
+    assert out["svg"].read_bytes() == (tmp_path / "alone.svg").read_bytes()
+    assert fig.get_layout_engine() is not None        # the placeholder is back
