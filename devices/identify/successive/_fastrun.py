@@ -1,5 +1,6 @@
-"""numba loop of :func:`devices.identify.successive.experiment.run_on_sim_fast`: the PD/feedforward law of
-:func:`~devices.identify.successive.experiment.run_on_device` around the sim kernel's ``tick``."""
+"""numba loop of :func:`devices.identify.successive.experiment.run_on_sim_fast` and ``run_on_sim_device``: the
+PD/feedforward law of :func:`~devices.identify.successive.experiment.run_on_device` around the sim kernel's
+``tick``."""
 
 from __future__ import annotations
 

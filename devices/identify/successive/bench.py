@@ -9,7 +9,7 @@ from ...base import Device
 from ...sim.mechconfig import get_config
 from ..record import hold_user
 from .common import StageError
-from .experiment import Experiment, Trace, run_on_device
+from .experiment import Experiment, Trace, run_on_device, run_on_sim_device
 
 
 class Bench:
@@ -104,7 +104,9 @@ class Bench:
             else:
                 meas = None
         self.ticks += exp.n
-        tr = run_on_device(dev, exp, meas)
+        tr = run_on_sim_device(dev, exp, measure_current) if self.simulated else None
+        if tr is None:
+            tr = run_on_device(dev, exp, meas)
         if not allow_saturation and exp.ref_m is not None and float(np.max(np.abs(tr.i_A))) >= limit:
             raise StageError(f"test {exp.name!r} saturated the amplifier (the controller asked for "
                              f"{float(np.max(np.abs(tr.i_A))):.3g} A, limit {limit:.3g} A); the result is not used")

@@ -4,6 +4,7 @@ a stage's outermost parameters on it (scipy.optimize), stage results and errors 
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -168,9 +169,15 @@ class ModelBuilder:
     def simulate(self, config: str, experiments, extra: dict | None = None, quantized: bool = True) -> list[Trace]:
         """Run ``experiments`` on the model (one fresh device per call, each experiment from rest); values
         ``person.<field>`` (e.g. the hand mass) set the simulated person holding the model's handle."""
+        return list(self.simulate_each(config, experiments, extra, quantized))
+
+    def simulate_each(self, config: str, experiments, extra: dict | None = None, quantized: bool = True):
+        """:meth:`simulate`'s traces one at a time, each run when asked for (the same device and the same
+        numbers): a caller that has seen enough stops before the rest are simulated."""
         dev = self.device(config, extra, quantized)
         hand = person_with({**self.values, **(extra or {})})
-        return [run_on_sim_fast(dev, e, hand) for e in experiments]
+        for e in experiments:
+            yield run_on_sim_fast(dev, e, hand)
 
 
 def nrmse(y: np.ndarray, y_hat: np.ndarray) -> float:
@@ -235,11 +242,28 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
         sx = float(np.std(tr.x_m)) or 1.0
         sa = float(np.std(tr.a_m_s2)) or 1.0
         scales.append((sx, sa))
+    # the model's traces at the last few parameter values, by the values' bits: the encoder offset is no model
+    # parameter, so the Jacobian's offset column and the solution's final traces simulate values just
+    # simulated (a fifth of an isolation's simulated ticks); the model is deterministic (a fresh noiseless
+    # device per call), so the stored traces are the ones a new simulation would give, bit for bit
+    memo: OrderedDict[bytes, list[Trace]] = OrderedDict()
+    keep = len(names) + 2                          # a base point, its Jacobian's points and the next step
+
+    def simulate(vals: dict) -> list[Trace]:
+        key = np.array(list(vals.values()), dtype=float).tobytes()     # names in a fixed order; -0.0 != 0.0
+        sims = memo.get(key)
+        if sims is None:
+            sims = memo[key] = builder.simulate(config, experiments, {**fixed, **vals}, quantized)
+            while len(memo) > keep:
+                memo.popitem(last=False)
+        else:
+            memo.move_to_end(key)
+        return sims
 
     def residual(x):
         vals = from_x(x)
         off = vals.pop(OFFSET, 0.0)
-        sims = builder.simulate(config, experiments, {**fixed, **vals}, quantized)
+        sims = simulate(vals)
         parts = []
         for tr, sm, (sx, sa) in zip(traces, sims, scales):
             w = 1.0 / math.sqrt(tr.x_m.size)
@@ -254,7 +278,7 @@ def fit_on_model(builder: ModelBuilder, config: str, experiments: list[Experimen
                         method="trf")
     vals = from_x(res.x)
     off = vals.pop(OFFSET, 0.0)
-    sims = builder.simulate(config, experiments, {**fixed, **vals}, quantized)
+    sims = simulate(vals)
     err = []
     for tr, sm in zip(traces, sims):
         if "x" in channel:
@@ -284,13 +308,15 @@ def log_grid_init(builder: ModelBuilder, config: str, experiments, traces, name:
     """
     best, best_err = lo, math.inf
     for v in np.geomspace(lo, hi, n):
-        sims = builder.simulate(config, experiments, {**(fixed or {}), name: float(v)}, quantized)
+        sims = builder.simulate_each(config, experiments, {**(fixed or {}), name: float(v)}, quantized)
         e = 0.0
         for tr, sm in zip(traces, sims):
             if "x" in channel:
                 e += nrmse(tr.x_m, sm.x_m)
             if "a" in channel:
                 e += nrmse(tr.a_m_s2, sm.a_m_s2)
+            if e >= best_err:
+                break   # the other experiments only add to it: not the best, whatever they give
         if e < best_err:
             best, best_err = float(v), e
     return best

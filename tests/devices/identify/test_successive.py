@@ -271,6 +271,44 @@ def test_fast_sim_play_is_tick_for_tick_the_python_loop():
     assert out[0][1:] == out[1][1:]
 
 
+def test_bench_on_the_sim_is_tick_for_tick_the_python_servo_loop():
+    """``Bench.run`` plays the sim in one numba call (``run_on_sim_device``): the same trace and the same
+    device afterwards as the Python servo loop, closed loop with clipping and open loop; a device not at rest
+    is left to the Python loop, untouched."""
+    from devices.identify.successive.experiment import run_on_device, run_on_sim_device, step_sequence
+
+    fs = 1e4
+    ref = step_sequence(fs, (0.004, -0.002), 0.05)
+    ff = 3.5 * np.sin(np.arange(ref.size) / 40.0)              # with the PD law above the 4 A clamp at times
+    exps = [Experiment("closed", ff, ref, 2000.0, 4.0, grip_N=2.0), Experiment("open", 0.5 * ff, grip_N=0.0)]
+    out = []
+    for fast in (True, False):
+        dev = SimDevice(seed=5)
+        rows = []
+        for e in exps:
+            dev.set_user(None, grip_N=e.grip_N)
+            if fast:
+                tr = run_on_sim_device(dev, e, measure_current=True)
+            else:
+                tr = run_on_device(dev, e, lambda: dev.true_state()["amplifier_current_A"])
+            st = dev.read()
+            rows.append((tr, (st.t_s, st.position_m, st.accel_m_s2, st.status, dev.last_command_A, dev._held_A,
+                              int(dev._rs[0])), dev.true_state()))
+        out.append(rows)
+    for (a, sa, ta), (b, sb, tb) in zip(*out):
+        for name in ("x_m", "a_m_s2", "i_A", "iamp_A"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert sa == sb and ta == tb
+    assert np.max(np.abs(out[0][0][0].i_A)) == 4.0
+    dev = SimDevice(seed=5)
+    dev.set_user(None, grip_N=2.0)
+    dev.command(0.3)                                           # moved since set_user: not at rest
+    before = (dev._s.copy(), dev.true_state())
+    assert run_on_sim_device(dev, exps[0]) is None
+    np.testing.assert_array_equal(dev._s, before[0])
+    assert dev.true_state() == before[1]
+
+
 def test_amplifier_by_ammeter_prompts_without_current_sense():
     """Hardware without a current sense: the operator reads an ammeter (here: answers what the sim carries)."""
     from devices.identify.successive.amplifier import identify_amplifier
