@@ -157,11 +157,12 @@ def _cache_filled() -> bool:
     as it would be anyway). Then there is nothing to warm: a developer's second run starts at once."""
     import importlib.util
 
-    from tests.support.jitwarm import KERNELS
+    from tests.support.jitwarm import CACHE_NAMES, KERNELS
 
     for module, function, _ in (k for part in KERNELS for k in part):
         source = Path(importlib.util.find_spec(module).origin)
-        index = list((source.parent / "__pycache__").glob(f"{source.stem}.{function}-*.nbi"))
+        name = CACHE_NAMES.get((module, function), function)
+        index = list((source.parent / "__pycache__").glob(f"{source.stem}.{name}-*.nbi"))
         if not index or max(p.stat().st_mtime for p in index) < source.stat().st_mtime:
             return False
     return True
