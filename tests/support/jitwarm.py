@@ -20,11 +20,6 @@ import argparse
 import importlib
 import sys
 
-from numba import types
-from numba.core import sigutils
-
-from renderer import sim_aot
-
 A = "float64[::1]"
 U = "uint64[::1]"
 A2 = "float64[:, ::1]"
@@ -61,6 +56,12 @@ CACHE_NAMES = {("renderer.law3", "law3_tick"): "_law3_tick"}
 
 
 def _signature(function: str, args) -> tuple:
+    # imported here: parallel._cache_filled reads KERNELS in every test run, which then needs no numba
+    from numba import types
+    from numba.core import sigutils
+
+    from renderer import sim_aot
+
     if args is None:
         text = sim_aot.SIGNATURE if function == "run_sim" else sim_aot.TICK_SIGNATURE
         return sigutils.normalize_signature(text)[0]
