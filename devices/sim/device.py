@@ -527,6 +527,11 @@ class SimDevice(Device):
             "pending_current_A": self._held_A,
         }
 
+    def contact_force_N(self) -> float:
+        """The sample's contact force now (N): :meth:`true_state`'s ``contact_force_N`` without the rest of the
+        dict (a study polls it every few ticks of a real sample's window to see saturation)."""
+        return float(self._s[K.S_FCONTACT])
+
     def linear_model(self, grip_N: float = 2.0, output: str = "accel_m_s2", linkage: str = "small_signal"):
         """Analytic LTI model of commanded current -> handle acceleration (or motor position).
 

@@ -325,7 +325,8 @@ class Apparatus:
         force_of = None
         if real:
             if self.is_sim:
-                force_of = lambda: dev.true_state()["contact_force_N"]  # noqa: E731
+                # the 1-DOF sim reads the one value (polled every few ticks); another sim builds its true state
+                force_of = getattr(dev, "contact_force_N", None) or (lambda: dev.true_state()["contact_force_N"])
             elif "contact_force_N" in st.extra:
                 force_of = lambda: st.extra["contact_force_N"]  # noqa: E731
         flim = self.force_limit_N

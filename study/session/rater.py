@@ -31,6 +31,7 @@ experience (novices noisier, section 4.5.5), rounded and clipped to 1..7.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -41,6 +42,19 @@ REFERENCE_SAMPLE = "wood"
 BAND_HZ = (20.0, 1000.0)
 WINDOW_S = 0.1
 NOISE_SD = {"none": 1.0, "few": 0.6, "regular": 0.35}
+
+
+@functools.lru_cache(maxsize=4)
+def _band_sos(fs_hz: float) -> np.ndarray:
+    """The features' band-pass (2nd-order Butterworth, :data:`BAND_HZ`, at most 0.45 ``fs_hz``) as second-order
+    sections; designed once per rate (every attempt's taps use it). The cached array is shared: callers take a
+    copy (scipy's ``sosfilt`` wants a writable one)."""
+    from scipy import signal  # deferred: 1.0 s of CPU to import
+
+    nyq = 0.5 * fs_hz
+    hi = min(BAND_HZ[1], 0.45 * fs_hz)
+    sos = signal.butter(2, [BAND_HZ[0] / nyq, hi / nyq], btype="bandpass", output="sos")
+    return sos
 
 
 def tap_features(t_s: np.ndarray, accel_m_s2: np.ndarray, impact_times_s, fs_hz: float) -> np.ndarray:
@@ -63,9 +77,8 @@ def tap_features(t_s: np.ndarray, accel_m_s2: np.ndarray, impact_times_s, fs_hz:
     # scipy.signal
     from scipy import signal  # deferred: 1.0 s of CPU to import
 
-    nyq = 0.5 * fs_hz
     hi = min(BAND_HZ[1], 0.45 * fs_hz)
-    sos = signal.butter(2, [BAND_HZ[0] / nyq, hi / nyq], btype="bandpass", output="sos")
+    sos = _band_sos(float(fs_hz)).copy()
     n_win = int(round(WINDOW_S * fs_hz))
     out = np.full((len(impact_times_s), 2), np.nan)
     if len(t_s) == 0:

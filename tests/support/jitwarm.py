@@ -20,11 +20,6 @@ import argparse
 import importlib
 import sys
 
-from numba import types
-from numba.core import sigutils
-
-from renderer import sim_aot
-
 A = "float64[::1]"
 U = "uint64[::1]"
 A2 = "float64[:, ::1]"
@@ -38,7 +33,8 @@ ZERO = "Literal[int](0)"
 #: equal cost (measured from an empty cache: part 0 ~10 s of CPU, the 1-DOF closed loop, the identification
 #: and HFAM kernels (~5 s) and the 3-DOF proxy and loop (~5.5 s, which also compile the lateral axes' step);
 #: part 1 ~7 s, the teleoperation session). None: the signature of renderer.sim_aot. A kernel listed here is
-#: one its module's ``__pycache__`` names (parallel._cache_filled looks for ``<module>.<function>-*.nbi``).
+#: one its module's ``__pycache__`` names (parallel._cache_filled looks for ``<module>.<function>-*.nbi``,
+#: or the name of :data:`CACHE_NAMES`).
 KERNELS = (
     (("renderer.law", "run_sim", None),
      ("devices.sim.kernel", "tick", None),           # compiled with run_sim: found in the cache here
@@ -54,8 +50,18 @@ KERNELS = (
     (("devices.sim.teleop_kernel", "run_session", (A, A, U, A, A, A2, I, I, I)),),
 )
 
+#: the name numba's cache files carry for a kernel made by ``njit(...)(f)`` from a function of another name
+#: (the file is named after ``f``): (module, kernel) -> that name
+CACHE_NAMES = {("renderer.law3", "law3_tick"): "_law3_tick"}
+
 
 def _signature(function: str, args) -> tuple:
+    # imported here: parallel._cache_filled reads KERNELS in every test run, which then needs no numba
+    from numba import types
+    from numba.core import sigutils
+
+    from renderer import sim_aot
+
     if args is None:
         text = sim_aot.SIGNATURE if function == "run_sim" else sim_aot.TICK_SIGNATURE
         return sigutils.normalize_signature(text)[0]

@@ -13,6 +13,7 @@ import csv
 import json
 import os
 import signal
+import sys
 import time
 import traceback
 from pathlib import Path
@@ -77,11 +78,16 @@ def rating_args(work: Path, out: Path, resume: bool, subject: str = "K") -> list
             "--samples", SAMPLES, "--repetitions", str(REPETITIONS)]
 
 
-def forked(argv: list[str], env: dict) -> int:
-    """Run ``study`` ``main(argv)`` in a forked child; returns its wait status as -signal or exit code."""
+def forked(argv: list[str], env: dict, stdout: Path | None = None, stderr: Path | None = None) -> int:
+    """Run ``study`` ``main(argv)`` in a forked child; returns its wait status as -signal or exit code.
+
+    ``stdout``, ``stderr``: files that receive what the child prints there (default: its standard output is
+    thrown away, its errors go where this process's go).
+    """
     pid = os.fork()
     if pid == 0:  # child
         code = 70
+        opened = []
         try:
             store._CRASH_COUNT = 0
             os.environ.pop("STUDY_CRASH_AT", None)
@@ -89,12 +95,21 @@ def forked(argv: list[str], env: dict) -> int:
             os.environ.update(env)
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, 1)
+            # a test runner may have replaced sys.stdout/sys.stderr (pytest's capture): the files take both
+            # the descriptors and the Python streams
+            for path, fd, name in ((stdout, 1, "stdout"), (stderr, 2, "stderr")):
+                if path is not None:
+                    os.dup2(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644), fd)
+                    opened.append(open(fd, "w", closefd=False))
+                    setattr(sys, name, opened[-1])
             code = study_main(argv)
         except SystemExit as exc:
             code = exc.code if isinstance(exc.code, int) else 1
         except BaseException:
             traceback.print_exc()
         finally:
+            for stream in opened:   # os._exit flushes nothing
+                stream.flush()
             os._exit(code)
     _, status = os.waitpid(pid, 0)
     return -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)

@@ -1,29 +1,35 @@
 """--resume never loses what is on disk (auditor: resume_truncates_row, resume_deletes_user_tmp): a complete
 last row that only lacks its newline is kept; a torn one is kept in ``trials.csv.torn`` with a note; only
-the atomic writes' own temporary files are removed, never a user's ``*.tmp``."""
+the atomic writes' own temporary files are removed, never a user's ``*.tmp``.
 
-import os
+Each session (the one killed, then its ``--resume``) runs ``study run`` in a forked child of this warm process
+(:func:`tests.support.kills.forked`): a process of its own, killed by a real SIGKILL, without an interpreter
+start-up and its imports each time."""
+
 import signal
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+import study.session.store as store
 from tests.support.files import sha256
+from tests.support.kills import forked
 
-from tests.support.study import quick_args, read_rows
+from tests.support.study import quick_args, read_rows, run_study
 
-ROOT = Path(__file__).resolve().parents[3]
 SAMPLES = ("--samples", "wood,firm")
 
 
-def _study(tmp: Path, *args, env=None):
-    cmd = [sys.executable, "-m", "study", "run", "--quiet", *[str(a) for a in args]]
+def _study(tmp: Path, *args, env=None) -> subprocess.CompletedProcess:
+    """``study run --quiet`` (a new simulated session, or ``--resume``) in a forked child: its exit status
+    (-signal when killed), what it printed on stdout and on stderr."""
+    argv = ["run", "--quiet", *[str(a) for a in args]]
     if "--resume" not in args:
-        cmd[5:5] = ["--device", "sim", "--participant", "simulated"]
-    return subprocess.run(cmd, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT), **(env or {})),
-                          capture_output=True, text=True, timeout=300)
+        argv[2:2] = ["--device", "sim", "--participant", "simulated"]
+    out, err = tmp / "study.stdout", tmp / "study.stderr"
+    code = forked(argv, dict(env or {}), stdout=out, stderr=err)
+    return subprocess.CompletedProcess(argv, code, out.read_text(), err.read_text())
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +37,12 @@ def killed_after_second_row(tmp_path_factory):
     """A function making a session SIGKILLed right after its 2nd familiarization row reached trials.csv."""
     ref = tmp_path_factory.mktemp("ref")
     log = ref / "steps.log"
-    assert _study(ref, *quick_args(ref, "S02", 3, *SAMPLES), env={"STUDY_CRASH_LOG": str(log)}).returncode == 0
+    # the uninterrupted session runs in this process, counting its durable steps: the forks then inherit its
+    # imports
+    store._CRASH_COUNT = 0
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("STUDY_CRASH_LOG", str(log))
+        assert run_study(*quick_args(ref, "S02", 3, *SAMPLES)) == 0
     steps = [ln.split(" ", 1) for ln in log.read_text().splitlines()]
     at = next(n for n, name in steps if name == "row written: familiarization 2/1")
 
