@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -194,14 +195,26 @@ def add_metrics(trace: TapTrace, reference: np.ndarray | None, fs_hz: float) -> 
         trace.metrics = {"peak_accel_m_s2": math.nan, "dominant_freq_hz": math.nan, "nrmse": math.nan,
                          "correlation": math.nan, "lag_ms": math.nan}
         return trace
-    peak, f_dom = dm.contact_metrics(trace.accel, fs_hz, PRE_S, POST_S)
+    # the window's band-pass serves both its frequency and the comparison, the reference's every tap at its speed
+    x_bp = dm.bandpass(trace.accel, fs_hz)
+    peak, f_dom = dm.contact_metrics(trace.accel, fs_hz, PRE_S, POST_S, x_bp=x_bp)
     m = {"peak_accel_m_s2": peak, "dominant_freq_hz": f_dom, "nrmse": math.nan, "correlation": math.nan,
          "lag_ms": math.nan}
     if reference is not None and np.all(np.isfinite(reference)):
-        c = dm.compare(trace.accel, reference, fs_hz, PRE_S, POST_S, **ALIGN)
+        c = dm.compare(trace.accel, reference, fs_hz, PRE_S, POST_S, **ALIGN, x_bp=x_bp,
+                       ref_bp=_reference_bandpass(np.asarray(reference, dtype=float).tobytes(), float(fs_hz)))
         m.update(nrmse=c.nrmse, correlation=c.correlation, lag_ms=c.lag_samples / fs_hz * 1e3)
     trace.metrics = m
     return trace
+
+
+@lru_cache(maxsize=32)
+def _reference_bandpass(reference: bytes, fs_hz: float) -> np.ndarray:
+    """``dm.bandpass`` of a reference window given by its float64 bytes (the demo compares every rendering's taps
+    at a speed with the same reference), read-only."""
+    out = dm.bandpass(np.frombuffer(reference, dtype=np.float64), fs_hz)
+    out.flags.writeable = False
+    return out
 
 
 #: alignment search of the comparison (see demo_metrics): the rendered trace may lag the real one by up to
