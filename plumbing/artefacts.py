@@ -27,6 +27,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from .fileio import user_cache_dir
+
 ROOT = Path(__file__).resolve().parents[1]
 #: the files of an input tree that make results (code, parameters, data the code reads); caches and tests aside
 INPUT_SUFFIXES = (".py", ".toml", ".json", ".mplstyle", ".npz")
@@ -139,8 +141,6 @@ _DIGESTS: dict = {}
 
 def _digest_file(key: str) -> Path:
     """Where the user cache keeps the inputs digest of the raw key ``key`` (``plumbing.fileio.user_cache_dir``)."""
-    from .fileio import user_cache_dir
-
     return user_cache_dir() / "artefact-inputs" / f"{key[:32]}.sha256"
 
 

@@ -44,13 +44,20 @@ WINDOW_S = 0.1
 NOISE_SD = {"none": 1.0, "few": 0.6, "regular": 0.35}
 
 
+def _scipy_signal():
+    """:mod:`scipy.signal`, loaded on first use: only a simulated participant's ratings need it, and a lab's keyboard
+    session and its servo process start without it."""
+    from scipy import signal  # deferred: 1.0 s of CPU to import
+
+    return signal
+
+
 @functools.lru_cache(maxsize=4)
 def _band_sos(fs_hz: float) -> np.ndarray:
     """The features' band-pass (2nd-order Butterworth, :data:`BAND_HZ`, at most 0.45 ``fs_hz``) as second-order
     sections; designed once per rate (every attempt's taps use it). The cached array is shared: callers take a
     copy (scipy's ``sosfilt`` wants a writable one)."""
-    from scipy import signal  # deferred: 1.0 s of CPU to import
-
+    signal = _scipy_signal()
     nyq = 0.5 * fs_hz
     hi = min(BAND_HZ[1], 0.45 * fs_hz)
     sos = signal.butter(2, [BAND_HZ[0] / nyq, hi / nyq], btype="bandpass", output="sos")
@@ -73,10 +80,7 @@ def tap_features(t_s: np.ndarray, accel_m_s2: np.ndarray, impact_times_s, fs_hz:
     ndarray, shape (n_impacts, 2)
         Columns: rms, centroid; NaN for an impact whose window is incomplete.
     """
-    # only a simulated participant's ratings get here: a lab's keyboard session and its servo process start without
-    # scipy.signal
-    from scipy import signal  # deferred: 1.0 s of CPU to import
-
+    signal = _scipy_signal()
     hi = min(BAND_HZ[1], 0.45 * fs_hz)
     sos = _band_sos(float(fs_hz)).copy()
     n_win = int(round(WINDOW_S * fs_hz))

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...base import Device
+from ...sim import layout as K
 from ._fastrun import run_pd
 
 
@@ -158,8 +159,6 @@ def run_on_sim_device(dev, exp: Experiment, measure_current: bool = False) -> Tr
     n = exp.n
     if type(dev).__name__ != "SimDevice" or n == 0:
         return None
-    from ...sim import layout as K
-
     st = dev.read()
     res = dev.info.position_resolution_m
     # run_pd starts from the encoder reading of the state and no acceleration reading: what set_user shows
