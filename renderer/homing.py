@@ -53,11 +53,16 @@ runs away from home; both are stopped with zero current (docs/study.md, "Homing 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from plumbing.validation import require_number, require_positive
 
+from . import law_layout as LL
+from . import sim_aot
 from .passivity import PassivityObserver, energy_limit, wall_energy
 from .safety import SafetyPath, safety_bounds, zero_on_error
 
@@ -145,6 +150,29 @@ class HomingResult:
 #: stop reasons after which the output was zeroed for safety (the owner should end its session)
 SAFETY_STOPS = ("sensor", "disconnected", "watchdog", "unstable", "runaway")
 
+_HOME_UNTIL = -1    # the compiled path's code for "until() returned True" (checked in Python)
+#: stop reason of each return code of the compiled loop (renderer.law.run_homing); HOME_RAN: its ticks ran out
+_HOME_REASONS = {LL.HOME_DISCONNECTED: "disconnected", LL.HOME_SENSOR: "sensor", LL.HOME_UNSTABLE: "unstable",
+                 LL.HOME_RUNAWAY: "runaway", LL.HOME_SETTLED: "settled", _HOME_UNTIL: "until"}
+
+
+def _unstable_message(observer, cfg, kp: float, kd: float) -> str:
+    """Why homing stopped as unstable, and what to change."""
+    return (f"homing generated {observer.energy_J * 1e3:.3g} mJ net over the last "
+            f"~{cfg.instability_window_s:g} s (limit {observer.limit_J * 1e3:.3g} mJ) at "
+            f"kp_N_m={kp:g}, kd_N_s_m={kd:g}: the homing PD oscillates on this device; "
+            "output zeroed. Lower homing kp_N_m or kd_N_s_m (a study protocol's "
+            "homing_kp_N_m, homing_kd_N_s_m; docs/study.md, 'Homing controller')")
+
+
+def _runaway_message(away: float, v: float, err: float, imax: float, kp: float, kd: float) -> str:
+    """Why homing stopped as a run-away, and what to check."""
+    return (f"the handle ran {away * 1e3:.0f} mm away from home (at {abs(v):.2f} m/s, "
+            f"now {abs(err) * 1e3:.0f} mm from it) while homing pushed toward home at "
+            f"its current limit {imax:g} A (kp_N_m={kp:g}, kd_N_s_m={kd:g}): the motor's "
+            "or the encoder's sign is probably reversed; output zeroed. Check the "
+            "device's calibration and wiring (docs/study.md, 'Homing controller')")
+
 
 class HomingController:
     """Saturated PD homing through the Device API (see module doc)."""
@@ -174,6 +202,25 @@ class HomingController:
         # library's servo thread, the Touch) would otherwise run a burst of ticks, then hold one force through
         # the pause at the next check, and the PD oscillates (measured: homing stopped as unstable in 0.2 s)
         self.pace_ticks = not info.on_device_clock
+
+    def _compiled_loop(self):
+        """The compiled homing loop (``renderer.law.run_homing``: the ahead-of-time build's when there is one,
+        else numba's JIT) if the device is exactly a :class:`devices.sim.SimDevice` whose physics step is its
+        own (``devices.sim.kernel.tick``, JIT or ahead of time), which that loop reproduces tick for tick;
+        else None (the Python loop: any other device)."""
+        dev = self.device
+        sim = sys.modules.get("devices.sim.device")
+        if sim is None or type(dev) is not sim.SimDevice:
+            return None
+        module = sim_aot.load()
+        step = dev._tick_fn
+        if step is not None:
+            kernel = sys.modules.get("devices.sim.kernel")
+            if not ((kernel is not None and step is kernel.tick)
+                    or (module is not None and step is getattr(module, "tick", None))):
+                return None
+        fn = getattr(module, "run_homing", None) if module is not None else None
+        return fn if fn is not None else sim_aot.jit_laws().law.run_homing
 
     def run(self, duration_s: float, until_settled: bool = False, min_duration_s: float = 0.0,
             until=None, check_every: int = 200, realtime: bool = False, zero_at_end: bool = True) -> HomingResult:
@@ -230,9 +277,66 @@ class HomingController:
         # the renderer's safety path (renderer.safety): sensor plausibility, current limit, winding heat,
         # watchdog, and zero output when anything raises
         safety = SafetyPath(b, imax)
+        fast = (self._compiled_loop() if (not pace_ticks and b.watchdog_period_ns is None and check_every >= 1)
+                else None)
         try:
             with zero_on_error(dev):
-                for tick in range(1, n + 1):
+                if fast is not None:
+                    # the same ticks in compiled chunks (renderer.law.run_homing): between them until() and the
+                    # realtime pause at its checks, and the hand's plan's next window (SimDevice.fused_span)
+                    h = np.zeros(LL.N_HOMING)
+                    for key, value in ((LL.H_HOME, home), (LL.H_SURFACE, surface), (LL.H_ARMED_LEVEL, armed_level),
+                                       (LL.H_KP, kp), (LL.H_KD, kd), (LL.H_INV_FPA, inv_fpa), (LL.H_IMAX, imax),
+                                       (LL.H_ALPHA, alpha), (LL.H_INV_DT, inv_dt), (LL.H_N, n), (LL.H_NMIN, n_min),
+                                       (LL.H_TOL, tol), (LL.H_VTOL, vtol), (LL.H_PLIM, plim),
+                                       (LL.H_ALIM, b.accel_limit_m_s2), (LL.H_MAX_BAD, b.max_bad_samples),
+                                       (LL.H_FMAX, fmax), (LL.H_FPA, fpa), (LL.H_RUN_DIST, run_dist),
+                                       (LL.H_RUN_SPEED, run_speed), (LL.H_DECAY, observer.decay),
+                                       (LL.H_ELIMIT, observer.limit_J), (LL.H_HEAT, b.heat_K_A2),
+                                       (LL.H_THERM_ALPHA, b.alpha), (LL.H_UNTIL_SETTLED, 1.0 if until_settled else 0.0),
+                                       (LL.H_CHECK_EVERY, check_every if (until is not None or realtime) else 0),
+                                       (LL.H_X_PREV, x_prev), (LL.H_X, x), (LL.H_ARMED, 1.0 if armed else 0.0),
+                                       (LL.H_TEMP, temp), (LL.H_STORED, observer._stored_J)):
+                        h[key] = value
+                    code = LL.HOME_RAN
+                    while int(h[LL.H_TICK]) < n:
+                        arrays = dev.fused_arrays()     # (the next window of the plan when this one is used up)
+                        span = dev.fused_span()
+                        dv = dev.fused_state()
+                        try:
+                            code = fast(h, dv, *arrays, min(n - int(h[LL.H_TICK]), span))
+                        finally:
+                            dev.fused_sync(dv)
+                        if code == LL.HOME_CHECK:
+                            tick = int(h[LL.H_TICK])
+                            if until is not None and until():
+                                code = _HOME_UNTIL
+                                break
+                            if realtime:
+                                ahead = tick * self.dt_s - (time.perf_counter() - wall0)
+                                if ahead > 0:
+                                    time.sleep(min(ahead, check_dt))
+                            if until_settled and tick >= n_min and abs(h[LL.H_X] - home) < tol \
+                                    and abs(h[LL.H_V]) < vtol:
+                                code = LL.HOME_SETTLED
+                                break
+                        elif code != LL.HOME_RAN:
+                            break
+                    tick, x, v = int(h[LL.H_TICK]), float(h[LL.H_X]), float(h[LL.H_V])
+                    contacts, away_max, temp = int(h[LL.H_CONTACTS]), float(h[LL.H_AWAY_MAX]), float(h[LL.H_TEMP])
+                    observer.energy_J, observer.peak_J = float(h[LL.H_E]), float(h[LL.H_PEAK])
+                    observer._stored_J = float(h[LL.H_STORED])
+                    safety.bad_in_row, safety.bad_total = int(h[LL.H_BAD_ROW]), int(h[LL.H_BAD_TOTAL])
+                    reason = _HOME_REASONS.get(code, "duration")
+                    settled = reason == "settled"
+                    err, away, dx = float(h[LL.H_ERR]), float(h[LL.H_AWAY]), float(h[LL.H_DX])
+                    if reason == "disconnected":
+                        message = str(state.extra.get("error") or "") if hasattr(state, "extra") else ""
+                    elif reason == "unstable":
+                        message = _unstable_message(observer, cfg, kp, kd)
+                    elif reason == "runaway":
+                        message = _runaway_message(away, v, err, imax, kp, kd)
+                for tick in (() if fast is not None else range(1, n + 1)):
                     # (1) read and validate
                     x, stop = safety.sample(state, x_prev)
                     if stop is not None:
@@ -248,11 +352,7 @@ class HomingController:
                     err = home - x
                     if observer.update(f_prev, dx, wall_energy(kp, fmax, abs(err), 1.0)):
                         reason = "unstable"
-                        message = (f"homing generated {observer.energy_J * 1e3:.3g} mJ net over the last "
-                                   f"~{cfg.instability_window_s:g} s (limit {observer.limit_J * 1e3:.3g} mJ) at "
-                                   f"kp_N_m={kp:g}, kd_N_s_m={kd:g}: the homing PD oscillates on this device; "
-                                   "output zeroed. Lower homing kp_N_m or kd_N_s_m (a study protocol's "
-                                   "homing_kp_N_m, homing_kd_N_s_m; docs/study.md, 'Homing controller')")
+                        message = _unstable_message(observer, cfg, kp, kd)
                         break
                     if armed:
                         if x < surface:
@@ -269,11 +369,7 @@ class HomingController:
                             away_max = away
                         if away > run_dist:
                             reason = "runaway"
-                            message = (f"the handle ran {away * 1e3:.0f} mm away from home (at {abs(v):.2f} m/s, "
-                                       f"now {abs(err) * 1e3:.0f} mm from it) while homing pushed toward home at "
-                                       f"its current limit {imax:g} A (kp_N_m={kp:g}, kd_N_s_m={kd:g}): the motor's "
-                                       "or the encoder's sign is probably reversed; output zeroed. Check the "
-                                       "device's calibration and wiring (docs/study.md, 'Homing controller')")
+                            message = _runaway_message(away, v, err, imax, kp, kd)
                             break
                     else:
                         away = 0.0

@@ -360,3 +360,176 @@ def run_sim(c, w, log, dev, sp, ss, srs, traj, grip, n_max):
         if code != CODE_OK:
             return j + 1
     return n_max
+
+
+@njit(cache=True, _nrt=False, nogil=True)
+def run_homing(h, dev, sp, ss, srs, traj, grip, n_max):
+    """Up to ``n_max`` ticks of :meth:`renderer.homing.HomingController.run`'s loop on the simulated device
+    (``devices.sim.kernel.tick``) in one call: the same safety path (sensor plausibility, the clamp at the
+    thermally safe current, the winding's heat), the same PD, passivity observer, contact and run-away
+    checks, the same ``SimDevice.command`` (its input rule, one period of output delay) and the same stops,
+    number for number (``tests/renderer/test_homing.py`` compares them tick for tick).
+
+    Parameters
+    ----------
+    h : float64 array (N_HOMING,)
+        The run's constants and the loop's state (``H_*`` of :mod:`renderer.law_layout`), read and written.
+    dev : float64 array (N_DEV,)
+        The device's Python-side state (``devices.sim.layout.D_*``), read and written.
+    sp, ss, srs, traj, grip : arrays of ``devices.sim.kernel.tick``.
+    n_max : int
+        Ticks at most in this call (the caller's window of the hand's plan).
+
+    Returns
+    -------
+    code : int
+        ``HOME_*``: ``HOME_RAN`` when the ticks ran out (``n_max`` or the run's ``H_N``), a stop
+        (disconnected, sensor, unstable, runaway, settled: the tick's command is sent only when the stop
+        comes after it, as in the Python loop), or ``HOME_CHECK`` after a tick whose ``until()`` the caller
+        checks (``H_CHECK_EVERY``), before that tick's settled test.
+    """
+    home = h[H_HOME]
+    surface = h[H_SURFACE]
+    armed_level = h[H_ARMED_LEVEL]
+    kp = h[H_KP]
+    kd = h[H_KD]
+    inv_fpa = h[H_INV_FPA]
+    imax = h[H_IMAX]
+    alpha = h[H_ALPHA]
+    inv_dt = h[H_INV_DT]
+    n = int(h[H_N])
+    n_min = int(h[H_NMIN])
+    tol = h[H_TOL]
+    vtol = h[H_VTOL]
+    plim = h[H_PLIM]
+    alim = h[H_ALIM]
+    max_bad = int(h[H_MAX_BAD])
+    fmax = h[H_FMAX]
+    fpa = h[H_FPA]
+    run_dist = h[H_RUN_DIST]
+    run_speed = h[H_RUN_SPEED]
+    decay = h[H_DECAY]
+    elimit = h[H_ELIMIT]
+    heat = h[H_HEAT]
+    talpha = h[H_THERM_ALPHA]
+    until_settled = h[H_UNTIL_SETTLED] != 0.0
+    check_every = int(h[H_CHECK_EVERY])
+    tick = int(h[H_TICK])
+    x_prev = h[H_X_PREV]
+    x = h[H_X]
+    v = h[H_V]
+    dx = h[H_DX]
+    err = h[H_ERR]
+    f_prev = h[H_F_PREV]
+    away = h[H_AWAY]
+    away_max = h[H_AWAY_MAX]
+    armed = h[H_ARMED] != 0.0
+    contacts = int(h[H_CONTACTS])
+    temp = h[H_TEMP]
+    energy = h[H_E]
+    peak = h[H_PEAK]
+    stored_prev = h[H_STORED]
+    bad_row = int(h[H_BAD_ROW])
+    bad_total = int(h[H_BAD_TOTAL])
+    code = HOME_RAN
+    j = 0
+    while j < n_max and tick < n:
+        j += 1
+        tick += 1
+        # (1) read and validate (renderer.safety.SafetyPath.sample)
+        status = int(dev[D_STATUS])
+        xs = dev[D_POS]
+        if status & STATUS_DISCONNECTED:
+            x = xs
+            code = HOME_DISCONNECTED
+            break
+        acc = dev[D_ACC]
+        if status & STATUS_SENSOR_INVALID or not (-plim <= xs <= plim) or not (-alim <= acc <= alim):
+            bad_row += 1
+            bad_total += 1
+            x = x_prev
+            if bad_row >= max_bad:
+                code = HOME_SENSOR
+                break
+        else:
+            bad_row = 0
+            x = xs
+        dx = x - x_prev
+        v += alpha * (dx * inv_dt - v)
+        x_prev = x
+        # passivity observer (renderer.passivity.PassivityObserver.update)
+        err = home - x
+        stored = _wall_energy(kp, fmax, abs(err), 1.0)
+        e = energy * decay + f_prev * dx + stored - stored_prev
+        if e < 0.0:
+            e = 0.0
+        energy = e
+        stored_prev = stored
+        if e > peak:
+            peak = e
+            if e > elimit:
+                code = HOME_UNSTABLE
+                break
+        if armed:
+            if x < surface:
+                contacts += 1
+                armed = False
+        elif x > armed_level:
+            armed = True
+        # (2) the homing law, (3) saturated (SafetyPath.current: NaN -> 0 A)
+        i = (kp * (home - x) - kd * v) * inv_fpa
+        if i > imax:
+            i = imax
+        elif i < -imax:
+            i = -imax
+        elif i != i:
+            i = 0.0
+        if (i == imax if err > 0.0 else i == -imax) and v * err < 0.0 and abs(v) > run_speed:
+            away += abs(dx)
+            if away > away_max:
+                away_max = away
+            if away > run_dist:
+                code = HOME_RUNAWAY
+                break
+        else:
+            away = 0.0
+        f_prev = i * fpa
+        temp = temp + (heat * i * i - temp) * talpha
+        # (4) SimDevice.command(i): the device's input rule, then one servo period of its physics
+        i, st, rejected = SK.command_rule_nb(i, dev[D_LIMIT])
+        dev[D_REJECTED] += rejected
+        dev[D_LAST] = i
+        applied = dev[D_HELD]
+        dev[D_HELD] = i
+        t = dev[D_TICK] + 1.0
+        dev[D_TICK] = t
+        p, a, g, hot = SK.tick(ss, sp, srs, traj, grip, int(t - 1.0 - dev[D_USER_TICK]), applied)
+        dev[D_T] = t * dev[D_PERIOD]
+        dev[D_POS] = p
+        dev[D_ACC] = a
+        dev[D_GRIP] = g
+        dev[D_STATUS] = st | HOT_STATUS if hot != 0.0 else st
+        if check_every > 0 and tick % check_every == 0:
+            code = HOME_CHECK
+            break
+        if until_settled and tick >= n_min and abs(x - home) < tol and abs(v) < vtol:
+            code = HOME_SETTLED
+            break
+    h[H_TICK] = tick
+    h[H_X_PREV] = x_prev
+    h[H_X] = x
+    h[H_V] = v
+    h[H_DX] = dx
+    h[H_ERR] = err
+    h[H_F_PREV] = f_prev
+    h[H_AWAY] = away
+    h[H_AWAY_MAX] = away_max
+    h[H_ARMED] = 1.0 if armed else 0.0
+    h[H_CONTACTS] = contacts
+    h[H_TEMP] = temp
+    h[H_E] = energy
+    h[H_PEAK] = peak
+    h[H_STORED] = stored_prev
+    h[H_BAD_ROW] = bad_row
+    h[H_BAD_TOTAL] = bad_total
+    return code

@@ -47,3 +47,15 @@ STATUS_SENSOR_INVALID, STATUS_DISCONNECTED = 16, 32
 LOG_COLUMNS = ("t_s", "position_m", "velocity_m_s", "penetration_m", "force_prop_N", "force_transient_N",
                "current_A", "clipped", "accel_m_s2", "grip_N", "temp_rise_K", "sensor_flags")
 N_LOG = len(LOG_COLUMNS)
+
+# ---- homing (renderer.law.run_homing, for renderer.homing.HomingController on the simulated device): one
+# vector of the PD's constants (set once per run) and its state (read and written, tick after tick)
+(H_HOME, H_SURFACE, H_ARMED_LEVEL, H_KP, H_KD, H_INV_FPA, H_IMAX, H_ALPHA, H_INV_DT, H_N, H_NMIN, H_TOL,
+ H_VTOL, H_PLIM, H_ALIM, H_MAX_BAD, H_FMAX, H_FPA, H_RUN_DIST, H_RUN_SPEED, H_DECAY, H_ELIMIT, H_HEAT,
+ H_THERM_ALPHA, H_UNTIL_SETTLED, H_CHECK_EVERY,
+ H_TICK, H_X_PREV, H_X, H_V, H_DX, H_ERR, H_F_PREV, H_AWAY, H_AWAY_MAX, H_ARMED, H_CONTACTS, H_TEMP, H_E,
+ H_PEAK, H_STORED, H_BAD_ROW, H_BAD_TOTAL) = range(43)
+N_HOMING = 43
+# why run_homing returned: its ticks ran out (the chunk or the run: H_TICK says which), a stop of the
+# module doc of renderer.homing, or a tick whose until() the caller checks (H_CHECK_EVERY)
+(HOME_RAN, HOME_DISCONNECTED, HOME_SENSOR, HOME_UNSTABLE, HOME_RUNAWAY, HOME_CHECK, HOME_SETTLED) = range(7)

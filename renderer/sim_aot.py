@@ -9,8 +9,8 @@ scipy.linalg) and loading the cached machine code. The same functions compiled o
 into extension modules load in milliseconds without numba, so a whole ``renderer run --device sim`` (or
 ``sim:3d``) process costs little more than its physics.
 
-Two builds (:data:`TARGETS`), each its own extension: the 1-DOF loop (``_hfam_sim_loop``: ``run_sim`` and
-the device's physics step ``tick``) and the 3-D loop (``_hfam_sim3_loop``: ``run_sim3``, the per-tick
+Two builds (:data:`TARGETS`), each its own extension: the 1-DOF loop (``_hfam_sim_loop``: ``run_sim``,
+the device's physics step ``tick`` and homing's loop ``run_homing``, :mod:`renderer.homing`) and the 3-D loop (``_hfam_sim3_loop``: ``run_sim3``, the per-tick
 ``law3_tick``, the proxy's ``proxy_step`` and ``first_hit``, and ``tick``), so an edit of the 3-D law
 leaves the 1-DOF build in use and the other way round.
 
@@ -59,6 +59,9 @@ SIGNATURE = ("int64(float64[::1], float64[::1], float64[:, ::1], float64[::1], f
 #: devices.sim.kernel.tick(s, p, rs, traj, grip, k, i_cmd) -> (position_m, accel_m_s2, grip_N, hot)
 TICK_SIGNATURE = ("UniTuple(float64, 4)(float64[::1], float64[::1], uint64[::1], float64[::1], float64[::1], "
                   "int64, float64)")
+#: renderer.law.run_homing(h, dev, sp, ss, srs, traj, grip, n_max) -> return code (renderer.homing's compiled loop)
+HOMING_SIGNATURE = ("int64(float64[::1], float64[::1], float64[::1], float64[::1], uint64[::1], float64[::1], "
+                    "float64[::1], int64)")
 _SCENE = "float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[::1]"      # obj, tri, node, stack
 #: renderer.law3.run_sim3(c, w, obj, tri, node, stack, log, dev, sp, ss, srs, traj, grip, lat, lp, frame, igrav,
 #: n_max) -> ticks run
@@ -104,7 +107,8 @@ class Target:
 
 #: the 1-DOF simulated loop (renderer.law.run_sim) and the device's physics step
 LOOP1 = Target("1d", MODULE, SOURCES, (("run_sim", "renderer.law:run_sim", SIGNATURE),
-                                       ("tick", "devices.sim.kernel:tick", TICK_SIGNATURE)))
+                                       ("tick", "devices.sim.kernel:tick", TICK_SIGNATURE),
+                                       ("run_homing", "renderer.law:run_homing", HOMING_SIGNATURE)))
 #: the 3-D simulated loop (renderer.law3.run_sim3), its per-tick law, the proxy's steps, the physics step
 LOOP3 = Target("3d", "_hfam_sim3_loop", SOURCES3, (("run_sim3", "renderer.law3:run_sim3", SIGNATURE3),
                                                    ("law3_tick", "renderer.law3:law3_tick", LAW3_SIGNATURE),

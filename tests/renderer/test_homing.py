@@ -219,3 +219,79 @@ def test_homing_paces_every_tick_on_a_device_that_does_not_wait():
     # tick k (from 1) is commanded after the deadline of tick k-1: sleep never returns early
     assert np.all(t[1:] - t0 >= np.arange(1, len(t)) * dt_s - 1e-6)
     assert time.perf_counter() - t0 >= 0.3 - dt_s
+
+
+def _sim_state(dev):
+    """Everything of a SimDevice a later tick depends on: physics, noise stream, the Python side, the sample."""
+    st = dev.read()
+    return (dev._s.tolist(), dev._rs.tolist(), dev._tick, dev._held_A, dev.last_command_A, dev.rejected_commands,
+            st.t_s, st.position_m, st.accel_m_s2, st.grip_N, st.status, dev.trajectory_done)
+
+
+def _homing_case(case):
+    """A fresh SimDevice and homing controller for ``case``, and the run's arguments."""
+    dev = SimDevice(seed=3).open()
+    cfg = HomingConfig(home_height_m=0.01)
+    kw = {}
+    if case == "settle":            # from above, until settled after a minimum time (the study's pre-trial homing)
+        dev.set_user(0.03, grip_N=2.0)
+        dev.set_user(None, grip_N=0.5)
+        kw = dict(duration_s=3.0, until_settled=True, min_duration_s=0.05)
+    elif case == "saturating":      # a firm hand 40 mm above home: homing pushes at its current limit all along
+        dev.set_user(0.05, grip_N=8.0)
+        kw = dict(duration_s=0.4)
+    elif case == "unstable":        # gains far too high: buzzes at the limit until the observer stops it
+        dev.set_user(0.03, grip_N=2.0)
+        dev.set_user(None, grip_N=0.5)
+        cfg = HomingConfig(home_height_m=0.01, kp_N_m=3e4)
+        kw = dict(duration_s=2.0)
+    elif case == "overpowered":     # a late tap through the homing force (contacts), until the hand is done
+        dev.set_sample("wood")
+        dev.set_user(TapTrajectory([0.15], 1, approach_height_m=0.01, press_depth_m=0.03), grip_N=8.0,
+                     hand="prescribed")
+        kw = dict(duration_s=1.5, until=lambda: dev.trajectory_done and dev.read().t_s > 1.0, check_every=100)
+    elif case == "long":            # past the hand's first plan window (SimDevice streams it): from below, warm
+        dev.set_user(0.0, grip_N=lambda t: 1.0 + 0.5 * np.sin(6.0 * np.asarray(t)))
+        kw = dict(duration_s=7.0, until_settled=True, min_duration_s=6.8, zero_at_end=False)
+    ctl = HomingController(dev, cfg)
+    ctl.temp_rise_K = 4.0
+    return dev, ctl, kw
+
+
+@pytest.mark.parametrize("case", ["settle", "saturating", "unstable", "overpowered", "long"])
+def test_homing_on_the_sim_is_tick_for_tick_the_python_loop(case, monkeypatch):
+    """A plain SimDevice homes in compiled chunks (renderer.law.run_homing): the same result, the same device
+    and noise stream after it, and (sampled every tick through until()) the same ticks as the Python loop."""
+    def run(compiled, every_tick):
+        dev, ctl, kw = _homing_case(case)
+        assert (ctl._compiled_loop() is not None) is compiled
+        trace = []
+        if every_tick:
+            inner = kw.get("until")
+
+            def until():
+                st = dev.read()
+                trace.append((st.t_s, st.position_m, st.accel_m_s2, st.grip_N, st.status, dev.last_command_A))
+                return inner is not None and inner()
+            kw = {**kw, "until": until, "check_every": 1}
+        res = ctl.run(**kw)
+        return dataclasses.asdict(res), ctl.temp_rise_K, _sim_state(dev), trace, ctl.max_current_A
+
+    for every_tick in (False, True):
+        fast = run(True, every_tick)
+        with monkeypatch.context() as m:
+            m.setattr(HomingController, "_compiled_loop", lambda self: None)
+            slow = run(False, every_tick)
+        assert fast == slow, case
+        if every_tick:
+            # until() sees every tick's sample, bar the last one of a safety stop (it stops before the check)
+            assert len(fast[3]) == fast[0]["ticks"] - (fast[0]["stop_reason"] == "unstable")
+    res = fast[0]
+    assert res["stop_reason"] == {"settle": "settled", "saturating": "duration", "unstable": "unstable",
+                                  "overpowered": "until", "long": "settled"}[case], res
+    if case == "saturating":    # at the current limit (the safety path's clamp), tick after tick
+        assert sum(abs(t[5]) == fast[4] for t in fast[3]) > 0.5 * len(fast[3])
+    if case == "overpowered":
+        assert res["contacts"] == 1
+    if case == "long":
+        assert res["ticks"] > (1 << 16)

@@ -38,6 +38,7 @@ ZERO = "Literal[int](0)"
 KERNELS = (
     (("renderer.law", "run_sim", None),
      ("devices.sim.kernel", "tick", None),           # compiled with run_sim: found in the cache here
+     ("renderer.law", "run_homing", (A, A, A, A, U, A, A, I)),   # renderer.homing on the simulated device
      ("devices.identify._fastplay", "play_open", (A, A, U, A, A, I, F, A, F, F, F, F, A, A, A)),
      ("devices.identify.successive._fastrun", "run_pd", (A, A, U, A, A, A, A, B, F, F, F, F, F, F, A, A, A, A)),
      ("stimuli.hfam._fasttap", "tap_on_wall", (A, A, A, U, A, A, A, F, F, I, A, A, A, A)),
