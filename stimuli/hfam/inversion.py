@@ -246,23 +246,25 @@ def nrmse_corr(y: np.ndarray, d: np.ndarray) -> tuple[float, float]:
     return err, float(np.corrcoef(y, d)[0, 1])
 
 
-def sosfiltfilt(sos: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``scipy.signal.sosfiltfilt(sos, x)`` (odd padding of scipy's default length) with the filter's initial state
-    worked out once per filter.
+def sosfiltfilt(sos: np.ndarray, x: np.ndarray, padlen: int | None = None) -> np.ndarray:
+    """``scipy.signal.sosfiltfilt(sos, x, padlen=padlen)`` (odd padding; ``None``: scipy's default length) with the
+    filter's initial state worked out once per filter.
 
     scipy solves for the steady-state initial conditions (``sosfilt_zi``) on every call, which costs more than
-    the filtering of a tap-long signal; the builder and the refinement run the same two or three filters over
-    thousands of signals. The steps are scipy's, on the same numbers, so the result is the same to the bit. Anything
-    but a 1-D float64 signal and float64 sections (or a signal too short for the padding: scipy's error) goes to
-    scipy itself.
+    the filtering of a tap-long signal; the HFAM builder and refinement, and the demo's contact metrics, run the
+    same few filters over thousands of signals. The steps are scipy's, on the same numbers, so the result is the
+    same to the bit. Anything but a 1-D float64 signal and float64 sections, a ``padlen`` of 0, or a signal too
+    short for the padding (scipy's error) goes to scipy itself.
     """
     x = np.asarray(x)
     sos = np.asarray(sos)
     if x.ndim != 1 or x.dtype != np.float64 or sos.ndim != 2 or sos.dtype != np.float64:
-        return signal.sosfiltfilt(sos, x)
+        return signal.sosfiltfilt(sos, x, padlen=padlen)
     zi, edge = _filtfilt_state(sos.tobytes(), sos.shape[0])
-    if x.shape[0] <= edge:
-        return signal.sosfiltfilt(sos, x)
+    if padlen is not None:
+        edge = int(padlen)
+    if not 0 < edge < x.shape[0]:
+        return signal.sosfiltfilt(sos, x, padlen=padlen)
     # scipy's odd extension (scipy.signal._arraytools.odd_ext), then forwards and backwards from steady state
     ext = np.concatenate((2 * x[0:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
     y = signal.sosfilt(sos, ext, zi=zi * ext[0:1])[0]

@@ -256,6 +256,9 @@ def test_filters_kept_per_model_give_scipys_numbers_to_the_bit():
         for _ in range(2):                                   # the second call reads the kept state
             assert np.array_equal(sosfiltfilt(sos, x), signal.sosfiltfilt(sos, x))
             assert np.array_equal(sosfiltfilt(sos, x[:40]), signal.sosfiltfilt(sos, x[:40]))
+            for n, padlen in ((3001, 7), (40, 39), (12, 11), (12, 0)):   # a given padding (the demo's metrics)
+                assert np.array_equal(sosfiltfilt(sos, x[-n:], padlen=padlen),
+                                      signal.sosfiltfilt(sos, x[-n:], padlen=padlen))
     with pytest.raises(ValueError, match="greater than padlen"):
         sosfiltfilt(band_sos(FS_HZ, (20.0, 1000.0)), x[:20])
     settings = BuildSettings()
