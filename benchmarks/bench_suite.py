@@ -5,8 +5,9 @@
 provisioned into ``.deps``, nothing is cached (a new ``XDG_CACHE_HOME``; numba's cache starts empty with the
 clone). It prints the wall time, the CPU time of everything ``make`` ran (user + system, child processes
 included: what the suite costs a shared machine whatever its load), the load average before and after, and
-from the suite's per-test CPU log (``HFAM_TEST_CPU_LOG``, tests/support/cpuprofile.py) the ten slowest tests
-by wall and by CPU and the CPU by test folder. Not run by ``make bench`` (a whole suite, ~5 min); options:
+from the suite's per-test CPU log (``HFAM_TEST_CPU_LOG``, tests/support/cpuprofile.py) the timeline (when the
+first test began and each worker's last one ended, from ``make``'s start), the ten slowest tests by wall and by
+CPU and the CPU by test folder. Not run by ``make bench`` (a whole suite, ~5 min); options:
 
 * ``--runs N``: N runs in a row (the target is three green runs), each on its own fresh clone; medians.
 * ``--pytest-only``: skip the clone and ``make``: run ``make test``'s pytest command in this tree.
@@ -61,6 +62,23 @@ def per_test(log: Path) -> dict[str, dict[str, float]]:
     return dict(tests)
 
 
+def timeline(log: Path, start_unix: float) -> str:
+    """When, in s after ``make`` began, the first test began and each worker's last test phase ended."""
+    if not log.exists():
+        return ""
+    first, last = float("inf"), {}
+    for line in log.read_text().splitlines():
+        row = json.loads(line)
+        if "end_unix_s" not in row:
+            continue
+        first = min(first, row["end_unix_s"] - row["wall_s"] - start_unix)
+        last[row["worker"]] = max(last.get(row["worker"], 0.0), row["end_unix_s"] - start_unix)
+    if not last:
+        return ""
+    ends = ", ".join(f"{w} {t:.0f}" for w, t in sorted(last.items()))
+    return f"timeline (s after make began): first test began at {first:.0f}; each worker's last test ended: {ends}"
+
+
 def folder_of(nodeid: str) -> str:
     parts = nodeid.split("::")[0].split("/")
     return "/".join(parts[:-1]) if len(parts) > 2 else parts[0]
@@ -102,7 +120,7 @@ def run_once(pytest_only: bool, workers: str | None, log: Path) -> dict:
         if pytest_only:   # make test without its prerequisites: this tree's venv is made already
             make = ["make", "-o", ".venv/.installed", "-o", ".venv/.compiled", "-o", "deps", *make[1:]]
         load_before = _loadavg()
-        cpu0, t0 = _cpu_children(), time.perf_counter()
+        cpu0, t0, start_unix = _cpu_children(), time.perf_counter(), time.time()
         proc = subprocess.run(make, cwd=tree, env=env, capture_output=True, text=True)
         wall, cpu = time.perf_counter() - t0, _cpu_children() - cpu0
         lines = (proc.stdout + proc.stderr).strip().splitlines()
@@ -110,7 +128,7 @@ def run_once(pytest_only: bool, workers: str | None, log: Path) -> dict:
         start = next((i for i, ln in enumerate(lines) if "= FAILURES =" in ln), len(lines) - 3)
         tail = lines[start:] if proc.returncode else lines[-3:]
         return {"wall_s": wall, "cpu_s": cpu, "load_before": load_before, "load_after": _loadavg(),
-                "returncode": proc.returncode, "tail": tail}
+                "returncode": proc.returncode, "tail": tail, "timeline": timeline(log, start_unix)}
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
@@ -130,6 +148,8 @@ def main(argv=None) -> int:
         state = "green" if r["returncode"] == 0 else f"FAILED (exit {r['returncode']})"
         print(f"run {i + 1}: {state}; wall {r['wall_s']:.0f} s, CPU {r['cpu_s']:.0f} s (user + system, children "
               f"included); load average {r['load_before']} before, {r['load_after']} after", flush=True)
+        if r["timeline"]:
+            print(f"   {r['timeline']}")
         for line in r["tail"]:
             print(f"   | {line}")
     if len(results) > 1:

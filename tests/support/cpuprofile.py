@@ -1,11 +1,12 @@
 """Per-test CPU of the suite, child processes included: where ``make test``'s CPU time goes.
 
 ``HFAM_TEST_CPU_LOG=<file>`` makes each pytest process (each xdist worker) append one JSON line per test
-phase: ``{"nodeid", "phase", "wall_s", "self_s", "children_s", "worker"}`` (and ``{"nodeid", "phase",
+phase: ``{"nodeid", "phase", "wall_s", "self_s", "children_s", "worker", "end_unix_s"}`` (and ``{"nodeid", "phase",
 "failed": true, "worker"}`` for a phase that failed), where ``self_s`` is the user
 plus system time of the pytest process itself (``RUSAGE_SELF``) and ``children_s`` that of the child
 processes it started and reaped during the phase (``RUSAGE_CHILDREN``: a child still running when the phase
-ends is counted in the phase that reaps it). Session-scoped fixtures count in the setup of the first test
+ends is counted in the phase that reaps it), and ``end_unix_s`` the phase's end (``time.time()``: the run's
+timeline, so the set-up before the first test and a last worker's tail show). Session-scoped fixtures count in the setup of the first test
 that uses them. ``python -m benchmarks suite`` reads these lines (benchmarks/bench_suite.py).
 """
 
@@ -57,7 +58,8 @@ class CpuLog:
         yield
         self._write({"nodeid": item.nodeid, "phase": phase, "wall_s": round(time.perf_counter() - t0, 4),
                      "self_s": round(_cpu(resource.RUSAGE_SELF) - s0, 4),
-                     "children_s": round(_cpu(resource.RUSAGE_CHILDREN) - c0, 4), "worker": self.worker})
+                     "children_s": round(_cpu(resource.RUSAGE_CHILDREN) - c0, 4), "worker": self.worker,
+                     "end_unix_s": round(time.time(), 3)})
 
 
 def register(config) -> None:
