@@ -3,11 +3,13 @@
 A fresh clone has no cache: the first process that calls a kernel compiles it (``renderer.law.run_sim`` alone
 takes ~5 s of CPU) and writes it next to its source (``__pycache__``, plumbing/jitcache.py); every later
 process loads it in milliseconds. With two xdist workers starting together, both would compile the same
-kernels at the same moment, and so could the command a test starts. ``tests/conftest.py`` therefore runs
-this module once per run, in two processes (``--part 0``/``1``: the kernels split into halves of about the
-same compile time) while the workers import and collect, and the workers wait for them before their first
-test: the parts inherit an exclusive ``fcntl`` lock (held by an open file they share, released when both
-have ended, however they end), on which each worker takes a shared lock.
+kernels at the same moment, and so could the command a test starts. ``make test`` therefore runs this module
+in two processes (``--part 0``/``1``: the kernels split into halves of about the same compile time) beside
+its other set-up (the tests' byte-code, the system parts), with ``--if-needed``: nothing to do when the cache
+is filled already. A run of pytest on its own does it in ``tests/conftest.py`` instead, while the workers
+import and collect, and the workers wait for it before their first test: the parts inherit an exclusive
+``fcntl`` lock (held by an open file they share, released when both have ended, however they end), on which
+each worker takes a shared lock.
 
 Each kernel is compiled for the argument types the project calls it with (``Dispatcher.compile``, which
 saves to the cache like a first call does). A signature that drifts from the calls only costs the compile
@@ -30,9 +32,9 @@ F, I, B = "float64", "int64", "boolean"
 ZERO = "Literal[int](0)"
 
 #: (module, function, argument types) of every kernel the suite's processes compile, in two parts of about
-#: equal cost (measured from an empty cache: part 0 ~10 s of CPU, the 1-DOF closed loop, the identification
-#: and HFAM kernels (~5 s) and the 3-DOF proxy and loop (~5.5 s, which also compile the lateral axes' step);
-#: part 1 ~7 s, the teleoperation session). None: the signature of renderer.sim_aot. A kernel listed here is
+#: equal cost (measured from an empty cache on 2 cores: part 0 ~14 s of CPU, the 1-DOF closed loop, the
+#: identification and HFAM kernels (~7 s) and the teleoperation session (~6.5 s); part 1 ~15 s, the 3-DOF
+#: proxy and loop, which also compile the lateral axes' step). None: the signature of renderer.sim_aot. A kernel listed here is
 #: one its module's ``__pycache__`` names (parallel._cache_filled looks for ``<module>.<function>-*.nbi``,
 #: or the name of :data:`CACHE_NAMES`).
 KERNELS = (
@@ -42,13 +44,13 @@ KERNELS = (
      ("devices.identify._fastplay", "play_open", (A, A, U, A, A, I, F, A, F, F, F, F, A, A, A)),
      ("devices.identify.successive._fastrun", "run_pd", (A, A, U, A, A, A, A, B, F, F, F, F, F, F, A, A, A, A)),
      ("stimuli.hfam._fasttap", "tap_on_wall", (A, A, A, U, A, A, A, F, F, I, A, A, A, A)),
-     ("renderer.proxy", "proxy_step", (A2, A2, A2, IA, A, F, F, F)),
+     ("devices.sim.teleop_kernel", "run_session", (A, A, U, A, A, A2, I, I, I))),
+    (("renderer.proxy", "proxy_step", (A2, A2, A2, IA, A, F, F, F)),
      ("renderer.proxy", "first_hit", (A2, A2, A2, IA, F, F, F, F, F, F)),
      ("renderer.proxy", "proxy_force", (A, F, F, F, F)),
      ("renderer.law3", "law3_tick", (A, A, A2, A2, A2, IA, A2, F, F, F, F, F, F, I)),
      ("renderer.law3", "law3_tick", (A, A, A2, A2, A2, IA, A2, F, F, F, F, F, F, ZERO)),
      ("renderer.law3", "run_sim3", (A, A, A2, A2, A2, IA, A2, A, A, A, U, A, A, A, A, A, F, I))),
-    (("devices.sim.teleop_kernel", "run_session", (A, A, U, A, A, A2, I, I, I)),),
 )
 
 #: the name numba's cache files carry for a kernel made by ``njit(...)(f)`` from a function of another name
@@ -79,7 +81,15 @@ def warm(part: int) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tests.support.jitwarm", description=__doc__.splitlines()[0])
     p.add_argument("--part", type=int, choices=(0, 1), required=True)
-    warm(p.parse_args(argv).part)
+    p.add_argument("--if-needed", action="store_true",
+                   help="do nothing where the cache holds every kernel already, or HFAM_TEST_JIT_WARMUP=0")
+    args = p.parse_args(argv)
+    if args.if_needed:
+        from tests.support.parallel import _cache_filled, warmup_enabled
+
+        if not warmup_enabled() or _cache_filled():
+            return 0
+    warm(args.part)
     return 0
 
 

@@ -15,8 +15,9 @@ Wired by ``tests/conftest.py``:
 * **Costly units first**: the work queue is ordered by :data:`COST_HINTS` (the units whose wall time is a large
   part of a worker's share: run last, one of them would leave the other core idle), then by the number of
   tests (xdist's own order).
-* **The numba cache is filled once** (:func:`start_jit_warmup`, :mod:`tests.support.jitwarm`) while the
-  workers import and collect; each worker waits for it before its first test (:func:`wait_for_jit_warmup`).
+* **The numba cache is filled once** (:mod:`tests.support.jitwarm`): by ``make test`` beside its other set-up, or
+  where pytest runs on its own (:func:`start_jit_warmup`) while the workers import and collect; then each worker
+  waits for it before its first test (:func:`wait_for_jit_warmup`).
 """
 
 from __future__ import annotations
@@ -133,7 +134,7 @@ def start_jit_warmup(config) -> list[subprocess.Popen]:
     (an ``flock`` belongs to the open file, not to a process): no worker can take its shared lock first.
     ``HFAM_TEST_JIT_WARMUP=0`` turns it off (each kernel is then compiled by its first caller).
     """
-    if os.environ.get("HFAM_TEST_JIT_WARMUP", "1") == "0" or config.option.collectonly or _cache_filled():
+    if not warmup_enabled() or config.option.collectonly or _cache_filled():
         return []
     base = run_base(config)
     fd = os.open(base / WARMUP_LOCK, os.O_WRONLY | os.O_CREAT, 0o644)
@@ -149,6 +150,11 @@ def start_jit_warmup(config) -> list[subprocess.Popen]:
     finally:
         os.close(fd)                 # the children hold the lock now (released when the last one ends)
     return procs
+
+
+def warmup_enabled() -> bool:
+    """False where ``HFAM_TEST_JIT_WARMUP=0`` turns the warm-up off."""
+    return os.environ.get("HFAM_TEST_JIT_WARMUP", "1") != "0"
 
 
 def _cache_filled() -> bool:
