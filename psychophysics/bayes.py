@@ -49,6 +49,8 @@ FINE = {"threshold": 40, "width": 40, "lapse": 14, "guess": 12, "eta": 12}
 MASS_KEPT = 1e-5
 #: the parameters in the grid's axis order
 PARAMS = ("threshold", "width", "lapse", "guess", "eta")
+#: the distribution of the lapse, guess and eta priors
+_BETA = stats.beta
 
 
 def _raised(x, lo, hi):
@@ -75,8 +77,20 @@ def default_priors(stimulus_range, width_min: float) -> dict:
     r = s1 - s0
     d = float(width_min)
 
+    # The MAP search evaluates each prior at one point thousands of times: a single value takes the one branch
+    # that applies (the same arithmetic and ufuncs as the array path, so the same numbers) without the
+    # array path's masks.
     def threshold(x):
         x = np.asarray(x, float)
+        if x.size == 1:
+            v = x.reshape(())[()]
+            if s1 <= v <= s1 + r / 2:
+                p = 0.5 * (1 + np.cos(2 * np.pi * (v - s1) / r))
+            elif s0 - r / 2 <= v <= s0:
+                p = 0.5 * (1 + np.cos(2 * np.pi * (s0 - v) / r))
+            else:
+                p = 1.0 if s0 < v < s1 else 0.0
+            return np.full(x.shape, p)
         p = np.where((x > s0) & (x < s1), 1.0, 0.0)
         left = (x >= s0 - r / 2) & (x <= s0)
         right = (x >= s1) & (x <= s1 + r / 2)
@@ -85,12 +99,26 @@ def default_priors(stimulus_range, width_min: float) -> dict:
 
     def width(x):
         x = np.asarray(x, float)
+        if x.size == 1:
+            v = x.reshape(())[()]
+            if r <= v <= 3 * r:
+                p = 0.5 * (1 + np.cos(np.pi / 2 * (v - r) / r))
+            elif d <= v <= 2 * d:
+                p = _raised(v, d, 2 * d)
+            else:
+                p = 1.0 if 2 * d < v < r else 0.0
+            return np.full(x.shape, p)
         p = np.where((x > 2 * d) & (x < r), 1.0, 0.0)
         p = np.where((x >= d) & (x <= 2 * d), _raised(x, d, 2 * d), p)
         return np.where((x >= r) & (x <= 3 * r), 0.5 * (1 + np.cos(np.pi / 2 * (x - r) / r)), p)
 
     def beta(x):
-        return stats.beta.pdf(np.asarray(x, float), 1, BETA_PRIOR)
+        x = np.asarray(x, float)
+        if x.ndim == 0 and 0.0 <= x <= 1.0:
+            # inside the support ``stats.beta.pdf`` is its ``_pdf`` (the same number), without the checks
+            # and masks that cost ~100 us a call
+            return _BETA._pdf(x, 1, BETA_PRIOR)
+        return _BETA.pdf(x, 1, BETA_PRIOR)
 
     return {"threshold": threshold, "width": width, "lapse": beta, "guess": beta, "eta": beta}
 

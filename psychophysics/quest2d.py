@@ -36,7 +36,7 @@ from plumbing.validation import is_finite_number, require_int, require_number
 
 from .adaptive import build
 from .psychometric import check_function, psi
-from .quest import SPACINGS, _binary_entropy, _jsonable, make_grid
+from .quest import SPACINGS, _binary_entropy, _jsonable, make_grid, on_grid
 
 #: the parameters of the model, in the order of the posterior's axes
 PARAMETERS = ("intercept", "gain", "floor", "slope", "lapse")
@@ -152,7 +152,7 @@ class QuestPlus2D:
 
     def _index(self, grid: np.ndarray, value: float, axis: str) -> int:
         i = int(np.argmin(np.abs(grid - value)))
-        if not np.isclose(grid[i], value, rtol=1e-9, atol=0.0):
+        if not on_grid(float(grid[i]), value):
             raise ValueError(f"{self.name}: {axis} = {value!r} is not on the stimulus grid "
                              f"({grid[0]:g}..{grid[-1]:g}, {len(grid)} values)")
         return i
