@@ -49,8 +49,6 @@ FINE = {"threshold": 40, "width": 40, "lapse": 14, "guess": 12, "eta": 12}
 MASS_KEPT = 1e-5
 #: the parameters in the grid's axis order
 PARAMS = ("threshold", "width", "lapse", "guess", "eta")
-#: the distribution of the lapse, guess and eta priors
-_BETA = stats.beta
 
 
 def _raised(x, lo, hi):
@@ -113,12 +111,7 @@ def default_priors(stimulus_range, width_min: float) -> dict:
         return np.where((x >= r) & (x <= 3 * r), 0.5 * (1 + np.cos(np.pi / 2 * (x - r) / r)), p)
 
     def beta(x):
-        x = np.asarray(x, float)
-        if x.ndim == 0 and 0.0 <= x <= 1.0:
-            # inside the support ``stats.beta.pdf`` is its ``_pdf`` (the same number), without the checks
-            # and masks that cost ~100 us a call
-            return _BETA._pdf(x, 1, BETA_PRIOR)
-        return _BETA.pdf(x, 1, BETA_PRIOR)
+        return stats.beta.pdf(np.asarray(x, float), 1, BETA_PRIOR)
 
     return {"threshold": threshold, "width": width, "lapse": beta, "guess": beta, "eta": beta}
 

@@ -292,20 +292,6 @@ try:    # np.clip's own ufunc, without the Python wrapper's few microseconds per
 except ImportError:     # pragma: no cover - another numpy's layout: the wrapper, the same numbers
     _clip = np.clip
 
-try:    # np.linalg.solve's gufunc, without the wrapper's type checks (a few microseconds per solver iteration)
-    from numpy.linalg import _umath_linalg
-
-    def _raise_singular(err, flag):
-        raise np.linalg.LinAlgError("Singular matrix")
-
-    def _solve_stacked(a, b):
-        """``np.linalg.solve(a, b)`` for float64 stacks ``a`` (B, P, P) and ``b`` (B, P, 1): the same gufunc
-        under the same error state (a singular matrix raises ``LinAlgError``), so the same numbers."""
-        with np.errstate(call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
-            return _umath_linalg.solve(a, b, signature="dd->d")
-except ImportError:     # pragma: no cover - another numpy's layout: the public function, the same numbers
-    _solve_stacked = np.linalg.solve
-
 
 def deviance(k, n, p):
     """Deviance 2 sum[k ln(k/np) + (n-k) ln((n-k)/(n(1-p)))] of binomial counts against ``p`` (last axis).
@@ -415,7 +401,7 @@ def solve(model: Model, k, n, start, hold=None, max_iter: int = 200):
         # Levenberg-Marquardt: info + mu (diag(info) + 1e-9) on the diagonal, the off-diagonal unchanged
         diag = info[:, diag_ix, diag_ix]
         info[:, diag_ix, diag_ix] = diag + mu[:, None] * (diag + 1e-9)
-        step = _solve_stacked(info, score[:, :, None])[:, :, 0]
+        step = np.linalg.solve(info, score[:, :, None])[:, :, 0]
         trial = _clip(th + step, lo_w, hi_w)
         p_t, state = model.evaluate(trial)
         pc_t = _clip_p(p_t)
