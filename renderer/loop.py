@@ -864,6 +864,12 @@ class ServoLoop:
         st, dev = self._stats, self.device
         c, w, log, cap = self._law_c, self.law_state, self._logf, self._cap
         wall_col = np.frombuffer(self._log_ns["wall_ns"], dtype=np.int64)
+        # between chunks (every few ticks with an ``until`` predicate) the loop's own Python work is most of
+        # the run's time: the law's scalars read through a memoryview (Python floats, cheaper than numpy's)
+        wm = memoryview(w)
+        W_CODE, W_T, W_TEMP = LAW.W_CODE, LAW.W_T, LAW.W_TEMP
+        clock = time.perf_counter_ns
+        stop_check = self._stop_check
         # with an ``until`` predicate, it sees the device as it was every ``until_every`` ticks (as in the
         # per-tick loop); without one, only a stop request is polled, every COMPILED_POLL_TICKS ticks (a few
         # ms of wall time), and the device's Python side is brought up to date at the end
@@ -872,9 +878,13 @@ class ServoLoop:
         uc = until_every
         n = li = 0
         st["paced"] = False
+        # a device that says when its arrays, state or span changed (devices.sim.SimDevice.fused_version) is
+        # asked for them again only then; another, after every ``until`` call
+        versioned = hasattr(dev, "fused_version")
         arrays = dev.fused_arrays()
         dv = dev.fused_state()
         span = dev.fused_span()
+        version = dev.fused_version if versioned else None
         run_sim = self._run_sim
         reason = "duration"
         try:
@@ -885,9 +895,10 @@ class ServoLoop:
                     arrays = dev.fused_arrays()
                     dv = dev.fused_state()
                     span = dev.fused_span()
+                    version = dev.fused_version if versioned else None
                 k = run_sim(c, w, log, dv, *arrays, min(uc, limit - n, span))
                 span -= k
-                now = time.perf_counter_ns() - t0
+                now = clock() - t0
                 end = li + k
                 if end <= cap:
                     wall_col[li:end] = now
@@ -898,7 +909,7 @@ class ServoLoop:
                 n += k
                 self._n = n
                 uc -= k
-                code = int(w[LAW.W_CODE])
+                code = int(wm[W_CODE])
                 if code >= 4:  # a stop before the tick's command: zero it through the device
                     dev.fused_sync(dv)
                     dev.command(0.0)
@@ -913,8 +924,8 @@ class ServoLoop:
                 if uc == 0:
                     uc = until_every
                     self.ticks = n
-                    self.time_s = float(w[LAW.W_T])
-                    self.temp_rise_K = float(w[LAW.W_TEMP])
+                    self.time_s = wm[W_T]
+                    self.temp_rise_K = wm[W_TEMP]
                     if until is None:
                         stop_if_signalled()
                         if self.stop_requested:
@@ -922,14 +933,18 @@ class ServoLoop:
                             break
                         continue
                     dev.fused_sync(dv)
-                    stop = self._stop_check(until)
+                    stop = stop_check(until)
                     if stop:
                         reason = stop
                         break
-                    # the callback may have changed the device (a new user, sample, trajectory)
-                    arrays = dev.fused_arrays()
-                    dv = dev.fused_state()
-                    span = dev.fused_span()
+                    # the callback may have changed the device (a new user, sample, trajectory); unchanged, the
+                    # arrays and the state vector held are the device's own, and ``span`` counts its ticks left
+                    # (at 0 the next window is fetched now, as a fresh fused_arrays() would)
+                    if span <= 0 or not versioned or dev.fused_version != version:
+                        arrays = dev.fused_arrays()
+                        dv = dev.fused_state()
+                        span = dev.fused_span()
+                        version = dev.fused_version if versioned else None
         finally:
             dev.fused_sync(dv)
             self._n = n

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import sys
+from operator import itemgetter
 
 import numpy as np
 
@@ -36,6 +37,8 @@ _HOT = int(Status.OVER_TEMPERATURE)
 #: ticks of the hand's plan held at once (position and grip, 16 bytes a tick: 1 MB; 6.6 s at 10 kHz); a plan
 #: that fits is held whole, as before streaming
 PLAN_WINDOW_TICKS = 1 << 16
+#: the fields of the ``D_*`` vector that :meth:`SimDevice.fused_sync` takes back, in one call
+_SYNCED = itemgetter(K.D_TICK, K.D_HELD, K.D_REJECTED, K.D_LAST, K.D_STATUS, K.D_POS, K.D_ACC, K.D_GRIP, K.D_T)
 
 
 def _kernel_tick():
@@ -89,6 +92,10 @@ class SimDevice(Device):
         self._plan_kmax = sys.maxsize
         self._plan_base = 0                 # _user_tick + _plan_lo: command()'s index into the window
         self._plan_tick_max = sys.maxsize   # the last device tick the window serves
+        #: bumped by whatever changes what :meth:`fused_arrays`, :meth:`fused_state` or :meth:`fused_span`
+        #: return (a command, a new user, sample, plan window...), so that a compiled loop fetches them again
+        #: between its chunks only when they changed (:attr:`fused_version`)
+        self._fused_version = 0
         self.trajectory = None
         self.hand = PRESCRIBED
         self.sample_name = "placeholder"
@@ -179,6 +186,7 @@ class SimDevice(Device):
     def _send_current(self, current_A: float) -> None:
         # used by open/close/zero: replaces the current that the next period applies
         self._held_A = current_A
+        self._fused_version += 1
 
     def read(self) -> DeviceState:
         """The state sample at ``time_s`` (same object every call)."""
@@ -199,6 +207,7 @@ class SimDevice(Device):
         self._held_A = current_A
         tick = self._tick + 1
         self._tick = tick
+        self._fused_version += 1
         fn = self._tick_fn
         if fn is None:
             fn = self._tick_fn = _kernel_tick()
@@ -253,6 +262,16 @@ class SimDevice(Device):
         traj, grip, _ = self.fused_plan(ticks)
         return self._p, self._s, self._rs, traj, grip
 
+    @property
+    def fused_version(self) -> int:
+        """A counter that changes whenever what :meth:`fused_arrays`, :meth:`fused_state` and :meth:`fused_span`
+        return may have changed through this device's methods (a command, a new user or sample, the plan's
+        next window, a mechanical configuration, ``motor_enabled``), but not when a compiled loop advanced
+        the state it took (:meth:`fused_sync`). A loop that finds it unchanged between its chunks keeps the
+        arrays, the state vector and the span it holds (the span counted down by the ticks it ran); private
+        attributes written directly do not change it."""
+        return self._fused_version
+
     def fused_span(self) -> int:
         """Ticks from the current one that the arrays of :meth:`fused_arrays` cover (very large once they
         hold the end of the plan, after which the hand holds its last position)."""
@@ -271,14 +290,14 @@ class SimDevice(Device):
 
     def fused_sync(self, d: np.ndarray) -> None:
         """Take back the state a compiled loop advanced (the inverse of :meth:`fused_state`)."""
-        self._tick = int(d[K.D_TICK])
-        self._held_A = float(d[K.D_HELD])
-        self.rejected_commands = int(d[K.D_REJECTED])
-        self.last_command_A = float(d[K.D_LAST])
+        # one conversion of the whole vector to Python floats (the same values as float(d[i]) one by one, at
+        # a fraction of the cost: a compiled loop syncs between every few ticks' chunks)
+        tick, self._held_A, rejected, self.last_command_A, status, pos, acc, grip, t = _SYNCED(d.tolist())
+        self._tick = int(tick)
+        self.rejected_commands = int(rejected)
         st = self._state
-        st.status = int(d[K.D_STATUS])
-        st.position_m, st.accel_m_s2 = float(d[K.D_POS]), float(d[K.D_ACC])
-        st.grip_N, st.t_s = float(d[K.D_GRIP]), float(d[K.D_T])
+        st.status = int(status)
+        st.position_m, st.accel_m_s2, st.grip_N, st.t_s = pos, acc, grip, t
 
     # -- simulation controls -------------------------------------------------
     @property
@@ -295,6 +314,7 @@ class SimDevice(Device):
     def motor_enabled(self, on: bool) -> None:
         """False: commands are ignored (zero motor current), e.g. for real-sample taps."""
         self._p[K.P_MOTOR_ON] = 1.0 if on else 0.0
+        self._fused_version += 1
 
     @property
     def trajectory_done(self) -> bool:
@@ -423,6 +443,7 @@ class SimDevice(Device):
         self._plan_kmax = hi - 2 if hi < n else sys.maxsize
         self._plan_base = self._user_tick + lo
         self._plan_tick_max = self._user_tick + self._plan_kmax + 1
+        self._fused_version += 1
 
     def _grip_at(self, k: int) -> float:
         """The plan's grip (N) at tick ``k`` from the user's start (held at its ends), from the window when
@@ -466,6 +487,7 @@ class SimDevice(Device):
         self._s[K.S_VB] = 0.0
         self.sample_name = name
         self.sample = smp
+        self._fused_version += 1
 
     def set_mechanical_config(self, config="assembled") -> None:
         """Put the device into a mechanical test configuration for successive isolation (sec. 3.5.1).
@@ -497,6 +519,7 @@ class SimDevice(Device):
             p[K.P_HYST] = 1.0 if (m["hysteresis"] and cfg.linkage) else 0.0
             self._s[K.S_FL] = self._s[K.S_FHAT] = 0.0
         self.mechanical_config = cfg
+        self._fused_version += 1
 
     def _refresh_state(self) -> None:
         st = self._state
@@ -505,6 +528,7 @@ class SimDevice(Device):
         st.position_m = res * math.floor(self._s[K.S_XM] / res)
         st.accel_m_s2 = 0.0
         st.grip_N = self._grip_at(self._tick - self._user_tick)
+        self._fused_version += 1
 
     def true_state(self) -> dict:
         """True (unquantized) physical state, SI units, for tests and recordings."""

@@ -346,6 +346,8 @@ class Apparatus:
 
         monitor = self.monitor
 
+        # called every few servo ticks (renderer.loop: RendererConfig.until_every), so it does little when
+        # nothing happened: the events closed since the last call are looked at only when there are some
         def until(lp) -> bool:
             if check is not None:
                 check()
@@ -361,12 +363,13 @@ class Apparatus:
                     saturation(current)
             elif st.status & clip_bit:
                 saturation(current)
-            for j in range(state["checked"], current):  # events closed since the last call
-                if evs[j].clipped:
-                    saturation(j)
-            if current > state["checked"]:
-                state["checked"] = current
             if evs:
+                checked = state["checked"]
+                if current > checked:
+                    for j in range(checked, current):  # events closed since the last call
+                        if evs[j].clipped:
+                            saturation(j)
+                    state["checked"] = current
                 return lp.time_s - evs[0].t_s >= window_s
             return lp.time_s - t_start >= first_tap_timeout_s
 

@@ -86,6 +86,34 @@ def test_compiled_loop_follows_a_device_changed_by_the_callback():
     _same(*out)
 
 
+def test_compiled_loop_follows_a_new_user_and_a_command_from_the_callback():
+    # between its chunks the compiled loop keeps the device's arrays and state vector while the device says
+    # nothing changed (SimDevice.fused_version): a new hand plan and a command given by the callback must
+    # still reach it, as they reach the per-tick loop's next read()
+    def until_for(dev):
+        done = []
+
+        def until(lp):
+            if lp.ticks >= 3_000 and not done:
+                done.append(lp.ticks)
+                dev.set_user(TapTrajectory(0.15, n_taps=2), grip_N=2.5)
+                dev.command(0.2)
+            return bool(done) and dev.trajectory_done
+        return until
+
+    out = []
+    for compiled in (False, True):
+        dev = SimDevice(seed=7)
+        dev.set_user(TapTrajectory(0.1, n_taps=3), grip_N=2.0)
+        res = ServoLoop(dev, RendererConfig(until_every=4), stimuli.Pulse(), compiled_sim=compiled).run(
+            until=until_for(dev), max_ticks=200_000)
+        out.append((res, dev))
+    (a, da), (b, db) = out
+    assert a.stop_reason == "until" and len(a.events) >= 3
+    _same(a, b)
+    assert da._tick == db._tick and da.true_state() == db.true_state()
+
+
 def test_compiled_loop_stops_on_invalid_sensors_like_the_per_tick_loop():
     # a hand path that leaves the position limit: held samples, then the stop, with zero current
     far = ScriptedTrajectory([0.0, 0.2, 2.2], [0.01, 0.01, 0.6])
