@@ -33,16 +33,22 @@ def on_device():
     handle.stop()
 
 
-def _run(dev, n):
-    """Telemetry (t_s, position_m, current_A, status) and events of n firmware ticks."""
+def _run(dev, n, gaps=None):
+    """Telemetry (t_s, position_m, current_A, status) and events of n firmware ticks; ``gaps``, a list: the longest
+    wall time between two reads (s) is appended to it."""
     rows = np.empty((n, 4))
     events = []
+    longest, last = 0.0, time.perf_counter()
     for k in range(n):
         s = dev.read()
+        now = time.perf_counter()
+        longest, last = max(longest, now - last), now
         rows[k] = (s.t_s, s.position_m, s.extra["current_A"], s.status)
         if k % 100 == 0:
             events += dev.pop_events()
     events += dev.pop_events()
+    if gaps is not None:
+        gaps.append(longest)
     return rows, events
 
 
@@ -129,23 +135,41 @@ class _VelocityScaled:
 
 
 def _contacts_play_the_rearmed_transient(dev):
-    """Render :class:`_VelocityScaled` on the board; every contact after the first plays it at its own speed."""
-    dev.configure_rendering(WALL, LIMITS, _VelocityScaled())
-    rows, events = _run(dev, 16000)
-    link = dev.link_stats()
-    assert len(events) >= 2 and link["naks"] == 0
-    # an upload (4 frames, each after the last one's ACK) takes a few ms of board time, as on a native-USB board
-    # (medians 3-8.5 ms with 2-4 busy processes on 2 cores; 18-22 ms when the emulator kept 9 ms of telemetry
-    # queued ahead of each ACK). Not asserted: on a machine loaded further the pty's own buffers hold more
-    # (34 ms once with three test suites on the 2 cores); the contacts below are what must hold
-    assert 0 < link["rearm_age_median_s"] <= link["rearm_age_max_s"]
+    """Render :class:`_VelocityScaled` on the board; every contact after the first plays it at its own speed.
+
+    The emulator, paced by the host, stops ticking while more than a little telemetry waits unread in the tty
+    (FIONREAD); bytes still in the kernel's pty buffers are not counted there, so when this process is
+    descheduled on a loaded machine the board can run on well past the 20-30 ms a re-arm is planned for, and a
+    contact plays the transient of a velocity read long before it. A run with a stale contact is therefore tried
+    again only if the host was descheduled during it (a gap of more than 5 ms between two reads); one of three
+    runs must have none."""
     fpa = dev.info.force_per_amp_N_A
-    for ev in events[1:]:
-        j = _contact_rows(rows, ev)
-        trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
-        # re-armed from the velocity seen 20-30 ms before contact (the re-arm interval, then the upload's round
-        # trips): close to, not exactly, v_in
-        assert trans == pytest.approx(10.0 * ev["incoming_velocity_m_s"] / fpa, rel=0.35)
+    for attempt in range(3):
+        if attempt:
+            dev.stop_rendering()
+        dev.configure_rendering(WALL, LIMITS, _VelocityScaled())
+        gaps = []
+        rows, events = _run(dev, 16000, gaps)
+        link = dev.link_stats()
+        assert len(events) >= 2 and link["naks"] == 0
+        # an upload (4 frames, each after the last one's ACK) takes a few ms of board time, as on a native-USB
+        # board (medians 3-8.5 ms with 2-4 busy processes on 2 cores; 18-22 ms when the emulator kept 9 ms of
+        # telemetry queued ahead of each ACK). Not asserted: on a machine loaded further the pty's own buffers hold
+        # more (34 ms once with three test suites on the 2 cores); the contacts below are what must hold
+        assert 0 < link["rearm_age_median_s"] <= link["rearm_age_max_s"]
+        stale = []
+        for ev in events[1:]:
+            j = _contact_rows(rows, ev)
+            trans = rows[j + 5, 2] - _wall_A(dev, -rows[j + 4, 1])
+            # re-armed from the velocity seen 20-30 ms before contact (the re-arm interval, then the upload's round
+            # trips): close to, not exactly, v_in
+            want = 10.0 * ev["incoming_velocity_m_s"] / fpa
+            if trans != pytest.approx(want, rel=0.35):
+                stale.append((ev["t_s"], trans, want))
+        if not stale:
+            return
+        assert gaps[0] > 0.005, f"contacts played a stale re-arm (t_s, A, A wanted) with the host never away: {stale}"
+    raise AssertionError(f"each of 3 runs had contacts with a stale re-arm, the host descheduled: last {stale}")
 
 
 def test_host_rearmed_sampled_transient(on_device):
