@@ -133,8 +133,10 @@ def test_watchdog_trips_when_the_host_stops_commanding(emulator):
     port, handle = emulator
     emu = handle.emulator
     # a reply later than 0.95 s is lost (not 20 ms): the emulator runs in this process, and a stall past 20 ms made
-    # the driver resend the 1.0 A command, whose second reply (sent after the trip) then answered the 0.5 A one
-    with SerialDevice(port, timeout_s=0.95) as dev:
+    # the driver resend the 1.0 A command, whose second reply (sent after the trip) then answered the 0.5 A one;
+    # nor 5 ms once the link runs: a later reply to the 0.5 A command made the read return the state held from
+    # the 1.0 A one
+    with SerialDevice(port, timeout_s=0.95, loss_timeout_s=0.95) as dev:
         dev.read()
         dev.command(1.0)
         assert dev.read().extra["current_A"] == pytest.approx(1.0)
