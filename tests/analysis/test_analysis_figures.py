@@ -13,7 +13,6 @@ from scipy import stats
 
 import figstyle
 from analysis import figures as F
-from analysis.report import write_report
 from analysis.stats import valid_testing
 from analysis.traces import typical_taps
 
@@ -35,9 +34,9 @@ def built(analysed):
 
 
 @pytest.fixture(scope="module")
-def written(analysed, tmp_path_factory):
-    out = tmp_path_factory.mktemp("figreport")
-    return out, write_report(analysed, out)
+def written(analysed_report):
+    """The report of ``analysed`` with every figure (written once per run: tests/analysis/conftest.py)."""
+    return analysed_report["html"].parent, analysed_report
 
 
 def _star_cells(ax) -> dict:

@@ -320,9 +320,8 @@ def test_models_skipped_above_the_size_limit(analysed):
 
 
 # ------------------------------------------------------------------------------ the report
-def test_report_sections_and_tables(analysed, tmp_path):
-    out = tmp_path / "r"
-    _quiet(write_report, analysed, out, figures=True)
+def test_report_sections_and_tables(analysed, analysed_report):
+    out = analysed_report["md"].parent          # write_report(analysed, ...) with figures: tests/analysis/conftest.py
     md = (out / "report.md").read_text()
     html = (out / "report.html").read_text()
     for title in ("## Models", "## Evidence for no difference"):

@@ -83,14 +83,14 @@ def test_html_is_self_contained(report):
     assert "href=" not in html and "<table" in html and "S005" in html
 
 
-def test_figures_of_the_drawing_process_equal_those_drawn_here(report, analysed, tmp_path):
-    """The command draws Figures 4.19-4.20 in its second process: byte for byte what write_report draws in one."""
-    from analysis.report import write_report
+def test_figures_of_the_drawing_process_equal_those_drawn_here(report, analysed_report):
+    """The command draws Figures 4.19-4.20 in its second process: byte for byte what write_report draws in one
+    (``analysed_report``: write_report of the same study in the test process, tests/analysis/conftest.py)."""
     out, _ = report
-    write_report(analysed, tmp_path)
+    here = analysed_report["html"].parent
     for stem in ("fig_4_17_ratings", "fig_4_18_pvalues", "fig_4_19_penetration", "fig_4_20_accelerations"):
         for ext in ("png", "svg", "plot.csv"):
-            assert (out / f"{stem}.{ext}").read_bytes() == (tmp_path / f"{stem}.{ext}").read_bytes(), (stem, ext)
+            assert (out / f"{stem}.{ext}").read_bytes() == (here / f"{stem}.{ext}").read_bytes(), (stem, ext)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the drawing process is forked on Linux only")
