@@ -1,4 +1,4 @@
-"""psignifit 4 on the published data sets, run once per session (each fit takes 1-4 s)."""
+"""psignifit 4 on the published data sets, run once per test run (each fit takes 1-4 s)."""
 
 import warnings
 
@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from psychophysics.datasets import BLISS_1935, PSIGNIFIT_DEMO
+
+from tests.support.shared import shared_value
 
 SIGMOIDS = {"logistic": "logistic", "normal": "norm", "weibull": "weibull"}
 #: (data set name, data, psignifit's experiment type, our alternatives, our lower asymptote, fixed eta or None)
@@ -38,11 +40,16 @@ TESTED = (("psignifit_demo", "logistic"), ("psignifit_demo", "normal"), ("psigni
 
 
 @pytest.fixture(scope="session")
-def psignifit_results():
+def psignifit_results(tmp_path_factory):
     """``{(data set, function): (threshold, ci, result)}``: the demo data with all three functions (eta free),
-    Bliss (1935) with the logistic (eta fixed at 0)."""
-    out = {}
-    for name, function in TESTED:
-        data, etype, _, _, eta = CASES[name]
-        out[(name, function)] = run_psignifit(data, etype, function, eta)
-    return out
+    Bliss (1935) with the logistic (eta fixed at 0). Fitted once per run for every xdist worker (~3-4 s of CPU;
+    test_bayes.py and test_definitions.py read them): :mod:`tests.support.shared`."""
+
+    def fit_all(_folder):
+        out = {}
+        for name, function in TESTED:
+            data, etype, _, _, eta = CASES[name]
+            out[(name, function)] = run_psignifit(data, etype, function, eta)
+        return out
+
+    return shared_value(tmp_path_factory, "psignifit_results", fit_all)
