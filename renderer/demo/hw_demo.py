@@ -26,69 +26,19 @@ import numpy as np
 
 from devices.registry import make_device
 from plumbing.outdir import output_folder
-from plumbing.stopsignals import ParentWatch, Terminated, stop_in, stop_on_signals
+from plumbing.stopsignals import Terminated, stop_on_signals
 from stimuli import HfamLibrary
 
 from ..config import RendererConfig
-from ..loop import ServoLoop
-from ..process import SPAWN, end_child, servo_child, servo_process, shared_sync
+from ..process import SPAWN, end_child, servo_process, shared_sync
 from . import figures as figs
 from . import metrics as dm
 from . import runs
+from .hw_servo import MAX_EVENTS, RING, tap_child
 from .report import DEMO_PRODUCTS, write_summary
 
-RING = 4096          # ticks kept in the shared scope ring
-MAX_EVENTS = 256
 MATCH_TOLERANCE = 0.25  # relative incoming-velocity difference allowed between a tap and its real reference
 SPARK = " ▁▂▃▄▅▆▇█"
-
-
-def _child(conn, spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop, parent_pid) -> None:
-    """Servo process: run the loop until ``n_taps`` contacts are over, ``timeout_s`` or ``stop``.
-
-    SIGTERM/SIGHUP, and the parent's death, stop it with the output zeroed (renderer.process.servo_child)."""
-    loop = None
-    terminated = None
-    try:
-        with servo_child(parent_pid):
-            dev = make_device(spec)
-            with dev:
-                loop = ServoLoop(dev, cfg, transient)
-                state = dev.read()
-                done_at = [math.inf]
-                parent_gone = ParentWatch(parent_pid, every=1000)  # until runs every tick here
-
-                def until(lp) -> bool:
-                    k = ring_n.value
-                    j = 3 * (k % RING)
-                    ring[j] = state.t_s
-                    ring[j + 1] = state.position_m
-                    ring[j + 2] = state.accel_m_s2
-                    ring_n.value = k + 1
-                    ne = len(lp.events)
-                    if ne and ne <= MAX_EVENTS and events[0] < ne:
-                        ev = lp.events[ne - 1]
-                        events[1 + 2 * (ne - 1)] = ev.incoming_velocity_m_s
-                        events[2 + 2 * (ne - 1)] = ev.grip_N
-                        events[0] = ne
-                    if ne >= n_taps and done_at[0] == math.inf:
-                        done_at[0] = lp.time_s + runs.POST_S + 0.2
-                    return stop.is_set() or lp.time_s >= done_at[0] or parent_gone()
-
-                result = loop.run(duration_s=timeout_s, until=until, realtime=None)
-        conn.send(("ok", result, ""))
-    except BaseException as exc:
-        exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
-        if isinstance(exc, Terminated):
-            terminated = exc
-        try:
-            conn.send(("error", loop.result if loop is not None else None, f"{type(exc).__name__}: {exc}"))
-        except Exception:
-            pass
-    finally:
-        conn.close()
-    if terminated is not None:
-        raise terminated  # exit status 128 + the signal's number
 
 
 class TextScope:
@@ -187,8 +137,8 @@ def tap_session(spec: str, cfg, transient, n_taps: int, timeout_s: float, scope=
     events = SPAWN.RawArray("d", 1 + 2 * MAX_EVENTS)
     stop = shared_sync(SPAWN.Event)
     cfg = cfg.replace(until_every=1)
-    proc, parent, child = servo_process(_child, (spec, cfg, transient, n_taps, timeout_s, ring, ring_n, events, stop,
-                                                 os.getpid()), "demo-servo")
+    proc, parent, child = servo_process(tap_child, (spec, cfg, transient, n_taps, runs.POST_S, timeout_s, ring, ring_n,
+                                                    events, stop, os.getpid()), "demo-servo")
     msg = None
     terminated = None
     with stop_on_signals():

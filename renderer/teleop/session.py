@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
@@ -350,15 +351,10 @@ def classify_contact(contact_losses: int, settling_s: float) -> str:
 
 def _count_losses(force_N: np.ndarray, fs_hz: float) -> int:
     """Runs of >= 1 ms with the force at or below ``CONTACT_THRESHOLD_N``."""
-    low = force_N <= CONTACT_THRESHOLD_N
-    min_run = max(1, int(0.001 * fs_hz))
-    losses = 0
-    run = 0
-    for v in low:
-        run = run + 1 if v else 0
-        if run == min_run:
-            losses += 1
-    return losses
+    low = np.concatenate(([False], np.asarray(force_N) <= CONTACT_THRESHOLD_N, [False])).astype(np.int8)
+    edges = np.diff(low)                       # +1 where a run of low samples starts, -1 after it ends
+    lengths = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    return int(np.count_nonzero(lengths >= max(1, int(0.001 * fs_hz))))
 
 
 def tap_metrics(force_N: np.ndarray, ff_N: np.ndarray, fs_hz: float, start: int, stop: int,
@@ -417,8 +413,14 @@ def quasi_static(force_N: np.ndarray, fs_hz: float) -> np.ndarray:
     voluntary bandwidth, section 5.6.2); the contact transient is what lies outside it."""
     if len(force_N) < 30:
         return np.asarray(force_N, dtype=float)
-    sos = butter(2, QS_CUTOFF_HZ, fs=fs_hz, output="sos")
-    return sosfiltfilt(sos, force_N)
+    return sosfiltfilt(_quasi_static_sos(float(fs_hz)).copy(), force_N)
+
+
+@lru_cache(maxsize=None)
+def _quasi_static_sos(fs_hz: float) -> np.ndarray:
+    """The low-pass of :func:`quasi_static` at ``fs_hz``: designed once per rate (a sweep measures thousands of
+    taps at one rate; the design took a third of each tap's metrics). The caller filters with a copy."""
+    return butter(2, QS_CUTOFF_HZ, fs=fs_hz, output="sos")
 
 
 def hf_energy_fraction(x: np.ndarray, fs_hz: float, f_cut_hz: float = 50.0) -> float:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from renderer.__main__ import main
+from tests.support.cli import run_cli
 
 
 def test_help_lists_the_options(capsys):
@@ -48,7 +49,7 @@ def test_window_scope_draws_headless():
     assert make_scope("none") is None
 
 
-def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path):
+def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path, capsys):
     """Auditor (demo_overwrite): a second demo replaced the user's summary.csv without asking."""
     import subprocess
     import sys
@@ -69,7 +70,9 @@ def test_demo_refuses_an_out_holding_an_earlier_demo_unless_forced(tmp_path):
                                   "overwriting them: choose another --out or pass --force to replace them")
     assert mine.read_text() == "rendering,my,precious,data\n"
     assert not (tmp_path / "democache").exists()                # refused before anything was built
-    res = demo("afile/run")
+    # the same refusal for an --out inside a file: the command in this process (the run above is the process)
+    res = run_cli(capsys, "renderer", "demo", "--device", "sim", "--out", "afile/run", "--cache-dir", "democache",
+                  "--velocities-m-s", "0.1", "--grips-N", "2", "--no-figures", cwd=tmp_path)
     assert res.returncode == 2 and "afile is a file, not a folder" in res.stderr
     assert "--force" in subprocess.run([sys.executable, "-m", "renderer", "demo", "--help"], capture_output=True,
                                        text=True, cwd=tmp_path).stdout

@@ -11,6 +11,7 @@ from devices.sim.params import default_params
 from devices.sim.teleop import ENVIRONMENTS, Testbed
 from renderer.teleop.serial_master import run_serial_session
 from renderer.teleop.session import TeleopConfig
+from tests.support.cli import run_cli
 
 
 def test_serial_master_at_1khz_and_link_loss_stops_slave():
@@ -47,7 +48,7 @@ def test_serial_master_at_1khz_and_link_loss_stops_slave():
     assert np.ptp(xs[lost + 100:]) < 5e-5                # slave held still after the loss
 
 
-def test_teleop_command_with_a_serial_master(tmp_path):
+def test_teleop_command_with_a_serial_master(tmp_path, capsys):
     """``renderer teleop --master serial:PTY``: the command drives the simulated slave from the emulated
     master for --duration-s, writes traces, run.json (link timing) and Figure 5.10, and refuses PD."""
     import json
@@ -63,16 +64,14 @@ def test_teleop_command_with_a_serial_master(tmp_path):
                                "--controller", "pf", "--lambda", "0.5", "--duration-s", "2", "--out", str(out)],
                               capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stderr
-        bad = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
-                              "--controller", "pd", "--out", str(tmp_path / "pd")],
-                             capture_output=True, text=True, timeout=120)
-        no_model = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
-                                   "--controller", "pf+cimm", "--out", str(tmp_path / "cimm")],
-                                  capture_output=True, text=True, timeout=120)
+        # the refusals come before the master is opened: the command in this process (the run above is the process)
+        bad = run_cli(capsys, "renderer", "teleop", "--master", f"serial:{port}", "--controller", "pd",
+                      "--out", tmp_path / "pd")
+        no_model = run_cli(capsys, "renderer", "teleop", "--master", f"serial:{port}", "--controller", "pf+cimm",
+                           "--out", tmp_path / "cimm")
         # the simulated slave takes --backlash-mm with a serial master too (it was silently ignored)
-        bad_backlash = subprocess.run([sys.executable, "-m", "renderer", "teleop", "--master", f"serial:{port}",
-                                       "--controller", "pf", "--backlash-mm", "7", "--out", str(tmp_path / "bl")],
-                                      capture_output=True, text=True, timeout=120)
+        bad_backlash = run_cli(capsys, "renderer", "teleop", "--master", f"serial:{port}", "--controller", "pf",
+                               "--backlash-mm", "7", "--out", tmp_path / "bl")
     finally:
         handle.stop()
     assert no_model.returncode != 0 and "--cimm-model FILE" in no_model.stderr
