@@ -21,6 +21,14 @@ def _make(target, build):
                           timeout=120, env=sysdeps.tool_env())
 
 
+@pytest.fixture(scope="module")
+def harness(tmp_path_factory):
+    """``make fw-harness`` (hfam_fw.c built for the host, ~0.5 s of CPU) once for the module: (make's result, its
+    build folder). The tests only run the binary, each with its own input."""
+    build = tmp_path_factory.mktemp("fw_harness")
+    return _make("fw-harness", build), build
+
+
 def test_c_parser_and_crc_agree_with_python(tmp_path):
     r = _make("host-check", tmp_path)
     assert r.returncode == 0, r.stderr
@@ -60,14 +68,14 @@ def _frames(*specs):
     return b"".join(P.encode_frame(t, k, pl) for k, (t, pl) in enumerate(specs, 1))
 
 
-def test_c_firmware_speaks_the_protocol_and_renders_like_the_python_firmware(tmp_path):
+def test_c_firmware_speaks_the_protocol_and_renders_like_the_python_firmware(harness):
     """hfam_fw.c itself, built for the host against register stand-ins, driven with protocol frames."""
     import math
 
     from devices.firmware.logic import FirmwareRenderer
     from devices.hardware.calibration import Calibration
 
-    r = _make("fw-harness", tmp_path)
+    r, build = harness
     assert r.returncode == 0, r.stderr
     cal = Calibration(0, 1, 0.345, 512, 0.0098, 0)
     stream = _frames((P.HELLO, P.HELLO_STRUCT.pack(1, 0)), (P.SET_MODE, P.MODE_STRUCT.pack(1, 1)),
@@ -78,7 +86,7 @@ def test_c_firmware_speaks_the_protocol_and_renders_like_the_python_firmware(tmp
                      (P.TABLE_BEGIN, P.encode_table_begin([0.1], [1.0], 10, 4000.0)), (P.PING, b"abc"),
                      (0x1F, b""), (P.RENDER_START, b""))  # 0x1F: unknown type, a false sync to both parsers
     n_ticks = 400
-    out = subprocess.run([str(tmp_path / "fw_harness"), str(n_ticks)], input=stream, capture_output=True,
+    out = subprocess.run([str(build / "fw_harness"), str(n_ticks)], input=stream, capture_output=True,
                          timeout=30).stdout
     frames = P.FrameParser().feed(out)
     types = [f.type for f in frames]
@@ -124,12 +132,12 @@ def test_c_firmware_speaks_the_protocol_and_renders_like_the_python_firmware(tmp
     assert events[0]["max_penetration_m"] == pytest.approx(fw.events[0]["max_penetration_m"], rel=1e-5)
 
 
-def _harness_tap_run(tmp_path, wall, n_ticks):
+def _harness_tap_run(harness, wall, n_ticks):
     """The host-built firmware through the harness's scripted tap (0.1 m/s down from +2.5 mm to -1.5 mm, then an
     instant lift) with ``wall`` (a WALL payload); returns (STATE frames, EVENT frames, INFO)."""
     from devices.hardware.calibration import Calibration
 
-    r = _make("fw-harness", tmp_path)
+    r, build = harness
     assert r.returncode == 0, r.stderr
     cal = Calibration(0, 1, 0.345, 512, 0.0098, 0)
     # no keepalives come from the harness: a 60 s watchdog, so only the observer stops the output
@@ -139,7 +147,7 @@ def _harness_tap_run(tmp_path, wall, n_ticks):
                      (P.LIMITS, P.LIMITS_STRUCT.pack(0.8, 2.0, 2.0)),
                      (P.TRANSIENT_PARAM, P.TRANSIENT_PARAM_STRUCT.pack(P.TRANSIENT_PULSE, 5.0, 0.002, 0, 0)),
                      (P.RENDER_START, b""))
-    out = subprocess.run([str(tmp_path / "fw_harness"), str(n_ticks)], input=stream, capture_output=True,
+    out = subprocess.run([str(build / "fw_harness"), str(n_ticks)], input=stream, capture_output=True,
                          timeout=30).stdout
     frames = P.FrameParser().feed(out)
     assert [f.type for f in frames[:9]] == [P.INFO] + [P.ACK] * 8  # the 24-byte WALL (protocol 1.1) accepted
@@ -148,7 +156,7 @@ def _harness_tap_run(tmp_path, wall, n_ticks):
             [P.decode_event(f.payload) for f in frames if f.type == P.EVENT], info, cal)
 
 
-def test_c_firmware_passivity_observer_trips_like_the_python_firmware(tmp_path):
+def test_c_firmware_passivity_observer_trips_like_the_python_firmware(harness):
     """The wall's passivity observer in hfam_fw.c and in devices/firmware/logic.py, tick by tick. The harness's
     scripted tap lifts the handle out of the wall in one tick (4 mm at full wall force): each lift is ~40 A count
     of energy the wall generates (a jump no real paddle makes, so the observer has something to stop). With a
@@ -163,7 +171,7 @@ def test_c_firmware_passivity_observer_trips_like_the_python_firmware(tmp_path):
     n_ticks = 1500
     leak = -math.expm1(-1.0 / 4000.0)  # 1 s window at 4 kHz, as renderer.passivity.passivity_constants
     wall = struct.pack("<ffffff", 0.0, 500.0, 0.0, 0.001, 0.006, leak)
-    states, events, w, cal = _harness_tap_run(tmp_path, wall, n_ticks)
+    states, events, w, cal = _harness_tap_run(harness, wall, n_ticks)
     assert w.protocol_version == (1, 1)
     info = w.info
     fw = FirmwareRenderer(info.position_resolution_m, info.force_per_amp_N_A, 4000.0, 2.0, velocity_window=4,
@@ -194,18 +202,18 @@ def test_c_firmware_passivity_observer_trips_like_the_python_firmware(tmp_path):
     assert max(abs(a - b) for a, b in zip(c_mA, py_mA)) <= 1
     assert len(events) == len(fw.events) >= 2  # the contact open at the trip was closed and reported
     # the same taps with the 1.0 WALL (16 bytes: observer off) render to the end
-    states0, _, _, _ = _harness_tap_run(tmp_path, wall[:16], n_ticks)
+    states0, _, _, _ = _harness_tap_run(harness, wall[:16], n_ticks)
     assert not any(s.status & (Status.FAULT | Status.UNSTABLE | Status.WATCHDOG_TRIPPED) for s in states0)
     assert max(s.current_mA for s in states0[trip:]) > 200
 
 
-def test_rearm_samples_convert_in_integers_exactly_as_the_float_rounding_did(tmp_path):
+def test_rearm_samples_convert_in_integers_exactly_as_the_float_rounding_did(harness):
     """REARM_DATA samples are converted to Q24 A from their IEEE-754 bits in integers (q24_of_bits; soft-float
     lroundf per sample before): the same value as the float conversion for every pattern checked (every 13th
     32-bit pattern, each with the significands around its rounding halves: ~1.2e9 finite floats)."""
-    r = _make("fw-harness", tmp_path)
+    r, build = harness
     assert r.returncode == 0, r.stderr
-    out = subprocess.run([str(tmp_path / "fw_harness"), "--q24-check", "13"], capture_output=True, text=True, timeout=120)
+    out = subprocess.run([str(build / "fw_harness"), "--q24-check", "13"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
     checked, mismatches = (int(v) for v in out.stdout.split()[1::2])
     assert mismatches == 0 and checked > 5e8, out.stdout
