@@ -19,15 +19,17 @@ The body; the parser is :mod:`study.cli_run_parser`. Every experiment kind runs 
 
 from __future__ import annotations
 
-from .adjustment.kind import Adjustment
-from .forcedchoice.kind import ForcedChoice
-from .magnitude.kind import Magnitude
 from .ratings.kind import Ratings
+from .session.kind import KindAt
 from .session.run import run_session
 
 #: the experiment kinds ``run`` knows: the rating study (the default, no ``[experiment]`` table) and the kinds an
-#: ``[experiment]`` table names (study.session.kind.ExperimentKind.names)
-KINDS = (Ratings, ForcedChoice, Adjustment, Magnitude)
+#: ``[experiment]`` table names (study.session.kind.ExperimentKind.names). The others are named by their module
+#: and imported only for a session of theirs: they need psychophysics and scipy.special, a rating session not
+KINDS = (Ratings,
+         KindAt(("real-virtual-2afc", "discrimination", "detection"), "study.forcedchoice.kind", "ForcedChoice"),
+         KindAt(("adjustment",), "study.adjustment.kind", "Adjustment"),
+         KindAt(("magnitude",), "study.magnitude.kind", "Magnitude"))
 
 
 def run_command(args) -> int:

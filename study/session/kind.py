@@ -22,7 +22,9 @@ docs/architecture.md ("A new experiment kind") has a minimal kind.
 
 from __future__ import annotations
 
+import importlib
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 from typing import ClassVar
 
 from plumbing.studyfiles import RowFormat
@@ -51,6 +53,11 @@ class ExperimentKind(ABC):
     texts: ClassVar[dict]
 
     # -- before the session: the settings and the samples ------------------------------------------------------
+
+    @classmethod
+    def load(cls) -> type:
+        """The kind's class itself (as :meth:`KindAt.load` gives the class of a kind named by its module)."""
+        return cls
 
     @classmethod
     def configure(cls, table: dict | None, where: str):
@@ -174,3 +181,34 @@ class ExperimentKind(ABC):
     @abstractmethod
     def summary(self, rows: list, store, say) -> None:
         """Print the finished session's summary (``rows``: trials.csv's)."""
+
+
+@dataclass(frozen=True)
+class KindAt:
+    """An experiment kind named by its ``names`` and where its class is, imported only when a session is of it.
+
+    A session's process then imports its own kind's code only: the forced-choice, adjustment and magnitude kinds
+    need :mod:`psychophysics` and ``scipy.special`` (0.15-0.2 s of CPU to import), which a rating session
+    never uses. ``python -m study run`` lists its kinds so (``study.cli_run.KINDS``); the session machinery
+    takes these and kind classes alike (both have ``names`` and ``load()``).
+
+    Attributes
+    ----------
+    names : tuple of str
+        The kind's :attr:`ExperimentKind.names` (checked against the class when it is loaded).
+    module : str
+        Dotted name of the module defining the class, e.g. ``"study.forcedchoice.kind"``.
+    attribute : str
+        The class's name in that module.
+    """
+
+    names: tuple
+    module: str
+    attribute: str
+
+    def load(self) -> type:
+        """Import the module and return the kind's class."""
+        kind = getattr(importlib.import_module(self.module), self.attribute)
+        if tuple(kind.names) != tuple(self.names):  # a kind renamed in its module but not where it is listed
+            raise RuntimeError(f"{self.module}.{self.attribute} runs {tuple(kind.names)}, listed as {self.names}")
+        return kind

@@ -46,8 +46,9 @@ def run_session(args, kinds) -> int:
     ----------
     args : argparse.Namespace
         The ``run`` command's arguments.
-    kinds : sequence of type
-        The experiment kinds (:class:`study.session.kind.ExperimentKind`); the protocol names the session's.
+    kinds : sequence of type or study.session.kind.KindAt
+        The experiment kinds (:class:`study.session.kind.ExperimentKind` classes, or where they are); the
+        protocol names the session's.
 
     Returns
     -------

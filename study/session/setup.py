@@ -162,22 +162,27 @@ def choose_kind(kinds, table, where: str):
 
     Parameters
     ----------
-    kinds : sequence of type
-        The experiment kinds (:class:`study.session.kind.ExperimentKind` classes); the default one has no
-        ``names``.
+    kinds : sequence of type or study.session.kind.KindAt
+        The experiment kinds (:class:`study.session.kind.ExperimentKind` classes, or where they are); the
+        default one has no ``names``.
+
+    Returns
+    -------
+    type
+        The kind's class (imported now if ``kinds`` named it by its module).
     table : object
         The ``[experiment]`` table as written, or None.
     where : str
         The table's source, for messages.
     """
     if table is None:
-        return next(k for k in kinds if not k.names)
+        return next(k for k in kinds if not k.names).load()
     if not isinstance(table, dict):
         raise ValueError(f"{where}: [experiment] must be a table of settings, got {type(table).__name__}")
     names = [name for k in kinds for name in k.names]
     for k in kinds:
         if table.get("kind") in k.names:
-            return k
+            return k.load()
     raise ValueError(f"{where}: [experiment] kind must be one of {names}, got {table.get('kind', '')!r}")
 
 

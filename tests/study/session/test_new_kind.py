@@ -73,3 +73,17 @@ def test_an_unknown_kind_names_every_kind_there_is(tmp_path):
         run_session(args, (Ratings, ForcedChoice, _skeleton()))
     assert str(exc.value) == (f"{proto}: [experiment] kind must be one of ['real-virtual-2afc', 'discrimination', "
                        "'detection', 'yes-no'], got 'ranking'")
+
+
+def test_the_run_commands_kinds_load_as_listed_and_a_misnamed_one_is_refused():
+    """``python -m study run`` names the kinds other than the rating study by their module (imported only for a
+    session of theirs): each loads to its class, whose names are the listed ones."""
+    from study import cli_run
+    from study.adjustment.kind import Adjustment
+    from study.magnitude.kind import Magnitude
+    from study.session.kind import KindAt
+
+    assert [k.load() for k in cli_run.KINDS] == [Ratings, ForcedChoice, Adjustment, Magnitude]
+    assert [tuple(k.names) for k in cli_run.KINDS] == [tuple(k.load().names) for k in cli_run.KINDS]
+    with pytest.raises(RuntimeError, match="listed as"):
+        KindAt(("ranking",), "study.magnitude.kind", "Magnitude").load()
