@@ -165,15 +165,15 @@ def choose_kind(kinds, table, where: str):
     kinds : sequence of type or study.session.kind.KindAt
         The experiment kinds (:class:`study.session.kind.ExperimentKind` classes, or where they are); the
         default one has no ``names``.
+    table : object
+        The ``[experiment]`` table as written, or None.
+    where : str
+        The table's source, for messages.
 
     Returns
     -------
     type
         The kind's class (imported now if ``kinds`` named it by its module).
-    table : object
-        The ``[experiment]`` table as written, or None.
-    where : str
-        The table's source, for messages.
     """
     if table is None:
         return next(k for k in kinds if not k.names).load()

@@ -11,8 +11,8 @@ import pytest
 from statsmodels.stats.power import TTestPower
 
 from analysis.__main__ import main
-from analysis.power import (PlanSettings, assumed_plan, dz_ci, pilot_plan, power_difference, power_tost,
-                            smallest_n)
+from analysis.power import (PlanSettings, assumed_plan, dz_ci, pilot_plan, power_curves, power_difference,
+                            power_tost, smallest_n)
 
 SM = TTestPower()
 
@@ -50,6 +50,31 @@ def test_tost_plan_from_assumed_sd():
     # known value: TOST, true difference 0, margin 0.5 SD, alpha 0.05, power 0.8 -> 36 pairs (the approximation
     # of Chow et al. eq. 3.1.9 that TOSTER's powerTOSTpaired uses gives 35.6 -> 36)
     assert row["n_required"] == 36
+
+
+def test_power_curves_equal_the_power_of_each_n_value_for_value():
+    """The curves are computed for every n at once; each value is power_difference's or power_tost's at that n,
+    including the far-tail n where statsmodels' two-sided power is NaN (d_z = 0.5 at alpha 0.05/66 from n ~ 100)
+    and a d_z large enough for the 8-standard-error rule."""
+    plan = pd.DataFrame({"test": ["difference", "difference", "difference", "tost"],
+                         "dz": [0.5, -0.3, 3.0, 0.1], "alpha_each": [0.05 / 66, 0.05, 1e-6, 0.05],
+                         "sd_diff": [np.nan, np.nan, np.nan, 1.2], "margin": [np.nan, np.nan, np.nan, 0.5],
+                         "sample_a": ["a", "b", "c", "d"], "sample_b": ["x", "y", "z", "w"], "n_required": [np.nan] * 4})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        curves = power_curves(plan, n_max=200)
+        fallbacks = 0
+        for (k, n, pw) in curves[["row", "n", "power"]].itertuples(index=False):
+            r = plan.iloc[k]
+            n = int(n)
+            if r.test == "difference":
+                want = power_difference(r.dz, n, r.alpha_each)
+                fallbacks += bool(np.isnan(SM.power(effect_size=abs(r.dz), nobs=n, alpha=r.alpha_each,
+                                                    alternative="two-sided")))
+            else:
+                want = power_tost(r.dz, r.margin / r.sd_diff, n, r.alpha_each)
+            assert pw == want or (np.isnan(pw) and np.isnan(want)), (k, n, pw, want)
+    assert set(curves["row"]) == {0, 1, 2, 3} and fallbacks > 0
 
 
 def test_power_difference_has_no_nan_where_scipy_gives_nan():
