@@ -94,11 +94,40 @@ def servo_child(parent_pid: int):
         yield
 
 
+@contextlib.contextmanager
+def replying(conn, failure: Callable[[BaseException], tuple]):
+    """The servo child's way out: whatever ends the block, the parent gets one message and the pipe is closed.
+
+    The block sends its own success message; an exception sends ``failure(exc)`` instead (the partial result
+    the loop kept, and what went wrong) and ends there -- the child's work is over, the parent decides -- except
+    a stop by SIGTERM/SIGHUP (:class:`plumbing.stopsignals.Terminated`, also when Python wrapped it in an
+    import's error), which is raised again once the pipe is closed: exit status 128 + the signal's number.
+    """
+    terminated = None
+    try:
+        yield
+    except BaseException as exc:  # report everything, including partial results
+        exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
+        if isinstance(exc, Terminated):
+            terminated = exc
+        try:
+            conn.send(failure(exc))
+        except Exception:
+            pass
+    finally:
+        conn.close()
+    if terminated is not None:
+        raise terminated
+
+
 def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, realtime, stop_event,
            nice, parent_pid, rt_request=None) -> None:
     loop = None
-    terminated = None
-    try:
+
+    def failed(exc):
+        return ("error", loop.result if loop is not None else None, type(exc).__name__, str(exc))
+
+    with replying(conn, failed):
         # SIGTERM (the parent's timeout path, the parent's death) and SIGHUP: the loop's zeroing path
         with servo_child(parent_pid):
             if nice:
@@ -117,19 +146,6 @@ def _child(conn, device, device_options, cfg, transient, duration_s, max_ticks, 
                 result = loop.run(duration_s=duration_s, max_ticks=max_ticks, realtime=realtime,
                                   until=lambda lp: parent_gone() or stop_event.is_set())
         conn.send(("ok", result, "", ""))
-    except BaseException as exc:  # report everything, including partial results
-        exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
-        if isinstance(exc, Terminated):
-            terminated = exc
-        partial = loop.result if loop is not None else None
-        try:
-            conn.send(("error", partial, type(exc).__name__, str(exc)))
-        except Exception:
-            pass
-    finally:
-        conn.close()
-    if terminated is not None:
-        raise terminated  # exit status 128 + the signal's number
 
 
 def end_child(proc, conn, want_message: bool):

@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 
 from devices.registry import make_device
-from plumbing.stopsignals import ParentWatch, Terminated, stop_in
+from plumbing.stopsignals import ParentWatch
 
 from ..loop import ServoLoop
-from ..process import servo_child
+from ..process import replying, servo_child
 
 RING = 4096          # ticks kept in the shared scope ring
 MAX_EVENTS = 256
@@ -28,8 +28,11 @@ def tap_child(conn, spec, cfg, transient, n_taps, post_s, timeout_s, ring, ring_
     written so far), each contact's incoming velocity and grip into ``events`` (count first). SIGTERM/SIGHUP,
     and the parent's death, stop it with the output zeroed (renderer.process.servo_child)."""
     loop = None
-    terminated = None
-    try:
+
+    def failed(exc):
+        return ("error", loop.result if loop is not None else None, f"{type(exc).__name__}: {exc}")
+
+    with replying(conn, failed):
         with servo_child(parent_pid):
             dev = make_device(spec)
             with dev:
@@ -57,15 +60,3 @@ def tap_child(conn, spec, cfg, transient, n_taps, post_s, timeout_s, ring, ring_
 
                 result = loop.run(duration_s=timeout_s, until=until, realtime=None)
         conn.send(("ok", result, ""))
-    except BaseException as exc:
-        exc = stop_in(exc) or exc   # a stop that Python wrapped (a signal inside an import) is a stop
-        if isinstance(exc, Terminated):
-            terminated = exc
-        try:
-            conn.send(("error", loop.result if loop is not None else None, f"{type(exc).__name__}: {exc}"))
-        except Exception:
-            pass
-    finally:
-        conn.close()
-    if terminated is not None:
-        raise terminated  # exit status 128 + the signal's number
