@@ -209,8 +209,10 @@ def test_frictionless_contact_pushes_along_the_normal_only(scenes):
 
 
 @njit(cache=True, _nrt=False)
-def _observer_sweep(c, w0, w, obj, tri, node, stack, log, seed, n_traj, steps, dt):
-    """Random smooth endpoint paths through the scene fed to the 3-D law; the peak observer energy (J)."""
+def _observer_sweep(c, w0, w, obj, tri, node, stack, log, seed, n_traj, steps, dt, status):
+    """Random smooth endpoint paths through the scene fed to the 3-D law; the peak observer energy (J).
+    ``status``: the device status of every tick, an argument so that the law gets the int64 of every caller (a
+    constant 0 here would be typed Literal[int](0): a compile of the law of its own)."""
     np.random.seed(seed)
     peak = 0.0
     for _ in range(n_traj):
@@ -229,7 +231,7 @@ def _observer_sweep(c, w0, w, obj, tri, node, stack, log, seed, n_traj, steps, d
             x += vx * dt
             y += vy * dt
             z += vz * dt
-            L3.law3_tick(c, w, obj, tri, node, stack, log, k * dt, x, y, z, 0.0, 2.0, 0)
+            L3.law3_tick(c, w, obj, tri, node, stack, log, k * dt, x, y, z, 0.0, 2.0, status)
             if w[L3.W_PO_E] > peak:
                 peak = w[L3.W_PO_E]
             if w[L3.W_CODE] >= 4:
@@ -255,7 +257,7 @@ def test_the_passivity_observer_stays_bounded_over_random_3d_trajectories(scenes
     w0 = loop.w.copy()
     w = loop.w
     pk = loop.packed
-    peak = _observer_sweep(loop.c, w0, w, pk.obj, pk.tri, pk.node, loop.stack, loop.log, 3, N_TRAJ, 300, 1e-4)
+    peak = _observer_sweep(loop.c, w0, w, pk.obj, pk.tri, pk.node, loop.stack, loop.log, 3, N_TRAJ, 300, 1e-4, 0)
     limit = loop.c[L3.C_PO_LIMIT]
     assert np.isfinite(peak) and peak > 0.0
     assert peak < 0.5 * limit, f"peak observer energy {peak:.3g} J of the limit {limit:.3g} J"

@@ -43,16 +43,14 @@ U = "uint64[::1]"
 A2 = "float64[:, ::1]"
 IA = "int64[::1]"
 F, I, B = "float64", "int64", "boolean"
-#: an int argument a caller passes as the constant 0 (loop3's priming tick): numba types it Literal[int](0),
-#: a cache entry of its own
-ZERO = "Literal[int](0)"
 
 #: (module, function, argument types) of every kernel the suite's processes compile, in two parts of about
 #: equal cost (measured from an empty cache on 2 cores: part 0 ~14 s of CPU, the 1-DOF closed loop, the
-#: identification and HFAM kernels (~7 s) and the teleoperation session (~6.5 s); part 1 ~15 s, the 3-DOF
-#: proxy and loop, which also compile the lateral axes' step). None: the signature of renderer.sim_aot. A kernel listed here is
-#: one its module's ``__pycache__`` names (parallel._cache_filled looks for ``<module>.<function>-*.nbi``,
-#: or the name of :data:`CACHE_NAMES`).
+#: identification and HFAM kernels (~7 s) and the teleoperation session (~6.5 s); part 1 ~12.5 s, the 3-DOF
+#: proxy and loop, which also compile the lateral axes' step). None: the signature of renderer.sim_aot. A
+#: kernel listed here is one its module's ``__pycache__`` names (parallel._cache_filled looks for
+#: ``<module>.<function>-*.nbi``, or the name of :data:`CACHE_NAMES`). A caller compiled by numba that passes
+#: a constant makes an entry of its own (numba types it ``Literal``): the suite's callers pass variables.
 KERNELS = (
     (("renderer.law", "run_sim", None),
      ("devices.sim.kernel", "tick", None),           # compiled with run_sim: found in the cache here
@@ -65,7 +63,6 @@ KERNELS = (
      ("renderer.proxy", "first_hit", (A2, A2, A2, IA, F, F, F, F, F, F)),
      ("renderer.proxy", "proxy_force", (A, F, F, F, F)),
      ("renderer.law3", "law3_tick", (A, A, A2, A2, A2, IA, A2, F, F, F, F, F, F, I)),
-     ("renderer.law3", "law3_tick", (A, A, A2, A2, A2, IA, A2, F, F, F, F, F, F, ZERO)),
      ("renderer.law3", "run_sim3", (A, A, A2, A2, A2, IA, A2, A, A, A, U, A, A, A, A, A, F, I))),
 )
 
@@ -76,7 +73,6 @@ CACHE_NAMES = {("renderer.law3", "law3_tick"): "_law3_tick"}
 
 def _signature(function: str, args) -> tuple:
     # imported here: parallel._cache_filled reads KERNELS in every test run, which then needs no numba
-    from numba import types
     from numba.core import sigutils
 
     from renderer import sim_aot
@@ -84,7 +80,7 @@ def _signature(function: str, args) -> tuple:
     if args is None:
         text = sim_aot.SIGNATURE if function == "run_sim" else sim_aot.TICK_SIGNATURE
         return sigutils.normalize_signature(text)[0]
-    return tuple(types.literal(0) if a == ZERO else sigutils.normalize_signature(f"({a},)")[0][0] for a in args)
+    return tuple(sigutils.normalize_signature(f"({a},)")[0][0] for a in args)
 
 
 def warm(part: int) -> None:
