@@ -10,9 +10,12 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # byte-code of the packages only the tests, the analysis and pip itself import: compiled by `make test`
-# and `make bench`, not by `make demo` (which never imports them; ~6 s of a fresh clone's first demo)
+# and `make bench`, not by `make demo` (which never imports them; ~6 s of a fresh clone's first demo), nor
+# before the tests' numba warm-up starts. The second line: the test extra's own libraries (a third of the
+# byte-code the venv's first compile made)
 COMPILED := $(VENV)/.compiled
-LATER  := /site-packages/(pandas|statsmodels|patsy|pyarrow|playwright|_pytest|pytest|pluggy|pygments|narwhals|pip|setuptools|pkg_resources)/
+LATER  := /site-packages/(pandas|statsmodels|patsy|pyarrow|playwright|_pytest|pytest|pluggy|pygments|narwhals|pip|setuptools|pkg_resources|$\
+	sklearn|xarray|pydantic|pydantic_core|seaborn|joblib|pingouin|forcedimension_core|xdist|pylsl|psignifit|execnet|tabulate|cloudpickle|json_tricks|questplus)/
 # the third-party packages' own test suites (a third to a half of numpy's, scipy's, numba's and matplotlib's
 # files; ~3 s of the first compile on 2 cores): nothing here imports them
 THEIRTESTS := /site-packages/.*/tests/
