@@ -4,8 +4,7 @@
 ``make test`` there as a new user would on a fresh machine: the venv is created, the system parts are
 provisioned into ``.deps``, nothing is cached (a new ``XDG_CACHE_HOME``; numba's cache starts empty with the
 clone). It prints the wall time, the CPU time of everything ``make`` ran (user + system, child processes
-included, and the numba warm-up it starts in the background: what the suite costs a shared machine whatever
-its load), the load average before and after, and
+included: what the suite costs a shared machine whatever its load), the load average before and after, and
 from the suite's per-test CPU log (``HFAM_TEST_CPU_LOG``, tests/support/cpuprofile.py) the timeline (when the
 first test began and each worker's last one ended, from ``make``'s start), the ten slowest tests by wall and by
 CPU and the CPU by test folder. Not run by ``make bench`` (a whole suite, ~5 min); options:
@@ -32,8 +31,6 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
-
-from tests.support import jitwarm
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -126,10 +123,6 @@ def run_once(pytest_only: bool, workers: str | None, log: Path) -> dict:
         cpu0, t0, start_unix = _cpu_children(), time.perf_counter(), time.time()
         proc = subprocess.run(make, cwd=tree, env=env, capture_output=True, text=True)
         wall, cpu = time.perf_counter() - t0, _cpu_children() - cpu0
-        # the numba warm-up make starts in the background is no child of make's (its CPU is in no rusage here):
-        # its parts wrote their CPU time as they ended, before the tests began
-        if not pytest_only:
-            cpu += sum(cpu_s for _, cpu_s in jitwarm.statuses(tree / jitwarm.BACKGROUND.name))
         lines = (proc.stdout + proc.stderr).strip().splitlines()
         # a failed run keeps pytest's report of what failed and why (from its FAILURES section), not only its totals
         start = next((i for i, ln in enumerate(lines) if "= FAILURES =" in ln), len(lines) - 3)

@@ -53,7 +53,7 @@ def test_the_workers_wait_for_a_background_warm_up_until_both_parts_end_and_hear
 
     def command(part, status):
         return [sys.executable, "-c", "import sys; open(sys.argv[1]).read(); open(sys.argv[2], 'w').write(sys.argv[3])",
-                str(fifos[part]), str(status), f"{codes[part]} {part + 0.5}"]
+                str(fifos[part]), str(status), codes[part]]
 
     folder = tmp_path / "warm"
     assert not jitwarm.running(folder)                   # no lock file yet
@@ -67,7 +67,6 @@ def test_the_workers_wait_for_a_background_warm_up_until_both_parts_end_and_hear
     open(fifos[1], "w").close()
     jitwarm.wait(folder)
     assert not jitwarm.running(folder)
-    assert jitwarm.statuses(folder) == [("0", 0.5), ("3", 1.5)]
     lines = jitwarm.failures(folder)
     assert len(lines) == 1 and "part 1 failed (exit 3)" in lines[0] and "jitwarm-1.log" in lines[0]
     # a part stopped before it wrote its status is reported too

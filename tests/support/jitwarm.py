@@ -23,7 +23,6 @@ import argparse
 import fcntl
 import importlib
 import os
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -166,24 +165,14 @@ def wait(folder: Path) -> None:
         os.close(fd)
 
 
-def statuses(folder: Path) -> list[tuple[str, float]]:
-    """After :func:`wait`: each part's exit status and CPU time (s) as it wrote them ("none: it was stopped" and
-    0.0 for a part that wrote none). A background warm-up is no child of ``make``: its CPU time is in no
-    ``getrusage`` of the run (``python -m benchmarks suite`` adds it from here)."""
-    out = []
-    for part in (0, 1):
-        try:
-            code, cpu_s = (folder / f"jitwarm-{part}.status").read_text().split()
-            out.append((code, float(cpu_s)))
-        except (FileNotFoundError, ValueError):
-            out.append(("none: it was stopped", 0.0))
-    return out
-
-
 def failures(folder: Path) -> list[str]:
     """After :func:`wait`: a line for each part of the warm-up in ``folder`` that did not end with status 0."""
     lines = []
-    for part, (code, _) in enumerate(statuses(folder)):
+    for part in (0, 1):
+        try:
+            code = (folder / f"jitwarm-{part}.status").read_text().strip()
+        except FileNotFoundError:
+            code = "none: it was stopped"
         if code != "0":
             lines.append(f"numba warm-up part {part} failed (exit {code}); the tests compiled their kernels "
                          f"themselves: {folder / f'jitwarm-{part}.log'}")
@@ -214,8 +203,7 @@ def main(argv=None) -> int:
         code = 0
     finally:
         if args.status is not None:
-            usage = resource.getrusage(resource.RUSAGE_SELF)
-            args.status.write_text(f"{code} {usage.ru_utime + usage.ru_stime:.2f}\n")
+            args.status.write_text(f"{code}\n")
     return code
 
 
