@@ -20,7 +20,7 @@ LATER  := /site-packages/(pandas|statsmodels|patsy|pyarrow|playwright|_pytest|py
 # files; ~3 s of the first compile on 2 cores): nothing here imports them
 THEIRTESTS := /site-packages/.*/tests/
 
-.PHONY: demo test bench venv deps system-deps clean gallery artefacts jitwarm
+.PHONY: demo test bench venv deps system-deps clean gallery artefacts jitwarm0 jitwarm1
 
 PYTHON_OK = @test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.version_info < (3, 11))" || { echo "error: Python >= 3.11 not found (set PYTHON=/path/to/python3.11)"; exit 1; }
 
@@ -63,19 +63,17 @@ TEST_WORKERS ?= auto
 test:
 	@# the venv and the system parts are independent (the provisioning needs only the standard library): on a
 	@# fresh clone they are made side by side, the parts' download and unpacking beside pip's install, and
-	@# numba's cache of the project's kernels (~30 s of CPU) filled in the background from the moment the venv
-	@# exists, beside the byte-code and then the workers' start and collection
-	@$(MAKE) --no-print-directory -j 4 --output-sync=target $(COMPILED) deps jitwarm
+	@# numba's cache of the project's kernels beside the byte-code (~30 s of CPU that the tests' workers
+	@# would otherwise wait for after collecting)
+	@$(MAKE) --no-print-directory -j 5 --output-sync=target $(COMPILED) deps jitwarm0 jitwarm1
 	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
-# numba's on-disk cache of the kernels the tests run, filled in the background by two processes (two halves
-# side by side, tests/support/jitwarm.py) while the byte-code is compiled and the workers start and collect;
-# each worker waits for it before its first test (its lock, logs and exit statuses in .jitwarm/). A few
-# milliseconds when the cache is filled. With the tests' settings (no ahead-of-time build, one BLAS thread).
-# A failure only costs time (the tests' summary names its log): each test's process then compiles what it calls
-jitwarm: $(STAMP)
-	@HFAM_SIM_AOT=off OPENBLAS_NUM_THREADS=1 $(PY) -m tests.support.jitwarm --background --if-needed \
-	    || echo "warning: the numba warm-up did not start; the tests compile their kernels themselves"
+# numba's on-disk cache of the kernels the tests run, in two halves side by side (tests/support/jitwarm.py);
+# a few milliseconds when it is filled. With the tests' settings (no ahead-of-time build, one BLAS thread). A
+# failure only costs time: each test's process then compiles what it calls
+jitwarm0 jitwarm1: $(STAMP)
+	@HFAM_SIM_AOT=off OPENBLAS_NUM_THREADS=1 $(PY) -m tests.support.jitwarm --part $(subst jitwarm,,$@) --if-needed \
+	    || echo "warning: numba warm-up part $(subst jitwarm,,$@) failed; the tests compile their kernels themselves"
 
 # once (stamp .deps/stamp.json); afterwards a check of a few milliseconds. Run by the Python that makes the
 # venv (it needs only the standard library), so it does not wait for the venv

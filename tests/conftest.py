@@ -39,7 +39,7 @@ from tests.support import cpuprofile, parallel  # noqa: E402
 from tests.support.demo import default_pipeline_cache  # noqa: E402
 from tests.support.shared import shared_folder, shared_value  # noqa: E402
 
-_warmup: list = []           # the folder of this run's numba warm-up, where there is one
+_warmup: list = []
 
 
 @pytest.hookimpl(trylast=True)  # after the tmp_path plugin has set up the base folder
@@ -47,9 +47,7 @@ def pytest_configure(config):
     cpuprofile.register(config)
     if parallel.controller_or_alone(config):
         # before any xdist worker exists: the workers wait for it (tests/support/parallel.py)
-        folder = parallel.start_jit_warmup(config)
-        if folder is not None:
-            _warmup.append(folder)
+        _warmup.extend(parallel.start_jit_warmup(config))
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -64,7 +62,8 @@ def pytest_runtestloop(session):
 
 
 def pytest_terminal_summary(terminalreporter, config):
-    for line in (parallel.report_jit_warmup(_warmup[0]) if _warmup else []):
+    line = parallel.report_jit_warmup(_warmup, config) if _warmup else None
+    if line:
         terminalreporter.write_line(line, yellow=True)
 
 

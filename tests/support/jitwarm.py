@@ -3,14 +3,13 @@
 A fresh clone has no cache: the first process that calls a kernel compiles it (``renderer.law.run_sim`` alone
 takes ~5 s of CPU) and writes it next to its source (``__pycache__``, plumbing/jitcache.py); every later
 process loads it in milliseconds. With two xdist workers starting together, both would compile the same
-kernels at the same moment, and so could the command a test starts. The kernels are therefore compiled by
-this module, in two processes (``--part 0``/``1``: the kernels split into halves of about the same compile
-time) started in the background (:func:`start`): by ``make test`` as soon as the venv exists
-(``--background --if-needed``: nothing to do when the cache is filled already), beside its other set-up (the
-tests' byte-code, the system parts) and then beside the workers' start and collection; by a run of pytest on
-its own in ``tests/conftest.py``, while its workers import and collect. The workers wait for it before their
-first test: the parts inherit an exclusive ``fcntl`` lock (held by an open file they share, released when
-both have ended, however they end), on which each worker takes a shared lock.
+kernels at the same moment, and so could the command a test starts. ``make test`` therefore runs this module
+in two processes (``--part 0``/``1``: the kernels split into halves of about the same compile time) beside
+its other set-up (the tests' byte-code, the system parts), with ``--if-needed``: nothing to do when the cache
+is filled already. A run of pytest on its own does it in ``tests/conftest.py`` instead, while the workers
+import and collect, and the workers wait for it before their first test: the parts inherit an exclusive
+``fcntl`` lock (held by an open file they share, released when both have ended, however they end), on which
+each worker takes a shared lock.
 
 Each kernel is compiled for the argument types the project calls it with (``Dispatcher.compile``, which
 saves to the cache like a first call does). A signature that drifts from the calls only costs the compile
@@ -20,23 +19,8 @@ this module saves -- the call compiles its own types -- never a wrong result: th
 from __future__ import annotations
 
 import argparse
-import fcntl
 import importlib
-import os
-import subprocess
 import sys
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[2]
-
-#: where ``make test`` keeps its warm-up's lock, logs and exit statuses (:func:`start`): it starts the warm-up
-#: beside its other set-up and does not wait for it; the tests' workers do (tests/support/parallel.py)
-BACKGROUND = ROOT / ".jitwarm"
-LOCK = "jitwarm.lock"
-PIDS = "jitwarm.pids"
-
-#: the processes :func:`start` started in this process
-_started: list[int] = []
 
 A = "float64[::1]"
 U = "uint64[::1]"
@@ -90,121 +74,19 @@ def warm(part: int) -> None:
         kernel.compile(_signature(function, args))
 
 
-def part_command(part: int, status: Path) -> list[str]:
-    """The command of one part of :func:`start`: this module with ``--part`` and ``--status``."""
-    return [sys.executable, "-m", "tests.support.jitwarm", "--part", str(part), "--status", str(status)]
-
-
-def start(folder: Path, command=part_command) -> bool:
-    """Start both parts in the background, each a process of its own, holding ``folder``'s lock until both end.
-
-    The exclusive ``fcntl`` lock on ``folder/jitwarm.lock`` is taken here, before this returns, on a file
-    opened here and inherited by both processes (an ``flock`` belongs to the open file, not to a process): a
-    test worker started after this call cannot take its shared lock before the warm-up has ended, however the
-    parts end. Each part writes ``jitwarm-<part>.log`` and, as it ends, its exit status to
-    ``jitwarm-<part>.status`` (:func:`failures`); ``jitwarm.pids`` names both processes (:func:`own_pids`). False, and nothing started, where a warm-up holds the lock
-    already (its workers wait for that one). ``command(part, status_path)``: each part's command line.
-    """
-    folder.mkdir(parents=True, exist_ok=True)
-    fd = os.open(folder / LOCK, os.O_WRONLY | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return False
-        pids = []
-        for part in (0, 1):
-            status = folder / f"jitwarm-{part}.status"
-            status.unlink(missing_ok=True)
-            with open(folder / f"jitwarm-{part}.log", "w") as log:
-                pids.append(subprocess.Popen(command(part, status), cwd=ROOT, stdin=subprocess.DEVNULL, stdout=log,
-                                             stderr=subprocess.STDOUT, pass_fds=(fd,)).pid)
-        (folder / PIDS).write_text(" ".join(map(str, pids)) + "\n")
-        _started.extend(pids)
-    finally:
-        os.close(fd)                 # the children hold the lock now (released when the last one ends)
-    return True
-
-
-def running(folder: Path) -> bool:
-    """Whether a warm-up started by :func:`start` in ``folder`` still holds its lock."""
-    try:
-        fd = os.open(folder / LOCK, os.O_RDONLY)
-    except FileNotFoundError:
-        return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        return False
-    except BlockingIOError:
-        return True
-    finally:
-        os.close(fd)
-
-
-def own_pids() -> list[int]:
-    """The processes of the warm-ups this process started, and of the one ``make test`` started
-    (:data:`BACKGROUND`) while it runs: for counting the machine's other work (tests/support/parallel.py)."""
-    pids = list(_started)
-    if running(BACKGROUND):
-        try:
-            pids += [int(p) for p in (BACKGROUND / PIDS).read_text().split()]
-        except (OSError, ValueError):
-            pass
-    return pids
-
-
-def wait(folder: Path) -> None:
-    """Block until a warm-up started in ``folder`` has ended (at once where there is none)."""
-    try:
-        fd = os.open(folder / LOCK, os.O_RDONLY)
-    except FileNotFoundError:
-        return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH)
-    finally:
-        os.close(fd)
-
-
-def failures(folder: Path) -> list[str]:
-    """After :func:`wait`: a line for each part of the warm-up in ``folder`` that did not end with status 0."""
-    lines = []
-    for part in (0, 1):
-        try:
-            code = (folder / f"jitwarm-{part}.status").read_text().strip()
-        except FileNotFoundError:
-            code = "none: it was stopped"
-        if code != "0":
-            lines.append(f"numba warm-up part {part} failed (exit {code}); the tests compiled their kernels "
-                         f"themselves: {folder / f'jitwarm-{part}.log'}")
-    return lines
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tests.support.jitwarm", description=__doc__.splitlines()[0])
-    which = p.add_mutually_exclusive_group(required=True)
-    which.add_argument("--part", type=int, choices=(0, 1))
-    which.add_argument("--background", action="store_true",
-                       help=f"start both parts and return at once ({BACKGROUND.name}/ holds their lock and logs)")
+    p.add_argument("--part", type=int, choices=(0, 1), required=True)
     p.add_argument("--if-needed", action="store_true",
                    help="do nothing where the cache holds every kernel already, or HFAM_TEST_JIT_WARMUP=0")
-    p.add_argument("--status", type=Path, help="write the part's exit status to this file as it ends")
     args = p.parse_args(argv)
     if args.if_needed:
         from tests.support.parallel import _cache_filled, warmup_enabled
 
         if not warmup_enabled() or _cache_filled():
             return 0
-    if args.background:
-        start(BACKGROUND)
-        return 0
-    code = 1
-    try:
-        warm(args.part)
-        code = 0
-    finally:
-        if args.status is not None:
-            args.status.write_text(f"{code}\n")
-    return code
+    warm(args.part)
+    return 0
 
 
 if __name__ == "__main__":

@@ -15,19 +15,19 @@ Wired by ``tests/conftest.py``:
 * **Costly units first**: the work queue is ordered by :data:`COST_HINTS` (the units whose wall time is a large
   part of a worker's share: run last, one of them would leave the other core idle), then by the number of
   tests (xdist's own order).
-* **The numba cache is filled once** (:mod:`tests.support.jitwarm`), in the background: by ``make test`` beside
-  its other set-up and while the workers start and collect, or where pytest runs on its own
-  (:func:`start_jit_warmup`) while the workers import and collect; each worker waits for it before its first
-  test (:func:`wait_for_jit_warmup`).
+* **The numba cache is filled once** (:mod:`tests.support.jitwarm`): by ``make test`` beside its other set-up, or
+  where pytest runs on its own (:func:`start_jit_warmup`) while the workers import and collect; then each worker
+  waits for it before its first test (:func:`wait_for_jit_warmup`).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
-
-from tests.support import jitwarm
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -47,6 +47,7 @@ COST_HINTS = (
     "tests/integration/test_serial_study.py",
 )
 
+WARMUP_LOCK = "jitwarm.lock"
 
 #: memory a worker may take at its largest (measured: 0.45-0.6 GB resident), with the processes it starts
 WORKER_MEMORY_BYTES = 1 << 30
@@ -75,40 +76,20 @@ def auto_workers(cores: int | None = None, available_bytes: int | None = None, o
     return max(1, min(wanted, int(by_memory)))
 
 
-def running_others(samples: int = 9, interval_s: float = 0.05, exclude=None) -> int:
+def running_others(samples: int = 9, interval_s: float = 0.05) -> int:
     """The median number of processes running besides this one, from /proc/loadavg's runnable count sampled
     ``samples`` times ``interval_s`` apart (not the load average, which still counts this run's own set-up);
-    0 where there is no /proc/loadavg. The threads of the processes ``exclude`` (default: this run's numba
-    warm-up, :func:`jitwarm.own_pids`) running at each sample are not counted: they are this run's own work,
-    and they end before its first test.
-    """
-    if exclude is None:
-        exclude = jitwarm.own_pids()
+    0 where there is no /proc/loadavg."""
     counts = []
     for k in range(samples):
         try:
             with open("/proc/loadavg") as fh:
-                runnable = int(fh.read().split()[3].split("/")[0]) - 1
+                counts.append(int(fh.read().split()[3].split("/")[0]) - 1)
         except (OSError, IndexError, ValueError):
             return 0
-        counts.append(max(0, runnable - _running_threads(exclude)))
         if k + 1 < samples:
             time.sleep(interval_s)
     return sorted(counts)[len(counts) // 2]
-
-
-def _running_threads(pids) -> int:
-    """How many threads of the processes ``pids`` are running or runnable now (state R in /proc)."""
-    n = 0
-    for pid in pids:
-        for stat in Path(f"/proc/{pid}/task").glob("*/stat"):
-            try:
-                text = stat.read_text()
-            except OSError:              # the thread or process ended meanwhile
-                continue
-            if text[text.rindex(")") + 2:].startswith("R"):
-                n += 1
-    return n
 
 
 def _available_memory() -> int | None:
@@ -146,21 +127,29 @@ def add_folder_groups(items) -> None:
                 item.add_marker(pytest.mark.xdist_group(group))
 
 
-def start_jit_warmup(config) -> Path | None:
-    """Start the two :mod:`tests.support.jitwarm` processes in the run's base folder (:func:`jitwarm.start`),
-    before any worker exists: the workers wait for them. Not where ``make test`` started them already
-    (:data:`jitwarm.BACKGROUND`; the workers wait for those), nor where the cache is filled.
-    ``HFAM_TEST_JIT_WARMUP=0`` turns it off (each kernel is then compiled by its first caller). True where this
-    run started or found a warm-up: the folder of its files, for :func:`report_jit_warmup`; else None.
+def start_jit_warmup(config) -> list[subprocess.Popen]:
+    """Start the two :mod:`tests.support.jitwarm` processes, holding the run's warm-up lock until both end.
+
+    The lock is taken here, before any worker exists, on a file opened here and inherited by both processes
+    (an ``flock`` belongs to the open file, not to a process): no worker can take its shared lock first.
+    ``HFAM_TEST_JIT_WARMUP=0`` turns it off (each kernel is then compiled by its first caller).
     """
-    if not warmup_enabled() or config.option.collectonly:
-        return None
-    if jitwarm.running(jitwarm.BACKGROUND):
-        return jitwarm.BACKGROUND
-    if _cache_filled():
-        return None
+    if not warmup_enabled() or config.option.collectonly or _cache_filled():
+        return []
     base = run_base(config)
-    return base if jitwarm.start(base) else None
+    fd = os.open(base / WARMUP_LOCK, os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        procs = []
+        for part in (0, 1):
+            log = open(base / f"jitwarm-{part}.log", "w")
+            procs.append(subprocess.Popen([sys.executable, "-m", "tests.support.jitwarm", "--part", str(part)],
+                                          cwd=ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                                          pass_fds=(fd,)))
+            log.close()
+    finally:
+        os.close(fd)                 # the children hold the lock now (released when the last one ends)
+    return procs
 
 
 def warmup_enabled() -> bool:
@@ -190,16 +179,21 @@ def _cache_filled() -> bool:
 
 
 def wait_for_jit_warmup(config) -> None:
-    """Block until the run's warm-up (started by pytest or by ``make test``) has ended: at once if there is none."""
-    jitwarm.wait(run_base(config))
-    jitwarm.wait(jitwarm.BACKGROUND)
+    """Block until the run's warm-up processes have ended (at once if there were none)."""
+    lock = run_base(config) / WARMUP_LOCK
+    if not lock.exists():
+        return
+    with open(lock) as fh:
+        fcntl.flock(fh, fcntl.LOCK_SH)
 
 
-def report_jit_warmup(folder: Path) -> list[str]:
-    """Lines naming the log of each process of the warm-up in ``folder`` (:func:`start_jit_warmup`) that failed
-    (the tests compiled their kernels themselves then)."""
-    jitwarm.wait(folder)
-    return jitwarm.failures(folder)
+def report_jit_warmup(procs, config) -> str | None:
+    """A line naming the log of a warm-up process that failed (the tests compile for themselves then)."""
+    for part, proc in enumerate(procs):
+        if proc.wait() != 0:
+            return (f"numba warm-up part {part} failed (exit {proc.returncode}); the tests compiled their kernels "
+                    f"themselves: {run_base(config) / f'jitwarm-{part}.log'}")
+    return None
 
 
 def cost_order(units: dict) -> list[str]:
