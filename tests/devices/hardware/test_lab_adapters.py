@@ -25,6 +25,7 @@ from devices.hardware.woodenhaptics.driver import WoodenHapticsDevice
 from devices.registry import make_device
 
 from tests.support.needs import need
+from tests.support.stalls import fake_hd_stats
 
 ROOT = Path(__file__).resolve().parents[3]
 EMULATED = ["inverse3", "falcon", "woodenhaptics", "dhd"]
@@ -314,16 +315,26 @@ def test_touch_unknown_name_and_a_fault_mid_run(fake_hd, monkeypatch):
         assert ticks >= 1
         assert max(0.010 - 1e-4 * ticks, -0.005) - 5e-4 <= st.position_m <= 0.010 + 5e-4, (st.position_m, ticks)
     monkeypatch.setenv("FAKEHD_FAULT_AFTER", "300")
-    dev = TouchDevice("Default Device")
-    with dev:
-        deadline = time.monotonic() + 5.0
-        while time.monotonic() < deadline:
-            st = dev.read()
-            if st.status & Status.DISCONNECTED:
-                break
-            dev.command_force(0.0, 0.0, 0.5)
-            time.sleep(0.001)
-        assert "HD_COMM_ERROR" in st.extra["error"]
+    for attempt in range(3):
+        fake_hd_stats(str(fake_hd), reset=True)
+        dev = TouchDevice("Default Device")
+        with dev:
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                st = dev.read()
+                if st.status & Status.DISCONNECTED:
+                    break
+                dev.command_force(0.0, 0.0, 0.5)
+                time.sleep(0.001)
+        assert st.status & Status.DISCONNECTED
+        # a loaded machine can hold the fake's 1 kHz servo thread off the CPU for longer than the driver's loss
+        # timeout before the injected fault: the driver then rightly declares the silent device gone first (its
+        # own rule, tested apart); that run is tried again, and a run without such a stall must meet the fault
+        silent_s = fake_hd_stats(str(fake_hd))[1] * 1e-9
+        if "replies lost" in st.extra["error"] and silent_s > dev.loss_timeout_s and attempt < 2:
+            continue
+        assert "HD_COMM_ERROR" in st.extra["error"], (st.extra["error"], silent_s)
+        break
     lib = ctypes.CDLL(str(fake_hd))
     out = (ctypes.c_double * 10)()
     lib.fakehd_stats(out)
