@@ -27,28 +27,47 @@ def _by_default(path: pathlib.Path) -> bool:
     return True
 
 
+def _parameters(path: pathlib.Path) -> list[str]:
+    """The parameter names of a benchmark module's ``main`` (read without importing it)."""
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.FunctionDef) and node.name == "main":
+            return [a.arg for a in node.args.args + node.args.kwonlyargs]
+    return []
+
+
 def main(argv=None) -> int:
     names = sorted(p.stem for p in pathlib.Path(__file__).parent.glob("bench_*.py"))
     args = list(sys.argv[1:] if argv is None else argv)
-    # options after a single benchmark's name are its own (``python -m benchmarks suite --runs 3``)
-    options = args[1:] if len(args) > 1 and args[1].startswith("-") else []
+
+    def known(a):
+        return a in names or f"bench_{a}" in names
+
+    # words after one benchmark's name that are not all names are that benchmark's own options and arguments
+    # (``python -m benchmarks suite --runs 3``, ``python -m benchmarks analysis 10000 --warm-bytecode``)
+    options = args[1:] if len(args) > 1 and known(args[0]) and not all(map(known, args[1:])) else []
     args = args[:1] if options else args
     if {"-h", "--help"} & set(args):
         here = pathlib.Path(__file__).parent
-        print("usage: python -m benchmarks [NAME ...] | NAME --OPTION ...\n\nRun the benchmarks (all but the suite's "
-              "own, or the NAMEs given, with or without the bench_ prefix) and print their figures; options after "
-              "one NAME are that benchmark's (python -m benchmarks suite --help).\n\nbenchmarks:")
+        print("usage: python -m benchmarks [NAME ...] | NAME OPTION ...\n\nRun the benchmarks (all but the suite's "
+              "own, or the NAMEs given, with or without the bench_ prefix) and print their figures; what follows "
+              "one NAME, unless it is only more names, is that benchmark's own options and arguments (python -m "
+              "benchmarks suite --help; python -m benchmarks analysis 10000 --warm-bytecode).\n\nbenchmarks:")
         for name in names:
             print(f"  {name.removeprefix('bench_'):<14} {_summary(here / (name + '.py'))}")
         print("\nexample: python -m benchmarks identify sim")
         return 0
-    unknown = [a for a in args if a not in names and f"bench_{a}" not in names]
+    unknown = [a for a in args if not known(a)]
     if unknown:
         print(f"error: unknown benchmark(s) {unknown}; python -m benchmarks --help lists them", file=sys.stderr)
         return 2
     if options:
         name = args[0] if args[0] in names else f"bench_{args[0]}"
-        return importlib.import_module(f"benchmarks.{name}").main(options)
+        if "argv" not in _parameters(here_file(name)):
+            print(f"error: benchmark {args[0]} takes no options or arguments, got {' '.join(options)}",
+                  file=sys.stderr)
+            return 2
+        code = importlib.import_module(f"benchmarks.{name}").main(options)
+        return code if isinstance(code, int) else 0    # some return their figures (a dict) for other callers
     wanted = set(args)
     failed = 0
     for name in names:

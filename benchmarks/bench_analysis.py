@@ -8,7 +8,7 @@ Each run writes a new report folder (the report refuses to overwrite an earlier 
 fails stops the benchmark. Python compiles every imported module when it finds no cached bytecode
 (``.pyc``), as in an environment with ``PYTHONDONTWRITEBYTECODE`` set and a venv installed without
 byte-compiling: seconds of start-up that an installed program does not pay. ``--warm-bytecode``
-(``python benchmarks/bench_analysis.py --warm-bytecode 10000``) gives the child processes a private
+(``python -m benchmarks analysis --warm-bytecode 10000``) gives the child processes a private
 bytecode cache (``PYTHONPYCACHEPREFIX`` in the temporary folder) filled by one untimed run first;
 without it the children inherit the environment as it is.
 
@@ -96,7 +96,9 @@ def _ttest_ms(n: int, repeats: int = 5) -> float:
     return statistics.median(times) * 1e3
 
 
-def main(repeats: int = 3, sizes=SIZES, warm_bytecode: bool = False) -> dict:
+def run(repeats: int = 3, sizes=SIZES, warm_bytecode: bool = False) -> dict:
+    """Time ``repeats`` whole report processes at each number of subjects in ``sizes`` and print each size's
+    figures against the targets; returns ``{n: {"wall_s", "cpu_s", "peak_mb", ...}}``."""
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         pycache = Path(tmp) / "pycache" if warm_bytecode else None
@@ -136,10 +138,18 @@ def main(repeats: int = 3, sizes=SIZES, warm_bytecode: bool = False) -> dict:
     return results
 
 
-if __name__ == "__main__":
-    cli = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv=None) -> dict:
+    """``python -m benchmarks analysis [SIZES ...] [--warm-bytecode] [--repeats N]`` (no options: every size)."""
+    cli = argparse.ArgumentParser(prog="python -m benchmarks analysis", description=__doc__.splitlines()[0])
     cli.add_argument("sizes", nargs="*", type=int, help=f"numbers of subjects (default: {' '.join(map(str, SIZES))})")
     cli.add_argument("--warm-bytecode", action="store_true",
                      help="compile the libraries' bytecode once first, as a normal install has it")
-    a = cli.parse_args()
-    main(sizes=tuple(a.sizes) or SIZES, warm_bytecode=a.warm_bytecode)
+    cli.add_argument("--repeats", type=int, default=3, help="whole report processes per size (default 3)")
+    a = cli.parse_args(argv if argv is not None else [])
+    if a.repeats < 1 or any(n < 1 for n in a.sizes):
+        cli.error("--repeats and every size must be >= 1")
+    return run(a.repeats, tuple(a.sizes) or SIZES, a.warm_bytecode)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -103,6 +103,24 @@ def test_benchmarks_help_lists_them():
         assert f"  {p.stem.removeprefix('bench_')} " in out.stdout
 
 
+def test_benchmarks_pass_what_follows_one_name_to_that_benchmark(capsys):
+    from benchmarks.__main__ import main as bench
+
+    with pytest.raises(SystemExit) as out:                 # its own parser, which takes sizes as arguments
+        bench(["analysis", "--help"])
+    assert out.value.code == 0 and "--warm-bytecode" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as out:                 # a positional argument reaches it too
+        bench(["analysis", "many"])
+    assert out.value.code == 2 and "invalid int value: 'many'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as out:
+        bench(["analysis", "10000", "--repeats", "0"])
+    assert out.value.code == 2 and "--repeats and every size must be >= 1" in capsys.readouterr().err
+    assert bench(["study", "--subjects", "3"]) == 2         # one whose main takes nothing: refused before it runs
+    assert "benchmark study takes no options or arguments, got --subjects 3" in capsys.readouterr().err
+    assert bench(["teleop", "nope"]) == 2 and "takes no options" in capsys.readouterr().err
+    assert bench(["nope"]) == 2 and "unknown benchmark(s) ['nope']" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("module, command, argv, flag", [
     ("renderer.cli_run_parser", "run", ["--velocities-m-s", "0.1,-2", "--out", "o"], "--velocities-m-s"),
     ("renderer.cli_run_parser", "run", ["--duration-s", "0", "--out", "o"], "--duration-s"),
