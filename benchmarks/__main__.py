@@ -3,15 +3,23 @@
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import os
 import pathlib
 import sys
 
 
+@functools.cache
+def _source(path: pathlib.Path) -> ast.Module:
+    """A benchmark module's syntax tree: what the runner needs of it is read without importing it (imports are
+    heavy)."""
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
 def _summary(path: pathlib.Path) -> str:
-    """First line of a benchmark module's docstring, read without importing it (imports are heavy)."""
-    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+    """First line of a benchmark module's docstring."""
+    doc = ast.get_docstring(_source(path)) or ""
     return doc.strip().splitlines()[0] if doc.strip() else ""
 
 
@@ -20,16 +28,16 @@ def here_file(name: str) -> pathlib.Path:
 
 
 def _by_default(path: pathlib.Path) -> bool:
-    """False for a benchmark whose module sets ``RUN_BY_DEFAULT = False`` (read without importing it)."""
-    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+    """False for a benchmark whose module sets ``RUN_BY_DEFAULT = False``."""
+    for node in _source(path).body:
         if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "RUN_BY_DEFAULT" for t in node.targets):
             return bool(ast.literal_eval(node.value))
     return True
 
 
 def _parameters(path: pathlib.Path) -> list[str]:
-    """The parameter names of a benchmark module's ``main`` (read without importing it)."""
-    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+    """The parameter names of a benchmark module's ``main``."""
+    for node in _source(path).body:
         if isinstance(node, ast.FunctionDef) and node.name == "main":
             return [a.arg for a in node.args.args + node.args.kwonlyargs]
     return []
