@@ -20,7 +20,7 @@ from devices.firmware.inverse3_emulator import start_inverse3_emulator
 from devices.firmware.woodenhaptics_emulator import WoodenHapticsHandle
 from devices.hardware.falcon.driver import FalconDevice
 from devices.hardware.haply.driver import Inverse3Device
-from devices.hardware.openhaptics.driver import TouchDevice
+from devices.hardware.openhaptics.driver import WATCHDOG_TICKS, TouchDevice
 from devices.hardware.woodenhaptics.driver import WoodenHapticsDevice
 from devices.registry import make_device
 
@@ -98,10 +98,26 @@ def _hold(rig, f, ticks=20):
             time.sleep(0.001)
 
 
+def _held(rig, f, tries=3) -> float:
+    """Hold ``f`` and return the force's magnitude (N) that reaches the motors.
+
+    The Touch's own watchdog rightly zeroes a force whose host has not commanded for 20 of the device's ticks: a
+    loaded machine that holds the test's thread that long between its last command and the reading (seen in CI)
+    is a stall, told by the device's tick count, and the hold is tried again; without one the force must be there.
+    """
+    for attempt in range(tries):
+        _hold(rig, f, ticks=19)
+        before = rig.device_ticks()
+        _hold(rig, f, ticks=1)
+        m = rig.magnitude()
+        stalled = rig.kind == "touch" and rig.device_ticks() - before >= WATCHDOG_TICKS - 1
+        if m > 0.01 or not stalled or attempt == tries - 1:
+            return m
+
+
 def test_a_nan_force_never_reaches_a_motor_and_an_oversized_one_is_clamped(rig):
     dev = rig.dev
-    _hold(rig, (0.0, 0.0, 0.5))
-    assert rig.magnitude() > 0.01
+    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01
     dev.read()
     dev.command_force(math.nan, 0.0, 1.0)
     assert rig.magnitude() == pytest.approx(0.0, abs=0.02) and dev.rejected_commands == 1
@@ -117,8 +133,7 @@ def test_a_nan_force_never_reaches_a_motor_and_an_oversized_one_is_clamped(rig):
 
 def test_the_host_watchdog_zeroes_the_device_when_the_host_stops(rig):
     dev = rig.dev
-    _hold(rig, (0.0, 0.0, 0.5))
-    assert rig.magnitude() > 0.01
+    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01
     dev.read()
     # the clocks read just before the last command, from which the watchdog's period runs (read after it, a
     # loaded machine's late wake-up from _hold's sleep came off the measured delay: 13.2 ms and 14 ticks seen)
@@ -137,13 +152,11 @@ def test_the_host_watchdog_zeroes_the_device_when_the_host_stops(rig):
     while not dev.read().status & Status.WATCHDOG_TRIPPED and time.monotonic() < deadline:
         time.sleep(0.002)
     assert dev.read().status & Status.WATCHDOG_TRIPPED
-    _hold(rig, (0.0, 0.0, 0.5), ticks=3)   # the host is back: its command goes through again
-    assert rig.magnitude() > 0.01
+    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01   # the host is back: its command goes through again
 
 
 def test_close_zeroes_the_output(rig):
-    _hold(rig, (0.0, 0.0, 0.5))
-    assert rig.magnitude() > 0.01
+    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01
     rig.close()
     assert rig.magnitude() == pytest.approx(0.0, abs=1e-3)
 

@@ -200,7 +200,12 @@ def test_the_renderers_run_records_and_prints_how_old_the_rearmed_velocity_was(o
     res = ServoLoop(dev, RendererConfig(stiffness_N_m=680.0), transient=_VelocityScaled()).run(duration_s=0.5)
     link = res.timing["link"]
     assert res.stop_reason == "duration" and link["rearms"] >= 3
-    assert 0 < link["rearm_age_median_s"] <= link["rearm_age_max_s"] < 0.1
+    # how old is the machine's load, not the renderer's (34 ms seen with three suites on 2 cores, 115 ms in CI):
+    # the run records link_stats()' own figures, whatever they are
+    assert 0 < link["rearm_age_median_s"] <= link["rearm_age_max_s"]
+    now = dev.link_stats()
+    assert (link["rearms"], link["rearm_age_median_s"], link["rearm_age_max_s"]) == (
+        now["rearms"], now["rearm_age_median_s"], now["rearm_age_max_s"])
     line = [ln for ln in format_table(res).splitlines() if ln.startswith("re-armed transient:")]
     assert line == [f"re-armed transient: {link['rearms']} uploads, velocity age at commit median/max "
                     f"{1000 * link['rearm_age_median_s']:.2f}/{1000 * link['rearm_age_max_s']:.2f} ms"]
