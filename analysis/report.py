@@ -20,6 +20,7 @@ from analysis.load import catalog_labels
 from analysis.pipeline import write_tables
 from analysis.stats import valid_testing_mask
 from analysis.traces import folders_with_traces, typical_taps
+from plumbing.textsafe import md_escape
 
 if TYPE_CHECKING:  # the heavy imports wait until a report is made, so --help stays fast
     import pandas as pd
@@ -58,15 +59,6 @@ FIGURES = {
 # emphasis, links, table cells or tags to report.md
 _NAME_OPEN, _NAME_CLOSE = "\x02", "\x03"
 _NAME_RE = re.compile("\x02([^\x02\x03]*)\x03")
-_MD_SPECIAL = re.compile(r"([\\`*\[\]<>|#!~])")
-
-
-def md_escape(text: str) -> str:
-    """``text`` as literal markdown: line breaks to spaces, backslash before every character markdown could
-    read as markup (emphasis, code, links, HTML, table cells, headings), ``_`` too except inside a word."""
-    text = " ".join(str(text).splitlines())
-    text = _MD_SPECIAL.sub(r"\\\1", text)
-    return re.sub(r"(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])", r"\\_", text)
 
 
 def _name(value) -> str:
@@ -519,8 +511,11 @@ def write_report(res: Analysis, out_dir, figures: bool = True, target_v_m_s: flo
         ([], ["Figures not requested."])
     lines, pairs = summary_text(res, notes)
     # Figure 4.17's ordering and section 4.5.4's saturations, as yes/no lines and ranking.json
-    checks = ranking.figure_4_17_checks(res.summary, res.study.trials)
-    lines += ranking.ranking_lines(ranking.figure_4_17_checks(res.summary, res.study.trials, _name), _name)
+    marked = ranking.figure_4_17_checks(res.summary, res.study.trials, _name)
+    lines += ranking.ranking_lines(marked, _name)
+    # ranking.json: the same checks, computed once, their texts with the names unmarked
+    checks = {k: {**v, "text": _names_plain(v["text"])} if isinstance(v, dict) and "text" in v else v
+              for k, v in marked.items()}
     (out / "ranking.json").write_text(json.dumps(checks, indent=1, default=str) + "\n", encoding="utf-8")
     sections = report_models.sections(res, out, draw=figures)
     cfg = res.config

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import io
+import json
 import re
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from analysis import ranking
 from analysis.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -69,6 +71,19 @@ def test_warnings_printed_and_in_report(report):
     assert "equivalent to wood_on_foam within ±0.5" in md
     assert "invalid testing attempts were left out (saturated" in md
     assert "![Figure 4.20" in md
+
+
+def test_ranking_json_holds_the_checks_the_summary_states(report, analysed):
+    """ranking.json: Figure 4.17's checks of the study as figure_4_17_checks computes them, plain names in their
+    texts; report.md states the ranking and each check, met or not, in the same words (this study's sample names
+    need no escaping)."""
+    out, _ = report
+    saved = json.loads((out / "ranking.json").read_text())
+    want = json.loads(json.dumps(ranking.figure_4_17_checks(analysed.summary, analysed.study.trials), default=str))
+    assert saved == want and not any(c in (out / "ranking.json").read_text() for c in "\x02\x03")
+    md = (out / "report.md").read_text()
+    lines = ranking.ranking_lines(saved)
+    assert len(lines) == 5 and all(line in md for line in lines), [ln for ln in lines if ln not in md]
 
 
 def test_html_is_self_contained(report):
