@@ -13,6 +13,9 @@ CPU and the CPU by test folder. Not run by ``make bench`` (a whole suite, ~5 min
 * ``--pytest-only``: skip the clone and ``make``: run ``make test``'s pytest command in this tree.
 * ``--workers N``: ``TEST_WORKERS`` (default: the Makefile's).
 * ``--log FILE``: keep the per-test CPU log (JSON lines) of the last run.
+* ``--write-costs``: write each work unit's wall time, the median over the runs, into
+  ``tests/support/unit_costs.json``: the order in which ``make test`` hands out its units, longest first
+  (tests/support/parallel.py).
 
 A failed run prints pytest's failure report (each failed test's traceback and message) under its line.
 """
@@ -31,6 +34,8 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
+
+from tests.support.parallel import UNIT_COSTS, unit_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -60,6 +65,32 @@ def per_test(log: Path) -> dict[str, dict[str, float]]:
         t["wall_s"] += row["wall_s"]
         t["cpu_s"] += row["self_s"] + row["children_s"]
     return dict(tests)
+
+
+def unit_walls(log: Path) -> dict[str, tuple[float, int]]:
+    """``{work unit: (wall s, tests)}`` of one run's CPU log: every phase's wall time, and the tests whose call
+    phase ran, summed over the unit's tests (:func:`tests.support.parallel.unit_of`)."""
+    units: dict[str, list] = defaultdict(lambda: [0.0, 0])
+    if not log.exists():
+        return {}
+    for line in log.read_text().splitlines():
+        row = json.loads(line)
+        if "wall_s" not in row:
+            continue
+        u = units[unit_of(row["nodeid"])]
+        u[0] += row["wall_s"]
+        u[1] += row["phase"] == "call"
+    return {k: (w, n) for k, (w, n) in units.items()}
+
+
+def cost_table(runs: list[dict[str, tuple[float, int]]]) -> dict:
+    """The table of ``tests/support/unit_costs.json`` from several runs' :func:`unit_walls`: each unit's median
+    wall time (s, over the runs that ran it) and the seconds per test over every unit."""
+    names = sorted({name for run in runs for name in run})
+    walls = {name: round(statistics.median(run[name][0] for run in runs if name in run), 1) for name in names}
+    tests = {name: statistics.median(run[name][1] for run in runs if name in run) for name in names}
+    per_test = sum(walls.values()) / max(1.0, sum(tests.values()))
+    return {"units": walls, "seconds_per_test": round(per_test, 3)}
 
 
 def timeline(log: Path, start_unix: float) -> str:
@@ -128,7 +159,8 @@ def run_once(pytest_only: bool, workers: str | None, log: Path) -> dict:
         start = next((i for i, ln in enumerate(lines) if "= FAILURES =" in ln), len(lines) - 3)
         tail = lines[start:] if proc.returncode else lines[-3:]
         return {"wall_s": wall, "cpu_s": cpu, "load_before": load_before, "load_after": _loadavg(),
-                "returncode": proc.returncode, "tail": tail, "timeline": timeline(log, start_unix)}
+                "returncode": proc.returncode, "tail": tail, "timeline": timeline(log, start_unix),
+                "units": unit_walls(log)}
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
@@ -139,6 +171,7 @@ def main(argv=None) -> int:
     p.add_argument("--pytest-only", action="store_true")
     p.add_argument("--workers", default=None)
     p.add_argument("--log", type=Path, default=None)
+    p.add_argument("--write-costs", action="store_true")
     args = p.parse_args([] if argv is None else argv)
     log = args.log or Path(tempfile.gettempdir()) / f"hfam-suite-cpu-{os.getpid()}.jsonl"
     results = []
@@ -158,6 +191,11 @@ def main(argv=None) -> int:
               f"{sum(r['returncode'] == 0 for r in results)} of {len(results)} green")
     for line in summary(per_test(log)):
         print(line)
+    runs = [r["units"] for r in results if r["units"]]
+    if args.write_costs and runs:
+        table = cost_table(runs)
+        UNIT_COSTS.write_text(json.dumps(table, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+        print(f"wrote {UNIT_COSTS.relative_to(ROOT)}: {len(table['units'])} work units from {len(runs)} run(s)")
     if args.log is None:
         log.unlink(missing_ok=True)
     return 0 if all(r["returncode"] == 0 for r in results) else 1

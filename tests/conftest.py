@@ -51,11 +51,6 @@ def pytest_configure(config):
 
 
 @pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items):
-    parallel.add_folder_groups(items)       # before xdist reads the groups (its hook runs after this one)
-
-
-@pytest.hookimpl(tryfirst=True)
 def pytest_runtestloop(session):
     if not session.config.pluginmanager.has_plugin("dsession"):   # not the xdist controller, which runs no test
         parallel.wait_for_jit_warmup(session.config)

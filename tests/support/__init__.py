@@ -6,8 +6,8 @@
 * a costly product several modules read (a demo, a pipeline, an identification): build it once per run for
   every worker with :func:`tests.support.shared.shared_folder` / ``shared_value`` (a file lock in the run's
   base temporary folder); within one module a module-scoped fixture is enough (a module runs on one worker);
-* a session-scoped fixture that must exist once for several modules: their tests in one ``xdist_group``
-  (``tests/support/parallel.py``, ``FOLDER_GROUPS`` for a whole folder);
+* a session-scoped fixture that must exist once for several modules: their folder in ``FOLDER_GROUPS``
+  (``tests/support/parallel.py``: one work unit, on one worker);
 * never a fixed port, path or user cache: ``--port 0``/``tmp_path``; timing is driven by events, not sleeps.
 
 ``HFAM_TEST_CPU_LOG=<file>`` logs each test's CPU time, child processes included (:mod:`tests.support.cpuprofile`);

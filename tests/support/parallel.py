@@ -7,14 +7,18 @@ Wired by ``tests/conftest.py``:
   browser), which leaves a core idle under one worker per core. On this project's 2-core machines with one core
   kept busy, a fresh clone's ``make test`` took 506 s with 4 workers, 564 s with 3 and 542 s with 6 (681 s with 2).
 
-* **Work units are modules**, not single tests (:class:`ModuleScheduling`): a module's tests run on one worker,
-  so a module-scoped fixture (a successive isolation, a report, a firmware build) is made once, and tests that
-  share files in a module never meet themselves on the other core. A test marked ``xdist_group(name)`` -- or
-  every test under a folder of :data:`FOLDER_GROUPS` -- joins the unit ``name`` instead: for session-scoped
-  fixtures shared by several modules (made once per unit) and for tests that must not run beside each other.
-* **Costly units first**: the work queue is ordered by :data:`COST_HINTS` (the units whose wall time is a large
-  part of a worker's share: run last, one of them would leave the other core idle), then by the number of
-  tests (xdist's own order).
+* **Work units are modules**, not single tests (:class:`ModuleScheduling`, :func:`unit_of`): a module's tests run
+  on one worker, so a module-scoped fixture (a successive isolation, a report, a firmware build) is made once, and
+  tests that share files in a module never meet themselves on the other core. Every test under a folder of
+  :data:`FOLDER_GROUPS` joins that folder's unit instead: for session-scoped fixtures shared by several modules
+  (made once per unit). The scheduler reads the folder from the test's id: pytest-xdist's own ``xdist_group``
+  mark is not used, as xdist 3.8 cannot add its group to a test's id under pytest 9 (which no longer reads the
+  id it writes), so the mark would silently group nothing.
+* **Longest units first** (:func:`cost_order`): the work queue is ordered by each unit's measured wall time,
+  :data:`UNIT_COSTS` (a unit not in it: its number of tests times the measured seconds per test). A worker takes
+  the next unit when it is free, so the run ends with short units on every worker, not one long unit on one
+  (scheduled by their number of tests, a few long modules of few tests ran last: one worker ended 20-25 s after
+  the others). ``python -m benchmarks suite --write-costs`` measures the table again.
 * **The numba cache is filled once** (:mod:`tests.support.jitwarm`): by ``make test`` beside its other set-up, or
   where pytest runs on its own (:func:`start_jit_warmup`) while the workers import and collect; then each worker
   waits for it before its first test (:func:`wait_for_jit_warmup`).
@@ -23,6 +27,7 @@ Wired by ``tests/conftest.py``:
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import subprocess
 import sys
@@ -31,21 +36,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 
-#: folder (relative to the repository, with a trailing slash) -> xdist group of every test below it: a
-#: session-scoped fixture that folder's modules share (made once per group)
+#: folder (relative to the repository, with a trailing slash) -> the work unit of every test below it: a
+#: session-scoped fixture that folder's modules share (made once per unit)
 FOLDER_GROUPS = {
-    "tests/renderer/teleop/": "teleop-cimm-model",    # conftest.py: cimm_file, one successive isolation
+    "tests/renderer/teleop/": "teleop-cimm-model",    # conftest.py: cimm_file, cimm_model
 }
 
-#: work units (module path or group name) that take long enough to schedule first, costliest first
-#: (measured wall time on 2 cores, ``python -m benchmarks suite``); the others follow in xdist's order
-COST_HINTS = (
-    "tests/integration/test_readme.py",
-    "teleop-cimm-model",
-    "tests/stimuli/hfam/test_scoring.py",
-    "tests/devices/identify/test_successive.py",
-    "tests/integration/test_serial_study.py",
-)
+#: the work units' measured wall times (``python -m benchmarks suite --write-costs``): ``{"units": {unit: s},
+#: "seconds_per_test": s}``
+UNIT_COSTS = Path(__file__).with_name("unit_costs.json")
 
 WARMUP_LOCK = "jitwarm.lock"
 
@@ -113,18 +112,6 @@ def run_base(config) -> Path:
     """The run's base temporary folder (each xdist worker's basetemp is a folder inside it)."""
     base = config._tmp_path_factory.getbasetemp()
     return base.parent if not controller_or_alone(config) else base
-
-
-def add_folder_groups(items) -> None:
-    """Mark every test under a folder of :data:`FOLDER_GROUPS` with its ``xdist_group``."""
-    import pytest
-
-    for item in items:
-        path = Path(str(item.path)).resolve()
-        rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else ""
-        for folder, group in FOLDER_GROUPS.items():
-            if rel.startswith(folder) and item.get_closest_marker("xdist_group") is None:
-                item.add_marker(pytest.mark.xdist_group(group))
 
 
 def start_jit_warmup(config) -> list[subprocess.Popen]:
@@ -196,10 +183,33 @@ def report_jit_warmup(procs, config) -> str | None:
     return None
 
 
-def cost_order(units: dict) -> list[str]:
-    """The work units (name -> tests), :data:`COST_HINTS` first, then the ones with more tests first."""
-    rank = {scope: i for i, scope in enumerate(COST_HINTS)}
-    return sorted(units, key=lambda scope: (rank.get(scope, len(rank)), -len(units[scope])))
+def unit_of(nodeid: str) -> str:
+    """The work unit of a test: its folder's unit (:data:`FOLDER_GROUPS`), else its module; a group xdist added
+    to the id (``<id>@<group>``, ``xdist_group`` under pytest < 9) is kept."""
+    if nodeid.rfind("@") > nodeid.rfind("]"):
+        return nodeid.rsplit("@", 1)[-1]
+    module = nodeid.split("::", 1)[0]
+    for folder, group in FOLDER_GROUPS.items():
+        if module.startswith(folder):
+            return group
+    return module
+
+
+def unit_costs(path: Path = UNIT_COSTS) -> tuple[dict[str, float], float]:
+    """The measured wall time of each work unit (s) and per test (s), from ``path``; ``({}, 1.0)`` without a
+    readable table (the units are then ordered by their number of tests)."""
+    try:
+        table = json.loads(path.read_text(encoding="utf-8"))
+        return ({str(k): float(v) for k, v in table["units"].items()}, float(table["seconds_per_test"]))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}, 1.0
+
+
+def cost_order(units: dict, costs: tuple[dict[str, float], float] | None = None) -> list[str]:
+    """The work units (name -> tests), longest first: by the measured wall time of :func:`unit_costs` (or
+    ``costs``), a unit not measured by its number of tests times the seconds per test; ties by name."""
+    walls, per_test = unit_costs() if costs is None else costs
+    return sorted(units, key=lambda unit: (-walls.get(unit, per_test * len(units[unit])), unit))
 
 
 def make_scheduler(config, log):
@@ -209,13 +219,10 @@ def make_scheduler(config, log):
     from xdist.scheduler import LoadScopeScheduling
 
     class ModuleScheduling(LoadScopeScheduling):
-        """xdist's ``loadscope`` with modules as units, ``xdist_group`` names as larger units and
-        :data:`COST_HINTS` first."""
+        """xdist's ``loadscope`` with the units of :func:`unit_of`, longest first (:func:`cost_order`)."""
 
         def _split_scope(self, nodeid: str) -> str:
-            if nodeid.rfind("@") > nodeid.rfind("]"):      # loadgroup's suffix: ``<nodeid>@<group>``
-                return nodeid.rsplit("@", 1)[-1]
-            return nodeid.split("::", 1)[0]
+            return unit_of(nodeid)
 
         def schedule(self) -> None:
             # xdist's LoadScopeScheduling.schedule with the units ordered by cost_order (xdist orders them by
