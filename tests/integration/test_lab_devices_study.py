@@ -141,9 +141,11 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
             monkeypatch.setenv("HFAM_OPENHAPTICS_LIB", lib)
             fake_hd_stats(lib, reset=True)
         code, err, folder, seen = _session(spec, kind, tmp_path / f"data{run}", proto, monkeypatch, capsys)
-        stalled = session_stalled(folder, lib)
-        if code != 0 and stalled and "device not responding" in err and run < 2:
-            continue   # the fake Touch library's scheduler thread stalled past the loss timeout (see the renderer's test)
+        stalled = session_stalled(folder, lib, err)
+        if code != 0 and stalled and ("device not responding" in err or "watchdog bound" in err) and run < 2:
+            # the fake Touch library's scheduler thread stalled past the loss timeout (see the renderer's test), or
+            # the machine held the servo loop past its watchdog bound (a 613 ms tick period seen in a loaded run)
+            continue
         assert code == 0, err
         with open(folder / "trials.csv") as fh:
             rows = list(csv.DictReader(fh))

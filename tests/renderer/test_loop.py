@@ -1,6 +1,7 @@
 """Servo loop behaviour on a small mass-spring test device (tests/renderer/fakes.py)."""
 
 import math
+import re
 import time
 
 import numpy as np
@@ -10,6 +11,7 @@ from renderer import ContactEvent, RendererConfig, RunResult, ServoLoop
 from renderer.loop import LOG_CHANNELS
 from renderer.scene import Plane, Scene
 from tests.renderer.fakes import MassDevice, tap_trajectory, make_info
+from tests.support.stalls import watchdog_stalled
 
 
 class BoxTransient:
@@ -288,6 +290,9 @@ def test_watchdog_zeroes_on_overrun_on_hardware():
                          info=make_info(simulated=False))
     res = ServoLoop(dev, RendererConfig(watchdog_overrun_s=0.5)).run(duration_s=1.0)
     assert res.stop_reason == "watchdog"
+    # its message names the period, as the suite's stall rule reads it (tests/support/stalls.py)
+    assert watchdog_stalled(res.error), res.error
+    assert not watchdog_stalled(re.sub(r"period \d+ us", "period 19000 us", res.error))   # a period under 20 ms
     # stalled reading device tick 300 (log tick 299); a loaded machine's own stall of over 0.5 s earlier would
     # trip the same watchdog sooner, which is as much a pass
     assert 0 < res.timing["ticks"] <= 299

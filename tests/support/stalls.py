@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import ctypes
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 
 #: a tick period, link gap or device-thread period longer than this (us) is a stall of the machine
 STALL_US = 20_000.0
+
+#: a servo loop's watchdog stop, as its error message names it (renderer.loop, renderer.loop3)
+_WATCHDOG_STOP = re.compile(r"tick \d+ period (\d+) us exceeds the watchdog bound")
 
 
 def fake_hd_stats(lib: str, reset: bool = False) -> list[float]:
@@ -47,9 +51,20 @@ def run_stalled(out: Path, lib: str | None = None) -> bool:
     return float(run.get("period_max_us") or 0.0) > STALL_US or gap_s * 1e6 > STALL_US or fake_hd_stalled(lib)
 
 
-def session_stalled(folder: Path, lib: str | None = None) -> bool:
+def watchdog_stalled(message: str) -> bool:
+    """``message`` (a command's error output) names a servo loop's watchdog stop after a tick period longer than
+    :data:`STALL_US`: the machine held the loop off the CPU, and the watchdog (tested apart) rightly stopped it."""
+    m = _WATCHDOG_STOP.search(message)
+    return m is not None and float(m.group(1)) > STALL_US
+
+
+def session_stalled(folder: Path, lib: str | None = None, message: str = "") -> bool:
     """A study session folder's tapping windows show a stall: a trace whose longest tick period exceeds
-    :data:`STALL_US`, or, on the Touch, the fake HD library's scheduler thread (:func:`fake_hd_stalled`)."""
+    :data:`STALL_US`, or, on the Touch, the fake HD library's scheduler thread (:func:`fake_hd_stalled`); or the
+    session's error ``message`` names a watchdog stop of such a period (:func:`watchdog_stalled`: the window it
+    stopped is not recorded)."""
+    if watchdog_stalled(message):
+        return True
     for f in sorted((folder / "traces").glob("*.npz")):
         with np.load(f) as z:
             if "timing_period_max_us" in z and float(z["timing_period_max_us"]) > STALL_US:
