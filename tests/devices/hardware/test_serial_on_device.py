@@ -199,7 +199,9 @@ def test_the_renderers_run_records_and_prints_how_old_the_rearmed_velocity_was(o
     dev, handle = on_device
     res = ServoLoop(dev, RendererConfig(stiffness_N_m=680.0), transient=_VelocityScaled()).run(duration_s=0.5)
     link = res.timing["link"]
-    assert res.stop_reason == "duration" and link["rearms"] >= 3
+    # re-armed every 20 ms of board time, each upload a few acknowledged frames: 3 or more in an idle 0.5 s run,
+    # 2 seen with two suites on 2 cores (how often is tested apart: test_rearms_follow_the_device_clock_...)
+    assert res.stop_reason == "duration" and link["rearms"] >= 1
     # how old is the machine's load, not the renderer's (34 ms seen with three suites on 2 cores, 115 ms in CI):
     # the run records link_stats()' own figures, whatever they are
     assert 0 < link["rearm_age_median_s"] <= link["rearm_age_max_s"]
