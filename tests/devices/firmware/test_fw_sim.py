@@ -93,7 +93,7 @@ def test_on_device_wall_and_transient_match_the_python_firmware_logic(kind):
 
     transient = Pulse(amplitude_Ns_m=6.0, duration_s=0.004) if kind == "pulse" else \
         DecayingSinusoid(amplitude_Ns_m=15.0, duration_s=0.02, frequency_hz=250.0)
-    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&taps=0.05,0.15&tick_log=1")
+    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=1.0&taps=0.05,0.15&tick_log=1")
     with dev:
         dev.configure_rendering(WALL, LIMITS, transient)
         fw = _python_mirror(dev, transient)
@@ -202,7 +202,7 @@ def test_sampled_transient_uploaded_through_the_driver_renders_like_the_mirror(k
     with "no acknowledgement of REARM_DATA"."""
     from stimuli.library import HfamLibrary
 
-    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&taps=0.05,0.15&tick_log=1"
+    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=1.0&taps=0.05,0.15&tick_log=1"
                       "&rearm_interval_s=1e9")
     with dev:
         fpa = dev.info.force_per_amp_N_A
@@ -249,7 +249,7 @@ def test_host_rearms_while_rendering_reach_the_real_firmware():
         def check_device(self, info, fs):
             pass
 
-    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&taps=0.05,0.15")
+    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=1.0&taps=0.05,0.15")
     with dev:
         dev.configure_rendering(WALL, LIMITS, Scaled())
         events = []
@@ -408,7 +408,7 @@ def _observer_run(k_N_m, device_options, duration_s, **cfg):
     from renderer.config import RendererConfig
     from renderer.loop import ServoLoop
 
-    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=0.2&tick_log=1&" + device_options)
+    dev = make_device("fw-sim?mode=on-device&pace=fast&timeout_s=1.0&tick_log=1&" + device_options)
     tx = []
     with dev:
         real_tx = dev._tx
