@@ -142,9 +142,12 @@ def test_a_study_session_runs_unchanged_on_the_emulated_device(spec, kind, tmp_p
             fake_hd_stats(lib, reset=True)
         code, err, folder, seen = _session(spec, kind, tmp_path / f"data{run}", proto, monkeypatch, capsys)
         stalled = session_stalled(folder, lib, err)
-        if code != 0 and stalled and ("device not responding" in err or "watchdog bound" in err) and run < 2:
+        stops = ("device not responding", "watchdog bound", "stopped (unstable)")
+        if code != 0 and stalled and any(s in err for s in stops) and run < 2:
             # the fake Touch library's scheduler thread stalled past the loss timeout (see the renderer's test), or
-            # the machine held the servo loop past its watchdog bound (a 613 ms tick period seen in a loaded run)
+            # the machine held the servo loop past its watchdog bound (a 613 ms tick period seen in a loaded run),
+            # or held it while the device kept the last force and the hand pressed on: the passivity observer
+            # rightly stopped the wall (as in the renderer's test)
             continue
         assert code == 0, err
         with open(folder / "trials.csv") as fh:
