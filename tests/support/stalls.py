@@ -19,6 +19,13 @@ import numpy as np
 #: a tick period, link gap or device-thread period longer than this (us) is a stall of the machine
 STALL_US = 20_000.0
 
+#: the fake HD library's scheduler thread runs every 1 ms (the Touch's servo rate): a period longer than this (us),
+#: five of its ticks missed, is a stall of the machine. Its device holds the last force through it while the emulated
+#: hand presses on, so a stall shorter than :data:`STALL_US` already feeds the wall energy (a Touch session stopped as
+#: unstable with every period under 20 ms; its longest period in a session was 3-5 ms on a quiet machine, 4-11 ms
+#: with one core busy)
+FAKE_HD_STALL_US = 5_000.0
+
 #: a servo loop's watchdog stop, as its error message names it (renderer.loop, renderer.loop3)
 _WATCHDOG_STOP = re.compile(r"tick \d+ period (\d+) us exceeds the watchdog bound")
 
@@ -36,8 +43,8 @@ def fake_hd_stats(lib: str, reset: bool = False) -> list[float]:
 
 
 def fake_hd_stalled(lib: str | None) -> bool:
-    """The fake HD library's scheduler thread went longer than :data:`STALL_US` between two ticks."""
-    return lib is not None and fake_hd_stats(lib)[1] * 1e-3 > STALL_US
+    """The fake HD library's scheduler thread went longer than :data:`FAKE_HD_STALL_US` between two ticks."""
+    return lib is not None and fake_hd_stats(lib)[1] * 1e-3 > FAKE_HD_STALL_US
 
 
 def run_stalled(out: Path, lib: str | None = None) -> bool:
