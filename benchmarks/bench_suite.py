@@ -52,15 +52,19 @@ def _loadavg() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def phases(log: Path) -> list[dict]:
+    """The test phases of a CPU log (:mod:`tests.support.cpuprofile`: one JSON line per phase, with its ``nodeid``,
+    ``worker``, ``phase``, ``wall_s``, ``self_s``, ``children_s`` and ``end_unix_s``); a failure's own lines left
+    out; none when there is no log."""
+    if not log.exists():
+        return []
+    return [row for row in map(json.loads, log.read_text().splitlines()) if "wall_s" in row]
+
+
 def per_test(log: Path) -> dict[str, dict[str, float]]:
     """``{nodeid: {"wall_s", "cpu_s"}}`` summed over a test's phases from a CPU log."""
     tests: dict[str, dict[str, float]] = defaultdict(lambda: {"wall_s": 0.0, "cpu_s": 0.0})
-    if not log.exists():
-        return {}
-    for line in log.read_text().splitlines():
-        row = json.loads(line)
-        if "wall_s" not in row:
-            continue                     # a failure's line
+    for row in phases(log):
         t = tests[row["nodeid"]]
         t["wall_s"] += row["wall_s"]
         t["cpu_s"] += row["self_s"] + row["children_s"]
@@ -71,12 +75,7 @@ def unit_walls(log: Path) -> dict[str, tuple[float, int]]:
     """``{work unit: (wall s, tests)}`` of one run's CPU log: every phase's wall time, and the tests whose call
     phase ran, summed over the unit's tests (:func:`tests.support.parallel.unit_of`)."""
     units: dict[str, list] = defaultdict(lambda: [0.0, 0])
-    if not log.exists():
-        return {}
-    for line in log.read_text().splitlines():
-        row = json.loads(line)
-        if "wall_s" not in row:
-            continue
+    for row in phases(log):
         u = units[unit_of(row["nodeid"])]
         u[0] += row["wall_s"]
         u[1] += row["phase"] == "call"
@@ -95,13 +94,8 @@ def cost_table(runs: list[dict[str, tuple[float, int]]]) -> dict:
 
 def timeline(log: Path, start_unix: float) -> str:
     """When, in s after ``make`` began, the first test began and each worker's last test phase ended."""
-    if not log.exists():
-        return ""
     first, last = float("inf"), {}
-    for line in log.read_text().splitlines():
-        row = json.loads(line)
-        if "end_unix_s" not in row:
-            continue
+    for row in phases(log):
         first = min(first, row["end_unix_s"] - row["wall_s"] - start_unix)
         last[row["worker"]] = max(last.get(row["worker"], 0.0), row["end_unix_s"] - start_unix)
     if not last:
