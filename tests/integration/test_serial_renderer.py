@@ -54,8 +54,9 @@ def test_renderer_run_over_the_emulated_serial_port(mode, tmp_path, capsys):
 
 def test_renderer_run_keeps_its_data_when_the_device_disconnects(tmp_path, capsys):
     for attempt in range(3):
-        # the emulator disconnects 1.6 s after it starts: a loaded machine once took 1 s of that to open the
-        # device and start the run (0.63 s of run before the disconnect, before the first tap); then again
+        # the emulator disconnects 1.6 s after the host's first frame (its hello): a loaded machine once took 1 s of
+        # that between opening the device and starting the run (0.63 s of run before the disconnect, before the
+        # first tap); then again
         port, handle = start_emulator("on-device", process=True, faults="disconnect_after_s=1.6")
         try:
             out = tmp_path / f"run{attempt}"

@@ -113,8 +113,7 @@ def _fault_session(faults, tmp_path, protocol_text, loss_timeout_s=0.02):
     proto = tmp_path / "protocol.toml"
     proto.write_text(protocol_text)
     cmd = [sys.executable, "-m", "study", "run", "--device", f"serial:{port}?loss_timeout_s={loss_timeout_s}",
-           "--participant",
-           "keyboard", "--subject", "HW2", "--age", "30", "--gender", "female", "--handedness", "right",
+           "--participant", "keyboard", "--subject", "HW2", "--age", "30", "--gender", "female", "--handedness", "right",
            "--experience", "few", "--audio", "off", "--token", "tok", "--samples", "pulse_firm", "--repetitions", "1",
            "--protocol", str(proto), "--seed", "1", "--out", str(tmp_path / "data"), "--quiet"]
     try:
