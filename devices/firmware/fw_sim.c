@@ -512,7 +512,12 @@ static void out_push(const uint8_t *b, unsigned n) {
  * than a CURRENT). A streaming host answers each STATE with its next CURRENT, so consecutive CURRENTs
  * reach the MCU exactly P apart in MCU time, however slowly simavr runs or the host answers. The MCU
  * does not stop at the horizon while it owes the released frame its reply (or is sending a frame):
- * such a reply is late (counted) and the next period starts when it is out. While the firmware renders
+ * such a reply is late (counted) and the next period starts when it is out. Only the reply that answers
+ * the released frame pays (ACK/NAK naming its type and sequence number, STATE its CURRENT's, INFO a HELLO,
+ * PONG a PING): the reply to an earlier frame may still be on the line (a host that sent its HELLO twice
+ * while the harness started: the second INFO takes 1.2 ms of the UART, longer than a period), and taking it
+ * for the released frame's would stop the MCU with that frame's reply unsent in the firmware's TX ring,
+ * each side then waiting for the other. While the firmware renders
  * on board (RENDER_START .. RENDER_STOP) the harness runs as --pace fast (telemetry back-pressure).
  * A host that sends nothing leaves the MCU waiting at the horizon (simulated time stands still, as
  * for a host paused by the scheduler: the servo loop's host was silent 10+ s after its first tick on a
@@ -531,6 +536,7 @@ static unsigned ls_fhead, ls_ftail;
 #define LS_BOOT_CYCLES (F_CPU_HZ / 100)
 static avr_cycle_count_t ls_horizon = LS_BOOT_CYCLES, ls_released_at;
 static int ls_owed, ls_render, ls_free;
+static uint8_t ls_owed_type, ls_owed_seq; /* the released frame the MCU owes a reply */
 static uint64_t ls_frames, ls_currents, ls_waits, ls_timeouts, ls_late, ls_dropped;
 static double ls_wait_wall_s;
 static avr_cycle_count_t ls_late_max;
@@ -565,6 +571,8 @@ static int ls_release(void) {
     ls_horizon = start + ls_period() + extra;
     ls_released_at = avr->cycle;
     ls_owed = type != MSG_KEEPALIVE; /* every other frame is answered (STATE, ACK, NAK, PONG or INFO) */
+    ls_owed_type = type;
+    ls_owed_seq = f[4];
     ls_free = 0;
     ls_frames++;
     if (type == MSG_CURRENT) ls_currents++;
@@ -572,7 +580,20 @@ static int ls_release(void) {
     return 1;
 }
 
-/* a complete frame from the MCU: INFO advertises lockstep; a reply pays what the released frame owed */
+/* whether a complete frame from the MCU answers the released frame (see the lockstep note above) */
+static int ls_answers_owed(const uint8_t *frame) {
+    uint8_t n = frame[2];
+    const uint8_t *p = frame + 5;
+    switch (frame[3]) {
+    case MSG_ACK: case MSG_NAK: return n >= 2 && p[0] == ls_owed_type && p[1] == ls_owed_seq;
+    case MSG_STATE: return ls_owed_type == MSG_CURRENT && n >= 14 && p[13] == ls_owed_seq; /* p[13]: cmd_seq */
+    case MSG_INFO: return ls_owed_type == MSG_HELLO;
+    case MSG_PONG: return ls_owed_type == MSG_PING;
+    default: return 0;
+    }
+}
+
+/* a complete frame from the MCU: INFO advertises lockstep; the reply to the released frame pays what it owed */
 static void ls_device_frame(uint8_t *frame, unsigned n) {
     uint8_t type = frame[3];
     if (type == MSG_INFO && frame[2] >= 87) {
@@ -584,8 +605,8 @@ static void ls_device_frame(uint8_t *frame, unsigned n) {
         hfam_encode(frame, type, frame[4], payload, frame[2]);
     }
     (void)n;
-    if (type == MSG_STATE || type == MSG_ACK || type == MSG_NAK || type == MSG_PONG || type == MSG_INFO) {
-        if (ls_owed && avr->cycle > ls_horizon) {
+    if (ls_owed && ls_answers_owed(frame)) {
+        if (avr->cycle > ls_horizon) {
             ls_late++;
             if (avr->cycle - ls_horizon > ls_late_max) ls_late_max = avr->cycle - ls_horizon;
         }

@@ -62,6 +62,34 @@ def test_handshake_info_and_streaming_against_the_real_firmware():
     assert dev.handle is None  # the simulated MCU was stopped on close
 
 
+def test_a_hello_sent_again_while_the_harness_starts_does_not_stall_the_handshake():
+    """A host whose first INFO came after its 0.2 s resend (a loaded machine starting the harness) has two
+    HELLOs queued. The second INFO (1.2 ms of the UART) was still on the line when the configuration that
+    follows the handshake arrived, and the harness took it for that frame's reply: the MCU waited with the
+    ACK of SET_MODE unsent, the host waited for it (10 s, then "device not responding"). The harness now pays
+    a released frame's debt only with the reply that answers it."""
+    dev = make_device("fw-sim?taps=&lockstep_timeout_s=3")
+    send = dev._tx
+
+    def twice_before_info(msg_type, payload=b""):
+        if msg_type == P.HELLO and dev._info_payload is None:
+            send(msg_type, payload)     # as the handshake's resend would, before any INFO came back
+        return send(msg_type, payload)
+
+    dev._tx = twice_before_info
+    with dev:
+        assert dev.wire_info.info.lockstep_ticks == 4
+        dev.read()
+        for _ in range(20):
+            dev.command(0.2)
+            s = dev.read()
+        assert s.extra["current_A"] == pytest.approx(0.2, abs=1e-3)
+        assert dev.link_stats()["timeouts"] == dev.link_stats()["seq_gaps"] == 0
+        harness = dev.handle
+    stats = harness.final_stats["lockstep"]   # written as the harness stopped (the running one's lags by 50 ms)
+    assert stats["frames"] >= 23 and stats["frames_dropped"] == 0   # 2 HELLOs, SET_MODE, CLEAR_FAULTS, 20+ CURRENTs
+
+
 def _mirror_renderer(dev):
     """The Python firmware logic set up as the tests set up the real firmware (wall, limits, calibration)."""
     info = dev.info
