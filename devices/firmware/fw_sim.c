@@ -515,7 +515,7 @@ static void out_push(const uint8_t *b, unsigned n) {
  * such a reply is late (counted) and the next period starts when it is out. Only the reply that answers
  * the released frame pays (ACK/NAK naming its type and sequence number, STATE its CURRENT's, INFO a HELLO,
  * PONG a PING): the reply to an earlier frame may still be on the line (a host that sent its HELLO twice
- * while the harness started: the second INFO takes 1.2 ms of the UART, longer than a period), and taking it
+ * while the harness started: the second INFO takes 1.15 ms of the UART, longer than a period), and taking it
  * for the released frame's would stop the MCU with that frame's reply unsent in the firmware's TX ring,
  * each side then waiting for the other. While the firmware renders
  * on board (RENDER_START .. RENDER_STOP) the harness runs as --pace fast (telemetry back-pressure).

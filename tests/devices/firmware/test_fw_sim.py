@@ -64,7 +64,7 @@ def test_handshake_info_and_streaming_against_the_real_firmware():
 
 def test_a_hello_sent_again_while_the_harness_starts_does_not_stall_the_handshake():
     """A host whose first INFO came after its 0.2 s resend (a loaded machine starting the harness) has two
-    HELLOs queued. The second INFO (1.2 ms of the UART) was still on the line when the configuration that
+    HELLOs queued. The second INFO (1.15 ms of the UART) was still on the line when the configuration that
     follows the handshake arrived, and the harness took it for that frame's reply: the MCU waited with the
     ACK of SET_MODE unsent, the host waited for it (10 s, then "device not responding"). The harness now pays
     a released frame's debt only with the reply that answers it."""
