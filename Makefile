@@ -27,15 +27,18 @@ PYTHON_OK = @test -n "$(PYTHON)" && $(PYTHON) -c "import sys; sys.exit(sys.versi
 $(STAMP): pyproject.toml
 	$(PYTHON_OK)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	@# pip >= 22 does all we need (PEP 660 editable installs): skip the self-upgrade (a download and a reinstall) when it is that new
-	$(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 0))" \
-	    || $(PY) -m pip install --quiet --upgrade pip
-	@# wheels only (no surprise source builds); pip's own byte-compiling is serial (about half of its CPU
-	@# time here), so it is skipped and compileall does it on every core instead (~6 s on 2 cores, then
-	@# ~6 s more for $(COMPILED)). It cannot be left to first use: where PYTHONDONTWRITEBYTECODE is set
-	@# (as on this project's CI machines) nothing is ever written, and every process would recompile
-	@# scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker, per study report)
-	$(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'
+	@# wheels only (no surprise source builds), installed by uv (from PyPI: the same releases pip picks, in ~6 s
+	@# against pip's ~34 s of CPU on a 2-core machine, which unpacks and resolves in one Python process); where
+	@# uv cannot be had or cannot reach the index (a lab's own pip mirror, no network), pip installs instead.
+	@# Neither byte-compiles (pip's own compiling is serial): compileall does it on every core instead (~6 s
+	@# on 2 cores, then ~6 s more for $(COMPILED)). It cannot be left to first use: where
+	@# PYTHONDONTWRITEBYTECODE is set (as on this project's CI machines) nothing is ever written, and every
+	@# process would recompile scipy, pandas and matplotlib (~3 s per `devices identify`, per demo worker)
+	{ $(PY) -m pip install --quiet uv && $(VENV)/bin/uv pip install --quiet --python $(PY) --only-binary=:all: -e '.[test]'; } \
+	    || { echo "note: uv could not install the packages; pip installs them (slower)"; \
+	         $(PY) -c "import pip, sys; sys.exit(tuple(map(int, pip.__version__.split('.')[:2])) < (22, 0))" \
+	             || $(PY) -m pip install --quiet --upgrade pip; \
+	         $(PY) -m pip install --quiet --only-binary=:all: --no-compile -e '.[test]'; }
 	$(PY) -m compileall -q -j 0 -x '$(LATER)|$(THEIRTESTS)' $$($(PY) -c "import sysconfig; print(sysconfig.get_path('purelib'))") \
 	    plumbing psychophysics analysis devices renderer stimuli study benchmarks figstyle > /dev/null
 	touch $(STAMP)
