@@ -19,8 +19,11 @@ its frame conversion (``_to_native_force``, ``_from_native``). This class adds, 
 * **the host watchdog**: a thread switches the motors off when no ``command_force`` came for ``watchdog_ms``
   (20 ms: the contract's command timeout, for devices whose own timeout is unknown or longer) and keeps
   them off (a transaction every ``watchdog_ms``) until the host commands again; the next state carries
-  ``Status.WATCHDOG_TRIPPED``. A fault (lost link, a device fault) switches them off too. ``zero()`` and
-  ``close()`` command zero *force* (a device whose driver compensates gravity keeps holding its linkage).
+  ``Status.WATCHDOG_TRIPPED``. Before the host's first command since opening it keeps them off the same way
+  without a trip (no flag, no count in ``link_stats()``): a device opened and not yet driven (a session
+  setting up its views before it homes) has no command to stop, and its link is no less healthy. A fault
+  (lost link, a device fault) switches them off too. ``zero()`` and ``close()`` command zero *force* (a
+  device whose driver compensates gravity keeps holding its linkage).
 * **the link's figures** for ``run.json``: ``link_stats()`` (transactions, losses, garbage bytes, watchdog
   trips, command-to-state round trip median/p99/max, longest gap between replies) and
   ``restart_link_timing()``, the same names as the serial board's driver.
@@ -106,6 +109,7 @@ class ThreeAxisDevice(Device):
         self.last_error = ""
         self._t0 = time.monotonic()
         self._last_cmd = time.monotonic()
+        self._commanded = False     # a command_force since opening: before it, the watchdog's zeroing is no trip
         self._tripped = False
         self._trip_report = False
         #: the device advances one servo period per transaction, its clock waiting for the host (the built-in
@@ -154,6 +158,7 @@ class ThreeAxisDevice(Device):
         self._t0 = time.monotonic()
         self._open_link()
         self._last_cmd = time.monotonic()
+        self._commanded = False
         if self.watchdog_s > 0:
             self._wd_stop.clear()
             self._wd_thread = threading.Thread(target=self._watchdog_loop, name=f"{self.name}-watchdog",
@@ -205,6 +210,7 @@ class ThreeAxisDevice(Device):
 
     def _send_force(self, fx_N: float, fy_N: float, fz_N: float) -> None:
         self._last_cmd = time.monotonic()
+        self._commanded = True
         if self._tripped:
             self._tripped = False
             self._trip_report = True
@@ -296,7 +302,7 @@ class ThreeAxisDevice(Device):
             with self._lock:
                 if time.monotonic() - self._last_cmd < period or self._disconnected:
                     continue
-                if not self._tripped:
+                if not self._tripped and self._commanded:
                     self._tripped = True
                     self.stats["watchdog_trips"] += 1
                 self.stats["watchdog_zeros"] += 1

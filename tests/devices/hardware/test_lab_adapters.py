@@ -155,6 +155,22 @@ def test_the_host_watchdog_zeroes_the_device_when_the_host_stops(rig):
     assert _held(rig, (0.0, 0.0, 0.5)) > 0.01   # the host is back: its command goes through again
 
 
+def test_an_opened_device_not_yet_commanded_is_kept_at_zero_without_a_trip(rig):
+    """Opened and not yet commanded (a session sets up its views before it homes), the device is kept at zero by
+    the host watchdog without a trip: no flag in its state, none counted in its link's figures, so the operator
+    page's link line stays "ok"; the first command after it goes through."""
+    dev = rig.dev
+    dev.read()
+    deadline = time.monotonic() + 5.0
+    while dev.link_stats()["watchdog_zeros"] < 2 and time.monotonic() < deadline:   # two of its periods, idle
+        time.sleep(0.002)
+    stats = dev.link_stats()
+    assert stats["watchdog_zeros"] >= 2 and stats["watchdog_trips"] == 0, stats
+    assert not dev.read().status & Status.WATCHDOG_TRIPPED
+    assert rig.magnitude() <= 1e-3
+    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01 and not dev.read().status & Status.WATCHDOG_TRIPPED
+
+
 def test_close_zeroes_the_output(rig):
     assert _held(rig, (0.0, 0.0, 0.5)) > 0.01
     rig.close()
