@@ -5,11 +5,11 @@ Each run is the real command in a fresh interpreter (imports, JIT and figures
 included), timed from outside:
 
 * fresh: empty demo cache *and* empty numba and matplotlib caches (what a
-  first ``make demo`` on a new machine pays, minus the pip install);
+  first ``make demo`` on a new machine pays, minus the packages' install);
 * cold: empty demo cache (identification, recordings and library rebuilt),
   JIT and font caches warm;
 * cached: the demo cache from the previous run reused;
-* fresh clone (only with ``HFAM_BENCH_FRESH_CLONE=1``: it needs pip's index or cache): ``git clone``
+* fresh clone (only with ``HFAM_BENCH_FRESH_CLONE=1``: it needs a package index, uv's or pip's): ``git clone``
   of this repository into a temporary folder and ``make demo`` there, the virtual environment
   included -- what a new user's first command costs.
 
