@@ -168,7 +168,7 @@ def test_an_opened_device_not_yet_commanded_is_kept_at_zero_without_a_trip(rig):
     assert stats["watchdog_zeros"] >= 2 and stats["watchdog_trips"] == 0, stats
     assert not dev.read().status & Status.WATCHDOG_TRIPPED
     assert rig.magnitude() <= 1e-3
-    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01 and not dev.read().status & Status.WATCHDOG_TRIPPED
+    assert _held(rig, (0.0, 0.0, 0.5)) > 0.01   # (a flag now would be a loaded machine's pause after it: a trip)
 
 
 def test_close_zeroes_the_output(rig):
