@@ -18,7 +18,8 @@ def _run(spec, out, tmp_path, capsys, duration_s, overrun_s="0.2"):
     cfg.write_text(f"watchdog_overrun_s = {overrun_s}\n")
     code = renderer_main(["run", "--in-process", "--device", spec, "--duration", str(duration_s), "--transient",
                           "pulse", "--config", str(cfg), "--out", str(out)])
-    return code, capsys.readouterr().out
+    printed = capsys.readouterr()
+    return code, printed.out + printed.err   # the error line too: a failed run's assertion shows why it stopped
 
 
 def test_one_drop_in_200_and_one_corruption_in_500_complete_10_s_at_1_khz(tmp_path, capsys):

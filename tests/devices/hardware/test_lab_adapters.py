@@ -157,8 +157,8 @@ def test_the_host_watchdog_zeroes_the_device_when_the_host_stops(rig):
 
 def test_an_opened_device_not_yet_commanded_is_kept_at_zero_without_a_trip(rig):
     """Opened and not yet commanded (a session sets up its views before it homes), the device is kept at zero by
-    the host watchdog without a trip: no flag in its state, none counted in its link's figures, so the operator
-    page's link line stays "ok"; the first command after it goes through."""
+    the host watchdog without a trip: none counted in its link's figures, so the operator page's link line stays
+    "ok", and no flag in its state (but the Touch's own watchdog's); the first command after it goes through."""
     dev = rig.dev
     dev.read()
     deadline = time.monotonic() + 5.0
@@ -166,7 +166,10 @@ def test_an_opened_device_not_yet_commanded_is_kept_at_zero_without_a_trip(rig):
         time.sleep(0.002)
     stats = dev.link_stats()
     assert stats["watchdog_zeros"] >= 2 and stats["watchdog_trips"] == 0, stats
-    assert not dev.read().status & Status.WATCHDOG_TRIPPED
+    # the Touch's state also carries its own watchdog's flag (20 of its servo ticks without a new command, which
+    # the host's zeros, one per 20 ms, race): seen set on a quiet machine
+    if rig.kind != "touch":
+        assert not dev.read().status & Status.WATCHDOG_TRIPPED
     assert rig.magnitude() <= 1e-3
     assert _held(rig, (0.0, 0.0, 0.5)) > 0.01   # (a flag now would be a loaded machine's pause after it: a trip)
 
