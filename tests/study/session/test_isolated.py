@@ -46,10 +46,11 @@ PARENT = textwrap.dedent("""
     if __name__ == "__main__":
         from study.session.config import ProtocolConfig
         from study.session.isolated import IsolatedApparatus
-        # the servo's watchdog widened (as the serial study tests do): without SCHED_FIFO a loaded machine
-        # stalls the child for tens of ms, which stopped the homing before it held (an ordinary user, load 3)
+        # the servo's watchdog widened to the lab-device study tests' 0.5 s: without SCHED_FIFO a loaded machine
+        # stalls the child for tens of ms, which stopped the homing before it held (an ordinary user, load 3;
+        # at 0.25 s, once more with one core busy and four test workers)
         app = IsolatedApparatus(f"serial:{sys.argv[1]}", {"loss_timeout_s": 0.05}, [],
-                                ProtocolConfig(servo_watchdog_s=0.25))
+                                ProtocolConfig(servo_watchdog_s=0.5))
         with open(sys.argv[2], "w") as fh:
             fh.write(str(app._proc.pid))
         app.hold(lambda: False)  # the subject never rates: the child holds home until killed
